@@ -1,0 +1,5 @@
+import sys
+
+from evo_door.cli import main
+
+sys.exit(main())

@@ -1,0 +1,63 @@
+"""The ``evo-door`` command line: a thin argparse layer over the library.
+
+Each sub-command lives in its own module of :mod:`evo_door.commands`, which defines
+``register(subparsers)``; the parser it adds sets ``func(args) -> int | None``.
+Modules are discovered, so adding a command never means editing this file.
+
+User errors (:class:`~evo_door.errors.UserError`, missing files) print one line
+``evo-door: error: ...`` and exit with status 2; anything else is a bug and keeps
+its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from evo_door import __version__
+from evo_door.errors import UserError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="evo-door",
+        description="Re-engineer how a product feels: model the mechanism, estimate its "
+                    "parameters with a genetic algorithm, fit and render a haptic model, "
+                    "and translate the chosen feel back into specifications.",
+    )
+    parser.add_argument("--version", action="version", version=f"evo-door {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    import evo_door.commands as commands
+
+    modules = [importlib.import_module(f"{commands.__name__}.{info.name}")
+               for info in pkgutil.iter_modules(commands.__path__)
+               if not info.name.startswith("_")]
+    for module in sorted(modules, key=lambda m: (getattr(m, "ORDER", 50), m.__name__)):
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0 if args.command is None else 2
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"evo-door: error: {exc}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+        name = getattr(exc, "filename", None) or ""
+        print(f"evo-door: error: {name}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("evo-door: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,21 @@
+"""Argument conventions shared by the sub-commands."""
+
+from __future__ import annotations
+
+from evo_door.models import get_model
+from evo_door.params import parse_assignments
+
+
+def add_params_arguments(parser) -> None:
+    """``--params P.yaml|PRESET`` and repeatable ``--set NAME=VALUE``."""
+    parser.add_argument("--params", metavar="P.yaml",
+                        help="parameter file or preset name (default: declared defaults)")
+    parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                        dest="assignments", help="override one parameter (SI units); repeatable")
+
+
+def model_and_params(args):
+    """The model named by ``args.model`` and its checked parameter set."""
+    model = get_model(args.model)
+    params = model.load_params(args.params, parse_assignments(args.assignments))
+    return model, params

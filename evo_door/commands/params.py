@@ -1,0 +1,49 @@
+"""``evo-door params MODEL``: print a model's parameter declaration."""
+
+from __future__ import annotations
+
+import json
+
+from evo_door.commands._common import add_params_arguments
+from evo_door.models import get_model
+from evo_door.params import available_presets, parse_assignments
+
+ORDER = 10
+
+
+def register(sub) -> None:
+    p = sub.add_parser("params", help="print a model's parameter declaration (name, unit, "
+                                      "default, bounds, group, meaning)")
+    p.add_argument("model", help="model name, e.g. haptic or door")
+    add_params_arguments(p)
+    p.add_argument("--json", action="store_true", help="print the declaration as JSON")
+    p.add_argument("--write", metavar="OUT.yaml",
+                   help="write the (loaded, overridden) parameter set as YAML")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    model = get_model(args.model)
+    values = None
+    if args.params or args.assignments or args.write:
+        ps = model.load_params(args.params, parse_assignments(args.assignments))
+        values = ps.as_dict()
+        if args.write:
+            ps.to_yaml(args.write)
+            print(f"wrote {args.write}")
+            return 0
+    if args.json:
+        rows = model.params.rows()
+        if values:
+            for row in rows:
+                row["value"] = values[row["name"]]
+        print(json.dumps({"model": model.name, "params": rows}, indent=2))
+        return 0
+    print(f"{model.title} ({model.name}): {len(model.params)} parameters, SI units")
+    print(model.params.format_table(values))
+    presets = available_presets(model.name)
+    if presets:
+        print(f"\npresets: {', '.join(presets)}")
+    if model.notes:
+        print(f"\n{model.notes}")
+    return 0

@@ -1,0 +1,1 @@
+"""Measured and simulated trials: formats, importers, preprocessing and the virtual rig."""

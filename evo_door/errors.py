@@ -1,0 +1,13 @@
+"""Errors a user can cause and fix: the CLI prints them on one line and exits 2."""
+
+
+class UserError(Exception):
+    """Bad input from the user (file, option, parameter value...).
+
+    The message must say what is wrong and where (file, line, key, parameter),
+    in one line, without a traceback.
+    """
+
+
+class ParameterError(UserError, ValueError):
+    """A parameter name or value that does not fit its declaration."""

@@ -1,0 +1,28 @@
+"""Shared fixtures: small analytic test models that need no door physics."""
+
+import numpy as np
+import pytest
+from numba import njit
+
+from evo_door.models.base import Model
+from evo_door.params import Param, ParamTable
+
+
+@njit(cache=True)
+def oscillator_accel(theta, dtheta, force, p):
+    """I ddtheta = -k (theta - theta_eq) - c dtheta + force."""
+    return (-p[0] * (theta - p[3]) - p[1] * dtheta + force) / p[2]
+
+
+OSCILLATOR_PARAMS = ParamTable("oscillator", [
+    Param("k", "N/rad", 100.0, 0.0, 1e7, "specification", "spring stiffness"),
+    Param("c", "N s/rad", 1.0, 0.0, 1e4, "specification", "viscous damping"),
+    Param("inertia", "kg m", 1.0, 1e-3, 100.0, "specification", "inertia"),
+    Param("theta_eq", "rad", 0.0, -10.0, 10.0, "geometry", "equilibrium angle"),
+])
+
+
+@pytest.fixture(scope="session")
+def oscillator():
+    return Model("oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel,
+                 method="rk4", substeps=1)

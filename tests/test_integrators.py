@@ -1,0 +1,141 @@
+"""Integrator accuracy against analytic solutions and scipy's Radau at rtol 1e-10."""
+
+import numpy as np
+import pytest
+from numba import njit
+from scipy.integrate import solve_ivp
+
+from evo_door.errors import UserError
+from evo_door.models.base import Model
+from evo_door.params import Param, ParamTable
+from evo_door.sim import simulate, simulate_batch
+
+DT = 1.0 / 1024.0
+
+
+def damped_free_response(t, k, c, inertia, theta0):
+    wn = np.sqrt(k / inertia)
+    zeta = c / (2.0 * np.sqrt(k * inertia))
+    wd = wn * np.sqrt(1.0 - zeta**2)
+    return np.exp(-zeta * wn * t) * theta0 * (np.cos(wd * t) + zeta * wn / wd * np.sin(wd * t))
+
+
+@pytest.mark.parametrize("method, substeps, bound", [
+    ("rk4", 1, 1e-8),
+    ("rk4", 4, 1e-11),
+    ("semi_implicit", 4, 1e-4),
+    ("semi_implicit", 16, 1e-5),
+])
+def test_free_damped_oscillator_matches_analytic(oscillator, method, substeps, bound):
+    p = oscillator.params.vector({"k": 100.0, "c": 1.0, "inertia": 1.0})
+    r = simulate(oscillator, p, np.zeros(3 * 1024), DT, theta0=1.0, method=method,
+                 substeps=substeps)
+    exact = damped_free_response(r.t, 100.0, 1.0, 1.0, 1.0)
+    err = np.max(np.abs(r.theta - exact))
+    print(f"{method} x{substeps}: max |theta error| = {err:.3e} rad")
+    assert r.ok and err < bound
+
+
+def test_semi_implicit_is_second_order(oscillator):
+    p = oscillator.params.defaults
+    errs = []
+    for substeps in (4, 8, 16):
+        r = simulate(oscillator, p, np.zeros(1024), DT, theta0=1.0, method="semi_implicit",
+                     substeps=substeps)
+        errs.append(np.max(np.abs(r.theta - damped_free_response(r.t, 100, 1, 1, 1))))
+    ratios = [errs[0] / errs[1], errs[1] / errs[2]]
+    assert all(3.5 < q < 4.5 for q in ratios), ratios
+
+
+def test_constant_force_static_deflection(oscillator):
+    # heavily damped spring under a step force settles at F / k
+    p = oscillator.params.vector({"k": 400.0, "c": 60.0})
+    r = simulate(oscillator, p, np.full(4 * 1024, 20.0), DT, theta0=0.0)
+    assert r.theta[-1] == pytest.approx(20.0 / 400.0, rel=1e-9)
+    assert r.ddtheta[-1] == pytest.approx(0.0, abs=1e-7)
+
+
+# A nonlinear, forced test problem: a pendulum-like door with a tanh dry friction.
+@njit(cache=True)
+def nonlinear_accel(theta, dtheta, force, p):
+    return (force - p[0] * np.cos(theta) - p[1] * np.tanh(p[2] * dtheta) - p[3] * dtheta) / p[4]
+
+
+NONLINEAR = Model("nonlinear", "forced pendulum with tanh friction", ParamTable("nonlinear", [
+    Param("weight", "N", 3.0, 0.0, 100.0, "specification", "gravity term"),
+    Param("friction", "N", 1.2, 0.0, 100.0, "specification", "dry friction"),
+    Param("slope", "s/rad", 20.0, 0.0, 1e4, "numerics", "tanh slope"),
+    Param("damping", "N s/rad", 0.3, 0.0, 100.0, "specification", "viscous damping"),
+    Param("inertia", "kg m", 1.2, 0.01, 100.0, "specification", "inertia"),
+]), nonlinear_accel, method="rk4", substeps=2)
+
+
+def forcing(t):
+    return 6.0 * np.sin(2.0 * np.pi * 0.7 * t) + 2.0 * np.exp(-((t - 1.0) / 0.2) ** 2)
+
+
+@pytest.mark.parametrize("method, substeps, bound", [
+    ("rk4", 2, 1e-7), ("semi_implicit", 8, 1e-4)])
+def test_nonlinear_forced_against_radau(method, substeps, bound):
+    n = 3 * 1024
+    t = np.arange(n) * DT
+    force = forcing(t)
+    p = NONLINEAR.params.defaults
+    r = simulate(NONLINEAR, p, force, DT, theta0=0.3, method=method, substeps=substeps)
+
+    def rhs(tt, x):
+        # the integrators see the force linearly interpolated between samples
+        f = np.interp(tt, t, force)
+        return [x[1], nonlinear_accel.py_func(x[0], x[1], f, p)]
+
+    ref = solve_ivp(rhs, (0, t[-1]), [0.3, 0.0], method="Radau", t_eval=t, rtol=1e-10,
+                    atol=1e-12, max_step=DT)
+    err_theta = np.max(np.abs(r.theta - ref.y[0]))
+    err_speed = np.max(np.abs(r.dtheta - ref.y[1]))
+    print(f"{method} x{substeps}: theta {err_theta:.2e} rad, dtheta {err_speed:.2e} rad/s")
+    assert err_theta < bound and err_speed < 10 * bound
+
+
+def test_semi_implicit_stays_stable_where_rk4_blows_up(oscillator):
+    # a latch-like spring: omega * h = sqrt(1e8) / 1024 ~ 10, far outside RK4's region
+    p = oscillator.params.vector({"k": 1e7, "c": 10.0, "inertia": 0.1})
+    stiff = simulate(oscillator, p, np.zeros(2048), DT, theta0=0.01, method="semi_implicit",
+                     substeps=1)
+    assert stiff.ok and np.all(np.abs(stiff.theta) <= 0.01 + 1e-12)
+    blown = simulate(oscillator, p, np.zeros(2048), DT, theta0=0.01, method="rk4", substeps=1)
+    assert not blown.ok and np.isnan(blown.theta[-1])
+
+
+def test_batch_equals_single_runs(oscillator):
+    rng = np.random.default_rng(7)
+    P = np.tile(oscillator.params.defaults, (9, 1))
+    P[:, 0] = rng.uniform(50, 500, 9)
+    P[:, 1] = rng.uniform(0, 5, 9)
+    force = forcing(np.arange(2048) * DT)
+    theta, dtheta, ddtheta, ok = simulate_batch(oscillator, P, force, DT, theta0=0.1)
+    assert ok.all()
+    for i in (0, 4, 8):
+        r = simulate(oscillator, P[i], force, DT, theta0=0.1)
+        np.testing.assert_array_equal(theta[i], r.theta)
+        np.testing.assert_array_equal(ddtheta[i], r.ddtheta)
+
+
+def test_batch_flags_only_the_blown_up_individual(oscillator):
+    P = np.tile(oscillator.params.defaults, (3, 1))
+    P[1, 0] = 1e7  # unstable for rk4 at one step per sample
+    P[1, 2] = 0.01
+    _, _, _, ok = simulate_batch(oscillator, P, np.zeros(1024), DT, theta0=0.1,
+                                 method="rk4", substeps=1)
+    assert ok.tolist() == [True, False, True]
+
+
+def test_bad_inputs_are_user_errors(oscillator):
+    p = oscillator.params.defaults
+    with pytest.raises(UserError, match="at least two samples"):
+        simulate(oscillator, p, [1.0], DT)
+    with pytest.raises(UserError, match="non-finite sample at index 2"):
+        simulate(oscillator, p, [0.0, 1.0, np.nan], DT)
+    with pytest.raises(UserError, match="unknown integration method 'euler'"):
+        simulate(oscillator, p, [0.0, 1.0], DT, method="euler")
+    with pytest.raises(UserError, match="takes 4 parameters"):
+        simulate(oscillator, p[:3], [0.0, 1.0], DT)

@@ -1,0 +1,80 @@
+import math
+
+import numpy as np
+import pytest
+
+from evo_door.errors import ParameterError, UserError
+from evo_door.params import Param, ParamTable, load_params, parse_assignments
+from tests.conftest import OSCILLATOR_PARAMS as T
+
+
+def test_vector_follows_declaration_order_and_defaults():
+    vec = T.vector({"c": 2.5})
+    assert vec.tolist() == [100.0, 2.5, 1.0, 0.0]
+    assert T.as_dict(vec)["c"] == 2.5
+    assert T.index("inertia") == 2
+
+
+def test_unknown_name_suggests_closest():
+    with pytest.raises(ParameterError, match=r"no parameter 'inertai'.*did you mean 'inertia'"):
+        T.vector({"inertai": 1.0})
+
+
+@pytest.mark.parametrize("value, message", [
+    (float("nan"), "must be finite"),
+    (math.inf, "must be finite"),
+    ("heavy", "must be a number"),
+    (True, "must be a number"),
+    (-1.0, r"outside its declared range \[0, 1e\+07\] N/rad"),
+])
+def test_bad_values_name_the_parameter(value, message):
+    with pytest.raises(ParameterError, match=r"'k'.*" + message if "range" in message else message):
+        T.vector({"k": value})
+
+
+def test_declaration_rejects_default_outside_bounds():
+    with pytest.raises(ValueError, match="outside"):
+        Param("x", "m", 2.0, 0.0, 1.0, "geometry", "bad")
+    with pytest.raises(ValueError, match="group"):
+        Param("x", "m", 0.5, 0.0, 1.0, "colour", "bad")
+
+
+def test_yaml_round_trip(tmp_path):
+    ps = load_params(T, None).replace({"k": 250.0, "theta_eq": 0.125})
+    path = tmp_path / "p.yaml"
+    ps.to_yaml(path)
+    again = load_params(T, path)
+    np.testing.assert_array_equal(again.vector, ps.vector)
+    assert again["k"] == 250.0
+
+
+def test_yaml_errors_name_file_and_key(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model: oscillator\nvalues:\n  k: [1, 2]\n")
+    with pytest.raises(ParameterError, match=r"bad.yaml: parameter 'k' must be a number"):
+        load_params(T, bad)
+    bad.write_text("model: oscillator\nvalus: {k: 1}\n")
+    with pytest.raises(UserError, match=r"unknown key 'valus'.*did you mean 'values'"):
+        load_params(T, bad)
+    bad.write_text("model: door\nvalues: {}\n")
+    with pytest.raises(UserError, match="for model 'door', not 'oscillator'"):
+        load_params(T, bad)
+    bad.write_text("model: oscillator\nvalues: {k: 1\n")
+    with pytest.raises(UserError, match=r"bad.yaml: line \d+ is not valid YAML"):
+        load_params(T, bad)
+    with pytest.raises(UserError, match="not found"):
+        load_params(T, tmp_path / "missing.yaml")
+
+
+def test_parse_assignments():
+    assert parse_assignments(["k=3", " c = 0.5"]) == {"k": 3.0, "c": 0.5}
+    with pytest.raises(UserError, match="NAME=VALUE"):
+        parse_assignments(["k"])
+    with pytest.raises(ParameterError, match="not a number"):
+        parse_assignments(["k=soft"])
+
+
+def test_table_text_lists_units_and_meaning():
+    text = T.format_table()
+    assert "N s/rad" in text and "viscous damping" in text
+    assert text.splitlines()[0].split()[:3] == ["name", "unit", "default"]
