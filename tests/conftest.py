@@ -26,3 +26,8 @@ OSCILLATOR_PARAMS = ParamTable("oscillator", [
 def oscillator():
     return Model("oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel,
                  method="rk4", substeps=1)
+
+
+#: Importable as "tests.conftest:OSCILLATOR_MODEL" wherever a model name is accepted.
+OSCILLATOR_MODEL = Model("oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel,
+                         method="rk4", substeps=1)

@@ -68,7 +68,21 @@ def available_models() -> list[str]:
 
 
 def get_model(name: str) -> Model:
-    """The registered model ``name`` (imports its module on first use)."""
+    """The registered model ``name`` (imports its module on first use).
+
+    ``name`` may also be an import path ``package.module:ATTRIBUTE`` naming a
+    :class:`Model` object, so that users can bring their own model (a drawer, a
+    button) without registering it here.
+    """
+    if ":" in name and name not in REGISTRY:
+        module, _, attr = name.partition(":")
+        try:
+            obj = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as exc:
+            raise UserError(f"cannot import model {name!r}: {exc}") from None
+        if not isinstance(obj, Model):
+            raise UserError(f"{name!r} is not an evo_door Model")
+        return obj
     if name not in REGISTRY:
         raise UserError(f"unknown model {name!r}" + suggest(name, REGISTRY)
                         + f"; models: {', '.join(available_models())}")
