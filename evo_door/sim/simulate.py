@@ -48,6 +48,14 @@ def _method_code(method: str) -> int:
                         f"{', '.join(METHODS)}") from None
 
 
+def param_vector(params) -> np.ndarray:
+    """A writable contiguous float64 copy of a ParamSet's (or array's) values.
+
+    (ParamSet vectors are read-only; numba types read-only arrays differently.)
+    """
+    return np.array(getattr(params, "vector", params), dtype=np.float64, order="C")
+
+
 def check_force(force, dt) -> np.ndarray:
     force = np.ascontiguousarray(force, dtype=np.float64)
     if force.ndim != 1 or force.size < 2:
@@ -77,7 +85,7 @@ def simulate(model, params, force, dt, theta0=None, dtheta0=0.0, t0=0.0,
         Override the model's integration defaults.
     """
     force = check_force(force, dt)
-    p = np.ascontiguousarray(getattr(params, "vector", params), dtype=np.float64)
+    p = param_vector(params)
     if p.shape != (len(model.params),):
         raise UserError(f"model {model.name!r} takes {len(model.params)} parameters, got {p.shape}")
     theta0 = model.theta0 if theta0 is None else float(theta0)
@@ -116,7 +124,7 @@ def quasi_static_force(model, params, theta, dtheta) -> np.ndarray:
 
     Uses that ``accel`` is affine in the force: F = -a(F=0) / (a(F=1) - a(F=0)).
     """
-    p = np.ascontiguousarray(getattr(params, "vector", params), dtype=np.float64)
+    p = param_vector(params)
     theta = np.atleast_1d(np.asarray(theta, dtype=np.float64))
     dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
     out = np.empty(theta.shape)
