@@ -49,6 +49,9 @@ class Trial:
         parameter recovery can be scored.
     source : str
         Where the trial came from (file path and group), for messages.
+    meta : dict
+        Free-form, JSON-able provenance: rig settings and the virtual user's traits,
+        the import mapping, the original file...
     """
 
     t: np.ndarray
@@ -64,6 +67,7 @@ class Trial:
     sensors: dict = field(default_factory=dict)
     truth: dict | None = None
     source: str = ""
+    meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.t = np.ascontiguousarray(self.t, dtype=np.float64)
@@ -115,6 +119,39 @@ class Trial:
     @property
     def label(self) -> str:
         return self.source or self.trial_id or "trial"
+
+    def sensor(self, name: str) -> dict:
+        """Metadata of the sensor behind channel ``name`` (empty dict if unknown)."""
+        info = self.sensors.get(name)
+        return info if isinstance(info, dict) else {}
+
+    def unsaturated(self, name: str) -> np.ndarray:
+        """Boolean mask of the samples of channel ``name`` strictly inside its sensor range.
+
+        A saturated sample (the sensor pinned at an end of ``sensors[name]["range"]``)
+        says only that the true value is beyond the range: objectives should skip it.
+        All True when the channel has no declared range.
+        """
+        values = getattr(self, name)
+        if values is None:
+            raise UserError(f"{self.label}: no channel {name!r}")
+        rng = self.sensor(name).get("range")
+        if not rng:
+            return np.ones(values.shape, dtype=bool)
+        lo, hi = float(rng[0]), float(rng[1])
+        tol = 1e-9 * max(1.0, abs(lo), abs(hi))
+        return (values > lo + tol) & (values < hi - tol)
+
+    def replace(self, **changes) -> "Trial":
+        """A validated copy with some fields changed (dicts are copied, arrays shared)."""
+        import copy
+        import dataclasses
+
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for key in ("sensors", "truth", "meta"):
+            fields[key] = copy.deepcopy(fields[key])
+        fields.update(changes)
+        return Trial(**fields)
 
     # -- checks ----------------------------------------------------------------
     def validate(self) -> None:

@@ -1,0 +1,60 @@
+"""``evo-door run EXP.yaml``: run an experiment, results in HDF5."""
+
+from __future__ import annotations
+
+import sys
+
+ORDER = 40
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run a GA / SLSQP experiment file; results in an HDF5 file")
+    p.add_argument("experiment", metavar="EXP.yaml", help="experiment file (docs/experiments.md)")
+    p.add_argument("--out", metavar="RUN.h5",
+                   help="results file (default: results/<name>-<date>-<time>.h5)")
+    p.add_argument("--set", metavar="KEY.PATH=VALUE", action="append", default=[],
+                   dest="assignments",
+                   help="override a setting of the file, e.g. algorithm.seed=3; repeatable")
+    p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from evo_door.experiment import Results, load_experiment
+    from evo_door.experiment.results import format_show
+    from evo_door.experiment.runner import ExperimentRun
+
+    exp = load_experiment(args.experiment, args.assignments)
+    if args.out:
+        _refuse_to_overwrite_an_interrupted_run(args.out)
+    job = ExperimentRun.create(exp, args.out)
+    if not args.quiet:
+        print(f"{exp.name}: {len(job.setup.fit)} fitted trial(s), "
+              f"{len(job.setup.validation)} validation trial(s), free: "
+              f"{', '.join(job.setup.free)}; writing {job.path}")
+    try:
+        job.run(progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"evo-door: interrupted; {job.path} holds the last finished generation: "
+              f"evo-door resume {job.path}", file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(format_show(Results(job.path)))
+    return 0
+
+
+def _refuse_to_overwrite_an_interrupted_run(path) -> None:
+    from pathlib import Path
+
+    from evo_door.errors import UserError
+    from evo_door.experiment import Results
+
+    if not Path(path).is_file():
+        return
+    try:
+        status = Results(path).attrs.get("status")
+    except UserError:
+        return
+    if status != "complete":
+        raise UserError(f"{path}: holds an interrupted run; continue it with evo-door resume "
+                        f"{path}, or delete it first")

@@ -1,0 +1,23 @@
+"""``evo-door runs [DIR]``: the runs in a results folder, as a table."""
+
+from __future__ import annotations
+
+ORDER = 43
+
+
+def register(sub) -> None:
+    p = sub.add_parser("runs", help="list the runs in a results folder (default results/)")
+    p.add_argument("folder", metavar="DIR", nargs="?", default="results",
+                   help="folder of results files (default results)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from evo_door.experiment.results import format_runs, list_runs
+
+    rows = list_runs(args.folder)
+    if not rows:
+        print(f"{args.folder}: no runs")
+        return 0
+    print(format_runs(rows))
+    return 0

@@ -1,0 +1,436 @@
+"""The virtual test rig: realistic trials from any model, with known true parameters.
+
+It replays the seed's measurement campaign (section 3.4, figures 3.16-3.20) on a
+model instead of a dishwasher:
+
+``unlock``
+    Door closed and latched. The user's hand pulls the handle toward opening, harder
+    and harder, until the latch gives; the door then runs away from the hand (the
+    force trace drops: its peak is the unlock force), and the user lets go after a
+    reaction time. Measured: load cell + inclinometer (angle near closed).
+``lock``
+    Door a few degrees from closed. The user pushes it shut; resistance rises in the
+    lock band until the latch snaps; the user lets go. Load cell + inclinometer.
+``impulse``
+    Door fully open, at rest. A short push toward closing (a half-sine, cut short
+    once the door moves at the speed the user intends), then free decay. Load cell +
+    gyroscope. These are the main fitting targets (speed decays ~linearly: friction).
+
+**The hand** is a spring-damper between the handle and a target the user moves at
+his own pace (pull / push speed) with a one-sided contact (a hand pulls or pushes,
+it does not do both) and a maximum force; so the force builds up against a latched
+door and falls when the door gives way, as in the seed's traces, whatever the model.
+The loop is closed by simulating in chunks of a few samples (the model's integrator
+continues from the end state of each chunk, so chunking changes nothing else).
+
+**Users** differ in hand stiffness, pace, strength, reaction time, push size and
+tremor (:func:`make_users`); each trial jitters its user's traits by ~10 %.
+
+**Determinism**: everything random comes from ``numpy.random.SeedSequence(seed)``,
+spawned into one generator for the users and one per trial (so trial k is the same
+whatever the number of trials); no global state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+import numpy as np
+
+from evo_door import __version__
+from evo_door.data.sensors import CLOSED, DEG, SEED_SENSORS, Sensor
+from evo_door.data.trial import Trial
+from evo_door.errors import UserError
+from evo_door.sim.simulate import simulate
+
+KINDS = ("unlock", "lock", "impulse")
+#: Kinds cycled over the trials: impulses (the fitting targets) every other trial.
+DEFAULT_KINDS = ("impulse", "unlock", "impulse", "lock")
+#: Channels each kind measures (seed 3.4: inclinometer near closed, gyroscope in motion).
+KIND_CHANNELS = {"unlock": ("force", "theta"), "lock": ("force", "theta"),
+                 "impulse": ("force", "dtheta")}
+
+
+@dataclass(frozen=True)
+class VirtualUser:
+    """How one virtual person opens and closes a door (SI units)."""
+
+    user_id: str
+    hand_stiffness: float    # N/m, hand + arm at the handle
+    hand_damping: float      # N s/m
+    pull_speed: float        # m/s, pace of the hand's target when pulling to unlock
+    push_speed: float        # m/s, pace when pushing to lock
+    max_force: float         # N, the most the user will pull or push
+    reaction_time: float     # s, from feeling the latch give to letting go
+    release_time: float      # s, to let go completely
+    impulse_force: float     # N, peak of the push given to the open door
+    impulse_duration: float  # s, length of that push
+    impulse_speed: float     # rad/s, door speed the user means to give
+    tremor: float            # N, amplitude of the 8-12 Hz physiological tremor
+    rest_time: float         # s, still before acting
+    lock_start: float        # rad, from closed, where the push to lock starts
+
+    def jittered(self, rng: np.random.Generator, spread: float = 0.1) -> "VirtualUser":
+        """This user on one particular day: every trait times ``1 + spread * N(0, 1)``."""
+        changes = {}
+        for f in fields(self):
+            if f.name != "user_id":
+                changes[f.name] = getattr(self, f.name) * float(np.clip(1.0 + spread * rng.standard_normal(), 0.7, 1.3))
+        return replace(self, **changes)
+
+
+#: Ranges the users' traits are drawn from (uniform).
+USER_RANGES = {
+    "hand_stiffness": (500.0, 1200.0), "hand_damping": (10.0, 25.0),
+    "pull_speed": (0.05, 0.15), "push_speed": (0.06, 0.16), "max_force": (150.0, 300.0),
+    "reaction_time": (0.12, 0.25), "release_time": (0.08, 0.20),
+    "impulse_force": (25.0, 60.0), "impulse_duration": (0.10, 0.20),
+    "impulse_speed": (40.0 * DEG, 80.0 * DEG), "tremor": (0.2, 0.8),
+    "rest_time": (0.3, 0.6), "lock_start": (4.0 * DEG, 8.0 * DEG),
+}
+
+
+def make_users(n: int, rng: np.random.Generator) -> list[VirtualUser]:
+    """``n`` distinct users; user i's traits are stratified so the users really differ."""
+    if n < 1:
+        raise UserError("the rig needs at least one user")
+    users = []
+    # each trait: one value per stratum of its range, strata shuffled across users
+    draws = {}
+    for name, (lo, hi) in USER_RANGES.items():
+        strata = (rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n
+        draws[name] = lo + (hi - lo) * strata
+    for i in range(n):
+        users.append(VirtualUser(f"U{i + 1}", **{k: float(v[i]) for k, v in draws.items()}))
+    return users
+
+
+# -- closed-loop simulation -----------------------------------------------------------
+class _Policy:
+    """What the user does, decided chunk by chunk from what has happened so far."""
+
+    finished = False
+
+    def plan(self, ts, tk, theta_k, dtheta_k) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def observe(self, ts, theta, dtheta) -> None:
+        pass
+
+
+def _cos_fade(x):
+    """1 -> 0 over x in [0, 1] (raised cosine), 1 before, 0 after."""
+    x = np.clip(x, 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(math.pi * x))
+
+
+class HandPolicy(_Policy):
+    """Pull to unlock (``direction = -1``) or push to lock (``+1``) with a compliant hand."""
+
+    def __init__(self, user: VirtualUser, direction: int, radius: float, tremor, dt: float,
+                 theta_contact: float, detect: float, tail: float, t_max: float):
+        self.u, self.dir, self.R, self.tremor, self.dt = user, direction, radius, tremor, dt
+        self.t_start = user.rest_time
+        self.speed = user.pull_speed if direction < 0 else user.push_speed
+        self.s0 = None
+        self.detect, self.tail, self.t_max = detect, tail, t_max
+        self.theta_contact = theta_contact
+        self.t_event = None     # latch gave way (unlock) / snapped (lock)
+        self.t_release = None   # user starts letting go
+        self.t_saturated = None
+        self.gave_up = False
+
+    def grip(self, ts):
+        g = (ts >= self.t_start).astype(float)
+        if self.t_release is not None:
+            g *= _cos_fade((ts - self.t_release) / self.u.release_time)
+        return g
+
+    def plan(self, ts, tk, theta_k, dtheta_k):
+        if self.s0 is None and ts[-1] >= self.t_start:
+            self.s0 = self.R * theta_k
+        if self.s0 is None:
+            return np.zeros_like(ts)
+        target = self.s0 + self.dir * self.speed * np.maximum(ts - self.t_start, 0.0)
+        handle = self.R * (theta_k + dtheta_k * (ts - tk))   # predicted over the chunk
+        f = (self.u.hand_stiffness * (target - handle)
+             + self.u.hand_damping * (self.dir * self.speed - self.R * dtheta_k))
+        f = f + self.tremor(ts)
+        # one-sided contact, bounded by the user's strength
+        f = np.clip(self.dir * f, 0.0, self.u.max_force) * self.dir
+        if self.t_saturated is None and abs(f[-1]) >= self.u.max_force and self.t_event is None:
+            self.t_saturated = ts[-1]
+        return f * self.grip(ts)
+
+    def observe(self, ts, theta, dtheta):
+        t = ts[-1]
+        if self.t_event is None:
+            if self.dir < 0:
+                hit = np.flatnonzero(theta < self.theta_contact - self.detect)
+            else:
+                hit = np.flatnonzero(theta > CLOSED - self.detect)
+            if hit.size and ts[hit[0]] > self.t_start:
+                self.t_event = float(ts[hit[0]])
+                self.t_release = self.t_event + self.u.reaction_time
+            elif self.t_saturated is not None and t > self.t_saturated + 0.5:
+                self.gave_up = True           # cannot move it: let go
+                self.t_event = float(t)
+                self.t_release = float(t)
+        if self.t_release is not None and t > self.t_release + self.u.release_time + self.tail:
+            self.finished = True
+        if t >= self.t_max:
+            self.finished = True
+
+
+class ImpulsePolicy(_Policy):
+    """A short push toward closing from fully open, then hands off."""
+
+    CUT = 0.03  # s, to let go once the intended speed is reached
+
+    def __init__(self, user: VirtualUser, tremor, settle: float, t_max: float):
+        self.u, self.tremor, self.t_max = user, tremor, t_max
+        self.t_start = user.rest_time
+        self.t_cut = None
+        self.t_end = self.t_start + user.impulse_duration
+        self.settle = settle
+        self.t_still = None
+
+    def plan(self, ts, tk, theta_k, dtheta_k):
+        x = (ts - self.t_start) / self.u.impulse_duration
+        f = np.where((x > 0) & (x < 1), self.u.impulse_force * np.sin(math.pi * np.clip(x, 0, 1)), 0.0)
+        f = f + self.tremor(ts) * ((x > 0) & (x < 1))
+        if self.t_cut is not None:
+            f = f * _cos_fade((ts - self.t_cut) / self.CUT)
+        return np.maximum(f, 0.0)
+
+    def observe(self, ts, theta, dtheta):
+        t = ts[-1]
+        if self.t_cut is None and t > self.t_start and np.any(dtheta >= self.u.impulse_speed):
+            self.t_cut = float(ts[np.argmax(dtheta >= self.u.impulse_speed)])
+            self.t_end = min(self.t_end, self.t_cut + self.CUT)
+        if t > self.t_end:
+            if np.all(np.abs(dtheta) < 0.005):
+                self.t_still = self.t_still if self.t_still is not None else float(ts[0])
+            else:
+                self.t_still = None
+            if self.t_still is not None and t > self.t_still + self.settle:
+                self.finished = True
+        if t >= self.t_max:
+            self.finished = True
+
+
+def run_closed_loop(model, params, policy: _Policy, dt: float, theta0: float, dtheta0: float,
+                    t_max: float, chunk: int = 4, method=None, substeps=None) -> dict:
+    """Simulate ``model`` under a user ``policy`` deciding the force chunk by chunk.
+
+    Each chunk of ``chunk`` samples is one :func:`~evo_door.sim.simulate` call starting
+    from the previous chunk's end state with the force sample they share, which is
+    exactly what one call over the whole force would compute (the integrators are
+    one-step methods). Returns ``t, force, theta, dtheta, ddtheta`` (truth, no noise).
+    """
+    n_max = int(round(t_max / dt)) + 1
+    t = dt * np.arange(n_max)
+    force = np.zeros(n_max)
+    theta = np.empty(n_max)
+    dtheta = np.empty(n_max)
+    ddtheta = np.empty(n_max)
+    theta[0], dtheta[0] = theta0, dtheta0
+    k = 0
+    while k < n_max - 1 and not policy.finished:
+        k1 = min(k + chunk, n_max - 1)
+        force[k + 1:k1 + 1] = policy.plan(t[k + 1:k1 + 1], t[k], theta[k], dtheta[k])
+        r = simulate(model, params, force[k:k1 + 1], dt, theta0=theta[k], dtheta0=dtheta[k],
+                     method=method, substeps=substeps)
+        if not r.ok:
+            raise UserError(f"rig: the simulation of model {model.name!r} blew up at "
+                            f"t = {t[k]:.3f} s; check the parameters or the integration settings")
+        theta[k:k1 + 1], dtheta[k:k1 + 1], ddtheta[k:k1 + 1] = r.theta, r.dtheta, r.ddtheta
+        policy.observe(t[k:k1 + 1], r.theta, r.dtheta)
+        k = k1
+    n = k + 1
+    return {"t": t[:n], "force": force[:n], "theta": theta[:n], "dtheta": dtheta[:n],
+            "ddtheta": ddtheta[:n]}
+
+
+def _settle(model, params, theta0, dt, duration=0.5, method=None, substeps=None):
+    """State after resting with no force for ``duration`` s from ``theta0``."""
+    n = int(round(duration / dt)) + 1
+    r = simulate(model, params, np.zeros(n), dt, theta0=theta0, dtheta0=0.0,
+                 method=method, substeps=substeps)
+    if not r.ok:
+        raise UserError(f"rig: model {model.name!r} blew up while resting at "
+                        f"theta = {theta0:.4f} rad")
+    return float(r.theta[-1]), float(r.dtheta[-1])
+
+
+def _tremor(user: VirtualUser, rng: np.random.Generator):
+    """Physiological tremor: two random tones at 8-12 Hz plus a slow 0.5-2 Hz sway."""
+    f1, f2, f3 = rng.uniform(8.0, 12.0), rng.uniform(8.0, 12.0), rng.uniform(0.5, 2.0)
+    p1, p2, p3 = rng.uniform(0.0, 2.0 * math.pi, 3)
+    a = user.tremor
+
+    def tremor(ts):
+        return a * (0.6 * np.sin(2 * math.pi * f1 * ts + p1) + 0.4 * np.sin(2 * math.pi * f2 * ts + p2)
+                    + 0.8 * np.sin(2 * math.pi * f3 * ts + p3))
+    return tremor
+
+
+# -- one trial ------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RigSettings:
+    """Rig-wide settings (SI)."""
+
+    rate: float = 1024.0            # Hz
+    handle_radius: float = 0.6      # m, where the hand acts (seed: L = 0.6 m)
+    chunk: int = 4                  # samples per closed-loop step
+    unlock_detect: float = 2.0 * DEG  # rad of motion the user feels as "it opened"
+    lock_detect: float = 1.0 * DEG    # rad from closed felt as "it locked"
+    tail: float = 1.0               # s recorded after letting go (unlock / lock)
+    settle: float = 0.4             # s of stillness that ends an impulse trial
+    t_max: float = 8.0              # s, longest trial
+    all_sensors: bool = False       # record every sensor in every trial
+
+
+def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.Generator,
+                   trial_id: str = "T01", settings: RigSettings = RigSettings(),
+                   sensors: dict[str, Sensor] | None = None, method=None, substeps=None) -> Trial:
+    """One rig trial of ``kind`` by ``user`` (already jittered) on ``model`` with ``params``."""
+    if kind not in KINDS:
+        raise UserError(f"unknown trial kind {kind!r}; kinds: {', '.join(KINDS)}")
+    sensors = dict(SEED_SENSORS, **(sensors or {}))
+    dt = 1.0 / settings.rate
+    tremor = _tremor(user, rng)
+    opts = {"method": method, "substeps": substeps}
+    if kind == "unlock":
+        theta0, dtheta0 = _settle(model, params, CLOSED, dt, **opts)
+        policy = HandPolicy(user, -1, settings.handle_radius, tremor, dt, theta0,
+                            settings.unlock_detect, settings.tail, settings.t_max)
+    elif kind == "lock":
+        theta0, dtheta0 = CLOSED - user.lock_start, 0.0
+        policy = HandPolicy(user, +1, settings.handle_radius, tremor, dt, theta0,
+                            settings.lock_detect, settings.tail, settings.t_max)
+    else:
+        theta0, dtheta0 = _settle(model, params, 0.0, dt, **opts)
+        policy = ImpulsePolicy(user, tremor, settings.settle, settings.t_max)
+    clean = run_closed_loop(model, params, policy, dt, theta0, dtheta0, settings.t_max,
+                            settings.chunk, **opts)
+
+    _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean)
+    channels = ("force", "theta", "dtheta") if settings.all_sensors else KIND_CHANNELS[kind]
+    measured = {ch: sensors[ch].measure(clean[ch], rng) for ch in channels}
+    events = {"t_start": policy.t_start}
+    if isinstance(policy, HandPolicy):
+        events.update(t_event=policy.t_event, t_release=policy.t_release, gave_up=policy.gave_up)
+    else:
+        events.update(t_cut=policy.t_cut, t_push_end=policy.t_end)
+    return Trial(
+        t=clean["t"], force=measured["force"], theta=measured.get("theta"),
+        dtheta=measured.get("dtheta"), trial_id=trial_id, user_id=user.user_id, kind=kind,
+        theta0=theta0, dtheta0=dtheta0,
+        sensors={ch: sensors[ch].info() for ch in channels},
+        truth=_truth(model, params, method, substeps),
+        source=f"rig:{trial_id}",
+        meta={"rig": {"evo_door": __version__, "settings": asdict(settings),
+                      "user": asdict(user), "events": events,
+                      "peak_force_true": float(clean["force"][np.argmax(np.abs(clean["force"]))])}},
+    )
+
+
+def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> None:
+    """A trial where the user could not do what the kind says is kept, but flagged."""
+    import warnings
+
+    if isinstance(policy, HandPolicy) and (policy.gave_up or policy.t_event is None):
+        warnings.warn(f"rig: trial {trial_id} ({kind}, {user.user_id}): the door of model "
+                      f"{model.name!r} did not {kind} (user's strength {user.max_force:.0f} N, "
+                      f"{clean['t'][-1]:.1f} s); check the parameters", stacklevel=3)
+    if isinstance(policy, ImpulsePolicy) and np.max(np.abs(clean["dtheta"])) < 5 * DEG:
+        warnings.warn(f"rig: trial {trial_id} (impulse, {user.user_id}): the door of model "
+                      f"{model.name!r} hardly moved (peak speed "
+                      f"{np.degrees(np.max(np.abs(clean['dtheta']))):.1f} deg/s)", stacklevel=3)
+
+
+def _truth(model, params, method, substeps) -> dict:
+    values = params.as_dict() if hasattr(params, "as_dict") else model.params.as_dict(params)
+    return {"model": model.name, "params": values,
+            "units": {p.name: p.unit for p in model.params},
+            "params_source": getattr(params, "source", "") or "",
+            "method": method or model.method, "substeps": int(substeps or model.substeps)}
+
+
+# -- a campaign -----------------------------------------------------------------------
+def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
+                    kinds=DEFAULT_KINDS, settings: RigSettings = RigSettings(),
+                    sensors: dict[str, Sensor] | None = None, method=None, substeps=None,
+                    progress: bool | None = None) -> list[Trial]:
+    """A measurement campaign: ``trials`` trials by ``users`` virtual users.
+
+    Trial k (ids ``T01``...) is done by user ``k % users`` (ids ``U1``...) and is of
+    kind ``kinds[k % len(kinds)]``. Same ``seed``, same trials, value for value.
+
+    Parameters
+    ----------
+    model : Model
+    params : ParamSet
+        The true parameters, stored with every trial (``trial.truth``).
+    seed : int or numpy.random.SeedSequence
+    kinds : sequence of "unlock", "lock", "impulse"
+    settings : RigSettings
+    sensors : dict, optional
+        Sensor models replacing the seed's (:data:`~evo_door.data.sensors.SEED_SENSORS`).
+    progress : bool or None
+        tqdm bar (None: only on a terminal).
+    """
+    from tqdm.auto import tqdm
+
+    if trials < 1:
+        raise UserError("the rig needs at least one trial")
+    kinds = tuple(kinds)
+    for kind in kinds:
+        if kind not in KINDS:
+            raise UserError(f"unknown trial kind {kind!r}; kinds: {', '.join(KINDS)}")
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    user_seq, trial_root = root.spawn(2)
+    people = make_users(users, np.random.default_rng(user_seq))
+    out = []
+    bar = tqdm(range(trials), desc="rig", unit="trial", disable=None if progress is None else not progress)
+    for k, child in zip(bar, trial_root.spawn(trials)):
+        rng = np.random.default_rng(child)
+        user = people[k % users].jittered(rng)
+        trial = generate_trial(model, params, kinds[k % len(kinds)], user, rng,
+                               f"T{k + 1:02d}", settings, sensors, method, substeps)
+        trial.meta["rig"].update(seed=int(root.entropy) if isinstance(root.entropy, int) else None,
+                                 trial_index=k)
+        out.append(trial)
+    return out
+
+
+#: Keys of a rig specification (an experiment's ``inputs:`` mapping) and their defaults.
+SPEC_DEFAULTS = {"model": "door", "params": None, "set": {}, "users": 3, "trials": 10, "seed": 1,
+                 "kinds": list(DEFAULT_KINDS), "rate": 1024.0, "all_sensors": False}
+
+
+def trials_from_spec(spec: dict) -> list[Trial]:
+    """Rig trials from a mapping, e.g. an experiment's ``inputs:``::
+
+        inputs: {model: door, params: default, users: 3, trials: 10, seed: 1}
+
+    Keys and defaults: :data:`SPEC_DEFAULTS` (``set`` overrides parameters by name;
+    ``kinds`` a list or a comma-separated string).
+    """
+    from evo_door.models import get_model
+    from evo_door.params.declaration import suggest
+
+    unknown = set(spec) - set(SPEC_DEFAULTS)
+    if unknown:
+        key = sorted(unknown)[0]
+        raise UserError(f"rig specification: unknown key {key!r}" + suggest(key, SPEC_DEFAULTS)
+                        + f"; keys: {', '.join(SPEC_DEFAULTS)}")
+    s = {**SPEC_DEFAULTS, **spec}
+    model = get_model(str(s["model"]))
+    params = model.load_params(s["params"], dict(s["set"] or {}))
+    kinds = s["kinds"].split(",") if isinstance(s["kinds"], str) else list(s["kinds"])
+    return generate_trials(model, params, users=int(s["users"]), trials=int(s["trials"]),
+                           seed=int(s["seed"]), kinds=[k.strip() for k in kinds],
+                           settings=RigSettings(rate=float(s["rate"]), all_sensors=bool(s["all_sensors"])))

@@ -1,0 +1,267 @@
+"""Reading results files: summaries for ``evo-door show`` / ``runs`` and the fit plot."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.experiment import store
+
+A = store.ATTRS
+
+
+class Results:
+    """A results file, read once (see ``docs/experiments.md`` for the layout)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.tree = store.read_tree(self.path)
+        self.attrs = self.tree[A]
+        self.config = json.loads(self.tree["experiment"]["resolved"])
+
+    @property
+    def complete(self) -> bool:
+        return self.attrs.get("status") == "complete"
+
+    @property
+    def free(self) -> list[str]:
+        return list(self.tree["setup"][A]["free"])
+
+    def jobs(self) -> list[dict]:
+        keys = sorted((k for k in self.tree["jobs"] if k != A), key=int)
+        return [self.tree["jobs"][k] for k in keys]
+
+    def best(self) -> dict[str, float]:
+        """Free parameter name -> value: the run's answer, or the GA's best so far."""
+        if "best" in self.tree:
+            return dict(self.tree["best"][A]["values"])
+        best, fit = None, math.inf
+        for job in self.jobs():
+            if "ga" in job and job["ga"]["hof_fitness"].size and job["ga"]["hof_fitness"][0] <= fit:
+                fit = float(job["ga"]["hof_fitness"][0])
+                best = job["ga"]["hof_x"][0]
+        return {} if best is None else dict(zip(self.free, map(float, best)))
+
+    def fitness(self) -> float:
+        if "best" in self.tree:
+            return float(self.tree["best"][A]["fitness"])
+        fits = [float(j["ga"][A]["best_fitness"]) for j in self.jobs() if "ga" in j]
+        return min(fits) if fits else math.nan
+
+    def progress(self) -> str:
+        return _progress(self.attrs, self.config)
+
+    def summary(self) -> dict:
+        """Everything ``show --json`` prints (JSON-able)."""
+        cfg = self.config
+        t = self.tree["timings"][A]
+        out = {
+            "file": str(self.path),
+            "name": self.attrs.get("name"),
+            "model": self.attrs.get("model"),
+            "status": self.attrs.get("status"),
+            "created": self.attrs.get("created"),
+            "updated": self.attrs.get("updated"),
+            "seed": self.attrs.get("seed"),
+            "best": self.best(),
+            "fitness": _num(self.fitness()),
+            "fixed": cfg.get("fixed", {}),
+            "free": cfg.get("free", {}),
+            "objective": cfg["objective"],
+            "algorithm": cfg["algorithm"],
+            "per_trial": cfg["per_trial"],
+            "target": cfg["target"],
+            "progress": self.progress(),
+            "evaluations": t.get("evaluations", 0),
+            "blowups": sum(int(j["ga"][A]["blowups"]) for j in self.jobs() if "ga" in j),
+            "seconds": t.get("total_s"),
+            "evaluations_per_s": t.get("evaluations_per_s"),
+            "versions": self.tree["versions"][A],
+        }
+        if "best" in self.tree:
+            b = self.tree["best"][A]
+            out["fit_errors"] = {k: _num(v) for k, v in b["fit_errors"].items()}
+            out["validation_errors"] = {k: _num(v) for k, v in b["validation_errors"].items()}
+            out["best_meaning"] = b.get("meaning", "")
+        if "summary" in self.tree:
+            s = self.tree["summary"]
+            out["per_trial_fits"] = {
+                trial: dict(zip(self.free, map(float, row)))
+                for trial, row in zip(s[A]["trials"], s["x"])}
+            out["table"] = {n: {"min": float(s["min"][i]), "max": float(s["max"][i]),
+                                "mean": float(s["mean"][i])} for i, n in enumerate(self.free)}
+        return out
+
+    def responses(self) -> list[dict]:
+        if "response" not in self.tree:
+            return []
+        keys = sorted((k for k in self.tree["response"] if k != A), key=int)
+        return [{**self.tree["response"][k][A], **{n: v for n, v in self.tree["response"][k].items()
+                                                     if n != A}} for k in keys]
+
+
+def _progress(attrs: dict, config: dict) -> str:
+    done = attrs.get("generations_done") or []
+    total = attrs.get("generations", 0)
+    if config["algorithm"]["kind"] != "ga":
+        return f"{attrs.get('jobs_done', 0)}/{attrs.get('jobs', 1)} fits"
+    if len(done) == 1:
+        return f"{max(done[0], 0)}/{total} gen"
+    return f"{attrs.get('jobs_done', 0)}/{len(done)} fits x {total} gen"
+
+
+def _num(v):
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def format_show(res: Results) -> str:
+    """The human-readable ``evo-door show``."""
+    s = res.summary()
+    cfg = res.config
+    alg = cfg["algorithm"]
+    obj = cfg["objective"]
+    lines = [f"{s['name']}  ({res.path})",
+             f"  model {s['model']}, status {s['status']} ({s['progress']}), seed {s['seed']}, "
+             f"created {s['created']}",
+             f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
+             f"over trials",
+             ("  algorithm " + (f"GA population {alg['population']} x {alg['generations']} "
+                                f"generations, reproduction {alg['reproduction_ratio']:g}, "
+                                f"mutation p {alg['mutation_probability']:g} amplitude "
+                                f"{alg['mutation_amplitude']:g}, polish {alg['polish']}"
+                                if alg["kind"] == "ga" else
+                                f"nlpql (SLSQP), max {alg['max_iterations']} iterations")),
+             f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, "
+             f"{(s['seconds'] or 0):.1f} s"]
+    units = _units(res)
+    if "table" in s:
+        lines.append(f"\nper-trial fits ({len(s['per_trial_fits'])} trials), as seed table 5.3:")
+        w = max(len(n) for n in res.free)
+        lines.append(f"  {'parameter':<{w}}  {'min':>12}  {'max':>12}  {'mean':>12}  unit")
+        for n, row in s["table"].items():
+            lines.append(f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
+                         f"{row['mean']:>12.6g}  {units.get(n, '')}")
+    lines.append(f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness "
+                 f"{_fmt(s['fitness'])}")
+    if s["best"]:
+        w = max(len(n) for n in s["best"])
+        for n, v in s["best"].items():
+            lo, hi = cfg["free"][n]
+            lines.append(f"  {n:<{w}}  {v:>14.8g} {units.get(n, ''):<8} in [{lo:g}, {hi:g}]")
+    if s["fixed"]:
+        lines.append("fixed: " + ", ".join(f"{k} = {v:g}" for k, v in s["fixed"].items()))
+    if s.get("fit_errors"):
+        lines.append("fit error per trial: " + ", ".join(f"{k} {_fmt(v)}"
+                                                           for k, v in s["fit_errors"].items()))
+    if s.get("validation_errors"):
+        lines.append("validation error:    " + ", ".join(
+            f"{k} {_fmt(v)}" for k, v in s["validation_errors"].items()))
+    return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    return "blew up" if v is None else f"{v:.4g}"
+
+
+def _units(res: Results) -> dict:
+    try:
+        from evo_door.models import get_model
+
+        table = get_model(res.attrs["model"]).params
+        return {p.name: p.unit for p in table}
+    except Exception:
+        return {}
+
+
+def list_runs(folder) -> list[dict]:
+    """One row per results file in ``folder`` (newest first); unreadable files are flagged."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UserError(f"{folder}: no such folder")
+    rows = []
+    for path in sorted(folder.glob("*.h5")):
+        try:
+            p = store.peek(path)
+        except UserError as exc:
+            if "not an evo-door results file" in str(exc):
+                continue
+            rows.append({"file": path.name, "name": "?", "model": "?", "status": "unreadable",
+                         "progress": "", "fitness": None, "created": "", "seed": ""})
+            continue
+        a = p[A]
+        if p["best"] is not None:
+            fitness = p["best"]["fitness"]
+        else:
+            fits = [j["best_fitness"] for j in p["jobs"].values() if j]
+            fitness = min(fits) if fits else math.nan
+        rows.append({"file": path.name, "name": a.get("name", ""), "model": a.get("model", ""),
+                     "status": a.get("status", ""), "progress": _progress(a, p["resolved"]),
+                     "fitness": _num(fitness), "created": a.get("created", ""),
+                     "seed": a.get("seed", "")})
+    rows.sort(key=lambda r: r["created"], reverse=True)
+    return rows
+
+
+def format_runs(rows: list[dict]) -> str:
+    header = ["file", "name", "model", "status", "progress", "best fitness", "seed", "created"]
+    table = [[r["file"], r["name"], r["model"], r["status"], r["progress"],
+              "" if r["fitness"] is None else f"{r['fitness']:.4g}", str(r["seed"]),
+              r["created"]] for r in rows]
+    widths = [max(len(h), *(len(row[i]) for row in table)) if table else len(h)
+              for i, h in enumerate(header)]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    out = [fmt.format(*header).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()]
+    out += [fmt.format(*row).rstrip() for row in table]
+    return "\n".join(out)
+
+
+def plot_fit(res: Results, path, max_trials: int = 12) -> None:
+    """Best response next to the target, one panel per trial (fitted, then validation)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = res.responses()
+    if not rows:
+        raise UserError(f"{res.path}: the run is not complete, there is no best response yet "
+                        "(evo-door resume it first)")
+    rows = rows[:max_trials]
+    n = len(rows)
+    ncols = 1 if n == 1 else 2
+    nrows = math.ceil(n / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(6.2 * ncols + (2.0 if n == 1 else 0.0),
+                                                    2.6 * nrows + 1.0),
+                             squeeze=False, constrained_layout=True)
+    channel = rows[0]["channel"]
+    unit = {"theta": "rad", "dtheta": "rad/s", "ddtheta": "rad/s^2"}[channel]
+    label = {"theta": "angle theta", "dtheta": "angular speed dtheta",
+             "ddtheta": "angular acceleration"}[channel]
+    for ax, r in zip(axes.flat, rows):
+        t = np.asarray(r["t"])
+        ax.plot(t, r["target"], color="0.25", lw=1.2, label="target")
+        ax.plot(t, r["model"], color="tab:red", lw=1.0, ls="--", label="model (best)")
+        ax.set_title(f"{r['trial_id']} ({'fitted' if r['role'] == 'fit' else 'validation'}), "
+                     f"error {_fmt(_num(r['error']))}", fontsize=9)
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(f"{channel} [{unit}]")
+        ax.grid(alpha=0.3)
+        axf = ax.twinx()
+        axf.plot(t, r["force"], color="tab:blue", lw=0.6, alpha=0.35)
+        axf.set_ylabel("force [N]", color="tab:blue", fontsize=8)
+        axf.tick_params(axis="y", labelcolor="tab:blue", labelsize=7)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    axes.flat[0].legend(loc="best", fontsize=8)
+    obj = res.config["objective"]
+    fig.suptitle(f"{res.attrs['name']}: {label}, best model vs target\n"
+                 f"model {res.attrs['model']}, objective {obj['kind']} (derivative "
+                 f"{obj['derivative']}, {obj['combine']}), fitness {_fmt(_num(res.fitness()))}",
+                 fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,217 @@
+"""From a checked :class:`~evo_door.experiment.config.Experiment` to a :class:`Problem`.
+
+Resolution reads what the experiment names (the base parameter set, the trial file,
+the target model and its inputs) once; everything the run needs afterwards (the full
+base vector, the fitted and validation trials with their targets) is kept in a
+:class:`Setup` and stored in the results file, so a run can be resumed or inspected
+without the original files.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evo_door.data.trial import Trial
+from evo_door.errors import UserError
+from evo_door.optim.problem import Objective, Problem
+from evo_door.params.declaration import suggest
+
+
+@dataclass
+class Setup:
+    """What a run optimises, fully resolved (see the module docstring)."""
+
+    model_name: str
+    base: np.ndarray                 # full parameter vector, declaration order
+    free: list                       # free parameter names
+    lower: np.ndarray
+    upper: np.ndarray
+    fit: list                        # fitted Trials
+    validation: list                 # validation Trials
+    objective: Objective
+    method: str
+    substeps: int
+    start: dict = field(default_factory=dict)
+
+    @property
+    def model(self):
+        from evo_door.models import get_model
+
+        return get_model(self.model_name)
+
+    def problem(self, trial_indices=None) -> Problem:
+        trials = self.fit if trial_indices is None else [self.fit[i] for i in trial_indices]
+        return Problem(self.model, self.free, self.lower, self.upper, self.base, trials,
+                       self.objective, self.validation, self.method, self.substeps)
+
+    def start_vector(self) -> np.ndarray:
+        """Start point of a local method: ``algorithm.start``, else the base values (clipped)."""
+        model = self.model
+        x = np.array([self.start.get(n, self.base[model.params.index(n)]) for n in self.free])
+        return np.clip(x, self.lower, self.upper)
+
+
+def _select(trials: list[Trial], spec, where_trials: str, where_validate: str, source: str):
+    ids = [tr.trial_id for tr in trials]
+    for key, wanted, where in (("validate", spec.validate, where_validate),
+                               ("trials", spec.trials if spec.trials != "all" else [], where_trials)):
+        for w in wanted:
+            if w not in ids:
+                raise UserError(f"{where}: target.{key}: {source} has no trial {w!r}"
+                                + suggest(w, ids) + f"; trials: {', '.join(ids)}")
+    validation = [tr for tr in trials if tr.trial_id in spec.validate]
+    if spec.trials == "all":
+        fit = [tr for tr in trials if tr.trial_id not in spec.validate]
+        if spec.kinds:
+            kinds = sorted({tr.kind for tr in trials})
+            for k in spec.kinds:
+                if k not in kinds:
+                    raise UserError(f"{spec.locs['kinds']}: target.kinds: {source} has no trial "
+                                    f"of kind {k!r}" + suggest(k, kinds)
+                                    + f"; kinds: {', '.join(kinds) or 'none'}")
+            fit = [tr for tr in fit if tr.kind in spec.kinds]
+    else:
+        by_id = {tr.trial_id: tr for tr in trials}
+        fit = [by_id[w] for w in spec.trials]
+    if not fit:
+        raise UserError(f"{where_trials}: target.trials: no trial left to fit")
+    return fit, validation
+
+
+def _unique_ids(trials: list[Trial], source: str) -> list[Trial]:
+    seen = set()
+    out = []
+    for k, tr in enumerate(trials):
+        tid = tr.trial_id or f"trial{k}"
+        if tid in seen:
+            raise UserError(f"{source}: trial id {tid!r} appears twice")
+        seen.add(tid)
+        out.append(tr if tr.trial_id == tid else _with_id(tr, tid))
+    return out
+
+
+def _with_id(tr: Trial, tid: str) -> Trial:
+    tr.trial_id = tid
+    return tr
+
+
+def _input_trials(spec, model) -> list[Trial]:
+    """The input forces of a model target: a trial / force file or a rig specification."""
+    if isinstance(spec.inputs, dict):
+        try:
+            from evo_door.data import rig
+        except ImportError:
+            raise UserError(f"{spec.locs['inputs']}: target.inputs: rig specifications need "
+                            "evo_door.data.rig, not in this version; give a trial file") from None
+        make = getattr(rig, "trials_from_spec", None)
+        if make is None:
+            raise UserError(f"{spec.locs['inputs']}: target.inputs: this version's rig cannot "
+                            "build inputs from a specification; give a trial file")
+        return list(make(spec.inputs))
+    from evo_door.data.io import read_trials
+
+    try:
+        return read_trials(spec.inputs)
+    except UserError as exc:
+        # a bare force record (t, force) is enough to drive the target model
+        if str(spec.inputs).lower().endswith(".csv"):
+            from evo_door.data.forcecsv import read_force_csv
+
+            try:
+                t, force = read_force_csv(spec.inputs)
+            except UserError:
+                raise exc from None
+            theta0 = spec.theta0 if spec.theta0 is not None else model.theta0
+            from pathlib import Path
+
+            return [Trial(t, force, trial_id=Path(spec.inputs).stem, theta0=theta0,
+                          dtheta0=spec.dtheta0 or 0.0, source=str(spec.inputs))]
+        raise
+
+
+def _model_target_trials(spec) -> list[Trial]:
+    """Trials whose response is the target model's response to the inputs' forces."""
+    from evo_door.models import get_model
+    from evo_door.sim import simulate
+
+    target_model = get_model(spec.model)
+    try:
+        params = target_model.load_params(spec.params if not isinstance(spec.params, dict)
+                                          else None)
+        values = dict(spec.params) if isinstance(spec.params, dict) else {}
+        values.update(spec.set)
+        if values:
+            params = params.replace(values)
+    except UserError as exc:
+        raise UserError(f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: "
+                        f"{exc}") from None
+    out = []
+    for tr in _input_trials(spec, target_model):
+        theta0 = spec.theta0 if spec.theta0 is not None else (
+            tr.theta0 if tr.theta0 is not None else (
+                float(tr.theta[0]) if tr.theta is not None else target_model.theta0))
+        dtheta0 = spec.dtheta0 if spec.dtheta0 is not None else (
+            tr.dtheta0 if tr.dtheta0 is not None else (
+                float(tr.dtheta[0]) if tr.dtheta is not None else 0.0))
+        r = simulate(target_model, params, tr.force, tr.dt, theta0=theta0, dtheta0=dtheta0,
+                     t0=float(tr.t[0]))
+        if not r.ok:
+            raise UserError(f"{spec.locs['model']}: target.model: {spec.model} blew up on "
+                            f"input {tr.trial_id!r}; check target.params")
+        out.append(Trial(tr.t, tr.force, r.theta, r.dtheta, r.ddtheta, trial_id=tr.trial_id,
+                         user_id=tr.user_id, kind=tr.kind, theta0=theta0, dtheta0=dtheta0,
+                         truth={"model": spec.model, "params": params.as_dict()},
+                         source=f"{spec.model} response to {tr.label}"))
+    return out
+
+
+def resolve(exp, trials: list[Trial] | None = None) -> Setup:
+    """Read what ``exp`` names and build its :class:`Setup`.
+
+    ``trials`` replaces the target's trials (library use and tests): the target's
+    ``trials`` / ``validate`` selections still apply.
+    """
+    from evo_door.models import get_model
+
+    model = get_model(exp.model)
+    spec = exp.target
+    if trials is not None:
+        all_trials, source = list(trials), "the trials given"
+    elif spec.kind == "data":
+        from evo_door.data.io import read_trials
+
+        try:
+            all_trials = read_trials(spec.data)
+        except UserError as exc:
+            raise UserError(f"{spec.locs['data']}: target.data: {exc}") from None
+        source = spec.data
+    else:
+        all_trials, source = _model_target_trials(spec), f"the inputs of target.model"
+    all_trials = _unique_ids(all_trials, source)
+    fit, validation = _select(all_trials, spec, spec.locs["trials"], spec.locs["validate"], source)
+    channel = ("theta", "dtheta", "ddtheta")[exp.objective.derivative]
+    for tr in fit + validation:
+        if tr.channel(exp.objective.derivative) is None:
+            raise UserError(f"{exp.locs['objective']}: objective.derivative: trial "
+                            f"{tr.trial_id!r} of {source} has no {channel!r} channel "
+                            f"(it has {', '.join(tr.channels) or 'none'})")
+        try:
+            tr.initial_state()
+        except UserError as exc:
+            raise UserError(f"{spec.locs['trials']}: target: {exc}") from None
+    try:
+        base = model.load_params(exp.params if not isinstance(exp.params, dict) else None)
+        if isinstance(exp.params, dict):
+            base = base.replace(exp.params)
+        if exp.fixed:
+            base = base.replace(exp.fixed)
+    except UserError as exc:
+        raise UserError(f"{exp.locs['params']}: params: {exc}") from None
+    free = list(exp.free)
+    return Setup(model_name=exp.model, base=np.array(base.vector), free=free,
+                 lower=np.array([exp.free[n][0] for n in free]),
+                 upper=np.array([exp.free[n][1] for n in free]),
+                 fit=fit, validation=validation, objective=exp.objective,
+                 method=exp.method, substeps=exp.substeps, start=dict(exp.algorithm.start))

@@ -1,0 +1,128 @@
+"""YAML that remembers where each key came from, for one-line error messages.
+
+``parse(text, source)`` returns plain dicts / lists / scalars, except that every
+mapping is a :class:`LinedMap` that knows the location (``file:line``) of itself and
+of each of its keys, and every list a :class:`LinedList` with its own location.
+Duplicate keys are an error (PyYAML silently keeps the last one).
+
+``apply_override(tree, "algorithm.seed=3")`` sets a value from the command line;
+the value is parsed as YAML (``3`` an int, ``[0.5, 2]`` a list, ``none`` a string)
+and its location becomes ``--set algorithm.seed=3``.
+"""
+
+from __future__ import annotations
+
+import re
+
+import yaml
+from yaml.constructor import SafeConstructor
+
+from evo_door.errors import UserError
+
+
+class Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, reading ``1e-3`` and ``5e8`` as numbers.
+
+    PyYAML follows YAML 1.1, where a float needs a dot (``1.0e-3``) and ``1e-3`` is
+    a string; engineers write ``1e-3``, so the YAML 1.2 form is accepted too.
+    """
+
+
+Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def load_value(text: str):
+    """One YAML value with :class:`Loader`'s number rules."""
+    return yaml.load(text, Loader=Loader)
+
+
+class LinedMap(dict):
+    """A dict with ``loc`` (its own location) and ``key_locs`` (location of each key)."""
+
+    loc: str = ""
+
+    def __init__(self, *args, loc: str = "", **kwargs):
+        super().__init__(*args, **kwargs)
+        self.loc = loc
+        self.key_locs: dict = {}
+
+    def where(self, key) -> str:
+        return self.key_locs.get(key, self.loc)
+
+
+class LinedList(list):
+    loc: str = ""
+
+    def __init__(self, *args, loc: str = ""):
+        super().__init__(*args)
+        self.loc = loc
+
+
+def _loc(source: str, node) -> str:
+    return f"{source}:{node.start_mark.line + 1}"
+
+
+def _convert(node, source: str, constructor: SafeConstructor):
+    if isinstance(node, yaml.MappingNode):
+        out = LinedMap(loc=_loc(source, node))
+        constructor.flatten_mapping(node)
+        for key_node, value_node in node.value:
+            key = constructor.construct_object(key_node, deep=True)
+            if not isinstance(key, (str, int, float, bool)) or key is None:
+                raise UserError(f"{_loc(source, key_node)}: mapping keys must be plain names")
+            if key in out:
+                raise UserError(f"{_loc(source, key_node)}: duplicate key {key!r} "
+                                f"(first at {out.key_locs[key]})")
+            out[key] = _convert(value_node, source, constructor)
+            out.key_locs[key] = _loc(source, key_node)
+        return out
+    if isinstance(node, yaml.SequenceNode):
+        return LinedList([_convert(n, source, constructor) for n in node.value],
+                         loc=_loc(source, node))
+    return constructor.construct_object(node, deep=True)
+
+
+def parse(text: str, source: str):
+    """Parse YAML ``text`` (from ``source``, for messages) into a located tree."""
+    try:
+        node = yaml.compose(text, Loader=Loader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise UserError(f"{source}{line}: not valid YAML ({problem})") from None
+    if node is None:
+        return LinedMap(loc=f"{source}:1")
+    return _convert(node, source, SafeConstructor())
+
+
+def apply_override(tree: LinedMap, assignment: str) -> None:
+    """Set ``a.b.c=value`` in ``tree`` (creating intermediate mappings)."""
+    where = f"--set {assignment}"
+    path, sep, text = assignment.partition("=")
+    keys = [k.strip() for k in path.split(".")]
+    if not sep or not all(keys):
+        raise UserError(f"{where}: expected KEY.PATH=VALUE, e.g. algorithm.seed=3")
+    try:
+        value = load_value(text) if text.strip() else None
+    except yaml.YAMLError:
+        raise UserError(f"{where}: {text!r} is not a YAML value") from None
+    if isinstance(value, dict):
+        m = LinedMap(value, loc=where)
+        m.key_locs = {k: where for k in value}
+        value = m
+    elif isinstance(value, list):
+        value = LinedList(value, loc=where)
+    node = tree
+    for key in keys[:-1]:
+        child = node.get(key)
+        if not isinstance(child, LinedMap):
+            child = LinedMap(loc=where)
+            node[key] = child
+            node.key_locs[key] = where
+        node = child
+    node[keys[-1]] = value
+    node.key_locs[keys[-1]] = where

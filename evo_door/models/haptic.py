@@ -1,0 +1,444 @@
+"""The haptic model of the door: the feel as a handful of *sensations*.
+
+This is the simplified, real-time model of the case study (seed chapter 4, spec
+section "Haptic model"). Its parameters are what an operator tunes while a user
+tries the door (opening effort, closing effort, smoothness, free play), not the
+dimensions of a mechanism. It has two faces that share one parameter vector:
+
+``accel(theta, dtheta, force, p)``
+    the reduced 1-DOF dynamics ``I ddtheta = F_tan(theta, dtheta) + F_u`` used for
+    simulation and fitting (eq. 5.7);
+``device_force(x, y, z, vx, vy, vz, p, out)``
+    the force field of eq. 4.52 in the coordinates of a 3-DOF haptic device: the end
+    effector held on the door's circular path by spring-dampers, plus the same
+    tangential law rotated into device axes. A servo loop (1-2.5 kHz) calls it.
+
+Everything that shapes the feel is in one function, :func:`tangential_force`, to be
+read top to bottom. Conventions (spec): ``theta`` 0 = fully open, pi/2 = closed;
+``dtheta < 0`` is opening; a tangential force is positive toward closing; SI units.
+The equations, and how they correct the seed's eqs. 4.39-4.47, are written out in
+``docs/haptic-model.md``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from evo_door.errors import UserError
+from evo_door.models.base import Model
+from evo_door.params import Param, ParamTable
+
+#: Number of angular sections of the friction scale (eq. 4.48 / 5.8), over [0, pi/2].
+N_SECTIONS = 8
+#: Closed door angle (rad).
+CLOSED = 0.5 * math.pi
+#: Origin of the model frame in device coordinates is (0, -0.158, -0.138) m (eq. 4.2):
+#: y_m = y + DEVICE_OFFSET_Y, z_m = z + DEVICE_OFFSET_Z.
+DEVICE_OFFSET_Y = 0.158
+DEVICE_OFFSET_Z = 0.138
+
+_DEG = math.pi / 180.0
+
+PARAMS = ParamTable("haptic", [
+    # -- sensations: what the operator tunes ------------------------------------
+    Param("inertia", "kg m", 1.2, 0.05, 20.0, "sensation",
+          "equivalent inertia at the handle, I = m R (heaviness)"),
+    Param("friction_closing", "N", 3.0, 0.0, 100.0, "sensation",
+          "dry friction while closing (dtheta > friction_speed_threshold)"),
+    Param("friction_opening", "N", 2.0, 0.0, 100.0, "sensation",
+          "dry friction while opening (dtheta < friction_speed_threshold)"),
+    *[Param(f"friction_scale_{k}", "1", 1.0, 0.0, 1.0, "sensation",
+            f"dry-friction scale on section {k} of 8, "
+            f"[{(k - 1) * 90 / N_SECTIONS:g}, {k * 90 / N_SECTIONS:g}] deg")
+      for k in range(1, N_SECTIONS + 1)],
+    Param("viscous_damping", "N s/rad", 0.2, 0.0, 100.0, "sensation",
+          "viscous friction, force c_v * |dtheta| against the motion (eq. 4.42)"),
+    Param("return_stiffness", "N/rad", 0.0, 0.0, 1000.0, "sensation",
+          "return spring toward return_angle, e.g. a soft close (eq. 4.43); 0 = none"),
+    Param("return_angle", "rad", CLOSED, 0.0, CLOSED, "sensation",
+          "rest angle of the return spring (pi/2 pulls toward closed)"),
+    Param("return_onset", "rad", 0.25 * math.pi, 0.0, CLOSED, "sensation",
+          "the return spring acts above this angle"),
+    Param("open_force", "N", 20.0, 0.0, 200.0, "sensation",
+          "latch force to overcome to unlock (peak of the opening force); 0 = none"),
+    Param("close_force", "N", 12.0, 0.0, 200.0, "sensation",
+          "latch force to overcome to lock (peak of the closing force); 0 = none"),
+    Param("loose_angle", "rad", 0.5 * _DEG, 0.0, 0.1, "sensation",
+          "free play below closed before the latch engages (seed: 0.5 deg)"),
+    Param("transition_angle", "rad", 0.005, 0.0, 0.1, "sensation",
+          "snap zone between the unlock and the lock band"),
+    Param("gasket_stiffness", "N/rad", 200.0, 0.0, 1.0e4, "sensation",
+          "soft push toward opening in the loose band (door seal)"),
+    Param("transition_damping", "N s/rad", 5.0, 0.0, 1000.0, "sensation",
+          "negative damping in the snap zone: the door leaves it on its own (eq. 4.41)"),
+    # -- the door's end stops -----------------------------------------------------
+    Param("stop_stiffness", "N/rad", 2.0e4, 0.0, 1.0e5, "specification",
+          "end stops beyond closed (pi/2) and fully open (0); 0 = none"),
+    Param("stop_damping", "N s/rad", 200.0, 0.0, 1000.0, "specification",
+          "damping of the end stops"),
+    # -- device: what a renderer can afford ---------------------------------------
+    Param("latch_stiffness", "N/rad", 2000.0, 100.0, 1.0e5, "device",
+          "stiffness of the latch springs; band widths are force / stiffness"),
+    Param("latch_damping", "N s/rad", 20.0, 0.0, 1000.0, "device",
+          "damping inside the latch bands (eq. 4.40)"),
+    Param("radius", "m", 0.3, 0.05, 1.0, "device",
+          "radius of the handle's circular path on the device"),
+    Param("k_radial", "N/m", 2000.0, 0.0, 1.0e5, "device",
+          "spring holding the end effector on the circle (eq. 4.32-4.33)"),
+    Param("c_radial", "N s/m", 200.0, 0.0, 1.0e4, "device",
+          "damper holding the end effector on the circle"),
+    Param("k_plane", "N/m", 300.0, 0.0, 1.0e5, "device",
+          "spring holding the end effector in the plane x = 0 (eq. 4.21)"),
+    Param("c_plane", "N s/m", 100.0, 0.0, 1.0e4, "device",
+          "damper holding the end effector in the plane x = 0"),
+    Param("c_energy", "N s/m", 0.0, 0.0, 1.0e4, "device",
+          "tangential negative damping offsetting c_radial's loss (eq. 4.34-4.35)"),
+    # -- numerics: smoothness of the switches ---------------------------------------
+    Param("friction_slope", "s/rad", 100.0, 0.0, 2000.0, "numerics",
+          "tanh slope of dry friction, F = c tanh(a dtheta) (eq. 3.1)"),
+    Param("friction_speed_threshold", "rad/s", 0.0, 0.0, 1.0, "numerics",
+          "speed above which closing friction takes over from opening friction"),
+    Param("window_slope", "1/rad", 100.0, 1.0, 1.0e4, "numerics",
+          "activation slope of the friction sections and the return onset"),
+    Param("latch_sharpness", "1", 20.0, 5.0, 1000.0, "numerics",
+          "latch band width / width of its release edge"),
+    Param("latch_gate_slope", "s/rad", 500.0, 10.0, 1.0e4, "numerics",
+          "slope of the speed gate that mutes the lock spring while opening"),
+])
+
+# Positions in the kernel vector, generated from the declaration (never literal).
+INERTIA = PARAMS.index("inertia")
+FRICTION_CLOSING = PARAMS.index("friction_closing")
+FRICTION_OPENING = PARAMS.index("friction_opening")
+FRICTION_SCALE_1 = PARAMS.index("friction_scale_1")
+VISCOUS_DAMPING = PARAMS.index("viscous_damping")
+RETURN_STIFFNESS = PARAMS.index("return_stiffness")
+RETURN_ANGLE = PARAMS.index("return_angle")
+RETURN_ONSET = PARAMS.index("return_onset")
+OPEN_FORCE = PARAMS.index("open_force")
+CLOSE_FORCE = PARAMS.index("close_force")
+LOOSE_ANGLE = PARAMS.index("loose_angle")
+TRANSITION_ANGLE = PARAMS.index("transition_angle")
+GASKET_STIFFNESS = PARAMS.index("gasket_stiffness")
+TRANSITION_DAMPING = PARAMS.index("transition_damping")
+STOP_STIFFNESS = PARAMS.index("stop_stiffness")
+STOP_DAMPING = PARAMS.index("stop_damping")
+LATCH_STIFFNESS = PARAMS.index("latch_stiffness")
+LATCH_DAMPING = PARAMS.index("latch_damping")
+RADIUS = PARAMS.index("radius")
+K_RADIAL = PARAMS.index("k_radial")
+C_RADIAL = PARAMS.index("c_radial")
+K_PLANE = PARAMS.index("k_plane")
+C_PLANE = PARAMS.index("c_plane")
+C_ENERGY = PARAMS.index("c_energy")
+FRICTION_SLOPE = PARAMS.index("friction_slope")
+FRICTION_SPEED_THRESHOLD = PARAMS.index("friction_speed_threshold")
+WINDOW_SLOPE = PARAMS.index("window_slope")
+LATCH_SHARPNESS = PARAMS.index("latch_sharpness")
+LATCH_GATE_SLOPE = PARAMS.index("latch_gate_slope")
+
+assert all(PARAMS.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k
+           for k in range(N_SECTIONS))
+
+
+# ---------------------------------------------------------------------------------
+# Building blocks
+# ---------------------------------------------------------------------------------
+@njit(cache=True)
+def activation(x, x0, slope):
+    """S(x, x0, a) = (tanh(a (x - x0)) + 1) / 2 (eq. 4.36): ~0 below x0, ~1 above.
+
+    Beyond |a (x - x0)| = 20 tanh is +-1 to double precision, so the branches return
+    the exact value without a transcendental call (most switches are far away most of
+    the time).
+    """
+    u = slope * (x - x0)
+    if u > 20.0:
+        return 1.0
+    if u < -20.0:
+        return 0.0
+    # (tanh(u) + 1) / 2 = 1 / (1 + exp(-2 u)), the same to 3e-16 and twice as fast
+    return 1.0 / (1.0 + math.exp(-2.0 * u))
+
+
+@njit(cache=True)
+def release(x, sharpness):
+    """Smooth end of a latch band: ~1 inside it (x > 0), ~0 beyond it (x < 0).
+
+    ``x`` is the distance from the band's end, in band widths, positive inside.
+    R(x) = S(x, -delta, n), edge slope n = latch_sharpness per band width, centred
+    delta = (ln 2n + 1) / 2n widths *beyond* the end: then a spring that rises across
+    the band to F at its end, F (1 - x) R(x), peaks at exactly F (at x = -1/2n),
+    where an edge centred on the end would cut the peak by (ln 2n + 1) / 2n.
+    """
+    u = sharpness * x
+    if u > 25.0:      # n delta <= 4.3 for n <= 1000: S is exactly 1 or 0 out here
+        return 1.0
+    if u < -25.0:
+        return 0.0
+    return 1.0 / (1.0 + math.exp(-2.0 * u - math.log(2.0 * sharpness) - 1.0))
+
+
+@njit(cache=True)
+def latch_angles(p):
+    """The latch band limits (rad), derived from the sensations.
+
+    Returns ``(theta_0, theta_1, theta_2, theta_3)``, going down from closed (pi/2):
+    loose band [theta_0, pi/2], unlock band [theta_1, theta_0], snap zone
+    [theta_2, theta_1], lock band [theta_3, theta_2].
+    """
+    k = p[LATCH_STIFFNESS]
+    theta_0 = CLOSED - p[LOOSE_ANGLE]
+    theta_1 = theta_0 - p[OPEN_FORCE] / k
+    theta_2 = theta_1 - p[TRANSITION_ANGLE]
+    theta_3 = theta_2 - p[CLOSE_FORCE] / k
+    return theta_0, theta_1, theta_2, theta_3
+
+
+@njit(cache=True)
+def section_scale(theta, p):
+    """A(theta): the per-section friction scale (eq. 4.48 / 5.8), smooth, in [0, 1].
+
+    A = A_1 + sum_{k=2..8} (A_k - A_{k-1}) S(theta, theta_{k-1}), section boundaries
+    theta_j = j pi/16. The first and last sections extend beyond [0, pi/2] (the
+    telescoping sum never fades to zero at the ends); all A_k = 1 gives A = 1 exactly
+    (and costs no transcendental call).
+    """
+    scale = p[FRICTION_SCALE_1]
+    width = CLOSED / N_SECTIONS
+    for k in range(1, N_SECTIONS):
+        step = p[FRICTION_SCALE_1 + k] - p[FRICTION_SCALE_1 + k - 1]
+        if step != 0.0:
+            scale += step * activation(theta, k * width, p[WINDOW_SLOPE])
+    return scale
+
+
+# ---------------------------------------------------------------------------------
+# The tangential force law: the whole feel, top to bottom
+# ---------------------------------------------------------------------------------
+@njit(cache=True)
+def tangential_force(theta, dtheta, p):
+    """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing.
+
+    Sum of the phases of seed section 4.3.3, with the spec's behaviour. Every effect
+    is switched off by a zero: frictions, viscous_damping, return_stiffness,
+    open_force and close_force (both zero: no latch at all), gasket_stiffness,
+    transition_damping, stop_stiffness.
+    """
+    f = 0.0
+
+    # 1. Dry friction, asymmetric (eqs. 3.1, 4.44-4.48, corrected):
+    #      sigma  = S(dtheta, dtheta_0, a)                    closing selector
+    #      c      = c_open + (c_close - c_open) sigma         magnitude
+    #      F_dry  = -A(theta) c tanh(a dtheta)
+    #    At speed well above dtheta_0 the door feels friction_closing, below it
+    #    friction_opening (the seed's eq. 4.47 selected them the other way round and
+    #    eq. 4.46 had tanh(a theta) for tanh(a dtheta)).
+    a = p[FRICTION_SLOPE]
+    forward = activation(dtheta, 0.0, a)               # tanh(a dtheta) = 2 forward - 1
+    threshold = p[FRICTION_SPEED_THRESHOLD]
+    sigma = forward if threshold == 0.0 else activation(dtheta, threshold, a)
+    magnitude = p[FRICTION_OPENING] + (p[FRICTION_CLOSING] - p[FRICTION_OPENING]) * sigma
+    if magnitude != 0.0:
+        f -= section_scale(theta, p) * magnitude * (2.0 * forward - 1.0)
+
+    # 2. Viscous friction (eq. 4.42):  F_v = -c_v dtheta
+    f -= p[VISCOUS_DAMPING] * dtheta
+
+    # 3. Return spring above its onset (eq. 4.43):
+    #      F_ret = -k_ret (theta - theta_k) S(theta, theta_on)
+    if p[RETURN_STIFFNESS] != 0.0:
+        f -= (p[RETURN_STIFFNESS] * (theta - p[RETURN_ANGLE])
+              * activation(theta, p[RETURN_ONSET], p[WINDOW_SLOPE]))
+
+    # 4. Loose band [theta_0, pi/2] and beyond: the gasket pushes toward opening,
+    #      F_g = -k_l max(theta - theta_0, 0)
+    #    (zero at theta_0, where the latch hook takes over, so a latched door with no
+    #    hand on it rests at theta_0, at the edge of the free play).
+    theta_0 = CLOSED - p[LOOSE_ANGLE]
+    if theta > theta_0:
+        f -= p[GASKET_STIFFNESS] * (theta - theta_0)
+
+    # 5. The latch (eqs. 4.39-4.41, corrected), only if it has a force to give.
+    #    Skipped below the lowest angle any latch term reaches: theta_0 minus
+    #    (1.4 + 20 / n) latch lengths (written without divisions).
+    open_force = p[OPEN_FORCE]
+    close_force = p[CLOSE_FORCE]
+    k = p[LATCH_STIFFNESS]
+    n = p[LATCH_SHARPNESS]
+    k_length = open_force + close_force + k * p[TRANSITION_ANGLE]  # k (theta_0 - theta_3)
+    if ((open_force > 0.0 or close_force > 0.0)
+            and (theta_0 - theta) * k * n < k_length * (1.4 * n + 20.0)):
+        c = p[LATCH_DAMPING]
+        w_1 = open_force / k                  # unlock band width
+        w_2 = close_force / k                 # lock band width
+        theta_1 = theta_0 - w_1
+        theta_2 = theta_1 - p[TRANSITION_ANGLE]
+        theta_3 = theta_2 - w_2
+
+        # 5a. Unlock band [theta_1, theta_0]: the hook, pushing toward closing; it
+        #     rises from 0 at theta_0 to open_force at theta_1, then lets go:
+        #       F_o = [k (theta_0 - theta) - c dtheta] R((theta - theta_1) / w_1)
+        #     (R: see `release`; the smooth peak is exactly open_force). Active in
+        #     both directions: it holds the latched door against the gasket and pulls
+        #     a closing door in (the snap).
+        if open_force > 0.0 and theta < theta_0:
+            f += (k * (theta_0 - theta) - c * dtheta) * release((theta - theta_1) / w_1, n)
+
+        # 5b. Snap zone [theta_2, theta_1]: negative damping, the door does not stay
+        #       F_t = +c_n dtheta [S(theta, theta_2) - S(theta, theta_1)],  slope n / width
+        width = theta_1 - theta_2
+        c_n = p[TRANSITION_DAMPING]
+        if (c_n != 0.0 and width > 0.0 and (theta_2 - theta) * n < 20.0 * width
+                and (theta - theta_1) * n < 20.0 * width):
+            slope = n / width
+            f += c_n * dtheta * (activation(theta, theta_2, slope)
+                                 - activation(theta, theta_1, slope))
+
+        # 5c. Lock band [theta_3, theta_2]: the hook's ramp, pushing toward opening,
+        #     from 0 at theta_3 to close_force at theta_2, then lets go:
+        #       F_c = -[k (theta - theta_3) + c dtheta] R((theta_2 - theta) / w_2) G,
+        #       G   = S(dtheta, -3 / a_g, a_g)   ~1 unless clearly opening,
+        #     so an opening door, once unlocked, feels ~0 here (the seed gates this
+        #     spring with the closing direction too).
+        if close_force > 0.0 and theta > theta_3:
+            r = release((theta_2 - theta) / w_2, n)
+            if r > 0.0:
+                a_g = p[LATCH_GATE_SLOPE]
+                gate = activation(dtheta, -3.0 / a_g, a_g)
+                f -= (k * (theta - theta_3) + c * dtheta) * r * gate
+
+    # 6. End stops: stiff, damped, never pulling (closed wall at pi/2, open stop at 0).
+    ks = p[STOP_STIFFNESS]
+    if ks > 0.0:
+        if theta > CLOSED:
+            f += min(0.0, -ks * (theta - CLOSED) - p[STOP_DAMPING] * dtheta)
+        elif theta < 0.0:
+            f += max(0.0, -ks * theta - p[STOP_DAMPING] * dtheta)
+    return f
+
+
+@njit(cache=True)
+def accel(theta, dtheta, force, p):
+    """Reduced dynamics (eq. 5.7): ddtheta = (F_tan(theta, dtheta) + F_u) / I."""
+    return (tangential_force(theta, dtheta, p) + force) / p[INERTIA]
+
+
+# ---------------------------------------------------------------------------------
+# Device space (eq. 4.2-4.8, 4.20-4.35, 4.52)
+# ---------------------------------------------------------------------------------
+@njit(cache=True)
+def device_force(x, y, z, vx, vy, vz, p, out):
+    """Force (N) on the end effector, in device axes, written to ``out[0:3]``.
+
+    ``(x, y, z)`` (m) and ``(vx, vy, vz)`` (m/s) are the device's internal end-effector
+    position and velocity. Pure and allocation-free: a servo loop calls it.
+
+    Model frame (eq. 4.2): y_m = y + 0.158, z_m = z + 0.138; theta = atan2(y_m, z_m),
+    dtheta = (vy z_m - vz y_m) / r^2 (eq. 4.5). Unit vectors in (y, z):
+    e_r = (sin th, cos th), e_th = (cos th, -sin th) (toward closing).
+
+    F_x = -k_x x - c_x vx                                           (4.21)
+    Q = R (sin th, cos th) is the nearest path point;                (4.26-4.31)
+    F_(y,z) = -k_r (P - Q) - c_r (dP/dt - dQ/dt)                     (4.32-4.33)
+            + c_e R dtheta e_th                                      (4.34-4.35)
+            + F_tan(theta, dtheta) e_th                              (4.6-4.8, 4.50)
+    """
+    ym = y + DEVICE_OFFSET_Y
+    zm = z + DEVICE_OFFSET_Z
+    r2 = ym * ym + zm * zm
+    if r2 > 1e-18:
+        theta = math.atan2(ym, zm)
+        dtheta = (vy * zm - vz * ym) / r2
+        r = math.sqrt(r2)
+        s = ym / r                          # sin(theta)
+        c = zm / r                          # cos(theta)
+    else:  # on the hinge axis: no direction, no rate
+        theta = 0.0
+        dtheta = 0.0
+        s = 0.0
+        c = 1.0
+    radius = p[RADIUS]
+    # constraint to the circle: offset and relative velocity from the path point Q
+    dy = ym - radius * s
+    dz = zm - radius * c
+    ddy = vy - dtheta * radius * c
+    ddz = vz + dtheta * radius * s
+    # tangential behaviour, plus the energy compensation, along e_theta
+    f_t = tangential_force(theta, dtheta, p) + p[C_ENERGY] * radius * dtheta
+    out[0] = -p[K_PLANE] * x - p[C_PLANE] * vx
+    out[1] = -p[K_RADIAL] * dy - p[C_RADIAL] * ddy + f_t * c
+    out[2] = -p[K_RADIAL] * dz - p[C_RADIAL] * ddz - f_t * s
+
+
+def device_force_vector(position, velocity, params, out=None) -> np.ndarray:
+    """Python convenience around :func:`device_force`: the force as a 3-vector (N).
+
+    ``position`` and ``velocity`` are (x, y, z) in device coordinates (m, m/s), as
+    tuples, lists or arrays; ``params`` is the kernel vector (``param_vector(ps)``,
+    fastest) or a :class:`~evo_door.params.ParamSet`. ``out`` (a float64 array of 3)
+    is filled and returned when given, else a new array is.
+    """
+    if type(params) is not np.ndarray:
+        params = param_vector(params)
+    if out is None:
+        out = np.empty(3)
+    # numba dispatches fastest on Python floats: unpack arrays through tolist()
+    x, y, z = position.tolist() if type(position) is np.ndarray else position
+    vx, vy, vz = velocity.tolist() if type(velocity) is np.ndarray else velocity
+    device_force(x, y, z, vx, vy, vz, params, out)
+    return out
+
+
+def param_vector(params) -> np.ndarray:
+    """A writable C-contiguous float64 copy of a ParamSet's (or array's) values."""
+    p = np.array(getattr(params, "vector", params), dtype=np.float64, order="C")
+    if p.shape != (len(PARAMS),):
+        raise UserError(f"model 'haptic' takes {len(PARAMS)} parameters, got shape {p.shape}")
+    return p
+
+
+def device_mass(params) -> float:
+    """Virtual mass (kg) a device must give the end effector: m = I / R (eq. 4.53)."""
+    p = param_vector(params)
+    return float(p[INERTIA] / p[RADIUS])
+
+
+def on_path(theta, radius) -> tuple[float, float, float]:
+    """Device coordinates (x, y, z) of the handle at door angle ``theta`` (rad)."""
+    return (0.0, radius * math.sin(theta) - DEVICE_OFFSET_Y,
+            radius * math.cos(theta) - DEVICE_OFFSET_Z)
+
+
+def latch_angles_of(params) -> dict[str, float]:
+    """The latch band limits (rad) of a parameter set, by name."""
+    names = ("theta_0", "theta_1", "theta_2", "theta_3")
+    return dict(zip(names, (float(v) for v in latch_angles(param_vector(params)))))
+
+
+_NOTES = """\
+theta: 0 = fully open, pi/2 = closed; forces + toward closing. The latch bands follow
+from the sensations, going down from closed: loose band [theta_0, pi/2] with
+theta_0 = pi/2 - loose_angle; unlock band down to theta_1 = theta_0 - open_force /
+latch_stiffness; snap zone of transition_angle; lock band of close_force /
+latch_stiffness. Device space: virtual mass inertia / radius, model origin at device
+(0, -0.158, -0.138) m. Equations: docs/haptic-model.md."""
+
+#: ROS2 (semi-implicit) with 2 steps per 1024 Hz sample: stable for the stiffest
+#: declared latch (1e5 N/rad on 0.05 kg m), steep dry friction and the end stops;
+#: see docs/haptic-model.md "Integration".
+MODEL = Model(
+    name="haptic",
+    title="Haptic model of the dishwasher door",
+    params=PARAMS,
+    accel=accel,
+    method="semi_implicit",
+    substeps=2,
+    theta0=CLOSED,
+    notes=_NOTES,
+    extras={"device_force": device_force, "tangential_force": tangential_force,
+            "latch_angles": latch_angles_of, "device_mass": device_mass},
+)

@@ -1,0 +1,229 @@
+"""The estimation problem: model + target trials + free parameters + objective.
+
+A :class:`Problem` knows nothing of genetic algorithms: it maps a matrix of candidate
+vectors (one row per candidate, one column per *free* parameter, in the problem's
+order) to objective values, in one compiled, parallel call per batch
+(:func:`evo_door.optim.kernels.population_errors`). Any algorithm (the GA, SLSQP, a
+grid) drives it through :meth:`Problem.evaluate`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from evo_door.data.trial import RESPONSE_CHANNELS, Trial
+from evo_door.errors import UserError
+from evo_door.optim.kernels import KINDS, population_errors
+from evo_door.sim.integrators import METHODS
+from evo_door.sim.simulate import Response, simulate
+
+#: How the per-trial objectives of one candidate are combined into its fitness.
+COMBINE = ("sum", "max", "mean")
+
+
+@dataclass(frozen=True)
+class Objective:
+    """Objective of eq. 5.3 (``max_square``) or 5.4 (``ise``) on derivative 0, 1 or 2.
+
+    Parameters
+    ----------
+    kind : {"max_square", "ise"}
+    derivative : {0, 1, 2}
+        0 angle (rad), 1 angular speed (rad/s), 2 angular acceleration (rad/s^2).
+    combine : {"sum", "max", "mean"}
+        How the objectives of several trials make one fitness.
+    """
+
+    kind: str = "max_square"
+    derivative: int = 1
+    combine: str = "sum"
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"objective kind {self.kind!r} not in {tuple(KINDS)}")
+        if self.derivative not in (0, 1, 2):
+            raise ValueError(f"objective derivative {self.derivative!r} not in (0, 1, 2)")
+        if self.combine not in COMBINE:
+            raise ValueError(f"objective combine {self.combine!r} not in {COMBINE}")
+
+    @property
+    def channel(self) -> str:
+        """The trial channel compared: theta, dtheta or ddtheta."""
+        return RESPONSE_CHANNELS[self.derivative]
+
+    @property
+    def unit(self) -> str:
+        unit = ("rad", "rad/s", "rad/s^2")[self.derivative]
+        return f"({unit})^2" + (" s" if self.kind == "ise" else "")
+
+    def combine_errors(self, errors: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """Fitness per row of ``errors`` (n_candidates, n_trials); inf where any trial blew up."""
+        errors = np.where(ok, errors, np.inf)
+        if self.combine == "sum":
+            out = errors.sum(axis=1)
+        elif self.combine == "max":
+            out = errors.max(axis=1)
+        else:
+            out = errors.mean(axis=1)
+        return out
+
+    def describe(self) -> str:
+        eq = "max_t (e)^2, eq. 5.3" if self.kind == "max_square" else "integral e^2 dt, eq. 5.4"
+        return f"{self.kind} ({eq}) on {self.channel}, {self.combine} over trials"
+
+
+class TrialPack:
+    """Trials concatenated for the kernel (see :mod:`evo_door.optim.kernels`)."""
+
+    def __init__(self, trials: Sequence[Trial], derivative: int):
+        self.trials = list(trials)
+        channel = RESPONSE_CHANNELS[derivative]
+        for tr in self.trials:
+            if tr.channel(derivative) is None:
+                raise UserError(f"{tr.label}: trial {tr.trial_id!r} has no {channel!r} channel, "
+                                f"which the objective (derivative {derivative}) compares")
+        lengths = [tr.n for tr in self.trials]
+        self.offsets = np.zeros(len(lengths) + 1, dtype=np.int64)
+        self.offsets[1:] = np.cumsum(lengths)
+        cat = (lambda parts: np.ascontiguousarray(np.concatenate(parts)) if parts
+               else np.zeros(0))
+        self.force = cat([tr.force for tr in self.trials])
+        self.target = cat([tr.channel(derivative) for tr in self.trials])
+        # saturated sensor samples do not count (Trial.unsaturated, when available)
+        masks = [tr.unsaturated(channel) if hasattr(tr, "unsaturated")
+                 else np.ones(tr.n, dtype=np.bool_) for tr in self.trials]
+        self.mask = (np.ascontiguousarray(np.concatenate(masks), dtype=np.bool_) if masks
+                     else np.zeros(0, dtype=np.bool_))
+        self.dt = np.array([tr.dt for tr in self.trials], dtype=np.float64)
+        states = [tr.initial_state() for tr in self.trials]
+        self.theta0 = np.array([s[0] for s in states], dtype=np.float64)
+        self.dtheta0 = np.array([s[1] for s in states], dtype=np.float64)
+
+    def __len__(self) -> int:
+        return len(self.trials)
+
+    @property
+    def ids(self) -> list[str]:
+        return [tr.trial_id for tr in self.trials]
+
+    @property
+    def samples(self) -> int:
+        return int(self.offsets[-1])
+
+
+class Problem:
+    """Fit the free parameters of ``model`` to ``trials`` under ``objective``.
+
+    Parameters
+    ----------
+    model : Model
+    free : sequence of str
+        Names of the free parameters: the columns of every candidate matrix.
+    lower, upper : array_like
+        Search bounds of the free parameters (inside their declared ranges).
+    base : array_like
+        Full parameter vector (declaration order) giving every non-free value.
+    trials : sequence of Trial
+        Fitted trials; their channel of the objective's derivative is the target.
+    objective : Objective
+    validation : sequence of Trial
+        Trials not fitted; :meth:`validation_errors` reports the model's error on them.
+    method, substeps :
+        Integration scheme and sub-steps per sample (default: the model's).
+    """
+
+    def __init__(self, model, free: Sequence[str], lower, upper, base, trials,
+                 objective: Objective, validation: Sequence[Trial] = (),
+                 method: str | None = None, substeps: int | None = None):
+        self.model = model
+        self.free = tuple(free)
+        self.index = np.array([model.params.index(n) for n in self.free], dtype=np.int64)
+        self.lower = np.array(lower, dtype=np.float64).reshape(len(self.free))
+        self.upper = np.array(upper, dtype=np.float64).reshape(len(self.free))
+        if np.any(self.lower >= self.upper):
+            raise UserError("every free parameter needs lower < upper")
+        self.base = np.array(base, dtype=np.float64)
+        if self.base.shape != (len(model.params),):
+            raise ValueError(f"base vector must have {len(model.params)} values")
+        self.objective = objective
+        self.method = method or model.method
+        self.method_code = METHODS[self.method]
+        self.substeps = int(substeps or model.substeps)
+        self.fit = TrialPack(trials, objective.derivative)
+        if len(self.fit) == 0:
+            raise UserError("no trial to fit")
+        self.validation = TrialPack(validation, objective.derivative)
+
+    # -- vectors --------------------------------------------------------------
+    @property
+    def n_var(self) -> int:
+        return len(self.free)
+
+    def full(self, X) -> np.ndarray:
+        """Full parameter matrix (rows in declaration order) for candidates ``X``."""
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        P = np.repeat(self.base[None, :], X.shape[0], axis=0)
+        P[:, self.index] = X
+        return np.ascontiguousarray(P)
+
+    def as_dict(self, x) -> dict[str, float]:
+        """Free parameter name -> value for one candidate."""
+        return {n: float(v) for n, v in zip(self.free, np.asarray(x, dtype=np.float64))}
+
+    def check_bounds(self, X) -> None:
+        X = np.atleast_2d(X)
+        bad = ~((X >= self.lower) & (X <= self.upper))
+        if bad.any():
+            i, j = np.argwhere(bad)[0]
+            raise ValueError(f"candidate {i}: {self.free[j]} = {X[i, j]!r} outside "
+                             f"[{self.lower[j]!r}, {self.upper[j]!r}]")
+
+    # -- evaluation -----------------------------------------------------------
+    def trial_errors(self, X, pack: TrialPack | None = None):
+        """``(errors, ok)``, both (n_candidates, n_trials), on the fit trials by default."""
+        pack = self.fit if pack is None else pack
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        self.check_bounds(X)
+        P = self.full(X)
+        err = np.empty((P.shape[0], len(pack)))
+        ok = np.zeros((P.shape[0], len(pack)), dtype=np.bool_)
+        if len(pack) and P.shape[0]:
+            population_errors(self.model.accel, P, pack.force, pack.target, pack.mask,
+                              pack.offsets,
+                              pack.dt, pack.theta0, pack.dtheta0, self.substeps,
+                              self.method_code, self.objective.derivative,
+                              KINDS[self.objective.kind], err, ok)
+        return err, ok
+
+    def evaluate(self, X):
+        """``(fitness, blown)`` per candidate; a blown-up candidate has fitness inf."""
+        err, ok = self.trial_errors(X)
+        blown = ~ok.all(axis=1)
+        return self.objective.combine_errors(err, ok), blown
+
+    def validation_errors(self, x) -> np.ndarray:
+        """Objective of one candidate on each validation trial (inf where it blew up)."""
+        if not len(self.validation):
+            return np.zeros(0)
+        err, ok = self.trial_errors(x, self.validation)
+        return np.where(ok, err, np.inf)[0]
+
+    def responses(self, x, pack: TrialPack | None = None) -> list[Response]:
+        """Full simulated responses of one candidate on the trials of ``pack``."""
+        pack = self.fit if pack is None else pack
+        p = self.full(x)[0]
+        out = []
+        for tr, th0, w0 in zip(pack.trials, pack.theta0, pack.dtheta0):
+            out.append(simulate(self.model, p, tr.force, tr.dt, theta0=th0, dtheta0=w0,
+                                t0=float(tr.t[0]), method=self.method,
+                                substeps=self.substeps))
+        return out
+
+    def subproblem(self, trial_indices: Sequence[int]) -> "Problem":
+        """The same problem on a subset of the fit trials (``per_trial`` fits)."""
+        return Problem(self.model, self.free, self.lower, self.upper, self.base,
+                       [self.fit.trials[i] for i in trial_indices], self.objective,
+                       self.validation.trials, self.method, self.substeps)

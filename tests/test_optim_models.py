@@ -1,0 +1,69 @@
+"""Round trip on the project's models: trials made with known parameters give them back.
+
+Trials are simulated with the model's default parameters from a few force profiles
+(a push toward closing, free decay, a pull toward opening, free decay) in the middle of
+the stroke, away from the latch and the end stops; the noisy variant measures force and
+angular speed through the virtual rig's sensor models (load cell, gyroscope: noise,
+bias, 16-bit quantisation). A GA with a small budget, then SLSQP, must recover the
+identifiable parameters within 1 % (noise-free) and 3 % (rig noise).
+"""
+
+import numpy as np
+import pytest
+
+from evo_door.data.trial import Trial
+from evo_door.errors import UserError
+from evo_door.models import get_model
+from evo_door.optim import GASettings, GeneticAlgorithm, Objective, Problem, slsqp
+from evo_door.sim import simulate
+
+DT = 1.0 / 1024.0
+
+
+def model_or_skip(name):
+    try:
+        return get_model(name)
+    except (UserError, AttributeError, ImportError) as exc:
+        pytest.skip(f"model {name!r} not available: {exc}")
+
+
+def push_pull_trial(model, params, seed, noise):
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(2.5 / DT)) * DT
+    force = np.zeros_like(t)
+    for start, sign in ((0.1, 1.0), (1.2, -1.0)):
+        on = (t >= start) & (t < start + 0.3)
+        force[on] = sign * rng.uniform(6.0, 10.0) * np.sin(np.pi * (t[on] - start) / 0.3)
+    theta0 = rng.uniform(0.45, 0.8)
+    r = simulate(model, params, force, DT, theta0=theta0)
+    assert r.ok and 0.05 < r.theta.min() and r.theta.max() < 1.3  # clear of stops and latch
+    sensors = {}
+    measured_force, dtheta = force, r.dtheta
+    if noise:
+        from evo_door.data.sensors import GYROSCOPE, LOAD_CELL
+
+        measured_force = LOAD_CELL.measure(force, rng)
+        dtheta = GYROSCOPE.measure(r.dtheta, rng)
+        sensors = {"force": LOAD_CELL.info(), "dtheta": GYROSCOPE.info()}
+    return Trial(t, measured_force, r.theta, dtheta, r.ddtheta, trial_id=f"h{seed}",
+                 theta0=theta0, dtheta0=0.0, sensors=sensors)
+
+
+@pytest.mark.parametrize("noise, tol, identifiable", [
+    (False, 0.01, ["inertia", "friction_closing", "friction_opening", "viscous_damping"]),
+    # 0.2 N s/rad of viscous damping is worth < 0.35 N at these speeds: within the
+    # load cell's noise, so only the first three are held to 3 % with noise.
+    (True, 0.03, ["inertia", "friction_closing", "friction_opening"]),
+])
+def test_haptic_round_trip_ga_then_polish(noise, tol, identifiable):
+    model = model_or_skip("haptic")
+    truth = model.params.defaults
+    trials = [push_pull_trial(model, truth, seed, noise) for seed in (2, 3, 4)]
+    free = ["inertia", "friction_closing", "friction_opening", "viscous_damping"]
+    prob = Problem(model, free, [0.3, 0.0, 0.0, 0.0], [5.0, 10.0, 10.0, 2.0], truth, trials,
+                   Objective("ise", 1))
+    state = GeneticAlgorithm(GASettings(population=40, generations=8, seed=1)).run(prob)
+    res = slsqp(prob, state.best_x)
+    rel = dict(zip(free, np.abs(res.x / truth[prob.index] - 1.0)))
+    print({k: f"{v:.2e}" for k, v in rel.items()})
+    assert all(rel[name] < tol for name in identifiable), rel

@@ -1,0 +1,201 @@
+"""The virtual test rig: determinism, sensors, true parameters, the physics of its trials, CLI."""
+
+import math
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numba import njit
+
+from evo_door.data import read_trials, write_trials
+from evo_door.data import rig
+from evo_door.data.preprocess import find_force_peak
+from evo_door.data.sensors import CLOSED, DEG, GYROSCOPE, INCLINOMETER, LOAD_CELL, Sensor
+from evo_door.models.base import Model
+from evo_door.params import Param, ParamTable
+from evo_door.sim import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@njit(cache=True)
+def toy_door_accel(theta, dtheta, force, p):
+    """A door in miniature: dry friction, a latch detent near closed, stops at both ends.
+
+    x = pi/2 - theta (from closed): in [0.3, 1.5] deg the latch holds the door shut
+    (a bump of height open_force); in [1.5, 3] deg it resists closing (close_force).
+    """
+    inertia, friction, open_force, close_force = p[0], p[1], p[2], p[3]
+    deg = math.pi / 180.0
+    x = math.pi / 2 - theta
+    f = force - friction * math.tanh(50.0 * dtheta)
+    if 0.3 * deg < x < 1.5 * deg:
+        f += open_force * math.sin(math.pi * (x - 0.3 * deg) / (1.2 * deg))
+    elif 1.5 * deg <= x < 3.0 * deg:
+        f -= close_force * math.sin(math.pi * (x - 1.5 * deg) / (1.5 * deg))
+    if theta < 0.0:
+        f += -2e4 * theta - 200.0 * dtheta
+    if x < 0.0:
+        f += 2e4 * x - 200.0 * dtheta
+    return f / inertia
+
+
+#: Importable as "tests.test_rig:TOY_DOOR" wherever a model name is accepted.
+TOY_DOOR = Model("toy_door", "toy door", ParamTable("toy_door", [
+    Param("inertia", "kg m", 4.0, 0.1, 100.0, "specification", "equivalent inertia at the handle"),
+    Param("friction", "N", 5.0, 0.0, 100.0, "specification", "dry friction"),
+    Param("open_force", "N", 40.0, 0.0, 500.0, "sensation", "latch bump against opening"),
+    Param("close_force", "N", 25.0, 0.0, 500.0, "sensation", "latch bump against closing"),
+]), toy_door_accel, method="semi_implicit", substeps=4)
+TOY = "tests.test_rig:TOY_DOOR"
+
+
+@pytest.fixture(scope="module")
+def campaign():
+    params = TOY_DOOR.load_params()
+    return params, rig.generate_trials(TOY_DOOR, params, users=3, trials=4, seed=7, progress=False)
+
+
+def test_same_seed_same_bytes_other_seed_other_trials(tmp_path, campaign):
+    params, trials = campaign
+    again = rig.generate_trials(TOY_DOOR, params, users=3, trials=4, seed=7, progress=False)
+    for a, b in zip(trials, again):
+        for ch in ("t", "force", "theta", "dtheta"):
+            x, y = getattr(a, ch), getattr(b, ch)
+            assert (x is None and y is None) or np.array_equal(x, y)
+    write_trials(tmp_path / "a.h5", trials)
+    write_trials(tmp_path / "b.h5", again)
+    assert (tmp_path / "a.h5").read_bytes() == (tmp_path / "b.h5").read_bytes()
+    other = rig.generate_trials(TOY_DOOR, params, users=3, trials=1, seed=8, progress=False)
+    assert not np.array_equal(other[0].force[:500], trials[0].force[:500])
+    # trial k does not depend on how many trials follow it
+    short = rig.generate_trials(TOY_DOOR, params, users=3, trials=2, seed=7, progress=False)
+    assert np.array_equal(short[1].force, trials[1].force)
+
+
+def test_campaign_layout_and_truth(campaign, tmp_path):
+    params, trials = campaign
+    assert [t.trial_id for t in trials] == ["T01", "T02", "T03", "T04"]
+    assert [t.user_id for t in trials] == ["U1", "U2", "U3", "U1"]
+    assert [t.kind for t in trials] == ["impulse", "unlock", "impulse", "lock"]
+    assert trials[0].channels == ("dtheta",) and trials[1].channels == ("theta",)
+    assert all(t.rate == 1024.0 for t in trials)
+    for t in trials:
+        assert t.truth["model"] == "toy_door" and t.truth["params"] == params.as_dict()
+        assert t.truth["units"]["friction"] == "N"
+        assert t.sensors["force"]["range"] == [-445.0, 445.0]
+    write_trials(tmp_path / "c.h5", trials)
+    back = read_trials(tmp_path / "c.h5")
+    assert back[2].truth == trials[2].truth
+    assert back[3].meta["rig"]["user"] == trials[3].meta["rig"]["user"]
+
+
+def test_users_differ(campaign):
+    users = rig.make_users(3, np.random.default_rng(0))
+    assert [u.user_id for u in users] == ["U1", "U2", "U3"]
+    for name, (lo, hi) in rig.USER_RANGES.items():
+        values = sorted(getattr(u, name) for u in users)
+        assert lo <= values[0] and values[-1] <= hi
+        assert values[-1] - values[0] > 0.2 * (hi - lo), name   # stratified: really different
+
+
+def test_sensor_saturation_quantisation_and_noise():
+    rng = np.random.default_rng(0)
+    coarse = Sensor("force", "test", "coarse", -10.0, 10.0, noise_std=0.0, resolution=0.5)
+    x = np.linspace(-20, 20, 401)
+    y = coarse.measure(x, rng)
+    assert np.all(np.isin(y, np.arange(-10.0, 10.01, 0.5)))          # on the 0.5 N grid
+    assert np.all(y[x <= -10.25] == -10.0) and np.all(y[x >= 10.25] == 10.0)
+    assert np.max(np.abs(y - x)[np.abs(x) < 10]) <= 0.25 + 1e-12
+    # the inclinometer's grid runs through closed; its range is +-10 deg about closed
+    z = INCLINOMETER.measure(np.array([0.0, CLOSED, CLOSED + 1.0]), rng)
+    assert z[0] == INCLINOMETER.lo and z[2] == INCLINOMETER.hi
+    assert abs(z[1] - CLOSED) < 5 * INCLINOMETER.noise_std
+    assert GYROSCOPE.hi == pytest.approx(100 * DEG) and LOAD_CELL.hi == 445.0
+    noisy = replace(LOAD_CELL, noise_std=0.5).measure(np.zeros(20000), rng)
+    assert np.std(noisy) == pytest.approx(0.5, rel=0.03)
+
+
+def test_unlock_lock_impulse_behave_like_the_seed(campaign):
+    params, trials = campaign
+    impulse, unlock, _, lock = trials
+    # impulse from open: pushed toward closing, then the speed decays linearly at
+    # friction / inertia (dry friction dominates, seed fig. 3.19)
+    ev = impulse.meta["rig"]["events"]
+    w = impulse.dtheta
+    assert impulse.force.max() > 15 and w.max() > 20 * DEG
+    i_top = int(np.argmax(w))
+    decay = (w > 0.2 * w.max()) & (np.arange(w.size) > i_top + 20)
+    slope = np.polyfit(impulse.t[decay], w[decay], 1)[0]
+    assert slope == pytest.approx(-params["friction"] / params["inertia"], rel=0.05)
+    assert ev["t_push_end"] < impulse.t[decay][0]
+    # unlock: the peak pull is the latch bump plus friction; then the door opens
+    # past the inclinometer's range (saturated samples flagged)
+    peak = find_force_peak(unlock)
+    assert -1.35 * (params["open_force"] + params["friction"]) < peak.force < -params["open_force"]
+    assert not unlock.unsaturated("theta")[-100:].any()
+    assert unlock.theta[0] == pytest.approx(CLOSED, abs=0.5 * DEG)
+    # lock: pushed from a few degrees open over the lock bump, ends closed
+    peak = find_force_peak(lock)
+    assert params["close_force"] < peak.force < 1.6 * (params["close_force"] + params["friction"])
+    assert lock.theta[0] < CLOSED - 3.5 * DEG and lock.theta[-1] == pytest.approx(CLOSED, abs=0.3 * DEG)
+
+
+def test_chunked_closed_loop_equals_one_simulation():
+    params = TOY_DOOR.load_params()
+    force = 30.0 * np.sin(np.linspace(0, 3 * np.pi, 700)) ** 2
+
+    class Replay(rig._Policy):
+        def plan(self, ts, tk, theta_k, dtheta_k):
+            return force[np.rint(ts * 1024).astype(int)]
+
+    out = rig.run_closed_loop(TOY_DOOR, params, Replay(), 1 / 1024, 0.2, 0.0,
+                              t_max=699 / 1024, chunk=7)
+    ref = simulate(TOY_DOOR, params, force, 1 / 1024, theta0=0.2)
+    np.testing.assert_array_equal(out["theta"], ref.theta)
+    np.testing.assert_array_equal(out["dtheta"], ref.dtheta)
+
+
+def test_trials_from_spec_for_experiments():
+    trials = rig.trials_from_spec({"model": TOY, "trials": 1, "seed": 2, "kinds": "lock"})
+    assert trials[0].kind == "lock" and trials[0].truth["model"] == "toy_door"
+    with pytest.raises(Exception, match="unknown key 'user'.*did you mean 'users'"):
+        rig.trials_from_spec({"model": TOY, "user": 2})
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
+    from evo_door.cli import main
+
+    out = tmp_path / "rig.h5"
+    assert main(["rig", "generate", "--model", TOY, "--set", "friction=6", "--trials", "3",
+                 "--seed", "4", "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "T03" in stdout and "peak [N]" in stdout
+    trials = read_trials(out)
+    assert len(trials) == 3 and trials[0].truth["params"]["friction"] == 6.0
+    png = tmp_path / "rig.png"
+    assert main(["data", "show", str(out), "--trial", "T02", "--plot", str(png)]) == 0
+    assert "unlock" in capsys.readouterr().out and png.stat().st_size > 10000
+    # a bad file, through the installed entry point: one line, exit 2, nothing written
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,force\n0,1\n0.001,nan\n")
+    res = run_cli("data", "import", str(bad), "--out", str(tmp_path / "never.h5"))
+    assert res.returncode == 2
+    assert res.stderr.count("\n") == 1 and "channel 'force'" in res.stderr and "row 1 (line 3)" in res.stderr
+    assert not (tmp_path / "never.h5").exists()
+
+
+def test_a_door_that_will_not_open_is_flagged():
+    params = TOY_DOOR.load_params(None, {"open_force": 400.0})
+    user = replace(rig.make_users(1, np.random.default_rng(0))[0], max_force=100.0)
+    with pytest.warns(UserWarning, match="did not unlock"):
+        tr = rig.generate_trial(TOY_DOOR, params, "unlock", user, np.random.default_rng(1))
+    assert tr.meta["rig"]["events"]["gave_up"] and np.min(tr.force) >= -100.5
