@@ -54,6 +54,9 @@ def main(argv: list[str] | None = None) -> int:
         name = getattr(exc, "filename", None) or ""
         print(f"evo-door: error: {name}: {exc.strerror or exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into `head` and the like
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print("evo-door: interrupted", file=sys.stderr)
         return 130

@@ -23,8 +23,9 @@ Two schemes:
 ``semi_implicit`` (:data:`SEMI_IMPLICIT`)
     The two-stage linearly implicit Rosenbrock method ROS2 (Verwer et al. 1999,
     gamma = 1 + 1/sqrt(2)), second order and L-stable. Its 2x2 Jacobian is taken by
-    central differences of ``accel`` once per sample period; being a W-method it keeps
-    order 2 with that frozen Jacobian. Stable for the stiff latch springs and steep
+    central differences of ``accel`` once per sample period, keeping only its
+    stabilising (non-positive) entries; being a W-method it keeps order 2 with that
+    frozen, approximate Jacobian. Stable for the stiff latch springs and steep
     tanh frictions at any step.
 
 Set ``NUMBA_DISABLE_JIT=1`` to run all kernels as plain Python (debugging, coverage).
@@ -80,7 +81,11 @@ def jacobian(accel, p, theta, dtheta, force):
     ew = 1e-6 * (1.0 + abs(dtheta))
     a_t = (accel(theta + et, dtheta, force, p) - accel(theta - et, dtheta, force, p)) / (2.0 * et)
     a_w = (accel(theta, dtheta + ew, force, p) - accel(theta, dtheta - ew, force, p)) / (2.0 * ew)
-    return a_t, a_w
+    # Only the stabilising part is treated implicitly. A snap (a latch apex, negative
+    # damping) gives a_t > 0 or a_w > 0, and with those det(I - gamma h J) can pass
+    # through zero and the step explodes. A W-method keeps its order with any
+    # Jacobian approximation, and with a_t, a_w <= 0 the determinant is >= 1.
+    return min(a_t, 0.0), min(a_w, 0.0)
 
 
 @njit(cache=True, nogil=True)

@@ -21,7 +21,12 @@ def dry_friction(f_mag, a, v_rel):
     ``v_rel``; a block applies it with a minus sign (friction opposes slip). Static and
     kinetic friction are the same (the seed's hypothesis).
     """
-    return f_mag * math.tanh(a * v_rel)
+    u = a * v_rel
+    if u > 20.0:        # tanh(20) = 1 - 8e-18: skip the call while sliding
+        return f_mag
+    if u < -20.0:
+        return -f_mag
+    return f_mag * math.tanh(u)
 
 
 @njit(cache=True, nogil=True)
