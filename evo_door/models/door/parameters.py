@@ -65,7 +65,7 @@ _PARAMS = [
           "latch: free play of the closed door before the catch engages"),
     Param("latch_open_stiffness", "N/rad", 4.0e4, 1.0e2, 1.0e7, "specification",
           "latch: catch stiffness felt at the handle while unlocking"),
-    Param("latch_close_stiffness", "N/rad", 4.0e4, 1.0e2, 1.0e7, "specification",
+    Param("latch_close_stiffness", "N/rad", 5.0e3, 1.0e2, 1.0e7, "specification",
           "latch: catch stiffness felt at the handle while locking"),
 ]
 _PARAMS += [

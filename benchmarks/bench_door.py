@@ -1,0 +1,147 @@
+"""Door model speed: one trial, and a population in one batched call, against scipy.
+
+Targets (issue 4): a 5 s trial at 1024 Hz in at most 10 ms on one core; a population
+of 100 in one batched call scales with the cores available. The plain way is scipy's
+``solve_ivp`` with a Python right-hand side calling the same door equations (the
+kernels' pure-Python twins, ``py_func``), timed in the same run.
+
+    python benchmarks/bench_door.py               # writes benchmarks/door.md
+    python benchmarks/bench_door.py --no-write
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numba  # noqa: E402
+
+from evo_door.models import get_model  # noqa: E402
+from evo_door.sim import simulate, simulate_batch  # noqa: E402
+from evo_door.sim.simulate import param_vector  # noqa: E402
+
+DT = 1.0 / 1024.0
+SECONDS = 5.0
+
+
+def force_profile():
+    """Push from fully open (half-sine 11 N), free decay, a pull back open."""
+    t = np.arange(int(round(SECONDS / DT))) * DT
+    f = np.zeros_like(t)
+    for start, width, amp in ((0.2, 0.2, 11.0), (2.6, 0.4, -12.0)):
+        on = (t >= start) & (t < start + width)
+        f[on] = amp * np.sin(np.pi * (t[on] - start) / width)
+    return t, f
+
+
+def median_time(fn, repeat):
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args(argv)
+    model = get_model("door")
+    p = param_vector(model.load_params("default"))
+    t, f = force_profile()
+    simulate(model, p, f, DT, theta0=0.0)  # compile / load the cache
+    one = median_time(lambda: simulate(model, p, f, DT, theta0=0.0), 15)
+
+    # plain way: solve_ivp around the compiled accel (what a user of numba alone would
+    # write) and around pure Python (what scipy alone gives)
+    from scipy.integrate import solve_ivp
+
+    def rhs_compiled(time_, y):
+        return (y[1], model.accel(y[0], y[1], float(np.interp(time_, t, f)), p))
+
+    compiled_rhs = median_time(lambda: solve_ivp(rhs_compiled, (t[0], t[-1]), [0.0, 0.0],
+                                                 t_eval=t, rtol=1e-6, atol=1e-9,
+                                                 max_step=4 * DT), 3)
+    # pure Python: the same code with NUMBA_DISABLE_JIT=1, in a fresh process
+    os.environ["NUMBA_DISABLE_JIT"] = "1"
+    python_rhs = None
+    try:
+        import subprocess
+
+        code = ("import time, numpy as np, sys; sys.path.insert(0, %r);"
+                "from benchmarks.bench_door import force_profile, DT;"
+                "from evo_door.models import get_model;"
+                "from evo_door.sim.simulate import param_vector;"
+                "from scipy.integrate import solve_ivp;"
+                "m = get_model('door'); p = param_vector(m.load_params('default'));"
+                "t, f = force_profile();"
+                "rhs = lambda s, y: (y[1], m.accel(y[0], y[1], float(np.interp(s, t, f)), p));"
+                "t0 = time.perf_counter();"
+                "solve_ivp(rhs, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-6, atol=1e-9, max_step=4 * DT);"
+                "print(time.perf_counter() - t0)") % str(ROOT)
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env=dict(os.environ), timeout=600)
+        python_rhs = float(out.stdout.strip().splitlines()[-1])
+    except Exception as exc:  # pragma: no cover - reported, not fatal
+        print(f"pure-Python reference failed: {exc}")
+    finally:
+        os.environ.pop("NUMBA_DISABLE_JIT", None)
+
+    # batch scaling with threads
+    rng = np.random.default_rng(0)
+    # vary the specifications +-20 %, keep geometry and numerics
+    P = np.tile(p, (100, 1))
+    for name in ("K", "F_load", "M", "I_z", "T_atO", "T_atA", "T_atB", "mu", "F_atC", "F_atD"):
+        i = model.params.index(name)
+        P[:, i] = p[i] * rng.uniform(0.8, 1.2, 100)
+    simulate_batch(model, P[:2], f, DT, theta0=0.0)
+    rows = []
+    max_threads = numba.config.NUMBA_NUM_THREADS
+    for n in sorted({1, 2, max_threads}):
+        if n > max_threads:
+            continue
+        numba.set_num_threads(n)
+        rows.append((n, median_time(lambda: simulate_batch(model, P, f, DT, theta0=0.0), 3)))
+    numba.set_num_threads(max_threads)
+
+    lines = ["# Door model benchmark (`benchmarks/bench_door.py`)", "",
+             f"Machine: {platform.platform()}, {os.cpu_count()} CPUs, Python "
+             f"{platform.python_version()}, numba {numba.__version__}. Measured "
+             f"{time.strftime('%Y-%m-%d %H:%M')}; other processes may have shared the cores.",
+             "",
+             f"One 5 s trial at 1024 Hz ({t.size} samples), preset `default`, integrator "
+             f"{model.method} x{model.substeps} sub-steps:", "",
+             "| way | seconds per trial | ratio to evo-door |", "|---|---|---|",
+             f"| evo-door `simulate` (compiled, fixed step) | {one * 1e3:.2f} ms | 1 |",
+             f"| scipy `solve_ivp` RK45 rtol 1e-6, compiled `accel` | {compiled_rhs * 1e3:.0f} ms "
+             f"| {compiled_rhs / one:.0f}x |"]
+    if python_rhs is not None:
+        lines.append(f"| scipy `solve_ivp` RK45 rtol 1e-6, pure-Python model | "
+                     f"{python_rhs * 1e3:.0f} ms | {python_rhs / one:.0f}x |")
+    lines += ["", f"Target: at most 10 ms per trial on one core: "
+              + ("met" if one <= 0.010 else "**missed**") + ".", "",
+              "A population of 100 parameter sets in one batched call (`simulate_batch`, "
+              "numba `prange`):", "", "| threads | seconds | per individual | speed-up |",
+              "|---|---|---|---|"]
+    for n, s in rows:
+        lines.append(f"| {n} | {s:.3f} | {s / 100 * 1e3:.2f} ms | {rows[0][1] / s:.2f}x |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if not args.no_write:
+        (Path(__file__).parent / "door.md").write_text(text)
+        print(f"wrote {Path(__file__).parent / 'door.md'}")
+
+
+if __name__ == "__main__":
+    main()
