@@ -37,10 +37,7 @@ from numba import njit, prange, types
 from evo_door.sim.integrators import (
     ACCEL_TYPE,
     BLOWUP_SPEED,
-    SEMI_IMPLICIT,
-    jacobian,
-    rk4_step,
-    ros2_step,
+    advance,
 )
 
 MAX_SQUARE = 0
@@ -64,25 +61,17 @@ def trial_error(accel, p, force, target, mask, start, stop, dt, substeps, theta0
     Returns ``(error, ok)``; ``ok`` is False (and ``error`` is inf) when the
     simulation blew up or the error is not finite.
     """
-    h = dt / substeps
     theta = theta0
     dtheta = dtheta0
+    a_now = accel(theta, dtheta, force[start], p)
     acc = 0.0
     for k in range(start, stop):
         if k > start:
-            f0 = force[k - 1]
-            df = (force[k] - f0) / substeps
-            if method == SEMI_IMPLICIT:
-                a_t, a_w = jacobian(accel, p, theta, dtheta, f0)
-                for s in range(substeps):
-                    theta, dtheta = ros2_step(accel, p, theta, dtheta, f0 + s * df,
-                                              f0 + (s + 1) * df, h, a_t, a_w)
-            else:
-                for s in range(substeps):
-                    theta, dtheta = rk4_step(accel, p, theta, dtheta, f0 + s * df,
-                                             f0 + (s + 1) * df, h)
+            theta, dtheta = advance(accel, p, theta, dtheta, force[k - 1], force[k], a_now,
+                                    dt, substeps, method)
             if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
                 return math.inf, False
+            a_now = accel(theta, dtheta, force[k], p)
         if not mask[k]:
             continue
         if derivative == 0:
@@ -90,7 +79,7 @@ def trial_error(accel, p, force, target, mask, start, stop, dt, substeps, theta0
         elif derivative == 1:
             y = dtheta
         else:
-            y = accel(theta, dtheta, force[k], p)
+            y = a_now
         e = y - target[k]
         if kind == MAX_SQUARE:
             if e * e > acc or not math.isfinite(e):

@@ -23,7 +23,7 @@ Two schemes:
 ``semi_implicit`` (:data:`SEMI_IMPLICIT`)
     The two-stage linearly implicit Rosenbrock method ROS2 (Verwer et al. 1999,
     gamma = 1 + 1/sqrt(2)), second order and L-stable. Its 2x2 Jacobian is taken by
-    central differences of ``accel`` once per sample period, keeping only its
+    forward differences of ``accel`` once per sample period, keeping only its
     stabilising (non-positive) entries; being a W-method it keeps order 2 with that
     frozen, approximate Jacobian. Stable for the stiff latch springs and steep
     tanh frictions at any step.
@@ -58,11 +58,14 @@ _mat = types.float64[:, ::1]
 
 
 @njit(cache=True, nogil=True)
-def rk4_step(accel, p, theta, dtheta, f0, f1, h):
-    """One RK4 step of length ``h`` with the force going linearly from f0 to f1."""
+def rk4_step(accel, p, theta, dtheta, a_start, f0, f1, h):
+    """One RK4 step of length ``h`` with the force going linearly from f0 to f1.
+
+    ``a_start`` is ``accel(theta, dtheta, f0, p)``, which the caller already has.
+    """
     fm = 0.5 * (f0 + f1)
     k1t = dtheta
-    k1w = accel(theta, dtheta, f0, p)
+    k1w = a_start
     k2t = dtheta + 0.5 * h * k1w
     k2w = accel(theta + 0.5 * h * k1t, k2t, fm, p)
     k3t = dtheta + 0.5 * h * k2w
@@ -75,24 +78,28 @@ def rk4_step(accel, p, theta, dtheta, f0, f1, h):
 
 
 @njit(cache=True, nogil=True)
-def jacobian(accel, p, theta, dtheta, force):
-    """Partial derivatives (d ddtheta / d theta, d ddtheta / d dtheta) by central differences."""
-    et = 1e-6 * (1.0 + abs(theta))
-    ew = 1e-6 * (1.0 + abs(dtheta))
-    a_t = (accel(theta + et, dtheta, force, p) - accel(theta - et, dtheta, force, p)) / (2.0 * et)
-    a_w = (accel(theta, dtheta + ew, force, p) - accel(theta, dtheta - ew, force, p)) / (2.0 * ew)
-    # Only the stabilising part is treated implicitly. A snap (a latch apex, negative
-    # damping) gives a_t > 0 or a_w > 0, and with those det(I - gamma h J) can pass
-    # through zero and the step explodes. A W-method keeps its order with any
-    # Jacobian approximation, and with a_t, a_w <= 0 the determinant is >= 1.
+def jacobian(accel, p, theta, dtheta, force, a_start):
+    """Stabilising part of (d ddtheta / d theta, d ddtheta / d dtheta), forward differences.
+
+    ``a_start`` is ``accel(theta, dtheta, force, p)``. A W-method keeps its order with
+    any Jacobian approximation, so one-sided differences (two calls instead of four)
+    are enough. Only the stabilising part is treated implicitly: a snap (a latch apex,
+    negative damping) gives a_t > 0 or a_w > 0, with which det(I - gamma h J) can pass
+    through zero and the step explodes; with a_t, a_w <= 0 the determinant is >= 1.
+    """
+    et = 1e-7 * (1.0 + abs(theta))
+    ew = 1e-7 * (1.0 + abs(dtheta))
+    a_t = (accel(theta + et, dtheta, force, p) - a_start) / et
+    a_w = (accel(theta, dtheta + ew, force, p) - a_start) / ew
     return min(a_t, 0.0), min(a_w, 0.0)
 
 
 @njit(cache=True, nogil=True)
-def ros2_step(accel, p, theta, dtheta, f0, f1, h, a_t, a_w):
+def ros2_step(accel, p, theta, dtheta, a_start, f1, h, a_t, a_w):
     """One ROS2 step; (a_t, a_w) is the (possibly frozen) Jacobian row of ddtheta.
 
-    With x = (theta, dtheta) and J = [[0, 1], [a_t, a_w]]:
+    ``a_start`` is ``accel`` at the start of the step. With x = (theta, dtheta) and
+    J = [[0, 1], [a_t, a_w]]:
     (I - gamma h J) k1 = f(t, x);  (I - gamma h J) k2 = f(t + h, x + h k1) - 2 k1;
     x_new = x + h (3 k1 + k2) / 2.
     """
@@ -103,7 +110,7 @@ def ros2_step(accel, p, theta, dtheta, f0, f1, h, a_t, a_w):
     m22 = 1.0 - gh * a_w
     det = m22 - m12 * m21
     r1 = dtheta
-    r2 = accel(theta, dtheta, f0, p)
+    r2 = a_start
     k1t = (m22 * r1 - m12 * r2) / det
     k1w = (-m21 * r1 + r2) / det
     theta1 = theta + h * k1t
@@ -113,6 +120,33 @@ def ros2_step(accel, p, theta, dtheta, f0, f1, h, a_t, a_w):
     k2t = (m22 * r1 - m12 * r2) / det
     k2w = (-m21 * r1 + r2) / det
     return theta + h * (1.5 * k1t + 0.5 * k2t), dtheta + h * (1.5 * k1w + 0.5 * k2w)
+
+
+@njit(cache=True, nogil=True)
+def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
+    """Move the state over one sample period ``dt`` in ``substeps`` steps.
+
+    The force goes linearly from ``f0`` to ``f1``; ``a_start`` is
+    ``accel(theta, dtheta, f0, p)`` (callers have it: it is the previous sample's
+    output), so no evaluation is repeated. The ROS2 Jacobian is frozen over the period.
+    """
+    h = dt / substeps
+    df = (f1 - f0) / substeps
+    a_s = a_start
+    if method == SEMI_IMPLICIT:
+        a_t, a_w = jacobian(accel, p, theta, dtheta, f0, a_start)
+        for s in range(substeps):
+            if s > 0:
+                a_s = accel(theta, dtheta, f0 + s * df, p)
+            theta, dtheta = ros2_step(accel, p, theta, dtheta, a_s, f0 + (s + 1) * df, h,
+                                      a_t, a_w)
+    else:
+        for s in range(substeps):
+            if s > 0:
+                a_s = accel(theta, dtheta, f0 + s * df, p)
+            theta, dtheta = rk4_step(accel, p, theta, dtheta, a_s, f0 + s * df,
+                                     f0 + (s + 1) * df, h)
+    return theta, dtheta
 
 
 @njit(types.boolean(ACCEL_TYPE, _vec, _vec, types.float64, types.int64, types.float64,
@@ -125,33 +159,25 @@ def integrate(accel, p, force, dt, substeps, theta0, dtheta0, method,
     exceeded :data:`BLOWUP_SPEED` (the rest of the outputs is then NaN).
     """
     n = force.shape[0]
-    h = dt / substeps
     theta = theta0
     dtheta = dtheta0
+    a_now = accel(theta, dtheta, force[0], p)
     theta_out[0] = theta
     dtheta_out[0] = dtheta
-    ddtheta_out[0] = accel(theta, dtheta, force[0], p)
+    ddtheta_out[0] = a_now
     for k in range(n - 1):
-        f0 = force[k]
-        df = (force[k + 1] - f0) / substeps
-        if method == SEMI_IMPLICIT:
-            a_t, a_w = jacobian(accel, p, theta, dtheta, f0)
-            for s in range(substeps):
-                theta, dtheta = ros2_step(accel, p, theta, dtheta, f0 + s * df,
-                                          f0 + (s + 1) * df, h, a_t, a_w)
-        else:
-            for s in range(substeps):
-                theta, dtheta = rk4_step(accel, p, theta, dtheta, f0 + s * df,
-                                         f0 + (s + 1) * df, h)
+        theta, dtheta = advance(accel, p, theta, dtheta, force[k], force[k + 1], a_now, dt,
+                                substeps, method)
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
             for j in range(k + 1, n):
                 theta_out[j] = np.nan
                 dtheta_out[j] = np.nan
                 ddtheta_out[j] = np.nan
             return False
+        a_now = accel(theta, dtheta, force[k + 1], p)
         theta_out[k + 1] = theta
         dtheta_out[k + 1] = dtheta
-        ddtheta_out[k + 1] = accel(theta, dtheta, force[k + 1], p)
+        ddtheta_out[k + 1] = a_now
     return True
 
 
