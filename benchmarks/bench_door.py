@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
 
+from benchmarks._util import machine_line, median_time  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.sim import simulate, simulate_batch  # noqa: E402
 from evo_door.sim.simulate import param_vector  # noqa: E402
@@ -42,15 +40,6 @@ def force_profile():
         on = (t >= start) & (t < start + width)
         f[on] = amp * np.sin(np.pi * (t[on] - start) / width)
     return t, f
-
-
-def median_time(fn, repeat):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main(argv=None):
@@ -116,10 +105,7 @@ def main(argv=None):
     numba.set_num_threads(max_threads)
 
     lines = ["# Door model benchmark (`benchmarks/bench_door.py`)", "",
-             f"Machine: {platform.platform()}, {os.cpu_count()} CPUs, Python "
-             f"{platform.python_version()}, numba {numba.__version__}. Measured "
-             f"{time.strftime('%Y-%m-%d %H:%M')}; other processes may have shared the cores.",
-             "",
+             machine_line(), "",
              f"One 5 s trial at 1024 Hz ({t.size} samples), preset `default`, integrator "
              f"{model.method} x{model.substeps} sub-steps:", "",
              "| way | seconds per trial | ratio to evo-door |", "|---|---|---|",
@@ -129,7 +115,7 @@ def main(argv=None):
     if python_rhs is not None:
         lines.append(f"| scipy `solve_ivp` RK45 rtol 1e-6, pure-Python model | "
                      f"{python_rhs * 1e3:.0f} ms | {python_rhs / one:.0f}x |")
-    lines += ["", f"Target: at most 10 ms per trial on one core: "
+    lines += ["", "Target: at most 10 ms per trial on one core: "
               + ("met" if one <= 0.010 else "**missed**") + ".", "",
               "A population of 100 parameter sets in one batched call (`simulate_batch`, "
               "numba `prange`):", "", "| threads | seconds | per individual | speed-up |",

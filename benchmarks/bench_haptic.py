@@ -12,11 +12,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +24,7 @@ sys.path.insert(0, str(ROOT))
 import numba  # noqa: E402
 from numba import njit  # noqa: E402
 
+from benchmarks._util import machine_line, median_time  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.haptic import device_force, device_force_vector, on_path  # noqa: E402
 from evo_door.sim import simulate  # noqa: E402
@@ -45,15 +43,6 @@ def force_profile():
     push = (t >= 2.5) & (t < 3.7)
     f[push] = 25.0 * np.sin(np.pi * (t[push] - 2.5) / 1.2)
     return t, f
-
-
-def median_time(fn, repeat):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 @njit(cache=True)
@@ -121,10 +110,7 @@ def main(argv=None):
         ("device force from compiled code (servo loop)", f"{c_call * 1e9:.0f} ns", "< 100 ns", c_call < 100e-9),
     ]
     lines = ["# Haptic model benchmark (`benchmarks/bench_haptic.py`)", "",
-             f"Machine: {platform.platform()}, {os.cpu_count()} CPUs (one thread used), "
-             f"Python {platform.python_version()}, numba {numba.__version__}. Measured "
-             f"{time.strftime('%Y-%m-%d %H:%M')}, medians of repeats; other processes may "
-             "have shared the cores.", "",
+             machine_line(" (one thread used)"), "",
              "Trial: preset `seed_trial`, a pull that unlocks the latched door, free motion, "
              "a push that latches it again (5120 samples).", "",
              "| what | measured | target | |", "|---|---|---|---|"]

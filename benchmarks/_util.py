@@ -1,0 +1,28 @@
+"""Helpers shared by the benchmark scripts: timing and the machine line of a report."""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+
+
+def median_time(fn, repeat: int) -> float:
+    """Median wall time (s) of ``repeat`` calls of ``fn()``."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def machine_line(extra: str = "") -> str:
+    """Where and when a benchmark ran, for the first lines of its report."""
+    import numba
+
+    return (f"Machine: {platform.platform()}, {os.cpu_count()} CPUs{extra}, Python "
+            f"{platform.python_version()}, numba {numba.__version__}. Measured "
+            f"{time.strftime('%Y-%m-%d %H:%M')}, medians of repeats; other processes may "
+            "have shared the cores.")
