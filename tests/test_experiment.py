@@ -1,7 +1,7 @@
 """Experiment files, runs, results files, resume, and the run / show / runs / resume commands."""
 
 import json
-import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -78,7 +78,9 @@ def load(folder, text=None, overrides=None):
     ("{theta_eq: 0.0}", "{theta_eq: 99.0}",
      "exp.yaml:4: fixed.theta_eq: parameter 'theta_eq' = 99 rad is outside its declared range"),
     ("{theta_eq: 0.0}", "{k: 3.0}", "exp.yaml:6: free.k: 'k' is also fixed"),
-    ("data: trials.h5", "data: nowhere.h5", "exp.yaml:3: data file not found: nowhere.h5"),
+    ("data: trials.h5", "data: nowhere.h5", "exp.yaml:3: target.data: file not found: nowhere.h5"),
+    (f"model: {OSC}\n", f"model: {OSC}\nparams: nowhere.yaml\n",
+     "exp.yaml:3: params: file not found: nowhere.yaml"),
     ("validate: [v1]", "validate: [v2]",
      "exp.yaml:3: target.validate: ", ),
     ("kind: ise", "kind: ise2", "exp.yaml:9: objective.kind: 'ise2' is not one of max_square, ise"),
@@ -100,6 +102,14 @@ def test_invalid_experiment_is_one_line_naming_file_line_key(folder, old, new, m
     msg = str(info.value)
     assert "\n" not in msg
     assert message in msg, msg
+
+
+def test_tiny_population_takes_a_smaller_default_tournament(folder):
+    exp = load(folder, overrides=["algorithm.population=2"])
+    assert exp.algorithm.ga.population == 2 and exp.algorithm.ga.tournament == 2
+    with pytest.raises(UserError, match=r"^--set algorithm\.tournament=5: algorithm\.tournament: "
+                                        r"must be <= 2, got 5"):
+        load(folder, overrides=["algorithm.population=2", "algorithm.tournament=5"])
 
 
 def test_validate_id_unknown_names_the_file_and_suggests(folder):
@@ -178,6 +188,14 @@ def test_run_writes_everything_and_same_seed_gives_same_file(folder):
         assert f["jobs/0/ga/hof_x"].shape[1] == 3
         assert f["response/0/model"].shape == f["response/0/target"].shape
         assert f.attrs["seed"] == 1
+        t = f["timings"].attrs
+        local_evals = f["jobs/0/local"].attrs["evaluations"]
+        assert t["evaluations"] == f["jobs/0/ga/logbook/evals"][()].sum() + local_evals
+        assert 0 < t["ga_evaluation_s"] < t["total_s"] and 0 < t["local_s"] < t["total_s"]
+        assert t["evaluations_per_s"] == pytest.approx(t["ga_evaluations"] / t["ga_evaluation_s"])
+        assert t["local_evaluations"] == local_evals
+        assert f["jobs/0/ga/times"].shape == (7,) and np.all(f["jobs/0/ga/times"][()] > 0)
+        assert f["versions"].attrs["numba"] and f["versions"].attrs["cpus"] >= 1
     np.testing.assert_allclose([s["best"][n] for n in ("k", "c", "inertia")], [100, 2, 1.5],
                                rtol=1e-3)
 
@@ -197,6 +215,27 @@ def test_kill_after_three_generations_then_resume_is_bitwise_identical(folder):
     assert len(cut.best()) == 3 and cut.progress() == "3/6 gen"
     resumed = resume_run(folder / "cut.h5")
     assert resumed.status == "complete"
+    assert_same(comparable(whole.path), comparable(folder / "cut.h5"))
+
+
+def test_kill_after_the_last_job_before_the_final_write_then_resume(folder):
+    """Every job is done but /best and /response are not written yet: resume finishes them."""
+    whole = run_experiment(load(folder), folder / "whole.h5")
+
+    def kill_when_done(run, job):
+        if job.done:
+            raise Interrupted()
+
+    with pytest.raises(Interrupted):
+        run_experiment(load(folder), folder / "cut.h5", on_checkpoint=kill_when_done)
+    cut = Results(folder / "cut.h5")
+    assert not cut.complete and "best" not in cut.tree
+    # a temporary left by a writer killed mid-write is cleaned up on resume
+    stale = folder / ".cut.h5.tmp-999999"
+    stale.write_bytes(b"half an HDF5 file")
+    resumed = resume_run(folder / "cut.h5")
+    assert resumed.status == "complete" and not stale.exists()
+    assert Results(folder / "cut.h5").complete
     assert_same(comparable(whole.path), comparable(folder / "cut.h5"))
 
 
@@ -259,9 +298,22 @@ def cli(*args, cwd=ROOT):
 def test_cli_run_show_runs_resume_and_errors(folder):
     out = folder / "results" / "a.h5"
     res = cli("run", str(folder / "exp.yaml"), "--out", str(out), "--set", "algorithm.seed=3",
-              "--set", "algorithm.generations=3")
+              "--set", "algorithm.generations=3", "--progress")
     assert res.returncode == 0, res.stderr
-    assert "evals/s" in res.stderr and "best" in res.stdout
+    # the bar: generation count, best and mean fitness, evaluation rate
+    lines = res.stderr.replace("\r", "\n").splitlines()
+    assert any(re.search(r"osc: 100%.* 3/3 .*best [0-9.e+-]+ +mean [0-9.e+-]+ +[0-9,]+ evals/s",
+                         line) for line in lines), res.stderr
+    assert re.search(r"osc: SLSQP from fitness [0-9.e+-]+ \.\.\. [0-9.e+-]+ \(\d+ evaluations",
+                     res.stderr), res.stderr
+    assert "best" in res.stdout
+    # not a terminal and no --progress: no bar; --quiet: nothing at all
+    plain = cli("run", str(folder / "exp.yaml"), "--out", str(folder / "b.h5"),
+                "--set", "algorithm.generations=1")
+    assert plain.returncode == 0 and plain.stderr == "" and "best" in plain.stdout
+    quiet = cli("run", str(folder / "exp.yaml"), "--out", str(folder / "c.h5"),
+                "--set", "algorithm.generations=1", "--quiet", "--progress")
+    assert quiet.returncode == 0 and quiet.stderr == "" and quiet.stdout == ""
     shown = cli("show", str(out), "--json", "--plot", str(folder / "fit.png"))
     assert shown.returncode == 0, shown.stderr
     doc = json.loads(shown.stdout)
@@ -312,3 +364,19 @@ def test_commands_reject_bad_input_with_one_line(folder, capsys, args, message):
     assert main([a.format(folder=folder) for a in args]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
+
+
+def test_bad_rig_specification_in_inputs_names_file_line_key(tmp_path):
+    (tmp_path / "r.yaml").write_text(f"""\
+model: {OSC}
+target:
+  model: {OSC}
+  inputs: {{model: {OSC}, trials: 1, user: 2}}
+free: {{k: [10, 400]}}
+""")
+    with pytest.raises(UserError) as info:
+        ExperimentRun.create(load_experiment(tmp_path / "r.yaml"), tmp_path / "r.h5")
+    msg = str(info.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"{tmp_path / 'r.yaml'}:4: target.inputs: rig specification: "
+                          "unknown key 'user'"), msg

@@ -11,10 +11,13 @@ def register(sub) -> None:
     p = sub.add_parser("resume", help="continue an interrupted run; ends as an uninterrupted one would")
     p.add_argument("results", metavar="RUN.h5", help="results file of the interrupted run")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("--progress", action="store_true",
+                   help="show the progress bar even when stderr is not a terminal (logs, CI)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from evo_door.commands.run import show_progress
     from evo_door.experiment import Results
     from evo_door.experiment.results import format_show
     from evo_door.experiment.runner import ExperimentRun
@@ -28,7 +31,7 @@ def run(args) -> int:
         where = f"generation {done[0]}" if done and done[0] >= 0 else "the start"
         print(f"{args.results}: resuming {job.config['name']} from {where}")
     try:
-        job.run(progress=not args.quiet)
+        job.run(progress=show_progress(args))
     except KeyboardInterrupt:
         print(f"evo-door: interrupted again; evo-door resume {job.path} continues it",
               file=sys.stderr)

@@ -16,6 +16,8 @@ def register(sub) -> None:
                    dest="assignments",
                    help="override a setting of the file, e.g. algorithm.seed=3; repeatable")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("--progress", action="store_true",
+                   help="show the progress bar even when stderr is not a terminal (logs, CI)")
     p.set_defaults(func=run)
 
 
@@ -33,7 +35,7 @@ def run(args) -> int:
               f"{len(job.setup.validation)} validation trial(s), free: "
               f"{', '.join(job.setup.free)}; writing {job.path}")
     try:
-        job.run(progress=not args.quiet)
+        job.run(progress=show_progress(args))
     except KeyboardInterrupt:
         print(f"evo-door: interrupted; {job.path} holds the last finished generation: "
               f"evo-door resume {job.path}", file=sys.stderr)
@@ -41,6 +43,13 @@ def run(args) -> int:
     if not args.quiet:
         print(format_show(Results(job.path)))
     return 0
+
+
+def show_progress(args) -> bool:
+    """The progress bar: never with --quiet, always with --progress, else on a terminal."""
+    if args.quiet:
+        return False
+    return bool(args.progress or sys.stderr.isatty())
 
 
 def _refuse_to_overwrite_an_interrupted_run(path) -> None:

@@ -212,15 +212,18 @@ def _show(v) -> str:
     return repr(v)
 
 
-def _resolve_path(text: str, base_dir: Path, where: str, what: str) -> str:
-    """A relative path is looked up next to the experiment file, then in the current folder."""
+def _resolve_path(text: str, base_dir: Path, where: str, key: str) -> str:
+    """A relative path is looked up next to the experiment file, then in the current folder.
+
+    ``where`` (file:line) and ``key`` (its dotted path) locate the entry in messages.
+    """
     p = Path(text).expanduser()
     candidates = [p] if p.is_absolute() else [base_dir / p, Path.cwd() / p]
     for c in candidates:
         if c.is_file():
             return str(c.resolve())
-    tried = " or ".join(str(c) for c in candidates)
-    raise UserError(f"{where}: {what} file not found: {text} (looked for {tried})")
+    tried = " or ".join(dict.fromkeys(str(c.resolve()) for c in candidates))
+    raise UserError(f"{where}: {key}: file not found: {text} (looked for {tried})")
 
 
 def _param_spec(reader: _Reader, key, base_dir: Path):
@@ -237,7 +240,7 @@ def _param_spec(reader: _Reader, key, base_dir: Path):
     if not isinstance(v, str):
         raise reader.fail(key, f"expected a preset name, a parameter file or a mapping, got {_show(v)}")
     if v.endswith((".yaml", ".yml")) or "/" in v:
-        return _resolve_path(v, base_dir, reader.node.where(key), "parameter")
+        return _resolve_path(v, base_dir, reader.node.where(key), reader.key_path(key))
     return v
 
 
@@ -285,14 +288,14 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
     if "data" in t.node:
         t.check_keys(DATA_TARGET_KEYS, required=("data",))
         path = _resolve_path(t.string("data", required=True), base_dir, t.node.where("data"),
-                             "data")
+                             "target.data")
         spec = TargetSpec("data", trials=_id_list(t, "trials", True), kinds=_kinds(t),
                           validate=_id_list(t, "validate", False), data=path, locs=locs)
     elif "model" in t.node:
         t.check_keys(MODEL_TARGET_KEYS, required=("model", "inputs"))
         inputs = t.get("inputs")
         if isinstance(inputs, str):
-            inputs = _resolve_path(inputs, base_dir, t.node.where("inputs"), "inputs")
+            inputs = _resolve_path(inputs, base_dir, t.node.where("inputs"), "target.inputs")
         elif isinstance(inputs, LinedMap):
             inputs = json.loads(json.dumps(inputs))
         else:
@@ -343,7 +346,8 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
                                     open_lo=True),
         seed=a.integer("seed", d.seed, lo=0),
         elite=a.integer("elite", d.elite, lo=0, hi=population - 1),
-        tournament=a.integer("tournament", d.tournament, lo=1, hi=population),
+        # the default tournament (3) shrinks to a smaller population; a given one must fit
+        tournament=a.integer("tournament", min(d.tournament, population), lo=1, hi=population),
         crossover_eta=a.number("crossover_eta", d.crossover_eta, 0.0, open_lo=True),
         hall_of_fame=a.integer("hall_of_fame", d.hall_of_fame, lo=1),
         target_fitness=a.number("target_fitness", None, lo=0.0, allow_none=True),

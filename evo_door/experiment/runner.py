@@ -32,7 +32,7 @@ from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.setup import Setup
 from evo_door.optim.ga import LOG_FIELDS, GASettings, GeneticAlgorithm, Termination
-from evo_door.optim.local import LocalResult, LocalSettings, slsqp
+from evo_door.optim.local import LocalResult, LocalSettings, polish
 from evo_door.optim.problem import Objective
 
 _GA_KEYS = [f.name for f in dataclasses.fields(GASettings)]
@@ -157,8 +157,12 @@ class ExperimentRun:
                 job.validation_errors = np.array(node["validation_errors"])
                 if "local" in node:
                     job.local = _local_from_tree(node["local"])
-        run.status = "complete" if all(j.done for j in run.jobs) else "running"
+        # every job done but the final write (best, responses) missing: still running
+        run.status = "complete" if (all(j.done for j in run.jobs)
+                                    and tree[store.ATTRS].get("status") == "complete"
+                                    and "best" in tree) else "running"
         run._trials_on_disk = True
+        store.remove_stale_temporaries(path)
         return run
 
     # -- running -----------------------------------------------------------------------
@@ -178,7 +182,14 @@ class ExperimentRun:
                 self._run_ga(job, problem, progress, t0)
             x = job.ga.best_x if job.ga is not None else self.setup.start_vector()
             if self.kind == "nlpql" or self.polish == "slsqp":
-                job.local = slsqp(problem, x, self.local_settings)
+                if progress:
+                    label = self.config["name"] + (f" [{job.name}]" if self.per_trial else "")
+                    print(f"{label}: SLSQP from fitness {problem.evaluate(x)[0][0]:.4g} ...",
+                          end="", file=sys.stderr, flush=True)
+                job.local = polish(problem, x, self.local_settings)
+                if progress:
+                    print(f" {job.local.fitness:.4g} ({job.local.evaluations} evaluations, "
+                          f"{job.local.seconds:.1f} s)", file=sys.stderr, flush=True)
                 x = job.local.x
                 job.best_fitness = job.local.fitness
             else:
@@ -211,7 +222,8 @@ class ExperimentRun:
             job.ga = state
             if bar is not None:
                 log = state.logbook[-1]
-                rate = log["evals"] / max(state.eval_times[-1], 1e-9)
+                # throughput of this session's GA so far (breeding + evaluation, not I/O)
+                rate = state.evaluations / max(float(np.sum(state.times)), 1e-9)
                 bar.set_postfix_str(f"best {state.best_fitness:.4g}  mean {log['mean']:.4g}  "
                                     f"{rate:,.0f} evals/s"
                                     + (f"  blow-ups {state.blowups}" if state.blowups else ""),
@@ -244,7 +256,6 @@ class ExperimentRun:
 
     def _results(self) -> dict:
         """Best parameters, per-trial table, responses: filled when every job is done."""
-        free = self.free
         xs = np.array([j.best_x for j in self.jobs])
         if self.per_trial:
             # each trial's own fit, combined as the objective combines trials
@@ -322,11 +333,16 @@ class ExperimentRun:
             "timings": {A: {"total_s": elapsed,
                             "jobs_s": [float(j.seconds) for j in self.jobs]}},
         }
-        evals = sum((j.ga.evaluations if j.ga is not None else 0)
-                    + (j.local.evaluations if j.local is not None else 0) for j in self.jobs)
+        ga_evals = sum(j.ga.evaluations for j in self.jobs if j.ga is not None)
+        local_evals = sum(j.local.evaluations for j in self.jobs if j.local is not None)
         eval_time = sum(float(np.sum(j.ga.eval_times)) for j in self.jobs if j.ga is not None)
-        tree["timings"][A].update({"evaluations": evals, "ga_evaluation_s": eval_time,
-                                   "evaluations_per_s": evals / eval_time if eval_time else 0.0})
+        tree["timings"][A].update({
+            "evaluations": ga_evals + local_evals, "ga_evaluations": ga_evals,
+            "ga_evaluation_s": eval_time,
+            # the compiled kernel's throughput during the GA's batched calls
+            "evaluations_per_s": ga_evals / eval_time if eval_time else 0.0,
+            "local_evaluations": local_evals,
+            "local_s": sum(float(j.local.seconds) for j in self.jobs if j.local is not None)})
         if self.status == "complete" and self.result:
             tree["best"] = _best_tree(self)
             if self.per_trial:

@@ -109,7 +109,10 @@ def _input_trials(spec, model) -> list[Trial]:
         if make is None:
             raise UserError(f"{spec.locs['inputs']}: target.inputs: this version's rig cannot "
                             "build inputs from a specification; give a trial file")
-        return list(make(spec.inputs))
+        try:
+            return list(make(spec.inputs))
+        except UserError as exc:
+            raise UserError(f"{spec.locs['inputs']}: target.inputs: {exc}") from None
     from evo_door.data.io import read_trials
 
     try:
@@ -188,7 +191,7 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
             raise UserError(f"{spec.locs['data']}: target.data: {exc}") from None
         source = spec.data
     else:
-        all_trials, source = _model_target_trials(spec), f"the inputs of target.model"
+        all_trials, source = _model_target_trials(spec), "the inputs of target.model"
     all_trials = _unique_ids(all_trials, source)
     fit, validation = _select(all_trials, spec, spec.locs["trials"], spec.locs["validate"], source)
     channel = ("theta", "dtheta", "ddtheta")[exp.objective.derivative]

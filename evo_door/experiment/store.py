@@ -99,7 +99,7 @@ def write_atomic(path, tree: dict) -> None:
     h5py = _h5py()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp = _temporary_name(path, os.getpid())
     keep = {k: v for k, v in tree.items() if isinstance(v, Keep)}
     tree = {k: v for k, v in tree.items() if not isinstance(v, Keep)}
     try:
@@ -126,6 +126,23 @@ def write_atomic(path, tree: dict) -> None:
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _temporary_name(path: Path, pid: int) -> Path:
+    return path.with_name(f".{path.name}.tmp-{pid}")
+
+
+def remove_stale_temporaries(path) -> list[Path]:
+    """Delete temporaries a killed writer of ``path`` left behind (see :func:`write_atomic`)."""
+    path = Path(path)
+    removed = []
+    for tmp in path.parent.glob(f".{path.name}.tmp-*"):
+        try:
+            tmp.unlink()
+            removed.append(tmp)
+        except OSError:  # pragma: no cover - gone already, or not ours to remove
+            pass
+    return removed
 
 
 def _read_group(group) -> dict:

@@ -7,8 +7,8 @@ handed to an algorithm (:class:`GeneticAlgorithm` with its :class:`Termination`,
 """
 
 from evo_door.optim.ga import GASettings, GAState, GeneticAlgorithm, Termination
-from evo_door.optim.local import LocalResult, LocalSettings, slsqp
+from evo_door.optim.local import LocalResult, LocalSettings, polish, slsqp
 from evo_door.optim.problem import COMBINE, Objective, Problem, TrialPack
 
 __all__ = ["COMBINE", "GASettings", "GAState", "GeneticAlgorithm", "LocalResult",
-           "LocalSettings", "Objective", "Problem", "Termination", "TrialPack", "slsqp"]
+           "LocalSettings", "Objective", "Problem", "Termination", "TrialPack", "polish", "slsqp"]

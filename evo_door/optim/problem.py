@@ -222,6 +222,12 @@ class Problem:
                                 substeps=self.substeps))
         return out
 
+    def with_objective(self, objective: Objective) -> "Problem":
+        """The same problem under another objective (the max-square polish's ISE stage)."""
+        return Problem(self.model, self.free, self.lower, self.upper, self.base,
+                       self.fit.trials, objective, self.validation.trials, self.method,
+                       self.substeps)
+
     def subproblem(self, trial_indices: Sequence[int]) -> "Problem":
         """The same problem on a subset of the fit trials (``per_trial`` fits)."""
         return Problem(self.model, self.free, self.lower, self.upper, self.base,
