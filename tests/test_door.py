@@ -296,3 +296,24 @@ def test_drawing_uses_the_model_kinematics(default):
     import matplotlib.pyplot as plt
 
     plt.close(fig)
+
+
+# -- the virtual rig on the real door -------------------------------------------------
+def test_rig_trials_of_the_default_door_look_like_the_seed(door, default):
+    from evo_door.data import rig
+    from evo_door.data.preprocess import find_force_peak
+
+    trials = rig.generate_trials(door, default, users=2, trials=4, seed=3, progress=False)
+    kinds = {t.kind: t for t in trials}
+    assert set(kinds) == {"impulse", "unlock", "lock"}
+    unlock, lock, impulse = kinds["unlock"], kinds["lock"], kinds["impulse"]
+    # unlock: the pull peaks at the latch's force plus the mechanism's, then the door opens
+    peak = find_force_peak(unlock).force
+    assert -1.3 * (default["unlock_force"] + 3.0) < peak < -default["unlock_force"]
+    assert unlock.theta[-1] < CLOSED - math.radians(5)
+    # lock: the door rests on the lock ramp, the push peaks near lock_force, it ends closed
+    peak = find_force_peak(lock).force
+    assert 0.8 * default["lock_force"] < peak < 1.5 * default["lock_force"]
+    assert lock.theta[-1] == pytest.approx(CLOSED, abs=math.radians(0.1))
+    # impulse: a push from fully open, measured by the gyroscope inside its range
+    assert impulse.dtheta.max() < math.radians(100) and impulse.dtheta.max() > math.radians(30)

@@ -85,7 +85,7 @@ USER_RANGES = {
     "hand_stiffness": (500.0, 1200.0), "hand_damping": (10.0, 25.0),
     "pull_speed": (0.05, 0.15), "push_speed": (0.06, 0.16), "max_force": (150.0, 300.0),
     "reaction_time": (0.12, 0.25), "release_time": (0.08, 0.20),
-    "impulse_force": (25.0, 60.0), "impulse_duration": (0.10, 0.20),
+    "impulse_force": (15.0, 35.0), "impulse_duration": (0.10, 0.20),
     "impulse_speed": (40.0 * DEG, 80.0 * DEG), "tremor": (0.2, 0.8),
     "rest_time": (0.3, 0.6), "lock_start": (4.0 * DEG, 8.0 * DEG),
 }
@@ -152,7 +152,10 @@ class HandPolicy(_Policy):
             self.s0 = self.R * theta_k
         if self.s0 is None:
             return np.zeros_like(ts)
-        target = self.s0 + self.dir * self.speed * np.maximum(ts - self.t_start, 0.0)
+        # the hand's target advances at the user's pace until the latch gives or snaps;
+        # then the user stops moving it forward (and lets go after the reaction time)
+        moving = ts if self.t_event is None else np.minimum(ts, self.t_event)
+        target = self.s0 + self.dir * self.speed * np.maximum(moving - self.t_start, 0.0)
         handle = self.R * (theta_k + dtheta_k * (ts - tk))   # predicted over the chunk
         f = (self.u.hand_stiffness * (target - handle)
              + self.u.hand_damping * (self.dir * self.speed - self.R * dtheta_k))
@@ -186,7 +189,7 @@ class HandPolicy(_Policy):
 class ImpulsePolicy(_Policy):
     """A short push toward closing from fully open, then hands off."""
 
-    CUT = 0.03  # s, to let go once the intended speed is reached
+    CUT = 0.015  # s, to let go once the intended speed is reached
 
     def __init__(self, user: VirtualUser, tremor, settle: float, t_max: float):
         self.u, self.tremor, self.t_max = user, tremor, t_max
@@ -285,7 +288,9 @@ class RigSettings:
     handle_radius: float = 0.6      # m, where the hand acts (seed: L = 0.6 m)
     chunk: int = 4                  # samples per closed-loop step
     unlock_detect: float = 2.0 * DEG  # rad of motion the user feels as "it opened"
-    lock_detect: float = 1.0 * DEG    # rad from closed felt as "it locked"
+    #: rad from closed felt as "it locked": past the latch apex of both bundled models
+    #: (door: 0.46 deg, haptic: inside the 0.5 deg loose band, where the push holds it)
+    lock_detect: float = 0.3 * DEG
     tail: float = 1.0               # s recorded after letting go (unlock / lock)
     settle: float = 0.4             # s of stillness that ends an impulse trial
     t_max: float = 8.0              # s, longest trial
@@ -307,7 +312,9 @@ def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.G
         policy = HandPolicy(user, -1, settings.handle_radius, tremor, dt, theta0,
                             settings.unlock_detect, settings.tail, settings.t_max)
     elif kind == "lock":
-        theta0, dtheta0 = CLOSED - user.lock_start, 0.0
+        # a door that pulls itself shut over its last degrees comes to rest on the lock
+        # ramp before the hand arrives: the push starts from where it rests
+        theta0, dtheta0 = _settle(model, params, CLOSED - user.lock_start, dt, **opts)
         policy = HandPolicy(user, +1, settings.handle_radius, tremor, dt, theta0,
                             settings.lock_detect, settings.tail, settings.t_max)
     else:
