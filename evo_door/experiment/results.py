@@ -46,6 +46,27 @@ class Results:
                 best = job["ga"]["hof_x"][0]
         return {} if best is None else dict(zip(self.free, map(float, best)))
 
+    def truth(self) -> dict[str, float]:
+        """True values of the free parameters, when the fitted trials carry them.
+
+        Trials made by the virtual rig (or any model) store the parameters that made
+        them; when every fitted trial has them, for this run's model, and they agree,
+        they score the fit. Otherwise (measured data) an empty dict.
+        """
+        trials = self.tree.get("trials", {})
+        found = None
+        for key, group in trials.items():
+            if key == A or not key.startswith("fit_"):
+                continue
+            truth = group[A].get("truth") or {}
+            if truth.get("model") != self.attrs.get("model") or "params" not in truth:
+                return {}
+            values = {n: float(truth["params"][n]) for n in self.free if n in truth["params"]}
+            if len(values) != len(self.free) or (found is not None and values != found):
+                return {}
+            found = values
+        return found or {}
+
     def fitness(self) -> float:
         if "best" in self.tree:
             return float(self.tree["best"][A]["fitness"])
@@ -68,6 +89,7 @@ class Results:
             "updated": self.attrs.get("updated"),
             "seed": self.attrs.get("seed"),
             "best": self.best(),
+            "truth": self.truth(),
             "fitness": _num(self.fitness()),
             "fixed": cfg.get("fixed", {}),
             "free": cfg.get("free", {}),
@@ -150,9 +172,15 @@ def format_show(res: Results) -> str:
                  f"{_fmt(s['fitness'])}")
     if s["best"]:
         w = max(len(n) for n in s["best"])
+        truth = s["truth"]
         for n, v in s["best"].items():
             lo, hi = cfg["free"][n]
-            lines.append(f"  {n:<{w}}  {v:>14.8g} {units.get(n, ''):<8} in [{lo:g}, {hi:g}]")
+            line = f"  {n:<{w}}  {v:>14.8g} {units.get(n, ''):<8} in [{lo:g}, {hi:g}]"
+            if n in truth:
+                true = truth[n]
+                rel = f" ({100 * (v - true) / true:+.2f} %)" if true != 0 else ""
+                line = f"{line:<{w + 48}} true {true:.8g}{rel}"
+            lines.append(line)
     if s["fixed"]:
         lines.append("fixed: " + ", ".join(f"{k} = {v:g}" for k, v in s["fixed"].items()))
     if s.get("fit_errors"):
