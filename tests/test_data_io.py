@@ -282,3 +282,20 @@ def test_unsaturated_mask_follows_sensor_range():
                sensors={"dtheta": {"range": [-1.0, 1.0]}})
     assert tr.unsaturated("dtheta").tolist() == [False, True, False, False, True]
     assert tr.unsaturated("force").all()
+
+
+def test_import_removes_the_gyroscope_bias_of_rig_trials(tmp_path):
+    """--rate-bias start: the rest before the push reads zero afterwards, and it is noted."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "experiments" / "data" / "default.h5"
+    out = tmp_path / "debiased.h5"
+    assert main(["data", "import", str(src), "--trial", "T03", "--rate-bias", "start",
+                 "--out", str(out)]) == 0
+    raw, fixed = read_trial(src, "T03"), read_trial(out)
+    still = slice(0, 300)                       # the door rests fully open before the push
+    assert abs(np.mean(raw.dtheta[still])) > 1e-3           # about -0.15 deg/s of bias
+    assert abs(np.mean(fixed.dtheta[still])) < 2e-4
+    step = fixed.meta["preprocess"][-1]["remove_rate_bias"]
+    assert step["bias_rad_s"] == pytest.approx(np.mean(raw.dtheta[still]), abs=2e-4)
+    assert step["where"] == "start"

@@ -150,3 +150,44 @@ def test_lowpass_trial_is_recorded():
     assert out.meta["preprocess"] == [{"lowpass": {"cutoff_hz": 10.0, "order": 4,
                                                    "channels": ["force", "dtheta"]}}]
     assert tr.meta == {}
+
+
+def test_remove_rate_bias_measures_it_before_the_motion_only():
+    """A door that creeps after the push (tanh friction) must not be read as bias."""
+    t, _, gyro = _gyro_trial(bias0=0.0)
+    true_rate = gyro.copy()
+    creep = np.where(t > 2.2, -0.012, 0.0)           # 0.7 deg/s of creep at the end
+    bias = 0.0025                                    # 0.14 deg/s, a typical gyro bias
+    measured = true_rate + creep + bias
+    sensors = {"dtheta": {"range": [-3.0, 3.0]}}
+    tr = Trial(t, np.zeros_like(t), dtheta=measured, theta0=0.2, trial_id="g", sensors=sensors)
+    start = pp.remove_rate_bias(tr)
+    assert start.meta["preprocess"][-1]["remove_rate_bias"]["bias_rad_s"] == pytest.approx(bias, abs=2e-4)
+    np.testing.assert_allclose(start.dtheta, true_rate + creep, atol=3e-4)
+    assert start.sensor("dtheta")["range"] == pytest.approx([-3.0 - bias, 3.0 - bias], abs=2e-4)
+    # every rest run: the creep at the end drags the estimate away from the true bias
+    every = pp.remove_rate_bias(tr, "all")
+    assert np.max(np.abs(every.dtheta - (true_rate + creep))) > 3 * 3e-4
+    with pytest.raises(UserError, match="'start' or 'all'"):
+        pp.remove_rate_bias(tr, "end")
+
+
+def test_remove_rate_bias_keeps_saturated_samples_saturated():
+    t, _, gyro = _gyro_trial(bias0=0.004)
+    hi = 0.9 * gyro.max()
+    clipped = np.minimum(gyro, hi)
+    tr = Trial(t, np.zeros_like(t), dtheta=clipped, theta0=0.2, trial_id="g",
+               sensors={"dtheta": {"range": [-hi, hi]}})
+    before = ~tr.unsaturated("dtheta")
+    out = pp.remove_rate_bias(tr)
+    assert before.sum() > 20
+    np.testing.assert_array_equal(~out.unsaturated("dtheta"), before)
+
+
+def test_remove_rate_bias_needs_rest_at_the_start():
+    t, _, gyro = _gyro_trial()
+    moving = Trial(t[1100:], np.zeros(t.size - 1100), dtheta=gyro[1100:], theta0=0.2, trial_id="m")
+    with pytest.raises(UserError, match="no rest at the start"):
+        pp.remove_rate_bias(moving)
+    with pytest.raises(UserError, match="no dtheta"):
+        pp.remove_rate_bias(Trial(t, np.zeros_like(t), theta=np.zeros_like(t), trial_id="a"))

@@ -92,6 +92,14 @@ def load(folder, text=None, overrides=None):
     ("name: osc", "name: osc\nname: again", "exp.yaml:2: duplicate key 'name' (first at"),
     ("free:", "free: [", "exp.yaml:7: not valid YAML"),
     (f"model: {OSC}", "model: hapic", "exp.yaml:2: model: unknown model 'hapic' (did you mean 'haptic'?)"),
+    ("validate: [v1]}", "validate: [v1], preprocess: {rate_bias: end}}",
+     "exp.yaml:3: target.preprocess.rate_bias: 'end' is not one of none, start, all"),
+    ("validate: [v1]}", "validate: [v1], preprocess: {lowpas: 20}}",
+     "exp.yaml:3: target.preprocess.lowpas: unknown key (did you mean 'lowpass'?)"),
+    ("validate: [v1]}", "validate: [v1], preprocess: {lowpass: 0}}",
+     "exp.yaml:3: target.preprocess.lowpass: must be > 0, got 0"),
+    ("validate: [v1]}", "validate: [v1], preprocess: {lowpass: 900}}",
+     "exp.yaml:3: target.preprocess: trial 't1': low-pass cutoff 900 Hz must lie in"),
 ])
 def test_invalid_experiment_is_one_line_naming_file_line_key(folder, old, new, message):
     assert old in EXPERIMENT

@@ -38,6 +38,9 @@ def register(sub) -> None:
     imp.add_argument("--dtheta0", type=float, metavar="RAD_S", help="initial angular speed in rad/s")
     imp.add_argument("--id", dest="trial_id", metavar="ID",
                      help="trial id (one trial only; default: file name / group name)")
+    imp.add_argument("--rate-bias", choices=("start", "all"),
+                     help="subtract the gyroscope's bias, measured on the rest before the first "
+                          "motion (start) or on every rest run (all); done first")
     imp.add_argument("--lowpass", type=float, metavar="HZ", help="zero-phase low-pass every channel")
     imp.add_argument("--resample", type=float, metavar="HZ", help="resample to this rate")
     imp.add_argument("--trim", action="store_true", help="cut to the motion (+0.2 s each side)")
@@ -81,6 +84,8 @@ def run_import(args) -> int:
         trials = [trials[0].replace(trial_id=args.trial_id)]
     out = []
     for tr in trials:
+        if args.rate_bias:
+            tr = preprocess.remove_rate_bias(tr, args.rate_bias)
         if args.resample:
             tr = preprocess.resample(tr, args.resample)
         if args.lowpass:

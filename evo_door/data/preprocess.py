@@ -20,6 +20,7 @@ from evo_door.errors import UserError
 #: Defaults for "the door is at rest / the user is not pushing" (rest_mask, trim).
 FORCE_TOL = 2.0       # N
 SPEED_TOL = 0.03      # rad/s (1.7 deg/s: above a gyroscope's bias, below any motion)
+RATE_BIAS_GUARD = 0.05  # s left out of each end of a rest run when measuring the bias
 
 
 def _noted(trial: Trial, step: dict, **changes) -> Trial:
@@ -146,6 +147,59 @@ def rate_bias(t, dtheta, rest) -> np.ndarray:
         slope, intercept = np.polyfit(t[rest], np.asarray(dtheta)[rest], 1)
         return intercept + slope * t
     return np.full_like(t, float(np.mean(np.asarray(dtheta)[rest])))
+
+
+def remove_rate_bias(trial: Trial, where: str = "start") -> Trial:
+    """``trial`` with the gyroscope's bias (:func:`rate_bias`) subtracted from ``dtheta``.
+
+    Parameters
+    ----------
+    where : {"start", "all"}
+        Which rest samples (:func:`rest_mask`) carry the bias. ``"start"`` (default):
+        only the rest before the first motion. After a push a door may still creep
+        (the tanh friction law of eq. 3.1 lets a spring-loaded door slide at a few
+        hundredths of a degree per second), and the rest detector cannot tell that
+        creep from bias. ``"all"``: every rest run, with a linear drift when there is
+        rest both early and late.
+
+    The sensor's range is shifted with the signal, so samples that were saturated
+    stay recognisably saturated (:meth:`Trial.unsaturated`).
+    """
+    if trial.dtheta is None:
+        raise UserError(f"{trial.label}: no dtheta channel to remove a gyroscope bias from")
+    if where not in ("start", "all"):
+        raise UserError(f"rate bias: where must be 'start' or 'all', not {where!r}")
+    # rest runs without their last and first GUARD seconds, where the door starts or
+    # stops moving below the detector's speed tolerance
+    guard = int(round(RATE_BIAS_GUARD * trial.rate))
+    runs = [(a + guard * (a > 0), b - guard * (b < trial.n))
+            for a, b in _runs(rest_mask(trial.t, trial.force, trial.dtheta))]
+    if where == "start":
+        runs = runs[:1] if runs and runs[0][0] == 0 else []
+    rest = np.zeros(trial.n, dtype=bool)
+    for a, b in runs:
+        rest[a:max(a, b)] = True
+    if not rest.any():
+        raise UserError(f"{trial.label}: no rest {'at the start ' if where == 'start' else ''}"
+                        f"of the trial (at least 0.2 s with |force| < {FORCE_TOL:g} N and "
+                        f"|dtheta| < {SPEED_TOL:g} rad/s) to measure the gyroscope's bias on")
+    bias = rate_bias(trial.t, trial.dtheta, rest)
+    dtheta = trial.dtheta - bias
+    info = dict(trial.sensor("dtheta"))
+    if info.get("range"):
+        # shift the range with the mean bias and keep saturated samples pinned to its ends
+        saturated = ~trial.unsaturated("dtheta")
+        lo, hi = (float(v - np.mean(bias)) for v in info["range"])
+        info["range"] = [lo, hi]
+        dtheta = np.where(saturated, np.where(trial.dtheta > 0, hi, lo), dtheta)
+    info["bias_removed"] = float(np.mean(bias))
+    sensors = {**trial.sensors, "dtheta": info}
+    return _noted(trial, {"remove_rate_bias": {"where": where, "bias_rad_s": float(np.mean(bias)),
+                                               "drift_rad_s2": float((bias[-1] - bias[0])
+                                                                     / (trial.t[-1] - trial.t[0]))
+                                               if trial.n > 1 else 0.0,
+                                               "rest_samples": int(rest.sum())}},
+                  dtheta=dtheta, sensors=sensors)
 
 
 def angle_from_rate(t, dtheta, theta0: float = 0.0, rest=None, theta_end: float | None = None

@@ -39,9 +39,11 @@ from evo_door.sim.integrators import METHODS
 
 TOP_KEYS = ("name", "description", "model", "params", "target", "fixed", "free", "objective",
             "algorithm", "per_trial", "simulation", "output")
-DATA_TARGET_KEYS = ("data", "trials", "kinds", "validate")
+DATA_TARGET_KEYS = ("data", "trials", "kinds", "validate", "preprocess")
 MODEL_TARGET_KEYS = ("model", "params", "set", "inputs", "trials", "kinds", "validate", "theta0",
-                     "dtheta0")
+                     "dtheta0", "preprocess")
+PREPROCESS_KEYS = ("rate_bias", "lowpass", "trim")
+RATE_BIAS = ("none", "start", "all")
 OBJECTIVE_KEYS = ("kind", "derivative", "combine")
 GA_KEYS = ("population", "generations", "reproduction_ratio", "mutation_probability",
            "mutation_amplitude", "seed", "elite", "tournament", "crossover_eta",
@@ -51,6 +53,25 @@ ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, "start")
 SIMULATION_KEYS = ("method", "substeps")
 ALGORITHM_KINDS = ("ga", "nlpql")
 POLISH = ("none", "slsqp")
+
+
+@dataclass
+class PreprocessSpec:
+    """What is done to every target trial before fitting (:mod:`evo_door.data.preprocess`).
+
+    Applied in this order: ``rate_bias`` (remove the gyroscope's bias, measured at rest:
+    ``start`` before the first motion, ``all`` on every rest run, ``none``), ``lowpass``
+    (zero-phase Butterworth at this many Hz on every channel, or None), ``trim`` (cut to
+    the motion).
+    """
+
+    rate_bias: str = "none"
+    lowpass: float | None = None
+    trim: bool = False
+
+    @property
+    def active(self) -> bool:
+        return self.rate_bias != "none" or self.lowpass is not None or self.trim
 
 
 @dataclass
@@ -68,6 +89,7 @@ class TargetSpec:
     inputs: object = None          # resolved file path, or a rig specification (mapping)
     theta0: float | None = None
     dtheta0: float | None = None
+    preprocess: "PreprocessSpec" = field(default_factory=lambda: PreprocessSpec())
     #: location (file:line) of each key, for messages about the data
     locs: dict = field(default_factory=dict)
 
@@ -273,6 +295,16 @@ def _kinds(t: _Reader) -> list:
 
 
 # -- the sections -----------------------------------------------------------------
+def _preprocess(t: _Reader) -> PreprocessSpec:
+    if "preprocess" not in t.node:
+        return PreprocessSpec()
+    p = _Reader(t.get("preprocess"), t.key_path("preprocess"), t.node.where("preprocess"))
+    p.check_keys(PREPROCESS_KEYS)
+    return PreprocessSpec(rate_bias=p.choice("rate_bias", "none", RATE_BIAS),
+                          lowpass=p.number("lowpass", None, lo=0.0, open_lo=True, allow_none=True),
+                          trim=p.boolean("trim", False))
+
+
 def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
     node = reader.get("target")
     if node is None:
@@ -290,7 +322,8 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
         path = _resolve_path(t.string("data", required=True), base_dir, t.node.where("data"),
                              "target.data")
         spec = TargetSpec("data", trials=_id_list(t, "trials", True), kinds=_kinds(t),
-                          validate=_id_list(t, "validate", False), data=path, locs=locs)
+                          validate=_id_list(t, "validate", False), data=path,
+                          preprocess=_preprocess(t), locs=locs)
     elif "model" in t.node:
         t.check_keys(MODEL_TARGET_KEYS, required=("model", "inputs"))
         inputs = t.get("inputs")
@@ -309,7 +342,8 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
                           params=_param_spec(t, "params", base_dir),
                           set={str(k): v for k, v in overrides.items()}, inputs=inputs,
                           theta0=t.number("theta0", None, allow_none=True),
-                          dtheta0=t.number("dtheta0", None, allow_none=True), locs=locs)
+                          dtheta0=t.number("dtheta0", None, allow_none=True),
+                          preprocess=_preprocess(t), locs=locs)
     else:
         raise UserError(f"{t.node.loc}: target: give data: FILE (measured trials) or "
                         "model: NAME with inputs: FILE (another model's response)")

@@ -10,6 +10,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.optim.problem import Objective
 
 A = store.ATTRS
 
@@ -141,6 +142,18 @@ def _num(v):
     return v if math.isfinite(v) else None
 
 
+def _preprocess_text(pre: dict) -> str:
+    """What was done to the target trials, as a tail for the objective line (or "")."""
+    steps = []
+    if pre.get("rate_bias", "none") != "none":
+        steps.append(f"gyroscope bias removed ({pre['rate_bias']})")
+    if pre.get("lowpass") is not None:
+        steps.append(f"low-pass {pre['lowpass']:g} Hz")
+    if pre.get("trim"):
+        steps.append("trimmed to the motion")
+    return f"; target preprocessed: {', '.join(steps)}" if steps else ""
+
+
 def format_show(res: Results) -> str:
     """The human-readable ``evo-door show``."""
     s = res.summary()
@@ -151,7 +164,7 @@ def format_show(res: Results) -> str:
              f"  model {s['model']}, status {s['status']} ({s['progress']}), seed {s['seed']}, "
              f"created {s['created']}",
              f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
-             f"over trials",
+             f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
              ("  algorithm " + (f"GA population {alg['population']} x {alg['generations']} "
                                 f"generations, reproduction {alg['reproduction_ratio']:g}, "
                                 f"mutation p {alg['mutation_probability']:g} amplitude "
@@ -168,8 +181,9 @@ def format_show(res: Results) -> str:
         for n, row in s["table"].items():
             lines.append(f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
                          f"{row['mean']:>12.6g}  {units.get(n, '')}")
+    funit = Objective(obj["kind"], obj["derivative"], obj["combine"]).unit
     lines.append(f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness "
-                 f"{_fmt(s['fitness'])}")
+                 f"{_fmt(s['fitness'])} {funit}")
     if s["best"]:
         w = max(len(n) for n in s["best"])
         truth = s["truth"]
@@ -182,12 +196,13 @@ def format_show(res: Results) -> str:
                 line = f"{line:<{w + 48}} true {true:.8g}{rel}"
             lines.append(line)
     if s["fixed"]:
-        lines.append("fixed: " + ", ".join(f"{k} = {v:g}" for k, v in s["fixed"].items()))
+        lines.append("fixed: " + ", ".join(f"{k} = {v:g} {units.get(k, '')}".rstrip()
+                                           for k, v in s["fixed"].items()))
     if s.get("fit_errors"):
-        lines.append("fit error per trial: " + ", ".join(f"{k} {_fmt(v)}"
-                                                           for k, v in s["fit_errors"].items()))
+        lines.append(f"fit error per trial in {funit}: " + ", ".join(
+            f"{k} {_fmt(v)}" for k, v in s["fit_errors"].items()))
     if s.get("validation_errors"):
-        lines.append("validation error:    " + ", ".join(
+        lines.append(f"validation error in {funit}:    " + ", ".join(
             f"{k} {_fmt(v)}" for k, v in s["validation_errors"].items()))
     return "\n".join(lines)
 

@@ -170,6 +170,22 @@ def _model_target_trials(spec) -> list[Trial]:
     return out
 
 
+def _preprocessed(tr: Trial, pre, where: str) -> Trial:
+    """``tr`` after the experiment's ``target.preprocess`` steps (see PreprocessSpec)."""
+    from evo_door.data import preprocess
+
+    try:
+        if pre.rate_bias != "none" and tr.dtheta is not None:
+            tr = preprocess.remove_rate_bias(tr, pre.rate_bias)
+        if pre.lowpass is not None:
+            tr = preprocess.lowpass_trial(tr, pre.lowpass)
+        if pre.trim:
+            tr = preprocess.trim_to_motion(tr)
+    except UserError as exc:
+        raise UserError(f"{where}: target.preprocess: trial {tr.trial_id!r}: {exc}") from None
+    return tr
+
+
 def resolve(exp, trials: list[Trial] | None = None) -> Setup:
     """Read what ``exp`` names and build its :class:`Setup`.
 
@@ -194,6 +210,10 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         all_trials, source = _model_target_trials(spec), "the inputs of target.model"
     all_trials = _unique_ids(all_trials, source)
     fit, validation = _select(all_trials, spec, spec.locs["trials"], spec.locs["validate"], source)
+    if spec.preprocess.active:
+        where = spec.locs.get("preprocess", spec.locs["trials"])
+        fit = [_preprocessed(tr, spec.preprocess, where) for tr in fit]
+        validation = [_preprocessed(tr, spec.preprocess, where) for tr in validation]
     channel = ("theta", "dtheta", "ddtheta")[exp.objective.derivative]
     for tr in fit + validation:
         if tr.channel(exp.objective.derivative) is None:
