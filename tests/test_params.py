@@ -78,3 +78,15 @@ def test_table_text_lists_units_and_meaning():
     text = T.format_table()
     assert "N s/rad" in text and "viscous damping" in text
     assert text.splitlines()[0].split()[:3] == ["name", "unit", "default"]
+
+
+def test_parameter_files_take_numbers_as_engineers_write_them(tmp_path):
+    """PyYAML alone reads ``1e-3`` as text; parameter files accept it, and write 1.0e-03."""
+    path = tmp_path / "p.yaml"
+    path.write_text("model: oscillator\nvalues:\n  k: 2e2\n  c: 1e-3\n")
+    ps = load_params(T, path)
+    assert ps["k"] == 200.0 and ps["c"] == 1e-3
+    text = ps.to_yaml()
+    assert "1.0e-03" in text or "0.001" in text
+    import yaml
+    assert yaml.safe_load(text)["values"]["c"] == 1e-3       # any YAML 1.1 reader too

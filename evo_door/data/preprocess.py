@@ -181,8 +181,9 @@ def remove_rate_bias(trial: Trial, where: str = "start") -> Trial:
         rest[a:max(a, b)] = True
     if not rest.any():
         raise UserError(f"{trial.label}: no rest {'at the start ' if where == 'start' else ''}"
-                        f"of the trial (at least 0.2 s with |force| < {FORCE_TOL:g} N and "
-                        f"|dtheta| < {SPEED_TOL:g} rad/s) to measure the gyroscope's bias on")
+                        f"of the trial to measure the gyroscope's bias on (0.2 s or more with "
+                        f"|force| < {FORCE_TOL:g} N and |dtheta| < {SPEED_TOL:g} rad/s once "
+                        "low-passed at 10 Hz; record about half a second of rest before the push)")
     bias = rate_bias(trial.t, trial.dtheta, rest)
     dtheta = trial.dtheta - bias
     info = dict(trial.sensor("dtheta"))

@@ -12,31 +12,16 @@ and its location becomes ``--set algorithm.seed=3``.
 
 from __future__ import annotations
 
-import re
-
 import yaml
 from yaml.constructor import SafeConstructor
 
 from evo_door.errors import UserError
-
-
-class Loader(yaml.SafeLoader):
-    """PyYAML's safe loader, reading ``1e-3`` and ``5e8`` as numbers.
-
-    PyYAML follows YAML 1.1, where a float needs a dot (``1.0e-3``) and ``1e-3`` is
-    a string; engineers write ``1e-3``, so the YAML 1.2 form is accepted too.
-    """
-
-
-Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"))
+from evo_door.yaml_numbers import Loader, load
 
 
 def load_value(text: str):
     """One YAML value with :class:`Loader`'s number rules."""
-    return yaml.load(text, Loader=Loader)
+    return load(text)
 
 
 class LinedMap(dict):

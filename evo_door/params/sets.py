@@ -24,7 +24,9 @@ import numpy as np
 import yaml
 
 from evo_door.errors import ParameterError, UserError
+from evo_door import yaml_numbers
 from evo_door.params.declaration import ParamTable, suggest
+from evo_door.yaml_numbers import format_float
 
 PRESET_DIR = Path(__file__).parent / "presets"
 
@@ -74,7 +76,7 @@ class ParamSet:
         lines.append("values:")
         width = max(len(n) for n in self.table.names)
         for p, v in zip(self.table, self.vector):
-            lines.append(f"  {p.name + ':':<{width + 1}} {float(v)!r:<22} # {p.unit}")
+            lines.append(f"  {p.name + ':':<{width + 1}} {format_float(v):<22} # {p.unit}")
         text = "\n".join(lines) + "\n"
         if path is not None:
             Path(path).write_text(text)
@@ -108,7 +110,7 @@ def load_params(table: ParamTable, spec: str | Path | None) -> ParamSet:
             raise UserError(f"{spec}: parameter file not found")
         path = preset_path(table.model, str(spec))
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml_numbers.load(path.read_text())
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" line {mark.line + 1}" if mark else ""
