@@ -191,3 +191,17 @@ def test_remove_rate_bias_needs_rest_at_the_start():
         pp.remove_rate_bias(moving)
     with pytest.raises(UserError, match="no dtheta"):
         pp.remove_rate_bias(Trial(t, np.zeros_like(t), theta=np.zeros_like(t), trial_id="a"))
+
+
+def test_lowpass_keeps_saturated_samples_marked():
+    t, truth, gyro = _gyro_trial(bias0=0.0)
+    hi = 0.9 * gyro.max()
+    tr = Trial(t, np.zeros_like(t), dtheta=np.minimum(gyro, hi), theta0=0.2, trial_id="g",
+               sensors={"dtheta": {"range": [-hi, hi]}})
+    before = ~tr.unsaturated("dtheta")
+    out = pp.lowpass_trial(tr, 20.0)
+    assert before.sum() > 20
+    np.testing.assert_array_equal(~out.unsaturated("dtheta"), before)
+    rest = slice(0, 900)                                     # the noise is filtered there
+    error = out.dtheta[rest] - np.gradient(truth, t)[rest]
+    assert np.std(error) < 0.5 * 0.002

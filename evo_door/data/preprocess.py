@@ -49,14 +49,23 @@ def lowpass(x, rate: float, cutoff: float, order: int = 4, axis: int = -1) -> np
 
 
 def lowpass_trial(trial: Trial, cutoff: float, channels=None, order: int = 4) -> Trial:
-    """``trial`` with the given channels (default: all) low-pass filtered at ``cutoff`` Hz."""
+    """``trial`` with the given channels (default: all) low-pass filtered at ``cutoff`` Hz.
+
+    Samples a sensor reported as saturated keep their value (the end of the range),
+    so objectives still skip them (:meth:`Trial.unsaturated`).
+    """
     channels = tuple(channels or ("force", *trial.channels))
     changes = {}
     for name in channels:
         values = getattr(trial, name)
         if values is None:
             raise UserError(f"{trial.label}: no channel {name!r} to filter")
-        changes[name] = lowpass(values, trial.rate, cutoff, order)
+        filtered = lowpass(values, trial.rate, cutoff, order)
+        rng = trial.sensor(name).get("range")
+        if rng:   # saturated samples stay pinned to the range ends, so they stay marked
+            saturated = ~trial.unsaturated(name)
+            filtered = np.where(saturated, values, filtered)
+        changes[name] = filtered
     return _noted(trial, {"lowpass": {"cutoff_hz": cutoff, "order": order,
                                       "channels": list(channels)}}, **changes)
 
