@@ -147,7 +147,7 @@ assert all(PARAMS.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k
 # ---------------------------------------------------------------------------------
 # Building blocks
 # ---------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def activation(x, x0, slope):
     """S(x, x0, a) = (tanh(a (x - x0)) + 1) / 2 (eq. 4.36): ~0 below x0, ~1 above.
 
@@ -164,7 +164,7 @@ def activation(x, x0, slope):
     return 1.0 / (1.0 + math.exp(-2.0 * u))
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def release(x, sharpness):
     """Smooth end of a latch band: ~1 inside it (x > 0), ~0 beyond it (x < 0).
 
@@ -198,7 +198,7 @@ def latch_angles(p):
     return theta_0, theta_1, theta_2, theta_3
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def section_scale(theta, p):
     """A(theta): the per-section friction scale (eq. 4.48 / 5.8), smooth, in [0, 1].
 
@@ -219,7 +219,7 @@ def section_scale(theta, p):
 # ---------------------------------------------------------------------------------
 # The tangential force law: the whole feel, top to bottom
 # ---------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def tangential_force(theta, dtheta, p):
     """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing.
 
