@@ -194,20 +194,20 @@ def remove_rate_bias(trial: Trial, where: str = "start") -> Trial:
                         f"|force| < {FORCE_TOL:g} N and |dtheta| < {SPEED_TOL:g} rad/s once "
                         "low-passed at 10 Hz; record about half a second of rest before the push)")
     bias = rate_bias(trial.t, trial.dtheta, rest)
+    mean_bias = float(np.mean(bias))
     dtheta = trial.dtheta - bias
     info = dict(trial.sensor("dtheta"))
     if info.get("range"):
         # shift the range with the mean bias and keep saturated samples pinned to its ends
         saturated = ~trial.unsaturated("dtheta")
-        lo, hi = (float(v - np.mean(bias)) for v in info["range"])
+        lo, hi = (float(v) - mean_bias for v in info["range"])
         info["range"] = [lo, hi]
         dtheta = np.where(saturated, np.where(trial.dtheta > 0, hi, lo), dtheta)
-    info["bias_removed"] = float(np.mean(bias))
+    info["bias_removed"] = mean_bias
     sensors = {**trial.sensors, "dtheta": info}
-    return _noted(trial, {"remove_rate_bias": {"where": where, "bias_rad_s": float(np.mean(bias)),
-                                               "drift_rad_s2": float((bias[-1] - bias[0])
-                                                                     / (trial.t[-1] - trial.t[0]))
-                                               if trial.n > 1 else 0.0,
+    drift = float((bias[-1] - bias[0]) / (trial.t[-1] - trial.t[0]))
+    return _noted(trial, {"remove_rate_bias": {"where": where, "bias_rad_s": mean_bias,
+                                               "drift_rad_s2": drift,
                                                "rest_samples": int(rest.sum())}},
                   dtheta=dtheta, sensors=sensors)
 
