@@ -19,11 +19,6 @@ from evo_door.errors import UserError
 from evo_door.yaml_numbers import Loader, load
 
 
-def load_value(text: str):
-    """One YAML value with :class:`Loader`'s number rules."""
-    return load(text)
-
-
 class LinedMap(dict):
     """A dict with ``loc`` (its own location) and ``key_locs`` (location of each key)."""
 
@@ -92,7 +87,7 @@ def apply_override(tree: LinedMap, assignment: str) -> None:
     if not sep or not all(keys):
         raise UserError(f"{where}: expected KEY.PATH=VALUE, e.g. algorithm.seed=3")
     try:
-        value = load_value(text) if text.strip() else None
+        value = load(text) if text.strip() else None
     except yaml.YAMLError:
         raise UserError(f"{where}: {text!r} is not a YAML value") from None
     if isinstance(value, dict):

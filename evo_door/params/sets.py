@@ -24,9 +24,8 @@ import numpy as np
 import yaml
 
 from evo_door.errors import ParameterError, UserError
-from evo_door import yaml_numbers
 from evo_door.params.declaration import ParamTable, suggest
-from evo_door.yaml_numbers import format_float
+from evo_door.yaml_numbers import format_float, load as load_yaml
 
 PRESET_DIR = Path(__file__).parent / "presets"
 
@@ -110,7 +109,7 @@ def load_params(table: ParamTable, spec: str | Path | None) -> ParamSet:
             raise UserError(f"{spec}: parameter file not found")
         path = preset_path(table.model, str(spec))
     try:
-        doc = yaml_numbers.load(path.read_text())
+        doc = load_yaml(path.read_text())
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" line {mark.line + 1}" if mark else ""
