@@ -405,6 +405,12 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
                          start={str(k): v for k, v in start.items()})
 
 
+def _require_declared(where: str, name, model) -> None:
+    if name not in model.params:
+        raise UserError(f"{where}: model {model.name!r} has no parameter {name!r}"
+                        + suggest(str(name), model.params.names))
+
+
 def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
     """free / fixed / start against the model's declaration."""
     table = model.params
@@ -413,9 +419,7 @@ def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
         raise reader.fail("fixed", "expected a mapping of parameter names to values")
     for name, value in fixed.items():
         where = f"{fixed.where(name)}: fixed.{name}"
-        if name not in table:
-            raise UserError(f"{where}: model {model.name!r} has no parameter {name!r}"
-                            + suggest(str(name), table.names))
+        _require_declared(where, name, model)
         try:
             exp.fixed[name] = table[name].check(value)
         except UserError as exc:
@@ -428,9 +432,7 @@ def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
         raise reader.fail("free", "expected a mapping name: [lower, upper]")
     for name, bounds in free.items():
         where = f"{free.where(name)}: free.{name}"
-        if name not in table:
-            raise UserError(f"{where}: model {model.name!r} has no parameter {name!r}"
-                            + suggest(str(name), table.names))
+        _require_declared(where, name, model)
         if name in exp.fixed:
             raise UserError(f"{where}: {name!r} is also fixed (at {fixed.where(name)}); "
                             "a parameter is either fixed or free")
