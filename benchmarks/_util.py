@@ -7,6 +7,8 @@ import platform
 import statistics
 import time
 
+import numpy as np
+
 
 def median_time(fn, repeat: int) -> float:
     """Median wall time (s) of ``repeat`` calls of ``fn()``."""
@@ -26,3 +28,12 @@ def machine_line(extra: str = "") -> str:
             f"{platform.python_version()}, numba {numba.__version__}. Measured "
             f"{time.strftime('%Y-%m-%d %H:%M')}, medians of repeats; other processes may "
             "have shared the cores.")
+
+
+def half_sine_pulses(t, pulses) -> np.ndarray:
+    """A force trace (N) of half-sine pulses ``(start s, width s, amplitude N)`` on ``t``."""
+    f = np.zeros_like(t)
+    for start, width, amp in pulses:
+        on = (t >= start) & (t < start + width)
+        f[on] = amp * np.sin(np.pi * (t[on] - start) / width)
+    return f

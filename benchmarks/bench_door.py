@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
 
-from benchmarks._util import machine_line, median_time  # noqa: E402
+from benchmarks._util import half_sine_pulses, machine_line, median_time  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.sim import simulate, simulate_batch  # noqa: E402
 from evo_door.sim.simulate import param_vector  # noqa: E402
@@ -35,11 +35,7 @@ SECONDS = 5.0
 def force_profile():
     """Push from fully open (half-sine 11 N), free decay, a pull back open."""
     t = np.arange(int(round(SECONDS / DT))) * DT
-    f = np.zeros_like(t)
-    for start, width, amp in ((0.2, 0.2, 11.0), (2.6, 0.4, -12.0)):
-        on = (t >= start) & (t < start + width)
-        f[on] = amp * np.sin(np.pi * (t[on] - start) / width)
-    return t, f
+    return t, half_sine_pulses(t, ((0.2, 0.2, 11.0), (2.6, 0.4, -12.0)))
 
 
 def main(argv=None):

@@ -28,6 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._util import half_sine_pulses  # noqa: E402
 from evo_door.data.trial import Trial  # noqa: E402
 from evo_door.errors import UserError  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
@@ -49,11 +50,7 @@ FREE = {
 def force_profile(seconds=SECONDS, dt=DT):
     """A push toward closing from open (half-sine), free motion, a pull back, free motion."""
     t = np.arange(int(round(seconds / dt))) * dt
-    f = np.zeros_like(t)
-    for start, width, amp in ((0.2, 0.35, 25.0), (2.6, 0.35, -25.0)):
-        on = (t >= start) & (t < start + width)
-        f[on] = amp * np.sin(np.pi * (t[on] - start) / width)
-    return t, f
+    return t, half_sine_pulses(t, ((0.2, 0.35, 25.0), (2.6, 0.35, -25.0)))
 
 
 def choose_free(model):

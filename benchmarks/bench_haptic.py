@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 import numba  # noqa: E402
 from numba import njit  # noqa: E402
 
-from benchmarks._util import machine_line, median_time  # noqa: E402
+from benchmarks._util import half_sine_pulses, machine_line, median_time  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.haptic import device_force, device_force_vector, on_path  # noqa: E402
 from evo_door.sim import simulate  # noqa: E402
@@ -37,12 +37,7 @@ SECONDS = 5.0
 def force_profile():
     """Pull the latched door open, let it run, push it back and latch it."""
     t = np.arange(int(round(SECONDS / DT))) * DT
-    f = np.zeros_like(t)
-    pull = (t >= 0.2) & (t < 1.2)
-    f[pull] = -30.0 * np.sin(np.pi * (t[pull] - 0.2) / 1.0)
-    push = (t >= 2.5) & (t < 3.7)
-    f[push] = 25.0 * np.sin(np.pi * (t[push] - 2.5) / 1.2)
-    return t, f
+    return t, half_sine_pulses(t, ((0.2, 1.0, -30.0), (2.5, 1.2, 25.0)))
 
 
 @njit(cache=True)
