@@ -1,6 +1,5 @@
 """Shared fixtures: small analytic test models that need no door physics."""
 
-import numpy as np
 import pytest
 from numba import njit
 

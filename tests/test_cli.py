@@ -1,8 +1,8 @@
 """The command line as a user meets it: help, version, one-line errors with exit 2."""
 
 import subprocess
-import sys
-from pathlib import Path
+import warnings
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -12,17 +12,40 @@ from evo_door.cli import main
 from evo_door.sim import quasi_static_force
 from tests.conftest import OSCILLATOR_MODEL
 
-ROOT = Path(__file__).resolve().parents[1]
 OSC = "tests.conftest:OSCILLATOR_MODEL"
 
 
-def run(*args, cwd=ROOT):
-    """``python -m evo_door ARGS`` from the repository root (so tests.* is importable)."""
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
+class Ran(NamedTuple):
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def cli(capsys, *args) -> Ran:
+    """``evo-door ARGS`` in this process, read like a finished subprocess.
+
+    A subprocess costs 1-5 s of interpreter, numba and matplotlib start-up; keep one only
+    where it is the point (the installed console script, a process killed and resumed,
+    a fresh interpreter). stdout and stderr hold this command's output only. Warnings
+    that a plain ``python`` would print are appended to stderr, so that assertions on
+    stderr ("empty", "one line") mean what they meant for a subprocess. argparse errors
+    raise SystemExit(2): catch them with ``pytest.raises(SystemExit)``.
+    """
+    capsys.readouterr()  # drop whatever the test printed before
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")  # a plain interpreter's filters:
+        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
+                         ResourceWarning):
+            warnings.simplefilter("ignore", category)
+        code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    err += "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno)
+                   for w in caught)
+    return Ran(code, out, err)
 
 
 def test_console_script_version_and_help():
+    """The installed entry point itself: this one has to be a subprocess."""
     out = subprocess.run(["evo-door", "--version"], capture_output=True, text=True)
     assert out.returncode == 0 and out.stdout.strip() == f"evo-door {__version__}"
     out = subprocess.run(["evo-door", "--help"], capture_output=True, text=True)
@@ -47,12 +70,12 @@ def test_params_table_and_overrides(capsys):
     assert "outside its declared range" in capsys.readouterr().err
 
 
-def test_simulate_csv_round_trip(tmp_path):
+def test_simulate_csv_round_trip(tmp_path, capsys):
     t = np.arange(1024) / 1024.0
     np.savetxt(tmp_path / "in.csv", np.column_stack([t, np.full_like(t, 5.0)]),
                delimiter=",", header="t,force", comments="")
-    res = run("simulate", OSC, "--set", "k=100", "--set", "c=20", "--input",
-              str(tmp_path / "in.csv"), "--out", str(tmp_path / "out.csv"))
+    res = cli(capsys, "simulate", OSC, "--set", "k=100", "--set", "c=20", "--input",
+              tmp_path / "in.csv", "--out", tmp_path / "out.csv")
     assert res.returncode == 0, res.stderr
     header = (tmp_path / "out.csv").read_text().splitlines()[0]
     assert header == "t,force,theta,dtheta,ddtheta"
@@ -68,10 +91,10 @@ def test_simulate_csv_round_trip(tmp_path):
     ("t,force\n0,1\n0.1,nan\n", "non-finite value on data row 2"),
     ("t,force\n0,1\n0.1,2\n0.3,2\n", "not uniformly sampled"),
 ])
-def test_simulate_rejects_bad_input_file(tmp_path, content, message):
+def test_simulate_rejects_bad_input_file(tmp_path, capsys, content, message):
     (tmp_path / "in.csv").write_text(content)
-    res = run("simulate", OSC, "--input", str(tmp_path / "in.csv"), "--out",
-              str(tmp_path / "out.csv"))
+    res = cli(capsys, "simulate", OSC, "--input", tmp_path / "in.csv", "--out",
+              tmp_path / "out.csv")
     assert res.returncode == 2
     assert message in res.stderr and res.stderr.count("\n") == 1
     assert "Traceback" not in res.stderr
@@ -85,9 +108,9 @@ def test_quasi_static_force_of_a_spring_damper():
     np.testing.assert_allclose(f, 300.0 * (theta - 0.2) + 4.0 * -0.5, rtol=1e-12)
 
 
-def test_curve_command_writes_both_directions(tmp_path):
-    res = run("curve", OSC, "--points", "11", "--out", str(tmp_path / "c.csv"),
-              "--plot", str(tmp_path / "c.png"))
+def test_curve_command_writes_both_directions(tmp_path, capsys):
+    res = cli(capsys, "curve", OSC, "--points", "11", "--out", tmp_path / "c.csv",
+              "--plot", tmp_path / "c.png")
     assert res.returncode == 0, res.stderr
     lines = (tmp_path / "c.csv").read_text().splitlines()
     assert lines[0] == "theta,force,direction" and len(lines) == 23

@@ -7,9 +7,9 @@ import h5py
 import numpy as np
 import pytest
 
+from evo_door import files
 from evo_door.cli import main
 from evo_door.data import Trial, read_trial, read_trials, write_trials
-from evo_door.data import h5io
 from evo_door.errors import UserError
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
@@ -266,10 +266,11 @@ def test_crash_while_writing_leaves_old_file(tmp_path, monkeypatch):
     write_trials(path, [make_trial("OLD")])
     before = path.read_bytes()
 
-    def boom(root, tr):
+    def boom(*args, **kwargs):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(h5io, "_write_trial", boom)
+    # the HDF5 content fails half-way, after the temporary file was created
+    monkeypatch.setattr(files, "write_group", boom)
     with pytest.raises(RuntimeError):
         write_trials(path, [make_trial("NEW")])
     assert path.read_bytes() == before

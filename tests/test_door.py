@@ -8,7 +8,7 @@ from scipy.integrate import solve_ivp
 
 from evo_door.cli import main
 from evo_door.models import get_model
-from evo_door.models.door import kinematics, laws
+from evo_door.models.door import energy_of, kinematics, laws
 from evo_door.models.door.drawing import draw_mechanism
 from evo_door.sim import quasi_static_curve, quasi_static_force, simulate
 from evo_door.sim.simulate import param_vector
@@ -84,7 +84,7 @@ def test_generalised_forces_are_minus_the_potential_gradient(door):
     """Without friction, latch and stops, q(theta) = -dV/dtheta (virtual work is right)."""
     ps = frictionless(door)
     p = param_vector(ps)
-    energy = door.extras["energy"]
+    energy = energy_of
     h = 1e-6
     for theta in np.linspace(0.1, CLOSED - 0.1, 7):
         # user force holding the door still = -q / L
@@ -99,7 +99,7 @@ def test_energy_conserved_without_friction_and_latch(door):
     ps = frictionless(door)
     t = np.arange(int(2.0 / DT)) * DT
     r = simulate(door, ps, np.zeros_like(t), DT, theta0=0.3, dtheta0=0.3)
-    e = door.extras["energy"](ps, r.theta, r.dtheta)
+    e = energy_of(ps, r.theta, r.dtheta)
     free = np.arange(len(t)) < np.argmax((r.theta < 0.0) | (r.theta > CLOSED))
     assert r.ok and np.ptp(r.theta[free]) > 1.0      # it swung up through most of the stroke
     drift = np.abs(e[free] - e[0]).max() / np.abs(e[free]).max()
@@ -112,7 +112,7 @@ def test_energy_never_increases_without_input(default, door):
     t = np.arange(int(1.5 / DT)) * DT
     for theta0, dtheta0 in ((0.3, 2.0), (1.0, -2.0), (0.1, 0.5)):
         r = simulate(door, default, np.zeros_like(t), DT, theta0=theta0, dtheta0=dtheta0)
-        e = door.extras["energy"](default, r.theta, r.dtheta)
+        e = energy_of(default, r.theta, r.dtheta)
         rise = np.max(np.diff(e))
         assert rise < 1e-6 * abs(e).max(), (theta0, dtheta0, rise)
         assert e[-1] < e[0]

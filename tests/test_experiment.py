@@ -2,9 +2,6 @@
 
 import json
 import re
-import subprocess
-import sys
-from pathlib import Path
 
 import h5py
 import numpy as np
@@ -20,9 +17,9 @@ from evo_door.experiment import (
     resume_run,
     run_experiment,
 )
+from tests.test_cli import cli
 from tests.test_optim import make_trial
 
-ROOT = Path(__file__).resolve().parents[1]
 OSC = "tests.conftest:OSCILLATOR_MODEL"
 
 EXPERIMENT = f"""\
@@ -297,15 +294,10 @@ algorithm: {{population: 12, generations: 2, polish: slsqp}}
     assert run.setup.fit[0].truth["params"]["k"] == 150
 
 
-# -- the commands ------------------------------------------------------------------------
-def cli(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
-
-
-def test_cli_run_show_runs_resume_and_errors(folder):
+# -- the commands, run in-process (tests.test_cli.cli) -----------------------------------
+def test_cli_run_show_runs_resume_and_errors(folder, capsys):
     out = folder / "results" / "a.h5"
-    res = cli("run", str(folder / "exp.yaml"), "--out", str(out), "--set", "algorithm.seed=3",
+    res = cli(capsys, "run", folder / "exp.yaml", "--out", out, "--set", "algorithm.seed=3",
               "--set", "algorithm.generations=3", "--progress")
     assert res.returncode == 0, res.stderr
     # the bar: generation count, best and mean fitness, evaluation rate
@@ -316,13 +308,13 @@ def test_cli_run_show_runs_resume_and_errors(folder):
                      res.stderr), res.stderr
     assert "best" in res.stdout
     # not a terminal and no --progress: no bar; --quiet: nothing at all
-    plain = cli("run", str(folder / "exp.yaml"), "--out", str(folder / "b.h5"),
+    plain = cli(capsys, "run", str(folder / "exp.yaml"), "--out", str(folder / "b.h5"),
                 "--set", "algorithm.generations=1")
     assert plain.returncode == 0 and plain.stderr == "" and "best" in plain.stdout
-    quiet = cli("run", str(folder / "exp.yaml"), "--out", str(folder / "c.h5"),
+    quiet = cli(capsys, "run", str(folder / "exp.yaml"), "--out", str(folder / "c.h5"),
                 "--set", "algorithm.generations=1", "--quiet", "--progress")
     assert quiet.returncode == 0 and quiet.stderr == "" and quiet.stdout == ""
-    shown = cli("show", str(out), "--json", "--plot", str(folder / "fit.png"))
+    shown = cli(capsys, "show", str(out), "--json", "--plot", str(folder / "fit.png"))
     assert shown.returncode == 0, shown.stderr
     doc = json.loads(shown.stdout)
     assert doc["seed"] == 3 and doc["algorithm"]["generations"] == 3
@@ -334,22 +326,23 @@ def test_cli_run_show_runs_resume_and_errors(folder):
         run_experiment(load(folder), folder / "results" / "cut.h5",
                        on_checkpoint=lambda run, job: (_ for _ in ()).throw(Interrupted())
                        if job.ga is not None and job.ga.generation == 2 else None)
-    listed = cli("runs", str(folder / "results"))
+    listed = cli(capsys, "runs", str(folder / "results"))
     assert listed.returncode == 0, listed.stderr
     rows = {line.split()[0]: line for line in listed.stdout.splitlines()[2:]}
     assert "complete" in rows["a.h5"] and "running" in rows["cut.h5"] and "2/6 gen" in rows["cut.h5"]
     from evo_door.cli import main
 
     assert main(["run", str(folder / "exp.yaml"), "--out", str(folder / "results" / "cut.h5")]) == 2
-    resumed = cli("resume", str(folder / "results" / "cut.h5"), "--quiet")
+    resumed = cli(capsys, "resume", str(folder / "results" / "cut.h5"), "--quiet")
     assert resumed.returncode == 0, resumed.stderr
     assert Results(folder / "results" / "cut.h5").complete
     assert main(["resume", str(folder / "results" / "cut.h5")]) == 0  # complete: nothing to do
 
 
-def test_cli_bad_yaml_exits_2_with_one_line(folder):
+def test_cli_bad_yaml_exits_2_with_one_line(folder, capsys, monkeypatch):
+    monkeypatch.chdir(folder)  # where a run without --out would write results/
     (folder / "bad.yaml").write_text(EXPERIMENT.replace("kind: ise", "kind: maxsquare"))
-    res = cli("run", str(folder / "bad.yaml"))
+    res = cli(capsys, "run", str(folder / "bad.yaml"))
     assert res.returncode == 2, res.stderr
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     assert ("bad.yaml:9: objective.kind: 'maxsquare' is not one of max_square, ise "

@@ -8,8 +8,16 @@ from scipy.integrate import solve_ivp
 
 from evo_door.cli import main
 from evo_door.models import get_model
-from evo_door.models.haptic import (CLOSED, N_SECTIONS, device_force, device_force_vector,
-                                    latch_angles_of, on_path, tangential_force)
+from evo_door.models.haptic import (
+    CLOSED,
+    N_SECTIONS,
+    device_force,
+    device_force_vector,
+    device_mass,
+    latch_angles_of,
+    on_path,
+    tangential_force,
+)
 from evo_door.sim import quasi_static_curve, quasi_static_force, simulate
 from evo_door.sim.simulate import param_vector
 
@@ -191,6 +199,7 @@ def test_compiled_device_force_writes_into_out(seed):
 
 
 # -- accuracy against scipy ------------------------------------------------------------
+@pytest.mark.slow
 def test_haptic_against_radau(haptic):
     """Smooth case (friction, viscous, return spring; no latch): ROS2 x 2 vs Radau."""
     ps = haptic.load_params(None, {**NO_LATCH, "return_stiffness": 20.0, "return_angle": 0.8,
@@ -217,7 +226,7 @@ def test_haptic_against_radau(haptic):
 def test_seed_trial_preset(seed):
     assert (seed["friction_closing"], seed["friction_opening"], seed["inertia"],
             seed["radius"]) == (1.5, 1.0, 1.2, 0.3)
-    assert get_model("haptic").extras["device_mass"](seed) == pytest.approx(4.0)
+    assert device_mass(seed) == pytest.approx(4.0)
 
 
 def test_cli_simulate_and_curve(tmp_path):

@@ -45,6 +45,7 @@ def test_no_truth_for_measured_data(folder):  # noqa: F811
     assert res.summary()["truth"] == {}
 
 
+@pytest.mark.slow
 def test_main_job_recovers_the_rig_door_within_3_percent(tmp_path):
     """The issue's accuracy target with rig noise: GA (AMESim's settings) then SLSQP.
 

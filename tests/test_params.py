@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from evo_door.errors import ParameterError, UserError
-from evo_door.params import Param, ParamTable, load_params, parse_assignments
+from evo_door.params import Param, load_params, parse_assignments
 from tests.conftest import OSCILLATOR_PARAMS as T
 
 

@@ -1,24 +1,19 @@
 """The virtual test rig: determinism, sensors, true parameters, the physics of its trials, CLI."""
 
 import math
-import subprocess
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 from numba import njit
 
-from evo_door.data import read_trials, write_trials
-from evo_door.data import rig
+from evo_door.data import read_trials, rig, write_trials
 from evo_door.data.preprocess import find_force_peak
 from evo_door.data.sensors import CLOSED, DEG, GYROSCOPE, INCLINOMETER, LOAD_CELL, Sensor
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
 from evo_door.sim import simulate
-
-ROOT = Path(__file__).resolve().parents[1]
+from tests.test_cli import cli
 
 
 @njit(cache=True)
@@ -49,7 +44,7 @@ TOY_DOOR = Model("toy_door", "toy door", ParamTable("toy_door", [
     Param("friction", "N", 5.0, 0.0, 100.0, "specification", "dry friction"),
     Param("open_force", "N", 40.0, 0.0, 500.0, "sensation", "latch bump against opening"),
     Param("close_force", "N", 25.0, 0.0, 500.0, "sensation", "latch bump against closing"),
-]), toy_door_accel, method="semi_implicit", substeps=4)
+]), toy_door_accel, method="semi_implicit", substeps=4, rig_kinds=("impulse", "unlock", "lock"))
 TOY = "tests.test_rig:TOY_DOOR"
 
 
@@ -166,11 +161,6 @@ def test_trials_from_spec_for_experiments():
         rig.trials_from_spec({"model": TOY, "user": 2})
 
 
-def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
-
-
 def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     from evo_door.cli import main
 
@@ -184,10 +174,10 @@ def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     png = tmp_path / "rig.png"
     assert main(["data", "show", str(out), "--trial", "T02", "--plot", str(png)]) == 0
     assert "unlock" in capsys.readouterr().out and png.stat().st_size > 10000
-    # a bad file, through the installed entry point: one line, exit 2, nothing written
+    # a bad file, as the command line reports it: one line, exit 2, nothing written
     bad = tmp_path / "bad.csv"
     bad.write_text("t,force\n0,1\n0.001,nan\n")
-    res = run_cli("data", "import", str(bad), "--out", str(tmp_path / "never.h5"))
+    res = cli(capsys, "data", "import", bad, "--out", tmp_path / "never.h5")
     assert res.returncode == 2
     assert res.stderr.count("\n") == 1 and "channel 'force'" in res.stderr and "row 1 (line 3)" in res.stderr
     assert not (tmp_path / "never.h5").exists()

@@ -5,6 +5,9 @@ from __future__ import annotations
 from evo_door.models import get_model
 from evo_door.params import parse_assignments
 
+#: Help text of every MODEL argument.
+MODEL_HELP = "model: a name (haptic, door), package.module:MODEL or path/to/file.py:MODEL"
+
 
 def add_params_arguments(parser) -> None:
     """``--params P.yaml|PRESET`` and repeatable ``--set NAME=VALUE``."""

@@ -30,9 +30,9 @@ def run(args) -> int:
         raise UserError(f"--angles {args.angles!r}: give one to six angles in [0, 90] deg")
     if len(angles) > 6:
         raise UserError(f"--angles {args.angles!r}: at most six angles")
-    from evo_door.models.door.drawing import draw_mechanism
-
     from pathlib import Path
+
+    from evo_door.models.door.drawing import draw_mechanism
 
     draw_mechanism(params, angles, args.out,
                    title=f"{model.title}: {Path(params.source).stem if params.source else 'defaults'}")

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 
-from evo_door.commands._common import add_params_arguments
+from evo_door.commands._common import MODEL_HELP, add_params_arguments
 from evo_door.models import get_model
-from evo_door.params import available_presets, parse_assignments
+from evo_door.params import parse_assignments
 
 ORDER = 10
 
@@ -14,7 +14,7 @@ ORDER = 10
 def register(sub) -> None:
     p = sub.add_parser("params", help="print a model's parameter declaration (name, unit, "
                                       "default, bounds, group, meaning)")
-    p.add_argument("model", help="model name, e.g. haptic or door")
+    p.add_argument("model", help=MODEL_HELP)
     add_params_arguments(p)
     p.add_argument("--json", action="store_true", help="print the declaration as JSON")
     p.add_argument("--write", metavar="OUT.yaml",
@@ -41,7 +41,7 @@ def run(args) -> int:
         return 0
     print(f"{model.title} ({model.name}): {len(model.params)} parameters, SI units")
     print(model.params.format_table(values))
-    presets = available_presets(model.name)
+    presets = model.presets()
     if presets:
         print(f"\npresets: {', '.join(presets)}")
     if model.notes:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from evo_door.commands._common import add_params_arguments, model_and_params
+from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.errors import UserError
 
 ORDER = 45
@@ -14,13 +14,14 @@ def register(sub) -> None:
     p.set_defaults(func=lambda args: p.print_help() or 2)
     g = rsub.add_parser("generate", help="simulate a measurement campaign (unlock, lock, "
                                          "impulse trials by virtual users, seed sensors)")
-    g.add_argument("--model", required=True, help="model name (door, haptic) or module:ATTRIBUTE")
+    g.add_argument("--model", required=True, help=MODEL_HELP)
     add_params_arguments(g)
     g.add_argument("--users", type=int, default=3, help="number of virtual users (default 3)")
     g.add_argument("--trials", type=int, default=10, help="number of trials (default 10)")
     g.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
-    g.add_argument("--kinds", default="impulse,unlock,impulse,lock",
-                   help="kinds cycled over the trials (default impulse,unlock,impulse,lock)")
+    g.add_argument("--kinds", default=None,
+                   help="kinds cycled over the trials (default impulse,unlock,impulse,lock, "
+                        "keeping the kinds the model supports)")
     g.add_argument("--rate", type=float, default=1024.0, help="sampling rate in Hz (default 1024)")
     g.add_argument("--all-sensors", action="store_true",
                    help="record force, inclinometer and gyroscope in every trial (default: "
@@ -41,7 +42,7 @@ def run_generate(args) -> int:
     if args.rate <= 0:
         raise UserError("--rate must be positive")
     model, params = model_and_params(args)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    kinds = None if args.kinds is None else [k.strip() for k in args.kinds.split(",") if k.strip()]
     trials = generate_trials(model, params, users=args.users, trials=args.trials, seed=args.seed,
                              kinds=kinds, settings=RigSettings(rate=args.rate,
                                                                all_sensors=args.all_sensors))

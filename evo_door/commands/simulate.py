@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from evo_door.commands._common import add_params_arguments, model_and_params
+from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.data.forcecsv import read_force_csv
 from evo_door.errors import UserError
 from evo_door.sim import METHODS, simulate
@@ -12,7 +12,7 @@ ORDER = 20
 
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a model's response to an input force (CSV in, CSV out)")
-    p.add_argument("model", help="model name, e.g. haptic or door")
+    p.add_argument("model", help=MODEL_HELP)
     add_params_arguments(p)
     p.add_argument("--input", required=True, metavar="IN.csv",
                    help="columns t (s) and force (N, tangential at the handle, + toward closing)")
@@ -40,5 +40,5 @@ def run(args) -> int:
         raise UserError(f"simulation blew up (non-finite state); {args.out} holds NaN from "
                         "that point: try --method semi_implicit or more --substeps")
     print(f"wrote {args.out}: {t.size} samples, {t[-1] - t[0]:.3f} s, "
-          f"theta {response.theta.min():.4f}..{response.theta.max():.4f} rad")
+          f"theta {response.theta.min():.4f}..{response.theta.max():.4f} {model.theta_unit}")
     return 0

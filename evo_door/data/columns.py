@@ -7,8 +7,8 @@ their messages: file, channel, row) are the same for every format.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evo_door.data._util import atomic_path, dumps
 from evo_door.data.columns import Column, trial_from_columns
 from evo_door.data.trial import RESPONSE_CHANNELS, Trial
 from evo_door.errors import UserError
+from evo_door.files import atomic_write, to_json
 
 META_PREFIX = "# evo-door trial:"
 METADATA_FIELDS = ("trial_id", "user_id", "kind", "theta0", "dtheta0", "sensors", "truth", "meta")
@@ -133,9 +133,9 @@ def write_csv(path, trial: Trial, metadata: bool = True) -> None:
     """
     names = ["t", "force", *[c for c in RESPONSE_CHANNELS if getattr(trial, c) is not None]]
     table = np.column_stack([getattr(trial, c) for c in names])
-    with atomic_path(path) as tmp:
+    with atomic_write(path) as tmp:
         with open(tmp, "w", newline="") as fh:
             if metadata:
-                fh.write(META_PREFIX + " " + dumps({k: getattr(trial, k) for k in METADATA_FIELDS}) + "\n")
+                fh.write(META_PREFIX + " " + to_json({k: getattr(trial, k) for k in METADATA_FIELDS}) + "\n")
             fh.write(",".join(names) + "\n")
             np.savetxt(fh, table, delimiter=",", fmt="%.12g")

@@ -4,7 +4,7 @@
 
     /                         format = "evo-door trials", format_version = 1
     /trials/<trial_id>/       trial_id, user_id, kind, sample_rate (Hz), n_samples,
-                              [theta0 (rad), dtheta0 (rad/s)], source, sensors (JSON), meta (JSON)
+                              [theta0 (rad), dtheta0 (rad/s)], source, sensors, meta
         t        float64[n]   unit = "s"
         force    float64[n]   unit = "N"
         theta    float64[n]   unit = "rad"        (optional)
@@ -14,7 +14,11 @@
             params/           one attribute per parameter, SI
             units/            one attribute per parameter: its unit
 
-Datasets may carry another ``unit`` (``deg``, ``kN``...): the reader converts to SI.
+Attributes are encoded as everywhere in evo-door (:mod:`evo_door.files`: dicts as
+``json:`` text); files of evo-door 0.1 (JSON text without the prefix, or flagged by a
+``NAME.__json__`` attribute) read as before: the prefix tells the two apart, so the
+layout keeps its version number. Datasets may carry another ``unit``
+(``deg``, ``kN``...): the reader converts to SI.
 Groups keep their insertion order. HDF5 files of another layout are read as tables:
 each group holding 1-D datasets is a trial, its datasets are columns mapped like CSV
 columns.
@@ -28,32 +32,25 @@ from pathlib import Path
 import numpy as np
 
 from evo_door import __version__
-from evo_door.data._util import atomic_path, dumps, jsonable
 from evo_door.data.columns import Column, trial_from_columns
 from evo_door.data.trial import RESPONSE_CHANNELS, UNITS, Trial
 from evo_door.errors import UserError
+from evo_door.files import (
+    ATTRS,
+    Dataset,
+    attrs_tree,
+    jsonable,
+    open_h5,
+    read_attrs,
+    read_group,
+    tree_attrs,
+    write_h5,
+)
 
 FORMAT = "evo-door trials"
 FORMAT_VERSION = 1
-_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
-
-
-def _h5py():
-    import h5py
-
-    return h5py
-
-
-def _open(path: Path):
-    h5py = _h5py()
-    if not path.is_file():
-        raise UserError(f"{path}: file not found")
-    if path.stat().st_size == 0:
-        raise UserError(f"{path}: empty file")
-    try:
-        return h5py.File(path, "r")
-    except OSError as exc:
-        raise UserError(f"{path}: not a readable HDF5 file ({exc})") from None
+#: gzip level of trial datasets: files are written once and kept, so smaller is better
+_COMPRESSION = 4
 
 
 def _text(value) -> str:
@@ -64,60 +61,16 @@ def _text(value) -> str:
     return str(value)
 
 
-def _scalar(value):
-    if isinstance(value, bytes):
-        return value.decode()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-# -- dict <-> group of attributes -----------------------------------------------------
-def _dict_to_group(group, data: dict) -> None:
-    for key, value in data.items():
-        if isinstance(value, dict):
-            _dict_to_group(group.create_group(str(key), track_order=True), value)
-        elif value is None:
-            group.attrs[str(key)] = "null"
-            group.attrs.create(f"{key}.__json__", 1)
-        elif isinstance(value, (str, bool, int, float, np.generic)):
-            group.attrs[str(key)] = value
-        else:
-            group.attrs[str(key)] = dumps(value)
-            group.attrs.create(f"{key}.__json__", 1)
-
-
-def _group_to_dict(group) -> dict:
-    out: dict = {}
-    for key, value in group.attrs.items():
-        if key.endswith(".__json__"):
-            continue
-        if f"{key}.__json__" in group.attrs:
-            out[key] = json.loads(_text(value))
-        else:
-            out[key] = _scalar(value)
-    for key, sub in group.items():
-        if hasattr(sub, "attrs") and not hasattr(sub, "shape"):
-            out[key] = _group_to_dict(sub)
-    return out
+def _json_field(value):
+    """A metadata dict: decoded already, or JSON text as format 1 stored it."""
+    return json.loads(value) if isinstance(value, str) else value
 
 
 # -- reading --------------------------------------------------------------------------
-def list_trials(path) -> list[str]:
-    """Trial ids in an evo-door HDF5 file, in file order."""
-    path = Path(path)
-    with _open(path) as f:
-        if "trials" not in f:
-            return [name for name, _ in _table_groups(f)]
-        return list(f["trials"].keys())
-
-
 def read_h5(path, trials="all", mapping=None, rate=None, fields=None) -> list[Trial]:
     """Read trials from an HDF5 file (evo-door layout, or any file of 1-D datasets)."""
     path = Path(path)
-    with _open(path) as f:
+    with open_h5(path, "file") as f:
         if "trials" in f or _text(f.attrs.get("format", "")) == FORMAT:
             return _read_layout(path, f, trials, mapping, rate, fields)
         return _read_tables(path, f, trials, mapping, rate, fields)
@@ -163,16 +116,16 @@ def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
                 unit = ds.attrs.get("unit")
                 columns[key] = Column(key, np.asarray(ds[()], dtype=np.float64),
                                       _text(unit) if unit is not None else None)
-        attrs = g.attrs
+        attrs = read_attrs(g)
         meta_fields = {
             "trial_id": _text(attrs.get("trial_id", name)),
             "user_id": _text(attrs.get("user_id", "")),
             "kind": _text(attrs.get("kind", "")),
             "theta0": float(attrs["theta0"]) if "theta0" in attrs else None,
             "dtheta0": float(attrs["dtheta0"]) if "dtheta0" in attrs else None,
-            "sensors": json.loads(_text(attrs["sensors"])) if "sensors" in attrs else {},
-            "meta": json.loads(_text(attrs["meta"])) if "meta" in attrs else {},
-            "truth": _group_to_dict(g["truth"]) if "truth" in g else None,
+            "sensors": _json_field(attrs.get("sensors", {})),
+            "meta": _json_field(attrs.get("meta", {})),
+            "truth": tree_attrs(read_group(g["truth"])) if "truth" in g else None,
             "source": where,
         }
         meta_fields.update({k: v for k, v in (fields or {}).items() if v is not None})
@@ -224,9 +177,8 @@ def check_trial_id(trial_id: str, where: str = "") -> None:
                         "group (empty or contains '/')")
 
 
-def write_h5(path, trials, description: str = "") -> None:
-    """Write ``trials`` to ``path`` (replaced), via a temporary file renamed at the end."""
-    h5py = _h5py()
+def write_h5_trials(path, trials, description: str = "") -> None:
+    """Write ``trials`` to ``path`` (replaced), atomically (:func:`evo_door.files.write_h5`)."""
     trials = list(trials)
     seen = set()
     for tr in trials:
@@ -234,40 +186,28 @@ def write_h5(path, trials, description: str = "") -> None:
         if tr.trial_id in seen:
             raise UserError(f"{path}: two trials named {tr.trial_id!r}")
         seen.add(tr.trial_id)
-    with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w", track_order=True) as f:
-            f.attrs["format"] = FORMAT
-            f.attrs["format_version"] = FORMAT_VERSION
-            f.attrs["software"] = f"evo-door {__version__}"
-            if description:
-                f.attrs["description"] = description
-            root = f.create_group("trials", track_order=True)
-            for tr in trials:
-                _write_trial(root, tr)
+    root = {"format": FORMAT, "format_version": FORMAT_VERSION,
+            "software": f"evo-door {__version__}"}
+    if description:
+        root["description"] = description
+    tree = {ATTRS: root, "trials": {tr.trial_id: _trial_tree(tr) for tr in trials}}
+    write_h5(path, tree, compression=_COMPRESSION, compress_above=1)
 
 
-def _write_trial(root, tr: Trial) -> None:
-    g = root.create_group(tr.trial_id, track_order=True)
-    g.attrs["trial_id"] = tr.trial_id
-    g.attrs["user_id"] = tr.user_id
-    g.attrs["kind"] = tr.kind
-    g.attrs["sample_rate"] = tr.rate
-    g.attrs["n_samples"] = tr.n
-    if tr.theta0 is not None:
-        g.attrs["theta0"] = float(tr.theta0)
-    if tr.dtheta0 is not None:
-        g.attrs["dtheta0"] = float(tr.dtheta0)
-    g.attrs["source"] = tr.source
-    g.attrs["sensors"] = dumps(tr.sensors)
-    g.attrs["meta"] = dumps(tr.meta)
+def _trial_tree(tr: Trial) -> dict:
+    attrs = {"trial_id": tr.trial_id, "user_id": tr.user_id, "kind": tr.kind,
+             "sample_rate": tr.rate, "n_samples": tr.n}
+    for key in ("theta0", "dtheta0"):
+        if getattr(tr, key) is not None:
+            attrs[key] = float(getattr(tr, key))
+    attrs.update(source=tr.source, sensors=tr.sensors, meta=tr.meta)
+    node = {ATTRS: attrs}
     for name in ("t", "force", *RESPONSE_CHANNELS):
         values = getattr(tr, name)
         if values is None:
             continue
-        ds = g.create_dataset(name, data=values, track_times=False, **_COMPRESSION)
-        ds.attrs["unit"] = UNITS[name]
         info = tr.sensor(name)
-        if info:
-            ds.attrs["sensor"] = dumps(info)
+        node[name] = Dataset(values, {"unit": UNITS[name], **({"sensor": info} if info else {})})
     if tr.truth:
-        _dict_to_group(g.create_group("truth", track_order=True), jsonable(tr.truth))
+        node["truth"] = attrs_tree(jsonable(tr.truth))
+    return node

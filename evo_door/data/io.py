@@ -114,9 +114,9 @@ def write_trials(path, trials, *, append: bool = False, description: str = "") -
             raise UserError(f"{path}: only HDF5 trial files can be appended to")
         trials = read_trials(path) + trials
     if fmt == "h5":
-        from evo_door.data.h5io import write_h5
+        from evo_door.data.h5io import write_h5_trials
 
-        write_h5(path, trials, description)
+        write_h5_trials(path, trials, description)
     elif fmt == "tdms":
         from evo_door.data.tdmsio import write_tdms
 

@@ -26,6 +26,14 @@ continues from the end state of each chunk, so chunking changes nothing else).
 **Users** differ in hand stiffness, pace, strength, reaction time, push size and
 tremor (:func:`make_users`); each trial jitters its user's traits by ~10 %.
 
+**What a model can do**: unlock and lock trials need a latch near closed that the
+hand can feel, and the inclinometer only reads +-10 deg about closed; a model lists the
+kinds it supports (``Model.rig_kinds``; the doors all three, any model ``impulse``) and
+other kinds are refused. A trial whose measured response sits at a sensor's limit for
+more than half of the time that matters (the whole impulse trial; an unlock or lock
+trial up to the latch event) is refused too: the model moves outside the sensors'
+range and the trial would tell a fit nothing.
+
 **Determinism**: everything random comes from ``numpy.random.SeedSequence(seed)``,
 spawned into one generator for the users and one per trial (so trial k is the same
 whatever the number of trials); no global state.
@@ -50,6 +58,10 @@ DEFAULT_KINDS = ("impulse", "unlock", "impulse", "lock")
 #: Channels each kind measures (seed 3.4: inclinometer near closed, gyroscope in motion).
 KIND_CHANNELS = {"unlock": ("force", "theta"), "lock": ("force", "theta"),
                  "impulse": ("force", "dtheta")}
+#: The channel of each kind a fit compares; it must stay inside its sensor's range.
+KIND_RESPONSE = {"unlock": "theta", "lock": "theta", "impulse": "dtheta"}
+#: Largest fraction of saturated response samples a trial may have (see module doc).
+MAX_SATURATED = 0.5
 
 
 @dataclass(frozen=True)
@@ -71,7 +83,7 @@ class VirtualUser:
     rest_time: float         # s, still before acting
     lock_start: float        # rad, from closed, where the push to lock starts
 
-    def jittered(self, rng: np.random.Generator, spread: float = 0.1) -> "VirtualUser":
+    def jittered(self, rng: np.random.Generator, spread: float = 0.1) -> VirtualUser:
         """This user on one particular day: every trait times ``1 + spread * N(0, 1)``."""
         changes = {}
         for f in fields(self):
@@ -300,9 +312,12 @@ class RigSettings:
 def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.Generator,
                    trial_id: str = "T01", settings: RigSettings = RigSettings(),
                    sensors: dict[str, Sensor] | None = None, method=None, substeps=None) -> Trial:
-    """One rig trial of ``kind`` by ``user`` (already jittered) on ``model`` with ``params``."""
-    if kind not in KINDS:
-        raise UserError(f"unknown trial kind {kind!r}; kinds: {', '.join(KINDS)}")
+    """One rig trial of ``kind`` by ``user`` (already jittered) on ``model`` with ``params``.
+
+    Raises UserError when the model does not support ``kind`` (``Model.rig_kinds``) or
+    when its response leaves the sensor's range (see the module docstring).
+    """
+    _check_kinds(model, [kind])
     sensors = dict(SEED_SENSORS, **(sensors or {}))
     dt = 1.0 / settings.rate
     tremor = _tremor(user, rng)
@@ -331,7 +346,7 @@ def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.G
         events.update(t_event=policy.t_event, t_release=policy.t_release, gave_up=policy.gave_up)
     else:
         events.update(t_cut=policy.t_cut, t_push_end=policy.t_end)
-    return Trial(
+    trial = Trial(
         t=clean["t"], force=measured["force"], theta=measured.get("theta"),
         dtheta=measured.get("dtheta"), trial_id=trial_id, user_id=user.user_id, kind=kind,
         theta0=theta0, dtheta0=dtheta0,
@@ -342,6 +357,41 @@ def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.G
                       "user": asdict(user), "events": events,
                       "peak_force_true": float(clean["force"][np.argmax(np.abs(clean["force"]))])}},
     )
+    _refuse_if_saturated(model, trial, policy)
+    return trial
+
+
+def _check_kinds(model, kinds) -> None:
+    """Every kind known to the rig and supported by the model, or one line saying not."""
+    supported = tuple(getattr(model, "rig_kinds", KINDS))
+    for kind in kinds:
+        if kind not in KINDS:
+            raise UserError(f"unknown trial kind {kind!r}; kinds: {', '.join(KINDS)}")
+        if kind not in supported:
+            raise UserError(f"rig: model {model.name!r} cannot make {kind} trials; it supports "
+                            f"{', '.join(supported)} (Model.rig_kinds)")
+
+
+def _refuse_if_saturated(model, trial: Trial, policy) -> None:
+    """A UserError when the kind's response is pinned at its sensor's limit too long.
+
+    Unlock and lock trials are judged up to the latch event: after it the door swings
+    wide open (unlock) and leaves the inclinometer's +-10 deg, which is expected.
+    """
+    channel = KIND_RESPONSE[trial.kind]
+    saturated = ~trial.unsaturated(channel)
+    t_event = getattr(policy, "t_event", None)
+    if t_event is not None:
+        saturated = saturated[trial.t <= t_event]
+    share = float(saturated.mean()) if saturated.size else 0.0
+    if share > MAX_SATURATED:
+        info = trial.sensor(channel)
+        lo, hi = info["range"]
+        part = "of the samples before the latch event" if t_event is not None else "of the trial"
+        raise UserError(
+            f"rig: trial {trial.trial_id} ({trial.kind}, {trial.user_id}): the {info['sensor']} "
+            f"({channel}) is saturated in {100 * share:.0f} % {part}: model {model.name!r} moves "
+            f"outside the sensor's range [{lo:.4g}, {hi:.4g}]; nothing written")
 
 
 def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> None:
@@ -368,7 +418,7 @@ def _truth(model, params, method, substeps) -> dict:
 
 # -- a campaign -----------------------------------------------------------------------
 def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
-                    kinds=DEFAULT_KINDS, settings: RigSettings = RigSettings(),
+                    kinds=None, settings: RigSettings = RigSettings(),
                     sensors: dict[str, Sensor] | None = None, method=None, substeps=None,
                     progress: bool | None = None) -> list[Trial]:
     """A measurement campaign: ``trials`` trials by ``users`` virtual users.
@@ -382,7 +432,10 @@ def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
     params : ParamSet
         The true parameters, stored with every trial (``trial.truth``).
     seed : int or numpy.random.SeedSequence
-    kinds : sequence of "unlock", "lock", "impulse"
+    kinds : sequence of "unlock", "lock", "impulse", optional
+        Kinds cycled over the trials; default :data:`DEFAULT_KINDS` without the kinds
+        the model does not support (``Model.rig_kinds``). An unsupported kind asked for
+        is refused.
     settings : RigSettings
     sensors : dict, optional
         Sensor models replacing the seed's (:data:`~evo_door.data.sensors.SEED_SENSORS`).
@@ -393,10 +446,10 @@ def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
 
     if trials < 1:
         raise UserError("the rig needs at least one trial")
-    kinds = tuple(kinds)
-    for kind in kinds:
-        if kind not in KINDS:
-            raise UserError(f"unknown trial kind {kind!r}; kinds: {', '.join(KINDS)}")
+    kinds = default_kinds(model) if kinds is None else tuple(kinds)
+    if not kinds:
+        raise UserError("the rig needs at least one trial kind")
+    _check_kinds(model, kinds)
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
     user_seq, trial_root = root.spawn(2)
     people = make_users(users, np.random.default_rng(user_seq))
@@ -413,9 +466,16 @@ def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
     return out
 
 
-#: Keys of a rig specification (an experiment's ``inputs:`` mapping) and their defaults.
+def default_kinds(model) -> tuple[str, ...]:
+    """:data:`DEFAULT_KINDS` restricted to what ``model`` supports (its ``rig_kinds``)."""
+    supported = tuple(getattr(model, "rig_kinds", KINDS))
+    return tuple(k for k in DEFAULT_KINDS if k in supported) or supported
+
+
+#: Keys of a rig specification (an experiment's ``inputs:`` mapping) and their defaults
+#: (``kinds: None``: the model's, :func:`default_kinds`).
 SPEC_DEFAULTS = {"model": "door", "params": None, "set": {}, "users": 3, "trials": 10, "seed": 1,
-                 "kinds": list(DEFAULT_KINDS), "rate": 1024.0, "all_sensors": False}
+                 "kinds": None, "rate": 1024.0, "all_sensors": False}
 
 
 def trials_from_spec(spec: dict) -> list[Trial]:
@@ -437,7 +497,8 @@ def trials_from_spec(spec: dict) -> list[Trial]:
     s = {**SPEC_DEFAULTS, **spec}
     model = get_model(str(s["model"]))
     params = model.load_params(s["params"], dict(s["set"] or {}))
-    kinds = s["kinds"].split(",") if isinstance(s["kinds"], str) else list(s["kinds"])
+    kinds = s["kinds"].split(",") if isinstance(s["kinds"], str) else s["kinds"]
     return generate_trials(model, params, users=int(s["users"]), trials=int(s["trials"]),
-                           seed=int(s["seed"]), kinds=[k.strip() for k in kinds],
+                           seed=int(s["seed"]),
+                           kinds=None if kinds is None else [str(k).strip() for k in kinds],
                            settings=RigSettings(rate=float(s["rate"]), all_sensors=bool(s["all_sensors"])))

@@ -78,15 +78,16 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
     derived from a saturated inclinometer is left out.
     """
     import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from evo_door.files import save_figure
 
     kinds = sorted({t.kind for t in trials}, key=lambda k: KIND_ORDER.index(k) if k in KIND_ORDER else 99)
     users = sorted({t.user_id for t in trials})
-    colors = {u: plt.cm.tab10(i % 10) for i, u in enumerate(users)}
-    fig, axes = plt.subplots(3, len(kinds), figsize=(4.6 * len(kinds) + 0.8, 8.0), sharex="col",
-                             squeeze=False, constrained_layout=True)
+    tab10 = matplotlib.colormaps["tab10"]
+    colors = {u: tab10(i % 10) for i, u in enumerate(users)}
+    fig = Figure(figsize=(4.6 * len(kinds) + 0.8, 8.0), layout="constrained")
+    axes = fig.subplots(3, len(kinds), sharex="col", squeeze=False)
     deg = 180.0 / math.pi
     for j, kind in enumerate(kinds):
         ax_f, ax_a, ax_w = axes[:, j]
@@ -133,5 +134,4 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
         ax_f.legend(fontsize=7, loc="best")
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)

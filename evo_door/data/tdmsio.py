@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evo_door.data._util import atomic_path, dumps
 from evo_door.data.columns import Column, trial_from_columns
 from evo_door.data.trial import RESPONSE_CHANNELS, UNITS, Trial
 from evo_door.errors import UserError
+from evo_door.files import atomic_write, to_json
 
 INSTALL_HINT = "reading NI TDMS files needs the npTDMS package: pip install 'evo-door[tdms]'"
 
@@ -88,9 +88,9 @@ def write_tdms(path, trials) -> None:
     objects = [nptdms.RootObject({"software": "evo-door"})]
     for tr in trials:
         props = {"trial_id": tr.trial_id, "user_id": tr.user_id, "kind": tr.kind,
-                 "sensors": dumps(tr.sensors), "meta": dumps(tr.meta)}
+                 "sensors": to_json(tr.sensors), "meta": to_json(tr.meta)}
         if tr.truth:
-            props["truth"] = dumps(tr.truth)
+            props["truth"] = to_json(tr.truth)
         for key in ("theta0", "dtheta0"):
             if getattr(tr, key) is not None:
                 props[key] = float(getattr(tr, key))
@@ -102,6 +102,6 @@ def write_tdms(path, trials) -> None:
             objects.append(nptdms.ChannelObject(tr.trial_id, name, values, properties={
                 "unit_string": UNITS[name], "wf_increment": tr.dt,
                 "wf_start_offset": float(tr.t[0]), "wf_samples": tr.n}))
-    with atomic_path(path) as tmp:
+    with atomic_write(path) as tmp:
         with nptdms.TdmsWriter(str(tmp)) as writer:
             writer.write_segment(objects)

@@ -23,11 +23,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evo_door.channels import RESPONSE_CHANNELS, UNITS
 from evo_door.errors import UserError
 
-#: Response channels, in derivative order (0 angle, 1 speed, 2 acceleration).
-RESPONSE_CHANNELS = ("theta", "dtheta", "ddtheta")
-UNITS = {"t": "s", "force": "N", "theta": "rad", "dtheta": "rad/s", "ddtheta": "rad/s^2"}
+__all__ = ["RESPONSE_CHANNELS", "UNITS", "Trial"]
 
 
 @dataclass
@@ -101,10 +100,14 @@ class Trial:
         """Response channels present."""
         return tuple(c for c in RESPONSE_CHANNELS if getattr(self, c) is not None)
 
-    def initial_state(self) -> tuple[float, float]:
-        """(theta0, dtheta0) for simulation, from the fields or the first samples."""
+    def initial_state(self, default_theta0: float | None = None) -> tuple[float, float]:
+        """(theta0, dtheta0) for simulation, from the fields or the first samples.
+
+        Without ``theta0`` and a ``theta`` channel the angle is ``default_theta0`` (a
+        model's rest angle, for a bare force record), else unknown: an error.
+        """
         theta0 = self.theta0 if self.theta0 is not None else (
-            float(self.theta[0]) if self.theta is not None else None)
+            float(self.theta[0]) if self.theta is not None else default_theta0)
         if theta0 is None:
             raise UserError(f"{self.label}: no theta channel and no theta0: the initial "
                             "angle is unknown")
@@ -115,6 +118,14 @@ class Trial:
     def channel(self, derivative: int) -> np.ndarray | None:
         """The response of derivative order 0, 1 or 2 (None if absent)."""
         return getattr(self, RESPONSE_CHANNELS[derivative])
+
+    def require(self, derivative: int) -> np.ndarray:
+        """The response of derivative order 0, 1 or 2, or a one-line error naming the trial."""
+        values = self.channel(derivative)
+        if values is None:
+            raise UserError(f"trial {self.trial_id!r} has no {RESPONSE_CHANNELS[derivative]!r} "
+                            f"channel (it has {', '.join(self.channels) or 'none'})")
+        return values
 
     @property
     def label(self) -> str:
@@ -142,7 +153,7 @@ class Trial:
         tol = 1e-9 * max(1.0, abs(lo), abs(hi))
         return (values > lo + tol) & (values < hi - tol)
 
-    def replace(self, **changes) -> "Trial":
+    def replace(self, **changes) -> Trial:
         """A validated copy with some fields changed (dicts are copied, arrays shared)."""
         import copy
         import dataclasses

@@ -17,17 +17,9 @@ import math
 import re
 from dataclasses import dataclass
 
+from evo_door.channels import CHANNELS
 from evo_door.errors import UserError
 from evo_door.params.declaration import suggest
-
-#: The trial channels, their SI unit and physical dimension.
-CHANNELS = {
-    "t": ("s", "time"),
-    "force": ("N", "force"),
-    "theta": ("rad", "angle"),
-    "dtheta": ("rad/s", "angular speed"),
-    "ddtheta": ("rad/s^2", "angular acceleration"),
-}
 
 #: unit -> (dimension, factor to SI).
 UNITS: dict[str, tuple[str, float]] = {

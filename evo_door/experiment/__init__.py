@@ -22,6 +22,23 @@ def run_experiment(exp, out=None, overrides=None, trials=None, progress=False,
 
     ``trials`` replaces the target's trials (in-memory data); ``on_checkpoint(run, job)``
     is called after each checkpoint written to ``out``.
+
+    The main job, made quick (20 x 3 instead of 100 x 20, no polish):
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import evo_door
+    >>> main_job = Path(evo_door.__file__).parents[1] / "experiments" / "default.yaml"
+    >>> exp = load_experiment(main_job, overrides=["algorithm.population=20",
+    ...                       "algorithm.generations=3", "algorithm.polish=none"])
+    >>> run = run_experiment(exp, out=Path(tempfile.mkdtemp()) / "quick.h5")
+    >>> run.status, run.free, run.jobs[0].ga_stop
+    ('complete', ['F_load', 'M', 'F_atD'], '3 generations done')
+    >>> {name: f"{value:.3g}" for name, value in Results(run.path).best().items()}
+    {'F_load': '88.7', 'M': '1.23', 'F_atD': '9.05'}
+
+    (60 evaluations give a rough answer; the full job's 2000 and its SLSQP polish land
+    within 3 % of the true 101.45 N, 1.232 kg and 18.8 N.)
     """
     if not isinstance(exp, Experiment):
         exp = load_experiment(exp, overrides)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from evo_door.errors import UserError
@@ -45,9 +45,8 @@ MODEL_TARGET_KEYS = ("model", "params", "set", "inputs", "trials", "kinds", "val
 PREPROCESS_KEYS = ("rate_bias", "lowpass", "trim")
 RATE_BIAS = ("none", "start", "all")
 OBJECTIVE_KEYS = ("kind", "derivative", "combine")
-GA_KEYS = ("population", "generations", "reproduction_ratio", "mutation_probability",
-           "mutation_amplitude", "seed", "elite", "tournament", "crossover_eta",
-           "hall_of_fame", "target_fitness")
+GA_KEYS = tuple(f.name for f in fields(GASettings))
+#: the SLSQP settings an experiment may set (the finite-difference step stays internal)
 LOCAL_KEYS = ("max_iterations", "ftol")
 ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, "start")
 SIMULATION_KEYS = ("method", "substeps")
@@ -89,18 +88,36 @@ class TargetSpec:
     inputs: object = None          # resolved file path, or a rig specification (mapping)
     theta0: float | None = None
     dtheta0: float | None = None
-    preprocess: "PreprocessSpec" = field(default_factory=lambda: PreprocessSpec())
+    preprocess: PreprocessSpec = field(default_factory=lambda: PreprocessSpec())
     #: location (file:line) of each key, for messages about the data
     locs: dict = field(default_factory=dict)
 
 
 @dataclass
 class AlgorithmSpec:
+    """The ``algorithm`` section: GA settings, local method, polish and start point."""
+
     kind: str = "ga"
     ga: GASettings = field(default_factory=GASettings)
     polish: str = "none"
     local: LocalSettings = field(default_factory=LocalSettings)
     start: dict = field(default_factory=dict)
+
+    def resolved(self) -> dict:
+        """The section as plain data, every default filled in (as results files store it)."""
+        return {"kind": self.kind, **asdict(self.ga), "polish": self.polish,
+                **asdict(self.local), "start": dict(self.start)}
+
+    @classmethod
+    def from_resolved(cls, data: dict) -> AlgorithmSpec:
+        """The inverse of :meth:`resolved` (keys added since a file was written take
+        their defaults)."""
+        return cls(kind=data["kind"],
+                   ga=GASettings(**{k: data[k] for k in GA_KEYS if k in data}),
+                   polish=data["polish"],
+                   local=LocalSettings(**{f.name: data[f.name] for f in fields(LocalSettings)
+                                          if f.name in data}),
+                   start=dict(data.get("start") or {}))
 
 
 @dataclass
@@ -133,9 +150,7 @@ class Experiment:
                                                if k != "locs"},
             "fixed": dict(self.fixed), "free": {k: list(v) for k, v in self.free.items()},
             "objective": asdict(self.objective),
-            "algorithm": {"kind": self.algorithm.kind, **asdict(self.algorithm.ga),
-                          "polish": self.algorithm.polish, **asdict(self.algorithm.local),
-                          "start": dict(self.algorithm.start)},
+            "algorithm": self.algorithm.resolved(),
             "per_trial": self.per_trial,
             "simulation": {"method": self.method, "substeps": self.substeps},
             "output": self.output,
@@ -385,6 +400,8 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
         crossover_eta=a.number("crossover_eta", d.crossover_eta, 0.0, open_lo=True),
         hall_of_fame=a.integer("hall_of_fame", d.hall_of_fame, lo=1),
         target_fitness=a.number("target_fitness", None, lo=0.0, allow_none=True),
+        patience=(None if a.get("patience") is None
+                  else a.integer("patience", None, lo=1)),
     )
     ld = LocalSettings()
     local = LocalSettings(max_iterations=a.integer("max_iterations", ld.max_iterations, lo=1),
@@ -483,7 +500,7 @@ def load_experiment(path=None, overrides=None, text: str | None = None,
     text, source, base_dir :
         Parse ``text`` instead of a file (``source`` names it in messages).
     """
-    from evo_door.models import get_model
+    from evo_door.models import get_model, resolve_model_name
 
     if text is None:
         if path is None:
@@ -504,7 +521,7 @@ def load_experiment(path=None, overrides=None, text: str | None = None,
         apply_override(tree, item)
     r = _Reader(tree, "", tree.loc)
     r.check_keys(TOP_KEYS, required=("model", "target", "free"))
-    model_name = r.string("model", required=True)
+    model_name = resolve_model_name(r.string("model", required=True), base_dir)
     try:
         model = get_model(model_name)
     except UserError as exc:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -10,6 +11,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.files import save_figure
 from evo_door.optim.problem import Objective
 
 A = store.ATTRS
@@ -23,6 +25,16 @@ class Results:
         self.tree = store.read_tree(self.path)
         self.attrs = self.tree[A]
         self.config = json.loads(self.tree["experiment"]["resolved"])
+
+    @functools.cached_property
+    def model(self):
+        """The run's model, or None where it cannot be loaded (a user file moved away)."""
+        from evo_door.models import get_model
+
+        try:
+            return get_model(self.attrs["model"])
+        except UserError:
+            return None
 
     @property
     def complete(self) -> bool:
@@ -60,7 +72,9 @@ class Results:
             if key == A or not key.startswith("fit_"):
                 continue
             truth = group[A].get("truth") or {}
-            if truth.get("model") != self.attrs.get("model") or "params" not in truth:
+            model = self.model
+            names = {self.attrs.get("model"), model.name if model is not None else None}
+            if truth.get("model") not in names or "params" not in truth:
                 return {}
             values = {n: float(truth["params"][n]) for n in self.free if n in truth["params"]}
             if len(values) != len(self.free) or (found is not None and values != found):
@@ -212,13 +226,7 @@ def _fmt(v) -> str:
 
 
 def _units(res: Results) -> dict:
-    try:
-        from evo_door.models import get_model
-
-        table = get_model(res.attrs["model"]).params
-        return {p.name: p.unit for p in table}
-    except Exception:
-        return {}
+    return {} if res.model is None else {p.name: p.unit for p in res.model.params}
 
 
 def list_runs(folder) -> list[dict]:
@@ -265,10 +273,9 @@ def format_runs(rows: list[dict]) -> str:
 
 def plot_fit(res: Results, path, max_trials: int = 12) -> None:
     """Best response next to the target, one panel per trial (fitted, then validation)."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from evo_door.channels import title, unit
 
     rows = res.responses()
     if not rows:
@@ -278,13 +285,10 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
     n = len(rows)
     ncols = 1 if n == 1 else 2
     nrows = math.ceil(n / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(6.2 * ncols + (2.0 if n == 1 else 0.0),
-                                                    2.6 * nrows + 1.0),
-                             squeeze=False, constrained_layout=True)
+    fig = Figure(figsize=(6.2 * ncols + (2.0 if n == 1 else 0.0), 2.6 * nrows + 1.0),
+                 layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False)
     channel = rows[0]["channel"]
-    unit = {"theta": "rad", "dtheta": "rad/s", "ddtheta": "rad/s^2"}[channel]
-    label = {"theta": "angle theta", "dtheta": "angular speed dtheta",
-             "ddtheta": "angular acceleration"}[channel]
     for ax, r in zip(axes.flat, rows):
         t = np.asarray(r["t"])
         ax.plot(t, r["target"], color="0.25", lw=1.2, label="target")
@@ -292,7 +296,7 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
         ax.set_title(f"{r['trial_id']} ({'fitted' if r['role'] == 'fit' else 'validation'}), "
                      f"error {_fmt(_num(r['error']))}", fontsize=9)
         ax.set_xlabel("t [s]")
-        ax.set_ylabel(f"{channel} [{unit}]")
+        ax.set_ylabel(f"{channel} [{unit(channel)}]")
         ax.grid(alpha=0.3)
         axf = ax.twinx()
         axf.plot(t, r["force"], color="tab:blue", lw=0.6, alpha=0.35)
@@ -302,9 +306,8 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
         ax.axis("off")
     axes.flat[0].legend(loc="best", fontsize=8)
     obj = res.config["objective"]
-    fig.suptitle(f"{res.attrs['name']}: {label}, best model vs target\n"
+    fig.suptitle(f"{res.attrs['name']}: {title(channel)}, best model vs target\n"
                  f"model {res.attrs['model']}, objective {obj['kind']} (derivative "
                  f"{obj['derivative']}, {obj['combine']}), fitness {_fmt(_num(res.fitness()))}",
                  fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)

@@ -10,6 +10,7 @@ without the original files.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -88,29 +89,17 @@ def _unique_ids(trials: list[Trial], source: str) -> list[Trial]:
         if tid in seen:
             raise UserError(f"{source}: trial id {tid!r} appears twice")
         seen.add(tid)
-        out.append(tr if tr.trial_id == tid else _with_id(tr, tid))
+        out.append(tr if tr.trial_id == tid else tr.replace(trial_id=tid))
     return out
 
 
-def _with_id(tr: Trial, tid: str) -> Trial:
-    tr.trial_id = tid
-    return tr
-
-
-def _input_trials(spec, model) -> list[Trial]:
+def _input_trials(spec) -> list[Trial]:
     """The input forces of a model target: a trial / force file or a rig specification."""
     if isinstance(spec.inputs, dict):
+        from evo_door.data.rig import trials_from_spec
+
         try:
-            from evo_door.data import rig
-        except ImportError:
-            raise UserError(f"{spec.locs['inputs']}: target.inputs: rig specifications need "
-                            "evo_door.data.rig, not in this version; give a trial file") from None
-        make = getattr(rig, "trials_from_spec", None)
-        if make is None:
-            raise UserError(f"{spec.locs['inputs']}: target.inputs: this version's rig cannot "
-                            "build inputs from a specification; give a trial file")
-        try:
-            return list(make(spec.inputs))
+            return list(trials_from_spec(spec.inputs))
         except UserError as exc:
             raise UserError(f"{spec.locs['inputs']}: target.inputs: {exc}") from None
     from evo_door.data.io import read_trials
@@ -126,11 +115,8 @@ def _input_trials(spec, model) -> list[Trial]:
                 t, force = read_force_csv(spec.inputs)
             except UserError:
                 raise exc from None
-            theta0 = spec.theta0 if spec.theta0 is not None else model.theta0
-            from pathlib import Path
-
-            return [Trial(t, force, trial_id=Path(spec.inputs).stem, theta0=theta0,
-                          dtheta0=spec.dtheta0 or 0.0, source=str(spec.inputs))]
+            # no angle: the trial starts where the target model rests (initial_state)
+            return [Trial(t, force, trial_id=Path(spec.inputs).stem, source=str(spec.inputs))]
         raise
 
 
@@ -141,23 +127,15 @@ def _model_target_trials(spec) -> list[Trial]:
 
     target_model = get_model(spec.model)
     try:
-        params = target_model.load_params(spec.params if not isinstance(spec.params, dict)
-                                          else None)
-        values = dict(spec.params) if isinstance(spec.params, dict) else {}
-        values.update(spec.set)
-        if values:
-            params = params.replace(values)
+        params = target_model.load_params(spec.params, spec.set)
     except UserError as exc:
         raise UserError(f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: "
                         f"{exc}") from None
     out = []
-    for tr in _input_trials(spec, target_model):
-        theta0 = spec.theta0 if spec.theta0 is not None else (
-            tr.theta0 if tr.theta0 is not None else (
-                float(tr.theta[0]) if tr.theta is not None else target_model.theta0))
-        dtheta0 = spec.dtheta0 if spec.dtheta0 is not None else (
-            tr.dtheta0 if tr.dtheta0 is not None else (
-                float(tr.dtheta[0]) if tr.dtheta is not None else 0.0))
+    for tr in _input_trials(spec):
+        theta0, dtheta0 = tr.initial_state(default_theta0=target_model.theta0)
+        theta0 = spec.theta0 if spec.theta0 is not None else theta0
+        dtheta0 = spec.dtheta0 if spec.dtheta0 is not None else dtheta0
         r = simulate(target_model, params, tr.force, tr.dt, theta0=theta0, dtheta0=dtheta0,
                      t0=float(tr.t[0]))
         if not r.ok:
@@ -214,22 +192,18 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         where = spec.locs.get("preprocess", spec.locs["trials"])
         fit = [_preprocessed(tr, spec.preprocess, where) for tr in fit]
         validation = [_preprocessed(tr, spec.preprocess, where) for tr in validation]
-    channel = ("theta", "dtheta", "ddtheta")[exp.objective.derivative]
     for tr in fit + validation:
-        if tr.channel(exp.objective.derivative) is None:
-            raise UserError(f"{exp.locs['objective']}: objective.derivative: trial "
-                            f"{tr.trial_id!r} of {source} has no {channel!r} channel "
-                            f"(it has {', '.join(tr.channels) or 'none'})")
+        try:
+            tr.require(exp.objective.derivative)
+        except UserError as exc:
+            raise UserError(f"{exp.locs['objective']}: objective.derivative: {exc} "
+                            f"in {source}") from None
         try:
             tr.initial_state()
         except UserError as exc:
             raise UserError(f"{spec.locs['trials']}: target: {exc}") from None
     try:
-        base = model.load_params(exp.params if not isinstance(exp.params, dict) else None)
-        if isinstance(exp.params, dict):
-            base = base.replace(exp.params)
-        if exp.fixed:
-            base = base.replace(exp.fixed)
+        base = model.load_params(exp.params, exp.fixed)
     except UserError as exc:
         raise UserError(f"{exp.locs['params']}: params: {exc}") from None
     free = list(exp.free)

@@ -1,200 +1,78 @@
-"""Results files: a nested dict written to HDF5 atomically, and read back.
+"""The results file of a run: its HDF5 layout, written and read back.
 
-A run is checkpointed by writing the *whole* results file under a temporary name in
-the same folder, flushing it to disk and renaming it over the previous version
-(``os.replace``, atomic on POSIX and Windows). A run killed at any moment therefore
-leaves either the previous complete checkpoint or the new one, never a half-written
-HDF5 file (HDF5 itself is not crash-safe while a file is open for writing).
+A run is checkpointed by writing the *whole* results file after every generation
+(:func:`evo_door.files.write_h5`: temporary file, fsync, atomic rename), so a run
+killed at any moment leaves the previous checkpoint or the new one. The layout
+(``docs/experiments.md``, "Results files")::
 
-The in-memory form is a nested dict: a dict is a group, a key ``"@attrs"`` holds the
-group's attributes (str, int, float, bool; dicts and lists are stored as JSON text),
-``numpy`` arrays and lists of numbers are datasets, a str is a scalar string dataset
-(for texts too long for an attribute).
+    /            @attrs: format, format_version, name, model, status, created, updated,
+                         seed, algorithm, polish, objective, per_trial, jobs, jobs_done,
+                         generations, generations_done, evo_door_version
+    experiment/  text (the YAML as given), resolved (JSON, every default filled in)
+    versions/    @attrs: python, numpy, scipy, numba, deap, h5py, ...
+    setup/       base, lower, upper; @attrs: model, free, method, substeps, objective, ...
+    trials/      fit_<k>/, validate_<k>/: t, force, response channels; @attrs: trial fields
+    jobs/<k>/    @attrs: name, trials, done, ...; ga/ (population history, fitness,
+                 generator states, hall of fame, logbook), local/, best_x, fit_errors, ...
+    timings/     @attrs: total_s, jobs_s, evaluations, evaluations_per_s, ...
+    best/        x, full; @attrs: fitness, values, fit_errors, validation_errors (complete)
+    summary/     per-trial fits: x, min, max, mean, std (per_trial runs)
+    response/<k> t, force, target, model, model_theta (complete runs)
+
+:func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
+file; the ``*_from_tree`` functions rebuild what a resumed run needs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
-from pathlib import Path
 
 import numpy as np
 
-ATTRS = "@attrs"
+from evo_door.channels import RESPONSE_CHANNELS
+from evo_door.data.trial import Trial
+from evo_door.errors import UserError
+from evo_door.files import ATTRS, Keep, decode_attr, open_h5, read_attrs, read_group
+from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
+from evo_door.optim.local import LocalResult
+from evo_door.optim.problem import Objective
+
 FORMAT = "evo-door run"
 FORMAT_VERSION = 1
-#: Datasets at least this large are gzip-compressed.
-_COMPRESS_ABOVE = 4096
+#: gzip level of results files: fast, since the file is rewritten every generation
+COMPRESSION = 1
 
 
-def _h5py():
-    import h5py
-
-    return h5py
-
-
-def _jsonable(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, bytes):
-        return value.decode()
-    raise TypeError(f"cannot store {type(value).__name__} as JSON")
-
-
-def _attr_value(value):
-    if isinstance(value, (dict, list, tuple)) or value is None:
-        return "json:" + json.dumps(value, default=_jsonable)
-    if isinstance(value, (np.integer, np.floating, np.bool_)):
-        return value.item()
-    return value
-
-
-def _read_attr(value):
-    if isinstance(value, bytes):
-        value = value.decode()
-    if isinstance(value, str) and value.startswith("json:"):
-        return json.loads(value[5:])
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return value
-
-
-def _write_group(group, tree: dict) -> None:
-    h5py = _h5py()
-    for key, value in tree.items():
-        if key == ATTRS:
-            for name, v in value.items():
-                group.attrs[name] = _attr_value(v)
-        elif isinstance(value, dict):
-            _write_group(group.create_group(key), value)
-        elif isinstance(value, str):
-            group.create_dataset(key, data=value, dtype=h5py.string_dtype())
-        else:
-            data = np.asarray(value)
-            if data.dtype == object:
-                raise TypeError(f"cannot store {key!r}: object array")
-            opts = {"compression": "gzip", "compression_opts": 1, "shuffle": True} \
-                if data.size >= _COMPRESS_ABOVE and data.ndim >= 1 else {}
-            group.create_dataset(key, data=data, **opts)
-
-
-class Keep:
-    """Placeholder in a tree: copy this group unchanged from the file being replaced.
-
-    Checkpoints rewrite the whole file; large groups that never change (the trials)
-    are copied from the previous version with HDF5's object copy, which moves the
-    stored (compressed) bytes instead of compressing them again.
-    """
-
-    def __init__(self, build):
-        self.build = build  # () -> dict, used when there is nothing to copy from
-
-
-def write_atomic(path, tree: dict) -> None:
-    """Write ``tree`` to ``path`` through a temporary file and an atomic rename."""
-    h5py = _h5py()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temporary_name(path, os.getpid())
-    keep = {k: v for k, v in tree.items() if isinstance(v, Keep)}
-    tree = {k: v for k, v in tree.items() if not isinstance(v, Keep)}
-    try:
-        with h5py.File(tmp, "w") as f:
-            _write_group(f, tree)
-            old = None
-            if keep and path.is_file():
-                try:
-                    old = h5py.File(path, "r")
-                except OSError:
-                    old = None
-            try:
-                for key, placeholder in keep.items():
-                    if old is not None and key in old:
-                        old.copy(old[key], f, name=key)
-                    else:
-                        _write_group(f.create_group(key), placeholder.build())
-            finally:
-                if old is not None:
-                    old.close()
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _temporary_name(path: Path, pid: int) -> Path:
-    return path.with_name(f".{path.name}.tmp-{pid}")
-
-
-def remove_stale_temporaries(path) -> list[Path]:
-    """Delete temporaries a killed writer of ``path`` left behind (see :func:`write_atomic`)."""
-    path = Path(path)
-    removed = []
-    for tmp in path.parent.glob(f".{path.name}.tmp-*"):
-        try:
-            tmp.unlink()
-            removed.append(tmp)
-        except OSError:  # pragma: no cover - gone already, or not ours to remove
-            pass
-    return removed
-
-
-def _read_group(group) -> dict:
-    h5py = _h5py()
-    out = {ATTRS: {k: _read_attr(v) for k, v in group.attrs.items()}}
-    for key, item in group.items():
-        if isinstance(item, h5py.Group):
-            out[key] = _read_group(item)
-        elif h5py.check_string_dtype(item.dtype) is not None and item.shape == ():
-            v = item[()]
-            out[key] = v.decode() if isinstance(v, bytes) else str(v)
-        else:
-            out[key] = item[()]
-    return out
+# -- reading -----------------------------------------------------------------------
+def _open(path):
+    f = open_h5(path, "results file")
+    if decode_attr(f.attrs.get("format")) != FORMAT:
+        found = decode_attr(f.attrs.get("format"))
+        f.close()
+        raise UserError(f"{path}: not an evo-door results file (format {found!r})")
+    return f
 
 
 def read_tree(path) -> dict:
-    """The whole results file as a nested dict (see the module docstring)."""
-    from evo_door.errors import UserError
-
-    h5py = _h5py()
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: results file not found")
-    try:
-        with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != FORMAT:
-                raise UserError(f"{path}: not an evo-door results file "
-                                f"(format {f.attrs.get('format')!r})")
-            return _read_group(f)
-    except OSError as exc:
-        raise UserError(f"{path}: not a readable HDF5 file ({exc})") from None
+    """The whole results file as a tree (see :mod:`evo_door.files`)."""
+    with _open(path) as f:
+        return read_group(f)
 
 
 def peek(path) -> dict:
     """Root attributes, the resolved configuration and each job's GA attributes, cheaply."""
-    from evo_door.errors import UserError
-
-    h5py = _h5py()
     try:
-        with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != FORMAT:
-                raise UserError(f"{path}: not an evo-door results file")
-            out = {ATTRS: {k: _read_attr(v) for k, v in f.attrs.items()}}
-            out["resolved"] = json.loads(f["experiment/resolved"][()])
-            out["jobs"] = {k: {k2: _read_attr(v) for k2, v in f[f"jobs/{k}/ga"].attrs.items()}
-                           if f"jobs/{k}/ga" in f else {} for k in f["jobs"]}
-            out["best"] = ({k: _read_attr(v) for k, v in f["best"].attrs.items()}
-                           if "best" in f else None)
-            return out
-    except OSError as exc:
-        raise UserError(f"{path}: not a readable HDF5 file ({exc})") from None
+        with _open(path) as f:
+            jobs = f["jobs"]
+            return {ATTRS: read_attrs(f),
+                    "resolved": json.loads(f["experiment/resolved"][()]),
+                    "jobs": {k: read_attrs(jobs[k]["ga"]) if "ga" in jobs[k] else {}
+                             for k in jobs},
+                    "best": read_attrs(f["best"]) if "best" in f else None}
+    except (OSError, KeyError) as exc:
+        raise UserError(f"{path}: not a readable results file ({exc})") from None
 
 
 def versions() -> dict:
@@ -218,3 +96,189 @@ def versions() -> dict:
     except Exception:  # pragma: no cover
         pass
     return out
+
+
+# -- a run as a tree ---------------------------------------------------------------
+def run_tree(run, trials_on_disk: bool) -> dict:
+    """The results file of ``run`` (an :class:`~evo_door.experiment.runner.ExperimentRun`).
+
+    With ``trials_on_disk``, the trials are copied from the previous checkpoint.
+    """
+    setup = run.setup
+    cfg = run.config
+    ga_settings = run.algorithm.ga
+    elapsed = run.elapsed()
+    tree = {
+        ATTRS: {"format": FORMAT, "format_version": FORMAT_VERSION,
+                "name": cfg["name"], "model": setup.model_name, "status": run.status,
+                "created": run.created, "updated": run.now(), "seed": ga_settings.seed,
+                "algorithm": run.algorithm.kind, "polish": run.algorithm.polish,
+                "objective": cfg["objective"], "per_trial": run.per_trial,
+                "jobs": len(run.jobs), "jobs_done": sum(j.done for j in run.jobs),
+                "generations": ga_settings.generations,
+                "generations_done": [(-1 if j.ga is None else j.ga.generation)
+                                     for j in run.jobs],
+                "evo_door_version": run.versions.get("evo_door", "")},
+        "experiment": {ATTRS: {"source": run.experiment["source"],
+                               "overrides": list(run.experiment["overrides"])},
+                       "text": run.experiment["text"],
+                       "resolved": json.dumps(cfg, indent=1)},
+        "versions": {ATTRS: dict(run.versions)},
+        "setup": setup_tree(setup),
+        "trials": Keep(lambda: trials_tree(setup)) if trials_on_disk else trials_tree(setup),
+        "jobs": {str(k): job_tree(job) for k, job in enumerate(run.jobs)},
+        "timings": {ATTRS: timings(run.jobs, elapsed)},
+    }
+    if run.status == "complete" and run.result:
+        tree["best"] = best_tree(run)
+        if run.per_trial:
+            tree["summary"] = summary_tree(run)
+        tree["response"] = {str(k): response_tree(r, setup.objective.channel)
+                            for k, r in enumerate(run.responses())}
+    return tree
+
+
+def timings(jobs, elapsed: float) -> dict:
+    ga_evals = sum(j.ga.evaluations for j in jobs if j.ga is not None)
+    local_evals = sum(j.local.evaluations for j in jobs if j.local is not None)
+    eval_time = sum(float(np.sum(j.ga.eval_times)) for j in jobs if j.ga is not None)
+    return {"total_s": elapsed, "jobs_s": [float(j.seconds) for j in jobs],
+            "evaluations": ga_evals + local_evals, "ga_evaluations": ga_evals,
+            "ga_evaluation_s": eval_time,
+            # the compiled kernel's throughput during the GA's batched calls
+            "evaluations_per_s": ga_evals / eval_time if eval_time else 0.0,
+            "local_evaluations": local_evals,
+            "local_s": sum(float(j.local.seconds) for j in jobs if j.local is not None)}
+
+
+def setup_tree(setup) -> dict:
+    model = setup.model
+    return {ATTRS: {"model": setup.model_name, "free": list(setup.free),
+                    "method": setup.method, "substeps": int(setup.substeps),
+                    "objective": dataclasses.asdict(setup.objective),
+                    "start": dict(setup.start),
+                    "param_names": list(model.params.names),
+                    "fit_ids": [t.trial_id for t in setup.fit],
+                    "validation_ids": [t.trial_id for t in setup.validation]},
+            "base": np.asarray(setup.base, dtype=np.float64),
+            "lower": np.asarray(setup.lower, dtype=np.float64),
+            "upper": np.asarray(setup.upper, dtype=np.float64)}
+
+
+_TRIAL_FIELDS = ("trial_id", "user_id", "kind", "theta0", "dtheta0", "source",
+                 "sensors", "truth", "meta")
+
+
+def trials_tree(setup) -> dict:
+    out = {}
+    for role, trials in (("fit", setup.fit), ("validate", setup.validation)):
+        for k, tr in enumerate(trials):
+            node = {ATTRS: {"role": role, **{name: getattr(tr, name) for name in _TRIAL_FIELDS}},
+                    "t": tr.t, "force": tr.force}
+            for ch in tr.channels:
+                node[ch] = getattr(tr, ch)
+            out[f"{role}_{k}"] = node
+    return out
+
+
+def trial_from_tree(node: dict) -> Trial:
+    a = node[ATTRS]
+    kwargs = {k: a[k] for k in _TRIAL_FIELDS if k in a}
+    for ch in RESPONSE_CHANNELS:
+        if ch in node:
+            kwargs[ch] = np.array(node[ch])
+    return Trial(np.array(node["t"]), np.array(node["force"]), **kwargs)
+
+
+def setup_from_tree(tree: dict):
+    from evo_door.experiment.setup import Setup
+
+    s = tree["setup"]
+    a = s[ATTRS]
+    trials = {"fit": [], "validate": []}
+    for role in trials:
+        keys = sorted((k for k in tree["trials"] if k.startswith(role + "_")),
+                      key=lambda k: int(k.rsplit("_", 1)[1]))
+        trials[role] = [trial_from_tree(tree["trials"][k]) for k in keys]
+    return Setup(model_name=a["model"], base=np.array(s["base"]), free=list(a["free"]),
+                 lower=np.array(s["lower"]), upper=np.array(s["upper"]),
+                 fit=trials["fit"], validation=trials["validate"],
+                 objective=Objective(**a["objective"]), method=a["method"],
+                 substeps=int(a["substeps"]), start=dict(a.get("start") or {}))
+
+
+def job_tree(job) -> dict:
+    node = {ATTRS: {"name": job.name, "trials": list(job.trials), "done": job.done,
+                    "ga_stop": job.ga_stop, "seconds": float(job.seconds)}}
+    if job.ga is not None:
+        snap = GeneticAlgorithm.snapshot(job.ga)
+        log = snap.pop("logbook")
+        node["ga"] = {ATTRS: {"generation": snap.pop("generation"),
+                              "evaluations": snap.pop("evaluations"),
+                              "blowups": snap.pop("blowups"),
+                              "best_fitness": job.ga.best_fitness},
+                      "logbook": {ATTRS: {"columns": list(LOG_FIELDS)}, **log}, **snap}
+    if job.local is not None:
+        d = job.local.as_dict()
+        node["local"] = {ATTRS: {k: v for k, v in d.items() if not isinstance(v, list)},
+                         "x0": np.asarray(job.local.x0), "x": np.asarray(job.local.x)}
+    if job.done:
+        node[ATTRS]["best_fitness"] = float(job.best_fitness)
+        node["best_x"] = np.asarray(job.best_x, dtype=np.float64)
+        node["fit_errors"] = np.asarray(job.fit_errors, dtype=np.float64)
+        node["validation_errors"] = np.asarray(job.validation_errors, dtype=np.float64)
+    return node
+
+
+def snapshot_from_tree(node: dict) -> dict:
+    """The :meth:`GeneticAlgorithm.snapshot` stored in a job's ``ga`` group."""
+    a = node[ATTRS]
+    snap = {k: v for k, v in node.items() if k not in (ATTRS, "logbook")}
+    snap.update(generation=a["generation"], evaluations=a["evaluations"],
+                blowups=a["blowups"],
+                logbook={k: np.array(node["logbook"][k]) for k in LOG_FIELDS})
+    return snap
+
+
+def local_from_tree(node: dict) -> LocalResult:
+    a = node[ATTRS]
+    return LocalResult(x0=np.array(node["x0"]), x=np.array(node["x"]),
+                       **{k: a[k] for k in ("fitness0", "fitness", "iterations", "evaluations",
+                                            "blowups", "success", "message", "seconds")})
+
+
+def best_tree(run) -> dict:
+    res = run.result
+    fit_ids = [t.trial_id for t in run.setup.fit]
+    val_ids = [t.trial_id for t in run.setup.validation]
+    if run.per_trial:
+        fit_errors = {j.name: float(j.fit_errors[0]) for j in run.jobs}
+        val = np.array([j.validation_errors for j in run.jobs]) if val_ids else np.zeros((0, 0))
+        validation = {v: float(np.mean(val[:, i])) for i, v in enumerate(val_ids)}
+    else:
+        job = run.jobs[0]
+        fit_errors = dict(zip(fit_ids, map(float, job.fit_errors)))
+        validation = dict(zip(val_ids, map(float, job.validation_errors)))
+    return {ATTRS: {"fitness": float(res["best_fitness"]),
+                    "values": {n: float(v) for n, v in zip(run.setup.free, res["best_x"])},
+                    "fit_errors": fit_errors, "validation_errors": validation,
+                    "param_names": list(run.setup.model.params.names),
+                    "meaning": "mean of the per-trial fits" if run.per_trial
+                    else "best of the run"},
+            "x": np.asarray(res["best_x"], dtype=np.float64),
+            "full": np.asarray(res["full"], dtype=np.float64)}
+
+
+def summary_tree(run) -> dict:
+    xs = run.result["xs"]
+    return {ATTRS: {"names": list(run.setup.free), "trials": [j.name for j in run.jobs]},
+            "x": xs, "min": xs.min(axis=0), "max": xs.max(axis=0), "mean": xs.mean(axis=0),
+            "std": xs.std(axis=0),
+            "fitness": np.array([j.best_fitness for j in run.jobs])}
+
+
+def response_tree(r: dict, channel: str) -> dict:
+    return {ATTRS: {"trial_id": r["trial_id"], "role": r["role"], "error": r["error"],
+                    "channel": channel, "ok": r["ok"]},
+            "t": r["t"], "force": r["force"], "target": r["target"], "model": r["model"],
+            "model_theta": r["model_theta"]}

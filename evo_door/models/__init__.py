@@ -1,5 +1,17 @@
-"""Models of the door: the haptic model (sensations) and the physical door (specifications)."""
+"""Models of the door: the haptic model (sensations) and the physical door (specifications).
 
-from evo_door.models.base import REGISTRY, Model, available_models, get_model
+Other models plug in by entry point (group ``evo_door.models``), import path or file
+path: see :func:`get_model`.
+"""
 
-__all__ = ["Model", "REGISTRY", "available_models", "get_model"]
+from evo_door.models.base import (
+    REGISTRY,
+    Model,
+    available_models,
+    check_model,
+    get_model,
+    resolve_model_name,
+)
+
+__all__ = ["Model", "REGISTRY", "available_models", "check_model", "get_model",
+           "resolve_model_name"]

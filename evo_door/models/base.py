@@ -1,36 +1,88 @@
-"""What every 1-DOF model of the workbench provides, and the model registry.
+"""What every 1-DOF model of the workbench provides, and how models are found.
 
 A model is data plus one compiled function:
 
 - ``params``: its :class:`~evo_door.params.ParamTable` (the declaration);
 - ``accel``: a numba-compiled ``accel(theta, dtheta, force, p) -> ddtheta`` where
-  ``theta`` (rad) is the door angle (0 fully open, pi/2 closed), ``force`` (N) the
-  user's tangential force at the handle (positive toward closing) and ``p`` the flat
-  parameter vector in declaration order. ``accel`` must be affine in ``force``
-  (true of any mechanical model driven by an external force); the quasi-static
-  force-angle curve relies on it.
+  ``theta`` is the model's coordinate (for the doors the angle in rad, 0 fully open,
+  pi/2 closed), ``force`` (N) the user's force at the handle (positive toward closing)
+  and ``p`` the flat parameter vector in declaration order. ``accel`` must be affine
+  in ``force`` (true of any mechanical model driven by an external force); the
+  quasi-static force-angle curve relies on it.
 - integration defaults: the scheme and sub-steps per sample that keep the model's
   stiffest element stable at 1024 Hz.
 
-Models are registered by import path so that ``evo_door.models`` imports nothing
-heavy until a model is asked for.
+:func:`get_model` finds a model by
+
+- name: a model another installed package registers in the entry-point group
+  ``evo_door.models`` (the bundled ``haptic`` and ``door`` are registered that way
+  too, with :data:`REGISTRY` as the fallback of an install whose metadata is stale);
+- import path ``package.module:ATTRIBUTE`` (the module must be importable);
+- file path ``path/to/file.py:ATTRIBUTE``: a model in a user's own Python file,
+  relative to the current folder, no PYTHONPATH needed.
+
+Whatever the source, :func:`check_model` refuses a model the integrators could not
+run, with one line, before anything is simulated. Nothing heavy is imported until a
+model is asked for.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
+import importlib.metadata
 import importlib.util
-from dataclasses import dataclass, field
-from typing import Callable
+import inspect
+import math
+import re
+import sys
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 from evo_door.errors import UserError
-from evo_door.params import ParamSet, ParamTable, load_params
+from evo_door.params import ParamSet, ParamTable, available_presets, load_params
 from evo_door.params.declaration import suggest
+
+#: Entry-point group through which installed packages register models.
+MODEL_GROUP = "evo_door.models"
+#: Trial kinds of the virtual rig (:mod:`evo_door.data.rig`).
+RIG_KINDS = ("unlock", "lock", "impulse")
 
 
 @dataclass(frozen=True)
 class Model:
-    """A registered 1-DOF model (see module docstring)."""
+    """A 1-DOF model (see the module docstring).
+
+    Attributes
+    ----------
+    name, title : str
+        Short name (presets folder, parameter files' ``model:``) and one-line title.
+    params : ParamTable
+        The declaration; its ``model`` is ``name``.
+    accel : numba dispatcher
+        ``accel(theta, dtheta, force, p) -> ddtheta``, compiled with ``@njit``.
+    method, substeps
+        Integration defaults (``"rk4"`` or ``"semi_implicit"``, steps per sample).
+    theta0 : float
+        Initial coordinate of simulations that do not give one.
+    notes : str
+        Free text shown by ``evo-door params MODEL``.
+    rig_kinds : tuple of str
+        Trials the virtual rig can make with the model. ``unlock`` and ``lock`` need a
+        latch near closed that the rig's hand can feel; only a model that has one says
+        so. ``impulse`` (a push from fully open, then free motion) suits any model.
+    theta_range : (float, float)
+        The coordinate from fully open to closed, in ``theta_unit``: the grid of
+        ``evo-door curve``.
+    theta_unit : str
+        Unit of ``theta`` (``"rad"`` for a door; ``"m"`` for a drawer's stroke); its
+        speed is in ``theta_unit``/s.
+    preset_dirs : tuple of Path
+        The model's own preset folders (filled by :func:`get_model`: a ``presets/``
+        folder next to the model's file).
+    """
 
     name: str
     title: str
@@ -38,59 +90,307 @@ class Model:
     accel: Callable
     method: str = "semi_implicit"
     substeps: int = 2
-    #: Default initial angle (rad) for simulations that do not give one.
     theta0: float = 0.0
-    #: Free-form notes shown by ``evo-door params MODEL``.
     notes: str = ""
-    extras: dict = field(default_factory=dict)
+    rig_kinds: tuple[str, ...] = ("impulse",)
+    theta_range: tuple[float, float] = (0.0, 0.5 * math.pi)
+    theta_unit: str = "rad"
+    preset_dirs: tuple[Path, ...] = ()
 
     def load_params(self, spec=None, overrides=None) -> ParamSet:
-        """A parameter set from a file or preset name (or defaults), with overrides."""
-        ps = load_params(self.params, spec)
-        return ps.replace(overrides, source=ps.source) if overrides else ps
+        """A checked parameter set: ``spec`` is None (declared defaults), a preset name,
+        a YAML path or a mapping name -> value (on top of the defaults); ``overrides``
+        (name -> value) are applied on top."""
+        return load_params(self.params, spec, overrides, self.preset_dirs)
+
+    def presets(self) -> list[str]:
+        """Names of the presets this model can load (same lookup as :meth:`load_params`)."""
+        return available_presets(self.params.model, self.preset_dirs)
 
 
-#: name -> "module:attribute" of the Model object.
+#: name -> "module:attribute" of the bundled models: the fallback when the installed
+#: metadata does not (yet) list them in the ``evo_door.models`` entry-point group.
 REGISTRY: dict[str, str] = {
     "haptic": "evo_door.models.haptic:MODEL",
     "door": "evo_door.models.door:MODEL",
 }
 
+#: Models already loaded, by the key :func:`get_model` resolves a name to.
+_MODELS: dict[str, Model] = {}
+#: User files already executed, by absolute path: a file is run once per process, so
+#: its numba functions are compiled (or loaded from cache) once.
+_FILE_MODULES: dict[Path, object] = {}
 
+
+# -- the check every model passes -----------------------------------------------------
+def check_model(model, source: str = "") -> Model:
+    """Refuse, with one line, a model the workbench could not use; return it otherwise.
+
+    Checks that it is a :class:`Model`, that ``params`` is a ParamTable declared for
+    it, and that ``accel`` is a numba function that compiles for the exact type the
+    integrators call it with (``ACCEL_SIGNATURE`` of :mod:`evo_door.sim.integrators`,
+    a first-class function ``float64(float64, float64, float64, float64[::1])``). An
+    ``@njit`` without a signature is compiled for it here (or loaded from numba's disk
+    cache), as the first simulation would do anyway.
+    """
+    where = source or getattr(model, "name", "?")
+    if not isinstance(model, Model):
+        raise UserError(f"{where!r} is a {type(model).__name__}, not an evo_door Model")
+    name = f"model {model.name!r}"
+    if not isinstance(model.params, ParamTable):
+        raise UserError(f"{name}: params must be a ParamTable (evo_door.params), "
+                        f"got {type(model.params).__name__}")
+    if model.params.model != model.name:
+        raise UserError(f"{name}: its ParamTable is declared for model "
+                        f"{model.params.model!r}; give both the same name")
+    bad = [k for k in model.rig_kinds if k not in RIG_KINDS]
+    if bad:
+        raise UserError(f"{name}: unknown rig kind {bad[0]!r}" + suggest(bad[0], RIG_KINDS)
+                        + f"; kinds: {', '.join(RIG_KINDS)}")
+    lo, hi = model.theta_range
+    if not lo < hi:
+        raise UserError(f"{name}: theta_range {model.theta_range} must go from open "
+                        "(lower) to closed (upper)")
+    _check_accel(model)
+    return model
+
+
+_WANT = "a numba @njit function accel(theta, dtheta, force, p) -> float"
+
+
+def _check_accel(model: Model) -> None:
+    from numba import config
+    from numba.core.dispatcher import Dispatcher
+
+    from evo_door.sim.integrators import ACCEL_SIGNATURE
+
+    name, accel = f"model {model.name!r}", model.accel
+    if config.DISABLE_JIT:
+        # NUMBA_DISABLE_JIT=1 turns every @njit into its Python function: check the
+        # arguments only
+        if not callable(accel):
+            raise UserError(f"{name}: accel must be {_WANT}; got {_describe(accel)}")
+        if not _takes_four(accel):
+            raise UserError(f"{name}: accel must be {_WANT}; it does not take the four "
+                            "arguments (theta, dtheta, force, p)")
+        return
+    if not isinstance(accel, Dispatcher):
+        raise UserError(f"{name}: accel must be {_WANT}; got {_describe(accel)}")
+    try:
+        result = accel.get_compile_result(ACCEL_SIGNATURE)
+    except Exception as exc:  # numba raises TypingError, TypeError, NameError...
+        raise UserError(f"{name}: accel must be {_WANT}; it does not compile for "
+                        f"{_signature_text(ACCEL_SIGNATURE)}: {_numba_reason(exc)}") from None
+    if result.signature.return_type != ACCEL_SIGNATURE.return_type:
+        raise UserError(f"{name}: accel must be {_WANT}; it returns "
+                        f"{result.signature.return_type}")
+
+
+def _takes_four(func) -> bool:
+    try:
+        inspect.signature(func).bind(0.0, 0.0, 0.0, None)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def _describe(obj) -> str:
+    if inspect.isfunction(obj):
+        return "a plain Python function (decorate it with @njit(cache=True))"
+    if obj is None:
+        return "None"
+    return f"a {type(obj).__name__}"
+
+
+def _signature_text(sig) -> str:
+    return "(" + ", ".join("float64[::1]" if str(a).startswith("array") else str(a)
+                           for a in sig.args) + ")"
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _numba_reason(exc: Exception) -> str:
+    """The line of a (multi-line, coloured) numba error that says what is wrong."""
+    text = _ANSI.sub("", str(exc))
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith(("Failed in", "During:", "File ", "^")):
+            continue
+        if "not available and compilation disabled" in line:
+            return "its explicit @njit signature does not include it"
+        # "No conversion from UniTuple(float64 x 2) to float64 for '$10return_value.3'"
+        return re.sub(r" for '\$[^']*'.*$", "", line)
+    return type(exc).__name__
+
+
+# -- finding models -------------------------------------------------------------------
 def available_models() -> list[str]:
-    """Registered models whose module is importable."""
-    names = []
-    for name, target in REGISTRY.items():
-        module = target.split(":")[0]
-        if importlib.util.find_spec(module) is not None:
-            names.append(name)
-    return names
+    """Names of the registered models (entry points and bundled) whose module exists."""
+    names = set()
+    for name, target in {**REGISTRY, **_entry_point_targets()}.items():
+        try:
+            if importlib.util.find_spec(target.split(":")[0]) is not None:
+                names.add(name)
+        except Exception:  # a broken package's __init__: not available
+            pass
+    return sorted(names)
+
+
+def _entry_point_targets() -> dict[str, str]:
+    return {ep.name: ep.value for ep in importlib.metadata.entry_points(group=MODEL_GROUP)}
+
+
+def is_file_spec(name: str) -> bool:
+    """``path/to/file.py:ATTRIBUTE`` (as opposed to a name or a module path)."""
+    path, sep, _ = name.rpartition(":")
+    return bool(sep) and path.endswith(".py")
+
+
+def resolve_model_name(name: str, base_dir=None) -> str:
+    """``name`` with a relative ``file.py:ATTRIBUTE`` made absolute.
+
+    The file is looked for in ``base_dir`` (an experiment file's folder) first, then
+    in the current folder (where neither has it, the name points into ``base_dir``, so
+    that the error names the folder the user most likely meant); names and module
+    paths are returned as they are. Stored absolute, the name still finds the model
+    when a run is shown or resumed from another folder.
+    """
+    if not is_file_spec(name):
+        return name
+    path, _, attr = name.rpartition(":")
+    p = Path(path).expanduser()
+    if not p.is_absolute():
+        here = Path.cwd() / p
+        beside = Path(base_dir) / p if base_dir is not None else here
+        p = here if here.is_file() and not beside.is_file() else beside
+    return f"{p.resolve()}:{attr}"
 
 
 def get_model(name: str) -> Model:
-    """The registered model ``name`` (imports its module on first use).
+    """The model called ``name``: a registered name, ``module:ATTR`` or ``file.py:ATTR``.
 
-    ``name`` may also be an import path ``package.module:ATTRIBUTE`` naming a
-    :class:`Model` object, so that users can bring their own model (a drawer, a
-    button) without registering it here.
+    The same model is returned for the same name (and for one file however its path
+    is written), checked once by :func:`check_model`.
     """
-    if ":" in name and name not in REGISTRY:
-        module, _, attr = name.partition(":")
+    name = str(name).strip()
+    key = resolve_model_name(name) if is_file_spec(name) else name
+    if key in _MODELS:
+        return _MODELS[key]
+    if is_file_spec(name):
+        path, _, attr = key.rpartition(":")
+        model, folder = _from_file(name, Path(path), attr)
+    elif ":" in name and name not in REGISTRY:
+        model, folder = _from_module(name, name)
+    else:
+        model, folder = _registered(name)
+    model = check_model(model, name)
+    presets = folder / "presets" if folder is not None else None
+    if presets is not None and presets.is_dir() and presets not in model.preset_dirs:
+        model = replace(model, preset_dirs=model.preset_dirs + (presets,))
+    _MODELS[key] = model
+    return model
+
+
+def _registered(name: str):
+    """A model from the ``evo_door.models`` entry points, else the bundled registry."""
+    eps = [ep for ep in importlib.metadata.entry_points(group=MODEL_GROUP) if ep.name == name]
+    values = sorted({ep.value for ep in eps})
+    if len(values) > 1:
+        raise UserError(f"model {name!r} is registered twice ({' and '.join(values)}); "
+                        "uninstall one of the packages")
+    if values:
+        return _from_module(values[0], name)
+    if name in REGISTRY:
+        module = REGISTRY[name].split(":")[0]
         try:
-            obj = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError) as exc:
-            raise UserError(f"cannot import model {name!r}: {exc}") from None
-        if not isinstance(obj, Model):
-            raise UserError(f"{name!r} is not an evo_door Model")
-        return obj
-    if name not in REGISTRY:
-        raise UserError(f"unknown model {name!r}" + suggest(name, REGISTRY)
-                        + f"; models: {', '.join(available_models())}")
-    module, attr = REGISTRY[name].split(":")
+            return _from_module(REGISTRY[name], name)
+        except UserError:
+            if importlib.util.find_spec(module) is None:
+                raise UserError(f"model {name!r} is not available in this version") from None
+            raise
+    known = sorted(set(REGISTRY) | {ep.name for ep in
+                                    importlib.metadata.entry_points(group=MODEL_GROUP)})
+    raise UserError(f"unknown model {name!r}" + suggest(name, known)
+                    + f"; models: {', '.join(available_models())}, or a model in a file, "
+                    "path/to/file.py:ATTRIBUTE")
+
+
+def _from_module(target: str, name: str):
+    """``package.module:ATTRIBUTE`` -> (object, folder of the module's file)."""
+    module_name, _, attr = target.partition(":")
     try:
-        mod = importlib.import_module(module)
-    except ModuleNotFoundError as exc:
-        if exc.name == module:
-            raise UserError(f"model {name!r} is not available in this version") from None
-        raise
-    return getattr(mod, attr)
+        module = importlib.import_module(module_name.strip())
+    except Exception as exc:
+        if isinstance(exc, ModuleNotFoundError) and exc.name == module_name.strip():
+            raise UserError(f"cannot import model {name!r}: no module named "
+                            f"{module_name.strip()!r}") from None
+        raise UserError(f"cannot import model {name!r}: {_one_line(exc)}") from None
+    obj = _attribute(module, attr.strip(), f"module {module_name.strip()!r}", name)
+    file = getattr(module, "__file__", None)
+    return obj, (Path(file).parent if file else None)
+
+
+def _from_file(name: str, path: Path, attr: str):
+    """``path/to/file.py:ATTRIBUTE`` -> (object, the file's folder)."""
+    shown = name.rpartition(":")[0]
+    if not path.is_file():
+        hint = ""
+        if path.parent.is_dir():
+            hint = suggest(path.name, [p.name for p in path.parent.glob("*.py")])
+        raise UserError(f"model file {shown} not found{hint}")
+    module = _FILE_MODULES.get(path)
+    if module is None:
+        module = _exec_file(path, shown)
+        _FILE_MODULES[path] = module
+    return _attribute(module, attr, f"model file {shown}", name), path.parent
+
+
+def _exec_file(path: Path, shown: str):
+    # A unique module name per file: two drawer.py in two folders do not collide,
+    # and the module is in sys.modules while it runs (dataclasses, pickling need it).
+    digest = hashlib.sha1(str(path).encode()).hexdigest()[:10]
+    module_name = f"evo_door_user_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest}"
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    if spec is None or spec.loader is None:
+        raise UserError(f"model file {shown}: not a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    # like `python file.py`, the file may import modules that sit beside it
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:
+        del sys.modules[module_name]
+        raise UserError(f"model file {shown} does not import: {_one_line(exc)}"
+                        f"{_line_in(exc, path)}") from None
+    finally:
+        sys.path.remove(str(path.parent))
+    return module
+
+
+def _attribute(module, attr: str, where: str, name: str):
+    if not attr:
+        raise UserError(f"{name!r}: say which object is the model, e.g. {name}MODEL")
+    try:
+        return getattr(module, attr)
+    except AttributeError:
+        models = [k for k, v in vars(module).items() if isinstance(v, Model)]
+        listed = f"; models there: {', '.join(models)}" if models else "; it defines no Model"
+        public = [k for k in vars(module) if not k.startswith("_")]
+        raise UserError(f"{where} has no attribute {attr!r}" + suggest(attr, models or public)
+                        + listed) from None
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(_ANSI.sub("", str(exc)).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _line_in(exc: BaseException, path: Path) -> str:
+    """`` (line N)`` of the deepest frame of the user's file in the traceback."""
+    if isinstance(exc, SyntaxError):
+        return ""  # its message already names the line
+    frames = [f for f in traceback.extract_tb(exc.__traceback__)
+              if Path(f.filename) == path]
+    return f" (line {frames[-1].lineno})" if frames else ""

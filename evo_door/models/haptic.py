@@ -27,9 +27,8 @@ import math
 import numpy as np
 from numba import njit
 
-from evo_door.errors import UserError
 from evo_door.models.base import Model
-from evo_door.params import Param, ParamTable
+from evo_door.params import Param, ParamTable, param_vector
 
 #: Number of angular sections of the friction scale (eq. 4.48 / 5.8), over [0, pi/2].
 N_SECTIONS = 8
@@ -323,7 +322,19 @@ def tangential_force(theta, dtheta, p):
 
 @njit(cache=True)
 def accel(theta, dtheta, force, p):
-    """Reduced dynamics (eq. 5.7): ddtheta = (F_tan(theta, dtheta) + F_u) / I."""
+    """Reduced dynamics (eq. 5.7): ddtheta = (F_tan(theta, dtheta) + F_u) / I.
+
+    ``theta`` (rad), ``dtheta`` (rad/s), ``force`` (N at the handle, + toward closing),
+    ``p`` the kernel vector; returns rad/s^2. With the seed's rendering set:
+
+    >>> from evo_door.params import param_vector
+    >>> p = param_vector(MODEL.load_params("seed_trial"), PARAMS)
+    >>> accel(0.8, 0.0, 0.0, p)     # at rest mid-stroke, no hand: stays
+    0.0
+    >>> # opening at 0.5 rad/s: (1.0 N dry friction + 0.2 N s/rad x 0.5) / 1.2 kg m
+    >>> round(accel(0.8, -0.5, 0.0, p), 4)
+    0.9167
+    """
     return (tangential_force(theta, dtheta, p) + force) / p[INERTIA]
 
 
@@ -383,7 +394,7 @@ def device_force_vector(position, velocity, params, out=None) -> np.ndarray:
     is filled and returned when given, else a new array is.
     """
     if type(params) is not np.ndarray:
-        params = param_vector(params)
+        params = param_vector(params, PARAMS)
     if out is None:
         out = np.empty(3)
     # numba dispatches fastest on Python floats: unpack arrays through tolist()
@@ -393,17 +404,9 @@ def device_force_vector(position, velocity, params, out=None) -> np.ndarray:
     return out
 
 
-def param_vector(params) -> np.ndarray:
-    """A writable C-contiguous float64 copy of a ParamSet's (or array's) values."""
-    p = np.array(getattr(params, "vector", params), dtype=np.float64, order="C")
-    if p.shape != (len(PARAMS),):
-        raise UserError(f"model 'haptic' takes {len(PARAMS)} parameters, got shape {p.shape}")
-    return p
-
-
 def device_mass(params) -> float:
     """Virtual mass (kg) a device must give the end effector: m = I / R (eq. 4.53)."""
-    p = param_vector(params)
+    p = param_vector(params, PARAMS)
     return float(p[INERTIA] / p[RADIUS])
 
 
@@ -416,7 +419,7 @@ def on_path(theta, radius) -> tuple[float, float, float]:
 def latch_angles_of(params) -> dict[str, float]:
     """The latch band limits (rad) of a parameter set, by name."""
     names = ("theta_0", "theta_1", "theta_2", "theta_3")
-    return dict(zip(names, (float(v) for v in latch_angles(param_vector(params)))))
+    return dict(zip(names, (float(v) for v in latch_angles(param_vector(params, PARAMS)))))
 
 
 _NOTES = """\
@@ -439,6 +442,5 @@ MODEL = Model(
     substeps=2,
     theta0=CLOSED,
     notes=_NOTES,
-    extras={"device_force": device_force, "tangential_force": tangential_force,
-            "latch_angles": latch_angles_of, "device_mass": device_mass},
+    rig_kinds=("impulse", "unlock", "lock"),
 )

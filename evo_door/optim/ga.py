@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import random
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
@@ -81,6 +81,8 @@ class GASettings:
     crossover_eta: float = 10.0
     hall_of_fame: int = 10
     target_fitness: float | None = None
+    #: stop early once the best fitness has not improved for this many generations
+    patience: int | None = None
 
     def __post_init__(self):
         if self.population < 2:
@@ -96,6 +98,8 @@ class GASettings:
             raise ValueError("elite must be in [0, population)")
         if self.tournament < 1 or self.hall_of_fame < 1 or not self.crossover_eta > 0:
             raise ValueError("tournament, hall_of_fame >= 1 and crossover_eta > 0 required")
+        if self.patience is not None and self.patience < 1:
+            raise ValueError("patience must be at least 1 (or None)")
 
     @property
     def children(self) -> int:
@@ -111,7 +115,7 @@ class Termination:
         self.generations = int(generations)
         self.target_fitness = target_fitness
 
-    def reason(self, state: "GAState") -> str | None:
+    def reason(self, state: GAState) -> str | None:
         """Why the run should stop now, or None to go on."""
         if self.target_fitness is not None and state.best_fitness <= self.target_fitness:
             return f"best fitness {state.best_fitness:.6g} <= target {self.target_fitness:g}"
@@ -138,6 +142,8 @@ class GAState:
     #: per generation wall time (s) and time spent evaluating (s)
     times: list = field(default_factory=list)
     eval_times: list = field(default_factory=list)
+    #: why :meth:`GeneticAlgorithm.run` stopped (not checkpointed)
+    stop_reason: str | None = None
 
     @property
     def best(self):
@@ -273,20 +279,50 @@ class GeneticAlgorithm:
         state.times.append(time.perf_counter() - t0)
         state.eval_times.append(t_eval)
 
-    def run(self, problem, termination: Termination | None = None, state: GAState | None = None,
-            callback=None) -> GAState:
-        """Run (or continue ``state``) until ``termination``; ``callback(state)`` after each generation."""
+    def run(self, problem, state: GAState | None = None, hooks=(),
+            termination: Termination | None = None) -> GAState:
+        """Run (or continue ``state``) until ``termination`` or a hook says stop.
+
+        This is the one GA loop: what happens around it after every generation
+        (checkpoint, progress display, early stop) is a *hook*, an object with
+        ``after_generation(state) -> str | None`` (a reason to stop, or None to go on)
+        and, optionally, ``close()``, called however the loop ends
+        (:mod:`evo_door.optim.hooks`). Every hook sees every generation, generation 0
+        included; the reason the run stopped is left in ``state.stop_reason``.
+
+        Any object with search bounds and a batched ``evaluate`` is a problem:
+
+        >>> class Sphere:
+        ...     lower, upper = np.zeros(2), np.ones(2)
+        ...     def evaluate(self, X):
+        ...         return ((X - 0.3) ** 2).sum(axis=1), np.zeros(len(X), dtype=bool)
+        >>> class Record:
+        ...     seen = []
+        ...     def after_generation(self, state):
+        ...         self.seen.append(state.generation)
+        >>> ga = GeneticAlgorithm(GASettings(population=20, generations=3, seed=1))
+        >>> state = ga.run(Sphere(), hooks=[Record()])
+        >>> Record.seen, state.stop_reason, state.best_fitness < 0.01
+        ([0, 1, 2, 3], '3 generations done', True)
+        """
         termination = termination or Termination(self.settings.generations,
                                                   self.settings.target_fitness)
-        if state is None:
-            state = self.initialize(problem)
-            if callback:
-                callback(state)
-        while termination.reason(state) is None:
-            self.step(problem, state)
-            if callback:
-                callback(state)
-        return state
+        hooks = list(hooks)
+        try:
+            reason = None
+            if state is None:
+                state = self.initialize(problem)
+                reason = _notify(hooks, state)
+            while reason is None and (reason := termination.reason(state)) is None:
+                self.step(problem, state)
+                reason = _notify(hooks, state)
+            state.stop_reason = reason
+            return state
+        finally:
+            for hook in hooks:
+                close = getattr(hook, "close", None)
+                if close is not None:
+                    close()
 
     # -- checkpoint ---------------------------------------------------------------
     @staticmethod
@@ -341,5 +377,11 @@ class GeneticAlgorithm:
         return state
 
 
-def settings_dict(settings: GASettings) -> dict:
-    return asdict(settings)
+def _notify(hooks, state: GAState) -> str | None:
+    """Call every hook on ``state``; the first reason to stop that one gives, or None."""
+    reason = None
+    for hook in hooks:
+        said = hook.after_generation(state)
+        if reason is None and said:
+            reason = said
+    return reason

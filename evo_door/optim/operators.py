@@ -14,9 +14,8 @@ drawing from a Gaussian truncated to the bounds.
 
 from __future__ import annotations
 
-import math
 import random
-from typing import Sequence
+from collections.abc import Sequence
 
 
 def cx_sbx_bounded(ind1, ind2, *, eta: float, low: Sequence[float], up: Sequence[float],
@@ -131,7 +130,3 @@ def rng_from_state(state: Sequence[int]) -> random.Random:
     rng = random.Random()
     rng.setstate((version, words, gauss_next))
     return rng
-
-
-def is_inside(individual, low, up) -> bool:
-    return all(lo <= x <= hi and not math.isnan(x) for x, lo, hi in zip(individual, low, up))

@@ -9,12 +9,13 @@ grid) drives it through :meth:`Problem.evaluate`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from evo_door.data.trial import RESPONSE_CHANNELS, Trial
+from evo_door.channels import RESPONSE_CHANNELS, unit
+from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 from evo_door.optim.kernels import KINDS, population_errors
 from evo_door.sim.integrators import METHODS
@@ -56,8 +57,7 @@ class Objective:
 
     @property
     def unit(self) -> str:
-        unit = ("rad", "rad/s", "rad/s^2")[self.derivative]
-        return f"({unit})^2" + (" s" if self.kind == "ise" else "")
+        return f"({unit(self.channel)})^2" + (" s" if self.kind == "ise" else "")
 
     def combine_errors(self, errors: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """Fitness per row of ``errors`` (n_candidates, n_trials); inf where any trial blew up."""
@@ -70,10 +70,6 @@ class Objective:
             out = errors.mean(axis=1)
         return out
 
-    def describe(self) -> str:
-        eq = "max_t (e)^2, eq. 5.3" if self.kind == "max_square" else "integral e^2 dt, eq. 5.4"
-        return f"{self.kind} ({eq}) on {self.channel}, {self.combine} over trials"
-
 
 class TrialPack:
     """Trials concatenated for the kernel (see :mod:`evo_door.optim.kernels`)."""
@@ -81,20 +77,16 @@ class TrialPack:
     def __init__(self, trials: Sequence[Trial], derivative: int):
         self.trials = list(trials)
         channel = RESPONSE_CHANNELS[derivative]
-        for tr in self.trials:
-            if tr.channel(derivative) is None:
-                raise UserError(f"{tr.label}: trial {tr.trial_id!r} has no {channel!r} channel, "
-                                f"which the objective (derivative {derivative}) compares")
+        targets = [tr.require(derivative) for tr in self.trials]
         lengths = [tr.n for tr in self.trials]
         self.offsets = np.zeros(len(lengths) + 1, dtype=np.int64)
         self.offsets[1:] = np.cumsum(lengths)
         cat = (lambda parts: np.ascontiguousarray(np.concatenate(parts)) if parts
                else np.zeros(0))
         self.force = cat([tr.force for tr in self.trials])
-        self.target = cat([tr.channel(derivative) for tr in self.trials])
-        # saturated sensor samples do not count (Trial.unsaturated, when available)
-        masks = [tr.unsaturated(channel) if hasattr(tr, "unsaturated")
-                 else np.ones(tr.n, dtype=np.bool_) for tr in self.trials]
+        self.target = cat(targets)
+        # saturated sensor samples do not count
+        masks = [tr.unsaturated(channel) for tr in self.trials]
         self.mask = (np.ascontiguousarray(np.concatenate(masks), dtype=np.bool_) if masks
                      else np.zeros(0, dtype=np.bool_))
         self.dt = np.array([tr.dt for tr in self.trials], dtype=np.float64)
@@ -108,10 +100,6 @@ class TrialPack:
     @property
     def ids(self) -> list[str]:
         return [tr.trial_id for tr in self.trials]
-
-    @property
-    def samples(self) -> int:
-        return int(self.offsets[-1])
 
 
 class Problem:
@@ -211,25 +199,25 @@ class Problem:
         err, ok = self.trial_errors(x, self.validation)
         return np.where(ok, err, np.inf)[0]
 
-    def responses(self, x, pack: TrialPack | None = None) -> list[Response]:
-        """Full simulated responses of one candidate on the trials of ``pack``."""
+    def responses(self, x, pack: TrialPack | None = None,
+                  indices: Sequence[int] | None = None) -> list[Response]:
+        """Full simulated responses of one candidate on the trials of ``pack``.
+
+        ``pack`` is the fit trials by default (or ``self.validation``); ``indices``
+        picks some of its trials.
+        """
         pack = self.fit if pack is None else pack
         p = self.full(x)[0]
         out = []
-        for tr, th0, w0 in zip(pack.trials, pack.theta0, pack.dtheta0):
-            out.append(simulate(self.model, p, tr.force, tr.dt, theta0=th0, dtheta0=w0,
-                                t0=float(tr.t[0]), method=self.method,
-                                substeps=self.substeps))
+        for i in range(len(pack)) if indices is None else indices:
+            tr = pack.trials[i]
+            out.append(simulate(self.model, p, tr.force, tr.dt, theta0=pack.theta0[i],
+                                dtheta0=pack.dtheta0[i], t0=float(tr.t[0]),
+                                method=self.method, substeps=self.substeps))
         return out
 
-    def with_objective(self, objective: Objective) -> "Problem":
+    def with_objective(self, objective: Objective) -> Problem:
         """The same problem under another objective (the max-square polish's ISE stage)."""
         return Problem(self.model, self.free, self.lower, self.upper, self.base,
                        self.fit.trials, objective, self.validation.trials, self.method,
                        self.substeps)
-
-    def subproblem(self, trial_indices: Sequence[int]) -> "Problem":
-        """The same problem on a subset of the fit trials (``per_trial`` fits)."""
-        return Problem(self.model, self.free, self.lower, self.upper, self.base,
-                       [self.fit.trials[i] for i in trial_indices], self.objective,
-                       self.validation.trials, self.method, self.substeps)

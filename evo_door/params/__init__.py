@@ -5,9 +5,12 @@ from evo_door.params.sets import (
     ParamSet,
     available_presets,
     load_params,
+    param_vector,
     params_from_document,
     parse_assignments,
+    preset_path,
 )
 
 __all__ = ["GROUPS", "Param", "ParamTable", "ParamSet", "available_presets",
-           "load_params", "params_from_document", "parse_assignments"]
+           "load_params", "param_vector", "params_from_document", "parse_assignments",
+           "preset_path"]

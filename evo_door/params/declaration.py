@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Iterable, Mapping
 
 import numpy as np
 
@@ -142,9 +142,6 @@ class ParamTable:
     @property
     def upper(self) -> np.ndarray:
         return np.array([p.upper for p in self.params], dtype=np.float64)
-
-    def by_group(self, group: str) -> tuple[Param, ...]:
-        return tuple(p for p in self.params if p.group == group)
 
     # -- building vectors -------------------------------------------------
     def vector(self, values: Mapping[str, float] | None = None, source: str = "") -> np.ndarray:

@@ -8,26 +8,40 @@ On disk a set is YAML::
       inertia: 1.2        # kg m
       friction_closing: 1.5
 
-Names missing from ``values`` take their declared default. Presets ship in
-``evo_door/params/presets/<model>/<name>.yaml``; everywhere a parameter file is
-accepted, a preset name (``seed_trial``) is accepted too.
+Names missing from ``values`` take their declared default. Everywhere a parameter
+file is accepted, a preset name (``seed_trial``) is accepted too; a preset
+``<name>.yaml`` of model ``<model>`` is looked for, first match wins, in
+
+1. the model's own preset folders (``Model.preset_dirs``: a ``presets/`` folder next
+   to the file that defines the model), as ``<name>.yaml`` or ``<model>/<name>.yaml``;
+2. the bundled ``evo_door/params/presets/<model>/``;
+3. the folders other installed packages register in the entry-point group
+   ``evo_door.presets`` (value: a package or module whose folder holds
+   ``<model>/<name>.yaml``), as PyBaMM's ``pybamm_parameter_sets`` does.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import importlib.metadata
+import importlib.util
 import json
+import warnings
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import yaml
 
 from evo_door.errors import ParameterError, UserError
+from evo_door.files import write_text
 from evo_door.params.declaration import ParamTable, suggest
-from evo_door.yaml_numbers import format_float, load as load_yaml
+from evo_door.yaml_numbers import format_float
+from evo_door.yaml_numbers import load as load_yaml
 
 PRESET_DIR = Path(__file__).parent / "presets"
+#: Entry-point group through which other packages add preset folders.
+PRESET_GROUP = "evo_door.presets"
 
 
 @dataclass(frozen=True)
@@ -46,7 +60,7 @@ class ParamSet:
 
     @classmethod
     def from_mapping(cls, table: ParamTable, values: Mapping[str, float] | None = None,
-                     description: str = "", source: str = "") -> "ParamSet":
+                     description: str = "", source: str = "") -> ParamSet:
         return cls(table, table.vector(values, source), description, source)
 
     @property
@@ -59,7 +73,7 @@ class ParamSet:
     def as_dict(self) -> dict[str, float]:
         return self.table.as_dict(self.vector)
 
-    def replace(self, values: Mapping[str, float], source: str = "") -> "ParamSet":
+    def replace(self, values: Mapping[str, float], source: str = "") -> ParamSet:
         """A copy with some values changed (checked)."""
         merged = self.as_dict()
         for name in values:
@@ -78,36 +92,144 @@ class ParamSet:
             lines.append(f"  {p.name + ':':<{width + 1}} {format_float(v):<22} # {p.unit}")
         text = "\n".join(lines) + "\n"
         if path is not None:
-            Path(path).write_text(text)
+            write_text(path, text)
         return text
 
 
-def available_presets(model: str) -> list[str]:
-    folder = PRESET_DIR / model
-    return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
+def param_vector(params, table: ParamTable | None = None) -> np.ndarray:
+    """The kernel vector of a ParamSet (or array): a writable C-contiguous float64 copy.
+
+    ParamSet vectors are read-only, and numba types a read-only array differently
+    from a writable one (a second compilation), hence the copy. With ``table`` the
+    length is checked against that declaration.
+    """
+    p = np.array(getattr(params, "vector", params), dtype=np.float64, order="C")
+    if table is not None and p.shape != (len(table),):
+        raise UserError(f"model {table.model!r} takes {len(table)} parameters, "
+                        f"got shape {p.shape}")
+    return p
 
 
-def preset_path(model: str, name: str) -> Path:
-    path = PRESET_DIR / model / f"{name}.yaml"
-    if not path.is_file():
-        names = available_presets(model)
+def _plugin_preset_roots() -> list[Path]:
+    """Folders registered in the ``evo_door.presets`` entry-point group.
+
+    A broken registration (a package that is gone) is skipped with a warning: it must
+    not stop the bundled presets from loading.
+    """
+    roots = []
+    for ep in importlib.metadata.entry_points(group=PRESET_GROUP):
+        module = ep.value.partition(":")[0].strip()
+        try:
+            spec = importlib.util.find_spec(module)   # imports the parent packages
+        except Exception as exc:
+            spec, why = None, f"{type(exc).__name__}: {exc}"
+        else:
+            why = "no such module"
+        if spec is None:
+            warnings.warn(f"{PRESET_GROUP} entry point {ep.name!r} ({ep.value}): {why}; "
+                          "skipped", stacklevel=3)
+        elif spec.submodule_search_locations:      # a package: its folder(s)
+            roots.extend(Path(p) for p in spec.submodule_search_locations)
+        elif spec.origin:                          # a module: the folder it sits in
+            roots.append(Path(spec.origin).parent)
+    return roots
+
+
+def preset_folders(model: str, preset_dirs: Iterable[str | Path] = ()) -> list[tuple[Path, bool]]:
+    """Where presets of ``model`` are looked for, in order (see the module docstring).
+
+    Returns ``(folder, flat)`` pairs; ``flat`` marks a model's own ``presets/`` folder
+    read directly, whose files may belong to another model of the same file (their
+    ``model:`` key tells).
+    """
+    folders: list[tuple[Path, bool]] = []
+    for d in preset_dirs:
+        folders += [(Path(d) / model, False), (Path(d), True)]
+    folders.append((PRESET_DIR / model, False))
+    folders += [(root / model, False) for root in _plugin_preset_roots()]
+    return [(f, flat) for f, flat in folders if f.is_dir()]
+
+
+def _preset_files(model: str, preset_dirs: Iterable[str | Path] = ()) -> dict[str, Path]:
+    """Preset name -> file, the first folder of :func:`preset_folders` winning."""
+    found: dict[str, Path] = {}
+    for folder, flat in preset_folders(model, preset_dirs):
+        for path in sorted(folder.glob("*.yaml")):
+            if path.stem not in found and not (flat and _for_other_model(path, model)):
+                found[path.stem] = path
+    return found
+
+
+def _for_other_model(path: Path, model: str) -> bool:
+    """True when a YAML file says ``model: <another one>`` (unreadable files: False,
+    so that loading them reports what is wrong)."""
+    try:
+        doc = load_yaml(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return False
+    return isinstance(doc, dict) and doc.get("model", model) != model
+
+
+def available_presets(model: str, preset_dirs: Iterable[str | Path] = ()) -> list[str]:
+    """Names of the presets of ``model`` (with a model's own ``preset_dirs``)."""
+    return sorted(_preset_files(model, preset_dirs))
+
+
+def preset_path(model: str, name: str, preset_dirs: Iterable[str | Path] = ()) -> Path:
+    """The file of preset ``name`` of ``model``; a UserError with the closest names."""
+    found = _preset_files(model, preset_dirs)
+    if name not in found:
         raise UserError(
             f"no parameter file or preset {name!r} for model {model!r}"
-            + suggest(name, names)
-            + (f"; presets: {', '.join(names)}" if names else "")
+            + suggest(name, found)
+            + (f"; presets: {', '.join(sorted(found))}" if found else "")
         )
-    return path
+    return found[name]
 
 
-def load_params(table: ParamTable, spec: str | Path | None) -> ParamSet:
-    """Load a parameter set from a YAML path or a preset name; ``None`` gives defaults."""
+def load_params(table: ParamTable, spec=None, overrides: Mapping[str, float] | None = None,
+                preset_dirs: Iterable[str | Path] = ()) -> ParamSet:
+    """The one parameter-set loader: defaults, a preset, a YAML file or a mapping.
+
+    Parameters
+    ----------
+    table : ParamTable
+        The declaration everything is checked against.
+    spec : None, str, Path or mapping
+        ``None``: the declared defaults; a YAML path; a preset name (looked up as the
+        module docstring says); a mapping name -> value, on top of the defaults.
+    overrides : mapping, optional
+        Values applied on top of ``spec`` (``--set``, an experiment's ``set:``).
+    preset_dirs : iterable of paths
+        The model's own preset folders (``Model.preset_dirs``).
+
+    Examples
+    --------
+    >>> from evo_door.models import get_model
+    >>> table = get_model("haptic").params
+    >>> ps = load_params(table, "seed_trial", {"open_force": 15.0})
+    >>> ps["open_force"], ps["inertia"], ps.source.endswith("seed_trial.yaml")
+    (15.0, 1.2, True)
+    >>> load_params(table, {"inertia": 0.01})
+    Traceback (most recent call last):
+    ...
+    evo_door.errors.ParameterError: inline values: parameter 'inertia' = 0.01 kg m is outside its declared range [0.05, 20] kg m
+    """
     if spec is None:
-        return ParamSet.from_mapping(table, {}, "declared defaults", "defaults")
+        ps = ParamSet.from_mapping(table, {}, "declared defaults", "defaults")
+    elif isinstance(spec, Mapping):
+        ps = ParamSet.from_mapping(table, spec, "inline values", "inline values")
+    else:
+        ps = _load_file(table, spec, preset_dirs)
+    return ps.replace(overrides, source=ps.source) if overrides else ps
+
+
+def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
     path = Path(spec)
     if not path.is_file():
         if path.suffix or "/" in str(spec):
             raise UserError(f"{spec}: parameter file not found")
-        path = preset_path(table.model, str(spec))
+        path = preset_path(table.model, str(spec), preset_dirs)
     try:
         doc = load_yaml(path.read_text())
     except yaml.YAMLError as exc:

@@ -35,10 +35,11 @@ from evo_door.models.base import Model
 from evo_door.models.door.door import door, door_potential
 from evo_door.models.door.frictionforce import friction_force
 from evo_door.models.door.kinematics import pose
-from evo_door.models.door.latch import latch, latch_spring_force, latch_angles
-from evo_door.models.door.parameters import GRAVITY, N_SECTIONS, TABLE
+from evo_door.models.door.latch import latch, latch_angles, latch_spring_force
+from evo_door.models.door.parameters import N_SECTIONS, TABLE
 from evo_door.models.door.plate import plate, spring_potential, stop_h
 from evo_door.models.door.relativespeed import relative_speed, section_scale
+from evo_door.params import param_vector
 
 PARAMS = TABLE
 
@@ -170,9 +171,7 @@ def energy(theta, dtheta, p):
 
 def energy_of(params, theta, dtheta) -> np.ndarray:
     """:func:`energy` over arrays (J), for a ParamSet or a kernel vector."""
-    from evo_door.sim.simulate import param_vector
-
-    p = param_vector(params)
+    p = param_vector(params, TABLE)
     theta = np.asarray(theta, dtype=np.float64)
     dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
     return np.array([energy(float(a), float(b), p) for a, b in zip(theta.ravel(),
@@ -203,5 +202,5 @@ MODEL = Model(
     substeps=2,
     theta0=0.0,
     notes=_NOTES,
-    extras={"energy": energy_of, "mechanism_force": mechanism_force, "gravity": GRAVITY},
+    rig_kinds=("impulse", "unlock", "lock"),
 )

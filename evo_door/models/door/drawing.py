@@ -26,15 +26,11 @@ def draw_mechanism(params, angles_deg=(0.0, 45.0, 90.0), path=None, title=None):
     of the ``door`` model. Returns the matplotlib figure; saves it when ``path`` is
     given.
     """
-    import matplotlib
-
-    if path is not None:
-        matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     angles = [float(a) for a in angles_deg]
-    fig, axes = plt.subplots(1, len(angles), figsize=(3.6 * len(angles) + 0.4, 4.4),
-                             constrained_layout=True, squeeze=False)
+    fig = Figure(figsize=(3.6 * len(angles) + 0.4, 4.4), layout="constrained")
+    axes = fig.subplots(1, len(angles), squeeze=False)
     # common limits: every point over every angle, in cm
     all_pts = [points(math.radians(a), params) for a in angles]
     xy = np.array([v for pts in all_pts for k, v in pts.items() if k not in ("plate", "E", "G")])
@@ -83,6 +79,7 @@ def draw_mechanism(params, angles_deg=(0.0, 45.0, 90.0), path=None, title=None):
     if title:
         fig.suptitle(title)
     if path is not None:
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        from evo_door.files import save_figure
+
+        save_figure(fig, path, dpi=110)
     return fig
