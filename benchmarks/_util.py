@@ -24,10 +24,12 @@ def machine_line(extra: str = "") -> str:
     """Where and when a benchmark ran, for the first lines of its report."""
     import numba
 
-    return (f"Machine: {platform.platform()}, {os.cpu_count()} CPUs{extra}, Python "
-            f"{platform.python_version()}, numba {numba.__version__}. Measured "
-            f"{time.strftime('%Y-%m-%d %H:%M')}, medians of repeats; other processes may "
-            "have shared the cores.")
+    return (
+        f"Machine: {platform.platform()}, {os.cpu_count()} CPUs{extra}, Python "
+        f"{platform.python_version()}, numba {numba.__version__}. Measured "
+        f"{time.strftime('%Y-%m-%d %H:%M')}, medians of repeats; other processes may "
+        "have shared the cores."
+    )
 
 
 def half_sine_pulses(t, pulses) -> np.ndarray:

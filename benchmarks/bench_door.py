@@ -55,28 +55,38 @@ def main(argv=None):
     def rhs_compiled(time_, y):
         return (y[1], model.accel(y[0], y[1], float(np.interp(time_, t, f)), p))
 
-    compiled_rhs = median_time(lambda: solve_ivp(rhs_compiled, (t[0], t[-1]), [0.0, 0.0],
-                                                 t_eval=t, rtol=1e-6, atol=1e-9,
-                                                 max_step=4 * DT), 3)
+    compiled_rhs = median_time(
+        lambda: solve_ivp(
+            rhs_compiled, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-6, atol=1e-9, max_step=4 * DT
+        ),
+        3,
+    )
     # pure Python: the same code with NUMBA_DISABLE_JIT=1, in a fresh process
     os.environ["NUMBA_DISABLE_JIT"] = "1"
     python_rhs = None
     try:
         import subprocess
 
-        code = ("import time, numpy as np, sys; sys.path.insert(0, %r);"
-                "from benchmarks.bench_door import force_profile, DT;"
-                "from evo_door.models import get_model;"
-                "from evo_door.sim.simulate import param_vector;"
-                "from scipy.integrate import solve_ivp;"
-                "m = get_model('door'); p = param_vector(m.load_params('default'));"
-                "t, f = force_profile();"
-                "rhs = lambda s, y: (y[1], m.accel(y[0], y[1], float(np.interp(s, t, f)), p));"
-                "t0 = time.perf_counter();"
-                "solve_ivp(rhs, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-6, atol=1e-9, max_step=4 * DT);"
-                "print(time.perf_counter() - t0)") % str(ROOT)
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                             env=dict(os.environ), timeout=600)
+        code = (
+            f"import time, numpy as np, sys; sys.path.insert(0, {str(ROOT)!r});"
+            "from benchmarks.bench_door import force_profile, DT;"
+            "from evo_door.models import get_model;"
+            "from evo_door.sim.simulate import param_vector;"
+            "from scipy.integrate import solve_ivp;"
+            "m = get_model('door'); p = param_vector(m.load_params('default'));"
+            "t, f = force_profile();"
+            "rhs = lambda s, y: (y[1], m.accel(y[0], y[1], float(np.interp(s, t, f)), p));"
+            "t0 = time.perf_counter();"
+            "solve_ivp(rhs, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-6, atol=1e-9, max_step=4 * DT);"
+            "print(time.perf_counter() - t0)"
+        )
+        out = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            env=dict(os.environ),
+            timeout=600,
+        )
         python_rhs = float(out.stdout.strip().splitlines()[-1])
     except Exception as exc:  # pragma: no cover - reported, not fatal
         print(f"pure-Python reference failed: {exc}")
@@ -100,22 +110,37 @@ def main(argv=None):
         rows.append((n, median_time(lambda: simulate_batch(model, P, f, DT, theta0=0.0), 3)))
     numba.set_num_threads(max_threads)
 
-    lines = ["# Door model benchmark (`benchmarks/bench_door.py`)", "",
-             machine_line(), "",
-             f"One 5 s trial at 1024 Hz ({t.size} samples), preset `default`, integrator "
-             f"{model.method} x{model.substeps} sub-steps:", "",
-             "| way | seconds per trial | ratio to evo-door |", "|---|---|---|",
-             f"| evo-door `simulate` (compiled, fixed step) | {one * 1e3:.2f} ms | 1 |",
-             f"| scipy `solve_ivp` RK45 rtol 1e-6, compiled `accel` | {compiled_rhs * 1e3:.0f} ms "
-             f"| {compiled_rhs / one:.0f}x |"]
+    lines = [
+        "# Door model benchmark (`benchmarks/bench_door.py`)",
+        "",
+        machine_line(),
+        "",
+        f"One 5 s trial at 1024 Hz ({t.size} samples), preset `default`, integrator "
+        f"{model.method} x{model.substeps} sub-steps:",
+        "",
+        "| way | seconds per trial | ratio to evo-door |",
+        "|---|---|---|",
+        f"| evo-door `simulate` (compiled, fixed step) | {one * 1e3:.2f} ms | 1 |",
+        f"| scipy `solve_ivp` RK45 rtol 1e-6, compiled `accel` | {compiled_rhs * 1e3:.0f} ms "
+        f"| {compiled_rhs / one:.0f}x |",
+    ]
     if python_rhs is not None:
-        lines.append(f"| scipy `solve_ivp` RK45 rtol 1e-6, pure-Python model | "
-                     f"{python_rhs * 1e3:.0f} ms | {python_rhs / one:.0f}x |")
-    lines += ["", "Target: at most 10 ms per trial on one core: "
-              + ("met" if one <= 0.010 else "**missed**") + ".", "",
-              "A population of 100 parameter sets in one batched call (`simulate_batch`, "
-              "numba `prange`):", "", "| threads | seconds | per individual | speed-up |",
-              "|---|---|---|---|"]
+        lines.append(
+            f"| scipy `solve_ivp` RK45 rtol 1e-6, pure-Python model | "
+            f"{python_rhs * 1e3:.0f} ms | {python_rhs / one:.0f}x |"
+        )
+    lines += [
+        "",
+        "Target: at most 10 ms per trial on one core: "
+        + ("met" if one <= 0.010 else "**missed**")
+        + ".",
+        "",
+        "A population of 100 parameter sets in one batched call (`simulate_batch`, "
+        "numba `prange`):",
+        "",
+        "| threads | seconds | per individual | speed-up |",
+        "|---|---|---|---|",
+    ]
     for n, s in rows:
         lines.append(f"| {n} | {s:.3f} | {s / 100 * 1e3:.2f} ms | {rows[0][1] / s:.2f}x |")
     text = "\n".join(lines) + "\n"

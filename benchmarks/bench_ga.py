@@ -56,8 +56,11 @@ def force_profile(seconds=SECONDS, dt=DT):
 def choose_free(model):
     names = FREE.get(model.name)
     if names is None or not all(n in model.params for n in names):
-        names = [p.name for p in model.params if p.group in ("specification", "sensation")
-                 and p.default != 0][:4]
+        names = [
+            p.name
+            for p in model.params
+            if p.group in ("specification", "sensation") and p.default != 0
+        ][:4]
     return names
 
 
@@ -71,8 +74,18 @@ def make_problem(model, n_trials=1, seconds=SECONDS):
         r = simulate(model, truth, f * scale, DT, theta0=theta0)
         if not r.ok:
             raise RuntimeError(f"{model.name}: the benchmark trial blows up with the defaults")
-        trials.append(Trial(t, f * scale, r.theta, r.dtheta, r.ddtheta, trial_id=f"b{k}",
-                            theta0=theta0, dtheta0=0.0))
+        trials.append(
+            Trial(
+                t,
+                f * scale,
+                r.theta,
+                r.dtheta,
+                r.ddtheta,
+                trial_id=f"b{k}",
+                theta0=theta0,
+                dtheta0=0.0,
+            )
+        )
     free = choose_free(model)
     lo, hi = [], []
     for n in free:
@@ -105,8 +118,15 @@ def time_plain(problem, n_eval=3):
         def rhs(t, y, p=p):
             return (y[1], accel(y[0], y[1], float(np.interp(t, tr.t, tr.force)), p))
 
-        sol = solve_ivp(rhs, (tr.t[0], tr.t[-1]), [tr.theta0, tr.dtheta0], t_eval=tr.t,
-                        rtol=1e-6, atol=1e-9, max_step=4 * tr.dt)
+        sol = solve_ivp(
+            rhs,
+            (tr.t[0], tr.t[-1]),
+            [tr.theta0, tr.dtheta0],
+            t_eval=tr.t,
+            rtol=1e-6,
+            atol=1e-9,
+            max_step=4 * tr.dt,
+        )
         _ = np.max((sol.y[1] - tr.dtheta[: sol.y.shape[1]]) ** 2)
     return (time.perf_counter() - t0) / n_eval
 
@@ -142,11 +162,15 @@ def time_run(name, problem, population=100, generations=20, seed=1):
     from evo_door.data.io import write_trials
     from evo_door.experiment import load_experiment, run_experiment
 
-    free = "\n".join(f"  {n}: [{float(lo)!r}, {float(hi)!r}]"
-                     for n, lo, hi in zip(problem.free, problem.lower, problem.upper))
-    text = (f"name: bench\nmodel: {name}\ntarget: {{data: trials.h5}}\nfree:\n{free}\n"
-            "objective: {kind: max_square, derivative: 1}\n"
-            f"algorithm: {{population: {population}, generations: {generations}, seed: {seed}}}\n")
+    free = "\n".join(
+        f"  {n}: [{float(lo)!r}, {float(hi)!r}]"
+        for n, lo, hi in zip(problem.free, problem.lower, problem.upper)
+    )
+    text = (
+        f"name: bench\nmodel: {name}\ntarget: {{data: trials.h5}}\nfree:\n{free}\n"
+        "objective: {kind: max_square, derivative: 1}\n"
+        f"algorithm: {{population: {population}, generations: {generations}, seed: {seed}}}\n"
+    )
     import subprocess
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -158,12 +182,28 @@ def time_run(name, problem, population=100, generations=20, seed=1):
         secs = time.perf_counter() - t0
         size = (Path(tmp) / "run.h5").stat().st_size
         # the whole command from a shell: interpreter, imports, numba's cache, the run
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-            [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
+        env = {
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join(
+                [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
+            ),
+        }
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "evo_door", "run", str(Path(tmp) / "bench.yaml"),
-                        "--out", str(Path(tmp) / "cli.h5"), "--quiet"], check=True, env=env,
-                       cwd=tmp)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "evo_door",
+                "run",
+                str(Path(tmp) / "bench.yaml"),
+                "--out",
+                str(Path(tmp) / "cli.h5"),
+                "--quiet",
+            ],
+            check=True,
+            env=env,
+            cwd=tmp,
+        )
         cli_secs = time.perf_counter() - t0
     return secs, run, size, cli_secs
 
@@ -189,11 +229,11 @@ def bench_model(name, quick=False):
     rows = []
     for n_trials in (1, 2, 4):
         prob = make_problem(model, n_trials)
-        for pop in ((50, 100) if quick else (50, 100, 200)):
+        for pop in (50, 100) if quick else (50, 100, 200):
             rows.append((n_trials, pop, n_trials * pop, time_eval(prob, pop)))
     out["eval_scaling"] = rows
     gens = []
-    for g in ((5, 10) if quick else (5, 10, 20, 40)):
+    for g in (5, 10) if quick else (5, 10, 20, 40):
         gens.append((g, time_ga(problem, 100, g)[0]))
     out["gen_scaling"] = gens
     return out
@@ -202,48 +242,80 @@ def bench_model(name, quick=False):
 def report(results) -> str:
     import numba
 
-    lines = ["# GA benchmark (`benchmarks/bench_ga.py`)", "",
-             f"Machine: {platform.platform()}, {os.cpu_count()} CPUs, numba threads "
-             f"{numba.get_num_threads()}, Python {platform.python_version()}, "
-             f"numba {numba.__version__}. Measured {time.strftime('%Y-%m-%d %H:%M')}; "
-             "other processes may have shared the cores.", "",
-             "One 5 s trial at 1024 Hz, population 100 x 20 generations (AMESim's settings), "
-             "max-square objective on angular speed, four free parameters. Plain = scipy "
-             "`solve_ivp` (RK45, rtol 1e-6, Python right-hand side, force by `np.interp`), "
-             "one call per individual as in a plain DEAP loop: a few calls timed, "
-             "extrapolated to the same number of evaluations.", "",
-             "GA 100 x 20: the engine alone (`GeneticAlgorithm.run`). With HDF5: the same GA "
-             "through `run_experiment`, writing the results file after every generation. "
-             "Command: `evo-door run` from a shell, start-up included (interpreter, imports, "
-             "loading numba's cached kernels: about 1 s).", "",
-             "| model | integrator | GA 100 x 20 | with HDF5 | command | evaluations | per evaluation | plain per evaluation | plain GA (extrapolated) | speed-up | target |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# GA benchmark (`benchmarks/bench_ga.py`)",
+        "",
+        f"Machine: {platform.platform()}, {os.cpu_count()} CPUs, numba threads "
+        f"{numba.get_num_threads()}, Python {platform.python_version()}, "
+        f"numba {numba.__version__}. Measured {time.strftime('%Y-%m-%d %H:%M')}; "
+        "other processes may have shared the cores.",
+        "",
+        "One 5 s trial at 1024 Hz, population 100 x 20 generations (AMESim's settings), "
+        "max-square objective on angular speed, four free parameters. Plain = scipy "
+        "`solve_ivp` (RK45, rtol 1e-6, Python right-hand side, force by `np.interp`), "
+        "one call per individual as in a plain DEAP loop: a few calls timed, "
+        "extrapolated to the same number of evaluations.",
+        "",
+        "GA 100 x 20: the engine alone (`GeneticAlgorithm.run`). With HDF5: the same GA "
+        "through `run_experiment`, writing the results file after every generation. "
+        "Command: `evo-door run` from a shell, start-up included (interpreter, imports, "
+        "loading numba's cached kernels: about 1 s).",
+        "",
+        "| model | integrator | GA 100 x 20 | with HDF5 | command | evaluations | per evaluation "
+        "| plain per evaluation | plain GA (extrapolated) | speed-up | target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     targets = {"haptic": 2.0, "door": 10.0}
     for r in results:
         tgt = targets.get(r["model"])
-        ok = lambda secs: "met" if secs < tgt else "**missed**"  # noqa: E731
-        verdict = "" if tgt is None else (f"< {tgt:g} s: GA {ok(r['ga_s'])}, "
-                                          f"with HDF5 {ok(r['run_s'])}, "
-                                          f"command {ok(r['cli_s'])}")
+
+        def ok(secs, tgt=tgt):
+            return "met" if secs < tgt else "**missed**"
+
+        verdict = (
+            ""
+            if tgt is None
+            else (
+                f"< {tgt:g} s: GA {ok(r['ga_s'])}, "
+                f"with HDF5 {ok(r['run_s'])}, "
+                f"command {ok(r['cli_s'])}"
+            )
+        )
         lines.append(
             f"| {r['model']} | {r['method']} x{r['substeps']} | {r['ga_s']:.2f} s | "
-            f"{r['run_s']:.2f} s | {r['cli_s']:.2f} s | {r['evaluations']} | {1e3 * r['eval_s'] / r['evaluations']:.3f} ms | "
+            f"{r['run_s']:.2f} s | {r['cli_s']:.2f} s | {r['evaluations']} | "
+            f"{1e3 * r['eval_s'] / r['evaluations']:.3f} ms | "
             f"{1e3 * r['plain_eval_s']:.0f} ms | {r['plain_ga_s']:.0f} s | "
-            f"{r['plain_ga_s'] / r['ga_s']:.0f}x | {verdict} |")
-    lines += ["", "## Scaling", "",
-              "Cost of one batched evaluation against trials x population (each trial 5 s):", ""]
+            f"{r['plain_ga_s'] / r['ga_s']:.0f}x | {verdict} |"
+        )
+    lines += [
+        "",
+        "## Scaling",
+        "",
+        "Cost of one batched evaluation against trials x population (each trial 5 s):",
+        "",
+    ]
     for r in results:
         rows = r["eval_scaling"]
         a, b, r2 = linear_fit([x[2] for x in rows], [x[3] for x in rows])
-        lines += [f"**{r['model']}**: {1e3 * a:.3f} ms per trial-individual, offset "
-                  f"{1e3 * b:.2f} ms, R^2 = {r2:.4f}", "",
-                  "| trials | population | trials x population | seconds |", "|---|---|---|---|"]
+        lines += [
+            f"**{r['model']}**: {1e3 * a:.3f} ms per trial-individual, offset "
+            f"{1e3 * b:.2f} ms, R^2 = {r2:.4f}",
+            "",
+            "| trials | population | trials x population | seconds |",
+            "|---|---|---|---|",
+        ]
         lines += [f"| {t} | {p} | {tp} | {s:.4f} |" for t, p, tp, s in rows]
         g = r["gen_scaling"]
         a, b, r2 = linear_fit([x[0] for x in g], [x[1] for x in g])
-        lines += ["", f"GA runs (population 100) against generations: {a:.3f} s per generation, "
-                  f"offset {b:.3f} s, R^2 = {r2:.4f}", "",
-                  "| generations | seconds |", "|---|---|"]
+        lines += [
+            "",
+            f"GA runs (population 100) against generations: {a:.3f} s per generation, "
+            f"offset {b:.3f} s, R^2 = {r2:.4f}",
+            "",
+            "| generations | seconds |",
+            "|---|---|",
+        ]
         lines += [f"| {gg} | {s:.3f} |" for gg, s in g]
         lines.append("")
     return "\n".join(lines) + "\n"
@@ -262,10 +334,12 @@ def main(argv=None):
         except UserError as exc:
             print(f"{name}: skipped ({exc})")
             continue
-        print(f"{r['model']}: GA 100x20 {r['ga_s']:.2f} s, run with checkpoints "
-              f"{r['run_s']:.2f} s, command {r['cli_s']:.2f} s ({r['evaluations']} evaluations, "
-              f"{r['blowups']} blow-ups), plain {1e3 * r['plain_eval_s']:.0f} ms per evaluation "
-              f"-> {r['plain_ga_s']:.0f} s")
+        print(
+            f"{r['model']}: GA 100x20 {r['ga_s']:.2f} s, run with checkpoints "
+            f"{r['run_s']:.2f} s, command {r['cli_s']:.2f} s ({r['evaluations']} evaluations, "
+            f"{r['blowups']} blow-ups), plain {1e3 * r['plain_eval_s']:.0f} ms per evaluation "
+            f"-> {r['plain_ga_s']:.0f} s"
+        )
         results.append(r)
     text = report(results)
     print(text)

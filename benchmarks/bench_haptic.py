@@ -80,8 +80,13 @@ def main(argv=None):
 
     # the plain way: solve_ivp with the model's pure-Python right-hand side
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    out = subprocess.run([sys.executable, "-c", PLAIN_CODE.format(root=str(ROOT))],
-                         capture_output=True, text=True, env=env, timeout=900)
+    out = subprocess.run(
+        [sys.executable, "-c", PLAIN_CODE.format(root=str(ROOT))],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+    )
     plain = float(out.stdout.strip().splitlines()[-1]) if out.returncode == 0 else float("nan")
 
     # device force from Python (the convenience wrapper, on floats) and from compiled code
@@ -90,25 +95,53 @@ def main(argv=None):
     buf = np.empty(3)
     device_force_vector(pos, vel, p, buf)
     n_py = 50_000
-    py_call = median_time(lambda: [device_force_vector(pos, vel, p, buf) for _ in range(n_py)], 5) / n_py
+    py_call = (
+        median_time(lambda: [device_force_vector(pos, vel, p, buf) for _ in range(n_py)], 5) / n_py
+    )
     n_c = 2_000_000
-    angle = 0.5 + 1e-6 * np.arange(n_c)          # the handle creeping along its path
+    angle = 0.5 + 1e-6 * np.arange(n_c)  # the handle creeping along its path
     y, z = 0.3 * np.sin(angle) - 0.158, 0.3 * np.cos(angle) - 0.138
     _servo_loop(y[:10], z[:10], p, buf)
     c_call = median_time(lambda: _servo_loop(y, z, p, buf), 5) / n_c
 
     rows = [
-        ("one 5 s trial at 1024 Hz, `simulate` (ROS2 x2, compiled)", f"{one * 1e3:.2f} ms", "<= 2 ms", one <= 2e-3),
-        ("same trial, scipy `solve_ivp` RK45 + pure-Python model", f"{plain * 1e3:.0f} ms", "~200 ms (reference)", None),
+        (
+            "one 5 s trial at 1024 Hz, `simulate` (ROS2 x2, compiled)",
+            f"{one * 1e3:.2f} ms",
+            "<= 2 ms",
+            one <= 2e-3,
+        ),
+        (
+            "same trial, scipy `solve_ivp` RK45 + pure-Python model",
+            f"{plain * 1e3:.0f} ms",
+            "~200 ms (reference)",
+            None,
+        ),
         ("speed-up over the plain way", f"{plain / one:.0f}x", "(issue: ~200 ms vs 2 ms)", None),
-        ("device force from Python (`device_force_vector`)", f"{py_call * 1e6:.2f} us", "< 2 us", py_call < 2e-6),
-        ("device force from compiled code (servo loop)", f"{c_call * 1e9:.0f} ns", "< 100 ns", c_call < 100e-9),
+        (
+            "device force from Python (`device_force_vector`)",
+            f"{py_call * 1e6:.2f} us",
+            "< 2 us",
+            py_call < 2e-6,
+        ),
+        (
+            "device force from compiled code (servo loop)",
+            f"{c_call * 1e9:.0f} ns",
+            "< 100 ns",
+            c_call < 100e-9,
+        ),
     ]
-    lines = ["# Haptic model benchmark (`benchmarks/bench_haptic.py`)", "",
-             machine_line(" (one thread used)"), "",
-             "Trial: preset `seed_trial`, a pull that unlocks the latched door, free motion, "
-             "a push that latches it again (5120 samples).", "",
-             "| what | measured | target | |", "|---|---|---|---|"]
+    lines = [
+        "# Haptic model benchmark (`benchmarks/bench_haptic.py`)",
+        "",
+        machine_line(" (one thread used)"),
+        "",
+        "Trial: preset `seed_trial`, a pull that unlocks the latched door, free motion, "
+        "a push that latches it again (5120 samples).",
+        "",
+        "| what | measured | target | |",
+        "|---|---|---|---|",
+    ]
     for what, value, target, ok in rows:
         verdict = "" if ok is None else ("met" if ok else "**missed**")
         lines.append(f"| {what} | {value} | {target} | {verdict} |")

@@ -24,16 +24,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="evo-door",
         description="Re-engineer how a product feels: model the mechanism, estimate its "
-                    "parameters with a genetic algorithm, fit and render a haptic model, "
-                    "and translate the chosen feel back into specifications.",
+        "parameters with a genetic algorithm, fit and render a haptic model, "
+        "and translate the chosen feel back into specifications.",
     )
     parser.add_argument("--version", action="version", version=f"evo-door {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     import evo_door.commands as commands
 
-    modules = [importlib.import_module(f"{commands.__name__}.{info.name}")
-               for info in pkgutil.iter_modules(commands.__path__)
-               if not info.name.startswith("_")]
+    modules = [
+        importlib.import_module(f"{commands.__name__}.{info.name}")
+        for info in pkgutil.iter_modules(commands.__path__)
+        if not info.name.startswith("_")
+    ]
     for module in sorted(modules, key=lambda m: (getattr(m, "ORDER", 50), m.__name__)):
         module.register(sub)
     return parser

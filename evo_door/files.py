@@ -102,7 +102,7 @@ def decode_attr(value):
     if isinstance(value, bytes):
         value = value.decode()
     if isinstance(value, str) and value.startswith(JSON_PREFIX):
-        return json.loads(value[len(JSON_PREFIX):])
+        return json.loads(value[len(JSON_PREFIX) :])
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -234,8 +234,10 @@ def save_figure(fig, path, dpi: int = 110) -> None:
     fmt = path.suffix.lower().lstrip(".")
     supported = fig.canvas.get_supported_filetypes()
     if fmt not in supported:
-        raise UserError(f"{path}: cannot write a {fmt or 'extension-less'} image; "
-                        f"use one of {', '.join('.' + k for k in sorted(supported))}")
+        raise UserError(
+            f"{path}: cannot write a {fmt or 'extension-less'} image; "
+            f"use one of {', '.join('.' + k for k in sorted(supported))}"
+        )
     with atomic_write(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=fmt)
 
@@ -315,8 +317,9 @@ class FileLock:
                     raise
                 pid = self.holder(self.path)
                 by = f"process {pid}" if pid else "another process"
-                raise UserError(f"{self.path}: {what} by {by}; wait for it to finish "
-                                "or stop it first") from None
+                raise UserError(
+                    f"{self.path}: {what} by {by}; wait for it to finish or stop it first"
+                ) from None
             # the holder before us may have removed the lock file after we opened it:
             # then we hold a lock on a file nobody else can see; take the new one
             try:
@@ -403,8 +406,9 @@ def write_group(group, tree: dict, compression: int = 1, compress_above: int = 4
         if key == ATTRS:
             write_attrs(group, value)
         elif isinstance(value, dict):
-            write_group(group.create_group(key, track_order=True), value, compression,
-                        compress_above)
+            write_group(
+                group.create_group(key, track_order=True), value, compression, compress_above
+            )
         elif isinstance(value, str):
             group.create_dataset(key, data=value, dtype=h5.string_dtype())
         else:
@@ -414,8 +418,11 @@ def write_group(group, tree: dict, compression: int = 1, compress_above: int = 4
             data = np.asarray(value)
             if data.dtype == object:
                 raise TypeError(f"cannot store {key!r}: object array")
-            opts = ({"compression": "gzip", "compression_opts": compression, "shuffle": True}
-                    if data.ndim >= 1 and data.size >= compress_above else {})
+            opts = (
+                {"compression": "gzip", "compression_opts": compression, "shuffle": True}
+                if data.ndim >= 1 and data.size >= compress_above
+                else {}
+            )
             ds = group.create_dataset(key, data=data, track_times=False, **opts)
             write_attrs(ds, attrs)
 
@@ -435,8 +442,9 @@ def read_group(group) -> dict:
     return out
 
 
-def write_h5(path, tree: dict, compression: int = 1, compress_above: int = 4096,
-             make_folder: bool = False) -> None:
+def write_h5(
+    path, tree: dict, compression: int = 1, compress_above: int = 4096, make_folder: bool = False
+) -> None:
     """Write ``tree`` as the HDF5 file ``path``, atomically.
 
     Top-level :class:`Keep` entries are copied from the file being replaced when it
@@ -448,8 +456,12 @@ def write_h5(path, tree: dict, compression: int = 1, compress_above: int = 4096,
     keep = {k: v for k, v in tree.items() if isinstance(v, Keep)}
     with atomic_write(path, make_folder=make_folder) as tmp:
         with h5.File(tmp, "w", track_order=True) as f:
-            write_group(f, {k: v for k, v in tree.items() if not isinstance(v, Keep)},
-                        compression, compress_above)
+            write_group(
+                f,
+                {k: v for k, v in tree.items() if not isinstance(v, Keep)},
+                compression,
+                compress_above,
+            )
             old = None
             if keep and path.is_file():
                 try:
@@ -461,8 +473,12 @@ def write_h5(path, tree: dict, compression: int = 1, compress_above: int = 4096,
                     if old is not None and key in old:
                         old.copy(old[key], f, name=key)
                     else:
-                        write_group(f.create_group(key, track_order=True), placeholder.build(),
-                                    compression, compress_above)
+                        write_group(
+                            f.create_group(key, track_order=True),
+                            placeholder.build(),
+                            compression,
+                            compress_above,
+                        )
             finally:
                 if old is not None:
                     old.close()

@@ -13,20 +13,30 @@ def oscillator_accel(theta, dtheta, force, p):
     return (-p[0] * (theta - p[3]) - p[1] * dtheta + force) / p[2]
 
 
-OSCILLATOR_PARAMS = ParamTable("oscillator", [
-    Param("k", "N/rad", 100.0, 0.0, 1e7, "specification", "spring stiffness"),
-    Param("c", "N s/rad", 1.0, 0.0, 1e4, "specification", "viscous damping"),
-    Param("inertia", "kg m", 1.0, 1e-3, 100.0, "specification", "inertia"),
-    Param("theta_eq", "rad", 0.0, -10.0, 10.0, "geometry", "equilibrium angle"),
-])
+OSCILLATOR_PARAMS = ParamTable(
+    "oscillator",
+    [
+        Param("k", "N/rad", 100.0, 0.0, 1e7, "specification", "spring stiffness"),
+        Param("c", "N s/rad", 1.0, 0.0, 1e4, "specification", "viscous damping"),
+        Param("inertia", "kg m", 1.0, 1e-3, 100.0, "specification", "inertia"),
+        Param("theta_eq", "rad", 0.0, -10.0, 10.0, "geometry", "equilibrium angle"),
+    ],
+)
 
 
 @pytest.fixture(scope="session")
 def oscillator():
-    return Model("oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel,
-                 method="rk4", substeps=1)
+    return Model(
+        "oscillator",
+        "linear oscillator",
+        OSCILLATOR_PARAMS,
+        oscillator_accel,
+        method="rk4",
+        substeps=1,
+    )
 
 
 #: Importable as "tests.conftest:OSCILLATOR_MODEL" wherever a model name is accepted.
-OSCILLATOR_MODEL = Model("oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel,
-                         method="rk4", substeps=1)
+OSCILLATOR_MODEL = Model(
+    "oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel, method="rk4", substeps=1
+)

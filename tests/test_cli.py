@@ -34,13 +34,18 @@ def cli(capsys, *args) -> Ran:
     capsys.readouterr()  # drop whatever the test printed before
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("default")  # a plain interpreter's filters:
-        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
-                         ResourceWarning):
+        for category in (
+            DeprecationWarning,
+            PendingDeprecationWarning,
+            ImportWarning,
+            ResourceWarning,
+        ):
             warnings.simplefilter("ignore", category)
         code = main([str(a) for a in args])
     out, err = capsys.readouterr()
-    err += "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno)
-                   for w in caught)
+    err += "".join(
+        warnings.formatwarning(w.message, w.category, w.filename, w.lineno) for w in caught
+    )
     return Ran(code, out, err)
 
 
@@ -72,10 +77,26 @@ def test_params_table_and_overrides(capsys):
 
 def test_simulate_csv_round_trip(tmp_path, capsys):
     t = np.arange(1024) / 1024.0
-    np.savetxt(tmp_path / "in.csv", np.column_stack([t, np.full_like(t, 5.0)]),
-               delimiter=",", header="t,force", comments="")
-    res = cli(capsys, "simulate", OSC, "--set", "k=100", "--set", "c=20", "--input",
-              tmp_path / "in.csv", "--out", tmp_path / "out.csv")
+    np.savetxt(
+        tmp_path / "in.csv",
+        np.column_stack([t, np.full_like(t, 5.0)]),
+        delimiter=",",
+        header="t,force",
+        comments="",
+    )
+    res = cli(
+        capsys,
+        "simulate",
+        OSC,
+        "--set",
+        "k=100",
+        "--set",
+        "c=20",
+        "--input",
+        tmp_path / "in.csv",
+        "--out",
+        tmp_path / "out.csv",
+    )
     assert res.returncode == 0, res.stderr
     header = (tmp_path / "out.csv").read_text().splitlines()[0]
     assert header == "t,force,theta,dtheta,ddtheta"
@@ -84,17 +105,21 @@ def test_simulate_csv_round_trip(tmp_path, capsys):
     assert data[-1, 2] == pytest.approx(5.0 / 100.0, rel=1e-3)  # settles at F / k
 
 
-@pytest.mark.parametrize("content, message", [
-    ("", "empty file"),
-    ("t,push\n0,1\n0.1,2\n", "missing column 'force'"),
-    ("t,force\n0,1\n0,2\n", "not increasing at data row 2"),
-    ("t,force\n0,1\n0.1,nan\n", "non-finite value on data row 2"),
-    ("t,force\n0,1\n0.1,2\n0.3,2\n", "not uniformly sampled"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("", "empty file"),
+        ("t,push\n0,1\n0.1,2\n", "missing column 'force'"),
+        ("t,force\n0,1\n0,2\n", "not increasing at data row 2"),
+        ("t,force\n0,1\n0.1,nan\n", "non-finite value on data row 2"),
+        ("t,force\n0,1\n0.1,2\n0.3,2\n", "not uniformly sampled"),
+    ],
+)
 def test_simulate_rejects_bad_input_file(tmp_path, capsys, content, message):
     (tmp_path / "in.csv").write_text(content)
-    res = cli(capsys, "simulate", OSC, "--input", tmp_path / "in.csv", "--out",
-              tmp_path / "out.csv")
+    res = cli(
+        capsys, "simulate", OSC, "--input", tmp_path / "in.csv", "--out", tmp_path / "out.csv"
+    )
     assert res.returncode == 2
     assert message in res.stderr and res.stderr.count("\n") == 1
     assert "Traceback" not in res.stderr
@@ -109,8 +134,17 @@ def test_quasi_static_force_of_a_spring_damper():
 
 
 def test_curve_command_writes_both_directions(tmp_path, capsys):
-    res = cli(capsys, "curve", OSC, "--points", "11", "--out", tmp_path / "c.csv",
-              "--plot", tmp_path / "c.png")
+    res = cli(
+        capsys,
+        "curve",
+        OSC,
+        "--points",
+        "11",
+        "--out",
+        tmp_path / "c.csv",
+        "--plot",
+        tmp_path / "c.png",
+    )
     assert res.returncode == 0, res.stderr
     lines = (tmp_path / "c.csv").read_text().splitlines()
     assert lines[0] == "theta,force,direction" and len(lines) == 23

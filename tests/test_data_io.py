@@ -20,13 +20,28 @@ RATE = 1024.0
 def make_trial(tid="T01", n=300, seed=0, **kw):
     rng = np.random.default_rng(seed)
     t = np.arange(n) / RATE
-    fields = dict(trial_id=tid, user_id="U2", kind="impulse", theta0=0.0, dtheta0=0.0,
-                  sensors={"force": {"sensor": "load cell", "range": [-445.0, 445.0]}},
-                  truth={"model": "toy", "params": {"k": 400.5, "mu": 0.75}, "units": {"k": "N/m", "mu": "1"}},
-                  meta={"rig": {"seed": 3, "events": {"t_cut": None}}})
+    fields = dict(
+        trial_id=tid,
+        user_id="U2",
+        kind="impulse",
+        theta0=0.0,
+        dtheta0=0.0,
+        sensors={"force": {"sensor": "load cell", "range": [-445.0, 445.0]}},
+        truth={
+            "model": "toy",
+            "params": {"k": 400.5, "mu": 0.75},
+            "units": {"k": "N/m", "mu": "1"},
+        },
+        meta={"rig": {"seed": 3, "events": {"t_cut": None}}},
+    )
     fields.update(kw)
-    return Trial(t, 30 * rng.standard_normal(n), dtheta=rng.standard_normal(n),
-                 theta=1.0 + 0.01 * rng.standard_normal(n), **fields)
+    return Trial(
+        t,
+        30 * rng.standard_normal(n),
+        dtheta=rng.standard_normal(n),
+        theta=1.0 + 0.01 * rng.standard_normal(n),
+        **fields,
+    )
 
 
 def same_signals(a: Trial, b: Trial, rtol=0.0, atol=0.0):
@@ -38,12 +53,15 @@ def same_signals(a: Trial, b: Trial, rtol=0.0, atol=0.0):
 
 
 def test_hdf5_round_trip_keeps_everything_and_order(tmp_path):
-    trials = [make_trial("zeta", seed=1), make_trial("alpha", seed=2, kind="unlock", theta0=None),
-              make_trial("mid", seed=3, truth=None)]
+    trials = [
+        make_trial("zeta", seed=1),
+        make_trial("alpha", seed=2, kind="unlock", theta0=None),
+        make_trial("mid", seed=3, truth=None),
+    ]
     path = tmp_path / "trials.h5"
     write_trials(path, trials)
     back = read_trials(path)
-    assert [t.trial_id for t in back] == ["zeta", "alpha", "mid"]   # file order, not sorted
+    assert [t.trial_id for t in back] == ["zeta", "alpha", "mid"]  # file order, not sorted
     for a, b in zip(trials, back):
         same_signals(a, b)
         for f in ("user_id", "kind", "theta0", "dtheta0", "sensors", "truth", "meta"):
@@ -102,21 +120,31 @@ def test_tdms_fixture_with_group_and_channel_mapping(tmp_path):
     nptdms = pytest.importorskip("nptdms")
     n, dt = 512, 1 / RATE
     t = np.arange(n) * dt
-    load_kn = 0.05 * np.sin(2 * np.pi * 3 * t)          # kN, as the DAQ scaled it
-    gyro = 40.0 * np.cos(2 * np.pi * 3 * t)               # deg/s
-    incl = 2.0 * t                                        # deg from closed, + opening
+    load_kn = 0.05 * np.sin(2 * np.pi * 3 * t)  # kN, as the DAQ scaled it
+    gyro = 40.0 * np.cos(2 * np.pi * 3 * t)  # deg/s
+    incl = 2.0 * t  # deg from closed, + opening
     wf = {"wf_increment": dt, "wf_start_offset": 0.0}
     path = tmp_path / "daq.tdms"
     with nptdms.TdmsWriter(str(path)) as w:
-        w.write_segment([
-            nptdms.RootObject({"operator": "SignalExpress"}),
-            nptdms.GroupObject("Voltage", properties={}),
-            nptdms.ChannelObject("Voltage", "Load cell", load_kn, properties={"unit_string": "kN", **wf}),
-            nptdms.ChannelObject("Voltage", "Gyro", gyro, properties={"unit_string": "deg/s", **wf}),
-            nptdms.ChannelObject("Voltage", "Incl", incl, properties={"unit_string": "deg", **wf}),
-            nptdms.GroupObject("Other", properties={}),
-            nptdms.ChannelObject("Other", "Load cell", load_kn[:100], properties={"unit_string": "kN", **wf}),
-        ])
+        w.write_segment(
+            [
+                nptdms.RootObject({"operator": "SignalExpress"}),
+                nptdms.GroupObject("Voltage", properties={}),
+                nptdms.ChannelObject(
+                    "Voltage", "Load cell", load_kn, properties={"unit_string": "kN", **wf}
+                ),
+                nptdms.ChannelObject(
+                    "Voltage", "Gyro", gyro, properties={"unit_string": "deg/s", **wf}
+                ),
+                nptdms.ChannelObject(
+                    "Voltage", "Incl", incl, properties={"unit_string": "deg", **wf}
+                ),
+                nptdms.GroupObject("Other", properties={}),
+                nptdms.ChannelObject(
+                    "Other", "Load cell", load_kn[:100], properties={"unit_string": "kN", **wf}
+                ),
+            ]
+        )
     maps = ["force=Load cell", "dtheta=Gyro", "theta=Incl:-1*deg+90"]
     (tr,) = read_trials(path, "Voltage", map=maps, rate=RATE, kind="unlock")
     assert tr.trial_id == "Voltage" and tr.kind == "unlock" and tr.rate == RATE
@@ -125,7 +153,9 @@ def test_tdms_fixture_with_group_and_channel_mapping(tmp_path):
     np.testing.assert_allclose(tr.theta, np.radians(90.0 - incl))
     np.testing.assert_allclose(tr.t, t)
     # both groups are trials when none is chosen (Other has no Incl: a clear error)
-    with pytest.raises(UserError, match=r"daq.tdms:Other: missing column 'Incl' for channel 'theta'"):
+    with pytest.raises(
+        UserError, match=r"daq.tdms:Other: missing column 'Incl' for channel 'theta'"
+    ):
         read_trials(path, map=maps)
     # and evo-door's own TDMS writer round-trips
     out = tmp_path / "rt.tdms"
@@ -195,19 +225,37 @@ def test_simulate_csv_is_a_trial_file(tmp_path):
 
 
 BAD_CSV = {
-    "missing column": ("t,Fz,theta\n0,1,1\n0.001,1,1\n", ["--map", "force=Fy:N"],
-                       r"bad\.csv: missing column 'Fy' for channel 'force'.*did you mean 'Fz'"),
+    "missing column": (
+        "t,Fz,theta\n0,1,1\n0.001,1,1\n",
+        ["--map", "force=Fy:N"],
+        r"bad\.csv: missing column 'Fy' for channel 'force'.*did you mean 'Fz'",
+    ),
     "missing force": ("t,theta\n0,1\n0.001,1\n", [], r"bad\.csv: missing column 'force'"),
-    "non-monotonic time": ("t,force\n0,1\n0.001,1\n0.002,1\n0.0015,1\n0.003,1\n", [],
-                           r"bad\.csv: channel 't' \(column 't'\) is not increasing at row 3 \(line 5\)"),
-    "NaN": ("t,force,theta\n0,1,1\n0.001,1,nan\n0.002,1,1\n", [],
-            r"bad\.csv: channel 'theta' \(column 'theta'\) is not a finite number at row 1 \(line 3\)"),
-    "text in a cell": ("t,force\n0,1\n0.001,abc\n", [],
-                       r"bad\.csv: column 'force' is not a number at row 1 \(line 3\): 'abc'"),
-    "wrong rate": ("t,force\n" + "".join(f"{i / 1000},1\n" for i in range(10)), ["--rate", "1024"],
-                   r"bad\.csv: channel 't' \(column 't'\) is sampled at 1000 Hz, expected 1024 Hz, at row 1 \(line 3\)"),
-    "gap": ("t,force\n" + "".join(f"{i / 1000 + (0.005 if i > 4 else 0)},1\n" for i in range(10)), [],
-            r"bad\.csv: channel 't' \(column 't'\) is not uniformly sampled at row 5 \(line 7\)"),
+    "non-monotonic time": (
+        "t,force\n0,1\n0.001,1\n0.002,1\n0.0015,1\n0.003,1\n",
+        [],
+        r"bad\.csv: channel 't' \(column 't'\) is not increasing at row 3 \(line 5\)",
+    ),
+    "NaN": (
+        "t,force,theta\n0,1,1\n0.001,1,nan\n0.002,1,1\n",
+        [],
+        r"bad\.csv: channel 'theta' \(column 'theta'\) is not a finite number at row 1 \(line 3\)",
+    ),
+    "text in a cell": (
+        "t,force\n0,1\n0.001,abc\n",
+        [],
+        r"bad\.csv: column 'force' is not a number at row 1 \(line 3\): 'abc'",
+    ),
+    "wrong rate": (
+        "t,force\n" + "".join(f"{i / 1000},1\n" for i in range(10)),
+        ["--rate", "1024"],
+        r"bad\.csv: channel 't' \(column 't'\) is sampled at 1000 Hz, expected 1024 Hz, at row 1 \(line 3\)",
+    ),
+    "gap": (
+        "t,force\n" + "".join(f"{i / 1000 + (0.005 if i > 4 else 0)},1\n" for i in range(10)),
+        [],
+        r"bad\.csv: channel 't' \(column 't'\) is not uniformly sampled at row 5 \(line 7\)",
+    ),
     "empty": ("", [], r"bad\.csv: empty file"),
     "header only": ("t,force\n", [], r"bad\.csv: empty: no data rows"),
     "ragged": ("t,force\n0,1\n0.001\n", [], r"bad\.csv: row 1 \(line 3\) has 1 fields"),
@@ -279,8 +327,12 @@ def test_crash_while_writing_leaves_old_file(tmp_path, monkeypatch):
 
 def test_unsaturated_mask_follows_sensor_range():
     t = np.arange(5) / RATE
-    tr = Trial(t, np.zeros(5), dtheta=np.array([-1.0, 0.0, 1.0, 1.0, 0.5]),
-               sensors={"dtheta": {"range": [-1.0, 1.0]}})
+    tr = Trial(
+        t,
+        np.zeros(5),
+        dtheta=np.array([-1.0, 0.0, 1.0, 1.0, 0.5]),
+        sensors={"dtheta": {"range": [-1.0, 1.0]}},
+    )
     assert tr.unsaturated("dtheta").tolist() == [False, True, False, False, True]
     assert tr.unsaturated("force").all()
 
@@ -291,11 +343,25 @@ def test_import_removes_the_gyroscope_bias_of_rig_trials(tmp_path):
 
     src = Path(__file__).resolve().parents[1] / "experiments" / "data" / "default.h5"
     out = tmp_path / "debiased.h5"
-    assert main(["data", "import", str(src), "--trial", "T03", "--rate-bias", "start",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "data",
+                "import",
+                str(src),
+                "--trial",
+                "T03",
+                "--rate-bias",
+                "start",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     raw, fixed = read_trial(src, "T03"), read_trial(out)
-    still = slice(0, 300)                       # the door rests fully open before the push
-    assert abs(np.mean(raw.dtheta[still])) > 1e-3           # about -0.15 deg/s of bias
+    still = slice(0, 300)  # the door rests fully open before the push
+    assert abs(np.mean(raw.dtheta[still])) > 1e-3  # about -0.15 deg/s of bias
     assert abs(np.mean(fixed.dtheta[still])) < 2e-4
     step = fixed.meta["preprocess"][-1]["remove_rate_bias"]
     assert step["bias_rad_s"] == pytest.approx(np.mean(raw.dtheta[still]), abs=2e-4)

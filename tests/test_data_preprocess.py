@@ -24,7 +24,7 @@ def test_lowpass_is_zero_phase_on_a_sine():
     assert lags[int(np.argmax(xc))] == 0
     assert np.max(np.abs(y[mid] - x[mid])) < 2e-3
     causal = signal.sosfilt(signal.butter(4, 20.0, fs=RATE, output="sos"), x)
-    assert np.max(np.abs(causal[mid] - x[mid])) > 0.1   # the reference lag is real
+    assert np.max(np.abs(causal[mid] - x[mid])) > 0.1  # the reference lag is real
 
 
 def test_lowpass_attenuation_matches_scipy_reference():
@@ -35,7 +35,7 @@ def test_lowpass_attenuation_matches_scipy_reference():
         y = pp.lowpass(x, RATE, cutoff=30.0)
         np.testing.assert_allclose(y, signal.sosfiltfilt(sos, x))
         _, h = signal.sosfreqz(sos, worN=[f], fs=RATE)
-        gain = abs(h[0]) ** 2                        # forward + backward pass
+        gain = abs(h[0]) ** 2  # forward + backward pass
         measured = np.std(y[1024:-1024]) * math.sqrt(2)
         assert measured == pytest.approx(gain, rel=0.02, abs=1e-6)
         assert measured < 0.25
@@ -55,7 +55,7 @@ def _gyro_trial(bias0=0.01, bias_slope=0.0, seed=0):
     """Rest 1 s, a smooth 1 rad swing in 1 s, rest 1.5 s; gyro with bias and noise."""
     t = np.arange(int(3.5 * RATE)) / RATE
     x = np.clip(t - 1.0, 0.0, 1.0)
-    true_theta = 0.2 + (x - np.sin(2 * np.pi * x) / (2 * np.pi))   # 0.2 -> 1.2 rad
+    true_theta = 0.2 + (x - np.sin(2 * np.pi * x) / (2 * np.pi))  # 0.2 -> 1.2 rad
     true_rate = np.gradient(true_theta, t)
     rng = np.random.default_rng(seed)
     measured = true_rate + bias0 + bias_slope * t + 0.002 * rng.standard_normal(t.size)
@@ -65,7 +65,7 @@ def _gyro_trial(bias0=0.01, bias_slope=0.0, seed=0):
 def test_drift_removed_with_rest_segments():
     t, truth, gyro = _gyro_trial(bias0=0.01, bias_slope=0.004)
     raw = pp.angle_from_rate(t, gyro, theta0=0.2)
-    assert abs(raw[-1] - truth[-1]) > 0.04                 # the bias drifts 6 deg in 3.5 s
+    assert abs(raw[-1] - truth[-1]) > 0.04  # the bias drifts 6 deg in 3.5 s
     rest = pp.rest_mask(t, None, gyro)
     assert rest[:900].all() and not rest[1100:2000].any() and rest[-1000:].all()
     fixed = pp.angle_from_rate(t, gyro, theta0=0.2, rest=rest)
@@ -102,7 +102,7 @@ def test_force_peak_of_unlock_and_lock_traces():
     assert peak.t == pytest.approx(1.2, abs=0.015) and peak.magnitude > 50
     # a lock push is positive, found from the array and its rate alone
     t, f = _latch_trace(peak=38.0, t_peak=0.9, seed=2)
-    f[1500:1600] -= 10.0                              # a small dip later: not the peak
+    f[1500:1600] -= 10.0  # a small dip later: not the peak
     peak = pp.find_force_peak(f, rate=RATE)
     assert peak.force == pytest.approx(38.0, abs=1.5) and peak.t == pytest.approx(0.9, abs=0.015)
 
@@ -131,7 +131,7 @@ def test_trim_to_motion_carries_the_initial_angle():
     force = np.where((t > 0.9) & (t < 1.5), 10.0, 0.0)
     tr = Trial(t, force, dtheta=rate, theta0=0.2, trial_id="m")
     cut = pp.trim_to_motion(tr, pad=0.1)
-    assert cut.t[0] == pytest.approx(0.8, abs=0.03)   # the low-passed step starts a bit early
+    assert cut.t[0] == pytest.approx(0.8, abs=0.03)  # the low-passed step starts a bit early
     assert cut.t[-1] < 2.2 and cut.t[-1] > 2.0
     assert cut.theta0 == pytest.approx(0.2, abs=1e-6)
     # start cut inside the motion: theta0 follows the integrated rate
@@ -147,8 +147,9 @@ def test_lowpass_trial_is_recorded():
     tr = Trial(t, np.random.default_rng(0).standard_normal(512), dtheta=np.zeros(512))
     out = pp.lowpass_trial(tr, 10.0)
     assert np.std(out.force) < 0.3 * np.std(tr.force)
-    assert out.meta["preprocess"] == [{"lowpass": {"cutoff_hz": 10.0, "order": 4,
-                                                   "channels": ["force", "dtheta"]}}]
+    assert out.meta["preprocess"] == [
+        {"lowpass": {"cutoff_hz": 10.0, "order": 4, "channels": ["force", "dtheta"]}}
+    ]
     assert tr.meta == {}
 
 
@@ -156,13 +157,15 @@ def test_remove_rate_bias_measures_it_before_the_motion_only():
     """A door that creeps after the push (tanh friction) must not be read as bias."""
     t, _, gyro = _gyro_trial(bias0=0.0)
     true_rate = gyro.copy()
-    creep = np.where(t > 2.2, -0.012, 0.0)           # 0.7 deg/s of creep at the end
-    bias = 0.0025                                    # 0.14 deg/s, a typical gyro bias
+    creep = np.where(t > 2.2, -0.012, 0.0)  # 0.7 deg/s of creep at the end
+    bias = 0.0025  # 0.14 deg/s, a typical gyro bias
     measured = true_rate + creep + bias
     sensors = {"dtheta": {"range": [-3.0, 3.0]}}
     tr = Trial(t, np.zeros_like(t), dtheta=measured, theta0=0.2, trial_id="g", sensors=sensors)
     start = pp.remove_rate_bias(tr)
-    assert start.meta["preprocess"][-1]["remove_rate_bias"]["bias_rad_s"] == pytest.approx(bias, abs=2e-4)
+    assert start.meta["preprocess"][-1]["remove_rate_bias"]["bias_rad_s"] == pytest.approx(
+        bias, abs=2e-4
+    )
     np.testing.assert_allclose(start.dtheta, true_rate + creep, atol=3e-4)
     assert start.sensor("dtheta")["range"] == pytest.approx([-3.0 - bias, 3.0 - bias], abs=2e-4)
     # every rest run: the creep at the end drags the estimate away from the true bias
@@ -176,8 +179,14 @@ def test_remove_rate_bias_keeps_saturated_samples_saturated():
     t, _, gyro = _gyro_trial(bias0=0.004)
     hi = 0.9 * gyro.max()
     clipped = np.minimum(gyro, hi)
-    tr = Trial(t, np.zeros_like(t), dtheta=clipped, theta0=0.2, trial_id="g",
-               sensors={"dtheta": {"range": [-hi, hi]}})
+    tr = Trial(
+        t,
+        np.zeros_like(t),
+        dtheta=clipped,
+        theta0=0.2,
+        trial_id="g",
+        sensors={"dtheta": {"range": [-hi, hi]}},
+    )
     before = ~tr.unsaturated("dtheta")
     out = pp.remove_rate_bias(tr)
     assert before.sum() > 20
@@ -196,12 +205,18 @@ def test_remove_rate_bias_needs_rest_at_the_start():
 def test_lowpass_keeps_saturated_samples_marked():
     t, truth, gyro = _gyro_trial(bias0=0.0)
     hi = 0.9 * gyro.max()
-    tr = Trial(t, np.zeros_like(t), dtheta=np.minimum(gyro, hi), theta0=0.2, trial_id="g",
-               sensors={"dtheta": {"range": [-hi, hi]}})
+    tr = Trial(
+        t,
+        np.zeros_like(t),
+        dtheta=np.minimum(gyro, hi),
+        theta0=0.2,
+        trial_id="g",
+        sensors={"dtheta": {"range": [-hi, hi]}},
+    )
     before = ~tr.unsaturated("dtheta")
     out = pp.lowpass_trial(tr, 20.0)
     assert before.sum() > 20
     np.testing.assert_array_equal(~out.unsaturated("dtheta"), before)
-    rest = slice(0, 900)                                     # the noise is filtered there
+    rest = slice(0, 900)  # the noise is filtered there
     error = out.dtheta[rest] - np.gradient(truth, t)[rest]
     assert np.std(error) < 0.5 * 0.002

@@ -54,16 +54,19 @@ def test_closure_error_along_the_stroke_is_round_off(default):
     worst = 0.0
     for theta in np.linspace(0.0, CLOSED, 181):
         k = kinematics.pose(theta, *geo)
-        worst = max(worst,
-                    abs(math.hypot(k.Bx - k.Ax, k.By - k.Ay) - l_ab),
-                    abs(math.hypot(k.Cx - k.Bx, k.Cy - k.By) - l_bc),
-                    abs(k.Bx - g["L_Bx"]),
-                    abs(math.hypot(k.Ax, k.Ay) - g["L_OA"]))
+        worst = max(
+            worst,
+            abs(math.hypot(k.Bx - k.Ax, k.By - k.Ay) - l_ab),
+            abs(math.hypot(k.Cx - k.Bx, k.Cy - k.By) - l_bc),
+            abs(k.Bx - g["L_Bx"]),
+            abs(math.hypot(k.Ax, k.Ay) - g["L_OA"]),
+        )
     assert worst < 1e-12, f"closure error {worst:.2e} m"
     # open pose is the declared geometry
     k0 = kinematics.pose(0.0, *geo)
-    assert (k0.By, k0.Cx, k0.Cy, k0.phi) == pytest.approx((g["L_By"], g["L_Cx"], g["L_Cy"], 0.0),
-                                                          abs=1e-14)
+    assert (k0.By, k0.Cx, k0.Cy, k0.phi) == pytest.approx(
+        (g["L_By"], g["L_Cx"], g["L_Cy"], 0.0), abs=1e-14
+    )
 
 
 def test_velocity_ratios_match_finite_differences(default):
@@ -74,8 +77,14 @@ def test_velocity_ratios_match_finite_differences(default):
         k = kinematics.pose(theta, *geo)
         kp = kinematics.pose(theta + h, *geo)
         km = kinematics.pose(theta - h, *geo)
-        for pos, rate in (("By", "dBy"), ("phi", "dphi"), ("Cx", "dCx"), ("Cy", "dCy"),
-                          ("Ax", "dAx"), ("Ay", "dAy")):
+        for pos, rate in (
+            ("By", "dBy"),
+            ("phi", "dphi"),
+            ("Cx", "dCx"),
+            ("Cy", "dCy"),
+            ("Ax", "dAx"),
+            ("Ay", "dAy"),
+        ):
             fd = (getattr(kp, pos) - getattr(km, pos)) / (2 * h)
             assert getattr(k, rate) == pytest.approx(fd, rel=1e-6, abs=1e-9), (theta, rate)
 
@@ -101,7 +110,7 @@ def test_energy_conserved_without_friction_and_latch(door):
     r = simulate(door, ps, np.zeros_like(t), DT, theta0=0.3, dtheta0=0.3)
     e = energy_of(ps, r.theta, r.dtheta)
     free = np.arange(len(t)) < np.argmax((r.theta < 0.0) | (r.theta > CLOSED))
-    assert r.ok and np.ptp(r.theta[free]) > 1.0      # it swung up through most of the stroke
+    assert r.ok and np.ptp(r.theta[free]) > 1.0  # it swung up through most of the stroke
     drift = np.abs(e[free] - e[0]).max() / np.abs(e[free]).max()
     assert drift < 1e-6, f"relative energy drift {drift:.2e}"
     # the undamped penalty contacts may lose energy numerically, never make any
@@ -122,16 +131,16 @@ def test_energy_never_increases_without_input(default, door):
 def test_door_stays_between_open_stop_and_closed_wall(default, door):
     t = np.arange(int(4.0 / DT)) * DT
     f = np.zeros_like(t)
-    f[(t > 0.2) & (t < 0.8)] = 60.0      # slam closed
-    f[(t > 1.5) & (t < 2.5)] = -70.0     # yank open, through the latch
+    f[(t > 0.2) & (t < 0.8)] = 60.0  # slam closed
+    f[(t > 1.5) & (t < 2.5)] = -70.0  # yank open, through the latch
     f[(t > 3.0) & (t < 3.3)] = 40.0
     r = simulate(door, default, f, DT, theta0=0.3)
     assert r.ok
     # penalty contacts: a violent slam (60 N) or yank (70 N) presses in a little
     assert r.theta.min() > -math.radians(2.5)
     assert r.theta.max() < CLOSED + math.radians(0.75)
-    assert r.theta.max() > CLOSED - math.radians(0.5)    # it did reach closed
-    assert r.theta[(t > 2.6) & (t < 2.9)].max() < 0.5    # and was pulled open again
+    assert r.theta.max() > CLOSED - math.radians(0.5)  # it did reach closed
+    assert r.theta[(t > 2.6) & (t < 2.9)].max() < 0.5  # and was pulled open again
 
 
 def test_speed_decays_linearly_after_an_impulse_from_fully_open(default, door):
@@ -139,7 +148,7 @@ def test_speed_decays_linearly_after_an_impulse_from_fully_open(default, door):
     t, f = impulse()
     r = simulate(door, default, f, DT, theta0=0.0)
     peak = np.argmax(r.dtheta)
-    assert math.radians(40) < r.dtheta[peak] < math.radians(100)   # inside the gyroscope range
+    assert math.radians(40) < r.dtheta[peak] < math.radians(100)  # inside the gyroscope range
     after = np.arange(len(t)) > peak
     moving = after & (r.dtheta > 0.1 * r.dtheta[peak]) & (f == 0.0)
     tt, w = t[moving], r.dtheta[moving]
@@ -155,7 +164,7 @@ def test_speed_decays_linearly_after_an_impulse_from_fully_open(default, door):
 def test_closed_door_does_not_move_until_the_unlock_force(default, door):
     """Seed fig. 3.16-3.17: no motion beyond 0.5 deg until the force peak, then it opens."""
     t = np.arange(int(2.0 / DT)) * DT
-    f = -40.0 * t                       # a pull growing at 40 N/s
+    f = -40.0 * t  # a pull growing at 40 N/s
     r = simulate(door, default, f, DT, theta0=CLOSED)
     gone = np.argmax(r.theta < CLOSED - math.radians(0.5))
     assert gone > 0
@@ -204,13 +213,17 @@ def test_pad_friction_follows_its_section_scales(door):
     no_pad = base.replace({"F_atD": 0.0})
     half_off = base.replace({f"friction_scale_{k}": 0.0 for k in range(1, 5)})
     theta = np.array([math.radians(20), math.radians(70)])
+
     def fric(ps):
-        return (quasi_static_force(door, ps, theta, 0.01) - quasi_static_force(door, ps, theta, -0.01)) / 2
+        return (
+            quasi_static_force(door, ps, theta, 0.01) - quasi_static_force(door, ps, theta, -0.01)
+        ) / 2
+
     pad = fric(base) - fric(no_pad)
     scaled = fric(half_off) - fric(no_pad)
     assert pad[0] > 0.1 and pad[1] > 0.1
-    assert abs(scaled[0]) < 1e-6 * pad[0]                 # section 2 of 8: scale 0
-    assert scaled[1] == pytest.approx(pad[1], rel=1e-6)   # section 7 of 8: scale 1
+    assert abs(scaled[0]) < 1e-6 * pad[0]  # section 2 of 8: scale 0
+    assert scaled[1] == pytest.approx(pad[1], rel=1e-6)  # section 7 of 8: scale 1
 
 
 # -- integration accuracy against scipy ----------------------------------------------------
@@ -227,11 +240,14 @@ def test_door_against_radau(default, door):
         force = f[k] + frac * (f[k + 1] - f[k])
         return [x[1], door.accel(x[0], x[1], force, p)]
 
-    ref = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], method="Radau", t_eval=t, rtol=1e-10,
-                    atol=1e-12, max_step=DT)
+    ref = solve_ivp(
+        rhs, (0, t[-1]), [0.0, 0.0], method="Radau", t_eval=t, rtol=1e-10, atol=1e-12, max_step=DT
+    )
     err_speed = np.abs(r.dtheta - ref.y[1]).max()
     err_angle = np.abs(r.theta - ref.y[0]).max()
-    print(f"door vs Radau: max |dtheta error| {err_speed:.2e} rad/s, |theta error| {err_angle:.2e} rad")
+    print(
+        f"door vs Radau: max |dtheta error| {err_speed:.2e} rad/s, |theta error| {err_angle:.2e} rad"
+    )
     assert err_speed < 2e-4 and err_angle < 2e-5
 
 
@@ -244,7 +260,7 @@ def test_presets_hold_the_seed_tables(door, default):
     assert (lo["F_atD"], hi["F_atD"], spec["F_atD"]) == (15.063, 22.536, 67.811)
     for name in ("K", "F_load", "M", "I_z", "mu", "F_atC", "F_atD"):
         assert lo[name] <= mid[name] <= hi[name]
-        if name != "M":   # the default's one departure from table 5.3 (docs/physical-model.md)
+        if name != "M":  # the default's one departure from table 5.3 (docs/physical-model.md)
             assert lo[name] <= default[name] <= hi[name]
     assert default["M"] == spec["M"]
 
@@ -254,8 +270,8 @@ def test_table53_mid_door_closes_by_itself_where_the_default_does_not(door):
     theta = np.radians([10.0, 40.0, 60.0])
     mid = quasi_static_force(door, door.load_params("table53_mid"), theta, 0.02)
     default = quasi_static_force(door, door.load_params("default"), theta, 0.02)
-    assert mid[1] < 0 and mid[2] < 0          # the closing door needs no push: it runs
-    assert np.all(default > 0)                # the default one must be pushed
+    assert mid[1] < 0 and mid[2] < 0  # the closing door needs no push: it runs
+    assert np.all(default > 0)  # the default one must be pushed
 
 
 def test_cli_simulate_curve_draw(tmp_path, capsys):
@@ -263,14 +279,44 @@ def test_cli_simulate_curve_draw(tmp_path, capsys):
     inp = tmp_path / "in.csv"
     np.savetxt(inp, np.column_stack([t, f]), delimiter=",", header="t,force", comments="")
     out = tmp_path / "out.csv"
-    assert main(["simulate", "door", "--params", "default", "--input", str(inp),
-                 "--out", str(out), "--theta0", "0"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "door",
+                "--params",
+                "default",
+                "--input",
+                str(inp),
+                "--out",
+                str(out),
+                "--theta0",
+                "0",
+            ]
+        )
+        == 0
+    )
     data = np.genfromtxt(out, delimiter=",", names=True)
     assert data.dtype.names == ("t", "force", "theta", "dtheta", "ddtheta")
     assert data["theta"].max() > 0.1
     curve = tmp_path / "c.csv"
-    assert main(["curve", "door", "--params", "table54_spec", "--out", str(curve),
-                 "--points", "11", "--plot", str(tmp_path / "c.png")]) == 0
+    assert (
+        main(
+            [
+                "curve",
+                "door",
+                "--params",
+                "table54_spec",
+                "--out",
+                str(curve),
+                "--points",
+                "11",
+                "--plot",
+                str(tmp_path / "c.png"),
+            ]
+        )
+        == 0
+    )
     text = curve.read_text().splitlines()
     assert text[0] == "theta,force,direction" and len(text) == 23
     png = tmp_path / "door.png"

@@ -61,43 +61,109 @@ def load(folder, text=None, overrides=None):
 
 
 # -- validation ------------------------------------------------------------------------
-@pytest.mark.parametrize("old, new, message", [
-    ("per_trial: false", "per_trail: false",
-     "exp.yaml:19: per_trail: unknown key (did you mean 'per_trial'?)"),
-    ("  mutation_probability: 0.1", "  mutaton_probability: 0.1",
-     "exp.yaml:15: algorithm.mutaton_probability: unknown key (did you mean 'mutation_probability'"),
-    ("  c: [0, 10]", "  cc: [0, 10]",
-     "exp.yaml:7: free.cc: model 'oscillator' has no parameter 'cc' (did you mean 'c'?)"),
-    ("  k: [20, 500]", "  k: [500, 20]",
-     "exp.yaml:6: free.k: inverted bounds [500, 20]: lower > upper (did you swap them?)"),
-    ("  k: [20, 500]", "  k: [20, 5e8]",
-     "exp.yaml:6: free.k: [20, 5e+08] N/rad leaves the declared range [0, 1e+07] N/rad"),
-    ("{theta_eq: 0.0}", "{theta_eq: 99.0}",
-     "exp.yaml:4: fixed.theta_eq: parameter 'theta_eq' = 99 rad is outside its declared range"),
-    ("{theta_eq: 0.0}", "{k: 3.0}", "exp.yaml:6: free.k: 'k' is also fixed"),
-    ("data: trials.h5", "data: nowhere.h5", "exp.yaml:3: target.data: file not found: nowhere.h5"),
-    (f"model: {OSC}\n", f"model: {OSC}\nparams: nowhere.yaml\n",
-     "exp.yaml:3: params: file not found: nowhere.yaml"),
-    ("validate: [v1]", "validate: [v2]",
-     "exp.yaml:3: target.validate: ", ),
-    ("kind: ise", "kind: ise2", "exp.yaml:9: objective.kind: 'ise2' is not one of max_square, ise"),
-    ("derivative: 1", "derivative: 3", "exp.yaml:9: objective.derivative: 3 is not one of 0, 1, 2"),
-    ("reproduction_ratio: 0.6", "reproduction_ratio: 60",
-     "exp.yaml:14: algorithm.reproduction_ratio: is a fraction in [0, 1]: AMESim's 60 % is 0.6"),
-    ("population: 16", "population: 1", "exp.yaml:12: algorithm.population: must be >= 2, got 1"),
-    ("polish: slsqp", "polish: nlpq", "exp.yaml:18: algorithm.polish: 'nlpq' is not one of none, slsqp"),
-    ("name: osc", "name: osc\nname: again", "exp.yaml:2: duplicate key 'name' (first at"),
-    ("free:", "free: [", "exp.yaml:7: not valid YAML"),
-    (f"model: {OSC}", "model: hapic", "exp.yaml:2: model: unknown model 'hapic' (did you mean 'haptic'?)"),
-    ("validate: [v1]}", "validate: [v1], preprocess: {rate_bias: end}}",
-     "exp.yaml:3: target.preprocess.rate_bias: 'end' is not one of none, start, all"),
-    ("validate: [v1]}", "validate: [v1], preprocess: {lowpas: 20}}",
-     "exp.yaml:3: target.preprocess.lowpas: unknown key (did you mean 'lowpass'?)"),
-    ("validate: [v1]}", "validate: [v1], preprocess: {lowpass: 0}}",
-     "exp.yaml:3: target.preprocess.lowpass: must be > 0, got 0"),
-    ("validate: [v1]}", "validate: [v1], preprocess: {lowpass: 900}}",
-     "exp.yaml:3: target.preprocess: trial 't1': low-pass cutoff 900 Hz must lie in"),
-])
+@pytest.mark.parametrize(
+    "old, new, message",
+    [
+        (
+            "per_trial: false",
+            "per_trail: false",
+            "exp.yaml:19: per_trail: unknown key (did you mean 'per_trial'?)",
+        ),
+        (
+            "  mutation_probability: 0.1",
+            "  mutaton_probability: 0.1",
+            "exp.yaml:15: algorithm.mutaton_probability: unknown key (did you mean 'mutation_probability'",
+        ),
+        (
+            "  c: [0, 10]",
+            "  cc: [0, 10]",
+            "exp.yaml:7: free.cc: model 'oscillator' has no parameter 'cc' (did you mean 'c'?)",
+        ),
+        (
+            "  k: [20, 500]",
+            "  k: [500, 20]",
+            "exp.yaml:6: free.k: inverted bounds [500, 20]: lower > upper (did you swap them?)",
+        ),
+        (
+            "  k: [20, 500]",
+            "  k: [20, 5e8]",
+            "exp.yaml:6: free.k: [20, 5e+08] N/rad leaves the declared range [0, 1e+07] N/rad",
+        ),
+        (
+            "{theta_eq: 0.0}",
+            "{theta_eq: 99.0}",
+            "exp.yaml:4: fixed.theta_eq: parameter 'theta_eq' = 99 rad is outside its declared range",
+        ),
+        ("{theta_eq: 0.0}", "{k: 3.0}", "exp.yaml:6: free.k: 'k' is also fixed"),
+        (
+            "data: trials.h5",
+            "data: nowhere.h5",
+            "exp.yaml:3: target.data: file not found: nowhere.h5",
+        ),
+        (
+            f"model: {OSC}\n",
+            f"model: {OSC}\nparams: nowhere.yaml\n",
+            "exp.yaml:3: params: file not found: nowhere.yaml",
+        ),
+        (
+            "validate: [v1]",
+            "validate: [v2]",
+            "exp.yaml:3: target.validate: ",
+        ),
+        (
+            "kind: ise",
+            "kind: ise2",
+            "exp.yaml:9: objective.kind: 'ise2' is not one of max_square, ise",
+        ),
+        (
+            "derivative: 1",
+            "derivative: 3",
+            "exp.yaml:9: objective.derivative: 3 is not one of 0, 1, 2",
+        ),
+        (
+            "reproduction_ratio: 0.6",
+            "reproduction_ratio: 60",
+            "exp.yaml:14: algorithm.reproduction_ratio: is a fraction in [0, 1]: AMESim's 60 % is 0.6",
+        ),
+        (
+            "population: 16",
+            "population: 1",
+            "exp.yaml:12: algorithm.population: must be >= 2, got 1",
+        ),
+        (
+            "polish: slsqp",
+            "polish: nlpq",
+            "exp.yaml:18: algorithm.polish: 'nlpq' is not one of none, slsqp",
+        ),
+        ("name: osc", "name: osc\nname: again", "exp.yaml:2: duplicate key 'name' (first at"),
+        ("free:", "free: [", "exp.yaml:7: not valid YAML"),
+        (
+            f"model: {OSC}",
+            "model: hapic",
+            "exp.yaml:2: model: unknown model 'hapic' (did you mean 'haptic'?)",
+        ),
+        (
+            "validate: [v1]}",
+            "validate: [v1], preprocess: {rate_bias: end}}",
+            "exp.yaml:3: target.preprocess.rate_bias: 'end' is not one of none, start, all",
+        ),
+        (
+            "validate: [v1]}",
+            "validate: [v1], preprocess: {lowpas: 20}}",
+            "exp.yaml:3: target.preprocess.lowpas: unknown key (did you mean 'lowpass'?)",
+        ),
+        (
+            "validate: [v1]}",
+            "validate: [v1], preprocess: {lowpass: 0}}",
+            "exp.yaml:3: target.preprocess.lowpass: must be > 0, got 0",
+        ),
+        (
+            "validate: [v1]}",
+            "validate: [v1], preprocess: {lowpass: 900}}",
+            "exp.yaml:3: target.preprocess: trial 't1': low-pass cutoff 900 Hz must lie in",
+        ),
+    ],
+)
 def test_invalid_experiment_is_one_line_naming_file_line_key(folder, old, new, message):
     assert old in EXPERIMENT
     text = EXPERIMENT.replace(old, new)
@@ -112,14 +178,20 @@ def test_invalid_experiment_is_one_line_naming_file_line_key(folder, old, new, m
 def test_tiny_population_takes_a_smaller_default_tournament(folder):
     exp = load(folder, overrides=["algorithm.population=2"])
     assert exp.algorithm.ga.population == 2 and exp.algorithm.ga.tournament == 2
-    with pytest.raises(UserError, match=r"^--set algorithm\.tournament=5: algorithm\.tournament: "
-                                        r"must be <= 2, got 5"):
+    with pytest.raises(
+        UserError,
+        match=r"^--set algorithm\.tournament=5: algorithm\.tournament: "
+        r"must be <= 2, got 5",
+    ):
         load(folder, overrides=["algorithm.population=2", "algorithm.tournament=5"])
 
 
 def test_validate_id_unknown_names_the_file_and_suggests(folder):
-    with pytest.raises(UserError, match=r"target\.validate: .*trials\.h5 has no trial 'v2' "
-                                         r"\(did you mean 'v1'"):
+    with pytest.raises(
+        UserError,
+        match=r"target\.validate: .*trials\.h5 has no trial 'v2' "
+        r"\(did you mean 'v1'",
+    ):
         ExperimentRun.create(load(folder, EXPERIMENT.replace("[v1]", "[v2]")), folder / "r.h5")
 
 
@@ -127,16 +199,23 @@ def test_missing_channel_is_reported_with_the_objective_line(folder):
     trials = [make_trial(1, 0.5, tid="a")]
     trials[0].ddtheta = None
     write_trials(folder / "trials.h5", trials)
-    text = EXPERIMENT.replace("derivative: 1", "derivative: 2").replace("validate: [v1]", "validate: []")
-    with pytest.raises(UserError, match=r"exp\.yaml:9: objective\.derivative: trial 'a' .* no 'ddtheta'"):
+    text = EXPERIMENT.replace("derivative: 1", "derivative: 2").replace(
+        "validate: [v1]", "validate: []"
+    )
+    with pytest.raises(
+        UserError, match=r"exp\.yaml:9: objective\.derivative: trial 'a' .* no 'ddtheta'"
+    ):
         ExperimentRun.create(load(folder, text), folder / "r.h5")
 
 
 def test_set_overrides_are_checked_and_located(folder):
     exp = load(folder, overrides=["algorithm.seed=3", "free.k=[30, 400]"])
     assert exp.algorithm.ga.seed == 3 and exp.free["k"] == (30.0, 400.0)
-    with pytest.raises(UserError, match=r"^--set algorithm\.sed=3: algorithm\.sed: unknown key "
-                                        r"\(did you mean 'seed'\?\)"):
+    with pytest.raises(
+        UserError,
+        match=r"^--set algorithm\.sed=3: algorithm\.sed: unknown key "
+        r"\(did you mean 'seed'\?\)",
+    ):
         load(folder, overrides=["algorithm.sed=3"])
 
 
@@ -147,6 +226,7 @@ def comparable(path):
     skip_attrs = {"created", "updated", "seconds", "jobs_s", "total_s"}
     out = {}
     with h5py.File(path, "r") as f:
+
         def visit(name, obj):
             if any(part in skip_keys for part in name.split("/")):
                 return
@@ -155,6 +235,7 @@ def comparable(path):
                     out[f"{name}@{k}"] = v
             if isinstance(obj, h5py.Dataset):
                 out[name] = obj[()]
+
         visit("", f)
         f.visititems(visit)
     return out
@@ -201,8 +282,9 @@ def test_run_writes_everything_and_same_seed_gives_same_file(folder):
         assert t["local_evaluations"] == local_evals
         assert f["jobs/0/ga/times"].shape == (7,) and np.all(f["jobs/0/ga/times"][()] > 0)
         assert f["versions"].attrs["numba"] and f["versions"].attrs["cpus"] >= 1
-    np.testing.assert_allclose([s["best"][n] for n in ("k", "c", "inertia")], [100, 2, 1.5],
-                               rtol=1e-3)
+    np.testing.assert_allclose(
+        [s["best"][n] for n in ("k", "c", "inertia")], [100, 2, 1.5], rtol=1e-3
+    )
 
 
 def test_kill_after_three_generations_then_resume_is_bitwise_identical(folder):
@@ -246,7 +328,8 @@ def test_kill_after_the_last_job_before_the_final_write_then_resume(folder):
 
 def test_per_trial_fits_give_a_min_max_table(folder):
     text = EXPERIMENT.replace("per_trial: false", "per_trial: true").replace(
-        "generations: 6", "generations: 3")
+        "generations: 6", "generations: 3"
+    )
 
     def kill_in_second_fit(run, job):
         if job.name == "t2" and job.ga is not None and job.ga.generation == 1 and not job.done:
@@ -278,8 +361,13 @@ def test_nlpql_alone_from_a_start_point(folder):
 
 def test_model_target_from_a_force_file(tmp_path):
     t = np.arange(1024) / 1024.0
-    np.savetxt(tmp_path / "push.csv", np.column_stack([t, 10 * np.sin(6 * t)]), delimiter=",",
-               header="t,force", comments="")
+    np.savetxt(
+        tmp_path / "push.csv",
+        np.column_stack([t, 10 * np.sin(6 * t)]),
+        delimiter=",",
+        header="t,force",
+        comments="",
+    )
     (tmp_path / "m.yaml").write_text(f"""\
 model: {OSC}
 target: {{model: {OSC}, params: {{k: 150, c: 3, inertia: 1.2}}, inputs: push.csv, theta0: 0.05}}
@@ -297,22 +385,51 @@ algorithm: {{population: 12, generations: 2, polish: slsqp}}
 # -- the commands, run in-process (tests.test_cli.cli) -----------------------------------
 def test_cli_run_show_runs_resume_and_errors(folder, capsys):
     out = folder / "results" / "a.h5"
-    res = cli(capsys, "run", folder / "exp.yaml", "--out", out, "--set", "algorithm.seed=3",
-              "--set", "algorithm.generations=3", "--progress")
+    res = cli(
+        capsys,
+        "run",
+        folder / "exp.yaml",
+        "--out",
+        out,
+        "--set",
+        "algorithm.seed=3",
+        "--set",
+        "algorithm.generations=3",
+        "--progress",
+    )
     assert res.returncode == 0, res.stderr
     # the bar: generation count, best and mean fitness, evaluation rate
     lines = res.stderr.replace("\r", "\n").splitlines()
-    assert any(re.search(r"osc: 100%.* 3/3 .*best [0-9.e+-]+ +mean [0-9.e+-]+ +[0-9,]+ evals/s",
-                         line) for line in lines), res.stderr
-    assert re.search(r"osc: SLSQP from fitness [0-9.e+-]+ \.\.\. [0-9.e+-]+ \(\d+ evaluations",
-                     res.stderr), res.stderr
+    assert any(
+        re.search(r"osc: 100%.* 3/3 .*best [0-9.e+-]+ +mean [0-9.e+-]+ +[0-9,]+ evals/s", line)
+        for line in lines
+    ), res.stderr
+    assert re.search(
+        r"osc: SLSQP from fitness [0-9.e+-]+ \.\.\. [0-9.e+-]+ \(\d+ evaluations", res.stderr
+    ), res.stderr
     assert "best" in res.stdout
     # not a terminal and no --progress: no bar; --quiet: nothing at all
-    plain = cli(capsys, "run", str(folder / "exp.yaml"), "--out", str(folder / "b.h5"),
-                "--set", "algorithm.generations=1")
+    plain = cli(
+        capsys,
+        "run",
+        str(folder / "exp.yaml"),
+        "--out",
+        str(folder / "b.h5"),
+        "--set",
+        "algorithm.generations=1",
+    )
     assert plain.returncode == 0 and plain.stderr == "" and "best" in plain.stdout
-    quiet = cli(capsys, "run", str(folder / "exp.yaml"), "--out", str(folder / "c.h5"),
-                "--set", "algorithm.generations=1", "--quiet", "--progress")
+    quiet = cli(
+        capsys,
+        "run",
+        str(folder / "exp.yaml"),
+        "--out",
+        str(folder / "c.h5"),
+        "--set",
+        "algorithm.generations=1",
+        "--quiet",
+        "--progress",
+    )
     assert quiet.returncode == 0 and quiet.stderr == "" and quiet.stdout == ""
     shown = cli(capsys, "show", str(out), "--json", "--plot", str(folder / "fit.png"))
     assert shown.returncode == 0, shown.stderr
@@ -323,13 +440,21 @@ def test_cli_run_show_runs_resume_and_errors(folder, capsys):
     assert (folder / "fit.png").stat().st_size > 10000
     # an interrupted run listed, then resumed from the command line
     with pytest.raises(Interrupted):
-        run_experiment(load(folder), folder / "results" / "cut.h5",
-                       on_checkpoint=lambda run, job: (_ for _ in ()).throw(Interrupted())
-                       if job.ga is not None and job.ga.generation == 2 else None)
+        run_experiment(
+            load(folder),
+            folder / "results" / "cut.h5",
+            on_checkpoint=lambda run, job: (
+                (_ for _ in ()).throw(Interrupted())
+                if job.ga is not None and job.ga.generation == 2
+                else None
+            ),
+        )
     listed = cli(capsys, "runs", str(folder / "results"))
     assert listed.returncode == 0, listed.stderr
     rows = {line.split()[0]: line for line in listed.stdout.splitlines()[2:]}
-    assert "complete" in rows["a.h5"] and "running" in rows["cut.h5"] and "2/6 gen" in rows["cut.h5"]
+    assert (
+        "complete" in rows["a.h5"] and "running" in rows["cut.h5"] and "2/6 gen" in rows["cut.h5"]
+    )
     from evo_door.cli import main
 
     assert main(["run", str(folder / "exp.yaml"), "--out", str(folder / "results" / "cut.h5")]) == 2
@@ -345,20 +470,27 @@ def test_cli_bad_yaml_exits_2_with_one_line(folder, capsys, monkeypatch):
     res = cli(capsys, "run", str(folder / "bad.yaml"))
     assert res.returncode == 2, res.stderr
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
-    assert ("bad.yaml:9: objective.kind: 'maxsquare' is not one of max_square, ise "
-            "(did you mean 'max_square'?)") in res.stderr
+    assert (
+        "bad.yaml:9: objective.kind: 'maxsquare' is not one of max_square, ise "
+        "(did you mean 'max_square'?)"
+    ) in res.stderr
     assert not (folder / "results").exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["run", "{folder}/missing.yaml"], "missing.yaml: experiment file not found"),
-    (["show", "{folder}/trials.h5"], "not an evo-door results file"),
-    (["resume", "{folder}/nothing.h5"], "nothing.h5: results file not found"),
-    (["runs", "{folder}/nowhere"], "nowhere: no such folder"),
-    (["run", "{folder}/exp.yaml", "--set", "algorithm.polsh=slsqp"],
-     "--set algorithm.polsh=slsqp: algorithm.polsh: unknown key (did you mean 'polish'?)"),
-    (["run", "{folder}/exp.yaml", "--out", "{folder}/r.txt"], "results files are HDF5"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "{folder}/missing.yaml"], "missing.yaml: experiment file not found"),
+        (["show", "{folder}/trials.h5"], "not an evo-door results file"),
+        (["resume", "{folder}/nothing.h5"], "nothing.h5: results file not found"),
+        (["runs", "{folder}/nowhere"], "nowhere: no such folder"),
+        (
+            ["run", "{folder}/exp.yaml", "--set", "algorithm.polsh=slsqp"],
+            "--set algorithm.polsh=slsqp: algorithm.polsh: unknown key (did you mean 'polish'?)",
+        ),
+        (["run", "{folder}/exp.yaml", "--out", "{folder}/r.txt"], "results files are HDF5"),
+    ],
+)
 def test_commands_reject_bad_input_with_one_line(folder, capsys, args, message):
     from evo_door.cli import main
 
@@ -379,5 +511,6 @@ free: {{k: [10, 400]}}
         ExperimentRun.create(load_experiment(tmp_path / "r.yaml"), tmp_path / "r.h5")
     msg = str(info.value)
     assert "\n" not in msg
-    assert msg.startswith(f"{tmp_path / 'r.yaml'}:4: target.inputs: rig specification: "
-                          "unknown key 'user'"), msg
+    assert msg.startswith(
+        f"{tmp_path / 'r.yaml'}:4: target.inputs: rig specification: unknown key 'user'"
+    ), msg

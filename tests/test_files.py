@@ -41,11 +41,14 @@ def test_atomic_write_gives_the_usual_file_mode(tmp_path):
     assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o666 & ~umask
 
 
-@pytest.mark.parametrize("make, message", [
-    (lambda p: p / "missing" / "x.h5", "folder .* does not exist"),
-    (lambda p: (p / "afile").write_text("") or p / "afile" / "x.h5", "is a file, not a folder"),
-    (lambda p: p, "is a folder; give a file name"),
-])
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda p: p / "missing" / "x.h5", "folder .* does not exist"),
+        (lambda p: (p / "afile").write_text("") or p / "afile" / "x.h5", "is a file, not a folder"),
+        (lambda p: p, "is a folder; give a file name"),
+    ],
+)
 def test_atomic_write_refuses_impossible_targets_in_one_line(tmp_path, make, message):
     with pytest.raises(UserError, match=message):
         files.write_text(make(tmp_path), "x")
@@ -65,7 +68,7 @@ def test_figures_are_written_atomically_and_bad_formats_refused(tmp_path):
 
 def test_stale_temporaries_of_dead_writers_go_those_of_live_ones_stay(tmp_path):
     path = tmp_path / "run.h5"
-    dead = tmp_path / ".run.h5.tmp-999999-0"          # no such process
+    dead = tmp_path / ".run.h5.tmp-999999-0"  # no such process
     live = tmp_path / f".run.h5.tmp-{os.getppid()}-3"  # our parent is alive
     for p in (dead, live):
         p.write_bytes(b"half a file")
@@ -76,8 +79,10 @@ def test_stale_temporaries_of_dead_writers_go_those_of_live_ones_stay(tmp_path):
 # -- the lock -------------------------------------------------------------------------
 def test_a_lock_held_by_another_process_is_refused_naming_it(tmp_path):
     target = tmp_path / "run.h5"
-    code = ("import sys, time; from evo_door.files import FileLock; "
-            f"lock = FileLock({str(target)!r}).acquire(); print('held', flush=True); time.sleep(30)")
+    code = (
+        "import sys, time; from evo_door.files import FileLock; "
+        f"lock = FileLock({str(target)!r}).acquire(); print('held', flush=True); time.sleep(30)"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
@@ -96,9 +101,18 @@ def test_a_lock_held_by_another_process_is_refused_naming_it(tmp_path):
 
 # -- one metadata encoding ------------------------------------------------------------
 def test_attributes_round_trip_every_kind_of_value(tmp_path):
-    values = {"text": "door", "tricky": "json: not JSON", "n": 3, "x": 2.5, "flag": True,
-              "none": None, "list": [1, 2.5, "a"], "nested": {"range": [-1.0, 1.0], "k": None},
-              "numpy": np.float64(1.5), "array": np.arange(3)}
+    values = {
+        "text": "door",
+        "tricky": "json: not JSON",
+        "n": 3,
+        "x": 2.5,
+        "flag": True,
+        "none": None,
+        "list": [1, 2.5, "a"],
+        "nested": {"range": [-1.0, 1.0], "k": None},
+        "numpy": np.float64(1.5),
+        "array": np.arange(3),
+    }
     with h5py.File(tmp_path / "a.h5", "w") as f:
         files.write_attrs(f, values)
         back = read_attrs(f)
@@ -119,8 +133,13 @@ def test_the_legacy_flag_encoding_still_reads(tmp_path):
 
 def test_trees_round_trip_and_keep_copies_the_old_group(tmp_path):
     path = tmp_path / "t.h5"
-    tree = {ATTRS: {"format": "x"}, "big": np.arange(10000.0), "text": "a\nb",
-            "ds": Dataset(np.ones(3), {"unit": "N"}), "group": {ATTRS: {"a": [1]}, "y": [1, 2]}}
+    tree = {
+        ATTRS: {"format": "x"},
+        "big": np.arange(10000.0),
+        "text": "a\nb",
+        "ds": Dataset(np.ones(3), {"unit": "N"}),
+        "group": {ATTRS: {"a": [1]}, "y": [1, 2]},
+    }
     files.write_h5(path, tree)
     with h5py.File(path) as f:
         back = files.read_group(f)

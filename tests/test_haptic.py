@@ -86,8 +86,9 @@ def test_no_latch_when_both_forces_are_zero(haptic, seed):
 
 # -- free motion ----------------------------------------------------------------------
 def test_constant_speed_meets_friction_plus_viscous(haptic):
-    ps = haptic.load_params(None, {**NO_LATCH, "friction_closing": 3.0,
-                                   "friction_opening": 2.0, "viscous_damping": 0.7})
+    ps = haptic.load_params(
+        None, {**NO_LATCH, "friction_closing": 3.0, "friction_opening": 2.0, "viscous_damping": 0.7}
+    )
     theta = np.linspace(0.1, 1.3, 7)
     for w in (0.3, 1.0, 2.5):
         assert np.allclose(quasi_static_force(haptic, ps, theta, w), 3.0 + 0.7 * w, rtol=1e-9)
@@ -95,10 +96,21 @@ def test_constant_speed_meets_friction_plus_viscous(haptic):
 
 
 def test_section_scales_multiply_the_dry_friction(haptic):
-    scales = {f"friction_scale_{k}": s for k, s in
-              zip(range(1, N_SECTIONS + 1), (1.0, 0.5, 0.0, 0.25, 1.0, 0.75, 0.1, 0.9))}
-    ps = haptic.load_params(None, {**NO_LATCH, "viscous_damping": 0.0, "friction_closing": 4.0,
-                                   "friction_opening": 4.0, "window_slope": 400.0, **scales})
+    scales = {
+        f"friction_scale_{k}": s
+        for k, s in zip(range(1, N_SECTIONS + 1), (1.0, 0.5, 0.0, 0.25, 1.0, 0.75, 0.1, 0.9))
+    }
+    ps = haptic.load_params(
+        None,
+        {
+            **NO_LATCH,
+            "viscous_damping": 0.0,
+            "friction_closing": 4.0,
+            "friction_opening": 4.0,
+            "window_slope": 400.0,
+            **scales,
+        },
+    )
     width = CLOSED / N_SECTIONS
     centres = (np.arange(N_SECTIONS) + 0.5) * width
     got = quasi_static_force(haptic, ps, centres, 1.0)
@@ -107,34 +119,57 @@ def test_section_scales_multiply_the_dry_friction(haptic):
 
 
 def test_speed_decays_linearly_with_slope_friction_over_inertia(haptic):
-    ps = haptic.load_params(None, {**NO_LATCH, "viscous_damping": 0.0, "inertia": 1.2,
-                                   "friction_closing": 1.5, "friction_opening": 1.0})
+    ps = haptic.load_params(
+        None,
+        {
+            **NO_LATCH,
+            "viscous_damping": 0.0,
+            "inertia": 1.2,
+            "friction_closing": 1.5,
+            "friction_opening": 1.0,
+        },
+    )
     t = np.arange(int(1.0 / DT)) * DT
     for w0, friction in ((0.8, 1.5), (-0.8, 1.0)):
         r = simulate(haptic, ps, np.zeros_like(t), DT, theta0=0.7, dtheta0=w0)
         moving = np.abs(r.dtheta) > 0.1
         slope = np.polyfit(t[moving], r.dtheta[moving], 1)[0]
         assert slope == pytest.approx(-math.copysign(friction / 1.2, w0), rel=0.01)
-        assert abs(r.dtheta[-1]) < 0.01       # it stops and stays
+        assert abs(r.dtheta[-1]) < 0.01  # it stops and stays
 
 
 def test_return_force_follows_eq_4_43(haptic):
     k, rest, onset = 30.0, 1.4, 0.8
-    ps = haptic.load_params(None, {**NO_LATCH, "friction_closing": 0.0, "friction_opening": 0.0,
-                                   "viscous_damping": 0.0, "return_stiffness": k,
-                                   "return_angle": rest, "return_onset": onset})
+    ps = haptic.load_params(
+        None,
+        {
+            **NO_LATCH,
+            "friction_closing": 0.0,
+            "friction_opening": 0.0,
+            "viscous_damping": 0.0,
+            "return_stiffness": k,
+            "return_angle": rest,
+            "return_onset": onset,
+        },
+    )
     p = param_vector(ps)
-    for theta in (1.0, 1.2, 1.5):   # above the onset: -k (theta - theta_k)
+    for theta in (1.0, 1.2, 1.5):  # above the onset: -k (theta - theta_k)
         assert tangential_force(theta, 0.0, p) == pytest.approx(-k * (theta - rest), rel=1e-6)
-    assert abs(tangential_force(0.4, 0.0, p)) < 1e-9     # below the onset: nothing
+    assert abs(tangential_force(0.4, 0.0, p)) < 1e-9  # below the onset: nothing
     off = haptic.load_params(None, {**NO_LATCH, "return_stiffness": 0.0})
     assert tangential_force(1.2, 0.0, param_vector(off)) == 0.0
 
 
 def test_free_mass_without_any_effect(haptic):
     """All zeros: a free mass at constant speed, energy kept exactly."""
-    zeros = {**NO_LATCH, "friction_closing": 0.0, "friction_opening": 0.0,
-             "viscous_damping": 0.0, "return_stiffness": 0.0, "transition_damping": 0.0}
+    zeros = {
+        **NO_LATCH,
+        "friction_closing": 0.0,
+        "friction_opening": 0.0,
+        "viscous_damping": 0.0,
+        "return_stiffness": 0.0,
+        "transition_damping": 0.0,
+    }
     ps = haptic.load_params(None, zeros)
     t = np.arange(int(0.5 / DT)) * DT
     r = simulate(haptic, ps, np.zeros_like(t), DT, theta0=0.3, dtheta0=1.2)
@@ -142,7 +177,7 @@ def test_free_mass_without_any_effect(haptic):
     np.testing.assert_allclose(r.theta, 0.3 + 1.2 * t, rtol=1e-12)
     # a constant force: uniform acceleration F / I
     r = simulate(haptic, ps, np.full_like(t, 2.0), DT, theta0=0.3)
-    np.testing.assert_allclose(r.theta, 0.3 + 0.5 * 2.0 / ps["inertia"] * t ** 2, atol=1e-12)
+    np.testing.assert_allclose(r.theta, 0.3 + 0.5 * 2.0 / ps["inertia"] * t**2, atol=1e-12)
 
 
 # -- device space --------------------------------------------------------------------
@@ -155,13 +190,21 @@ def test_on_path_motion_gets_only_the_tangential_force(haptic, seed):
         vel = (0.0, radius * w * math.cos(theta), -radius * w * math.sin(theta))
         f = device_force_vector(pos, vel, p)
         f_t = tangential_force(theta, w, p)
-        np.testing.assert_allclose(f, [0.0, f_t * math.cos(theta), -f_t * math.sin(theta)],
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            f, [0.0, f_t * math.cos(theta), -f_t * math.sin(theta)], atol=1e-9
+        )
 
 
 def test_off_path_offset_gets_the_spring_damper_restoring_force(haptic, seed):
-    ps = seed.replace({"friction_closing": 0.0, "friction_opening": 0.0,
-                       "viscous_damping": 0.0, "open_force": 0.0, "close_force": 0.0})
+    ps = seed.replace(
+        {
+            "friction_closing": 0.0,
+            "friction_opening": 0.0,
+            "viscous_damping": 0.0,
+            "open_force": 0.0,
+            "close_force": 0.0,
+        }
+    )
     p = param_vector(ps)
     theta, radius = 0.6, ps["radius"]
     x0, y0, z0 = on_path(theta, radius)
@@ -202,8 +245,9 @@ def test_compiled_device_force_writes_into_out(seed):
 @pytest.mark.slow
 def test_haptic_against_radau(haptic):
     """Smooth case (friction, viscous, return spring; no latch): ROS2 x 2 vs Radau."""
-    ps = haptic.load_params(None, {**NO_LATCH, "return_stiffness": 20.0, "return_angle": 0.8,
-                                   "friction_slope": 20.0})
+    ps = haptic.load_params(
+        None, {**NO_LATCH, "return_stiffness": 20.0, "return_angle": 0.8, "friction_slope": 20.0}
+    )
     p = param_vector(ps)
     t = np.arange(int(2.0 / DT)) * DT
     f = 4.0 * np.sin(2 * np.pi * 1.5 * t)
@@ -214,8 +258,9 @@ def test_haptic_against_radau(haptic):
         force = f[k] + (time / DT - k) * (f[k + 1] - f[k])
         return [x[1], haptic.accel(x[0], x[1], force, p)]
 
-    ref = solve_ivp(rhs, (0, t[-1]), [0.8, 0.0], method="Radau", t_eval=t, rtol=1e-10,
-                    atol=1e-12, max_step=DT)
+    ref = solve_ivp(
+        rhs, (0, t[-1]), [0.8, 0.0], method="Radau", t_eval=t, rtol=1e-10, atol=1e-12, max_step=DT
+    )
     err_w = np.abs(r.dtheta - ref.y[1]).max()
     err_t = np.abs(r.theta - ref.y[0]).max()
     print(f"haptic vs Radau: max |dtheta error| {err_w:.2e} rad/s, |theta error| {err_t:.2e} rad")
@@ -224,28 +269,68 @@ def test_haptic_against_radau(haptic):
 
 # -- preset and CLI ----------------------------------------------------------------------
 def test_seed_trial_preset(seed):
-    assert (seed["friction_closing"], seed["friction_opening"], seed["inertia"],
-            seed["radius"]) == (1.5, 1.0, 1.2, 0.3)
+    assert (
+        seed["friction_closing"],
+        seed["friction_opening"],
+        seed["inertia"],
+        seed["radius"],
+    ) == (1.5, 1.0, 1.2, 0.3)
     assert device_mass(seed) == pytest.approx(4.0)
 
 
 def test_cli_simulate_and_curve(tmp_path):
     t = np.arange(1024) * DT
-    f = np.where(t < 0.5, -30.0 * np.minimum(t / 0.4, 1.0), 0.0)   # a hand ramps up
+    f = np.where(t < 0.5, -30.0 * np.minimum(t / 0.4, 1.0), 0.0)  # a hand ramps up
     inp = tmp_path / "in.csv"
     np.savetxt(inp, np.column_stack([t, f]), delimiter=",", header="t,force", comments="")
     out = tmp_path / "out.csv"
-    assert main(["simulate", "haptic", "--params", "seed_trial", "--set", "open_force=25",
-                 "--input", str(inp), "--theta0", str(CLOSED), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "haptic",
+                "--params",
+                "seed_trial",
+                "--set",
+                "open_force=25",
+                "--input",
+                str(inp),
+                "--theta0",
+                str(CLOSED),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     data = np.genfromtxt(out, delimiter=",", names=True)
     assert data.dtype.names == ("t", "force", "theta", "dtheta", "ddtheta")
-    assert data["theta"][-1] < CLOSED - 0.2          # 30 N beats the 25 N latch: it opened
-    assert main(["simulate", "haptic", "--params", "seed_trial", "--set", "open_force=35",
-                 "--input", str(inp), "--theta0", str(CLOSED), "--out", str(out)]) == 0
+    assert data["theta"][-1] < CLOSED - 0.2  # 30 N beats the 25 N latch: it opened
+    assert (
+        main(
+            [
+                "simulate",
+                "haptic",
+                "--params",
+                "seed_trial",
+                "--set",
+                "open_force=35",
+                "--input",
+                str(inp),
+                "--theta0",
+                str(CLOSED),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     data = np.genfromtxt(out, delimiter=",", names=True)
-    assert data["theta"].min() > CLOSED - 0.05        # 30 N does not beat 35 N
+    assert data["theta"].min() > CLOSED - 0.05  # 30 N does not beat 35 N
     curve = tmp_path / "curve.csv"
-    assert main(["curve", "haptic", "--params", "seed_trial", "--out", str(curve),
-                 "--points", "91"]) == 0
+    assert (
+        main(["curve", "haptic", "--params", "seed_trial", "--out", str(curve), "--points", "91"])
+        == 0
+    )
     rows = np.genfromtxt(curve, delimiter=",", names=True, dtype=None, encoding="utf-8")
     assert set(rows["direction"]) == {"opening", "closing"} and len(rows) == 182

@@ -20,16 +20,20 @@ def damped_free_response(t, k, c, inertia, theta0):
     return np.exp(-zeta * wn * t) * theta0 * (np.cos(wd * t) + zeta * wn / wd * np.sin(wd * t))
 
 
-@pytest.mark.parametrize("method, substeps, bound", [
-    ("rk4", 1, 1e-8),
-    ("rk4", 4, 1e-11),
-    ("semi_implicit", 4, 1e-4),
-    ("semi_implicit", 16, 1e-5),
-])
+@pytest.mark.parametrize(
+    "method, substeps, bound",
+    [
+        ("rk4", 1, 1e-8),
+        ("rk4", 4, 1e-11),
+        ("semi_implicit", 4, 1e-4),
+        ("semi_implicit", 16, 1e-5),
+    ],
+)
 def test_free_damped_oscillator_matches_analytic(oscillator, method, substeps, bound):
     p = oscillator.params.vector({"k": 100.0, "c": 1.0, "inertia": 1.0})
-    r = simulate(oscillator, p, np.zeros(3 * 1024), DT, theta0=1.0, method=method,
-                 substeps=substeps)
+    r = simulate(
+        oscillator, p, np.zeros(3 * 1024), DT, theta0=1.0, method=method, substeps=substeps
+    )
     exact = damped_free_response(r.t, 100.0, 1.0, 1.0, 1.0)
     err = np.max(np.abs(r.theta - exact))
     print(f"{method} x{substeps}: max |theta error| = {err:.3e} rad")
@@ -40,8 +44,9 @@ def test_semi_implicit_is_second_order(oscillator):
     p = oscillator.params.defaults
     errs = []
     for substeps in (4, 8, 16):
-        r = simulate(oscillator, p, np.zeros(1024), DT, theta0=1.0, method="semi_implicit",
-                     substeps=substeps)
+        r = simulate(
+            oscillator, p, np.zeros(1024), DT, theta0=1.0, method="semi_implicit", substeps=substeps
+        )
         errs.append(np.max(np.abs(r.theta - damped_free_response(r.t, 100, 1, 1, 1))))
     ratios = [errs[0] / errs[1], errs[1] / errs[2]]
     assert all(3.5 < q < 4.5 for q in ratios), ratios
@@ -61,21 +66,30 @@ def nonlinear_accel(theta, dtheta, force, p):
     return (force - p[0] * np.cos(theta) - p[1] * np.tanh(p[2] * dtheta) - p[3] * dtheta) / p[4]
 
 
-NONLINEAR = Model("nonlinear", "forced pendulum with tanh friction", ParamTable("nonlinear", [
-    Param("weight", "N", 3.0, 0.0, 100.0, "specification", "gravity term"),
-    Param("friction", "N", 1.2, 0.0, 100.0, "specification", "dry friction"),
-    Param("slope", "s/rad", 20.0, 0.0, 1e4, "numerics", "tanh slope"),
-    Param("damping", "N s/rad", 0.3, 0.0, 100.0, "specification", "viscous damping"),
-    Param("inertia", "kg m", 1.2, 0.01, 100.0, "specification", "inertia"),
-]), nonlinear_accel, method="rk4", substeps=2)
+NONLINEAR = Model(
+    "nonlinear",
+    "forced pendulum with tanh friction",
+    ParamTable(
+        "nonlinear",
+        [
+            Param("weight", "N", 3.0, 0.0, 100.0, "specification", "gravity term"),
+            Param("friction", "N", 1.2, 0.0, 100.0, "specification", "dry friction"),
+            Param("slope", "s/rad", 20.0, 0.0, 1e4, "numerics", "tanh slope"),
+            Param("damping", "N s/rad", 0.3, 0.0, 100.0, "specification", "viscous damping"),
+            Param("inertia", "kg m", 1.2, 0.01, 100.0, "specification", "inertia"),
+        ],
+    ),
+    nonlinear_accel,
+    method="rk4",
+    substeps=2,
+)
 
 
 def forcing(t):
-    return 6.0 * np.sin(2.0 * np.pi * 0.7 * t) + 2.0 * np.exp(-((t - 1.0) / 0.2) ** 2)
+    return 6.0 * np.sin(2.0 * np.pi * 0.7 * t) + 2.0 * np.exp(-(((t - 1.0) / 0.2) ** 2))
 
 
-@pytest.mark.parametrize("method, substeps, bound", [
-    ("rk4", 2, 1e-7), ("semi_implicit", 8, 1e-4)])
+@pytest.mark.parametrize("method, substeps, bound", [("rk4", 2, 1e-7), ("semi_implicit", 8, 1e-4)])
 def test_nonlinear_forced_against_radau(method, substeps, bound):
     n = 3 * 1024
     t = np.arange(n) * DT
@@ -88,8 +102,9 @@ def test_nonlinear_forced_against_radau(method, substeps, bound):
         f = np.interp(tt, t, force)
         return [x[1], nonlinear_accel.py_func(x[0], x[1], f, p)]
 
-    ref = solve_ivp(rhs, (0, t[-1]), [0.3, 0.0], method="Radau", t_eval=t, rtol=1e-10,
-                    atol=1e-12, max_step=DT)
+    ref = solve_ivp(
+        rhs, (0, t[-1]), [0.3, 0.0], method="Radau", t_eval=t, rtol=1e-10, atol=1e-12, max_step=DT
+    )
     err_theta = np.max(np.abs(r.theta - ref.y[0]))
     err_speed = np.max(np.abs(r.dtheta - ref.y[1]))
     print(f"{method} x{substeps}: theta {err_theta:.2e} rad, dtheta {err_speed:.2e} rad/s")
@@ -99,8 +114,9 @@ def test_nonlinear_forced_against_radau(method, substeps, bound):
 def test_semi_implicit_stays_stable_where_rk4_blows_up(oscillator):
     # a latch-like spring: omega * h = sqrt(1e8) / 1024 ~ 10, far outside RK4's region
     p = oscillator.params.vector({"k": 1e7, "c": 10.0, "inertia": 0.1})
-    stiff = simulate(oscillator, p, np.zeros(2048), DT, theta0=0.01, method="semi_implicit",
-                     substeps=1)
+    stiff = simulate(
+        oscillator, p, np.zeros(2048), DT, theta0=0.01, method="semi_implicit", substeps=1
+    )
     assert stiff.ok and np.all(np.abs(stiff.theta) <= 0.01 + 1e-12)
     blown = simulate(oscillator, p, np.zeros(2048), DT, theta0=0.01, method="rk4", substeps=1)
     assert not blown.ok and np.isnan(blown.theta[-1])
@@ -124,8 +140,9 @@ def test_batch_flags_only_the_blown_up_individual(oscillator):
     P = np.tile(oscillator.params.defaults, (3, 1))
     P[1, 0] = 1e7  # unstable for rk4 at one step per sample
     P[1, 2] = 0.01
-    _, _, _, ok = simulate_batch(oscillator, P, np.zeros(1024), DT, theta0=0.1,
-                                 method="rk4", substeps=1)
+    _, _, _, ok = simulate_batch(
+        oscillator, P, np.zeros(1024), DT, theta0=0.1, method="rk4", substeps=1
+    )
     assert ok.tolist() == [True, False, True]
 
 

@@ -14,8 +14,9 @@ DEFAULT = ROOT / "experiments" / "default.yaml"
 
 
 def test_default_experiment_reads_and_its_data_carry_the_rig_truth(tmp_path):
-    exp = load_experiment(DEFAULT, ["algorithm.population=8", "algorithm.generations=1",
-                                    "algorithm.polish=none"])
+    exp = load_experiment(
+        DEFAULT, ["algorithm.population=8", "algorithm.generations=1", "algorithm.polish=none"]
+    )
     res = Results(run_experiment(exp, tmp_path / "quick.h5", progress=False).path)
     door = get_model("door").load_params("default")
     truth = res.truth()
@@ -26,9 +27,24 @@ def test_default_experiment_reads_and_its_data_carry_the_rig_truth(tmp_path):
 
 def test_show_scores_the_fit_against_the_truth(tmp_path, capsys):
     out = tmp_path / "run.h5"
-    assert main(["run", str(DEFAULT), "--out", str(out), "--quiet",
-                 "--set", "algorithm.population=8", "--set", "algorithm.generations=1",
-                 "--set", "algorithm.polish=none"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                str(DEFAULT),
+                "--out",
+                str(out),
+                "--quiet",
+                "--set",
+                "algorithm.population=8",
+                "--set",
+                "algorithm.generations=1",
+                "--set",
+                "algorithm.polish=none",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     assert main(["show", str(out)]) == 0
     text = capsys.readouterr().out
@@ -39,8 +55,9 @@ def test_show_scores_the_fit_against_the_truth(tmp_path, capsys):
 
 
 def test_no_truth_for_measured_data(folder):  # noqa: F811
-    res = Results(run_experiment(load_experiment(folder / "exp.yaml"), folder / "a.h5",
-                                 progress=False).path)
+    res = Results(
+        run_experiment(load_experiment(folder / "exp.yaml"), folder / "a.h5", progress=False).path
+    )
     assert res.truth() == {}
     assert res.summary()["truth"] == {}
 
@@ -53,8 +70,11 @@ def test_main_job_recovers_the_rig_door_within_3_percent(tmp_path):
     trial; the experiment removes the bias (target.preprocess) and fits the ISE.
     """
     res = Results(run_experiment(load_experiment(DEFAULT), tmp_path / "full.h5").path)
-    assert res.config["target"]["preprocess"] == {"rate_bias": "start", "lowpass": None,
-                                                  "trim": False}
+    assert res.config["target"]["preprocess"] == {
+        "rate_bias": "start",
+        "lowpass": None,
+        "trim": False,
+    }
     best, truth = res.best(), res.truth()
     for name, value in truth.items():
         assert best[name] == pytest.approx(value, rel=0.03), name

@@ -52,11 +52,20 @@ def reference_error(kind, derivative, x_full, trial, mask=None):
 @pytest.mark.parametrize("derivative", [0, 1, 2])
 def test_objective_kernel_matches_numpy_reference(kind, derivative):
     # two trials of different lengths and sample periods, targets off the model
-    trials = [make_trial(1, 1.5, params={"k": 80.0, "c": 3.0, "inertia": 1.2}),
-              make_trial(2, 1.0, dt=1 / 500.0, params={"k": 130.0, "c": 1.0, "inertia": 2.0})]
+    trials = [
+        make_trial(1, 1.5, params={"k": 80.0, "c": 3.0, "inertia": 1.2}),
+        make_trial(2, 1.0, dt=1 / 500.0, params={"k": 130.0, "c": 1.0, "inertia": 2.0}),
+    ]
     base = OSC.params.defaults
-    prob = Problem(OSC, ["k", "c", "inertia"], [10, 0, 0.1], [1000, 10, 10], base, trials,
-                   Objective(kind, derivative, "sum"))
+    prob = Problem(
+        OSC,
+        ["k", "c", "inertia"],
+        [10, 0, 0.1],
+        [1000, 10, 10],
+        base,
+        trials,
+        Objective(kind, derivative, "sum"),
+    )
     X = np.array([[100.0, 2.0, 1.5], [60.0, 0.5, 3.0], [300.0, 7.0, 0.7]])
     err, ok = prob.trial_errors(X)
     assert ok.all()
@@ -78,8 +87,15 @@ def test_masked_samples_do_not_count(kind):
     tr.dtheta = np.minimum(tr.dtheta, hi)
     mask = tr.unsaturated("dtheta")
     assert 0 < (~mask).sum() < mask.size
-    prob = Problem(OSC, ["k"], [10], [1000], OSC.params.vector({"c": 2.0, "inertia": 1.5}),
-                   [tr], Objective(kind, 1))
+    prob = Problem(
+        OSC,
+        ["k"],
+        [10],
+        [1000],
+        OSC.params.vector({"c": 2.0, "inertia": 1.5}),
+        [tr],
+        Objective(kind, 1),
+    )
     err, _ = prob.trial_errors([[150.0]])
     ref = reference_error(kind, 1, prob.full([150.0])[0], tr, mask)
     assert err[0, 0] == pytest.approx(ref, rel=1e-12)
@@ -88,8 +104,15 @@ def test_masked_samples_do_not_count(kind):
 @pytest.mark.parametrize("combine, fn", [("sum", np.sum), ("max", np.max), ("mean", np.mean)])
 def test_combine_over_trials(combine, fn):
     trials = [make_trial(s, 0.5) for s in (4, 5, 6)]
-    prob = Problem(OSC, ["k", "c"], [10, 0], [1000, 10], OSC.params.vector({"inertia": 1.5}),
-                   trials, Objective("ise", 0, combine))
+    prob = Problem(
+        OSC,
+        ["k", "c"],
+        [10, 0],
+        [1000, 10],
+        OSC.params.vector({"inertia": 1.5}),
+        trials,
+        Objective("ise", 0, combine),
+    )
     X = np.array([[90.0, 1.0], [200.0, 4.0]])
     err, _ = prob.trial_errors(X)
     np.testing.assert_allclose(prob.evaluate(X)[0], fn(err, axis=1), rtol=1e-15)
@@ -104,8 +127,15 @@ def test_operators_keep_genes_inside_bounds():
         pick = lambda lo, hi: rng.choice([lo, hi, rng.uniform(lo, hi)])  # noqa: E731
         a = [pick(lo, hi) for lo, hi in zip(low, up)]
         b = [pick(lo, hi) for lo, hi in zip(low, up)]
-        c1, c2 = cx_sbx_bounded(list(a), list(b), eta=rng.choice([0.01, 1.0, 30.0]),
-                                low=low, up=up, rng=rng, gene_probability=1.0)
+        c1, c2 = cx_sbx_bounded(
+            list(a),
+            list(b),
+            eta=rng.choice([0.01, 1.0, 30.0]),
+            low=low,
+            up=up,
+            rng=rng,
+            gene_probability=1.0,
+        )
         sigma = [rng.choice([0.01, 0.8, 50.0]) * (hi - lo) for lo, hi in zip(low, up)]
         (m,) = mut_gaussian_bounded(list(a), sigma=sigma, low=low, up=up, indpb=1.0, rng=rng)
         for ind in (c1, c2, m):
@@ -114,10 +144,25 @@ def test_operators_keep_genes_inside_bounds():
 
 def test_ga_never_leaves_bounds_and_counts_evaluations():
     tr = make_trial(8, 0.5)
-    prob = Problem(OSC, ["k", "c", "inertia"], [50, 0.5, 1.0], [150, 3.0, 2.0],
-                   OSC.params.defaults, [tr], Objective("max_square", 1))
-    ga = GeneticAlgorithm(GASettings(population=30, generations=8, mutation_probability=0.9,
-                                     mutation_amplitude=5.0, crossover_eta=0.5, seed=3))
+    prob = Problem(
+        OSC,
+        ["k", "c", "inertia"],
+        [50, 0.5, 1.0],
+        [150, 3.0, 2.0],
+        OSC.params.defaults,
+        [tr],
+        Objective("max_square", 1),
+    )
+    ga = GeneticAlgorithm(
+        GASettings(
+            population=30,
+            generations=8,
+            mutation_probability=0.9,
+            mutation_amplitude=5.0,
+            crossover_eta=0.5,
+            seed=3,
+        )
+    )
     state = ga.run(prob)
     X = np.array(state.history_x)
     assert X.shape == (9, 30, 3)
@@ -128,12 +173,21 @@ def test_ga_never_leaves_bounds_and_counts_evaluations():
 
 def test_same_seed_same_run_and_global_random_untouched():
     tr = make_trial(9, 0.5)
-    prob = Problem(OSC, ["k", "c"], [10, 0], [1000, 10], OSC.params.vector({"inertia": 1.5}),
-                   [tr], Objective("ise", 1))
+    prob = Problem(
+        OSC,
+        ["k", "c"],
+        [10, 0],
+        [1000, 10],
+        OSC.params.vector({"inertia": 1.5}),
+        [tr],
+        Objective("ise", 1),
+    )
     random.seed(12345)
     before = random.getstate()
-    runs = [GeneticAlgorithm(GASettings(population=20, generations=5, seed=s)).run(prob)
-            for s in (4, 4, 5)]
+    runs = [
+        GeneticAlgorithm(GASettings(population=20, generations=5, seed=s)).run(prob)
+        for s in (4, 4, 5)
+    ]
     assert random.getstate() == before
     a, b, c = runs
     np.testing.assert_array_equal(np.array(a.history_x), np.array(b.history_x))
@@ -151,8 +205,15 @@ def test_rng_state_round_trip_including_gauss_cache():
 
 def test_snapshot_restore_continues_bit_for_bit():
     tr = make_trial(10, 0.5)
-    prob = Problem(OSC, ["k", "c"], [10, 0], [1000, 10], OSC.params.vector({"inertia": 1.5}),
-                   [tr], Objective("max_square", 1))
+    prob = Problem(
+        OSC,
+        ["k", "c"],
+        [10, 0],
+        [1000, 10],
+        OSC.params.vector({"inertia": 1.5}),
+        [tr],
+        Objective("max_square", 1),
+    )
     ga = GeneticAlgorithm(GASettings(population=16, generations=6, seed=2))
     full = ga.run(prob)
     part = GeneticAlgorithm(GASettings(population=16, generations=3, seed=2)).run(prob)
@@ -167,8 +228,15 @@ def test_blowup_gets_worst_fitness_is_counted_and_run_goes_on():
     # RK4 with one step per sample is unstable when sqrt(k / inertia) * dt > 2.8:
     # a large part of this search box blows up.
     tr = make_trial(11, 0.5)
-    prob = Problem(OSC, ["k", "inertia"], [10.0, 1e-3], [1e7, 2.0],
-                   OSC.params.vector({"c": 2.0}), [tr], Objective("max_square", 1))
+    prob = Problem(
+        OSC,
+        ["k", "inertia"],
+        [10.0, 1e-3],
+        [1e7, 2.0],
+        OSC.params.vector({"c": 2.0}),
+        [tr],
+        Objective("max_square", 1),
+    )
     fit, blown = prob.evaluate([[1e7, 1e-3], [100.0, 1.5]])
     assert blown.tolist() == [True, False] and fit[0] == math.inf and math.isfinite(fit[1])
     state = GeneticAlgorithm(GASettings(population=30, generations=4, seed=1)).run(prob)
@@ -181,8 +249,15 @@ def test_blowup_gets_worst_fitness_is_counted_and_run_goes_on():
 
 def test_slsqp_refines_and_never_worsens():
     tr = make_trial(12, 1.0)
-    prob = Problem(OSC, ["k", "c", "inertia"], [10, 0, 0.1], [1000, 10, 10],
-                   OSC.params.defaults, [tr], Objective("ise", 1))
+    prob = Problem(
+        OSC,
+        ["k", "c", "inertia"],
+        [10, 0, 0.1],
+        [1000, 10, 10],
+        OSC.params.defaults,
+        [tr],
+        Objective("ise", 1),
+    )
     res = slsqp(prob, [120.0, 1.0, 1.8])
     assert res.fitness <= res.fitness0
     np.testing.assert_allclose(res.x, [100.0, 2.0, 1.5], rtol=1e-3)
@@ -196,8 +271,15 @@ def test_slsqp_refines_and_never_worsens():
 def test_round_trip_recovery_ga_then_polish(noise, tol, kind):
     """Trials made with known parameters give them back (oscillator: all identifiable)."""
     trials = [make_trial(s, 2.0, noise=noise) for s in (20, 21, 22)]
-    prob = Problem(OSC, ["k", "c", "inertia"], [20, 0, 0.2], [500, 10, 8],
-                   OSC.params.defaults, trials, Objective(kind, 1))
+    prob = Problem(
+        OSC,
+        ["k", "c", "inertia"],
+        [20, 0, 0.2],
+        [500, 10, 8],
+        OSC.params.defaults,
+        trials,
+        Objective(kind, 1),
+    )
     state = GeneticAlgorithm(GASettings(population=40, generations=10, seed=1)).run(prob)
     res = polish(prob, state.best_x)
     assert res.fitness <= state.best_fitness

@@ -45,23 +45,42 @@ def push_pull_trial(model, params, seed, noise):
         measured_force = LOAD_CELL.measure(force, rng)
         dtheta = GYROSCOPE.measure(r.dtheta, rng)
         sensors = {"force": LOAD_CELL.info(), "dtheta": GYROSCOPE.info()}
-    return Trial(t, measured_force, r.theta, dtheta, r.ddtheta, trial_id=f"h{seed}",
-                 theta0=theta0, dtheta0=0.0, sensors=sensors)
+    return Trial(
+        t,
+        measured_force,
+        r.theta,
+        dtheta,
+        r.ddtheta,
+        trial_id=f"h{seed}",
+        theta0=theta0,
+        dtheta0=0.0,
+        sensors=sensors,
+    )
 
 
-@pytest.mark.parametrize("noise, tol, identifiable", [
-    (False, 0.01, ["inertia", "friction_closing", "friction_opening", "viscous_damping"]),
-    # 0.2 N s/rad of viscous damping is worth < 0.35 N at these speeds: within the
-    # load cell's noise, so only the first three are held to 3 % with noise.
-    (True, 0.03, ["inertia", "friction_closing", "friction_opening"]),
-])
+@pytest.mark.parametrize(
+    "noise, tol, identifiable",
+    [
+        (False, 0.01, ["inertia", "friction_closing", "friction_opening", "viscous_damping"]),
+        # 0.2 N s/rad of viscous damping is worth < 0.35 N at these speeds: within the
+        # load cell's noise, so only the first three are held to 3 % with noise.
+        (True, 0.03, ["inertia", "friction_closing", "friction_opening"]),
+    ],
+)
 def test_haptic_round_trip_ga_then_polish(noise, tol, identifiable):
     model = model_or_skip("haptic")
     truth = model.params.defaults
     trials = [push_pull_trial(model, truth, seed, noise) for seed in (2, 3, 4)]
     free = ["inertia", "friction_closing", "friction_opening", "viscous_damping"]
-    prob = Problem(model, free, [0.3, 0.0, 0.0, 0.0], [5.0, 10.0, 10.0, 2.0], truth, trials,
-                   Objective("ise", 1))
+    prob = Problem(
+        model,
+        free,
+        [0.3, 0.0, 0.0, 0.0],
+        [5.0, 10.0, 10.0, 2.0],
+        truth,
+        trials,
+        Objective("ise", 1),
+    )
     state = GeneticAlgorithm(GASettings(population=40, generations=8, seed=1)).run(prob)
     res = slsqp(prob, state.best_x)
     rel = dict(zip(free, np.abs(res.x / truth[prob.index] - 1.0)))
@@ -81,16 +100,41 @@ def test_door_round_trip_on_max_square_ga_then_polish():
 
     truth = model.load_params("default")
     trials = []
-    for tr in trials_from_spec({"model": "door", "params": "default", "users": 2, "trials": 2,
-                                "seed": 3, "kinds": ["impulse"]}):
+    for tr in trials_from_spec(
+        {
+            "model": "door",
+            "params": "default",
+            "users": 2,
+            "trials": 2,
+            "seed": 3,
+            "kinds": ["impulse"],
+        }
+    ):
         theta0, dtheta0 = tr.initial_state()
         r = simulate(model, truth, tr.force, tr.dt, theta0=theta0, dtheta0=dtheta0)
         assert r.ok
-        trials.append(Trial(tr.t, tr.force, r.theta, r.dtheta, r.ddtheta, trial_id=tr.trial_id,
-                            theta0=theta0, dtheta0=dtheta0))
+        trials.append(
+            Trial(
+                tr.t,
+                tr.force,
+                r.theta,
+                r.dtheta,
+                r.ddtheta,
+                trial_id=tr.trial_id,
+                theta0=theta0,
+                dtheta0=dtheta0,
+            )
+        )
     free = ["F_load", "M", "F_atD", "mu"]
-    prob = Problem(model, free, [80, 0.3, 5, 0.3], [120, 2.5, 70, 1.2], truth.vector, trials,
-                   Objective("max_square", 1))
+    prob = Problem(
+        model,
+        free,
+        [80, 0.3, 5, 0.3],
+        [120, 2.5, 70, 1.2],
+        truth.vector,
+        trials,
+        Objective("max_square", 1),
+    )
     state = GeneticAlgorithm(GASettings(population=40, generations=8, seed=1)).run(prob)
     res = polish(prob, state.best_x, LocalSettings(max_iterations=20))
     assert res.fitness <= state.best_fitness

@@ -20,13 +20,16 @@ def test_unknown_name_suggests_closest():
         T.vector({"inertai": 1.0})
 
 
-@pytest.mark.parametrize("value, message", [
-    (float("nan"), "must be finite"),
-    (math.inf, "must be finite"),
-    ("heavy", "must be a number"),
-    (True, "must be a number"),
-    (-1.0, r"outside its declared range \[0, 1e\+07\] N/rad"),
-])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (float("nan"), "must be finite"),
+        (math.inf, "must be finite"),
+        ("heavy", "must be a number"),
+        (True, "must be a number"),
+        (-1.0, r"outside its declared range \[0, 1e\+07\] N/rad"),
+    ],
+)
 def test_bad_values_name_the_parameter(value, message):
     with pytest.raises(ParameterError, match=r"'k'.*" + message if "range" in message else message):
         T.vector({"k": value})
@@ -89,4 +92,5 @@ def test_parameter_files_take_numbers_as_engineers_write_them(tmp_path):
     text = ps.to_yaml()
     assert "1.0e-03" in text or "0.001" in text
     import yaml
-    assert yaml.safe_load(text)["values"]["c"] == 1e-3       # any YAML 1.1 reader too
+
+    assert yaml.safe_load(text)["values"]["c"] == 1e-3  # any YAML 1.1 reader too

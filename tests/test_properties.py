@@ -24,17 +24,20 @@ CLOSED = 0.5 * math.pi
 #: 40 examples a property (EVO_DOOR_EXAMPLES=600 for a deeper search). With ``CI`` set
 #: (``.ci/run`` sets it) the draws are the same every run, so a red CI reproduces;
 #: locally they differ from run to run.
-FAST = settings(max_examples=int(os.environ.get("EVO_DOOR_EXAMPLES", 40)), deadline=None,
-                derandomize=bool(os.environ.get("CI")),
-                suppress_health_check=[HealthCheck.function_scoped_fixture])
+FAST = settings(
+    max_examples=int(os.environ.get("EVO_DOOR_EXAMPLES", 40)),
+    deadline=None,
+    derandomize=bool(os.environ.get("CI")),
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 
 
 def _in_bounds_values(model_name):
     """A strategy of {name: value} with every declared parameter inside its bounds."""
     table = get_model(model_name).params
-    return st.fixed_dictionaries({
-        p.name: st.floats(p.lower, p.upper, allow_nan=False, allow_infinity=False)
-        for p in table})
+    return st.fixed_dictionaries(
+        {p.name: st.floats(p.lower, p.upper, allow_nan=False, allow_infinity=False) for p in table}
+    )
 
 
 # -- parameter sets ----------------------------------------------------------------------
@@ -48,13 +51,15 @@ def test_any_valid_parameter_set_survives_a_yaml_round_trip(model_name, data, tm
     path = tmp_path / "p.yaml"
     ps.to_yaml(path)
     again = load_params(model.params, path)
-    np.testing.assert_array_equal(again.vector, ps.vector)   # bit for bit
+    np.testing.assert_array_equal(again.vector, ps.vector)  # bit for bit
 
 
 # -- sensors ------------------------------------------------------------------------------
 @FAST
-@given(x=st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=2, max_size=50),
-       sensor=st.sampled_from([LOAD_CELL, GYROSCOPE, INCLINOMETER]))
+@given(
+    x=st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=2, max_size=50),
+    sensor=st.sampled_from([LOAD_CELL, GYROSCOPE, INCLINOMETER]),
+)
 def test_a_noise_free_sensor_quantises_within_half_a_step_and_pins_at_its_range(x, sensor):
     from dataclasses import replace
 
@@ -73,8 +78,12 @@ def test_a_noise_free_sensor_quantises_within_half_a_step_and_pins_at_its_range(
 
 # -- preprocessing -------------------------------------------------------------------------
 @FAST
-@given(bias_deg=st.floats(-0.5, 0.5), peak_deg=st.floats(20.0, 90.0),
-       rest_s=st.floats(0.45, 1.0), seed=st.integers(0, 2**16))
+@given(
+    bias_deg=st.floats(-0.5, 0.5),
+    peak_deg=st.floats(20.0, 90.0),
+    rest_s=st.floats(0.45, 1.0),
+    seed=st.integers(0, 2**16),
+)
 def test_rate_bias_is_recovered_for_any_bias_and_push(bias_deg, peak_deg, rest_s, seed):
     """Rest, an impulse that decays to a slow creep, gyroscope noise and a constant bias.
 
@@ -85,12 +94,13 @@ def test_rate_bias_is_recovered_for_any_bias_and_push(bias_deg, peak_deg, rest_s
     t = np.arange(int((rest_s + 1.2) * rate)) / rate
     s = t - rest_s
     speed = np.where(s > 0, math.radians(peak_deg) * np.clip(1.0 - 3.0 * s, 0.0, 1.0), 0.0)
-    speed = speed - np.where(s > 0.6, 0.0005, 0.0)            # creep after the decay
+    speed = speed - np.where(s > 0.6, 0.0005, 0.0)  # creep after the decay
     rng = np.random.default_rng(seed)
     bias = math.radians(bias_deg)
     measured = speed + bias + math.radians(0.05) * rng.standard_normal(t.size)
-    tr = Trial(t, np.where((s > 0) & (s < 0.02), 20.0, 0.0), dtheta=measured, theta0=0.0,
-               trial_id="p")
+    tr = Trial(
+        t, np.where((s > 0) & (s < 0.02), 20.0, 0.0), dtheta=measured, theta0=0.0, trial_id="p"
+    )
     out = pp.remove_rate_bias(tr)
     found = out.meta["preprocess"][-1]["remove_rate_bias"]["bias_rad_s"]
     # the mean of >= 0.25 s of white noise at 0.05 deg/s: well inside 0.02 deg/s
@@ -98,9 +108,11 @@ def test_rate_bias_is_recovered_for_any_bias_and_push(bias_deg, peak_deg, rest_s
 
 
 @FAST
-@given(values=st.lists(st.floats(-400.0, 400.0, allow_nan=False), min_size=2, max_size=40),
-       unit=st.sampled_from([("N", 1.0), ("kN", 1000.0)]),
-       angle=st.sampled_from([("deg", math.pi / 180.0), ("rad", 1.0)]))
+@given(
+    values=st.lists(st.floats(-400.0, 400.0, allow_nan=False), min_size=2, max_size=40),
+    unit=st.sampled_from([("N", 1.0), ("kN", 1000.0)]),
+    angle=st.sampled_from([("deg", math.pi / 180.0), ("rad", 1.0)]),
+)
 def test_csv_units_convert_to_si_for_any_values(values, unit, angle, tmp_path):
     name, scale = unit
     aname, ascale = angle

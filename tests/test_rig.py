@@ -39,12 +39,31 @@ def toy_door_accel(theta, dtheta, force, p):
 
 
 #: Importable as "tests.test_rig:TOY_DOOR" wherever a model name is accepted.
-TOY_DOOR = Model("toy_door", "toy door", ParamTable("toy_door", [
-    Param("inertia", "kg m", 4.0, 0.1, 100.0, "specification", "equivalent inertia at the handle"),
-    Param("friction", "N", 5.0, 0.0, 100.0, "specification", "dry friction"),
-    Param("open_force", "N", 40.0, 0.0, 500.0, "sensation", "latch bump against opening"),
-    Param("close_force", "N", 25.0, 0.0, 500.0, "sensation", "latch bump against closing"),
-]), toy_door_accel, method="semi_implicit", substeps=4, rig_kinds=("impulse", "unlock", "lock"))
+TOY_DOOR = Model(
+    "toy_door",
+    "toy door",
+    ParamTable(
+        "toy_door",
+        [
+            Param(
+                "inertia",
+                "kg m",
+                4.0,
+                0.1,
+                100.0,
+                "specification",
+                "equivalent inertia at the handle",
+            ),
+            Param("friction", "N", 5.0, 0.0, 100.0, "specification", "dry friction"),
+            Param("open_force", "N", 40.0, 0.0, 500.0, "sensation", "latch bump against opening"),
+            Param("close_force", "N", 25.0, 0.0, 500.0, "sensation", "latch bump against closing"),
+        ],
+    ),
+    toy_door_accel,
+    method="semi_implicit",
+    substeps=4,
+    rig_kinds=("impulse", "unlock", "lock"),
+)
 TOY = "tests.test_rig:TOY_DOOR"
 
 
@@ -94,7 +113,7 @@ def test_users_differ(campaign):
     for name, (lo, hi) in rig.USER_RANGES.items():
         values = sorted(getattr(u, name) for u in users)
         assert lo <= values[0] and values[-1] <= hi
-        assert values[-1] - values[0] > 0.2 * (hi - lo), name   # stratified: really different
+        assert values[-1] - values[0] > 0.2 * (hi - lo), name  # stratified: really different
 
 
 def test_sensor_saturation_quantisation_and_noise():
@@ -102,7 +121,7 @@ def test_sensor_saturation_quantisation_and_noise():
     coarse = Sensor("force", "test", "coarse", -10.0, 10.0, noise_std=0.0, resolution=0.5)
     x = np.linspace(-20, 20, 401)
     y = coarse.measure(x, rng)
-    assert np.all(np.isin(y, np.arange(-10.0, 10.01, 0.5)))          # on the 0.5 N grid
+    assert np.all(np.isin(y, np.arange(-10.0, 10.01, 0.5)))  # on the 0.5 N grid
     assert np.all(y[x <= -10.25] == -10.0) and np.all(y[x >= 10.25] == 10.0)
     assert np.max(np.abs(y - x)[np.abs(x) < 10]) <= 0.25 + 1e-12
     # the inclinometer's grid runs through closed; its range is +-10 deg about closed
@@ -136,7 +155,9 @@ def test_unlock_lock_impulse_behave_like_the_seed(campaign):
     # lock: pushed from a few degrees open over the lock bump, ends closed
     peak = find_force_peak(lock)
     assert params["close_force"] < peak.force < 1.6 * (params["close_force"] + params["friction"])
-    assert lock.theta[0] < CLOSED - 3.5 * DEG and lock.theta[-1] == pytest.approx(CLOSED, abs=0.3 * DEG)
+    assert lock.theta[0] < CLOSED - 3.5 * DEG and lock.theta[-1] == pytest.approx(
+        CLOSED, abs=0.3 * DEG
+    )
 
 
 def test_chunked_closed_loop_equals_one_simulation():
@@ -147,8 +168,9 @@ def test_chunked_closed_loop_equals_one_simulation():
         def plan(self, ts, tk, theta_k, dtheta_k):
             return force[np.rint(ts * 1024).astype(int)]
 
-    out = rig.run_closed_loop(TOY_DOOR, params, Replay(), 1 / 1024, 0.2, 0.0,
-                              t_max=699 / 1024, chunk=7)
+    out = rig.run_closed_loop(
+        TOY_DOOR, params, Replay(), 1 / 1024, 0.2, 0.0, t_max=699 / 1024, chunk=7
+    )
     ref = simulate(TOY_DOOR, params, force, 1 / 1024, theta0=0.2)
     np.testing.assert_array_equal(out["theta"], ref.theta)
     np.testing.assert_array_equal(out["dtheta"], ref.dtheta)
@@ -165,8 +187,25 @@ def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     from evo_door.cli import main
 
     out = tmp_path / "rig.h5"
-    assert main(["rig", "generate", "--model", TOY, "--set", "friction=6", "--trials", "3",
-                 "--seed", "4", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "rig",
+                "generate",
+                "--model",
+                TOY,
+                "--set",
+                "friction=6",
+                "--trials",
+                "3",
+                "--seed",
+                "4",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     stdout = capsys.readouterr().out
     assert "T03" in stdout and "peak [N]" in stdout
     trials = read_trials(out)
@@ -179,7 +218,11 @@ def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     bad.write_text("t,force\n0,1\n0.001,nan\n")
     res = cli(capsys, "data", "import", bad, "--out", tmp_path / "never.h5")
     assert res.returncode == 2
-    assert res.stderr.count("\n") == 1 and "channel 'force'" in res.stderr and "row 1 (line 3)" in res.stderr
+    assert (
+        res.stderr.count("\n") == 1
+        and "channel 'force'" in res.stderr
+        and "row 1 (line 3)" in res.stderr
+    )
     assert not (tmp_path / "never.h5").exists()
 
 

@@ -44,8 +44,14 @@ MODEL = Model("{name}", "a spring", PARAMS, accel)
 def _cli(*args, cwd):
     """``evo-door ARGS`` in a fresh interpreter, in ``cwd``, without PYTHONPATH."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "evo_door", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def _one_line_error(capsys) -> str:
@@ -71,17 +77,42 @@ def test_drawer_example_round_trip(tmp_path, monkeypatch):
     """
     trials = tmp_path / "trials.h5"
     # from the example's own folder, no PYTHONPATH: the model and its preset are files
-    made = _cli("rig", "generate", "--model", "drawer.py:MODEL", "--params", "soft_close",
-                "--trials", "6", "--seed", "1", "--out", str(trials), cwd=EXAMPLE)
+    made = _cli(
+        "rig",
+        "generate",
+        "--model",
+        "drawer.py:MODEL",
+        "--params",
+        "soft_close",
+        "--trials",
+        "6",
+        "--seed",
+        "1",
+        "--out",
+        str(trials),
+        cwd=EXAMPLE,
+    )
     assert made.returncode == 0, made.stderr
     assert "6 trial(s)" in made.stdout and "impulse" in made.stdout
-    assert "unlock" not in made.stdout               # the drawer's kinds: impulse only
+    assert "unlock" not in made.stdout  # the drawer's kinds: impulse only
 
     # run from elsewhere: drawer.py is found next to fit.yaml, stored as an absolute path
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "fit.h5"
-    assert main(["run", str(EXAMPLE / "fit.yaml"), "--set", f"target.data={trials}",
-                 "--out", str(out), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                str(EXAMPLE / "fit.yaml"),
+                "--set",
+                f"target.data={trials}",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert Results(out).attrs["model"] == f"{EXAMPLE / 'drawer.py'}:MODEL"
 
     # a new process in the example's folder reads the run back
@@ -98,7 +129,7 @@ def test_drawer_example_round_trip(tmp_path, monkeypatch):
 def test_file_model_loads_once_and_finds_the_presets_beside_it(monkeypatch, capsys):
     monkeypatch.chdir(EXAMPLE)
     drawer = get_model("drawer.py:MODEL")
-    assert get_model(f"{EXAMPLE}/./drawer.py:MODEL") is drawer   # one file, one object
+    assert get_model(f"{EXAMPLE}/./drawer.py:MODEL") is drawer  # one file, one object
     assert drawer.name == "drawer" and drawer.rig_kinds == ("impulse",)
     assert drawer.preset_dirs == (EXAMPLE / "presets",)
     assert drawer.presets() == ["soft_close"]
@@ -121,17 +152,22 @@ def test_preset_folder_layouts_and_one_lookup(tmp_path, capsys):
     (tmp_path / "presets" / "soft.yaml").write_text("model: knob\nvalues: {k: 0.5}\n")
     (tmp_path / "presets" / "other.yaml").write_text("model: dial\nvalues: {k: 2}\n")
     knob = get_model(f"{tmp_path}/knob.py:MODEL")
-    assert knob.presets() == ["soft", "stiff"]          # not the other model's file
+    assert knob.presets() == ["soft", "stiff"]  # not the other model's file
     assert knob.load_params("stiff")["k"] == 9.0 and knob.load_params("soft")["k"] == 0.5
-    with pytest.raises(UserError, match=r"no parameter file or preset 'stiffer' for model "
-                                        r"'knob' \(did you mean 'stiff'\?\); presets: soft, stiff"):
+    with pytest.raises(
+        UserError,
+        match=r"no parameter file or preset 'stiffer' for model "
+        r"'knob' \(did you mean 'stiff'\?\); presets: soft, stiff",
+    ):
         knob.load_params("stiffer")
     assert main(["params", f"{tmp_path}/knob.py:MODEL", "--params", "stiff", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["params"][0]["value"] == 9.0
 
 
 # -- refusals ---------------------------------------------------------------------------
-BAD_MODELS = TINY.format(name="x") + """
+BAD_MODELS = (
+    TINY.format(name="x")
+    + """
 import numpy as np
 from evo_door.params import ParamSet
 
@@ -162,40 +198,53 @@ SINGLE = Model("x", "x", PARAMS, single)
 NO_TABLE = Model("x", "x", {"k": 1.0}, accel)
 NOT_A_MODEL = accel
 """
+)
 
 
-@pytest.mark.parametrize("attr, message", [
-    ("PLAIN", "got a plain Python function"),
-    ("THREE", r"does not compile for \(float64, float64, float64, float64\[::1\]\): "
-              "Signature mismatch: 4 argument types given, but function takes 3"),
-    ("PAIR", "does not compile for .*No conversion from UniTuple\\(float64 x 2\\) to float64"),
-    ("SINGLE", "its explicit @njit signature does not include it"),
-    ("NO_TABLE", "params must be a ParamTable"),
-    ("NOT_A_MODEL", "is a CPUDispatcher, not an evo_door Model"),
-])
-def test_models_the_integrators_cannot_run_are_refused_in_one_line(tmp_path, monkeypatch,
-                                                                   capsys, attr, message):
+@pytest.mark.parametrize(
+    "attr, message",
+    [
+        ("PLAIN", "got a plain Python function"),
+        (
+            "THREE",
+            r"does not compile for \(float64, float64, float64, float64\[::1\]\): "
+            "Signature mismatch: 4 argument types given, but function takes 3",
+        ),
+        ("PAIR", "does not compile for .*No conversion from UniTuple\\(float64 x 2\\) to float64"),
+        ("SINGLE", "its explicit @njit signature does not include it"),
+        ("NO_TABLE", "params must be a ParamTable"),
+        ("NOT_A_MODEL", "is a CPUDispatcher, not an evo_door Model"),
+    ],
+)
+def test_models_the_integrators_cannot_run_are_refused_in_one_line(
+    tmp_path, monkeypatch, capsys, attr, message
+):
     (tmp_path / "bad.py").write_text(BAD_MODELS)
     monkeypatch.chdir(tmp_path)
     assert main(["params", f"bad.py:{attr}"]) == 2
     err = _one_line_error(capsys)
-    assert err.count("accel must be a numba @njit function accel(theta, dtheta, force, p) -> "
-                     "float") == (attr in ("PLAIN", "THREE", "PAIR", "SINGLE"))
+    assert err.count(
+        "accel must be a numba @njit function accel(theta, dtheta, force, p) -> float"
+    ) == (attr in ("PLAIN", "THREE", "PAIR", "SINGLE"))
     assert re.search(message, err), err
 
 
 def test_file_path_errors_are_one_line_with_a_suggestion(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(EXAMPLE)
     assert main(["params", "drawr.py:MODEL"]) == 2
-    assert _one_line_error(capsys).endswith("model file drawr.py not found "
-                                            "(did you mean 'drawer.py'?)")
+    assert _one_line_error(capsys).endswith(
+        "model file drawr.py not found (did you mean 'drawer.py'?)"
+    )
     assert main(["params", "drawer.py:MODL"]) == 2
-    assert "model file drawer.py has no attribute 'MODL' (did you mean 'MODEL'?); models " \
-           "there: MODEL" in _one_line_error(capsys)
+    assert (
+        "model file drawer.py has no attribute 'MODL' (did you mean 'MODEL'?); models "
+        "there: MODEL" in _one_line_error(capsys)
+    )
     (tmp_path / "broken.py").write_text("import math\nRATIO = 1 / 0\n")
     assert main(["params", f"{tmp_path}/broken.py:MODEL"]) == 2
-    assert _one_line_error(capsys).endswith("broken.py does not import: ZeroDivisionError: "
-                                            "division by zero (line 2)")
+    assert _one_line_error(capsys).endswith(
+        "broken.py does not import: ZeroDivisionError: division by zero (line 2)"
+    )
     assert main(["params", "drawer"]) == 2
     assert "or a model in a file, path/to/file.py:ATTRIBUTE" in _one_line_error(capsys)
 
@@ -203,19 +252,37 @@ def test_file_path_errors_are_one_line_with_a_suggestion(tmp_path, monkeypatch, 
 def test_rig_says_which_kinds_a_model_can_make(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(EXAMPLE)
     out = tmp_path / "t.h5"
-    assert main(["rig", "generate", "--model", "drawer.py:MODEL", "--kinds", "impulse,unlock",
-                 "--out", str(out)]) == 2
+    assert (
+        main(
+            [
+                "rig",
+                "generate",
+                "--model",
+                "drawer.py:MODEL",
+                "--kinds",
+                "impulse,unlock",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     assert _one_line_error(capsys).endswith(
-        "rig: model 'drawer' cannot make unlock trials; it supports impulse (Model.rig_kinds)")
+        "rig: model 'drawer' cannot make unlock trials; it supports impulse (Model.rig_kinds)"
+    )
     assert not out.exists()
     # a model that claims a latch it does not have: the inclinometer never reads it
     spring = replace(OSCILLATOR_MODEL, rig_kinds=("impulse", "unlock", "lock"))
-    with pytest.raises(UserError, match=r"^rig: trial T01 \(lock, U1\): the inclinometer \(theta\) "
-                                        r"is saturated in 100 % of the trial: model 'oscillator' "
-                                        r"moves outside the sensor's range"):
+    with pytest.raises(
+        UserError,
+        match=r"^rig: trial T01 \(lock, U1\): the inclinometer \(theta\) "
+        r"is saturated in 100 % of the trial: model 'oscillator' "
+        r"moves outside the sensor's range",
+    ):
         with pytest.warns(UserWarning):
-            rig.generate_trials(spring, spring.load_params(), users=1, trials=1, kinds=["lock"],
-                                progress=False)
+            rig.generate_trials(
+                spring, spring.load_params(), users=1, trials=1, kinds=["lock"], progress=False
+            )
 
 
 # -- entry points -------------------------------------------------------------------------
@@ -230,10 +297,12 @@ def test_models_and_presets_registered_by_entry_points(tmp_path, monkeypatch):
     (pack / "presets" / "door" / "heavy.yaml").write_text("model: door\nvalues: {M: 2.0}\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     registered = {
-        "evo_door.models": [importlib.metadata.EntryPoint(
-            "knob", "drawer_pack:MODEL", "evo_door.models")],
-        "evo_door.presets": [importlib.metadata.EntryPoint(
-            "drawer_pack", "drawer_pack.presets", "evo_door.presets")],
+        "evo_door.models": [
+            importlib.metadata.EntryPoint("knob", "drawer_pack:MODEL", "evo_door.models")
+        ],
+        "evo_door.presets": [
+            importlib.metadata.EntryPoint("drawer_pack", "drawer_pack.presets", "evo_door.presets")
+        ],
     }
     real = importlib.metadata.entry_points
 
@@ -255,9 +324,11 @@ def test_models_and_presets_registered_by_entry_points(tmp_path, monkeypatch):
 
 
 def test_bundled_models_without_entry_points_still_load(monkeypatch):
-    monkeypatch.setattr(importlib.metadata, "entry_points",
-                        lambda **select: importlib.metadata.EntryPoints([]))
+    monkeypatch.setattr(
+        importlib.metadata, "entry_points", lambda **select: importlib.metadata.EntryPoints([])
+    )
     monkeypatch.setattr(base, "_MODELS", {})
     assert get_model("door").name == "door" and get_model("haptic").presets() == ["seed_trial"]
-    assert np.array_equal(get_model("door").load_params("default").vector,
-                          get_model("door").load_params(None).vector)
+    assert np.array_equal(
+        get_model("door").load_params("default").vector, get_model("door").load_params(None).vector
+    )

@@ -11,10 +11,19 @@ MODEL_HELP = "model: a name (haptic, door), package.module:MODEL or path/to/file
 
 def add_params_arguments(parser) -> None:
     """``--params P.yaml|PRESET`` and repeatable ``--set NAME=VALUE``."""
-    parser.add_argument("--params", metavar="P.yaml",
-                        help="parameter file or preset name (default: declared defaults)")
-    parser.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
-                        dest="assignments", help="override one parameter (SI units); repeatable")
+    parser.add_argument(
+        "--params",
+        metavar="P.yaml",
+        help="parameter file or preset name (default: declared defaults)",
+    )
+    parser.add_argument(
+        "--set",
+        metavar="NAME=VALUE",
+        action="append",
+        default=[],
+        dest="assignments",
+        help="override one parameter (SI units); repeatable",
+    )
 
 
 def model_and_params(args):

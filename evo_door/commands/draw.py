@@ -9,11 +9,17 @@ ORDER = 35
 
 
 def register(sub) -> None:
-    p = sub.add_parser("draw", help="draw the door mechanism (linkage, plate, spring, pad) at several angles")
+    p = sub.add_parser(
+        "draw", help="draw the door mechanism (linkage, plate, spring, pad) at several angles"
+    )
     p.add_argument("model", help="a model with a mechanism drawing (door)")
     add_params_arguments(p)
-    p.add_argument("--angles", default="0,45,90", metavar="DEG,DEG,...",
-                   help="door angles in degrees, 0 = open, 90 = closed (default 0,45,90)")
+    p.add_argument(
+        "--angles",
+        default="0,45,90",
+        metavar="DEG,DEG,...",
+        help="door angles in degrees, 0 = open, 90 = closed (default 0,45,90)",
+    )
     p.add_argument("--out", required=True, metavar="door.png", help="image file to write")
     p.set_defaults(func=run)
 
@@ -34,7 +40,11 @@ def run(args) -> int:
 
     from evo_door.models.door.drawing import draw_mechanism
 
-    draw_mechanism(params, angles, args.out,
-                   title=f"{model.title}: {Path(params.source).stem if params.source else 'defaults'}")
+    draw_mechanism(
+        params,
+        angles,
+        args.out,
+        title=f"{model.title}: {Path(params.source).stem if params.source else 'defaults'}",
+    )
     print(f"wrote {args.out}")
     return 0

@@ -12,13 +12,16 @@ ORDER = 10
 
 
 def register(sub) -> None:
-    p = sub.add_parser("params", help="print a model's parameter declaration (name, unit, "
-                                      "default, bounds, group, meaning)")
+    p = sub.add_parser(
+        "params",
+        help="print a model's parameter declaration (name, unit, default, bounds, group, meaning)",
+    )
     p.add_argument("model", help=MODEL_HELP)
     add_params_arguments(p)
     p.add_argument("--json", action="store_true", help="print the declaration as JSON")
-    p.add_argument("--write", metavar="OUT.yaml",
-                   help="write the (loaded, overridden) parameter set as YAML")
+    p.add_argument(
+        "--write", metavar="OUT.yaml", help="write the (loaded, overridden) parameter set as YAML"
+    )
     p.set_defaults(func=run)
 
 

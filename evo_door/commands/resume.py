@@ -8,11 +8,16 @@ ORDER = 41
 
 
 def register(sub) -> None:
-    p = sub.add_parser("resume", help="continue an interrupted run; ends as an uninterrupted one would")
+    p = sub.add_parser(
+        "resume", help="continue an interrupted run; ends as an uninterrupted one would"
+    )
     p.add_argument("results", metavar="RUN.h5", help="results file of the interrupted run")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    p.add_argument("--progress", action="store_true",
-                   help="show the progress bar even when stderr is not a terminal (logs, CI)")
+    p.add_argument(
+        "--progress",
+        action="store_true",
+        help="show the progress bar even when stderr is not a terminal (logs, CI)",
+    )
     p.set_defaults(func=run)
 
 
@@ -33,8 +38,9 @@ def run(args) -> int:
     try:
         job.run(progress=show_progress(args))
     except KeyboardInterrupt:
-        print(f"evo-door: interrupted again; evo-door resume {job.path} continues it",
-              file=sys.stderr)
+        print(
+            f"evo-door: interrupted again; evo-door resume {job.path} continues it", file=sys.stderr
+        )
         return 130
     if not args.quiet:
         print(format_show(Results(job.path)))

@@ -12,22 +12,35 @@ def register(sub) -> None:
     p = sub.add_parser("rig", help="virtual test rig: generate realistic trials from a model")
     rsub = p.add_subparsers(dest="rig_command", metavar="ACTION")
     p.set_defaults(func=lambda args: p.print_help() or 2)
-    g = rsub.add_parser("generate", help="simulate a measurement campaign (unlock, lock, "
-                                         "impulse trials by virtual users, seed sensors)")
+    g = rsub.add_parser(
+        "generate",
+        help="simulate a measurement campaign (unlock, lock, "
+        "impulse trials by virtual users, seed sensors)",
+    )
     g.add_argument("--model", required=True, help=MODEL_HELP)
     add_params_arguments(g)
     g.add_argument("--users", type=int, default=3, help="number of virtual users (default 3)")
     g.add_argument("--trials", type=int, default=10, help="number of trials (default 10)")
     g.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
-    g.add_argument("--kinds", default=None,
-                   help="kinds cycled over the trials (default impulse,unlock,impulse,lock, "
-                        "keeping the kinds the model supports)")
+    g.add_argument(
+        "--kinds",
+        default=None,
+        help="kinds cycled over the trials (default impulse,unlock,impulse,lock, "
+        "keeping the kinds the model supports)",
+    )
     g.add_argument("--rate", type=float, default=1024.0, help="sampling rate in Hz (default 1024)")
-    g.add_argument("--all-sensors", action="store_true",
-                   help="record force, inclinometer and gyroscope in every trial (default: "
-                        "the seed's pairs: inclinometer for unlock/lock, gyroscope for impulse)")
-    g.add_argument("--out", required=True, metavar="OUT.h5",
-                   help="trial file (.h5; .csv for a single trial; .tdms)")
+    g.add_argument(
+        "--all-sensors",
+        action="store_true",
+        help="record force, inclinometer and gyroscope in every trial (default: "
+        "the seed's pairs: inclinometer for unlock/lock, gyroscope for impulse)",
+    )
+    g.add_argument(
+        "--out",
+        required=True,
+        metavar="OUT.h5",
+        help="trial file (.h5; .csv for a single trial; .tdms)",
+    )
     g.set_defaults(func=run_generate)
 
 
@@ -43,12 +56,21 @@ def run_generate(args) -> int:
         raise UserError("--rate must be positive")
     model, params = model_and_params(args)
     kinds = None if args.kinds is None else [k.strip() for k in args.kinds.split(",") if k.strip()]
-    trials = generate_trials(model, params, users=args.users, trials=args.trials, seed=args.seed,
-                             kinds=kinds, settings=RigSettings(rate=args.rate,
-                                                               all_sensors=args.all_sensors))
-    write_trials(args.out, trials,
-                 description=f"virtual rig: model {model.name}, params {params.source or 'defaults'}, "
-                             f"{args.users} users, {args.trials} trials, seed {args.seed}")
+    trials = generate_trials(
+        model,
+        params,
+        users=args.users,
+        trials=args.trials,
+        seed=args.seed,
+        kinds=kinds,
+        settings=RigSettings(rate=args.rate, all_sensors=args.all_sensors),
+    )
+    write_trials(
+        args.out,
+        trials,
+        description=f"virtual rig: model {model.name}, params {params.source or 'defaults'}, "
+        f"{args.users} users, {args.trials} trials, seed {args.seed}",
+    )
     print(format_summary(trials, args.out))
     print(f"wrote {args.out}")
     return 0

@@ -10,14 +10,23 @@ ORDER = 40
 def register(sub) -> None:
     p = sub.add_parser("run", help="run a GA / SLSQP experiment file; results in an HDF5 file")
     p.add_argument("experiment", metavar="EXP.yaml", help="experiment file (docs/experiments.md)")
-    p.add_argument("--out", metavar="RUN.h5",
-                   help="results file (default: results/<name>-<date>-<time>.h5)")
-    p.add_argument("--set", metavar="KEY.PATH=VALUE", action="append", default=[],
-                   dest="assignments",
-                   help="override a setting of the file, e.g. algorithm.seed=3; repeatable")
+    p.add_argument(
+        "--out", metavar="RUN.h5", help="results file (default: results/<name>-<date>-<time>.h5)"
+    )
+    p.add_argument(
+        "--set",
+        metavar="KEY.PATH=VALUE",
+        action="append",
+        default=[],
+        dest="assignments",
+        help="override a setting of the file, e.g. algorithm.seed=3; repeatable",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    p.add_argument("--progress", action="store_true",
-                   help="show the progress bar even when stderr is not a terminal (logs, CI)")
+    p.add_argument(
+        "--progress",
+        action="store_true",
+        help="show the progress bar even when stderr is not a terminal (logs, CI)",
+    )
     p.set_defaults(func=run)
 
 
@@ -31,14 +40,19 @@ def run(args) -> int:
         _refuse_to_overwrite_an_interrupted_run(args.out)
     job = ExperimentRun.create(exp, args.out)
     if not args.quiet:
-        print(f"{exp.name}: {len(job.setup.fit)} fitted trial(s), "
-              f"{len(job.setup.validation)} validation trial(s), free: "
-              f"{', '.join(job.setup.free)}; writing {job.path}")
+        print(
+            f"{exp.name}: {len(job.setup.fit)} fitted trial(s), "
+            f"{len(job.setup.validation)} validation trial(s), free: "
+            f"{', '.join(job.setup.free)}; writing {job.path}"
+        )
     try:
         job.run(progress=show_progress(args))
     except KeyboardInterrupt:
-        print(f"evo-door: interrupted; {job.path} holds the last finished generation: "
-              f"evo-door resume {job.path}", file=sys.stderr)
+        print(
+            f"evo-door: interrupted; {job.path} holds the last finished generation: "
+            f"evo-door resume {job.path}",
+            file=sys.stderr,
+        )
         return 130
     if not args.quiet:
         print(format_show(Results(job.path)))
@@ -65,5 +79,7 @@ def _refuse_to_overwrite_an_interrupted_run(path) -> None:
     except UserError:
         return
     if status != "complete":
-        raise UserError(f"{path}: holds an interrupted run; continue it with evo-door resume "
-                        f"{path}, or delete it first")
+        raise UserError(
+            f"{path}: holds an interrupted run; continue it with evo-door resume "
+            f"{path}, or delete it first"
+        )

@@ -7,8 +7,13 @@ ORDER = 43
 
 def register(sub) -> None:
     p = sub.add_parser("runs", help="list the runs in a results folder (default results/)")
-    p.add_argument("folder", metavar="DIR", nargs="?", default="results",
-                   help="folder of results files (default results)")
+    p.add_argument(
+        "folder",
+        metavar="DIR",
+        nargs="?",
+        default="results",
+        help="folder of results files (default results)",
+    )
     p.set_defaults(func=run)
 
 

@@ -10,8 +10,11 @@ ORDER = 42
 def register(sub) -> None:
     p = sub.add_parser("show", help="print a run's best parameters, fitness and settings")
     p.add_argument("results", metavar="RUN.h5", help="results file")
-    p.add_argument("--json", action="store_true",
-                   help="one JSON object; its 'best' maps free parameter names to values")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON object; its 'best' maps free parameter names to values",
+    )
     p.add_argument("--plot", metavar="FIT.png", help="draw the best response next to the target")
     p.set_defaults(func=run)
 

@@ -83,11 +83,15 @@ def _unit_of(col: Column, cmap: ChannelMap | None, channel: str, where: str) -> 
     return UnitExpr(CHANNELS[channel][0])
 
 
-def trial_from_columns(columns: dict[str, Column], where: str,
-                       mapping: dict[str, ChannelMap] | None = None, rate: float | None = None,
-                       fields: dict | None = None,
-                       line_of: Callable[[int], int] | None = None,
-                       record_import: bool = True) -> Trial:
+def trial_from_columns(
+    columns: dict[str, Column],
+    where: str,
+    mapping: dict[str, ChannelMap] | None = None,
+    rate: float | None = None,
+    fields: dict | None = None,
+    line_of: Callable[[int], int] | None = None,
+    record_import: bool = True,
+) -> Trial:
     """Build and check one :class:`Trial`; raise a one-line :class:`UserError` on the first problem.
 
     Parameters
@@ -117,9 +121,12 @@ def trial_from_columns(columns: dict[str, Column], where: str,
         if cmap is not None:
             col = _find(columns, cmap.source)
             if col is None:
-                raise UserError(f"{where}: missing column {cmap.source!r} for channel "
-                                f"{channel!r}" + suggest(cmap.source, columns)
-                                + f"; columns: {', '.join(columns) or 'none'}")
+                raise UserError(
+                    f"{where}: missing column {cmap.source!r} for channel "
+                    f"{channel!r}"
+                    + suggest(cmap.source, columns)
+                    + f"; columns: {', '.join(columns) or 'none'}"
+                )
         else:
             col = _default_column(columns, channel)
             if col is None:
@@ -127,18 +134,24 @@ def trial_from_columns(columns: dict[str, Column], where: str,
         picked[channel] = (col, _unit_of(col, cmap, channel, where))
 
     if "force" not in picked:
-        raise UserError(f"{where}: missing column 'force' (the user force; map another "
-                        f"column with --map force=NAME:UNIT); columns: {', '.join(columns) or 'none'}")
+        raise UserError(
+            f"{where}: missing column 'force' (the user force; map another "
+            f"column with --map force=NAME:UNIT); columns: {', '.join(columns) or 'none'}"
+        )
 
     n = picked["force"][0].values.size
     if n == 0:
         raise UserError(f"{where}: empty: no data rows")
     for channel, (col, _) in picked.items():
         if col.values.ndim != 1:
-            raise UserError(f"{where}: channel {channel!r} (column {col.name!r}) is not one-dimensional")
+            raise UserError(
+                f"{where}: channel {channel!r} (column {col.name!r}) is not one-dimensional"
+            )
         if col.values.size != n:
-            raise UserError(f"{where}: channel {channel!r} (column {col.name!r}) has "
-                            f"{col.values.size} rows, channel 'force' has {n}")
+            raise UserError(
+                f"{where}: channel {channel!r} (column {col.name!r}) has "
+                f"{col.values.size} rows, channel 'force' has {n}"
+            )
     if n < 2:
         raise UserError(f"{where}: only one data row; a trial needs at least two samples")
 
@@ -148,8 +161,10 @@ def trial_from_columns(columns: dict[str, Column], where: str,
         bad = ~np.isfinite(raw)
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            raise UserError(f"{where}: channel {channel!r} (column {col.name!r}) is not a "
-                            f"finite number at {_at(row, line_of)}: {float(raw[row])!r}")
+            raise UserError(
+                f"{where}: channel {channel!r} (column {col.name!r}) is not a "
+                f"finite number at {_at(row, line_of)}: {float(raw[row])!r}"
+            )
         signals[channel] = unit.apply(raw)
 
     signals["t"] = _time_axis(picked, signals, n, where, rate, line_of)
@@ -158,12 +173,21 @@ def trial_from_columns(columns: dict[str, Column], where: str,
     trial_fields.setdefault("meta", {})
     trial_fields["meta"] = dict(trial_fields["meta"])
     if record_import:
-        trial_fields["meta"].setdefault("import", {
-            "file": where,
-            "map": {ch: f"{col.name}:{unit}" for ch, (col, unit) in picked.items()},
-        })
-    return Trial(t=signals["t"], force=signals["force"], theta=signals.get("theta"),
-                 dtheta=signals.get("dtheta"), ddtheta=signals.get("ddtheta"), **trial_fields)
+        trial_fields["meta"].setdefault(
+            "import",
+            {
+                "file": where,
+                "map": {ch: f"{col.name}:{unit}" for ch, (col, unit) in picked.items()},
+            },
+        )
+    return Trial(
+        t=signals["t"],
+        force=signals["force"],
+        theta=signals.get("theta"),
+        dtheta=signals.get("dtheta"),
+        ddtheta=signals.get("ddtheta"),
+        **trial_fields,
+    )
 
 
 def _time_axis(picked, signals, n, where, rate, line_of) -> np.ndarray:
@@ -174,13 +198,17 @@ def _time_axis(picked, signals, n, where, rate, line_of) -> np.ndarray:
             dt = min(dts)
             t0 = next(c.t0 for c, _ in picked.values() if c.dt == dt)
             if len(dts) > 1:
-                raise UserError(f"{where}: channels sampled at different rates "
-                                f"({', '.join(f'{1 / d:g} Hz' for d in sorted(dts))})")
+                raise UserError(
+                    f"{where}: channels sampled at different rates "
+                    f"({', '.join(f'{1 / d:g} Hz' for d in sorted(dts))})"
+                )
         elif rate:
             dt, t0 = 1.0 / rate, 0.0
         else:
-            raise UserError(f"{where}: missing column 't' (time in s); map one with "
-                            "--map t=NAME:UNIT or give the sampling rate (--rate HZ)")
+            raise UserError(
+                f"{where}: missing column 't' (time in s); map one with "
+                "--map t=NAME:UNIT or give the sampling rate (--rate HZ)"
+            )
         _check_rate(1.0 / dt, rate, where, "t", line_of)
         return t0 + dt * np.arange(n)
     t = signals["t"]
@@ -188,15 +216,19 @@ def _time_axis(picked, signals, n, where, rate, line_of) -> np.ndarray:
     step = np.diff(t)
     if np.any(step <= 0):
         row = int(np.flatnonzero(step <= 0)[0]) + 1
-        raise UserError(f"{where}: channel 't' (column {col.name!r}) is not increasing at "
-                        f"{_at(row, line_of)}: {float(t[row - 1])!r} then {float(t[row])!r} s")
+        raise UserError(
+            f"{where}: channel 't' (column {col.name!r}) is not increasing at "
+            f"{_at(row, line_of)}: {float(t[row - 1])!r} then {float(t[row])!r} s"
+        )
     median = float(np.median(step))
     off = np.abs(step - median) > STEP_TOLERANCE * median
     if off.any():
         row = int(np.flatnonzero(off)[0]) + 1
-        raise UserError(f"{where}: channel 't' (column {col.name!r}) is not uniformly sampled "
-                        f"at {_at(row, line_of)}: step {step[row - 1]:.6g} s, typical "
-                        f"{median:.6g} s (resample it first: evo_door.data.preprocess.to_uniform)")
+        raise UserError(
+            f"{where}: channel 't' (column {col.name!r}) is not uniformly sampled "
+            f"at {_at(row, line_of)}: step {step[row - 1]:.6g} s, typical "
+            f"{median:.6g} s (resample it first: evo_door.data.preprocess.to_uniform)"
+        )
     dt = (t[-1] - t[0]) / (n - 1)
     _check_rate(1.0 / dt, rate, where, col.name, line_of)
     return t[0] + dt * np.arange(n)
@@ -204,5 +236,7 @@ def _time_axis(picked, signals, n, where, rate, line_of) -> np.ndarray:
 
 def _check_rate(actual, expected, where, name, line_of) -> None:
     if expected and abs(actual - expected) > RATE_TOLERANCE * expected:
-        raise UserError(f"{where}: channel 't' (column {name!r}) is sampled at {actual:.6g} Hz, "
-                        f"expected {expected:g} Hz, at {_at(1, line_of)}")
+        raise UserError(
+            f"{where}: channel 't' (column {name!r}) is sampled at {actual:.6g} Hz, "
+            f"expected {expected:g} Hz, at {_at(1, line_of)}"
+        )

@@ -59,9 +59,11 @@ def read_csv(path, mapping=None, rate=None, fields=None) -> Trial:
         if stripped.startswith("#"):
             if stripped.startswith(META_PREFIX):
                 try:
-                    meta = json.loads(stripped[len(META_PREFIX):])
+                    meta = json.loads(stripped[len(META_PREFIX) :])
                 except json.JSONDecodeError as exc:
-                    raise UserError(f"{path}: line {i + 1}: metadata is not JSON ({exc.msg})") from None
+                    raise UserError(
+                        f"{path}: line {i + 1}: metadata is not JSON ({exc.msg})"
+                    ) from None
             continue
         header_idx = i
         break
@@ -71,23 +73,34 @@ def read_csv(path, mapping=None, rate=None, fields=None) -> Trial:
     delimiter = max((",", ";", "\t"), key=header_line.count)
     names = [h.strip() for h in next(csv.reader([header_line], delimiter=delimiter))]
     if all(_is_number(h) for h in names):
-        raise UserError(f"{path}: line {header_idx + 1}: no header line (first line holds "
-                        "numbers; name the columns, e.g. t,force,theta)")
+        raise UserError(
+            f"{path}: line {header_idx + 1}: no header line (first line holds "
+            "numbers; name the columns, e.g. t,force,theta)"
+        )
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
         raise UserError(f"{path}: line {header_idx + 1}: column {dup!r} appears twice")
 
-    body = [(i + 1, line) for i, line in enumerate(lines[header_idx + 1:], start=header_idx + 1)
-            if line.strip() and not line.lstrip().startswith("#")]
+    body = [
+        (i + 1, line)
+        for i, line in enumerate(lines[header_idx + 1 :], start=header_idx + 1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
     line_numbers = [ln for ln, _ in body]
     data = _parse_body(path, body, names, delimiter)
     columns = {name: Column(name, data[:, j]) for j, name in enumerate(names)}
     merged = {k: meta[k] for k in METADATA_FIELDS if k in meta}
     merged.setdefault("trial_id", path.stem)
     merged.update({k: v for k, v in (fields or {}).items() if v is not None})
-    return trial_from_columns(columns, str(path), mapping, rate, merged,
-                              line_of=lambda row: line_numbers[row],
-                              record_import=not meta or bool(mapping))
+    return trial_from_columns(
+        columns,
+        str(path),
+        mapping,
+        rate,
+        merged,
+        line_of=lambda row: line_numbers[row],
+        record_import=not meta or bool(mapping),
+    )
 
 
 def _is_number(text: str) -> bool:
@@ -102,8 +115,9 @@ def _parse_body(path, body, names, delimiter) -> np.ndarray:
     if not body:
         return np.empty((0, len(names)))
     try:
-        data = np.loadtxt([line for _, line in body], delimiter=delimiter, ndmin=2,
-                          dtype=np.float64)
+        data = np.loadtxt(
+            [line for _, line in body], delimiter=delimiter, ndmin=2, dtype=np.float64
+        )
         if data.shape[1] == len(names):
             return data
     except ValueError:
@@ -113,15 +127,19 @@ def _parse_body(path, body, names, delimiter) -> np.ndarray:
     for row, (lineno, line) in enumerate(body):
         cells = next(csv.reader([line], delimiter=delimiter))
         if len(cells) != len(names):
-            raise UserError(f"{path}: row {row} (line {lineno}) has {len(cells)} fields, "
-                            f"the header has {len(names)}")
+            raise UserError(
+                f"{path}: row {row} (line {lineno}) has {len(cells)} fields, "
+                f"the header has {len(names)}"
+            )
         values = []
         for name, cell in zip(names, cells):
             try:
                 values.append(float(cell))
             except ValueError:
-                raise UserError(f"{path}: column {name!r} is not a number at row {row} "
-                                f"(line {lineno}): {cell.strip()!r}") from None
+                raise UserError(
+                    f"{path}: column {name!r} is not a number at row {row} "
+                    f"(line {lineno}): {cell.strip()!r}"
+                ) from None
         rows.append(values)
     return np.array(rows, dtype=np.float64)
 
@@ -136,6 +154,11 @@ def write_csv(path, trial: Trial, metadata: bool = True) -> None:
     with atomic_write(path) as tmp:
         with open(tmp, "w", newline="") as fh:
             if metadata:
-                fh.write(META_PREFIX + " " + to_json({k: getattr(trial, k) for k in METADATA_FIELDS}) + "\n")
+                fh.write(
+                    META_PREFIX
+                    + " "
+                    + to_json({k: getattr(trial, k) for k in METADATA_FIELDS})
+                    + "\n"
+                )
             fh.write(",".join(names) + "\n")
             np.savetxt(fh, table, delimiter=",", fmt="%.12g")

@@ -37,8 +37,12 @@ def read_force_csv(path) -> tuple[np.ndarray, np.ndarray]:
         raise UserError(f"{path}: non-finite value on data row {int(np.flatnonzero(bad)[0]) + 1}")
     dt = np.diff(t)
     if np.any(dt <= 0):
-        raise UserError(f"{path}: time is not increasing at data row {int(np.flatnonzero(dt <= 0)[0]) + 2}")
+        raise UserError(
+            f"{path}: time is not increasing at data row {int(np.flatnonzero(dt <= 0)[0]) + 2}"
+        )
     if np.ptp(dt) > 1e-6 * dt.mean() + 1e-9:
-        raise UserError(f"{path}: time is not uniformly sampled (step between "
-                        f"{dt.min():.6g} and {dt.max():.6g} s); resample it first")
+        raise UserError(
+            f"{path}: time is not uniformly sampled (step between "
+            f"{dt.min():.6g} and {dt.max():.6g} s); resample it first"
+        )
     return t, force

@@ -91,16 +91,21 @@ def _select(path, available: list[str], trials) -> list[str]:
         elif w in available:
             out.append(w)
         else:
-            raise UserError(f"{path}: no trial {w!r}" + suggest(str(w), available)
-                            + f"; trials: {', '.join(available) or 'none'}")
+            raise UserError(
+                f"{path}: no trial {w!r}"
+                + suggest(str(w), available)
+                + f"; trials: {', '.join(available) or 'none'}"
+            )
     return out
 
 
 def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
     version = int(f.attrs.get("format_version", FORMAT_VERSION))
     if version > FORMAT_VERSION:
-        raise UserError(f"{path}: trial format version {version} is newer than this "
-                        f"evo-door reads ({FORMAT_VERSION}); upgrade evo-door")
+        raise UserError(
+            f"{path}: trial format version {version} is newer than this "
+            f"evo-door reads ({FORMAT_VERSION}); upgrade evo-door"
+        )
     if "trials" not in f:
         raise UserError(f"{path}: no 'trials' group")
     root = f["trials"]
@@ -114,8 +119,11 @@ def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
         for key, ds in g.items():
             if hasattr(ds, "shape"):
                 unit = ds.attrs.get("unit")
-                columns[key] = Column(key, np.asarray(ds[()], dtype=np.float64),
-                                      _text(unit) if unit is not None else None)
+                columns[key] = Column(
+                    key,
+                    np.asarray(ds[()], dtype=np.float64),
+                    _text(unit) if unit is not None else None,
+                )
         attrs = read_attrs(g)
         meta_fields = {
             "trial_id": _text(attrs.get("trial_id", name)),
@@ -131,8 +139,7 @@ def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
         meta_fields.update({k: v for k, v in (fields or {}).items() if v is not None})
         # the file's own channels only: no foreign-column guessing, no import record
         own = {k: c for k, c in columns.items() if k in UNITS}
-        out.append(trial_from_columns(own, where, mapping, rate, meta_fields,
-                                      record_import=False))
+        out.append(trial_from_columns(own, where, mapping, rate, meta_fields, record_import=False))
     return out
 
 
@@ -141,7 +148,9 @@ def _table_groups(f):
     found = []
 
     def visit(name, obj):
-        if hasattr(obj, "keys") and any(hasattr(v, "shape") and len(v.shape) == 1 for v in obj.values()):
+        if hasattr(obj, "keys") and any(
+            hasattr(v, "shape") and len(v.shape) == 1 for v in obj.values()
+        ):
             found.append((name, obj))
 
     if any(hasattr(v, "shape") and len(v.shape) == 1 for v in f.values()):
@@ -153,7 +162,9 @@ def _table_groups(f):
 def _read_tables(path, f, trials, mapping, rate, fields) -> list[Trial]:
     groups = dict(_table_groups(f))
     if not groups:
-        raise UserError(f"{path}: no trials: neither a 'trials' group nor any group of 1-D datasets")
+        raise UserError(
+            f"{path}: no trials: neither a 'trials' group nor any group of 1-D datasets"
+        )
     out = []
     for name in _select(path, list(groups), trials):
         g = groups[name]
@@ -162,8 +173,11 @@ def _read_tables(path, f, trials, mapping, rate, fields) -> list[Trial]:
         for key, ds in g.items():
             if hasattr(ds, "shape") and len(ds.shape) == 1:
                 unit = ds.attrs.get("unit", ds.attrs.get("units"))
-                columns[key] = Column(key, np.asarray(ds[()], dtype=np.float64),
-                                      _text(unit) if unit is not None else None)
+                columns[key] = Column(
+                    key,
+                    np.asarray(ds[()], dtype=np.float64),
+                    _text(unit) if unit is not None else None,
+                )
         tid = Path(path).stem if name == "/" else name.rsplit("/", 1)[-1]
         flds = {"trial_id": tid, **{k: v for k, v in (fields or {}).items() if v is not None}}
         out.append(trial_from_columns(columns, where, mapping, rate, flds))
@@ -173,8 +187,10 @@ def _read_tables(path, f, trials, mapping, rate, fields) -> list[Trial]:
 # -- writing --------------------------------------------------------------------------
 def check_trial_id(trial_id: str, where: str = "") -> None:
     if not trial_id or "/" in trial_id or trial_id in (".", ".."):
-        raise UserError(f"{where or 'trial'}: trial id {trial_id!r} cannot name an HDF5 "
-                        "group (empty or contains '/')")
+        raise UserError(
+            f"{where or 'trial'}: trial id {trial_id!r} cannot name an HDF5 "
+            "group (empty or contains '/')"
+        )
 
 
 def write_h5_trials(path, trials, description: str = "") -> None:
@@ -186,8 +202,11 @@ def write_h5_trials(path, trials, description: str = "") -> None:
         if tr.trial_id in seen:
             raise UserError(f"{path}: two trials named {tr.trial_id!r}")
         seen.add(tr.trial_id)
-    root = {"format": FORMAT, "format_version": FORMAT_VERSION,
-            "software": f"evo-door {__version__}"}
+    root = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "software": f"evo-door {__version__}",
+    }
     if description:
         root["description"] = description
     tree = {ATTRS: root, "trials": {tr.trial_id: _trial_tree(tr) for tr in trials}}
@@ -195,8 +214,13 @@ def write_h5_trials(path, trials, description: str = "") -> None:
 
 
 def _trial_tree(tr: Trial) -> dict:
-    attrs = {"trial_id": tr.trial_id, "user_id": tr.user_id, "kind": tr.kind,
-             "sample_rate": tr.rate, "n_samples": tr.n}
+    attrs = {
+        "trial_id": tr.trial_id,
+        "user_id": tr.user_id,
+        "kind": tr.kind,
+        "sample_rate": tr.rate,
+        "n_samples": tr.n,
+    }
     for key in ("theta0", "dtheta0"):
         if getattr(tr, key) is not None:
             attrs[key] = float(getattr(tr, key))

@@ -36,8 +36,10 @@ def file_format(path) -> str:
         return "csv"
     if suffix in TDMS_SUFFIXES:
         return "tdms"
-    raise UserError(f"{path}: unknown trial file type {suffix or '(no extension)'!r}; "
-                    "use .h5/.hdf5, .csv or .tdms")
+    raise UserError(
+        f"{path}: unknown trial file type {suffix or '(no extension)'!r}; "
+        "use .h5/.hdf5, .csv or .tdms"
+    )
 
 
 def read_trials(path, trials="all", *, map=None, rate=None, **fields) -> list[Trial]:
@@ -84,8 +86,9 @@ def read_trials(path, trials="all", *, map=None, rate=None, **fields) -> list[Tr
         wanted = [trials] if isinstance(trials, (str, int)) else list(trials)
         for w in wanted:
             if w not in (trial.trial_id, 0, -1):
-                raise UserError(f"{path}: no trial {w!r}; a CSV file holds one trial "
-                                f"({trial.trial_id!r})")
+                raise UserError(
+                    f"{path}: no trial {w!r}; a CSV file holds one trial ({trial.trial_id!r})"
+                )
     return [trial]
 
 
@@ -93,8 +96,10 @@ def read_trial(path, trial=None, **kwargs) -> Trial:
     """Exactly one trial: ``trial`` (id or position) or the file's only one."""
     found = read_trials(path, "all" if trial is None else trial, **kwargs)
     if len(found) != 1:
-        raise UserError(f"{path}: holds {len(found)} trials "
-                        f"({', '.join(t.trial_id for t in found)}); choose one")
+        raise UserError(
+            f"{path}: holds {len(found)} trials "
+            f"({', '.join(t.trial_id for t in found)}); choose one"
+        )
     return found[0]
 
 
@@ -123,8 +128,10 @@ def write_trials(path, trials, *, append: bool = False, description: str = "") -
         write_tdms(path, trials)
     else:
         if len(trials) != 1:
-            raise UserError(f"{path}: a CSV file holds one trial, got {len(trials)}; "
-                            "write HDF5 (.h5) or one CSV per trial")
+            raise UserError(
+                f"{path}: a CSV file holds one trial, got {len(trials)}; "
+                "write HDF5 (.h5) or one CSV per trial"
+            )
         from evo_door.data.csvio import write_csv
 
         write_csv(path, trials[0])

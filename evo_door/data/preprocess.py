@@ -18,8 +18,8 @@ from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 
 #: Defaults for "the door is at rest / the user is not pushing" (rest_mask, trim).
-FORCE_TOL = 2.0       # N
-SPEED_TOL = 0.03      # rad/s (1.7 deg/s: above a gyroscope's bias, below any motion)
+FORCE_TOL = 2.0  # N
+SPEED_TOL = 0.03  # rad/s (1.7 deg/s: above a gyroscope's bias, below any motion)
 RATE_BIAS_GUARD = 0.05  # s left out of each end of a rest run when measuring the bias
 
 
@@ -37,8 +37,10 @@ def lowpass(x, rate: float, cutoff: float, order: int = 4, axis: int = -1) -> np
     ``cutoff`` is 1/2 (-6 dB) instead of 1/sqrt(2).
     """
     if not (0.0 < cutoff < 0.5 * rate):
-        raise UserError(f"low-pass cutoff {cutoff:g} Hz must lie in (0, {0.5 * rate:g}) Hz "
-                        f"(half the sampling rate {rate:g} Hz)")
+        raise UserError(
+            f"low-pass cutoff {cutoff:g} Hz must lie in (0, {0.5 * rate:g}) Hz "
+            f"(half the sampling rate {rate:g} Hz)"
+        )
     sos = signal.butter(order, cutoff, btype="low", fs=rate, output="sos")
     x = np.asarray(x, dtype=np.float64)
     try:
@@ -62,12 +64,15 @@ def lowpass_trial(trial: Trial, cutoff: float, channels=None, order: int = 4) ->
             raise UserError(f"{trial.label}: no channel {name!r} to filter")
         filtered = lowpass(values, trial.rate, cutoff, order)
         rng = trial.sensor(name).get("range")
-        if rng:   # saturated samples stay pinned to the range ends, so they stay marked
+        if rng:  # saturated samples stay pinned to the range ends, so they stay marked
             saturated = ~trial.unsaturated(name)
             filtered = np.where(saturated, values, filtered)
         changes[name] = filtered
-    return _noted(trial, {"lowpass": {"cutoff_hz": cutoff, "order": order,
-                                      "channels": list(channels)}}, **changes)
+    return _noted(
+        trial,
+        {"lowpass": {"cutoff_hz": cutoff, "order": order, "channels": list(channels)}},
+        **changes,
+    )
 
 
 # -- resampling -----------------------------------------------------------------------
@@ -104,7 +109,9 @@ def to_uniform(t, columns: dict, rate: float) -> tuple[np.ndarray, dict]:
     if np.any(np.diff(t) <= 0):
         raise UserError("to_uniform: time stamps must increase")
     grid = t[0] + np.arange(int(np.floor((t[-1] - t[0]) * rate + 1e-9)) + 1) / rate
-    return grid, {k: np.interp(grid, t, np.asarray(v, dtype=np.float64)) for k, v in columns.items()}
+    return grid, {
+        k: np.interp(grid, t, np.asarray(v, dtype=np.float64)) for k, v in columns.items()
+    }
 
 
 # -- angle from rate (eq. 3.11) -------------------------------------------------------
@@ -119,8 +126,15 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
-def rest_mask(t, force, dtheta, force_tol: float = FORCE_TOL, speed_tol: float = SPEED_TOL,
-              min_duration: float = 0.2, cutoff: float = 10.0) -> np.ndarray:
+def rest_mask(
+    t,
+    force,
+    dtheta,
+    force_tol: float = FORCE_TOL,
+    speed_tol: float = SPEED_TOL,
+    min_duration: float = 0.2,
+    cutoff: float = 10.0,
+) -> np.ndarray:
     """Samples where nobody pushes and the door does not move, in runs of ``min_duration`` s.
 
     Both signals are low-passed at ``cutoff`` Hz first so that sensor noise does not
@@ -181,18 +195,22 @@ def remove_rate_bias(trial: Trial, where: str = "start") -> Trial:
     # rest runs without their last and first GUARD seconds, where the door starts or
     # stops moving below the detector's speed tolerance
     guard = int(round(RATE_BIAS_GUARD * trial.rate))
-    runs = [(a + guard * (a > 0), b - guard * (b < trial.n))
-            for a, b in _runs(rest_mask(trial.t, trial.force, trial.dtheta))]
+    runs = [
+        (a + guard * (a > 0), b - guard * (b < trial.n))
+        for a, b in _runs(rest_mask(trial.t, trial.force, trial.dtheta))
+    ]
     if where == "start":
         runs = runs[:1] if runs and runs[0][0] == 0 else []
     rest = np.zeros(trial.n, dtype=bool)
     for a, b in runs:
-        rest[a:max(a, b)] = True
+        rest[a : max(a, b)] = True
     if not rest.any():
-        raise UserError(f"{trial.label}: no rest {'at the start ' if where == 'start' else ''}"
-                        f"of the trial to measure the gyroscope's bias on (0.2 s or more with "
-                        f"|force| < {FORCE_TOL:g} N and |dtheta| < {SPEED_TOL:g} rad/s once "
-                        "low-passed at 10 Hz; record about half a second of rest before the push)")
+        raise UserError(
+            f"{trial.label}: no rest {'at the start ' if where == 'start' else ''}"
+            f"of the trial to measure the gyroscope's bias on (0.2 s or more with "
+            f"|force| < {FORCE_TOL:g} N and |dtheta| < {SPEED_TOL:g} rad/s once "
+            "low-passed at 10 Hz; record about half a second of rest before the push)"
+        )
     bias = rate_bias(trial.t, trial.dtheta, rest)
     mean_bias = float(np.mean(bias))
     dtheta = trial.dtheta - bias
@@ -206,14 +224,24 @@ def remove_rate_bias(trial: Trial, where: str = "start") -> Trial:
     info["bias_removed"] = mean_bias
     sensors = {**trial.sensors, "dtheta": info}
     drift = float((bias[-1] - bias[0]) / (trial.t[-1] - trial.t[0]))
-    return _noted(trial, {"remove_rate_bias": {"where": where, "bias_rad_s": mean_bias,
-                                               "drift_rad_s2": drift,
-                                               "rest_samples": int(rest.sum())}},
-                  dtheta=dtheta, sensors=sensors)
+    return _noted(
+        trial,
+        {
+            "remove_rate_bias": {
+                "where": where,
+                "bias_rad_s": mean_bias,
+                "drift_rad_s2": drift,
+                "rest_samples": int(rest.sum()),
+            }
+        },
+        dtheta=dtheta,
+        sensors=sensors,
+    )
 
 
-def angle_from_rate(t, dtheta, theta0: float = 0.0, rest=None, theta_end: float | None = None
-                    ) -> np.ndarray:
+def angle_from_rate(
+    t, dtheta, theta0: float = 0.0, rest=None, theta_end: float | None = None
+) -> np.ndarray:
     """Door angle from the measured rate (eq. 3.11) with the drift handled.
 
     Parameters
@@ -248,23 +276,36 @@ def add_angle_from_rate(trial: Trial, theta_end: float | None = None, rest="auto
     if trial.dtheta is None:
         raise UserError(f"{trial.label}: no dtheta channel to integrate")
     if trial.theta0 is None:
-        raise UserError(f"{trial.label}: the initial angle theta0 is unknown; give it "
-                        "(0 fully open, pi/2 closed)")
+        raise UserError(
+            f"{trial.label}: the initial angle theta0 is unknown; give it "
+            "(0 fully open, pi/2 closed)"
+        )
     if isinstance(rest, str) and rest == "auto":
         rest = rest_mask(trial.t, trial.force, trial.dtheta)
     theta = angle_from_rate(trial.t, trial.dtheta, trial.theta0, rest, theta_end)
     sensors = dict(trial.sensors)
-    sensors["theta"] = {"sensor": "integrated angular speed (eq. 3.11)",
-                        "bias_removed": rest is not None and bool(np.any(rest)),
-                        "theta_end": theta_end}
-    return _noted(trial, {"angle_from_rate": {"theta_end": theta_end,
-                                              "rest_samples": int(np.sum(rest)) if rest is not None else 0}},
-                  theta=theta, sensors=sensors)
+    sensors["theta"] = {
+        "sensor": "integrated angular speed (eq. 3.11)",
+        "bias_removed": rest is not None and bool(np.any(rest)),
+        "theta_end": theta_end,
+    }
+    return _noted(
+        trial,
+        {
+            "angle_from_rate": {
+                "theta_end": theta_end,
+                "rest_samples": int(np.sum(rest)) if rest is not None else 0,
+            }
+        },
+        theta=theta,
+        sensors=sensors,
+    )
 
 
 # -- trimming -------------------------------------------------------------------------
-def active_mask(trial: Trial, force_tol: float = FORCE_TOL, speed_tol: float = SPEED_TOL,
-                cutoff: float = 10.0) -> np.ndarray:
+def active_mask(
+    trial: Trial, force_tol: float = FORCE_TOL, speed_tol: float = SPEED_TOL, cutoff: float = 10.0
+) -> np.ndarray:
     """Samples where the user pushes or the door moves (low-passed signals)."""
     rate = trial.rate
     cutoff = min(cutoff, 0.45 * rate)
@@ -284,8 +325,10 @@ def trim_to_motion(trial: Trial, pad: float = 0.2, **tols) -> Trial:
     """
     active = active_mask(trial, **tols)
     if not active.any():
-        raise UserError(f"{trial.label}: nothing happens in this trial (no force above "
-                        f"{tols.get('force_tol', FORCE_TOL):g} N, no motion); nothing to trim to")
+        raise UserError(
+            f"{trial.label}: nothing happens in this trial (no force above "
+            f"{tols.get('force_tol', FORCE_TOL):g} N, no motion); nothing to trim to"
+        )
     npad = int(round(pad * trial.rate))
     i0 = max(int(np.flatnonzero(active)[0]) - npad, 0)
     i1 = min(int(np.flatnonzero(active)[-1]) + npad + 1, trial.n)
@@ -294,14 +337,19 @@ def trim_to_motion(trial: Trial, pad: float = 0.2, **tols) -> Trial:
     theta0, dtheta0 = trial.theta0, trial.dtheta0
     if theta0 is not None and i0 > 0:
         if trial.dtheta is not None:
-            theta0 = float(integrate_rate(trial.t[:i0 + 1], trial.dtheta[:i0 + 1], theta0)[-1])
+            theta0 = float(integrate_rate(trial.t[: i0 + 1], trial.dtheta[: i0 + 1], theta0)[-1])
         elif trial.theta is not None:
             theta0 = float(theta0 + trial.theta[i0] - trial.theta[0])
     if i0 > 0:
         dtheta0 = float(trial.dtheta[i0]) if trial.dtheta is not None else None
     changes = {name: getattr(trial, name)[i0:i1] for name in ("t", "force", *trial.channels)}
-    return _noted(trial, {"trim": {"start_s": float(trial.t[i0]), "stop_s": float(trial.t[i1 - 1])}},
-                  theta0=theta0, dtheta0=dtheta0, **changes)
+    return _noted(
+        trial,
+        {"trim": {"start_s": float(trial.t[i0]), "stop_s": float(trial.t[i1 - 1])}},
+        theta0=theta0,
+        dtheta0=dtheta0,
+        **changes,
+    )
 
 
 # -- unlock / lock force --------------------------------------------------------------
@@ -310,16 +358,21 @@ class ForcePeak:
     """The peak of a force trace: the unlock (``force < 0``) or lock (``> 0``) force."""
 
     index: int
-    t: float        # s
-    force: float    # N, signed (+ toward closing)
+    t: float  # s
+    force: float  # N, signed (+ toward closing)
 
     @property
     def magnitude(self) -> float:
         return abs(self.force)
 
 
-def find_force_peak(trial_or_force, rate: float | None = None, direction: int | None = None,
-                    cutoff: float = 30.0, prominence: float = 0.3) -> ForcePeak:
+def find_force_peak(
+    trial_or_force,
+    rate: float | None = None,
+    direction: int | None = None,
+    cutoff: float = 30.0,
+    prominence: float = 0.3,
+) -> ForcePeak:
     """The unlock / lock force: the peak of the (low-passed) force trace (seed sec. 3.4).
 
     Parameters
@@ -351,7 +404,9 @@ def find_force_peak(trial_or_force, rate: float | None = None, direction: int | 
     f = direction * smooth
     top = float(np.max(f))
     if top <= 0:
-        raise UserError(f"{where}: no force peak toward {'closing' if direction > 0 else 'opening'}")
+        raise UserError(
+            f"{where}: no force peak toward {'closing' if direction > 0 else 'opening'}"
+        )
     peaks, _ = signal.find_peaks(f, prominence=prominence * top)
     if peaks.size == 0:  # monotonic trace: the peak is at an end
         idx = int(np.argmax(f))
@@ -360,6 +415,18 @@ def find_force_peak(trial_or_force, rate: float | None = None, direction: int | 
     return ForcePeak(idx, t0 + idx / rate, float(smooth[idx]))
 
 
-__all__ = ["lowpass", "lowpass_trial", "resample", "to_uniform", "integrate_rate", "rest_mask",
-           "rate_bias", "angle_from_rate", "add_angle_from_rate", "active_mask", "trim_to_motion",
-           "ForcePeak", "find_force_peak"]
+__all__ = [
+    "lowpass",
+    "lowpass_trial",
+    "resample",
+    "to_uniform",
+    "integrate_rate",
+    "rest_mask",
+    "rate_bias",
+    "angle_from_rate",
+    "add_angle_from_rate",
+    "active_mask",
+    "trim_to_motion",
+    "ForcePeak",
+    "find_force_peak",
+]

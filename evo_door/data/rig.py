@@ -56,8 +56,11 @@ KINDS = ("unlock", "lock", "impulse")
 #: Kinds cycled over the trials: impulses (the fitting targets) every other trial.
 DEFAULT_KINDS = ("impulse", "unlock", "impulse", "lock")
 #: Channels each kind measures (seed 3.4: inclinometer near closed, gyroscope in motion).
-KIND_CHANNELS = {"unlock": ("force", "theta"), "lock": ("force", "theta"),
-                 "impulse": ("force", "dtheta")}
+KIND_CHANNELS = {
+    "unlock": ("force", "theta"),
+    "lock": ("force", "theta"),
+    "impulse": ("force", "dtheta"),
+}
 #: The channel of each kind a fit compares; it must stay inside its sensor's range.
 KIND_RESPONSE = {"unlock": "theta", "lock": "theta", "impulse": "dtheta"}
 #: Largest fraction of saturated response samples a trial may have (see module doc).
@@ -69,37 +72,46 @@ class VirtualUser:
     """How one virtual person opens and closes a door (SI units)."""
 
     user_id: str
-    hand_stiffness: float    # N/m, hand + arm at the handle
-    hand_damping: float      # N s/m
-    pull_speed: float        # m/s, pace of the hand's target when pulling to unlock
-    push_speed: float        # m/s, pace when pushing to lock
-    max_force: float         # N, the most the user will pull or push
-    reaction_time: float     # s, from feeling the latch give to letting go
-    release_time: float      # s, to let go completely
-    impulse_force: float     # N, peak of the push given to the open door
+    hand_stiffness: float  # N/m, hand + arm at the handle
+    hand_damping: float  # N s/m
+    pull_speed: float  # m/s, pace of the hand's target when pulling to unlock
+    push_speed: float  # m/s, pace when pushing to lock
+    max_force: float  # N, the most the user will pull or push
+    reaction_time: float  # s, from feeling the latch give to letting go
+    release_time: float  # s, to let go completely
+    impulse_force: float  # N, peak of the push given to the open door
     impulse_duration: float  # s, length of that push
-    impulse_speed: float     # rad/s, door speed the user means to give
-    tremor: float            # N, amplitude of the 8-12 Hz physiological tremor
-    rest_time: float         # s, still before acting
-    lock_start: float        # rad, from closed, where the push to lock starts
+    impulse_speed: float  # rad/s, door speed the user means to give
+    tremor: float  # N, amplitude of the 8-12 Hz physiological tremor
+    rest_time: float  # s, still before acting
+    lock_start: float  # rad, from closed, where the push to lock starts
 
     def jittered(self, rng: np.random.Generator, spread: float = 0.1) -> VirtualUser:
         """This user on one particular day: every trait times ``1 + spread * N(0, 1)``."""
         changes = {}
         for f in fields(self):
             if f.name != "user_id":
-                changes[f.name] = getattr(self, f.name) * float(np.clip(1.0 + spread * rng.standard_normal(), 0.7, 1.3))
+                changes[f.name] = getattr(self, f.name) * float(
+                    np.clip(1.0 + spread * rng.standard_normal(), 0.7, 1.3)
+                )
         return replace(self, **changes)
 
 
 #: Ranges the users' traits are drawn from (uniform).
 USER_RANGES = {
-    "hand_stiffness": (500.0, 1200.0), "hand_damping": (10.0, 25.0),
-    "pull_speed": (0.05, 0.15), "push_speed": (0.06, 0.16), "max_force": (150.0, 300.0),
-    "reaction_time": (0.12, 0.25), "release_time": (0.08, 0.20),
-    "impulse_force": (15.0, 35.0), "impulse_duration": (0.10, 0.20),
-    "impulse_speed": (40.0 * DEG, 80.0 * DEG), "tremor": (0.2, 0.8),
-    "rest_time": (0.3, 0.6), "lock_start": (4.0 * DEG, 8.0 * DEG),
+    "hand_stiffness": (500.0, 1200.0),
+    "hand_damping": (10.0, 25.0),
+    "pull_speed": (0.05, 0.15),
+    "push_speed": (0.06, 0.16),
+    "max_force": (150.0, 300.0),
+    "reaction_time": (0.12, 0.25),
+    "release_time": (0.08, 0.20),
+    "impulse_force": (15.0, 35.0),
+    "impulse_duration": (0.10, 0.20),
+    "impulse_speed": (40.0 * DEG, 80.0 * DEG),
+    "tremor": (0.2, 0.8),
+    "rest_time": (0.3, 0.6),
+    "lock_start": (4.0 * DEG, 8.0 * DEG),
 }
 
 
@@ -140,16 +152,26 @@ def _cos_fade(x):
 class HandPolicy(_Policy):
     """Pull to unlock (``direction = -1``) or push to lock (``+1``) with a compliant hand."""
 
-    def __init__(self, user: VirtualUser, direction: int, radius: float, tremor, dt: float,
-                 theta_contact: float, detect: float, tail: float, t_max: float):
+    def __init__(
+        self,
+        user: VirtualUser,
+        direction: int,
+        radius: float,
+        tremor,
+        dt: float,
+        theta_contact: float,
+        detect: float,
+        tail: float,
+        t_max: float,
+    ):
         self.u, self.dir, self.R, self.tremor, self.dt = user, direction, radius, tremor, dt
         self.t_start = user.rest_time
         self.speed = user.pull_speed if direction < 0 else user.push_speed
         self.s0 = None
         self.detect, self.tail, self.t_max = detect, tail, t_max
         self.theta_contact = theta_contact
-        self.t_event = None     # latch gave way (unlock) / snapped (lock)
-        self.t_release = None   # user starts letting go
+        self.t_event = None  # latch gave way (unlock) / snapped (lock)
+        self.t_release = None  # user starts letting go
         self.t_saturated = None
         self.gave_up = False
 
@@ -168,9 +190,10 @@ class HandPolicy(_Policy):
         # then the user stops moving it forward (and lets go after the reaction time)
         moving = ts if self.t_event is None else np.minimum(ts, self.t_event)
         target = self.s0 + self.dir * self.speed * np.maximum(moving - self.t_start, 0.0)
-        handle = self.R * (theta_k + dtheta_k * (ts - tk))   # predicted over the chunk
-        f = (self.u.hand_stiffness * (target - handle)
-             + self.u.hand_damping * (self.dir * self.speed - self.R * dtheta_k))
+        handle = self.R * (theta_k + dtheta_k * (ts - tk))  # predicted over the chunk
+        f = self.u.hand_stiffness * (target - handle) + self.u.hand_damping * (
+            self.dir * self.speed - self.R * dtheta_k
+        )
         f = f + self.tremor(ts)
         # one-sided contact, bounded by the user's strength
         f = np.clip(self.dir * f, 0.0, self.u.max_force) * self.dir
@@ -189,7 +212,7 @@ class HandPolicy(_Policy):
                 self.t_event = float(ts[hit[0]])
                 self.t_release = self.t_event + self.u.reaction_time
             elif self.t_saturated is not None and t > self.t_saturated + 0.5:
-                self.gave_up = True           # cannot move it: let go
+                self.gave_up = True  # cannot move it: let go
                 self.t_event = float(t)
                 self.t_release = float(t)
         if self.t_release is not None and t > self.t_release + self.u.release_time + self.tail:
@@ -213,7 +236,9 @@ class ImpulsePolicy(_Policy):
 
     def plan(self, ts, tk, theta_k, dtheta_k):
         x = (ts - self.t_start) / self.u.impulse_duration
-        f = np.where((x > 0) & (x < 1), self.u.impulse_force * np.sin(math.pi * np.clip(x, 0, 1)), 0.0)
+        f = np.where(
+            (x > 0) & (x < 1), self.u.impulse_force * np.sin(math.pi * np.clip(x, 0, 1)), 0.0
+        )
         f = f + self.tremor(ts) * ((x > 0) & (x < 1))
         if self.t_cut is not None:
             f = f * _cos_fade((ts - self.t_cut) / self.CUT)
@@ -235,8 +260,18 @@ class ImpulsePolicy(_Policy):
             self.finished = True
 
 
-def run_closed_loop(model, params, policy: _Policy, dt: float, theta0: float, dtheta0: float,
-                    t_max: float, chunk: int = 4, method=None, substeps=None) -> dict:
+def run_closed_loop(
+    model,
+    params,
+    policy: _Policy,
+    dt: float,
+    theta0: float,
+    dtheta0: float,
+    t_max: float,
+    chunk: int = 4,
+    method=None,
+    substeps=None,
+) -> dict:
     """Simulate ``model`` under a user ``policy`` deciding the force chunk by chunk.
 
     Each chunk of ``chunk`` samples is one :func:`~evo_door.sim.simulate` call starting
@@ -254,28 +289,45 @@ def run_closed_loop(model, params, policy: _Policy, dt: float, theta0: float, dt
     k = 0
     while k < n_max - 1 and not policy.finished:
         k1 = min(k + chunk, n_max - 1)
-        force[k + 1:k1 + 1] = policy.plan(t[k + 1:k1 + 1], t[k], theta[k], dtheta[k])
-        r = simulate(model, params, force[k:k1 + 1], dt, theta0=theta[k], dtheta0=dtheta[k],
-                     method=method, substeps=substeps)
+        force[k + 1 : k1 + 1] = policy.plan(t[k + 1 : k1 + 1], t[k], theta[k], dtheta[k])
+        r = simulate(
+            model,
+            params,
+            force[k : k1 + 1],
+            dt,
+            theta0=theta[k],
+            dtheta0=dtheta[k],
+            method=method,
+            substeps=substeps,
+        )
         if not r.ok:
-            raise UserError(f"rig: the simulation of model {model.name!r} blew up at "
-                            f"t = {t[k]:.3f} s; check the parameters or the integration settings")
-        theta[k:k1 + 1], dtheta[k:k1 + 1], ddtheta[k:k1 + 1] = r.theta, r.dtheta, r.ddtheta
-        policy.observe(t[k:k1 + 1], r.theta, r.dtheta)
+            raise UserError(
+                f"rig: the simulation of model {model.name!r} blew up at "
+                f"t = {t[k]:.3f} s; check the parameters or the integration settings"
+            )
+        theta[k : k1 + 1], dtheta[k : k1 + 1], ddtheta[k : k1 + 1] = r.theta, r.dtheta, r.ddtheta
+        policy.observe(t[k : k1 + 1], r.theta, r.dtheta)
         k = k1
     n = k + 1
-    return {"t": t[:n], "force": force[:n], "theta": theta[:n], "dtheta": dtheta[:n],
-            "ddtheta": ddtheta[:n]}
+    return {
+        "t": t[:n],
+        "force": force[:n],
+        "theta": theta[:n],
+        "dtheta": dtheta[:n],
+        "ddtheta": ddtheta[:n],
+    }
 
 
 def _settle(model, params, theta0, dt, duration=0.5, method=None, substeps=None):
     """State after resting with no force for ``duration`` s from ``theta0``."""
     n = int(round(duration / dt)) + 1
-    r = simulate(model, params, np.zeros(n), dt, theta0=theta0, dtheta0=0.0,
-                 method=method, substeps=substeps)
+    r = simulate(
+        model, params, np.zeros(n), dt, theta0=theta0, dtheta0=0.0, method=method, substeps=substeps
+    )
     if not r.ok:
-        raise UserError(f"rig: model {model.name!r} blew up while resting at "
-                        f"theta = {theta0:.4f} rad")
+        raise UserError(
+            f"rig: model {model.name!r} blew up while resting at theta = {theta0:.4f} rad"
+        )
     return float(r.theta[-1]), float(r.dtheta[-1])
 
 
@@ -286,8 +338,12 @@ def _tremor(user: VirtualUser, rng: np.random.Generator):
     a = user.tremor
 
     def tremor(ts):
-        return a * (0.6 * np.sin(2 * math.pi * f1 * ts + p1) + 0.4 * np.sin(2 * math.pi * f2 * ts + p2)
-                    + 0.8 * np.sin(2 * math.pi * f3 * ts + p3))
+        return a * (
+            0.6 * np.sin(2 * math.pi * f1 * ts + p1)
+            + 0.4 * np.sin(2 * math.pi * f2 * ts + p2)
+            + 0.8 * np.sin(2 * math.pi * f3 * ts + p3)
+        )
+
     return tremor
 
 
@@ -296,22 +352,31 @@ def _tremor(user: VirtualUser, rng: np.random.Generator):
 class RigSettings:
     """Rig-wide settings (SI)."""
 
-    rate: float = 1024.0            # Hz
-    handle_radius: float = 0.6      # m, where the hand acts (seed: L = 0.6 m)
-    chunk: int = 4                  # samples per closed-loop step
+    rate: float = 1024.0  # Hz
+    handle_radius: float = 0.6  # m, where the hand acts (seed: L = 0.6 m)
+    chunk: int = 4  # samples per closed-loop step
     unlock_detect: float = 2.0 * DEG  # rad of motion the user feels as "it opened"
     #: rad from closed felt as "it locked": past the latch apex of both bundled models
     #: (door: 0.46 deg, haptic: inside the 0.5 deg loose band, where the push holds it)
     lock_detect: float = 0.3 * DEG
-    tail: float = 1.0               # s recorded after letting go (unlock / lock)
-    settle: float = 0.4             # s of stillness that ends an impulse trial
-    t_max: float = 8.0              # s, longest trial
-    all_sensors: bool = False       # record every sensor in every trial
+    tail: float = 1.0  # s recorded after letting go (unlock / lock)
+    settle: float = 0.4  # s of stillness that ends an impulse trial
+    t_max: float = 8.0  # s, longest trial
+    all_sensors: bool = False  # record every sensor in every trial
 
 
-def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.Generator,
-                   trial_id: str = "T01", settings: RigSettings = RigSettings(),
-                   sensors: dict[str, Sensor] | None = None, method=None, substeps=None) -> Trial:
+def generate_trial(
+    model,
+    params,
+    kind: str,
+    user: VirtualUser,
+    rng: np.random.Generator,
+    trial_id: str = "T01",
+    settings: RigSettings = RigSettings(),
+    sensors: dict[str, Sensor] | None = None,
+    method=None,
+    substeps=None,
+) -> Trial:
     """One rig trial of ``kind`` by ``user`` (already jittered) on ``model`` with ``params``.
 
     Raises UserError when the model does not support ``kind`` (``Model.rig_kinds``) or
@@ -324,19 +389,38 @@ def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.G
     opts = {"method": method, "substeps": substeps}
     if kind == "unlock":
         theta0, dtheta0 = _settle(model, params, CLOSED, dt, **opts)
-        policy = HandPolicy(user, -1, settings.handle_radius, tremor, dt, theta0,
-                            settings.unlock_detect, settings.tail, settings.t_max)
+        policy = HandPolicy(
+            user,
+            -1,
+            settings.handle_radius,
+            tremor,
+            dt,
+            theta0,
+            settings.unlock_detect,
+            settings.tail,
+            settings.t_max,
+        )
     elif kind == "lock":
         # a door that pulls itself shut over its last degrees comes to rest on the lock
         # ramp before the hand arrives: the push starts from where it rests
         theta0, dtheta0 = _settle(model, params, CLOSED - user.lock_start, dt, **opts)
-        policy = HandPolicy(user, +1, settings.handle_radius, tremor, dt, theta0,
-                            settings.lock_detect, settings.tail, settings.t_max)
+        policy = HandPolicy(
+            user,
+            +1,
+            settings.handle_radius,
+            tremor,
+            dt,
+            theta0,
+            settings.lock_detect,
+            settings.tail,
+            settings.t_max,
+        )
     else:
         theta0, dtheta0 = _settle(model, params, 0.0, dt, **opts)
         policy = ImpulsePolicy(user, tremor, settings.settle, settings.t_max)
-    clean = run_closed_loop(model, params, policy, dt, theta0, dtheta0, settings.t_max,
-                            settings.chunk, **opts)
+    clean = run_closed_loop(
+        model, params, policy, dt, theta0, dtheta0, settings.t_max, settings.chunk, **opts
+    )
 
     _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean)
     channels = ("force", "theta", "dtheta") if settings.all_sensors else KIND_CHANNELS[kind]
@@ -347,15 +431,27 @@ def generate_trial(model, params, kind: str, user: VirtualUser, rng: np.random.G
     else:
         events.update(t_cut=policy.t_cut, t_push_end=policy.t_end)
     trial = Trial(
-        t=clean["t"], force=measured["force"], theta=measured.get("theta"),
-        dtheta=measured.get("dtheta"), trial_id=trial_id, user_id=user.user_id, kind=kind,
-        theta0=theta0, dtheta0=dtheta0,
+        t=clean["t"],
+        force=measured["force"],
+        theta=measured.get("theta"),
+        dtheta=measured.get("dtheta"),
+        trial_id=trial_id,
+        user_id=user.user_id,
+        kind=kind,
+        theta0=theta0,
+        dtheta0=dtheta0,
         sensors={ch: sensors[ch].info() for ch in channels},
         truth=_truth(model, params, method, substeps),
         source=f"rig:{trial_id}",
-        meta={"rig": {"evo_door": __version__, "settings": asdict(settings),
-                      "user": asdict(user), "events": events,
-                      "peak_force_true": float(clean["force"][np.argmax(np.abs(clean["force"]))])}},
+        meta={
+            "rig": {
+                "evo_door": __version__,
+                "settings": asdict(settings),
+                "user": asdict(user),
+                "events": events,
+                "peak_force_true": float(clean["force"][np.argmax(np.abs(clean["force"]))]),
+            }
+        },
     )
     _refuse_if_saturated(model, trial, policy)
     return trial
@@ -368,8 +464,10 @@ def _check_kinds(model, kinds) -> None:
         if kind not in KINDS:
             raise UserError(f"unknown trial kind {kind!r}; kinds: {', '.join(KINDS)}")
         if kind not in supported:
-            raise UserError(f"rig: model {model.name!r} cannot make {kind} trials; it supports "
-                            f"{', '.join(supported)} (Model.rig_kinds)")
+            raise UserError(
+                f"rig: model {model.name!r} cannot make {kind} trials; it supports "
+                f"{', '.join(supported)} (Model.rig_kinds)"
+            )
 
 
 def _refuse_if_saturated(model, trial: Trial, policy) -> None:
@@ -391,7 +489,8 @@ def _refuse_if_saturated(model, trial: Trial, policy) -> None:
         raise UserError(
             f"rig: trial {trial.trial_id} ({trial.kind}, {trial.user_id}): the {info['sensor']} "
             f"({channel}) is saturated in {100 * share:.0f} % {part}: model {model.name!r} moves "
-            f"outside the sensor's range [{lo:.4g}, {hi:.4g}]; nothing written")
+            f"outside the sensor's range [{lo:.4g}, {hi:.4g}]; nothing written"
+        )
 
 
 def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> None:
@@ -399,28 +498,47 @@ def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> Non
     import warnings
 
     if isinstance(policy, HandPolicy) and (policy.gave_up or policy.t_event is None):
-        warnings.warn(f"rig: trial {trial_id} ({kind}, {user.user_id}): the door of model "
-                      f"{model.name!r} did not {kind} (user's strength {user.max_force:.0f} N, "
-                      f"{clean['t'][-1]:.1f} s); check the parameters", stacklevel=3)
+        warnings.warn(
+            f"rig: trial {trial_id} ({kind}, {user.user_id}): the door of model "
+            f"{model.name!r} did not {kind} (user's strength {user.max_force:.0f} N, "
+            f"{clean['t'][-1]:.1f} s); check the parameters",
+            stacklevel=3,
+        )
     if isinstance(policy, ImpulsePolicy) and np.max(np.abs(clean["dtheta"])) < 5 * DEG:
-        warnings.warn(f"rig: trial {trial_id} (impulse, {user.user_id}): the door of model "
-                      f"{model.name!r} hardly moved (peak speed "
-                      f"{np.degrees(np.max(np.abs(clean['dtheta']))):.1f} deg/s)", stacklevel=3)
+        warnings.warn(
+            f"rig: trial {trial_id} (impulse, {user.user_id}): the door of model "
+            f"{model.name!r} hardly moved (peak speed "
+            f"{np.degrees(np.max(np.abs(clean['dtheta']))):.1f} deg/s)",
+            stacklevel=3,
+        )
 
 
 def _truth(model, params, method, substeps) -> dict:
     values = params.as_dict() if hasattr(params, "as_dict") else model.params.as_dict(params)
-    return {"model": model.name, "params": values,
-            "units": {p.name: p.unit for p in model.params},
-            "params_source": getattr(params, "source", "") or "",
-            "method": method or model.method, "substeps": int(substeps or model.substeps)}
+    return {
+        "model": model.name,
+        "params": values,
+        "units": {p.name: p.unit for p in model.params},
+        "params_source": getattr(params, "source", "") or "",
+        "method": method or model.method,
+        "substeps": int(substeps or model.substeps),
+    }
 
 
 # -- a campaign -----------------------------------------------------------------------
-def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
-                    kinds=None, settings: RigSettings = RigSettings(),
-                    sensors: dict[str, Sensor] | None = None, method=None, substeps=None,
-                    progress: bool | None = None) -> list[Trial]:
+def generate_trials(
+    model,
+    params,
+    users: int = 3,
+    trials: int = 10,
+    seed=1,
+    kinds=None,
+    settings: RigSettings = RigSettings(),
+    sensors: dict[str, Sensor] | None = None,
+    method=None,
+    substeps=None,
+    progress: bool | None = None,
+) -> list[Trial]:
     """A measurement campaign: ``trials`` trials by ``users`` virtual users.
 
     Trial k (ids ``T01``...) is done by user ``k % users`` (ids ``U1``...) and is of
@@ -454,14 +572,27 @@ def generate_trials(model, params, users: int = 3, trials: int = 10, seed=1,
     user_seq, trial_root = root.spawn(2)
     people = make_users(users, np.random.default_rng(user_seq))
     out = []
-    bar = tqdm(range(trials), desc="rig", unit="trial", disable=None if progress is None else not progress)
+    bar = tqdm(
+        range(trials), desc="rig", unit="trial", disable=None if progress is None else not progress
+    )
     for k, child in zip(bar, trial_root.spawn(trials)):
         rng = np.random.default_rng(child)
         user = people[k % users].jittered(rng)
-        trial = generate_trial(model, params, kinds[k % len(kinds)], user, rng,
-                               f"T{k + 1:02d}", settings, sensors, method, substeps)
-        trial.meta["rig"].update(seed=int(root.entropy) if isinstance(root.entropy, int) else None,
-                                 trial_index=k)
+        trial = generate_trial(
+            model,
+            params,
+            kinds[k % len(kinds)],
+            user,
+            rng,
+            f"T{k + 1:02d}",
+            settings,
+            sensors,
+            method,
+            substeps,
+        )
+        trial.meta["rig"].update(
+            seed=int(root.entropy) if isinstance(root.entropy, int) else None, trial_index=k
+        )
         out.append(trial)
     return out
 
@@ -474,8 +605,17 @@ def default_kinds(model) -> tuple[str, ...]:
 
 #: Keys of a rig specification (an experiment's ``inputs:`` mapping) and their defaults
 #: (``kinds: None``: the model's, :func:`default_kinds`).
-SPEC_DEFAULTS = {"model": "door", "params": None, "set": {}, "users": 3, "trials": 10, "seed": 1,
-                 "kinds": None, "rate": 1024.0, "all_sensors": False}
+SPEC_DEFAULTS = {
+    "model": "door",
+    "params": None,
+    "set": {},
+    "users": 3,
+    "trials": 10,
+    "seed": 1,
+    "kinds": None,
+    "rate": 1024.0,
+    "all_sensors": False,
+}
 
 
 def trials_from_spec(spec: dict) -> list[Trial]:
@@ -492,13 +632,21 @@ def trials_from_spec(spec: dict) -> list[Trial]:
     unknown = set(spec) - set(SPEC_DEFAULTS)
     if unknown:
         key = sorted(unknown)[0]
-        raise UserError(f"rig specification: unknown key {key!r}" + suggest(key, SPEC_DEFAULTS)
-                        + f"; keys: {', '.join(SPEC_DEFAULTS)}")
+        raise UserError(
+            f"rig specification: unknown key {key!r}"
+            + suggest(key, SPEC_DEFAULTS)
+            + f"; keys: {', '.join(SPEC_DEFAULTS)}"
+        )
     s = {**SPEC_DEFAULTS, **spec}
     model = get_model(str(s["model"]))
     params = model.load_params(s["params"], dict(s["set"] or {}))
     kinds = s["kinds"].split(",") if isinstance(s["kinds"], str) else s["kinds"]
-    return generate_trials(model, params, users=int(s["users"]), trials=int(s["trials"]),
-                           seed=int(s["seed"]),
-                           kinds=None if kinds is None else [str(k).strip() for k in kinds],
-                           settings=RigSettings(rate=float(s["rate"]), all_sensors=bool(s["all_sensors"])))
+    return generate_trials(
+        model,
+        params,
+        users=int(s["users"]),
+        trials=int(s["trials"]),
+        seed=int(s["seed"]),
+        kinds=None if kinds is None else [str(k).strip() for k in kinds],
+        settings=RigSettings(rate=float(s["rate"]), all_sensors=bool(s["all_sensors"])),
+    )

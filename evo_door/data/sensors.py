@@ -63,14 +63,29 @@ class Sensor:
         return d
 
 
-LOAD_CELL = Sensor("force", "load cell", "FUTEK LTH300", -445.0, 445.0,
-                   noise_std=0.15, resolution=890.0 / 2 ** 16)
-GYROSCOPE = Sensor("dtheta", "gyroscope", "BAE Systems unipolar gyroscope",
-                   -100.0 * DEG, 100.0 * DEG, noise_std=0.05 * DEG,
-                   resolution=200.0 * DEG / 2 ** 16, bias_std=0.1 * DEG)
-INCLINOMETER = Sensor("theta", "inclinometer", "Columbia Research Laboratories SI-701B",
-                      CLOSED - 10.0 * DEG, CLOSED + 10.0 * DEG, noise_std=0.01 * DEG,
-                      resolution=20.0 * DEG / 2 ** 16, origin=CLOSED)
+LOAD_CELL = Sensor(
+    "force", "load cell", "FUTEK LTH300", -445.0, 445.0, noise_std=0.15, resolution=890.0 / 2**16
+)
+GYROSCOPE = Sensor(
+    "dtheta",
+    "gyroscope",
+    "BAE Systems unipolar gyroscope",
+    -100.0 * DEG,
+    100.0 * DEG,
+    noise_std=0.05 * DEG,
+    resolution=200.0 * DEG / 2**16,
+    bias_std=0.1 * DEG,
+)
+INCLINOMETER = Sensor(
+    "theta",
+    "inclinometer",
+    "Columbia Research Laboratories SI-701B",
+    CLOSED - 10.0 * DEG,
+    CLOSED + 10.0 * DEG,
+    noise_std=0.01 * DEG,
+    resolution=20.0 * DEG / 2**16,
+    origin=CLOSED,
+)
 
 #: The seed's sensor set, by channel.
 SEED_SENSORS = {"force": LOAD_CELL, "theta": INCLINOMETER, "dtheta": GYROSCOPE}

@@ -38,16 +38,22 @@ def summary_rows(trials: list[Trial]) -> list[dict]:
             k = int(np.sum(~tr.unsaturated(ch)))
             if k:
                 sat.append(f"{ch}:{k}")
-        rows.append({
-            "trial": tr.trial_id, "user": tr.user_id or "-", "kind": tr.kind or "-",
-            "samples": str(tr.n), "duration [s]": f"{tr.duration:.3f}", "rate [Hz]": f"{tr.rate:g}",
-            "force [N]": _range(tr.force),
-            "theta [deg]": _range(tr.theta, deg, "{:.2f}"),
-            "dtheta [deg/s]": _range(tr.dtheta, deg),
-            "peak [N]": f"{peak.force:.1f}" if peak else "-",
-            "theta0 [deg]": f"{tr.theta0 * deg:.2f}" if tr.theta0 is not None else "-",
-            "saturated": ",".join(sat) or "-",
-        })
+        rows.append(
+            {
+                "trial": tr.trial_id,
+                "user": tr.user_id or "-",
+                "kind": tr.kind or "-",
+                "samples": str(tr.n),
+                "duration [s]": f"{tr.duration:.3f}",
+                "rate [Hz]": f"{tr.rate:g}",
+                "force [N]": _range(tr.force),
+                "theta [deg]": _range(tr.theta, deg, "{:.2f}"),
+                "dtheta [deg/s]": _range(tr.dtheta, deg),
+                "peak [N]": f"{peak.force:.1f}" if peak else "-",
+                "theta0 [deg]": f"{tr.theta0 * deg:.2f}" if tr.theta0 is not None else "-",
+                "saturated": ",".join(sat) or "-",
+            }
+        )
     return rows
 
 
@@ -82,7 +88,9 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
 
     from evo_door.files import save_figure
 
-    kinds = sorted({t.kind for t in trials}, key=lambda k: KIND_ORDER.index(k) if k in KIND_ORDER else 99)
+    kinds = sorted(
+        {t.kind for t in trials}, key=lambda k: KIND_ORDER.index(k) if k in KIND_ORDER else 99
+    )
     users = sorted({t.user_id for t in trials})
     tab10 = matplotlib.colormaps["tab10"]
     colors = {u: tab10(i % 10) for i, u in enumerate(users)}
@@ -102,7 +110,9 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
             if tr.theta is not None:
                 ax_a.plot(tr.t, tr.theta * deg, color=c, lw=0.9)
             elif tr.dtheta is not None and tr.theta0 is not None:
-                ax_a.plot(tr.t, angle_from_rate(tr.t, tr.dtheta, tr.theta0) * deg, "--", color=c, lw=0.9)
+                ax_a.plot(
+                    tr.t, angle_from_rate(tr.t, tr.dtheta, tr.theta0) * deg, "--", color=c, lw=0.9
+                )
             if tr.dtheta is not None:
                 ax_w.plot(tr.t, tr.dtheta * deg, color=c, lw=0.9)
             elif tr.theta is not None and tr.n > 30:
@@ -110,9 +120,16 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
                 speed = np.gradient(smooth, tr.t) * deg
                 # a pinned inclinometer says nothing about the speed
                 valid = tr.unsaturated("theta")
-                valid = np.convolve(valid, np.ones(int(0.05 * tr.rate) | 1), "same") >= int(0.05 * tr.rate) | 1
+                valid = (
+                    np.convolve(valid, np.ones(int(0.05 * tr.rate) | 1), "same")
+                    >= int(0.05 * tr.rate) | 1
+                )
                 ax_w.plot(tr.t, np.where(valid, speed, np.nan), "--", color=c, lw=0.9)
-            for ch, ax, scale in (("force", ax_f, 1.0), ("theta", ax_a, deg), ("dtheta", ax_w, deg)):
+            for ch, ax, scale in (
+                ("force", ax_f, 1.0),
+                ("theta", ax_a, deg),
+                ("dtheta", ax_w, deg),
+            ):
                 rng = tr.sensor(ch).get("range") if getattr(tr, ch) is not None else None
                 if rng and ch not in limits_drawn:
                     lo, hi = rng
@@ -122,8 +139,13 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
                         if np.min(np.abs(data - lim)) < 0.05 * (hi - lo):
                             ax.axhline(lim * scale, color="0.4", ls=":", lw=1.0)
                             limits_drawn.add(ch)
-        ax_f.set_title({"unlock": "pull to unlock (from closed)", "lock": "push to lock (near closed)",
-                        "impulse": "impulse from fully open"}.get(kind, kind or "trials"))
+        ax_f.set_title(
+            {
+                "unlock": "pull to unlock (from closed)",
+                "lock": "push to lock (near closed)",
+                "impulse": "impulse from fully open",
+            }.get(kind, kind or "trials")
+        )
         if j == 0:
             ax_f.set_ylabel("force at handle [N]\n(+ toward closing)")
             ax_a.set_ylabel("door angle [deg]\n(0 open, 90 closed)")

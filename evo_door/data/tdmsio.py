@@ -43,8 +43,13 @@ def _column(channel) -> Column:
     unit = props.get("unit_string") or None
     dt = props.get("wf_increment")
     t0 = props.get("wf_start_offset", 0.0)
-    return Column(channel.name, values, str(unit) if unit else None,
-                  float(dt) if dt else None, float(t0 or 0.0))
+    return Column(
+        channel.name,
+        values,
+        str(unit) if unit else None,
+        float(dt) if dt else None,
+        float(t0 or 0.0),
+    )
 
 
 def read_tdms(path, trials="all", mapping=None, rate=None, fields=None) -> list[Trial]:
@@ -70,15 +75,28 @@ def read_tdms(path, trials="all", mapping=None, rate=None, fields=None) -> list[
         where = f"{path}:{name}"
         columns = {ch.name: _column(ch) for ch in g.channels()}
         props = g.properties
-        flds = {"trial_id": name, "user_id": props.get("user_id"), "kind": props.get("kind"),
-                "theta0": props.get("theta0"), "dtheta0": props.get("dtheta0")}
+        flds = {
+            "trial_id": name,
+            "user_id": props.get("user_id"),
+            "kind": props.get("kind"),
+            "theta0": props.get("theta0"),
+            "dtheta0": props.get("dtheta0"),
+        }
         for key in ("sensors", "truth", "meta"):
             if key in props:
                 flds[key] = json.loads(props[key])
         flds = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in flds.items()}
         flds.update({k: v for k, v in (fields or {}).items() if v is not None})
-        out.append(trial_from_columns(columns, where, mapping, rate, flds,
-                                      record_import="meta" not in props or bool(mapping)))
+        out.append(
+            trial_from_columns(
+                columns,
+                where,
+                mapping,
+                rate,
+                flds,
+                record_import="meta" not in props or bool(mapping),
+            )
+        )
     return out
 
 
@@ -87,8 +105,13 @@ def write_tdms(path, trials) -> None:
     nptdms = _nptdms()
     objects = [nptdms.RootObject({"software": "evo-door"})]
     for tr in trials:
-        props = {"trial_id": tr.trial_id, "user_id": tr.user_id, "kind": tr.kind,
-                 "sensors": to_json(tr.sensors), "meta": to_json(tr.meta)}
+        props = {
+            "trial_id": tr.trial_id,
+            "user_id": tr.user_id,
+            "kind": tr.kind,
+            "sensors": to_json(tr.sensors),
+            "meta": to_json(tr.meta),
+        }
         if tr.truth:
             props["truth"] = to_json(tr.truth)
         for key in ("theta0", "dtheta0"):
@@ -99,9 +122,19 @@ def write_tdms(path, trials) -> None:
             values = getattr(tr, name)
             if values is None:
                 continue
-            objects.append(nptdms.ChannelObject(tr.trial_id, name, values, properties={
-                "unit_string": UNITS[name], "wf_increment": tr.dt,
-                "wf_start_offset": float(tr.t[0]), "wf_samples": tr.n}))
+            objects.append(
+                nptdms.ChannelObject(
+                    tr.trial_id,
+                    name,
+                    values,
+                    properties={
+                        "unit_string": UNITS[name],
+                        "wf_increment": tr.dt,
+                        "wf_start_offset": float(tr.t[0]),
+                        "wf_samples": tr.n,
+                    },
+                )
+            )
     with atomic_write(path) as tmp:
         with nptdms.TdmsWriter(str(tmp)) as writer:
             writer.write_segment(objects)

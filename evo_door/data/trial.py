@@ -106,13 +106,20 @@ class Trial:
         Without ``theta0`` and a ``theta`` channel the angle is ``default_theta0`` (a
         model's rest angle, for a bare force record), else unknown: an error.
         """
-        theta0 = self.theta0 if self.theta0 is not None else (
-            float(self.theta[0]) if self.theta is not None else default_theta0)
+        theta0 = (
+            self.theta0
+            if self.theta0 is not None
+            else (float(self.theta[0]) if self.theta is not None else default_theta0)
+        )
         if theta0 is None:
-            raise UserError(f"{self.label}: no theta channel and no theta0: the initial "
-                            "angle is unknown")
-        dtheta0 = self.dtheta0 if self.dtheta0 is not None else (
-            float(self.dtheta[0]) if self.dtheta is not None else 0.0)
+            raise UserError(
+                f"{self.label}: no theta channel and no theta0: the initial angle is unknown"
+            )
+        dtheta0 = (
+            self.dtheta0
+            if self.dtheta0 is not None
+            else (float(self.dtheta[0]) if self.dtheta is not None else 0.0)
+        )
         return float(theta0), float(dtheta0)
 
     def channel(self, derivative: int) -> np.ndarray | None:
@@ -123,8 +130,10 @@ class Trial:
         """The response of derivative order 0, 1 or 2, or a one-line error naming the trial."""
         values = self.channel(derivative)
         if values is None:
-            raise UserError(f"trial {self.trial_id!r} has no {RESPONSE_CHANNELS[derivative]!r} "
-                            f"channel (it has {', '.join(self.channels) or 'none'})")
+            raise UserError(
+                f"trial {self.trial_id!r} has no {RESPONSE_CHANNELS[derivative]!r} "
+                f"channel (it has {', '.join(self.channels) or 'none'})"
+            )
         return values
 
     @property
@@ -175,17 +184,23 @@ class Trial:
             if value is None:
                 continue
             if value.shape != self.t.shape:
-                raise UserError(f"{where}: channel {name!r} has {value.size} samples, "
-                                f"'t' has {self.t.size}")
+                raise UserError(
+                    f"{where}: channel {name!r} has {value.size} samples, 't' has {self.t.size}"
+                )
             bad = ~np.isfinite(value)
             if bad.any():
-                raise UserError(f"{where}: channel {name!r} is not finite at row "
-                                f"{int(np.flatnonzero(bad)[0])}")
+                raise UserError(
+                    f"{where}: channel {name!r} is not finite at row {int(np.flatnonzero(bad)[0])}"
+                )
         step = np.diff(self.t)
         if np.any(step <= 0):
-            raise UserError(f"{where}: channel 't' is not increasing at row "
-                            f"{int(np.flatnonzero(step <= 0)[0]) + 1}")
+            raise UserError(
+                f"{where}: channel 't' is not increasing at row "
+                f"{int(np.flatnonzero(step <= 0)[0]) + 1}"
+            )
         if np.ptp(step) > 1e-6 * step.mean() + 1e-12:
             row = int(np.argmax(np.abs(step - step[0]))) + 1
-            raise UserError(f"{where}: channel 't' is not uniformly sampled (row {row}: "
-                            f"step {step[row - 1]:.6g} s, first step {step[0]:.6g} s)")
+            raise UserError(
+                f"{where}: channel 't' is not uniformly sampled (row {row}: "
+                f"step {step[row - 1]:.6g} s, first step {step[0]:.6g} s)"
+            )

@@ -23,27 +23,57 @@ from evo_door.params.declaration import suggest
 
 #: unit -> (dimension, factor to SI).
 UNITS: dict[str, tuple[str, float]] = {
-    "s": ("time", 1.0), "ms": ("time", 1e-3), "us": ("time", 1e-6), "min": ("time", 60.0),
-    "N": ("force", 1.0), "kN": ("force", 1e3), "mN": ("force", 1e-3),
-    "lbf": ("force", 4.4482216152605), "kgf": ("force", 9.80665),
-    "rad": ("angle", 1.0), "mrad": ("angle", 1e-3), "deg": ("angle", math.pi / 180.0),
-    "rad/s": ("angular speed", 1.0), "deg/s": ("angular speed", math.pi / 180.0),
-    "rpm": ("angular speed", 2.0 * math.pi / 60.0), "mrad/s": ("angular speed", 1e-3),
-    "rad/s^2": ("angular acceleration", 1.0), "deg/s^2": ("angular acceleration", math.pi / 180.0),
+    "s": ("time", 1.0),
+    "ms": ("time", 1e-3),
+    "us": ("time", 1e-6),
+    "min": ("time", 60.0),
+    "N": ("force", 1.0),
+    "kN": ("force", 1e3),
+    "mN": ("force", 1e-3),
+    "lbf": ("force", 4.4482216152605),
+    "kgf": ("force", 9.80665),
+    "rad": ("angle", 1.0),
+    "mrad": ("angle", 1e-3),
+    "deg": ("angle", math.pi / 180.0),
+    "rad/s": ("angular speed", 1.0),
+    "deg/s": ("angular speed", math.pi / 180.0),
+    "rpm": ("angular speed", 2.0 * math.pi / 60.0),
+    "mrad/s": ("angular speed", 1e-3),
+    "rad/s^2": ("angular acceleration", 1.0),
+    "deg/s^2": ("angular acceleration", math.pi / 180.0),
 }
 
 #: Spellings met in headers and TDMS ``unit_string`` properties.
 ALIASES = {
-    "sec": "s", "second": "s", "seconds": "s", "msec": "ms", "µs": "us",
-    "newton": "N", "newtons": "N", "n": "N", "kn": "kN",
-    "degree": "deg", "degrees": "deg", "°": "deg", "radian": "rad", "radians": "rad",
-    "°/s": "deg/s", "deg/sec": "deg/s", "dps": "deg/s", "rad/sec": "rad/s",
-    "rad/s2": "rad/s^2", "rad/s²": "rad/s^2", "deg/s2": "deg/s^2", "deg/s²": "deg/s^2",
+    "sec": "s",
+    "second": "s",
+    "seconds": "s",
+    "msec": "ms",
+    "µs": "us",
+    "newton": "N",
+    "newtons": "N",
+    "n": "N",
+    "kn": "kN",
+    "degree": "deg",
+    "degrees": "deg",
+    "°": "deg",
+    "radian": "rad",
+    "radians": "rad",
+    "°/s": "deg/s",
+    "deg/sec": "deg/s",
+    "dps": "deg/s",
+    "rad/sec": "rad/s",
+    "rad/s2": "rad/s^2",
+    "rad/s²": "rad/s^2",
+    "deg/s2": "deg/s^2",
+    "deg/s²": "deg/s^2",
 }
 
-_EXPR = re.compile(r"^\s*(?:(?P<factor>[-+]?[0-9.]+(?:[eE][-+]?[0-9]+)?)\s*\*\s*)?"
-                   r"(?P<unit>[^\s+*]+?)\s*"
-                   r"(?:(?P<offset>[-+]\s*[0-9.]+(?:[eE][-+]?[0-9]+)?))?\s*$")
+_EXPR = re.compile(
+    r"^\s*(?:(?P<factor>[-+]?[0-9.]+(?:[eE][-+]?[0-9]+)?)\s*\*\s*)?"
+    r"(?P<unit>[^\s+*]+?)\s*"
+    r"(?:(?P<offset>[-+]\s*[0-9.]+(?:[eE][-+]?[0-9]+)?))?\s*$"
+)
 
 
 def canonical_unit(unit: str) -> str | None:
@@ -79,16 +109,23 @@ def parse_unit(text: str, channel: str, where: str = "") -> UnitExpr:
     prefix = f"{where}: " if where else ""
     m = _EXPR.match(text or "")
     if not m:
-        raise UserError(f"{prefix}cannot read unit {text!r} for channel {channel!r} "
-                        "(expected [FACTOR*]UNIT[+OFFSET], e.g. kN, -1*N, -1*deg+90)")
+        raise UserError(
+            f"{prefix}cannot read unit {text!r} for channel {channel!r} "
+            "(expected [FACTOR*]UNIT[+OFFSET], e.g. kN, -1*N, -1*deg+90)"
+        )
     unit = canonical_unit(m["unit"])
     if unit is None:
-        raise UserError(f"{prefix}unknown unit {m['unit']!r} for channel {channel!r}"
-                        + suggest(m["unit"], UNITS) + f"; known: {', '.join(UNITS)}")
+        raise UserError(
+            f"{prefix}unknown unit {m['unit']!r} for channel {channel!r}"
+            + suggest(m["unit"], UNITS)
+            + f"; known: {', '.join(UNITS)}"
+        )
     want = CHANNELS[channel][1]
     if UNITS[unit][0] != want:
-        raise UserError(f"{prefix}unit {unit!r} measures {UNITS[unit][0]}, channel {channel!r} "
-                        f"needs {want} ({CHANNELS[channel][0]})")
+        raise UserError(
+            f"{prefix}unit {unit!r} measures {UNITS[unit][0]}, channel {channel!r} "
+            f"needs {want} ({CHANNELS[channel][0]})"
+        )
     factor = float(m["factor"]) if m["factor"] else 1.0
     offset = float(m["offset"].replace(" ", "")) if m["offset"] else 0.0
     return UnitExpr(unit, factor, offset)
@@ -116,8 +153,11 @@ def parse_map(spec: str) -> ChannelMap:
     if not eq or not rest.strip():
         raise UserError(f"--map {spec!r}: expected CHANNEL=SOURCE[:UNIT], e.g. force=Fz:kN")
     if channel not in CHANNELS:
-        raise UserError(f"--map {spec!r}: unknown channel {channel!r}" + suggest(channel, CHANNELS)
-                        + f"; channels: {', '.join(CHANNELS)}")
+        raise UserError(
+            f"--map {spec!r}: unknown channel {channel!r}"
+            + suggest(channel, CHANNELS)
+            + f"; channels: {', '.join(CHANNELS)}"
+        )
     # the unit follows the last colon (source names may contain colons, units never do)
     source, colon, unit = rest.rpartition(":")
     if not colon:
@@ -125,7 +165,9 @@ def parse_map(spec: str) -> ChannelMap:
     source = source.strip()
     if not source:
         raise UserError(f"--map {spec!r}: empty source name")
-    return ChannelMap(channel, source, parse_unit(unit, channel, f"--map {spec!r}") if unit.strip() else None)
+    return ChannelMap(
+        channel, source, parse_unit(unit, channel, f"--map {spec!r}") if unit.strip() else None
+    )
 
 
 def parse_maps(specs) -> dict[str, ChannelMap]:

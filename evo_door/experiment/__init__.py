@@ -16,8 +16,9 @@ from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun, Interrupted
 
 
-def run_experiment(exp, out=None, overrides=None, trials=None, progress=False,
-                   on_checkpoint=None) -> ExperimentRun:
+def run_experiment(
+    exp, out=None, overrides=None, trials=None, progress=False, on_checkpoint=None
+) -> ExperimentRun:
     """Run an experiment (an :class:`Experiment` or a YAML path) to completion.
 
     ``trials`` replaces the target's trials (in-memory data); ``on_checkpoint(run, job)``
@@ -54,5 +55,12 @@ def resume_run(path, progress=False, on_checkpoint=None) -> ExperimentRun:
     return run.run(progress=progress, on_checkpoint=on_checkpoint)
 
 
-__all__ = ["Experiment", "ExperimentRun", "Interrupted", "Results", "load_experiment",
-           "resume_run", "run_experiment"]
+__all__ = [
+    "Experiment",
+    "ExperimentRun",
+    "Interrupted",
+    "Results",
+    "load_experiment",
+    "resume_run",
+    "run_experiment",
+]

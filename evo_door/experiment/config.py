@@ -37,11 +37,33 @@ from evo_door.optim.problem import COMBINE, Objective
 from evo_door.params.declaration import suggest
 from evo_door.sim.integrators import METHODS
 
-TOP_KEYS = ("name", "description", "model", "params", "target", "fixed", "free", "objective",
-            "algorithm", "per_trial", "simulation", "output")
+TOP_KEYS = (
+    "name",
+    "description",
+    "model",
+    "params",
+    "target",
+    "fixed",
+    "free",
+    "objective",
+    "algorithm",
+    "per_trial",
+    "simulation",
+    "output",
+)
 DATA_TARGET_KEYS = ("data", "trials", "kinds", "validate", "preprocess")
-MODEL_TARGET_KEYS = ("model", "params", "set", "inputs", "trials", "kinds", "validate", "theta0",
-                     "dtheta0", "preprocess")
+MODEL_TARGET_KEYS = (
+    "model",
+    "params",
+    "set",
+    "inputs",
+    "trials",
+    "kinds",
+    "validate",
+    "theta0",
+    "dtheta0",
+    "preprocess",
+)
 PREPROCESS_KEYS = ("rate_bias", "lowpass", "trim")
 RATE_BIAS = ("none", "start", "all")
 OBJECTIVE_KEYS = ("kind", "derivative", "combine")
@@ -77,15 +99,15 @@ class PreprocessSpec:
 class TargetSpec:
     """What the model is fitted to: trials from a file, or another model's response."""
 
-    kind: str                      # "data" or "model"
-    trials: object = "all"         # "all" or list of trial ids
+    kind: str  # "data" or "model"
+    trials: object = "all"  # "all" or list of trial ids
     kinds: list = field(default_factory=list)  # with trials: all, only these trial kinds
     validate: list = field(default_factory=list)
-    data: str | None = None        # resolved path (kind "data")
-    model: str | None = None       # target model (kind "model")
-    params: object = None          # preset name, resolved file path or {name: value}
+    data: str | None = None  # resolved path (kind "data")
+    model: str | None = None  # target model (kind "model")
+    params: object = None  # preset name, resolved file path or {name: value}
     set: dict = field(default_factory=dict)
-    inputs: object = None          # resolved file path, or a rig specification (mapping)
+    inputs: object = None  # resolved file path, or a rig specification (mapping)
     theta0: float | None = None
     dtheta0: float | None = None
     preprocess: PreprocessSpec = field(default_factory=lambda: PreprocessSpec())
@@ -105,19 +127,27 @@ class AlgorithmSpec:
 
     def resolved(self) -> dict:
         """The section as plain data, every default filled in (as results files store it)."""
-        return {"kind": self.kind, **asdict(self.ga), "polish": self.polish,
-                **asdict(self.local), "start": dict(self.start)}
+        return {
+            "kind": self.kind,
+            **asdict(self.ga),
+            "polish": self.polish,
+            **asdict(self.local),
+            "start": dict(self.start),
+        }
 
     @classmethod
     def from_resolved(cls, data: dict) -> AlgorithmSpec:
         """The inverse of :meth:`resolved` (keys added since a file was written take
         their defaults)."""
-        return cls(kind=data["kind"],
-                   ga=GASettings(**{k: data[k] for k in GA_KEYS if k in data}),
-                   polish=data["polish"],
-                   local=LocalSettings(**{f.name: data[f.name] for f in fields(LocalSettings)
-                                          if f.name in data}),
-                   start=dict(data.get("start") or {}))
+        return cls(
+            kind=data["kind"],
+            ga=GASettings(**{k: data[k] for k in GA_KEYS if k in data}),
+            polish=data["polish"],
+            local=LocalSettings(
+                **{f.name: data[f.name] for f in fields(LocalSettings) if f.name in data}
+            ),
+            start=dict(data.get("start") or {}),
+        )
 
 
 @dataclass
@@ -127,9 +157,9 @@ class Experiment:
     name: str
     model: str
     target: TargetSpec
-    free: dict                                  # name -> (lower, upper)
-    fixed: dict = field(default_factory=dict)   # name -> value
-    params: object = None                       # base set: preset, file or mapping
+    free: dict  # name -> (lower, upper)
+    fixed: dict = field(default_factory=dict)  # name -> value
+    params: object = None  # base set: preset, file or mapping
     description: str = ""
     objective: Objective = field(default_factory=Objective)
     algorithm: AlgorithmSpec = field(default_factory=AlgorithmSpec)
@@ -145,10 +175,13 @@ class Experiment:
     def resolved(self) -> dict:
         """The configuration with every default filled in, as plain JSON-able data."""
         out = {
-            "name": self.name, "description": self.description, "model": self.model,
-            "params": self.params, "target": {k: v for k, v in asdict(self.target).items()
-                                               if k != "locs"},
-            "fixed": dict(self.fixed), "free": {k: list(v) for k, v in self.free.items()},
+            "name": self.name,
+            "description": self.description,
+            "model": self.model,
+            "params": self.params,
+            "target": {k: v for k, v in asdict(self.target).items() if k != "locs"},
+            "fixed": dict(self.fixed),
+            "free": {k: list(v) for k, v in self.free.items()},
             "objective": asdict(self.objective),
             "algorithm": self.algorithm.resolved(),
             "per_trial": self.per_trial,
@@ -179,8 +212,10 @@ class _Reader:
     def check_keys(self, allowed, required=()):
         for key in self.node:
             if key not in allowed:
-                raise self.fail(key, "unknown key" + suggest(str(key), allowed)
-                                + f"; allowed: {', '.join(allowed)}")
+                raise self.fail(
+                    key,
+                    "unknown key" + suggest(str(key), allowed) + f"; allowed: {', '.join(allowed)}",
+                )
         for key in required:
             if key not in self.node:
                 raise UserError(f"{self.node.loc}: {self.key_path(key)}: required key missing")
@@ -213,8 +248,11 @@ class _Reader:
         v = self.node.get(key, default)
         if v not in choices or isinstance(v, bool) != isinstance(choices[0], bool):
             text = repr(str(v)) if isinstance(v, str) else _show(v)
-            raise self.fail(key, f"{text} is not one of {', '.join(map(str, choices))}"
-                            + (suggest(v, list(map(str, choices))) if isinstance(v, str) else ""))
+            raise self.fail(
+                key,
+                f"{text} is not one of {', '.join(map(str, choices))}"
+                + (suggest(v, list(map(str, choices))) if isinstance(v, str) else ""),
+            )
         return v
 
     def boolean(self, key, default):
@@ -271,11 +309,15 @@ def _param_spec(reader: _Reader, key, base_dir: Path):
     if isinstance(v, LinedMap):
         for name, value in v.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise UserError(f"{v.where(name)}: {reader.key_path(key)}.{name}: expected a "
-                                f"number, got {_show(value)}")
+                raise UserError(
+                    f"{v.where(name)}: {reader.key_path(key)}.{name}: expected a "
+                    f"number, got {_show(value)}"
+                )
         return {str(k): float(x) for k, x in v.items()}
     if not isinstance(v, str):
-        raise reader.fail(key, f"expected a preset name, a parameter file or a mapping, got {_show(v)}")
+        raise reader.fail(
+            key, f"expected a preset name, a parameter file or a mapping, got {_show(v)}"
+        )
     if v.endswith((".yaml", ".yml")) or "/" in v:
         return _resolve_path(v, base_dir, reader.node.where(key), reader.key_path(key))
     return v
@@ -287,10 +329,13 @@ def _id_list(reader: _Reader, key, allow_all: bool):
         return "all"
     if isinstance(v, (str, int)) and not isinstance(v, bool):
         v = [v]
-    if not isinstance(v, list) or not all(isinstance(x, (str, int)) and not isinstance(x, bool)
-                                          for x in v):
-        raise reader.fail(key, ("'all' or " if allow_all else "")
-                          + f"a list of trial ids expected, got {_show(v)}")
+    if not isinstance(v, list) or not all(
+        isinstance(x, (str, int)) and not isinstance(x, bool) for x in v
+    ):
+        raise reader.fail(
+            key,
+            ("'all' or " if allow_all else "") + f"a list of trial ids expected, got {_show(v)}",
+        )
     ids = [str(x) for x in v]
     dup = sorted({x for x in ids if ids.count(x) > 1})
     if dup:
@@ -315,30 +360,43 @@ def _preprocess(t: _Reader) -> PreprocessSpec:
         return PreprocessSpec()
     p = _Reader(t.get("preprocess"), t.key_path("preprocess"), t.node.where("preprocess"))
     p.check_keys(PREPROCESS_KEYS)
-    return PreprocessSpec(rate_bias=p.choice("rate_bias", "none", RATE_BIAS),
-                          lowpass=p.number("lowpass", None, lo=0.0, open_lo=True, allow_none=True),
-                          trim=p.boolean("trim", False))
+    return PreprocessSpec(
+        rate_bias=p.choice("rate_bias", "none", RATE_BIAS),
+        lowpass=p.number("lowpass", None, lo=0.0, open_lo=True, allow_none=True),
+        trim=p.boolean("trim", False),
+    )
 
 
 def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
     node = reader.get("target")
     if node is None:
-        raise UserError(f"{reader.node.loc}: target: required key missing "
-                        "(e.g. target: {data: FILE, trials: all})")
+        raise UserError(
+            f"{reader.node.loc}: target: required key missing "
+            "(e.g. target: {data: FILE, trials: all})"
+        )
     t = _Reader(node, "target", reader.node.where("target"))
     if "data" in t.node and "model" in t.node:
-        raise t.fail("model", "give either data (measured trials) or model (a target model), not both")
+        raise t.fail(
+            "model", "give either data (measured trials) or model (a target model), not both"
+        )
     locs = {k: t.node.where(k) for k in t.node}
     locs.setdefault("trials", t.node.loc)
     locs.setdefault("validate", t.node.loc)
     locs.setdefault("kinds", t.node.loc)
     if "data" in t.node:
         t.check_keys(DATA_TARGET_KEYS, required=("data",))
-        path = _resolve_path(t.string("data", required=True), base_dir, t.node.where("data"),
-                             "target.data")
-        spec = TargetSpec("data", trials=_id_list(t, "trials", True), kinds=_kinds(t),
-                          validate=_id_list(t, "validate", False), data=path,
-                          preprocess=_preprocess(t), locs=locs)
+        path = _resolve_path(
+            t.string("data", required=True), base_dir, t.node.where("data"), "target.data"
+        )
+        spec = TargetSpec(
+            "data",
+            trials=_id_list(t, "trials", True),
+            kinds=_kinds(t),
+            validate=_id_list(t, "validate", False),
+            data=path,
+            preprocess=_preprocess(t),
+            locs=locs,
+        )
     elif "model" in t.node:
         t.check_keys(MODEL_TARGET_KEYS, required=("model", "inputs"))
         inputs = t.get("inputs")
@@ -347,21 +405,32 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
         elif isinstance(inputs, LinedMap):
             inputs = json.loads(json.dumps(inputs))
         else:
-            raise t.fail("inputs", f"expected a trial / force file or a rig specification, got {_show(inputs)}")
+            raise t.fail(
+                "inputs",
+                f"expected a trial / force file or a rig specification, got {_show(inputs)}",
+            )
         overrides = t.get("set") or {}
         if not isinstance(overrides, dict):
             raise t.fail("set", "expected a mapping of parameter names to numbers")
-        spec = TargetSpec("model", trials=_id_list(t, "trials", True), kinds=_kinds(t),
-                          validate=_id_list(t, "validate", False),
-                          model=t.string("model", required=True),
-                          params=_param_spec(t, "params", base_dir),
-                          set={str(k): v for k, v in overrides.items()}, inputs=inputs,
-                          theta0=t.number("theta0", None, allow_none=True),
-                          dtheta0=t.number("dtheta0", None, allow_none=True),
-                          preprocess=_preprocess(t), locs=locs)
+        spec = TargetSpec(
+            "model",
+            trials=_id_list(t, "trials", True),
+            kinds=_kinds(t),
+            validate=_id_list(t, "validate", False),
+            model=t.string("model", required=True),
+            params=_param_spec(t, "params", base_dir),
+            set={str(k): v for k, v in overrides.items()},
+            inputs=inputs,
+            theta0=t.number("theta0", None, allow_none=True),
+            dtheta0=t.number("dtheta0", None, allow_none=True),
+            preprocess=_preprocess(t),
+            locs=locs,
+        )
     else:
-        raise UserError(f"{t.node.loc}: target: give data: FILE (measured trials) or "
-                        "model: NAME with inputs: FILE (another model's response)")
+        raise UserError(
+            f"{t.node.loc}: target: give data: FILE (measured trials) or "
+            "model: NAME with inputs: FILE (another model's response)"
+        )
     if isinstance(spec.trials, list):
         both = [x for x in spec.validate if x in spec.trials]
         if both:
@@ -372,9 +441,11 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
 def _objective(reader: _Reader) -> Objective:
     o = _Reader(reader.get("objective"), "objective", reader.node.where("objective"))
     o.check_keys(OBJECTIVE_KEYS)
-    return Objective(kind=o.choice("kind", "max_square", tuple(KINDS)),
-                     derivative=o.choice("derivative", 1, (0, 1, 2)),
-                     combine=o.choice("combine", "sum", COMBINE))
+    return Objective(
+        kind=o.choice("kind", "max_square", tuple(KINDS)),
+        derivative=o.choice("derivative", 1, (0, 1, 2)),
+        combine=o.choice("combine", "sum", COMBINE),
+    )
 
 
 def _algorithm(reader: _Reader) -> AlgorithmSpec:
@@ -391,8 +462,7 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
         generations=a.integer("generations", d.generations, lo=0),
         reproduction_ratio=a.number("reproduction_ratio", d.reproduction_ratio, 0.0, 1.0),
         mutation_probability=a.number("mutation_probability", d.mutation_probability, 0.0, 1.0),
-        mutation_amplitude=a.number("mutation_amplitude", d.mutation_amplitude, 0.0,
-                                    open_lo=True),
+        mutation_amplitude=a.number("mutation_amplitude", d.mutation_amplitude, 0.0, open_lo=True),
         seed=a.integer("seed", d.seed, lo=0),
         elite=a.integer("elite", d.elite, lo=0, hi=population - 1),
         # the default tournament (3) shrinks to a smaller population; a given one must fit
@@ -400,32 +470,39 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
         crossover_eta=a.number("crossover_eta", d.crossover_eta, 0.0, open_lo=True),
         hall_of_fame=a.integer("hall_of_fame", d.hall_of_fame, lo=1),
         target_fitness=a.number("target_fitness", None, lo=0.0, allow_none=True),
-        patience=(None if a.get("patience") is None
-                  else a.integer("patience", None, lo=1)),
+        patience=(None if a.get("patience") is None else a.integer("patience", None, lo=1)),
     )
     ld = LocalSettings()
-    local = LocalSettings(max_iterations=a.integer("max_iterations", ld.max_iterations, lo=1),
-                          ftol=a.number("ftol", ld.ftol, 0.0, open_lo=True))
+    local = LocalSettings(
+        max_iterations=a.integer("max_iterations", ld.max_iterations, lo=1),
+        ftol=a.number("ftol", ld.ftol, 0.0, open_lo=True),
+    )
     kind = a.choice("kind", "ga", ALGORITHM_KINDS)
     polish = a.get("polish", "none")
     if polish is None or polish is False:
         polish = "none"
     if polish not in POLISH:
-        raise a.fail("polish", f"{polish!r} is not one of {', '.join(POLISH)}"
-                     + (suggest(polish, POLISH) if isinstance(polish, str) else ""))
+        raise a.fail(
+            "polish",
+            f"{polish!r} is not one of {', '.join(POLISH)}"
+            + (suggest(polish, POLISH) if isinstance(polish, str) else ""),
+        )
     if kind == "nlpql" and polish != "none":
         raise a.fail("polish", "kind nlpql is already the local method; leave polish out")
     start = a.get("start") or {}
     if not isinstance(start, dict):
         raise a.fail("start", "expected a mapping of free parameter names to start values")
-    return AlgorithmSpec(kind=kind, ga=ga, polish=polish, local=local,
-                         start={str(k): v for k, v in start.items()})
+    return AlgorithmSpec(
+        kind=kind, ga=ga, polish=polish, local=local, start={str(k): v for k, v in start.items()}
+    )
 
 
 def _require_declared(where: str, name, model) -> None:
     if name not in model.params:
-        raise UserError(f"{where}: model {model.name!r} has no parameter {name!r}"
-                        + suggest(str(name), model.params.names))
+        raise UserError(
+            f"{where}: model {model.name!r} has no parameter {name!r}"
+            + suggest(str(name), model.params.names)
+        )
 
 
 def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
@@ -443,39 +520,54 @@ def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
             raise UserError(f"{where}: {exc}") from None
     free = reader.get("free")
     if not free:
-        raise UserError(f"{reader.node.where('free')}: free: at least one free parameter "
-                        "is needed, as name: [lower, upper]")
+        raise UserError(
+            f"{reader.node.where('free')}: free: at least one free parameter "
+            "is needed, as name: [lower, upper]"
+        )
     if not isinstance(free, LinedMap):
         raise reader.fail("free", "expected a mapping name: [lower, upper]")
     for name, bounds in free.items():
         where = f"{free.where(name)}: free.{name}"
         _require_declared(where, name, model)
         if name in exp.fixed:
-            raise UserError(f"{where}: {name!r} is also fixed (at {fixed.where(name)}); "
-                            "a parameter is either fixed or free")
-        if (not isinstance(bounds, list) or len(bounds) != 2
-                or not all(isinstance(b, (int, float)) and not isinstance(b, bool)
-                           and math.isfinite(b) for b in bounds)):
-            raise UserError(f"{where}: expected [lower, upper], two finite numbers, got "
-                            f"{_show(bounds) if not isinstance(bounds, list) else bounds}")
+            raise UserError(
+                f"{where}: {name!r} is also fixed (at {fixed.where(name)}); "
+                "a parameter is either fixed or free"
+            )
+        if (
+            not isinstance(bounds, list)
+            or len(bounds) != 2
+            or not all(
+                isinstance(b, (int, float)) and not isinstance(b, bool) and math.isfinite(b)
+                for b in bounds
+            )
+        ):
+            raise UserError(
+                f"{where}: expected [lower, upper], two finite numbers, got "
+                f"{_show(bounds) if not isinstance(bounds, list) else bounds}"
+            )
         lo, hi = map(float, bounds)
         p = table[name]
         if lo > hi:
-            raise UserError(f"{where}: inverted bounds [{lo:g}, {hi:g}]: lower > upper "
-                            "(did you swap them?)")
+            raise UserError(
+                f"{where}: inverted bounds [{lo:g}, {hi:g}]: lower > upper (did you swap them?)"
+            )
         if lo == hi:
             raise UserError(f"{where}: lower == upper == {lo:g}; write it under fixed instead")
         if lo < p.lower or hi > p.upper:
-            raise UserError(f"{where}: [{lo:g}, {hi:g}] {p.unit} leaves the declared range "
-                            f"[{p.lower:g}, {p.upper:g}] {p.unit}")
+            raise UserError(
+                f"{where}: [{lo:g}, {hi:g}] {p.unit} leaves the declared range "
+                f"[{p.lower:g}, {p.upper:g}] {p.unit}"
+            )
         exp.free[name] = (lo, hi)
     a = _Reader(reader.get("algorithm"), "algorithm", reader.node.where("algorithm"))
     start = a.get("start") or LinedMap()
     for name, value in exp.algorithm.start.items():
         where = f"{start.where(name) if isinstance(start, LinedMap) else a.node.loc}: algorithm.start.{name}"
         if name not in exp.free:
-            raise UserError(f"{where}: {name!r} is not a free parameter"
-                            + suggest(name, list(exp.free)))
+            raise UserError(
+                f"{where}: {name!r} is not a free parameter" + suggest(name, list(exp.free))
+            )
         lo, hi = exp.free[name]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
             raise UserError(f"{where}: start value {value!r} must be a number in [{lo:g}, {hi:g}]")
@@ -486,8 +578,9 @@ def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-") or "experiment"
 
 
-def load_experiment(path=None, overrides=None, text: str | None = None,
-                    source: str | None = None, base_dir=None) -> Experiment:
+def load_experiment(
+    path=None, overrides=None, text: str | None = None, source: str | None = None, base_dir=None
+) -> Experiment:
     """Read and check an experiment file (or ``text``), applying ``--set`` overrides.
 
     Parameters
@@ -533,14 +626,21 @@ def load_experiment(path=None, overrides=None, text: str | None = None,
     method = sim.choice("method", model.method, tuple(METHODS))
     substeps = sim.integer("substeps", model.substeps, lo=1, hi=1000)
     exp = Experiment(
-        name=_safe_name(name), model=model_name, target=_target(r, base_dir), free={},
+        name=_safe_name(name),
+        model=model_name,
+        target=_target(r, base_dir),
+        free={},
         params=_param_spec(r, "params", base_dir),
         description=r.string("description", "") or "",
-        objective=_objective(r), algorithm=_algorithm(r),
+        objective=_objective(r),
+        algorithm=_algorithm(r),
         per_trial=r.boolean("per_trial", False),
-        method=method, substeps=substeps,
+        method=method,
+        substeps=substeps,
         output=r.string("output", "results"),
-        source=source, text=text, overrides=overrides,
+        source=source,
+        text=text,
+        overrides=overrides,
         locs={k: tree.where(k) for k in TOP_KEYS},
     )
     _check_parameters(exp, r, model)

@@ -128,17 +128,29 @@ class Results:
             s = self.tree["summary"]
             out["per_trial_fits"] = {
                 trial: dict(zip(self.free, map(float, row)))
-                for trial, row in zip(s[A]["trials"], s["x"])}
-            out["table"] = {n: {"min": float(s["min"][i]), "max": float(s["max"][i]),
-                                "mean": float(s["mean"][i])} for i, n in enumerate(self.free)}
+                for trial, row in zip(s[A]["trials"], s["x"])
+            }
+            out["table"] = {
+                n: {
+                    "min": float(s["min"][i]),
+                    "max": float(s["max"][i]),
+                    "mean": float(s["mean"][i]),
+                }
+                for i, n in enumerate(self.free)
+            }
         return out
 
     def responses(self) -> list[dict]:
         if "response" not in self.tree:
             return []
         keys = sorted((k for k in self.tree["response"] if k != A), key=int)
-        return [{**self.tree["response"][k][A], **{n: v for n, v in self.tree["response"][k].items()
-                                                     if n != A}} for k in keys]
+        return [
+            {
+                **self.tree["response"][k][A],
+                **{n: v for n, v in self.tree["response"][k].items() if n != A},
+            }
+            for k in keys
+        ]
 
 
 def _progress(attrs: dict, config: dict) -> str:
@@ -174,30 +186,39 @@ def format_show(res: Results) -> str:
     cfg = res.config
     alg = cfg["algorithm"]
     obj = cfg["objective"]
-    lines = [f"{s['name']}  ({res.path})",
-             f"  model {s['model']}, status {s['status']} ({s['progress']}), seed {s['seed']}, "
-             f"created {s['created']}",
-             f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
-             f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
-             ("  algorithm " + (f"GA population {alg['population']} x {alg['generations']} "
-                                f"generations, reproduction {alg['reproduction_ratio']:g}, "
-                                f"mutation p {alg['mutation_probability']:g} amplitude "
-                                f"{alg['mutation_amplitude']:g}, polish {alg['polish']}"
-                                if alg["kind"] == "ga" else
-                                f"nlpql (SLSQP), max {alg['max_iterations']} iterations")),
-             f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, "
-             f"{(s['seconds'] or 0):.1f} s"]
+    lines = [
+        f"{s['name']}  ({res.path})",
+        f"  model {s['model']}, status {s['status']} ({s['progress']}), seed {s['seed']}, "
+        f"created {s['created']}",
+        f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
+        f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
+        (
+            "  algorithm "
+            + (
+                f"GA population {alg['population']} x {alg['generations']} "
+                f"generations, reproduction {alg['reproduction_ratio']:g}, "
+                f"mutation p {alg['mutation_probability']:g} amplitude "
+                f"{alg['mutation_amplitude']:g}, polish {alg['polish']}"
+                if alg["kind"] == "ga"
+                else f"nlpql (SLSQP), max {alg['max_iterations']} iterations"
+            )
+        ),
+        f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, {(s['seconds'] or 0):.1f} s",
+    ]
     units = _units(res)
     if "table" in s:
         lines.append(f"\nper-trial fits ({len(s['per_trial_fits'])} trials), as seed table 5.3:")
         w = max(len(n) for n in res.free)
         lines.append(f"  {'parameter':<{w}}  {'min':>12}  {'max':>12}  {'mean':>12}  unit")
         for n, row in s["table"].items():
-            lines.append(f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
-                         f"{row['mean']:>12.6g}  {units.get(n, '')}")
+            lines.append(
+                f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
+                f"{row['mean']:>12.6g}  {units.get(n, '')}"
+            )
     funit = Objective(obj["kind"], obj["derivative"], obj["combine"]).unit
-    lines.append(f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness "
-                 f"{_fmt(s['fitness'])} {funit}")
+    lines.append(
+        f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness {_fmt(s['fitness'])} {funit}"
+    )
     if s["best"]:
         w = max(len(n) for n in s["best"])
         truth = s["truth"]
@@ -210,14 +231,20 @@ def format_show(res: Results) -> str:
                 line = f"{line:<{w + 48}} true {true:.8g}{rel}"
             lines.append(line)
     if s["fixed"]:
-        lines.append("fixed: " + ", ".join(f"{k} = {v:g} {units.get(k, '')}".rstrip()
-                                           for k, v in s["fixed"].items()))
+        lines.append(
+            "fixed: "
+            + ", ".join(f"{k} = {v:g} {units.get(k, '')}".rstrip() for k, v in s["fixed"].items())
+        )
     if s.get("fit_errors"):
-        lines.append(f"fit error per trial in {funit}: " + ", ".join(
-            f"{k} {_fmt(v)}" for k, v in s["fit_errors"].items()))
+        lines.append(
+            f"fit error per trial in {funit}: "
+            + ", ".join(f"{k} {_fmt(v)}" for k, v in s["fit_errors"].items())
+        )
     if s.get("validation_errors"):
-        lines.append(f"validation error in {funit}:    " + ", ".join(
-            f"{k} {_fmt(v)}" for k, v in s["validation_errors"].items()))
+        lines.append(
+            f"validation error in {funit}:    "
+            + ", ".join(f"{k} {_fmt(v)}" for k, v in s["validation_errors"].items())
+        )
     return "\n".join(lines)
 
 
@@ -241,8 +268,18 @@ def list_runs(folder) -> list[dict]:
         except UserError as exc:
             if "not an evo-door results file" in str(exc):
                 continue
-            rows.append({"file": path.name, "name": "?", "model": "?", "status": "unreadable",
-                         "progress": "", "fitness": None, "created": "", "seed": ""})
+            rows.append(
+                {
+                    "file": path.name,
+                    "name": "?",
+                    "model": "?",
+                    "status": "unreadable",
+                    "progress": "",
+                    "fitness": None,
+                    "created": "",
+                    "seed": "",
+                }
+            )
             continue
         a = p[A]
         if p["best"] is not None:
@@ -250,21 +287,41 @@ def list_runs(folder) -> list[dict]:
         else:
             fits = [j["best_fitness"] for j in p["jobs"].values() if j]
             fitness = min(fits) if fits else math.nan
-        rows.append({"file": path.name, "name": a.get("name", ""), "model": a.get("model", ""),
-                     "status": a.get("status", ""), "progress": _progress(a, p["resolved"]),
-                     "fitness": _num(fitness), "created": a.get("created", ""),
-                     "seed": a.get("seed", "")})
+        rows.append(
+            {
+                "file": path.name,
+                "name": a.get("name", ""),
+                "model": a.get("model", ""),
+                "status": a.get("status", ""),
+                "progress": _progress(a, p["resolved"]),
+                "fitness": _num(fitness),
+                "created": a.get("created", ""),
+                "seed": a.get("seed", ""),
+            }
+        )
     rows.sort(key=lambda r: r["created"], reverse=True)
     return rows
 
 
 def format_runs(rows: list[dict]) -> str:
     header = ["file", "name", "model", "status", "progress", "best fitness", "seed", "created"]
-    table = [[r["file"], r["name"], r["model"], r["status"], r["progress"],
-              "" if r["fitness"] is None else f"{r['fitness']:.4g}", str(r["seed"]),
-              r["created"]] for r in rows]
-    widths = [max(len(h), *(len(row[i]) for row in table)) if table else len(h)
-              for i, h in enumerate(header)]
+    table = [
+        [
+            r["file"],
+            r["name"],
+            r["model"],
+            r["status"],
+            r["progress"],
+            "" if r["fitness"] is None else f"{r['fitness']:.4g}",
+            str(r["seed"]),
+            r["created"],
+        ]
+        for r in rows
+    ]
+    widths = [
+        max(len(h), *(len(row[i]) for row in table)) if table else len(h)
+        for i, h in enumerate(header)
+    ]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths)
     out = [fmt.format(*header).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()]
     out += [fmt.format(*row).rstrip() for row in table]
@@ -279,22 +336,28 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
 
     rows = res.responses()
     if not rows:
-        raise UserError(f"{res.path}: the run is not complete, there is no best response yet "
-                        "(evo-door resume it first)")
+        raise UserError(
+            f"{res.path}: the run is not complete, there is no best response yet "
+            "(evo-door resume it first)"
+        )
     rows = rows[:max_trials]
     n = len(rows)
     ncols = 1 if n == 1 else 2
     nrows = math.ceil(n / ncols)
-    fig = Figure(figsize=(6.2 * ncols + (2.0 if n == 1 else 0.0), 2.6 * nrows + 1.0),
-                 layout="constrained")
+    fig = Figure(
+        figsize=(6.2 * ncols + (2.0 if n == 1 else 0.0), 2.6 * nrows + 1.0), layout="constrained"
+    )
     axes = fig.subplots(nrows, ncols, squeeze=False)
     channel = rows[0]["channel"]
     for ax, r in zip(axes.flat, rows):
         t = np.asarray(r["t"])
         ax.plot(t, r["target"], color="0.25", lw=1.2, label="target")
         ax.plot(t, r["model"], color="tab:red", lw=1.0, ls="--", label="model (best)")
-        ax.set_title(f"{r['trial_id']} ({'fitted' if r['role'] == 'fit' else 'validation'}), "
-                     f"error {_fmt(_num(r['error']))}", fontsize=9)
+        ax.set_title(
+            f"{r['trial_id']} ({'fitted' if r['role'] == 'fit' else 'validation'}), "
+            f"error {_fmt(_num(r['error']))}",
+            fontsize=9,
+        )
         ax.set_xlabel("t [s]")
         ax.set_ylabel(f"{channel} [{unit(channel)}]")
         ax.grid(alpha=0.3)
@@ -306,8 +369,10 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
         ax.axis("off")
     axes.flat[0].legend(loc="best", fontsize=8)
     obj = res.config["objective"]
-    fig.suptitle(f"{res.attrs['name']}: {title(channel)}, best model vs target\n"
-                 f"model {res.attrs['model']}, objective {obj['kind']} (derivative "
-                 f"{obj['derivative']}, {obj['combine']}), fitness {_fmt(_num(res.fitness()))}",
-                 fontsize=10)
+    fig.suptitle(
+        f"{res.attrs['name']}: {title(channel)}, best model vs target\n"
+        f"model {res.attrs['model']}, objective {obj['kind']} (derivative "
+        f"{obj['derivative']}, {obj['combine']}), fitness {_fmt(_num(res.fitness()))}",
+        fontsize=10,
+    )
     save_figure(fig, path, dpi=110)

@@ -44,8 +44,8 @@ class Job:
     """One optimisation: all fitted trials, or one of them (``per_trial``)."""
 
     name: str
-    trials: list                      # indices into Setup.fit
-    ga: object = None                 # GAState
+    trials: list  # indices into Setup.fit
+    ga: object = None  # GAState
     ga_stop: str = ""
     local: LocalResult | None = None
     done: bool = False
@@ -75,17 +75,26 @@ class ExperimentRun:
     experiment as stored in the file; ``algorithm`` its typed ``algorithm`` section.
     """
 
-    def __init__(self, config: dict, algorithm: AlgorithmSpec, setup: Setup, path,
-                 experiment: dict, versions: dict, created: str,
-                 jobs: list[Job] | None = None, elapsed: float = 0.0):
+    def __init__(
+        self,
+        config: dict,
+        algorithm: AlgorithmSpec,
+        setup: Setup,
+        path,
+        experiment: dict,
+        versions: dict,
+        created: str,
+        jobs: list[Job] | None = None,
+        elapsed: float = 0.0,
+    ):
         self.config = config
         self.algorithm = algorithm
         self.setup = setup
         self.path = Path(path)
-        self.experiment = experiment          # text, source, overrides
+        self.experiment = experiment  # text, source, overrides
         self.versions = versions
         self.created = created
-        self.elapsed_before = elapsed         # seconds spent by earlier sessions of this run
+        self.elapsed_before = elapsed  # seconds spent by earlier sessions of this run
         self.per_trial = bool(config["per_trial"])
         if jobs is None:
             if self.per_trial:
@@ -111,9 +120,15 @@ class ExperimentRun:
         if path.suffix.lower() not in (".h5", ".hdf5"):
             raise UserError(f"{path}: results files are HDF5, name them .h5")
         setup = resolve(exp, trials)
-        run = cls(exp.resolved(), exp.algorithm, setup, path,
-                  {"text": exp.text, "source": exp.source, "overrides": list(exp.overrides)},
-                  store.versions(), cls.now())
+        run = cls(
+            exp.resolved(),
+            exp.algorithm,
+            setup,
+            path,
+            {"text": exp.text, "source": exp.source, "overrides": list(exp.overrides)},
+            store.versions(),
+            cls.now(),
+        )
         run.checkpoint()
         return run
 
@@ -124,15 +139,24 @@ class ExperimentRun:
         config = json.loads(tree["experiment"]["resolved"])
         algorithm = AlgorithmSpec.from_resolved(config["algorithm"])
         root = tree[ATTRS]
-        run = cls(config, algorithm, store.setup_from_tree(tree), path,
-                  {"text": tree["experiment"]["text"],
-                   "source": tree["experiment"][ATTRS]["source"],
-                   "overrides": tree["experiment"][ATTRS]["overrides"]},
-                  tree["versions"][ATTRS], root["created"],
-                  elapsed=float(tree["timings"][ATTRS].get("total_s", 0.0)))
+        run = cls(
+            config,
+            algorithm,
+            store.setup_from_tree(tree),
+            path,
+            {
+                "text": tree["experiment"]["text"],
+                "source": tree["experiment"][ATTRS]["source"],
+                "overrides": tree["experiment"][ATTRS]["overrides"],
+            },
+            tree["versions"][ATTRS],
+            root["created"],
+            elapsed=float(tree["timings"][ATTRS].get("total_s", 0.0)),
+        )
         ga = GeneticAlgorithm(algorithm.ga)
-        stored = sorted(((k, v) for k, v in tree["jobs"].items() if k != ATTRS),
-                        key=lambda kv: int(kv[0]))
+        stored = sorted(
+            ((k, v) for k, v in tree["jobs"].items() if k != ATTRS), key=lambda kv: int(kv[0])
+        )
         for job, (key, node) in zip(run.jobs, stored):
             a = node[ATTRS]
             if a["name"] != job.name:
@@ -150,9 +174,15 @@ class ExperimentRun:
                 if "local" in node:
                     job.local = store.local_from_tree(node["local"])
         # every job done but the final write (best, responses) missing: still running
-        run.status = "complete" if (all(j.done for j in run.jobs)
-                                    and root.get("status") == "complete"
-                                    and "best" in tree) else "running"
+        run.status = (
+            "complete"
+            if (
+                all(j.done for j in run.jobs)
+                and root.get("status") == "complete"
+                and "best" in tree
+            )
+            else "running"
+        )
         run._trials_on_disk = True
         remove_stale_temporaries(path)
         return run
@@ -175,13 +205,21 @@ class ExperimentRun:
             x = job.ga.best_x if job.ga is not None else self.setup.start_vector()
             if self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":
                 if progress:
-                    print(f"{self._label(job)}: SLSQP from fitness "
-                          f"{problem.evaluate(x)[0][0]:.4g} ...",
-                          end="", file=sys.stderr, flush=True)
+                    print(
+                        f"{self._label(job)}: SLSQP from fitness "
+                        f"{problem.evaluate(x)[0][0]:.4g} ...",
+                        end="",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 job.local = polish(problem, x, self.algorithm.local)
                 if progress:
-                    print(f" {job.local.fitness:.4g} ({job.local.evaluations} evaluations, "
-                          f"{job.local.seconds:.1f} s)", file=sys.stderr, flush=True)
+                    print(
+                        f" {job.local.fitness:.4g} ({job.local.evaluations} evaluations, "
+                        f"{job.local.seconds:.1f} s)",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 x = job.local.x
                 job.best_fitness = job.local.fitness
             else:
@@ -213,8 +251,14 @@ class ExperimentRun:
         if settings.patience is not None:
             hooks.append(EarlyStop(settings.patience))
         if progress:
-            hooks.insert(0, ProgressBar(self._label(job), settings.generations,
-                                        initial=0 if job.ga is None else job.ga.generation))
+            hooks.insert(
+                0,
+                ProgressBar(
+                    self._label(job),
+                    settings.generations,
+                    initial=0 if job.ga is None else job.ga.generation,
+                ),
+            )
         state = GeneticAlgorithm(settings).run(problem, job.ga, hooks)
         job.ga_stop = state.stop_reason
 
@@ -250,26 +294,36 @@ class ExperimentRun:
         """
         problem = self.setup.problem()
         if self.per_trial:
-            fit = [problem.responses(job.best_x, indices=[i])[0]
-                   for i, job in enumerate(self.jobs)]
+            fit = [problem.responses(job.best_x, indices=[i])[0] for i, job in enumerate(self.jobs)]
             fit_errors = [float(job.fit_errors[0]) for job in self.jobs]
         else:
             fit = problem.responses(self.jobs[0].best_x)
             fit_errors = list(map(float, self.jobs[0].fit_errors))
         x = self.result["best_x"]
         validation = problem.responses(x, problem.validation)
-        validation_errors = (problem.validation_errors(x) if self.per_trial
-                             else self.jobs[0].validation_errors)
+        validation_errors = (
+            problem.validation_errors(x) if self.per_trial else self.jobs[0].validation_errors
+        )
         d = self.setup.objective.derivative
         out = []
         for role, pack, responses, errors in (
-                ("fit", problem.fit, fit, fit_errors),
-                ("validate", problem.validation, validation, validation_errors)):
+            ("fit", problem.fit, fit, fit_errors),
+            ("validate", problem.validation, validation, validation_errors),
+        ):
             for tr, r, error in zip(pack.trials, responses, errors):
-                out.append({"trial_id": tr.trial_id, "role": role, "error": float(error),
-                            "t": tr.t, "force": tr.force, "target": tr.channel(d),
-                            "model": (r.theta, r.dtheta, r.ddtheta)[d],
-                            "model_theta": r.theta, "ok": r.ok})
+                out.append(
+                    {
+                        "trial_id": tr.trial_id,
+                        "role": role,
+                        "error": float(error),
+                        "t": tr.t,
+                        "force": tr.force,
+                        "target": tr.channel(d),
+                        "model": (r.theta, r.dtheta, r.ddtheta)[d],
+                        "model_theta": r.theta,
+                        "ok": r.ok,
+                    }
+                )
         return out
 
     # -- the file ------------------------------------------------------------------------
@@ -284,6 +338,10 @@ class ExperimentRun:
 
     def checkpoint(self) -> None:
         """Write the whole run to its results file (atomically)."""
-        write_h5(self.path, store.run_tree(self, self._trials_on_disk),
-                 compression=store.COMPRESSION, make_folder=True)
+        write_h5(
+            self.path,
+            store.run_tree(self, self._trials_on_disk),
+            compression=store.COMPRESSION,
+            make_folder=True,
+        )
         self._trials_on_disk = True

@@ -25,12 +25,12 @@ class Setup:
     """What a run optimises, fully resolved (see the module docstring)."""
 
     model_name: str
-    base: np.ndarray                 # full parameter vector, declaration order
-    free: list                       # free parameter names
+    base: np.ndarray  # full parameter vector, declaration order
+    free: list  # free parameter names
     lower: np.ndarray
     upper: np.ndarray
-    fit: list                        # fitted Trials
-    validation: list                 # validation Trials
+    fit: list  # fitted Trials
+    validation: list  # validation Trials
     objective: Objective
     method: str
     substeps: int
@@ -44,8 +44,18 @@ class Setup:
 
     def problem(self, trial_indices=None) -> Problem:
         trials = self.fit if trial_indices is None else [self.fit[i] for i in trial_indices]
-        return Problem(self.model, self.free, self.lower, self.upper, self.base, trials,
-                       self.objective, self.validation, self.method, self.substeps)
+        return Problem(
+            self.model,
+            self.free,
+            self.lower,
+            self.upper,
+            self.base,
+            trials,
+            self.objective,
+            self.validation,
+            self.method,
+            self.substeps,
+        )
 
     def start_vector(self) -> np.ndarray:
         """Start point of a local method: ``algorithm.start``, else the base values (clipped)."""
@@ -56,12 +66,17 @@ class Setup:
 
 def _select(trials: list[Trial], spec, where_trials: str, where_validate: str, source: str):
     ids = [tr.trial_id for tr in trials]
-    for key, wanted, where in (("validate", spec.validate, where_validate),
-                               ("trials", spec.trials if spec.trials != "all" else [], where_trials)):
+    for key, wanted, where in (
+        ("validate", spec.validate, where_validate),
+        ("trials", spec.trials if spec.trials != "all" else [], where_trials),
+    ):
         for w in wanted:
             if w not in ids:
-                raise UserError(f"{where}: target.{key}: {source} has no trial {w!r}"
-                                + suggest(w, ids) + f"; trials: {', '.join(ids)}")
+                raise UserError(
+                    f"{where}: target.{key}: {source} has no trial {w!r}"
+                    + suggest(w, ids)
+                    + f"; trials: {', '.join(ids)}"
+                )
     validation = [tr for tr in trials if tr.trial_id in spec.validate]
     if spec.trials == "all":
         fit = [tr for tr in trials if tr.trial_id not in spec.validate]
@@ -69,9 +84,12 @@ def _select(trials: list[Trial], spec, where_trials: str, where_validate: str, s
             kinds = sorted({tr.kind for tr in trials})
             for k in spec.kinds:
                 if k not in kinds:
-                    raise UserError(f"{spec.locs['kinds']}: target.kinds: {source} has no trial "
-                                    f"of kind {k!r}" + suggest(k, kinds)
-                                    + f"; kinds: {', '.join(kinds) or 'none'}")
+                    raise UserError(
+                        f"{spec.locs['kinds']}: target.kinds: {source} has no trial "
+                        f"of kind {k!r}"
+                        + suggest(k, kinds)
+                        + f"; kinds: {', '.join(kinds) or 'none'}"
+                    )
             fit = [tr for tr in fit if tr.kind in spec.kinds]
     else:
         by_id = {tr.trial_id: tr for tr in trials}
@@ -129,22 +147,38 @@ def _model_target_trials(spec) -> list[Trial]:
     try:
         params = target_model.load_params(spec.params, spec.set)
     except UserError as exc:
-        raise UserError(f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: "
-                        f"{exc}") from None
+        raise UserError(
+            f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: {exc}"
+        ) from None
     out = []
     for tr in _input_trials(spec):
         theta0, dtheta0 = tr.initial_state(default_theta0=target_model.theta0)
         theta0 = spec.theta0 if spec.theta0 is not None else theta0
         dtheta0 = spec.dtheta0 if spec.dtheta0 is not None else dtheta0
-        r = simulate(target_model, params, tr.force, tr.dt, theta0=theta0, dtheta0=dtheta0,
-                     t0=float(tr.t[0]))
+        r = simulate(
+            target_model, params, tr.force, tr.dt, theta0=theta0, dtheta0=dtheta0, t0=float(tr.t[0])
+        )
         if not r.ok:
-            raise UserError(f"{spec.locs['model']}: target.model: {spec.model} blew up on "
-                            f"input {tr.trial_id!r}; check target.params")
-        out.append(Trial(tr.t, tr.force, r.theta, r.dtheta, r.ddtheta, trial_id=tr.trial_id,
-                         user_id=tr.user_id, kind=tr.kind, theta0=theta0, dtheta0=dtheta0,
-                         truth={"model": spec.model, "params": params.as_dict()},
-                         source=f"{spec.model} response to {tr.label}"))
+            raise UserError(
+                f"{spec.locs['model']}: target.model: {spec.model} blew up on "
+                f"input {tr.trial_id!r}; check target.params"
+            )
+        out.append(
+            Trial(
+                tr.t,
+                tr.force,
+                r.theta,
+                r.dtheta,
+                r.ddtheta,
+                trial_id=tr.trial_id,
+                user_id=tr.user_id,
+                kind=tr.kind,
+                theta0=theta0,
+                dtheta0=dtheta0,
+                truth={"model": spec.model, "params": params.as_dict()},
+                source=f"{spec.model} response to {tr.label}",
+            )
+        )
     return out
 
 
@@ -196,8 +230,9 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         try:
             tr.require(exp.objective.derivative)
         except UserError as exc:
-            raise UserError(f"{exp.locs['objective']}: objective.derivative: {exc} "
-                            f"in {source}") from None
+            raise UserError(
+                f"{exp.locs['objective']}: objective.derivative: {exc} in {source}"
+            ) from None
         try:
             tr.initial_state()
         except UserError as exc:
@@ -207,8 +242,16 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
     except UserError as exc:
         raise UserError(f"{exp.locs['params']}: params: {exc}") from None
     free = list(exp.free)
-    return Setup(model_name=exp.model, base=np.array(base.vector), free=free,
-                 lower=np.array([exp.free[n][0] for n in free]),
-                 upper=np.array([exp.free[n][1] for n in free]),
-                 fit=fit, validation=validation, objective=exp.objective,
-                 method=exp.method, substeps=exp.substeps, start=dict(exp.algorithm.start))
+    return Setup(
+        model_name=exp.model,
+        base=np.array(base.vector),
+        free=free,
+        lower=np.array([exp.free[n][0] for n in free]),
+        upper=np.array([exp.free[n][1] for n in free]),
+        fit=fit,
+        validation=validation,
+        objective=exp.objective,
+        method=exp.method,
+        substeps=exp.substeps,
+        start=dict(exp.algorithm.start),
+    )

@@ -66,11 +66,12 @@ def peek(path) -> dict:
     try:
         with _open(path) as f:
             jobs = f["jobs"]
-            return {ATTRS: read_attrs(f),
-                    "resolved": json.loads(f["experiment/resolved"][()]),
-                    "jobs": {k: read_attrs(jobs[k]["ga"]) if "ga" in jobs[k] else {}
-                             for k in jobs},
-                    "best": read_attrs(f["best"]) if "best" in f else None}
+            return {
+                ATTRS: read_attrs(f),
+                "resolved": json.loads(f["experiment/resolved"][()]),
+                "jobs": {k: read_attrs(jobs[k]["ga"]) if "ga" in jobs[k] else {} for k in jobs},
+                "best": read_attrs(f["best"]) if "best" in f else None,
+            }
     except (OSError, KeyError) as exc:
         raise UserError(f"{path}: not a readable results file ({exc})") from None
 
@@ -82,8 +83,12 @@ def versions() -> dict:
 
     from evo_door import __version__
 
-    out = {"python": platform.python_version(), "evo_door": __version__,
-           "platform": platform.platform(), "cpus": os.cpu_count() or 0}
+    out = {
+        "python": platform.python_version(),
+        "evo_door": __version__,
+        "platform": platform.platform(),
+        "cpus": os.cpu_count() or 0,
+    }
     for dist in ("numpy", "scipy", "numba", "deap", "h5py", "pyyaml"):
         try:
             out[dist] = metadata.version(dist)
@@ -109,20 +114,33 @@ def run_tree(run, trials_on_disk: bool) -> dict:
     ga_settings = run.algorithm.ga
     elapsed = run.elapsed()
     tree = {
-        ATTRS: {"format": FORMAT, "format_version": FORMAT_VERSION,
-                "name": cfg["name"], "model": setup.model_name, "status": run.status,
-                "created": run.created, "updated": run.now(), "seed": ga_settings.seed,
-                "algorithm": run.algorithm.kind, "polish": run.algorithm.polish,
-                "objective": cfg["objective"], "per_trial": run.per_trial,
-                "jobs": len(run.jobs), "jobs_done": sum(j.done for j in run.jobs),
-                "generations": ga_settings.generations,
-                "generations_done": [(-1 if j.ga is None else j.ga.generation)
-                                     for j in run.jobs],
-                "evo_door_version": run.versions.get("evo_door", "")},
-        "experiment": {ATTRS: {"source": run.experiment["source"],
-                               "overrides": list(run.experiment["overrides"])},
-                       "text": run.experiment["text"],
-                       "resolved": json.dumps(cfg, indent=1)},
+        ATTRS: {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "name": cfg["name"],
+            "model": setup.model_name,
+            "status": run.status,
+            "created": run.created,
+            "updated": run.now(),
+            "seed": ga_settings.seed,
+            "algorithm": run.algorithm.kind,
+            "polish": run.algorithm.polish,
+            "objective": cfg["objective"],
+            "per_trial": run.per_trial,
+            "jobs": len(run.jobs),
+            "jobs_done": sum(j.done for j in run.jobs),
+            "generations": ga_settings.generations,
+            "generations_done": [(-1 if j.ga is None else j.ga.generation) for j in run.jobs],
+            "evo_door_version": run.versions.get("evo_door", ""),
+        },
+        "experiment": {
+            ATTRS: {
+                "source": run.experiment["source"],
+                "overrides": list(run.experiment["overrides"]),
+            },
+            "text": run.experiment["text"],
+            "resolved": json.dumps(cfg, indent=1),
+        },
         "versions": {ATTRS: dict(run.versions)},
         "setup": setup_tree(setup),
         "trials": Keep(lambda: trials_tree(setup)) if trials_on_disk else trials_tree(setup),
@@ -133,8 +151,9 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         tree["best"] = best_tree(run)
         if run.per_trial:
             tree["summary"] = summary_tree(run)
-        tree["response"] = {str(k): response_tree(r, setup.objective.channel)
-                            for k, r in enumerate(run.responses())}
+        tree["response"] = {
+            str(k): response_tree(r, setup.objective.channel) for k, r in enumerate(run.responses())
+        }
     return tree
 
 
@@ -142,39 +161,61 @@ def timings(jobs, elapsed: float) -> dict:
     ga_evals = sum(j.ga.evaluations for j in jobs if j.ga is not None)
     local_evals = sum(j.local.evaluations for j in jobs if j.local is not None)
     eval_time = sum(float(np.sum(j.ga.eval_times)) for j in jobs if j.ga is not None)
-    return {"total_s": elapsed, "jobs_s": [float(j.seconds) for j in jobs],
-            "evaluations": ga_evals + local_evals, "ga_evaluations": ga_evals,
-            "ga_evaluation_s": eval_time,
-            # the compiled kernel's throughput during the GA's batched calls
-            "evaluations_per_s": ga_evals / eval_time if eval_time else 0.0,
-            "local_evaluations": local_evals,
-            "local_s": sum(float(j.local.seconds) for j in jobs if j.local is not None)}
+    return {
+        "total_s": elapsed,
+        "jobs_s": [float(j.seconds) for j in jobs],
+        "evaluations": ga_evals + local_evals,
+        "ga_evaluations": ga_evals,
+        "ga_evaluation_s": eval_time,
+        # the compiled kernel's throughput during the GA's batched calls
+        "evaluations_per_s": ga_evals / eval_time if eval_time else 0.0,
+        "local_evaluations": local_evals,
+        "local_s": sum(float(j.local.seconds) for j in jobs if j.local is not None),
+    }
 
 
 def setup_tree(setup) -> dict:
     model = setup.model
-    return {ATTRS: {"model": setup.model_name, "free": list(setup.free),
-                    "method": setup.method, "substeps": int(setup.substeps),
-                    "objective": dataclasses.asdict(setup.objective),
-                    "start": dict(setup.start),
-                    "param_names": list(model.params.names),
-                    "fit_ids": [t.trial_id for t in setup.fit],
-                    "validation_ids": [t.trial_id for t in setup.validation]},
-            "base": np.asarray(setup.base, dtype=np.float64),
-            "lower": np.asarray(setup.lower, dtype=np.float64),
-            "upper": np.asarray(setup.upper, dtype=np.float64)}
+    return {
+        ATTRS: {
+            "model": setup.model_name,
+            "free": list(setup.free),
+            "method": setup.method,
+            "substeps": int(setup.substeps),
+            "objective": dataclasses.asdict(setup.objective),
+            "start": dict(setup.start),
+            "param_names": list(model.params.names),
+            "fit_ids": [t.trial_id for t in setup.fit],
+            "validation_ids": [t.trial_id for t in setup.validation],
+        },
+        "base": np.asarray(setup.base, dtype=np.float64),
+        "lower": np.asarray(setup.lower, dtype=np.float64),
+        "upper": np.asarray(setup.upper, dtype=np.float64),
+    }
 
 
-_TRIAL_FIELDS = ("trial_id", "user_id", "kind", "theta0", "dtheta0", "source",
-                 "sensors", "truth", "meta")
+_TRIAL_FIELDS = (
+    "trial_id",
+    "user_id",
+    "kind",
+    "theta0",
+    "dtheta0",
+    "source",
+    "sensors",
+    "truth",
+    "meta",
+)
 
 
 def trials_tree(setup) -> dict:
     out = {}
     for role, trials in (("fit", setup.fit), ("validate", setup.validation)):
         for k, tr in enumerate(trials):
-            node = {ATTRS: {"role": role, **{name: getattr(tr, name) for name in _TRIAL_FIELDS}},
-                    "t": tr.t, "force": tr.force}
+            node = {
+                ATTRS: {"role": role, **{name: getattr(tr, name) for name in _TRIAL_FIELDS}},
+                "t": tr.t,
+                "force": tr.force,
+            }
             for ch in tr.channels:
                 node[ch] = getattr(tr, ch)
             out[f"{role}_{k}"] = node
@@ -197,31 +238,56 @@ def setup_from_tree(tree: dict):
     a = s[ATTRS]
     trials = {"fit": [], "validate": []}
     for role in trials:
-        keys = sorted((k for k in tree["trials"] if k.startswith(role + "_")),
-                      key=lambda k: int(k.rsplit("_", 1)[1]))
+        keys = sorted(
+            (k for k in tree["trials"] if k.startswith(role + "_")),
+            key=lambda k: int(k.rsplit("_", 1)[1]),
+        )
         trials[role] = [trial_from_tree(tree["trials"][k]) for k in keys]
-    return Setup(model_name=a["model"], base=np.array(s["base"]), free=list(a["free"]),
-                 lower=np.array(s["lower"]), upper=np.array(s["upper"]),
-                 fit=trials["fit"], validation=trials["validate"],
-                 objective=Objective(**a["objective"]), method=a["method"],
-                 substeps=int(a["substeps"]), start=dict(a.get("start") or {}))
+    return Setup(
+        model_name=a["model"],
+        base=np.array(s["base"]),
+        free=list(a["free"]),
+        lower=np.array(s["lower"]),
+        upper=np.array(s["upper"]),
+        fit=trials["fit"],
+        validation=trials["validate"],
+        objective=Objective(**a["objective"]),
+        method=a["method"],
+        substeps=int(a["substeps"]),
+        start=dict(a.get("start") or {}),
+    )
 
 
 def job_tree(job) -> dict:
-    node = {ATTRS: {"name": job.name, "trials": list(job.trials), "done": job.done,
-                    "ga_stop": job.ga_stop, "seconds": float(job.seconds)}}
+    node = {
+        ATTRS: {
+            "name": job.name,
+            "trials": list(job.trials),
+            "done": job.done,
+            "ga_stop": job.ga_stop,
+            "seconds": float(job.seconds),
+        }
+    }
     if job.ga is not None:
         snap = GeneticAlgorithm.snapshot(job.ga)
         log = snap.pop("logbook")
-        node["ga"] = {ATTRS: {"generation": snap.pop("generation"),
-                              "evaluations": snap.pop("evaluations"),
-                              "blowups": snap.pop("blowups"),
-                              "best_fitness": job.ga.best_fitness},
-                      "logbook": {ATTRS: {"columns": list(LOG_FIELDS)}, **log}, **snap}
+        node["ga"] = {
+            ATTRS: {
+                "generation": snap.pop("generation"),
+                "evaluations": snap.pop("evaluations"),
+                "blowups": snap.pop("blowups"),
+                "best_fitness": job.ga.best_fitness,
+            },
+            "logbook": {ATTRS: {"columns": list(LOG_FIELDS)}, **log},
+            **snap,
+        }
     if job.local is not None:
         d = job.local.as_dict()
-        node["local"] = {ATTRS: {k: v for k, v in d.items() if not isinstance(v, list)},
-                         "x0": np.asarray(job.local.x0), "x": np.asarray(job.local.x)}
+        node["local"] = {
+            ATTRS: {k: v for k, v in d.items() if not isinstance(v, list)},
+            "x0": np.asarray(job.local.x0),
+            "x": np.asarray(job.local.x),
+        }
     if job.done:
         node[ATTRS]["best_fitness"] = float(job.best_fitness)
         node["best_x"] = np.asarray(job.best_x, dtype=np.float64)
@@ -234,17 +300,34 @@ def snapshot_from_tree(node: dict) -> dict:
     """The :meth:`GeneticAlgorithm.snapshot` stored in a job's ``ga`` group."""
     a = node[ATTRS]
     snap = {k: v for k, v in node.items() if k not in (ATTRS, "logbook")}
-    snap.update(generation=a["generation"], evaluations=a["evaluations"],
-                blowups=a["blowups"],
-                logbook={k: np.array(node["logbook"][k]) for k in LOG_FIELDS})
+    snap.update(
+        generation=a["generation"],
+        evaluations=a["evaluations"],
+        blowups=a["blowups"],
+        logbook={k: np.array(node["logbook"][k]) for k in LOG_FIELDS},
+    )
     return snap
 
 
 def local_from_tree(node: dict) -> LocalResult:
     a = node[ATTRS]
-    return LocalResult(x0=np.array(node["x0"]), x=np.array(node["x"]),
-                       **{k: a[k] for k in ("fitness0", "fitness", "iterations", "evaluations",
-                                            "blowups", "success", "message", "seconds")})
+    return LocalResult(
+        x0=np.array(node["x0"]),
+        x=np.array(node["x"]),
+        **{
+            k: a[k]
+            for k in (
+                "fitness0",
+                "fitness",
+                "iterations",
+                "evaluations",
+                "blowups",
+                "success",
+                "message",
+                "seconds",
+            )
+        },
+    )
 
 
 def best_tree(run) -> dict:
@@ -259,26 +342,45 @@ def best_tree(run) -> dict:
         job = run.jobs[0]
         fit_errors = dict(zip(fit_ids, map(float, job.fit_errors)))
         validation = dict(zip(val_ids, map(float, job.validation_errors)))
-    return {ATTRS: {"fitness": float(res["best_fitness"]),
-                    "values": {n: float(v) for n, v in zip(run.setup.free, res["best_x"])},
-                    "fit_errors": fit_errors, "validation_errors": validation,
-                    "param_names": list(run.setup.model.params.names),
-                    "meaning": "mean of the per-trial fits" if run.per_trial
-                    else "best of the run"},
-            "x": np.asarray(res["best_x"], dtype=np.float64),
-            "full": np.asarray(res["full"], dtype=np.float64)}
+    return {
+        ATTRS: {
+            "fitness": float(res["best_fitness"]),
+            "values": {n: float(v) for n, v in zip(run.setup.free, res["best_x"])},
+            "fit_errors": fit_errors,
+            "validation_errors": validation,
+            "param_names": list(run.setup.model.params.names),
+            "meaning": "mean of the per-trial fits" if run.per_trial else "best of the run",
+        },
+        "x": np.asarray(res["best_x"], dtype=np.float64),
+        "full": np.asarray(res["full"], dtype=np.float64),
+    }
 
 
 def summary_tree(run) -> dict:
     xs = run.result["xs"]
-    return {ATTRS: {"names": list(run.setup.free), "trials": [j.name for j in run.jobs]},
-            "x": xs, "min": xs.min(axis=0), "max": xs.max(axis=0), "mean": xs.mean(axis=0),
-            "std": xs.std(axis=0),
-            "fitness": np.array([j.best_fitness for j in run.jobs])}
+    return {
+        ATTRS: {"names": list(run.setup.free), "trials": [j.name for j in run.jobs]},
+        "x": xs,
+        "min": xs.min(axis=0),
+        "max": xs.max(axis=0),
+        "mean": xs.mean(axis=0),
+        "std": xs.std(axis=0),
+        "fitness": np.array([j.best_fitness for j in run.jobs]),
+    }
 
 
 def response_tree(r: dict, channel: str) -> dict:
-    return {ATTRS: {"trial_id": r["trial_id"], "role": r["role"], "error": r["error"],
-                    "channel": channel, "ok": r["ok"]},
-            "t": r["t"], "force": r["force"], "target": r["target"], "model": r["model"],
-            "model_theta": r["model_theta"]}
+    return {
+        ATTRS: {
+            "trial_id": r["trial_id"],
+            "role": r["role"],
+            "error": r["error"],
+            "channel": channel,
+            "ok": r["ok"],
+        },
+        "t": r["t"],
+        "force": r["force"],
+        "target": r["target"],
+        "model": r["model"],
+        "model_theta": r["model_theta"],
+    }

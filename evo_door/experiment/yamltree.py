@@ -54,14 +54,17 @@ def _convert(node, source: str, constructor: SafeConstructor):
             if not isinstance(key, (str, int, float, bool)) or key is None:
                 raise UserError(f"{_loc(source, key_node)}: mapping keys must be plain names")
             if key in out:
-                raise UserError(f"{_loc(source, key_node)}: duplicate key {key!r} "
-                                f"(first at {out.key_locs[key]})")
+                raise UserError(
+                    f"{_loc(source, key_node)}: duplicate key {key!r} "
+                    f"(first at {out.key_locs[key]})"
+                )
             out[key] = _convert(value_node, source, constructor)
             out.key_locs[key] = _loc(source, key_node)
         return out
     if isinstance(node, yaml.SequenceNode):
-        return LinedList([_convert(n, source, constructor) for n in node.value],
-                         loc=_loc(source, node))
+        return LinedList(
+            [_convert(n, source, constructor) for n in node.value], loc=_loc(source, node)
+        )
     return constructor.construct_object(node, deep=True)
 
 

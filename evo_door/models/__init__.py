@@ -13,5 +13,11 @@ from evo_door.models.base import (
     resolve_model_name,
 )
 
-__all__ = ["Model", "REGISTRY", "available_models", "check_model", "get_model",
-           "resolve_model_name"]
+__all__ = [
+    "Model",
+    "REGISTRY",
+    "available_models",
+    "check_model",
+    "get_model",
+    "resolve_model_name",
+]

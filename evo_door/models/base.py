@@ -138,19 +138,27 @@ def check_model(model, source: str = "") -> Model:
         raise UserError(f"{where!r} is a {type(model).__name__}, not an evo_door Model")
     name = f"model {model.name!r}"
     if not isinstance(model.params, ParamTable):
-        raise UserError(f"{name}: params must be a ParamTable (evo_door.params), "
-                        f"got {type(model.params).__name__}")
+        raise UserError(
+            f"{name}: params must be a ParamTable (evo_door.params), "
+            f"got {type(model.params).__name__}"
+        )
     if model.params.model != model.name:
-        raise UserError(f"{name}: its ParamTable is declared for model "
-                        f"{model.params.model!r}; give both the same name")
+        raise UserError(
+            f"{name}: its ParamTable is declared for model "
+            f"{model.params.model!r}; give both the same name"
+        )
     bad = [k for k in model.rig_kinds if k not in RIG_KINDS]
     if bad:
-        raise UserError(f"{name}: unknown rig kind {bad[0]!r}" + suggest(bad[0], RIG_KINDS)
-                        + f"; kinds: {', '.join(RIG_KINDS)}")
+        raise UserError(
+            f"{name}: unknown rig kind {bad[0]!r}"
+            + suggest(bad[0], RIG_KINDS)
+            + f"; kinds: {', '.join(RIG_KINDS)}"
+        )
     lo, hi = model.theta_range
     if not lo < hi:
-        raise UserError(f"{name}: theta_range {model.theta_range} must go from open "
-                        "(lower) to closed (upper)")
+        raise UserError(
+            f"{name}: theta_range {model.theta_range} must go from open (lower) to closed (upper)"
+        )
     _check_accel(model)
     return model
 
@@ -171,19 +179,22 @@ def _check_accel(model: Model) -> None:
         if not callable(accel):
             raise UserError(f"{name}: accel must be {_WANT}; got {_describe(accel)}")
         if not _takes_four(accel):
-            raise UserError(f"{name}: accel must be {_WANT}; it does not take the four "
-                            "arguments (theta, dtheta, force, p)")
+            raise UserError(
+                f"{name}: accel must be {_WANT}; it does not take the four "
+                "arguments (theta, dtheta, force, p)"
+            )
         return
     if not isinstance(accel, Dispatcher):
         raise UserError(f"{name}: accel must be {_WANT}; got {_describe(accel)}")
     try:
         result = accel.get_compile_result(ACCEL_SIGNATURE)
     except Exception as exc:  # numba raises TypingError, TypeError, NameError...
-        raise UserError(f"{name}: accel must be {_WANT}; it does not compile for "
-                        f"{_signature_text(ACCEL_SIGNATURE)}: {_numba_reason(exc)}") from None
+        raise UserError(
+            f"{name}: accel must be {_WANT}; it does not compile for "
+            f"{_signature_text(ACCEL_SIGNATURE)}: {_numba_reason(exc)}"
+        ) from None
     if result.signature.return_type != ACCEL_SIGNATURE.return_type:
-        raise UserError(f"{name}: accel must be {_WANT}; it returns "
-                        f"{result.signature.return_type}")
+        raise UserError(f"{name}: accel must be {_WANT}; it returns {result.signature.return_type}")
 
 
 def _takes_four(func) -> bool:
@@ -203,8 +214,11 @@ def _describe(obj) -> str:
 
 
 def _signature_text(sig) -> str:
-    return "(" + ", ".join("float64[::1]" if str(a).startswith("array") else str(a)
-                           for a in sig.args) + ")"
+    return (
+        "("
+        + ", ".join("float64[::1]" if str(a).startswith("array") else str(a) for a in sig.args)
+        + ")"
+    )
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
@@ -297,8 +311,10 @@ def _registered(name: str):
     eps = [ep for ep in importlib.metadata.entry_points(group=MODEL_GROUP) if ep.name == name]
     values = sorted({ep.value for ep in eps})
     if len(values) > 1:
-        raise UserError(f"model {name!r} is registered twice ({' and '.join(values)}); "
-                        "uninstall one of the packages")
+        raise UserError(
+            f"model {name!r} is registered twice ({' and '.join(values)}); "
+            "uninstall one of the packages"
+        )
     if values:
         return _from_module(values[0], name)
     if name in REGISTRY:
@@ -309,11 +325,15 @@ def _registered(name: str):
             if importlib.util.find_spec(module) is None:
                 raise UserError(f"model {name!r} is not available in this version") from None
             raise
-    known = sorted(set(REGISTRY) | {ep.name for ep in
-                                    importlib.metadata.entry_points(group=MODEL_GROUP)})
-    raise UserError(f"unknown model {name!r}" + suggest(name, known)
-                    + f"; models: {', '.join(available_models())}, or a model in a file, "
-                    "path/to/file.py:ATTRIBUTE")
+    known = sorted(
+        set(REGISTRY) | {ep.name for ep in importlib.metadata.entry_points(group=MODEL_GROUP)}
+    )
+    raise UserError(
+        f"unknown model {name!r}"
+        + suggest(name, known)
+        + f"; models: {', '.join(available_models())}, or a model in a file, "
+        "path/to/file.py:ATTRIBUTE"
+    )
 
 
 def _from_module(target: str, name: str):
@@ -323,8 +343,9 @@ def _from_module(target: str, name: str):
         module = importlib.import_module(module_name.strip())
     except Exception as exc:
         if isinstance(exc, ModuleNotFoundError) and exc.name == module_name.strip():
-            raise UserError(f"cannot import model {name!r}: no module named "
-                            f"{module_name.strip()!r}") from None
+            raise UserError(
+                f"cannot import model {name!r}: no module named {module_name.strip()!r}"
+            ) from None
         raise UserError(f"cannot import model {name!r}: {_one_line(exc)}") from None
     obj = _attribute(module, attr.strip(), f"module {module_name.strip()!r}", name)
     file = getattr(module, "__file__", None)
@@ -362,8 +383,9 @@ def _exec_file(path: Path, shown: str):
         spec.loader.exec_module(module)
     except Exception as exc:
         del sys.modules[module_name]
-        raise UserError(f"model file {shown} does not import: {_one_line(exc)}"
-                        f"{_line_in(exc, path)}") from None
+        raise UserError(
+            f"model file {shown} does not import: {_one_line(exc)}{_line_in(exc, path)}"
+        ) from None
     finally:
         sys.path.remove(str(path.parent))
     return module
@@ -378,8 +400,9 @@ def _attribute(module, attr: str, where: str, name: str):
         models = [k for k, v in vars(module).items() if isinstance(v, Model)]
         listed = f"; models there: {', '.join(models)}" if models else "; it defines no Model"
         public = [k for k in vars(module) if not k.startswith("_")]
-        raise UserError(f"{where} has no attribute {attr!r}" + suggest(attr, models or public)
-                        + listed) from None
+        raise UserError(
+            f"{where} has no attribute {attr!r}" + suggest(attr, models or public) + listed
+        ) from None
 
 
 def _one_line(exc: BaseException) -> str:
@@ -391,6 +414,5 @@ def _line_in(exc: BaseException, path: Path) -> str:
     """`` (line N)`` of the deepest frame of the user's file in the traceback."""
     if isinstance(exc, SyntaxError):
         return ""  # its message already names the line
-    frames = [f for f in traceback.extract_tb(exc.__traceback__)
-              if Path(f.filename) == path]
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if Path(f.filename) == path]
     return f" (line {frames[-1].lineno})" if frames else ""

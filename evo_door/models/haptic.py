@@ -41,72 +41,280 @@ DEVICE_OFFSET_Z = 0.138
 
 _DEG = math.pi / 180.0
 
-PARAMS = ParamTable("haptic", [
-    # -- sensations: what the operator tunes ------------------------------------
-    Param("inertia", "kg m", 1.2, 0.05, 20.0, "sensation",
-          "equivalent inertia at the handle, I = m R (heaviness)"),
-    Param("friction_closing", "N", 3.0, 0.0, 100.0, "sensation",
-          "dry friction while closing (dtheta > friction_speed_threshold)"),
-    Param("friction_opening", "N", 2.0, 0.0, 100.0, "sensation",
-          "dry friction while opening (dtheta < friction_speed_threshold)"),
-    *[Param(f"friction_scale_{k}", "1", 1.0, 0.0, 1.0, "sensation",
-            f"dry-friction scale on section {k} of 8, "
-            f"[{(k - 1) * 90 / N_SECTIONS:g}, {k * 90 / N_SECTIONS:g}] deg")
-      for k in range(1, N_SECTIONS + 1)],
-    Param("viscous_damping", "N s/rad", 0.2, 0.0, 100.0, "sensation",
-          "viscous friction, force c_v * |dtheta| against the motion (eq. 4.42)"),
-    Param("return_stiffness", "N/rad", 0.0, 0.0, 1000.0, "sensation",
-          "return spring toward return_angle, e.g. a soft close (eq. 4.43); 0 = none"),
-    Param("return_angle", "rad", CLOSED, 0.0, CLOSED, "sensation",
-          "rest angle of the return spring (pi/2 pulls toward closed)"),
-    Param("return_onset", "rad", 0.25 * math.pi, 0.0, CLOSED, "sensation",
-          "the return spring acts above this angle"),
-    Param("open_force", "N", 20.0, 0.0, 200.0, "sensation",
-          "latch force to overcome to unlock (peak of the opening force); 0 = none"),
-    Param("close_force", "N", 12.0, 0.0, 200.0, "sensation",
-          "latch force to overcome to lock (peak of the closing force); 0 = none"),
-    Param("loose_angle", "rad", 0.5 * _DEG, 0.0, 0.1, "sensation",
-          "free play below closed before the latch engages (seed: 0.5 deg)"),
-    Param("transition_angle", "rad", 0.005, 0.0, 0.1, "sensation",
-          "snap zone between the unlock and the lock band"),
-    Param("gasket_stiffness", "N/rad", 200.0, 0.0, 1.0e4, "sensation",
-          "soft push toward opening in the loose band (door seal)"),
-    Param("transition_damping", "N s/rad", 5.0, 0.0, 1000.0, "sensation",
-          "negative damping in the snap zone: the door leaves it on its own (eq. 4.41)"),
-    # -- the door's end stops -----------------------------------------------------
-    Param("stop_stiffness", "N/rad", 2.0e4, 0.0, 1.0e5, "specification",
-          "end stops beyond closed (pi/2) and fully open (0); 0 = none"),
-    Param("stop_damping", "N s/rad", 200.0, 0.0, 1000.0, "specification",
-          "damping of the end stops"),
-    # -- device: what a renderer can afford ---------------------------------------
-    Param("latch_stiffness", "N/rad", 2000.0, 100.0, 1.0e5, "device",
-          "stiffness of the latch springs; band widths are force / stiffness"),
-    Param("latch_damping", "N s/rad", 20.0, 0.0, 1000.0, "device",
-          "damping inside the latch bands (eq. 4.40)"),
-    Param("radius", "m", 0.3, 0.05, 1.0, "device",
-          "radius of the handle's circular path on the device"),
-    Param("k_radial", "N/m", 2000.0, 0.0, 1.0e5, "device",
-          "spring holding the end effector on the circle (eq. 4.32-4.33)"),
-    Param("c_radial", "N s/m", 200.0, 0.0, 1.0e4, "device",
-          "damper holding the end effector on the circle"),
-    Param("k_plane", "N/m", 300.0, 0.0, 1.0e5, "device",
-          "spring holding the end effector in the plane x = 0 (eq. 4.21)"),
-    Param("c_plane", "N s/m", 100.0, 0.0, 1.0e4, "device",
-          "damper holding the end effector in the plane x = 0"),
-    Param("c_energy", "N s/m", 0.0, 0.0, 1.0e4, "device",
-          "tangential negative damping offsetting c_radial's loss (eq. 4.34-4.35)"),
-    # -- numerics: smoothness of the switches ---------------------------------------
-    Param("friction_slope", "s/rad", 100.0, 0.0, 2000.0, "numerics",
-          "tanh slope of dry friction, F = c tanh(a dtheta) (eq. 3.1)"),
-    Param("friction_speed_threshold", "rad/s", 0.0, 0.0, 1.0, "numerics",
-          "speed above which closing friction takes over from opening friction"),
-    Param("window_slope", "1/rad", 100.0, 1.0, 1.0e4, "numerics",
-          "activation slope of the friction sections and the return onset"),
-    Param("latch_sharpness", "1", 20.0, 5.0, 1000.0, "numerics",
-          "latch band width / width of its release edge"),
-    Param("latch_gate_slope", "s/rad", 500.0, 10.0, 1.0e4, "numerics",
-          "slope of the speed gate that mutes the lock spring while opening"),
-])
+PARAMS = ParamTable(
+    "haptic",
+    [
+        # -- sensations: what the operator tunes ------------------------------------
+        Param(
+            "inertia",
+            "kg m",
+            1.2,
+            0.05,
+            20.0,
+            "sensation",
+            "equivalent inertia at the handle, I = m R (heaviness)",
+        ),
+        Param(
+            "friction_closing",
+            "N",
+            3.0,
+            0.0,
+            100.0,
+            "sensation",
+            "dry friction while closing (dtheta > friction_speed_threshold)",
+        ),
+        Param(
+            "friction_opening",
+            "N",
+            2.0,
+            0.0,
+            100.0,
+            "sensation",
+            "dry friction while opening (dtheta < friction_speed_threshold)",
+        ),
+        *[
+            Param(
+                f"friction_scale_{k}",
+                "1",
+                1.0,
+                0.0,
+                1.0,
+                "sensation",
+                f"dry-friction scale on section {k} of 8, "
+                f"[{(k - 1) * 90 / N_SECTIONS:g}, {k * 90 / N_SECTIONS:g}] deg",
+            )
+            for k in range(1, N_SECTIONS + 1)
+        ],
+        Param(
+            "viscous_damping",
+            "N s/rad",
+            0.2,
+            0.0,
+            100.0,
+            "sensation",
+            "viscous friction, force c_v * |dtheta| against the motion (eq. 4.42)",
+        ),
+        Param(
+            "return_stiffness",
+            "N/rad",
+            0.0,
+            0.0,
+            1000.0,
+            "sensation",
+            "return spring toward return_angle, e.g. a soft close (eq. 4.43); 0 = none",
+        ),
+        Param(
+            "return_angle",
+            "rad",
+            CLOSED,
+            0.0,
+            CLOSED,
+            "sensation",
+            "rest angle of the return spring (pi/2 pulls toward closed)",
+        ),
+        Param(
+            "return_onset",
+            "rad",
+            0.25 * math.pi,
+            0.0,
+            CLOSED,
+            "sensation",
+            "the return spring acts above this angle",
+        ),
+        Param(
+            "open_force",
+            "N",
+            20.0,
+            0.0,
+            200.0,
+            "sensation",
+            "latch force to overcome to unlock (peak of the opening force); 0 = none",
+        ),
+        Param(
+            "close_force",
+            "N",
+            12.0,
+            0.0,
+            200.0,
+            "sensation",
+            "latch force to overcome to lock (peak of the closing force); 0 = none",
+        ),
+        Param(
+            "loose_angle",
+            "rad",
+            0.5 * _DEG,
+            0.0,
+            0.1,
+            "sensation",
+            "free play below closed before the latch engages (seed: 0.5 deg)",
+        ),
+        Param(
+            "transition_angle",
+            "rad",
+            0.005,
+            0.0,
+            0.1,
+            "sensation",
+            "snap zone between the unlock and the lock band",
+        ),
+        Param(
+            "gasket_stiffness",
+            "N/rad",
+            200.0,
+            0.0,
+            1.0e4,
+            "sensation",
+            "soft push toward opening in the loose band (door seal)",
+        ),
+        Param(
+            "transition_damping",
+            "N s/rad",
+            5.0,
+            0.0,
+            1000.0,
+            "sensation",
+            "negative damping in the snap zone: the door leaves it on its own (eq. 4.41)",
+        ),
+        # -- the door's end stops -----------------------------------------------------
+        Param(
+            "stop_stiffness",
+            "N/rad",
+            2.0e4,
+            0.0,
+            1.0e5,
+            "specification",
+            "end stops beyond closed (pi/2) and fully open (0); 0 = none",
+        ),
+        Param(
+            "stop_damping",
+            "N s/rad",
+            200.0,
+            0.0,
+            1000.0,
+            "specification",
+            "damping of the end stops",
+        ),
+        # -- device: what a renderer can afford ---------------------------------------
+        Param(
+            "latch_stiffness",
+            "N/rad",
+            2000.0,
+            100.0,
+            1.0e5,
+            "device",
+            "stiffness of the latch springs; band widths are force / stiffness",
+        ),
+        Param(
+            "latch_damping",
+            "N s/rad",
+            20.0,
+            0.0,
+            1000.0,
+            "device",
+            "damping inside the latch bands (eq. 4.40)",
+        ),
+        Param(
+            "radius",
+            "m",
+            0.3,
+            0.05,
+            1.0,
+            "device",
+            "radius of the handle's circular path on the device",
+        ),
+        Param(
+            "k_radial",
+            "N/m",
+            2000.0,
+            0.0,
+            1.0e5,
+            "device",
+            "spring holding the end effector on the circle (eq. 4.32-4.33)",
+        ),
+        Param(
+            "c_radial",
+            "N s/m",
+            200.0,
+            0.0,
+            1.0e4,
+            "device",
+            "damper holding the end effector on the circle",
+        ),
+        Param(
+            "k_plane",
+            "N/m",
+            300.0,
+            0.0,
+            1.0e5,
+            "device",
+            "spring holding the end effector in the plane x = 0 (eq. 4.21)",
+        ),
+        Param(
+            "c_plane",
+            "N s/m",
+            100.0,
+            0.0,
+            1.0e4,
+            "device",
+            "damper holding the end effector in the plane x = 0",
+        ),
+        Param(
+            "c_energy",
+            "N s/m",
+            0.0,
+            0.0,
+            1.0e4,
+            "device",
+            "tangential negative damping offsetting c_radial's loss (eq. 4.34-4.35)",
+        ),
+        # -- numerics: smoothness of the switches ---------------------------------------
+        Param(
+            "friction_slope",
+            "s/rad",
+            100.0,
+            0.0,
+            2000.0,
+            "numerics",
+            "tanh slope of dry friction, F = c tanh(a dtheta) (eq. 3.1)",
+        ),
+        Param(
+            "friction_speed_threshold",
+            "rad/s",
+            0.0,
+            0.0,
+            1.0,
+            "numerics",
+            "speed above which closing friction takes over from opening friction",
+        ),
+        Param(
+            "window_slope",
+            "1/rad",
+            100.0,
+            1.0,
+            1.0e4,
+            "numerics",
+            "activation slope of the friction sections and the return onset",
+        ),
+        Param(
+            "latch_sharpness",
+            "1",
+            20.0,
+            5.0,
+            1000.0,
+            "numerics",
+            "latch band width / width of its release edge",
+        ),
+        Param(
+            "latch_gate_slope",
+            "s/rad",
+            500.0,
+            10.0,
+            1.0e4,
+            "numerics",
+            "slope of the speed gate that mutes the lock spring while opening",
+        ),
+    ],
+)
 
 # Positions in the kernel vector, generated from the declaration (never literal).
 INERTIA = PARAMS.index("inertia")
@@ -139,14 +347,15 @@ WINDOW_SLOPE = PARAMS.index("window_slope")
 LATCH_SHARPNESS = PARAMS.index("latch_sharpness")
 LATCH_GATE_SLOPE = PARAMS.index("latch_gate_slope")
 
-assert all(PARAMS.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k
-           for k in range(N_SECTIONS))
+assert all(
+    PARAMS.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k for k in range(N_SECTIONS)
+)
 
 
 # ---------------------------------------------------------------------------------
 # Building blocks
 # ---------------------------------------------------------------------------------
-@njit(cache=True, inline='always')
+@njit(cache=True, inline="always")
 def activation(x, x0, slope):
     """S(x, x0, a) = (tanh(a (x - x0)) + 1) / 2 (eq. 4.36): ~0 below x0, ~1 above.
 
@@ -163,7 +372,7 @@ def activation(x, x0, slope):
     return 1.0 / (1.0 + math.exp(-2.0 * u))
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, inline="always")
 def release(x, sharpness):
     """Smooth end of a latch band: ~1 inside it (x > 0), ~0 beyond it (x < 0).
 
@@ -174,7 +383,7 @@ def release(x, sharpness):
     where an edge centred on the end would cut the peak by (ln 2n + 1) / 2n.
     """
     u = sharpness * x
-    if u > 25.0:      # n delta <= 4.3 for n <= 1000: S is exactly 1 or 0 out here
+    if u > 25.0:  # n delta <= 4.3 for n <= 1000: S is exactly 1 or 0 out here
         return 1.0
     if u < -25.0:
         return 0.0
@@ -197,7 +406,7 @@ def latch_angles(p):
     return theta_0, theta_1, theta_2, theta_3
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True, inline="always")
 def section_scale(theta, p):
     """A(theta): the per-section friction scale (eq. 4.48 / 5.8), smooth, in [0, 1].
 
@@ -218,7 +427,7 @@ def section_scale(theta, p):
 # ---------------------------------------------------------------------------------
 # The tangential force law: the whole feel, top to bottom
 # ---------------------------------------------------------------------------------
-@njit(cache=True, inline='always')
+@njit(cache=True, inline="always")
 def tangential_force(theta, dtheta, p):
     """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing.
 
@@ -237,7 +446,7 @@ def tangential_force(theta, dtheta, p):
     #    friction_opening (the seed's eq. 4.47 selected them the other way round and
     #    eq. 4.46 had tanh(a theta) for tanh(a dtheta)).
     a = p[FRICTION_SLOPE]
-    forward = activation(dtheta, 0.0, a)               # tanh(a dtheta) = 2 forward - 1
+    forward = activation(dtheta, 0.0, a)  # tanh(a dtheta) = 2 forward - 1
     threshold = p[FRICTION_SPEED_THRESHOLD]
     sigma = forward if threshold == 0.0 else activation(dtheta, threshold, a)
     magnitude = p[FRICTION_OPENING] + (p[FRICTION_CLOSING] - p[FRICTION_OPENING]) * sigma
@@ -250,8 +459,11 @@ def tangential_force(theta, dtheta, p):
     # 3. Return spring above its onset (eq. 4.43):
     #      F_ret = -k_ret (theta - theta_k) S(theta, theta_on)
     if p[RETURN_STIFFNESS] != 0.0:
-        f -= (p[RETURN_STIFFNESS] * (theta - p[RETURN_ANGLE])
-              * activation(theta, p[RETURN_ONSET], p[WINDOW_SLOPE]))
+        f -= (
+            p[RETURN_STIFFNESS]
+            * (theta - p[RETURN_ANGLE])
+            * activation(theta, p[RETURN_ONSET], p[WINDOW_SLOPE])
+        )
 
     # 4. Loose band [theta_0, pi/2] and beyond: the gasket pushes toward opening,
     #      F_g = -k_l max(theta - theta_0, 0)
@@ -269,11 +481,12 @@ def tangential_force(theta, dtheta, p):
     k = p[LATCH_STIFFNESS]
     n = p[LATCH_SHARPNESS]
     k_length = open_force + close_force + k * p[TRANSITION_ANGLE]  # k (theta_0 - theta_3)
-    if ((open_force > 0.0 or close_force > 0.0)
-            and (theta_0 - theta) * k * n < k_length * (1.4 * n + 20.0)):
+    if (open_force > 0.0 or close_force > 0.0) and (theta_0 - theta) * k * n < k_length * (
+        1.4 * n + 20.0
+    ):
         c = p[LATCH_DAMPING]
-        w_1 = open_force / k                  # unlock band width
-        w_2 = close_force / k                 # lock band width
+        w_1 = open_force / k  # unlock band width
+        w_2 = close_force / k  # lock band width
         theta_1 = theta_0 - w_1
         theta_2 = theta_1 - p[TRANSITION_ANGLE]
         theta_3 = theta_2 - w_2
@@ -291,11 +504,18 @@ def tangential_force(theta, dtheta, p):
         #       F_t = +c_n dtheta [S(theta, theta_2) - S(theta, theta_1)],  slope n / width
         width = theta_1 - theta_2
         c_n = p[TRANSITION_DAMPING]
-        if (c_n != 0.0 and width > 0.0 and (theta_2 - theta) * n < 20.0 * width
-                and (theta - theta_1) * n < 20.0 * width):
+        if (
+            c_n != 0.0
+            and width > 0.0
+            and (theta_2 - theta) * n < 20.0 * width
+            and (theta - theta_1) * n < 20.0 * width
+        ):
             slope = n / width
-            f += c_n * dtheta * (activation(theta, theta_2, slope)
-                                 - activation(theta, theta_1, slope))
+            f += (
+                c_n
+                * dtheta
+                * (activation(theta, theta_2, slope) - activation(theta, theta_1, slope))
+            )
 
         # 5c. Lock band [theta_3, theta_2]: the hook's ramp, pushing toward opening,
         #     from 0 at theta_3 to close_force at theta_2, then lets go:
@@ -365,8 +585,8 @@ def device_force(x, y, z, vx, vy, vz, p, out):
         theta = math.atan2(ym, zm)
         dtheta = (vy * zm - vz * ym) / r2
         r = math.sqrt(r2)
-        s = ym / r                          # sin(theta)
-        c = zm / r                          # cos(theta)
+        s = ym / r  # sin(theta)
+        c = zm / r  # cos(theta)
     else:  # on the hinge axis: no direction, no rate
         theta = 0.0
         dtheta = 0.0
@@ -412,8 +632,11 @@ def device_mass(params) -> float:
 
 def on_path(theta, radius) -> tuple[float, float, float]:
     """Device coordinates (x, y, z) of the handle at door angle ``theta`` (rad)."""
-    return (0.0, radius * math.sin(theta) - DEVICE_OFFSET_Y,
-            radius * math.cos(theta) - DEVICE_OFFSET_Z)
+    return (
+        0.0,
+        radius * math.sin(theta) - DEVICE_OFFSET_Y,
+        radius * math.cos(theta) - DEVICE_OFFSET_Z,
+    )
 
 
 def latch_angles_of(params) -> dict[str, float]:

@@ -10,5 +10,17 @@ from evo_door.optim.ga import GASettings, GAState, GeneticAlgorithm, Termination
 from evo_door.optim.local import LocalResult, LocalSettings, polish, slsqp
 from evo_door.optim.problem import COMBINE, Objective, Problem, TrialPack
 
-__all__ = ["COMBINE", "GASettings", "GAState", "GeneticAlgorithm", "LocalResult",
-           "LocalSettings", "Objective", "Problem", "Termination", "TrialPack", "polish", "slsqp"]
+__all__ = [
+    "COMBINE",
+    "GASettings",
+    "GAState",
+    "GeneticAlgorithm",
+    "LocalResult",
+    "LocalSettings",
+    "Objective",
+    "Problem",
+    "Termination",
+    "TrialPack",
+    "polish",
+    "slsqp",
+]

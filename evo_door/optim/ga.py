@@ -167,6 +167,7 @@ def _stat(fn):
     def stat(values):
         v = _finite(values)
         return float(fn(v)) if v.size else math.inf
+
     return stat
 
 
@@ -189,10 +190,18 @@ class GeneticAlgorithm:
         sigma = [s.mutation_amplitude * (hi - lo) for lo, hi in zip(low, up)]
         tb = base.Toolbox()
         tb.register("individual", lambda: Individual(uniform_individual(low, up, rng)))
-        tb.register("mate", partial(cx_sbx_bounded, eta=s.crossover_eta, low=low, up=up,
-                                    rng=rng))
-        tb.register("mutate", partial(mut_gaussian_bounded, sigma=sigma, low=low, up=up,
-                                      indpb=s.mutation_probability, rng=rng))
+        tb.register("mate", partial(cx_sbx_bounded, eta=s.crossover_eta, low=low, up=up, rng=rng))
+        tb.register(
+            "mutate",
+            partial(
+                mut_gaussian_bounded,
+                sigma=sigma,
+                low=low,
+                up=up,
+                indpb=s.mutation_probability,
+                rng=rng,
+            ),
+        )
         tb.register("select", partial(sel_tournament, tournsize=s.tournament, rng=rng))
         return tb
 
@@ -208,8 +217,13 @@ class GeneticAlgorithm:
     def new_state(self, rng: random.Random) -> GAState:
         logbook = tools.Logbook()
         logbook.header = list(LOG_FIELDS)
-        return GAState(generation=-1, population=[], hof=tools.HallOfFame(self.settings.hall_of_fame),
-                       logbook=logbook, rng=rng)
+        return GAState(
+            generation=-1,
+            population=[],
+            hof=tools.HallOfFame(self.settings.hall_of_fame),
+            logbook=logbook,
+            rng=rng,
+        )
 
     def initialize(self, problem, rng: random.Random | None = None) -> GAState:
         """Generation 0: a uniform random population, evaluated."""
@@ -279,8 +293,13 @@ class GeneticAlgorithm:
         state.times.append(time.perf_counter() - t0)
         state.eval_times.append(t_eval)
 
-    def run(self, problem, state: GAState | None = None, hooks=(),
-            termination: Termination | None = None) -> GAState:
+    def run(
+        self,
+        problem,
+        state: GAState | None = None,
+        hooks=(),
+        termination: Termination | None = None,
+    ) -> GAState:
         """Run (or continue ``state``) until ``termination`` or a hook says stop.
 
         This is the one GA loop: what happens around it after every generation
@@ -305,8 +324,9 @@ class GeneticAlgorithm:
         >>> Record.seen, state.stop_reason, state.best_fitness < 0.01
         ([0, 1, 2, 3], '3 generations done', True)
         """
-        termination = termination or Termination(self.settings.generations,
-                                                  self.settings.target_fitness)
+        termination = termination or Termination(
+            self.settings.generations, self.settings.target_fitness
+        )
         hooks = list(hooks)
         try:
             reason = None

@@ -72,17 +72,24 @@ class ProgressBar:
     def __init__(self, label: str, generations: int, initial: int = 0, file=None):
         from tqdm import tqdm
 
-        self.bar = tqdm(total=generations, unit="gen", desc=label, file=file or sys.stderr,
-                        dynamic_ncols=True, initial=max(initial, 0))
+        self.bar = tqdm(
+            total=generations,
+            unit="gen",
+            desc=label,
+            file=file or sys.stderr,
+            dynamic_ncols=True,
+            initial=max(initial, 0),
+        )
 
     def after_generation(self, state) -> None:
         log = state.logbook[-1]
         # throughput of this session's GA so far (breeding + evaluation, not I/O)
         rate = state.evaluations / max(float(np.sum(state.times)), 1e-9)
-        self.bar.set_postfix_str(f"best {state.best_fitness:.4g}  mean {log['mean']:.4g}  "
-                                 f"{rate:,.0f} evals/s"
-                                 + (f"  blow-ups {state.blowups}" if state.blowups else ""),
-                                 refresh=False)
+        self.bar.set_postfix_str(
+            f"best {state.best_fitness:.4g}  mean {log['mean']:.4g}  "
+            f"{rate:,.0f} evals/s" + (f"  blow-ups {state.blowups}" if state.blowups else ""),
+            refresh=False,
+        )
         self.bar.update(1 if state.generation > 0 else 0)
 
     def close(self) -> None:

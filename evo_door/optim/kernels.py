@@ -53,8 +53,22 @@ _bvec = types.boolean[::1]
 
 
 @njit(cache=True, nogil=True)
-def trial_error(accel, p, force, target, mask, start, stop, dt, substeps, theta0, dtheta0,
-                method, derivative, kind):
+def trial_error(
+    accel,
+    p,
+    force,
+    target,
+    mask,
+    start,
+    stop,
+    dt,
+    substeps,
+    theta0,
+    dtheta0,
+    method,
+    derivative,
+    kind,
+):
     """Objective of one trial (samples ``start:stop`` of ``force`` / ``target`` / ``mask``).
 
     Samples where ``mask`` is False (a saturated sensor, say) do not count.
@@ -67,8 +81,9 @@ def trial_error(accel, p, force, target, mask, start, stop, dt, substeps, theta0
     acc = 0.0
     for k in range(start, stop):
         if k > start:
-            theta, dtheta = advance(accel, p, theta, dtheta, force[k - 1], force[k], a_now,
-                                    dt, substeps, method)
+            theta, dtheta = advance(
+                accel, p, theta, dtheta, force[k - 1], force[k], a_now, dt, substeps, method
+            )
             if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
                 return math.inf, False
             a_now = accel(theta, dtheta, force[k], p)
@@ -93,11 +108,44 @@ def trial_error(accel, p, force, target, mask, start, stop, dt, substeps, theta0
     return acc, True
 
 
-@njit(types.void(ACCEL_TYPE, _mat, _vec, _vec, _bvec, _ivec, _vec, _vec, _vec, types.int64,
-                 types.int64, types.int64, types.int64, _mat, _bmat),
-      cache=True, parallel=True)
-def population_errors(accel, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps,
-                      method, derivative, kind, err_out, ok_out):
+@njit(
+    types.void(
+        ACCEL_TYPE,
+        _mat,
+        _vec,
+        _vec,
+        _bvec,
+        _ivec,
+        _vec,
+        _vec,
+        _vec,
+        types.int64,
+        types.int64,
+        types.int64,
+        types.int64,
+        _mat,
+        _bmat,
+    ),
+    cache=True,
+    parallel=True,
+)
+def population_errors(
+    accel,
+    P,
+    force,
+    target,
+    mask,
+    offsets,
+    dt,
+    theta0,
+    dtheta0,
+    substeps,
+    method,
+    derivative,
+    kind,
+    err_out,
+    ok_out,
+):
     """Objective of every individual (rows of ``P``) on every trial.
 
     Fills ``err_out[i, j]`` and ``ok_out[i, j]`` for individual ``i`` and trial ``j``
@@ -107,8 +155,21 @@ def population_errors(accel, P, force, target, mask, offsets, dt, theta0, dtheta
     for i in prange(P.shape[0]):
         p = P[i]
         for j in range(n_trials):
-            e, ok = trial_error(accel, p, force, target, mask, offsets[j], offsets[j + 1],
-                                dt[j], substeps, theta0[j], dtheta0[j], method,
-                                derivative, kind)
+            e, ok = trial_error(
+                accel,
+                p,
+                force,
+                target,
+                mask,
+                offsets[j],
+                offsets[j + 1],
+                dt[j],
+                substeps,
+                theta0[j],
+                dtheta0[j],
+                method,
+                derivative,
+                kind,
+            )
             err_out[i, j] = e
             ok_out[i, j] = ok

@@ -97,18 +97,30 @@ def slsqp(problem, x0, settings: LocalSettings | None = None) -> LocalResult:
             cache[key] = (float(f[0]), grad)
         return cache[key]
 
-    res = minimize(lambda z: value_and_grad(z)[0], (x0 - lo) / width,
-                   jac=lambda z: value_and_grad(z)[1], method="SLSQP",
-                   bounds=[(0.0, 1.0)] * len(x0),
-                   options={"maxiter": settings.max_iterations, "ftol": settings.ftol})
+    res = minimize(
+        lambda z: value_and_grad(z)[0],
+        (x0 - lo) / width,
+        jac=lambda z: value_and_grad(z)[1],
+        method="SLSQP",
+        bounds=[(0.0, 1.0)] * len(x0),
+        options={"maxiter": settings.max_iterations, "ftol": settings.ftol},
+    )
     x = to_x(res.x)
     f = float(raw(((x - lo) / width)[None, :])[0])
     if not f <= f0:  # never hand back something worse than the start (or a NaN)
         x, f = x0, f0
-    return LocalResult(x0=x0, fitness0=f0, x=x, fitness=f, iterations=int(res.nit),
-                       evaluations=counts["evaluations"], blowups=counts["blowups"],
-                       success=bool(res.success), message=str(res.message),
-                       seconds=time.perf_counter() - t0)
+    return LocalResult(
+        x0=x0,
+        fitness0=f0,
+        x=x,
+        fitness=f,
+        iterations=int(res.nit),
+        evaluations=counts["evaluations"],
+        blowups=counts["blowups"],
+        success=bool(res.success),
+        message=str(res.message),
+        seconds=time.perf_counter() - t0,
+    )
 
 
 def polish(problem, x0, settings: LocalSettings | None = None) -> LocalResult:
@@ -128,12 +140,18 @@ def polish(problem, x0, settings: LocalSettings | None = None) -> LocalResult:
     f = np.where(blown | ~np.isfinite(f), np.inf, f)
     k = int(np.argmin(f))  # ties go to the earlier: the start point, then the ISE stage
     return LocalResult(
-        x0=x0, fitness0=float(f[0]), x=candidates[k].copy(), fitness=float(f[k]),
+        x0=x0,
+        fitness0=float(f[0]),
+        x=candidates[k].copy(),
+        fitness=float(f[k]),
         iterations=first.iterations + second.iterations,
         evaluations=first.evaluations + second.evaluations + len(candidates),
         blowups=first.blowups + second.blowups + int(blown.sum()),
         success=second.success,
-        message=(f"ise stage: {first.iterations} iterations, {first.message}; max_square "
-                 f"stage: {second.iterations} iterations, {second.message}; kept "
-                 + ("the start point", "the ise stage", "the max_square stage")[k]),
-        seconds=time.perf_counter() - t0)
+        message=(
+            f"ise stage: {first.iterations} iterations, {first.message}; max_square "
+            f"stage: {second.iterations} iterations, {second.message}; kept "
+            + ("the start point", "the ise stage", "the max_square stage")[k]
+        ),
+        seconds=time.perf_counter() - t0,
+    )

@@ -18,8 +18,16 @@ import random
 from collections.abc import Sequence
 
 
-def cx_sbx_bounded(ind1, ind2, *, eta: float, low: Sequence[float], up: Sequence[float],
-                   rng: random.Random, gene_probability: float = 0.5):
+def cx_sbx_bounded(
+    ind1,
+    ind2,
+    *,
+    eta: float,
+    low: Sequence[float],
+    up: Sequence[float],
+    rng: random.Random,
+    gene_probability: float = 0.5,
+):
     """Simulated binary crossover restricted to the bounds (Deb and Agrawal, 1995).
 
     Each gene is recombined with probability ``gene_probability``. For parents
@@ -58,9 +66,16 @@ def _sbx_child(y1, y2, span, beta, eta, u, side):
     return 0.5 * (y1 + y2) + side * 0.5 * betaq * span
 
 
-def mut_gaussian_bounded(individual, *, sigma: Sequence[float], low: Sequence[float],
-                         up: Sequence[float], indpb: float, rng: random.Random,
-                         max_tries: int = 1000):
+def mut_gaussian_bounded(
+    individual,
+    *,
+    sigma: Sequence[float],
+    low: Sequence[float],
+    up: Sequence[float],
+    indpb: float,
+    rng: random.Random,
+    max_tries: int = 1000,
+):
     """Gaussian mutation truncated to the bounds.
 
     Each gene mutates with probability ``indpb`` to a value drawn from a normal
@@ -116,6 +131,7 @@ def rng_state(rng: random.Random) -> list[int]:
         flag, bits = 0, 0
     else:
         import struct
+
         flag, bits = 1, struct.unpack("<q", struct.pack("<d", gauss_next))[0]
     return [int(version), *map(int, words), flag, bits]
 

@@ -81,14 +81,16 @@ class TrialPack:
         lengths = [tr.n for tr in self.trials]
         self.offsets = np.zeros(len(lengths) + 1, dtype=np.int64)
         self.offsets[1:] = np.cumsum(lengths)
-        cat = (lambda parts: np.ascontiguousarray(np.concatenate(parts)) if parts
-               else np.zeros(0))
+        cat = lambda parts: np.ascontiguousarray(np.concatenate(parts)) if parts else np.zeros(0)
         self.force = cat([tr.force for tr in self.trials])
         self.target = cat(targets)
         # saturated sensor samples do not count
         masks = [tr.unsaturated(channel) for tr in self.trials]
-        self.mask = (np.ascontiguousarray(np.concatenate(masks), dtype=np.bool_) if masks
-                     else np.zeros(0, dtype=np.bool_))
+        self.mask = (
+            np.ascontiguousarray(np.concatenate(masks), dtype=np.bool_)
+            if masks
+            else np.zeros(0, dtype=np.bool_)
+        )
         self.dt = np.array([tr.dt for tr in self.trials], dtype=np.float64)
         states = [tr.initial_state() for tr in self.trials]
         self.theta0 = np.array([s[0] for s in states], dtype=np.float64)
@@ -123,9 +125,19 @@ class Problem:
         Integration scheme and sub-steps per sample (default: the model's).
     """
 
-    def __init__(self, model, free: Sequence[str], lower, upper, base, trials,
-                 objective: Objective, validation: Sequence[Trial] = (),
-                 method: str | None = None, substeps: int | None = None):
+    def __init__(
+        self,
+        model,
+        free: Sequence[str],
+        lower,
+        upper,
+        base,
+        trials,
+        objective: Objective,
+        validation: Sequence[Trial] = (),
+        method: str | None = None,
+        substeps: int | None = None,
+    ):
         self.model = model
         self.free = tuple(free)
         self.index = np.array([model.params.index(n) for n in self.free], dtype=np.int64)
@@ -166,8 +178,10 @@ class Problem:
         bad = ~((X >= self.lower) & (X <= self.upper))
         if bad.any():
             i, j = np.argwhere(bad)[0]
-            raise ValueError(f"candidate {i}: {self.free[j]} = {X[i, j]!r} outside "
-                             f"[{self.lower[j]!r}, {self.upper[j]!r}]")
+            raise ValueError(
+                f"candidate {i}: {self.free[j]} = {X[i, j]!r} outside "
+                f"[{self.lower[j]!r}, {self.upper[j]!r}]"
+            )
 
     # -- evaluation -----------------------------------------------------------
     def trial_errors(self, X, pack: TrialPack | None = None):
@@ -179,11 +193,23 @@ class Problem:
         err = np.empty((P.shape[0], len(pack)))
         ok = np.zeros((P.shape[0], len(pack)), dtype=np.bool_)
         if len(pack) and P.shape[0]:
-            population_errors(self.model.accel, P, pack.force, pack.target, pack.mask,
-                              pack.offsets,
-                              pack.dt, pack.theta0, pack.dtheta0, self.substeps,
-                              self.method_code, self.objective.derivative,
-                              KINDS[self.objective.kind], err, ok)
+            population_errors(
+                self.model.accel,
+                P,
+                pack.force,
+                pack.target,
+                pack.mask,
+                pack.offsets,
+                pack.dt,
+                pack.theta0,
+                pack.dtheta0,
+                self.substeps,
+                self.method_code,
+                self.objective.derivative,
+                KINDS[self.objective.kind],
+                err,
+                ok,
+            )
         return err, ok
 
     def evaluate(self, X):
@@ -199,8 +225,9 @@ class Problem:
         err, ok = self.trial_errors(x, self.validation)
         return np.where(ok, err, np.inf)[0]
 
-    def responses(self, x, pack: TrialPack | None = None,
-                  indices: Sequence[int] | None = None) -> list[Response]:
+    def responses(
+        self, x, pack: TrialPack | None = None, indices: Sequence[int] | None = None
+    ) -> list[Response]:
         """Full simulated responses of one candidate on the trials of ``pack``.
 
         ``pack`` is the fit trials by default (or ``self.validation``); ``indices``
@@ -211,13 +238,32 @@ class Problem:
         out = []
         for i in range(len(pack)) if indices is None else indices:
             tr = pack.trials[i]
-            out.append(simulate(self.model, p, tr.force, tr.dt, theta0=pack.theta0[i],
-                                dtheta0=pack.dtheta0[i], t0=float(tr.t[0]),
-                                method=self.method, substeps=self.substeps))
+            out.append(
+                simulate(
+                    self.model,
+                    p,
+                    tr.force,
+                    tr.dt,
+                    theta0=pack.theta0[i],
+                    dtheta0=pack.dtheta0[i],
+                    t0=float(tr.t[0]),
+                    method=self.method,
+                    substeps=self.substeps,
+                )
+            )
         return out
 
     def with_objective(self, objective: Objective) -> Problem:
         """The same problem under another objective (the max-square polish's ISE stage)."""
-        return Problem(self.model, self.free, self.lower, self.upper, self.base,
-                       self.fit.trials, objective, self.validation.trials, self.method,
-                       self.substeps)
+        return Problem(
+            self.model,
+            self.free,
+            self.lower,
+            self.upper,
+            self.base,
+            self.fit.trials,
+            objective,
+            self.validation.trials,
+            self.method,
+            self.substeps,
+        )

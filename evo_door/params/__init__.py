@@ -11,6 +11,15 @@ from evo_door.params.sets import (
     preset_path,
 )
 
-__all__ = ["GROUPS", "Param", "ParamTable", "ParamSet", "available_presets",
-           "load_params", "param_vector", "params_from_document", "parse_assignments",
-           "preset_path"]
+__all__ = [
+    "GROUPS",
+    "Param",
+    "ParamTable",
+    "ParamSet",
+    "available_presets",
+    "load_params",
+    "param_vector",
+    "params_from_document",
+    "parse_assignments",
+    "preset_path",
+]

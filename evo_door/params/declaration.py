@@ -64,8 +64,7 @@ class Param:
         where = f"{source}: " if source else ""
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
             raise ParameterError(
-                f"{where}parameter {self.name!r} must be a number in {self.unit}, "
-                f"got {value!r}"
+                f"{where}parameter {self.name!r} must be a number in {self.unit}, got {value!r}"
             )
         value = float(value)
         if not math.isfinite(value):
@@ -124,8 +123,7 @@ class ParamTable:
             return self._index[name]
         except KeyError:
             raise ParameterError(
-                f"model {self.model!r} has no parameter {name!r}"
-                + suggest(name, self._index)
+                f"model {self.model!r} has no parameter {name!r}" + suggest(name, self._index)
             ) from None
 
     def __getitem__(self, name: str) -> Param:
@@ -169,8 +167,15 @@ class ParamTable:
     def rows(self) -> list[dict]:
         """The declaration as plain dicts (for JSON, HDF5 attributes and reports)."""
         return [
-            dict(name=p.name, unit=p.unit, default=p.default, lower=p.lower,
-                 upper=p.upper, group=p.group, meaning=p.meaning)
+            dict(
+                name=p.name,
+                unit=p.unit,
+                default=p.default,
+                lower=p.lower,
+                upper=p.upper,
+                group=p.group,
+                meaning=p.meaning,
+            )
             for p in self.params
         ]
 
@@ -181,14 +186,24 @@ class ParamTable:
             header.insert(2, "value")
         lines = []
         for p in self.params:
-            row = [p.name, p.unit, f"{p.default:.6g}", f"{p.lower:.6g}", f"{p.upper:.6g}",
-                   p.group, p.meaning]
+            row = [
+                p.name,
+                p.unit,
+                f"{p.default:.6g}",
+                f"{p.lower:.6g}",
+                f"{p.upper:.6g}",
+                p.group,
+                p.meaning,
+            ]
             if values is not None:
                 row.insert(2, f"{values[p.name]:.6g}")
             lines.append(row)
         widths = [max(len(h), *(len(r[i]) for r in lines)) for i, h in enumerate(header)]
         widths[-1] = 0  # meaning is last and left ragged
         fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-        out = [fmt.format(*header).rstrip(), fmt.format(*("-" * max(w, 7) for w in widths)).rstrip()]
+        out = [
+            fmt.format(*header).rstrip(),
+            fmt.format(*("-" * max(w, 7) for w in widths)).rstrip(),
+        ]
         out += [fmt.format(*r).rstrip() for r in lines]
         return "\n".join(out)

@@ -9,5 +9,11 @@ from evo_door.sim.simulate import (
     simulate_batch,
 )
 
-__all__ = ["METHODS", "Response", "simulate", "simulate_batch", "quasi_static_curve",
-           "quasi_static_force"]
+__all__ = [
+    "METHODS",
+    "Response",
+    "simulate",
+    "simulate_batch",
+    "quasi_static_curve",
+    "quasi_static_force",
+]

@@ -48,8 +48,7 @@ BLOWUP_SPEED = 1.0e6
 _GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 #: Signature every model's ``accel(theta, dtheta, force, p) -> ddtheta`` must have.
-ACCEL_SIGNATURE = types.float64(types.float64, types.float64, types.float64,
-                                types.float64[::1])
+ACCEL_SIGNATURE = types.float64(types.float64, types.float64, types.float64, types.float64[::1])
 #: The numba type of an acceleration function as a kernel argument.
 ACCEL_TYPE = types.FunctionType(ACCEL_SIGNATURE)
 
@@ -138,21 +137,37 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
         for s in range(substeps):
             if s > 0:
                 a_s = accel(theta, dtheta, f0 + s * df, p)
-            theta, dtheta = ros2_step(accel, p, theta, dtheta, a_s, f0 + (s + 1) * df, h,
-                                      a_t, a_w)
+            theta, dtheta = ros2_step(accel, p, theta, dtheta, a_s, f0 + (s + 1) * df, h, a_t, a_w)
     else:
         for s in range(substeps):
             if s > 0:
                 a_s = accel(theta, dtheta, f0 + s * df, p)
-            theta, dtheta = rk4_step(accel, p, theta, dtheta, a_s, f0 + s * df,
-                                     f0 + (s + 1) * df, h)
+            theta, dtheta = rk4_step(
+                accel, p, theta, dtheta, a_s, f0 + s * df, f0 + (s + 1) * df, h
+            )
     return theta, dtheta
 
 
-@njit(types.boolean(ACCEL_TYPE, _vec, _vec, types.float64, types.int64, types.float64,
-                   types.float64, types.int64, _vec, _vec, _vec), cache=True, nogil=True)
-def integrate(accel, p, force, dt, substeps, theta0, dtheta0, method,
-              theta_out, dtheta_out, ddtheta_out):
+@njit(
+    types.boolean(
+        ACCEL_TYPE,
+        _vec,
+        _vec,
+        types.float64,
+        types.int64,
+        types.float64,
+        types.float64,
+        types.int64,
+        _vec,
+        _vec,
+        _vec,
+    ),
+    cache=True,
+    nogil=True,
+)
+def integrate(
+    accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+):
     """Integrate one trial; fill the three output arrays at the force's sample instants.
 
     Returns ``True`` on success, ``False`` if the state became non-finite or the speed
@@ -166,8 +181,9 @@ def integrate(accel, p, force, dt, substeps, theta0, dtheta0, method,
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
     for k in range(n - 1):
-        theta, dtheta = advance(accel, p, theta, dtheta, force[k], force[k + 1], a_now, dt,
-                                substeps, method)
+        theta, dtheta = advance(
+            accel, p, theta, dtheta, force[k], force[k + 1], a_now, dt, substeps, method
+        )
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
             for j in range(k + 1, n):
                 theta_out[j] = np.nan
@@ -181,12 +197,50 @@ def integrate(accel, p, force, dt, substeps, theta0, dtheta0, method,
     return True
 
 
-@njit(types.void(ACCEL_TYPE, _mat, _vec, types.float64, types.int64, types.float64,
-                 types.float64, types.int64, _mat, _mat, _mat, types.boolean[::1]),
-      cache=True, parallel=True)
-def integrate_batch(accel, P, force, dt, substeps, theta0, dtheta0, method,
-                    theta_out, dtheta_out, ddtheta_out, ok_out):
+@njit(
+    types.void(
+        ACCEL_TYPE,
+        _mat,
+        _vec,
+        types.float64,
+        types.int64,
+        types.float64,
+        types.float64,
+        types.int64,
+        _mat,
+        _mat,
+        _mat,
+        types.boolean[::1],
+    ),
+    cache=True,
+    parallel=True,
+)
+def integrate_batch(
+    accel,
+    P,
+    force,
+    dt,
+    substeps,
+    theta0,
+    dtheta0,
+    method,
+    theta_out,
+    dtheta_out,
+    ddtheta_out,
+    ok_out,
+):
     """Integrate one trial for every row of the parameter matrix ``P`` (numba prange)."""
     for i in prange(P.shape[0]):
-        ok_out[i] = integrate(accel, P[i], force, dt, substeps, theta0, dtheta0, method,
-                              theta_out[i], dtheta_out[i], ddtheta_out[i])
+        ok_out[i] = integrate(
+            accel,
+            P[i],
+            force,
+            dt,
+            substeps,
+            theta0,
+            dtheta0,
+            method,
+            theta_out[i],
+            dtheta_out[i],
+            ddtheta_out[i],
+        )

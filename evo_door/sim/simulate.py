@@ -23,12 +23,12 @@ from evo_door.sim.integrators import METHODS, integrate, integrate_batch
 class Response:
     """A simulated trial: all arrays share the time axis ``t`` (s)."""
 
-    t: np.ndarray        # s
-    force: np.ndarray    # N, user force at the handle, + toward closing
-    theta: np.ndarray    # rad, 0 open, pi/2 closed
-    dtheta: np.ndarray   # rad/s
+    t: np.ndarray  # s
+    force: np.ndarray  # N, user force at the handle, + toward closing
+    theta: np.ndarray  # rad, 0 open, pi/2 closed
+    dtheta: np.ndarray  # rad/s
     ddtheta: np.ndarray  # rad/s^2
-    ok: bool = True      # False when the simulation blew up (NaN tail)
+    ok: bool = True  # False when the simulation blew up (NaN tail)
 
     COLUMNS = tuple(CHANNELS)
 
@@ -40,16 +40,23 @@ class Response:
         from evo_door.files import atomic_write
 
         with atomic_write(path) as tmp:
-            np.savetxt(tmp, self.table(), delimiter=",", header=",".join(self.COLUMNS),
-                       comments="", fmt="%.10g")
+            np.savetxt(
+                tmp,
+                self.table(),
+                delimiter=",",
+                header=",".join(self.COLUMNS),
+                comments="",
+                fmt="%.10g",
+            )
 
 
 def _method_code(method: str) -> int:
     try:
         return METHODS[method]
     except KeyError:
-        raise UserError(f"unknown integration method {method!r}; choose from "
-                        f"{', '.join(METHODS)}") from None
+        raise UserError(
+            f"unknown integration method {method!r}; choose from {', '.join(METHODS)}"
+        ) from None
 
 
 def check_force(force, dt) -> np.ndarray:
@@ -57,15 +64,18 @@ def check_force(force, dt) -> np.ndarray:
     if force.ndim != 1 or force.size < 2:
         raise UserError("the input force needs at least two samples")
     if not np.all(np.isfinite(force)):
-        raise UserError(f"the input force has a non-finite sample at index "
-                        f"{int(np.flatnonzero(~np.isfinite(force))[0])}")
+        raise UserError(
+            f"the input force has a non-finite sample at index "
+            f"{int(np.flatnonzero(~np.isfinite(force))[0])}"
+        )
     if not (np.isfinite(dt) and dt > 0):
         raise UserError(f"sample period must be positive, got {dt!r} s")
     return force
 
 
-def simulate(model, params, force, dt, theta0=None, dtheta0=0.0, t0=0.0,
-             method=None, substeps=None) -> Response:
+def simulate(
+    model, params, force, dt, theta0=None, dtheta0=0.0, t0=0.0, method=None, substeps=None
+) -> Response:
     """Simulate ``model`` with a :class:`~evo_door.params.ParamSet` (or vector).
 
     Parameters
@@ -98,15 +108,24 @@ def simulate(model, params, force, dt, theta0=None, dtheta0=0.0, t0=0.0,
     theta0 = model.theta0 if theta0 is None else float(theta0)
     n = force.size
     out = np.empty((3, n))
-    ok = integrate(model.accel, p, force, float(dt), int(substeps or model.substeps),
-                   theta0, float(dtheta0), _method_code(method or model.method),
-                   out[0], out[1], out[2])
+    ok = integrate(
+        model.accel,
+        p,
+        force,
+        float(dt),
+        int(substeps or model.substeps),
+        theta0,
+        float(dtheta0),
+        _method_code(method or model.method),
+        out[0],
+        out[1],
+        out[2],
+    )
     t = t0 + dt * np.arange(n)
     return Response(t, force, out[0], out[1], out[2], bool(ok))
 
 
-def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None,
-                   substeps=None):
+def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, substeps=None):
     """Simulate one input for every row of ``P`` in one compiled parallel call.
 
     Returns ``(theta, dtheta, ddtheta, ok)``: three ``(len(P), len(force))`` arrays
@@ -120,9 +139,20 @@ def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None,
     n_ind, n = P.shape[0], force.size
     theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
     ok = np.zeros(n_ind, dtype=np.bool_)
-    integrate_batch(model.accel, P, force, float(dt), int(substeps or model.substeps),
-                    theta0, float(dtheta0), _method_code(method or model.method),
-                    theta, dtheta, ddtheta, ok)
+    integrate_batch(
+        model.accel,
+        P,
+        force,
+        float(dt),
+        int(substeps or model.substeps),
+        theta0,
+        float(dtheta0),
+        _method_code(method or model.method),
+        theta,
+        dtheta,
+        ddtheta,
+        ok,
+    )
     return theta, dtheta, ddtheta, ok
 
 

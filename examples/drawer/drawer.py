@@ -42,28 +42,95 @@ from evo_door.params import Param, ParamTable
 #: slides (450 mm full extension), not something to estimate. Another drawer: edit it.
 STROKE = 0.45
 
-PARAMS = ParamTable("drawer", [
-    Param("mass", "kg", 6.0, 0.5, 60.0, "specification",
-          "moving mass: drawer box, front and contents"),
-    Param("runner_friction", "N", 1.2, 0.0, 30.0, "specification",
-          "dry friction of the runners, against the motion"),
-    Param("viscous_damping", "N s/m", 1.5, 0.0, 200.0, "specification",
-          "viscous drag of the runners' grease, force c v against the motion"),
-    Param("softclose_length", "m", 0.05, 0.0, 0.15, "geometry",
-          "travel before closed over which the soft-close catch acts"),
-    Param("softclose_force", "N", 8.0, 0.0, 60.0, "specification",
-          "pull of the soft-close spring toward closed, inside its travel"),
-    Param("softclose_damping", "N s/m", 60.0, 0.0, 1000.0, "specification",
-          "damper of the soft-close, inside its travel (stops the slam)"),
-    Param("stop_stiffness", "N/m", 1.0e5, 1.0e3, 1.0e7, "specification",
-          "end stops at full extension (0) and closed (STROKE)"),
-    Param("stop_damping", "N s/m", 500.0, 0.0, 1.0e4, "specification",
-          "damping of the end stops"),
-    Param("friction_slope", "s/m", 200.0, 10.0, 5000.0, "numerics",
-          "tanh slope of the dry friction, F = f tanh(a v)"),
-    Param("softclose_sharpness", "1/m", 2000.0, 10.0, 1.0e5, "numerics",
-          "how sharply the soft-close catch engages (1 / width of its onset)"),
-])
+PARAMS = ParamTable(
+    "drawer",
+    [
+        Param(
+            "mass",
+            "kg",
+            6.0,
+            0.5,
+            60.0,
+            "specification",
+            "moving mass: drawer box, front and contents",
+        ),
+        Param(
+            "runner_friction",
+            "N",
+            1.2,
+            0.0,
+            30.0,
+            "specification",
+            "dry friction of the runners, against the motion",
+        ),
+        Param(
+            "viscous_damping",
+            "N s/m",
+            1.5,
+            0.0,
+            200.0,
+            "specification",
+            "viscous drag of the runners' grease, force c v against the motion",
+        ),
+        Param(
+            "softclose_length",
+            "m",
+            0.05,
+            0.0,
+            0.15,
+            "geometry",
+            "travel before closed over which the soft-close catch acts",
+        ),
+        Param(
+            "softclose_force",
+            "N",
+            8.0,
+            0.0,
+            60.0,
+            "specification",
+            "pull of the soft-close spring toward closed, inside its travel",
+        ),
+        Param(
+            "softclose_damping",
+            "N s/m",
+            60.0,
+            0.0,
+            1000.0,
+            "specification",
+            "damper of the soft-close, inside its travel (stops the slam)",
+        ),
+        Param(
+            "stop_stiffness",
+            "N/m",
+            1.0e5,
+            1.0e3,
+            1.0e7,
+            "specification",
+            "end stops at full extension (0) and closed (STROKE)",
+        ),
+        Param(
+            "stop_damping", "N s/m", 500.0, 0.0, 1.0e4, "specification", "damping of the end stops"
+        ),
+        Param(
+            "friction_slope",
+            "s/m",
+            200.0,
+            10.0,
+            5000.0,
+            "numerics",
+            "tanh slope of the dry friction, F = f tanh(a v)",
+        ),
+        Param(
+            "softclose_sharpness",
+            "1/m",
+            2000.0,
+            10.0,
+            1.0e5,
+            "numerics",
+            "how sharply the soft-close catch engages (1 / width of its onset)",
+        ),
+    ],
+)
 
 # Positions in the kernel vector, from the declaration (never written as literals).
 MASS = PARAMS.index("mass")
@@ -119,6 +186,6 @@ MODEL = Model(
     # from fully open, then free motion) make sense
     rig_kinds=("impulse",),
     notes=f"theta is the drawer's position (m): 0 fully open, {STROKE} closed; dtheta in "
-          "m/s, + closing; force in N along the runners, + pushing in. "
-          "See examples/drawer/README.md.",
+    "m/s, + closing; force in N along the runners, + pushing in. "
+    "See examples/drawer/README.md.",
 )

@@ -80,8 +80,9 @@ WALL_DAMPING = TABLE.index("wall_damping")
 STOP_STIFFNESS = TABLE.index("stop_stiffness")
 STOP_DAMPING = TABLE.index("stop_damping")
 
-assert all(TABLE.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k
-           for k in range(N_SECTIONS))
+assert all(
+    TABLE.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k for k in range(N_SECTIONS)
+)
 
 CLOSED = 0.5 * math.pi
 
@@ -95,8 +96,9 @@ def pad_scale(theta, p):
             uniform = False
     if uniform:
         return 1.0
-    return section_scale(theta, p[FRICTION_SCALE_1:FRICTION_SCALE_1 + N_SECTIONS],
-                         p[SECTION_SHARPNESS])
+    return section_scale(
+        theta, p[FRICTION_SCALE_1 : FRICTION_SCALE_1 + N_SECTIONS], p[SECTION_SHARPNESS]
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -109,14 +111,25 @@ def mechanism_force(theta, dtheta, p):
     """
     k = pose(theta, p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY])
     pl = plate(k, dtheta, p[L_CY], p[K], p[F_LOAD], p[F_ATC], p[T_ATA], p[A_LIN], p[A_ROT])
-    pad = relative_speed(k, dtheta, p[L_DX], p[L_DY], p[F_ATD] * pad_scale(theta, p),
-                         p[A_LIN])
-    slot = friction_force(k, dtheta, pad.F_Dx, pad.F_Dy, pad.T_B, pl.m, p[MU], p[T_ATB],
-                          p[A_LIN], p[A_ROT])
+    pad = relative_speed(k, dtheta, p[L_DX], p[L_DY], p[F_ATD] * pad_scale(theta, p), p[A_LIN])
+    slot = friction_force(
+        k, dtheta, pad.F_Dx, pad.F_Dy, pad.T_B, pl.m, p[MU], p[T_ATB], p[A_LIN], p[A_ROT]
+    )
     q = pl.q + slot.q
-    q += latch(theta, dtheta, p[L], p[UNLOCK_FORCE], p[LOCK_FORCE], p[LATCH_LOOSE_ANGLE],
-               p[LATCH_OPEN_STIFFNESS], p[LATCH_CLOSE_STIFFNESS], p[LATCH_DAMPING],
-               p[LATCH_SHARPNESS], p[WALL_STIFFNESS], p[WALL_DAMPING])
+    q += latch(
+        theta,
+        dtheta,
+        p[L],
+        p[UNLOCK_FORCE],
+        p[LOCK_FORCE],
+        p[LATCH_LOOSE_ANGLE],
+        p[LATCH_OPEN_STIFFNESS],
+        p[LATCH_CLOSE_STIFFNESS],
+        p[LATCH_DAMPING],
+        p[LATCH_SHARPNESS],
+        p[WALL_STIFFNESS],
+        p[WALL_DAMPING],
+    )
     q += stop_h(theta, dtheta, p[STOP_STIFFNESS], p[STOP_DAMPING])
     return q
 
@@ -124,8 +137,19 @@ def mechanism_force(theta, dtheta, p):
 @njit(cache=True, nogil=True)
 def accel(theta, dtheta, force, p):
     """Angular acceleration (rad/s^2) of the door under the user force ``force`` (N at E)."""
-    return door(theta, dtheta, force, mechanism_force(theta, dtheta, p), p[L], p[M],
-                p[I_Z], p[G_X], p[G_Y], p[T_ATO], p[A_ROT])
+    return door(
+        theta,
+        dtheta,
+        force,
+        mechanism_force(theta, dtheta, p),
+        p[L],
+        p[M],
+        p[I_Z],
+        p[G_X],
+        p[G_Y],
+        p[T_ATO],
+        p[A_ROT],
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -138,27 +162,43 @@ def energy(theta, dtheta, p):
     """
     inertia_o = p[I_Z] + p[M] * (p[G_X] ** 2 + p[G_Y] ** 2)
     e = 0.5 * inertia_o * dtheta * dtheta
-    e += door_potential(theta, p[M], p[G_X], p[G_Y]) - door_potential(0.0, p[M], p[G_X],
-                                                                      p[G_Y])
+    e += door_potential(theta, p[M], p[G_X], p[G_Y]) - door_potential(0.0, p[M], p[G_X], p[G_Y])
     k = pose(theta, p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY])
     e += spring_potential(k, p[L_CY], p[K], p[F_LOAD])
     # latch: V(theta) = -int_{theta_3 - margin}^{theta} L F_latch, trapezoids
     if p[UNLOCK_FORCE] > 0.0 or p[LOCK_FORCE] > 0.0:
-        t0, t1, t3 = latch_angles(p[UNLOCK_FORCE], p[LOCK_FORCE], p[LATCH_LOOSE_ANGLE],
-                                  p[LATCH_OPEN_STIFFNESS], p[LATCH_CLOSE_STIFFNESS])
+        t0, t1, t3 = latch_angles(
+            p[UNLOCK_FORCE],
+            p[LOCK_FORCE],
+            p[LATCH_LOOSE_ANGLE],
+            p[LATCH_OPEN_STIFFNESS],
+            p[LATCH_CLOSE_STIFFNESS],
+        )
         start = t3 - 40.0 / p[LATCH_SHARPNESS]
         if theta > start:
             top = min(theta, CLOSED + 1.0)
             n = 4000
             h = (top - start) / n
             acc = 0.0
-            prev = latch_spring_force(start, p[UNLOCK_FORCE], p[LOCK_FORCE],
-                                      p[LATCH_LOOSE_ANGLE], p[LATCH_OPEN_STIFFNESS],
-                                      p[LATCH_CLOSE_STIFFNESS], p[LATCH_SHARPNESS])
+            prev = latch_spring_force(
+                start,
+                p[UNLOCK_FORCE],
+                p[LOCK_FORCE],
+                p[LATCH_LOOSE_ANGLE],
+                p[LATCH_OPEN_STIFFNESS],
+                p[LATCH_CLOSE_STIFFNESS],
+                p[LATCH_SHARPNESS],
+            )
             for i in range(1, n + 1):
-                cur = latch_spring_force(start + i * h, p[UNLOCK_FORCE], p[LOCK_FORCE],
-                                         p[LATCH_LOOSE_ANGLE], p[LATCH_OPEN_STIFFNESS],
-                                         p[LATCH_CLOSE_STIFFNESS], p[LATCH_SHARPNESS])
+                cur = latch_spring_force(
+                    start + i * h,
+                    p[UNLOCK_FORCE],
+                    p[LOCK_FORCE],
+                    p[LATCH_LOOSE_ANGLE],
+                    p[LATCH_OPEN_STIFFNESS],
+                    p[LATCH_CLOSE_STIFFNESS],
+                    p[LATCH_SHARPNESS],
+                )
                 acc += 0.5 * (prev + cur) * h
                 prev = cur
             e -= p[L] * acc
@@ -174,9 +214,9 @@ def energy_of(params, theta, dtheta) -> np.ndarray:
     p = param_vector(params, TABLE)
     theta = np.asarray(theta, dtype=np.float64)
     dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
-    return np.array([energy(float(a), float(b), p) for a, b in zip(theta.ravel(),
-                                                                    dtheta.ravel())]
-                    ).reshape(theta.shape)
+    return np.array(
+        [energy(float(a), float(b), p) for a, b in zip(theta.ravel(), dtheta.ravel())]
+    ).reshape(theta.shape)
 
 
 _NOTES = """\

@@ -42,10 +42,20 @@ def draw_mechanism(params, angles_deg=(0.0, 45.0, 90.0), path=None, title=None):
         cm = {k: 100 * v for k, v in pts.items()}
         u = np.array([math.cos(math.radians(a)), math.sin(math.radians(a))])
         rod_end = 100 * _ROD_SHOWN * u
-        ax.plot([0, rod_end[0]], [0, rod_end[1]], color="0.25", lw=5, solid_capstyle="round",
-                label="door O-A-E (to E at L)")
-        ax.annotate("", xy=rod_end + 1.5 * 100 * 0.01 * u, xytext=rod_end,
-                    arrowprops=dict(arrowstyle="->", color="0.25", linestyle="--"))
+        ax.plot(
+            [0, rod_end[0]],
+            [0, rod_end[1]],
+            color="0.25",
+            lw=5,
+            solid_capstyle="round",
+            label="door O-A-E (to E at L)",
+        )
+        ax.annotate(
+            "",
+            xy=rod_end + 1.5 * 100 * 0.01 * u,
+            xytext=rod_end,
+            arrowprops=dict(arrowstyle="->", color="0.25", linestyle="--"),
+        )
         plate = np.vstack([cm["plate"], cm["plate"][:1]])
         ax.fill(plate[:, 0], plate[:, 1], color="tab:orange", alpha=0.35, lw=0)
         ax.plot(plate[:, 0], plate[:, 1], color="tab:orange", lw=1.5, label="plate A-B-C-H")
@@ -60,8 +70,15 @@ def draw_mechanism(params, angles_deg=(0.0, 45.0, 90.0), path=None, title=None):
         ax.plot(*cm["D"], marker="s", color="tab:red", ms=8, ls="none", label="pad D (fixed)")
         g_inside = bool(np.all((cm["G"] >= lo) & (cm["G"] <= hi)))
         if g_inside:
-            ax.plot(*cm["G"], marker="o", mfc="white", mec="k", ms=7, ls="none",
-                    label="centre of mass G")
+            ax.plot(
+                *cm["G"],
+                marker="o",
+                mfc="white",
+                mec="k",
+                ms=7,
+                ls="none",
+                label="centre of mass G",
+            )
         for name in ("O", "A", "B", "C", "H"):
             ax.plot(*cm[name], marker="o", color="k", ms=3.5)
             ax.annotate(name, cm[name], textcoords="offset points", xytext=(4, 3), fontsize=9)
@@ -70,11 +87,15 @@ def draw_mechanism(params, angles_deg=(0.0, 45.0, 90.0), path=None, title=None):
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
         ax.grid(alpha=0.25)
-        ax.set_title(f"theta = {a:g} deg" + (" (open)" if a == 0 else " (closed)" if a == 90 else ""))
+        ax.set_title(
+            f"theta = {a:g} deg" + (" (open)" if a == 0 else " (closed)" if a == 90 else "")
+        )
         ax.set_xlabel("x [cm] (out of the cabinet)")
     axes[0][0].set_ylabel("y [cm] (up)")
     g = 100 * np.hypot(float(params["G_x"]), float(params["G_y"]))
-    axes[0][-1].plot([], [], ls="none", label=f"(G, E: {g:.0f} and {100 * float(params['L']):.0f} cm out)")
+    axes[0][-1].plot(
+        [], [], ls="none", label=f"(G, E: {g:.0f} and {100 * float(params['L']):.0f} cm out)"
+    )
     axes[0][-1].legend(loc="lower right", fontsize=7, framealpha=0.9)
     if title:
         fig.suptitle(title)

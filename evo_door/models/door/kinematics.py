@@ -30,13 +30,26 @@ import numpy as np
 from numba import njit
 
 #: One pose of the chain and its velocity ratios (SI: m, rad; ``d*`` are d/dtheta).
-Pose = namedtuple("Pose", [
-    "Ax", "Ay", "dAx", "dAy",          # joint A and dA/dtheta
-    "Bx", "By", "dBy",                 # slot pin B (Bx constant) and dy_B/dtheta
-    "ABx", "ABy",                      # vector A -> B (its length is l_AB)
-    "phi", "dphi",                     # plate rotation from the open pose, dphi/dtheta
-    "Cx", "Cy", "dCx", "dCy",          # spring point C and dC/dtheta
-])
+Pose = namedtuple(
+    "Pose",
+    [
+        "Ax",
+        "Ay",
+        "dAx",
+        "dAy",  # joint A and dA/dtheta
+        "Bx",
+        "By",
+        "dBy",  # slot pin B (Bx constant) and dy_B/dtheta
+        "ABx",
+        "ABy",  # vector A -> B (its length is l_AB)
+        "phi",
+        "dphi",  # plate rotation from the open pose, dphi/dtheta
+        "Cx",
+        "Cy",
+        "dCx",
+        "dCy",  # spring point C and dC/dtheta
+    ],
+)
 
 #: Fully-open position of the plate's stop corner H. The seed gives no coordinates for
 #: H (it only limits the stroke, which the model does as a contact in theta); this
@@ -99,8 +112,10 @@ def points(theta: float, values) -> dict[str, np.ndarray]:
     works). Returns O, A, B, C, D, E, G, H (2-vectors, m) and ``plate``, the outline
     A-B-C-H of the plate as a (4, 2) array.
     """
-    g = {n: float(values[n]) for n in ("L", "L_OA", "L_Bx", "L_By", "L_Cx", "L_Cy",
-                                       "L_Dx", "L_Dy", "G_x", "G_y")}
+    g = {
+        n: float(values[n])
+        for n in ("L", "L_OA", "L_Bx", "L_By", "L_Cx", "L_Cy", "L_Dx", "L_Dy", "G_x", "G_y")
+    }
     k = pose(float(theta), g["L_OA"], g["L_Bx"], g["L_By"], g["L_Cx"], g["L_Cy"])
     u = np.array([math.cos(theta), math.sin(theta)])
     n = np.array([-u[1], u[0]])

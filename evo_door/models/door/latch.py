@@ -51,19 +51,30 @@ def latch_angles(unlock_force, lock_force, loose_angle, k_open, k_close):
 
 
 @njit(cache=True, nogil=True)
-def latch_spring_force(theta, unlock_force, lock_force, loose_angle, k_open, k_close,
-                       sharpness):
+def latch_spring_force(theta, unlock_force, lock_force, loose_angle, k_open, k_close, sharpness):
     """Conservative part of the latch force at the handle (N, + toward closing)."""
-    theta_0, theta_1, theta_3 = latch_angles(unlock_force, lock_force, loose_angle,
-                                             k_open, k_close)
+    theta_0, theta_1, theta_3 = latch_angles(unlock_force, lock_force, loose_angle, k_open, k_close)
     s1 = activation(theta, theta_1, sharpness)
-    return (k_open * max(0.0, theta_0 - theta) * s1
-            - k_close * max(0.0, theta - theta_3) * (1.0 - s1))
+    return k_open * max(0.0, theta_0 - theta) * s1 - k_close * max(0.0, theta - theta_3) * (
+        1.0 - s1
+    )
 
 
 @njit(cache=True, nogil=True)
-def latch(theta, dtheta, L, unlock_force, lock_force, loose_angle, k_open, k_close,
-          latch_damping, sharpness, wall_stiffness, wall_damping):
+def latch(
+    theta,
+    dtheta,
+    L,
+    unlock_force,
+    lock_force,
+    loose_angle,
+    k_open,
+    k_close,
+    latch_damping,
+    sharpness,
+    wall_stiffness,
+    wall_damping,
+):
     """Generalised force of the latch on theta.
 
     Inputs: ``theta`` (rad), ``dtheta`` (rad/s); parameters ``L`` (m, the catch acts
@@ -72,14 +83,12 @@ def latch(theta, dtheta, L, unlock_force, lock_force, loose_angle, k_open, k_clo
     (1/rad), ``wall_stiffness`` (N/rad), ``wall_damping`` (N s/rad).
     Output: ``q_latch`` (N m).
     """
-    theta_0, theta_1, theta_3 = latch_angles(unlock_force, lock_force, loose_angle,
-                                             k_open, k_close)
+    theta_0, theta_1, theta_3 = latch_angles(unlock_force, lock_force, loose_angle, k_open, k_close)
     if (theta_3 - theta) * sharpness > 20.0:
         # far below the catch every activation is 0 to double precision: skip the
         # three tanh calls (this is most of the stroke)
         return 0.0
-    f = latch_spring_force(theta, unlock_force, lock_force, loose_angle, k_open, k_close,
-                           sharpness)
+    f = latch_spring_force(theta, unlock_force, lock_force, loose_angle, k_open, k_close, sharpness)
     window = activation(theta, theta_3, sharpness) - activation(theta, theta_0, sharpness)
     f -= latch_damping * dtheta * window
     pen = theta - 0.5 * math.pi

@@ -22,7 +22,7 @@ def dry_friction(f_mag, a, v_rel):
     kinetic friction are the same (the seed's hypothesis).
     """
     u = a * v_rel
-    if u > 20.0:        # tanh(20) = 1 - 8e-18: skip the call while sliding
+    if u > 20.0:  # tanh(20) = 1 - 8e-18: skip the call while sliding
         return f_mag
     if u < -20.0:
         return -f_mag
