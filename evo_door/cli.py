@@ -4,9 +4,10 @@ Each sub-command lives in its own module of :mod:`evo_door.commands`, which defi
 ``register(subparsers)``; the parser it adds sets ``func(args) -> int | None``.
 Modules are discovered, so adding a command never means editing this file.
 
-User errors (:class:`~evo_door.errors.UserError`, missing files) print one line
-``evo-door: error: ...`` and exit with status 2; anything else is a bug and keeps
-its traceback.
+User errors (:class:`~evo_door.errors.UserError`) and what the file system refuses
+(``OSError``: a missing file, a read-only folder, a full disk) print one line
+``evo-door: error: ...`` and exit with status 2, whichever command met them; anything
+else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -41,24 +42,38 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: the longest error line printed (a message quoting a file must not flood the terminal)
+MAX_ERROR = 400
+
+
+def error_line(message: str) -> str:
+    """``evo-door: error: MESSAGE`` on one line, at most :data:`MAX_ERROR` characters."""
+    text = " ".join(str(message).split())
+    if len(text) > MAX_ERROR:
+        text = text[: MAX_ERROR - 5] + " ..."
+    return f"evo-door: error: {text}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
-        parser.print_help()
-        return 0 if args.command is None else 2
+        parser.print_help(sys.stderr)
+        return 2
     try:
         return int(args.func(args) or 0)
     except UserError as exc:
-        print(f"evo-door: error: {exc}", file=sys.stderr)
-        return 2
-    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        name = getattr(exc, "filename", None) or ""
-        print(f"evo-door: error: {name}: {exc.strerror or exc}", file=sys.stderr)
+        print(error_line(exc), file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head` and the like
         sys.stderr.close()
         return 0
+    except OSError as exc:
+        # the file system said no (missing, read-only, full, a folder for a file...):
+        # the user's to fix, whichever command met it
+        name = getattr(exc, "filename", None)
+        print(error_line(f"{name}: {exc.strerror or exc}" if name else exc), file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("evo-door: interrupted", file=sys.stderr)
         return 130

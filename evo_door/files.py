@@ -31,6 +31,7 @@ import errno
 import itertools
 import json
 import os
+import re
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -215,11 +216,47 @@ def atomic_write(path, make_folder: bool = False):
             os.fsync(fh.fileno())
         os.replace(tmp, path)
         _fsync_folder(path.parent)
+    except OSError as exc:
+        # a read-only or full file system, no permission...: say which file, not the
+        # temporary's hidden name
+        raise UserError(f"{path}: cannot write ({_reason(exc)})") from None
     finally:
         try:
             tmp.unlink()
         except FileNotFoundError:
             pass
+
+
+def _reason(exc: OSError) -> str:
+    """What an OSError says, in a few words (h5py's messages hide errno in the text)."""
+    if exc.strerror:
+        return exc.strerror
+    text = str(exc)
+    found = re.search(r"error message = '([^']+)'", text)
+    return found.group(1) if found else text.splitlines()[0][:120]
+
+
+def read_text(path, what: str = "text file") -> str:
+    """The text of ``path`` (UTF-8, a byte-order mark dropped), or a one-line error.
+
+    A missing file, a folder, or binary content (an HDF5 file or a picture given where
+    YAML or CSV is expected) each say so, naming the file and the ``what`` expected.
+    """
+    path = Path(path)
+    a_what = f"{'an' if what[:1] in 'aeiou' else 'a'} {what}"
+    if path.is_dir():
+        raise UserError(f"{path}: is a folder, not {a_what}")
+    if not path.is_file():
+        raise UserError(f"{path}: {what} not found")
+    data = path.read_bytes()
+    if b"\0" in data[:8192]:
+        kind = " (an HDF5 file)" if data.startswith(b"\x89HDF") else ""
+        raise UserError(f"{path}: binary data{kind}, not {a_what}")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise UserError(f"{path}: line {line} is not UTF-8 text; not {a_what}") from None
 
 
 def write_text(path, text: str) -> None:
@@ -228,16 +265,28 @@ def write_text(path, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def save_figure(fig, path, dpi: int = 110) -> None:
-    """Save a matplotlib figure atomically, the format from the file name's extension."""
-    path = Path(path)
+def check_image_path(path) -> str:
+    """The image format of ``path`` (its extension), or a one-line error.
+
+    Commands that write a table and a figure call this first, so that a bad figure
+    name leaves no table behind either.
+    """
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    path = check_folder(path)
     fmt = path.suffix.lower().lstrip(".")
-    supported = fig.canvas.get_supported_filetypes()
+    supported = FigureCanvasBase.get_supported_filetypes()
     if fmt not in supported:
         raise UserError(
             f"{path}: cannot write a {fmt or 'extension-less'} image; "
             f"use one of {', '.join('.' + k for k in sorted(supported))}"
         )
+    return fmt
+
+
+def save_figure(fig, path, dpi: int = 110) -> None:
+    """Save a matplotlib figure atomically, the format from the file name's extension."""
+    fmt = check_image_path(path)
     with atomic_write(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=fmt)
 
@@ -274,6 +323,10 @@ def _alive(pid: int) -> bool:
 
 
 # -- locks -------------------------------------------------------------------------
+#: lock file -> [descriptor, holders]: the locks this process holds (see FileLock)
+_HELD: dict[str, list] = {}
+
+
 class FileLock:
     """An advisory, exclusive lock on ``path`` for as long as this object holds it.
 
@@ -282,6 +335,8 @@ class FileLock:
     the system releases it when the process dies, however it dies, so a killed run never
     leaves a file locked. :meth:`acquire` does not wait: a file locked by another
     process raises :class:`~evo_door.errors.UserError` saying which process holds it.
+    Within one process the lock is shared (counted): a run that opens its own file
+    again is not locked out by itself.
 
     >>> import tempfile
     >>> target = Path(tempfile.mkdtemp()) / "run.h5"
@@ -295,20 +350,31 @@ class FileLock:
     def __init__(self, path):
         self.path = Path(path)
         self.lock_path = self.path.with_name(f".{self.path.name}.lock")
-        self._fd: int | None = None
+        self._key: str | None = None
 
     @property
     def held(self) -> bool:
-        return self._fd is not None
+        return self._key is not None
 
     def acquire(self, what: str = "in use") -> FileLock:
+        """Take the lock, or raise ``PATH: WHAT (process N); wait for it ...``."""
         import fcntl
 
-        if self._fd is not None:
+        if self._key is not None:
             return self
         check_folder(self.path)
+        key = str(self.lock_path.parent.resolve() / self.lock_path.name)
+        if key in _HELD:
+            _HELD[key][1] += 1
+            self._key = key
+            return self
         while True:
-            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+            except OSError as exc:
+                raise UserError(
+                    f"{self.path}: cannot write in {self.path.parent} ({exc.strerror})"
+                ) from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
@@ -316,9 +382,9 @@ class FileLock:
                 if exc.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
                     raise
                 pid = self.holder(self.path)
-                by = f"process {pid}" if pid else "another process"
+                by = f"process {pid}" if pid and pid > 0 else "another process"
                 raise UserError(
-                    f"{self.path}: {what} by {by}; wait for it to finish or stop it first"
+                    f"{self.path}: {what} ({by}); wait for it to finish or stop it first"
                 ) from None
             # the holder before us may have removed the lock file after we opened it:
             # then we hold a lock on a file nobody else can see; take the new one
@@ -331,18 +397,24 @@ class FileLock:
             os.close(fd)
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
-        self._fd = fd
+        _HELD[key] = [fd, 1]
+        self._key = key
         return self
 
     def release(self) -> None:
-        if self._fd is None:
+        """Let the lock go (the last holder in this process removes the lock file)."""
+        if self._key is None:
             return
-        try:
-            os.unlink(self.lock_path)
-        except FileNotFoundError:  # pragma: no cover
-            pass
-        os.close(self._fd)  # closing releases the flock
-        self._fd = None
+        entry = _HELD[self._key]
+        entry[1] -= 1
+        if entry[1] == 0:
+            del _HELD[self._key]
+            try:
+                os.unlink(self.lock_path)
+            except FileNotFoundError:  # pragma: no cover
+                pass
+            os.close(entry[0])  # closing releases the flock
+        self._key = None
 
     @staticmethod
     def holder(path) -> int | None:
@@ -372,9 +444,11 @@ class FileLock:
     def __exit__(self, *exc) -> None:
         self.release()
 
-    def __del__(self):  # pragma: no cover - a forgotten release
-        if self._fd is not None:
-            os.close(self._fd)
+    def __del__(self):  # a forgotten release
+        try:
+            self.release()
+        except Exception:  # pragma: no cover - interpreter shutting down
+            pass
 
 
 # -- HDF5 trees --------------------------------------------------------------------

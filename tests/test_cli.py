@@ -110,8 +110,8 @@ def test_simulate_csv_round_trip(tmp_path, capsys):
     [
         ("", "empty file"),
         ("t,push\n0,1\n0.1,2\n", "missing column 'force'"),
-        ("t,force\n0,1\n0,2\n", "not increasing at data row 2"),
-        ("t,force\n0,1\n0.1,nan\n", "non-finite value on data row 2"),
+        ("t,force\n0,1\n0,2\n", "is not increasing at row 1 (line 3)"),
+        ("t,force\n0,1\n0.1,nan\n", "is not a finite number at row 1 (line 3)"),
         ("t,force\n0,1\n0.1,2\n0.3,2\n", "not uniformly sampled"),
     ],
 )

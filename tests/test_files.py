@@ -87,8 +87,10 @@ def test_a_lock_held_by_another_process_is_refused_naming_it(tmp_path):
     try:
         assert holder.stdout.readline().strip() == "held"
         assert FileLock.holder(target) == holder.pid
-        with pytest.raises(UserError, match=rf"run\.h5: written by process {holder.pid}; wait"):
-            FileLock(target).acquire("written")
+        with pytest.raises(
+            UserError, match=rf"run\.h5: a run is writing it \(process {holder.pid}\); wait"
+        ):
+            FileLock(target).acquire("a run is writing it")
     finally:
         holder.kill()
         holder.wait()
@@ -96,6 +98,9 @@ def test_a_lock_held_by_another_process_is_refused_naming_it(tmp_path):
     assert FileLock.holder(target) is None
     with FileLock(target) as lock:
         assert lock.held and FileLock.holder(target) == os.getpid()
+        with FileLock(target) as again:  # the same process: shared, counted
+            assert again.held
+        assert lock.lock_path.exists() and FileLock.holder(target) == os.getpid()
     assert not lock.held and not lock.lock_path.exists()
 
 

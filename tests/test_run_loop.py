@@ -64,3 +64,13 @@ def test_settings_stay_typed_through_the_results_file(folder):
     reopened = ExperimentRun.open(folder / "r.h5")
     assert reopened.algorithm == exp.algorithm == run.algorithm
     assert isinstance(reopened.algorithm.ga, GASettings) and reopened.algorithm.ga.seed == 7
+
+
+def test_the_progress_end_line_flags_an_estimate_stopped_by_a_bound(folder, capsys):
+    # the trials' true k is 100 N/rad (tests.test_optim.TRUE): a range ending at 60 stops it
+    exp = load(folder, overrides=["free.k=[20, 60]", "algorithm.polish=slsqp"])
+    run_experiment(exp, out=folder / "r.h5", progress=True)
+    err = capsys.readouterr().err
+    end = [line for line in err.splitlines() if "best fitness" in line][-1]
+    assert "! k on its upper search bound (60 N/rad): widen free.k" in end
+    assert "! c " not in end and "inertia on" not in end

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import math
+import os
+from pathlib import Path
+
 import numpy as np
 
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
-from evo_door.files import save_figure, write_text
+from evo_door.errors import UserError
+from evo_door.files import check_folder, save_figure, write_text
 from evo_door.sim import quasi_static_curve
 
 ORDER = 30
@@ -44,7 +49,32 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _check_options(args) -> None:
+    """Every option and target before anything is computed or written."""
+    if args.points < 2:
+        raise UserError(f"--points {args.points}: must be at least 2 (both ends of the range)")
+    if not (math.isfinite(args.speed) and args.speed > 0):
+        raise UserError(f"--speed {args.speed:g}: must be a number above 0")
+    targets = [args.out] + ([args.plot] if args.plot else [])
+    for target in targets:
+        folder = check_folder(target).parent
+        if not os.access(folder, os.W_OK):
+            raise UserError(f"{target}: cannot write in {folder}")
+    if args.plot:
+        from matplotlib.figure import Figure
+
+        # the CSV is written first: a plot that cannot be made must not leave it behind
+        fmt = Path(args.plot).suffix.lower().lstrip(".")
+        supported = Figure().canvas.get_supported_filetypes()
+        if fmt not in supported:
+            raise UserError(
+                f"{args.plot}: cannot write a {fmt or 'extension-less'} image; "
+                f"use one of {', '.join('.' + k for k in sorted(supported))}"
+            )
+
+
 def run(args) -> int:
+    _check_options(args)
     model, params = model_and_params(args)
     lo, hi = model.theta_range
     curve = quasi_static_curve(model, params, n=args.points, speed=args.speed, lo=lo, hi=hi)
@@ -74,7 +104,12 @@ def run(args) -> int:
 
 
 def plot_curve(curve, path, title="", zoom=None, unit="rad") -> None:
-    """Draw the opening and closing curves; ``zoom`` (a second curve) gets its own panel.
+    """Write :func:`curve_figure` to ``path`` (the format from its extension)."""
+    save_figure(curve_figure(curve, title, zoom, unit), path, dpi=120)
+
+
+def curve_figure(curve, title="", zoom=None, unit="rad"):
+    """The opening and closing curves; ``zoom`` (a second curve) gets its own panel.
 
     ``unit`` is the unit of ``theta``: angles in rad are drawn in degrees.
     """
@@ -98,6 +133,8 @@ def plot_curve(curve, path, title="", zoom=None, unit="rad") -> None:
         else f"theta [{unit}]  (from open to closed)"
     )
     ax.set_ylabel("user force at the handle [N]  (+ toward closing)")
+    if zoom is not None:
+        axes[0][1].set_ylabel("user force at the handle [N]")
     ax.set_title(title, fontsize=10)
     ax.legend()
     if zoom is not None:
@@ -105,4 +142,4 @@ def plot_curve(curve, path, title="", zoom=None, unit="rad") -> None:
         axes[0][1].set_title(
             f"latch, last {np.ptp(np.degrees(zoom['theta'])):.3g} deg", fontsize=10
         )
-    save_figure(fig, path, dpi=120)
+    return fig

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from evo_door.errors import UserError
@@ -9,7 +10,8 @@ from evo_door.errors import UserError
 ORDER = 40
 
 
-def _add_read_options(p) -> None:
+def add_read_options(p, several: bool = True) -> None:
+    """``--map``, ``--rate`` and ``--trial``: how a trial file is read (``data``, ``simulate``)."""
     p.add_argument(
         "--map",
         action="append",
@@ -28,10 +30,32 @@ def _add_read_options(p) -> None:
     )
     p.add_argument(
         "--trial",
-        action="append",
+        action="append" if several else "store",
         metavar="ID",
-        help="only this trial (id or position; HDF5 group or TDMS group); repeatable",
+        help="only this trial (id or position; HDF5 group or TDMS group)"
+        + ("; repeatable" if several else "; needed when the file holds several"),
     )
+
+
+def trial_selection(value):
+    """``--trial`` values as read_trials takes them: positions as ints, ids as text."""
+    if value is None:
+        return None
+    if isinstance(value, list):
+        return [trial_selection(v) for v in value]
+    return int(value) if value.lstrip("-").isdigit() else value
+
+
+def check_positive(value, option: str) -> None:
+    """A finite number above 0 (or None, not given), else a one-line error naming ``option``."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UserError(f"{option} {value:g}: must be a number above 0")
+
+
+def check_finite(value, option: str) -> None:
+    """A finite number (or None), else a one-line error naming ``option``."""
+    if value is not None and not math.isfinite(value):
+        raise UserError(f"{option} {value:g}: must be a finite number")
 
 
 def register(sub) -> None:
@@ -42,7 +66,7 @@ def register(sub) -> None:
     imp = dsub.add_parser("import", help="read trial files, check them, write one HDF5 trial file")
     imp.add_argument("inputs", nargs="+", metavar="IN", help="trial files: .csv, .h5/.hdf5, .tdms")
     imp.add_argument("--out", required=True, metavar="OUT.h5", help="HDF5 trial file to write")
-    _add_read_options(imp)
+    add_read_options(imp)
     imp.add_argument("--user", metavar="ID", help="user id of the imported trials")
     imp.add_argument(
         "--kind",
@@ -88,7 +112,7 @@ def register(sub) -> None:
         "show", help="summary table of a trial file; --plot draws force, angle and speed over time"
     )
     show.add_argument("path", metavar="TRIAL_FILE")
-    _add_read_options(show)
+    add_read_options(show)
     show.add_argument("--plot", metavar="OUT.png", help="write the figure")
     show.set_defaults(func=run_show)
 
@@ -96,18 +120,25 @@ def register(sub) -> None:
 def _read(path, args, **fields):
     from evo_door.data.io import read_trials
 
-    trials = args.trial
-    if trials:
-        trials = [int(t) if t.lstrip("-").isdigit() else t for t in trials]
-    return read_trials(path, trials or "all", map=args.map, rate=args.rate, **fields)
+    check_positive(args.rate, "--rate")
+    return read_trials(
+        path, trial_selection(args.trial) or "all", map=args.map, rate=args.rate, **fields
+    )
 
 
 def run_import(args) -> int:
     from evo_door.data import preprocess
-    from evo_door.data.io import file_format, write_trials
+    from evo_door.data.io import file_format, read_trials, write_trials
+    from evo_door.data.trial import check_theta0
 
     if file_format(args.out) != "h5":
         raise UserError(f"--out {args.out}: write an HDF5 trial file (.h5)")
+    # the trials' angle convention (0 fully open, pi/2 closed): 90 is a degree slip
+    if args.theta0 is not None:
+        check_theta0(args.theta0)
+    check_finite(args.dtheta0, "--dtheta0")
+    for option in ("rate", "lowpass", "resample"):
+        check_positive(getattr(args, option), f"--{option}")
     fields = {
         "user_id": args.user,
         "kind": args.kind,
@@ -141,8 +172,20 @@ def run_import(args) -> int:
             f"trial id(s) {', '.join(sorted(dup))} appear twice among the inputs; "
             "import them separately with --id or --append"
         )
-    write_trials(args.out, out, append=args.append)
-    print(f"wrote {args.out}: {len(out)} trial(s): {', '.join(ids)}")
+    kept = read_trials(args.out) if args.append and Path(args.out).exists() else []
+    clash = sorted(set(ids) & {t.trial_id for t in kept})
+    if clash:
+        raise UserError(
+            f"{args.out} already holds trial(s) {', '.join(clash)}; "
+            "give the new one another id (--id) or leave out --append to replace the file"
+        )
+    write_trials(args.out, kept + out)
+    if args.append:
+        held = [t.trial_id for t in kept + out]
+        print(f"added to {args.out}: {len(out)} trial(s): {', '.join(ids)}")
+        print(f"{args.out} now holds {len(held)} trial(s): {', '.join(held)}")
+    else:
+        print(f"wrote {args.out}: {len(out)} trial(s): {', '.join(ids)}")
     return 0
 
 

@@ -46,7 +46,7 @@ def register(sub) -> None:
 
 def run_generate(args) -> int:
     from evo_door.data.io import file_format, write_trials
-    from evo_door.data.rig import RigSettings, generate_trials
+    from evo_door.data.rig import RigSettings, generate_trials, params_source
     from evo_door.data.show import format_summary
 
     file_format(args.out)
@@ -68,7 +68,8 @@ def run_generate(args) -> int:
     write_trials(
         args.out,
         trials,
-        description=f"virtual rig: model {model.name}, params {params.source or 'defaults'}, "
+        description=f"virtual rig: model {model.name}, "
+        f"params {params_source(model, params) or 'defaults'}, "
         f"{args.users} users, {args.trials} trials, seed {args.seed}",
     )
     print(format_summary(trials, args.out))

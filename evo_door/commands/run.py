@@ -21,6 +21,11 @@ def register(sub) -> None:
         dest="assignments",
         help="override a setting of the file, e.g. algorithm.seed=3; repeatable",
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing results file at --out (a complete or interrupted run)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     p.add_argument(
         "--progress",
@@ -36,9 +41,7 @@ def run(args) -> int:
     from evo_door.experiment.runner import ExperimentRun
 
     exp = load_experiment(args.experiment, args.assignments)
-    if args.out:
-        _refuse_to_overwrite_an_interrupted_run(args.out)
-    job = ExperimentRun.create(exp, args.out)
+    job = ExperimentRun.create(exp, args.out, overwrite=args.force)
     if not args.quiet:
         print(
             f"{exp.name}: {len(job.setup.fit)} fitted trial(s), "
@@ -64,22 +67,3 @@ def show_progress(args) -> bool:
     if args.quiet:
         return False
     return bool(args.progress or sys.stderr.isatty())
-
-
-def _refuse_to_overwrite_an_interrupted_run(path) -> None:
-    from pathlib import Path
-
-    from evo_door.errors import UserError
-    from evo_door.experiment import Results
-
-    if not Path(path).is_file():
-        return
-    try:
-        status = Results(path).attrs.get("status")
-    except UserError:
-        return
-    if status != "complete":
-        raise UserError(
-            f"{path}: holds an interrupted run; continue it with evo-door resume "
-            f"{path}, or delete it first"
-        )

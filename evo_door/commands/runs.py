@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import json
+
 ORDER = 43
 
 
 def register(sub) -> None:
-    p = sub.add_parser("runs", help="list the runs in a results folder (default results/)")
+    p = sub.add_parser(
+        "runs",
+        help="list the runs in a results folder (default results/): status, objective, "
+        "fitness, parameters",
+    )
     p.add_argument(
         "folder",
         metavar="DIR",
@@ -14,6 +20,7 @@ def register(sub) -> None:
         default="results",
         help="folder of results files (default results)",
     )
+    p.add_argument("--json", action="store_true", help="one JSON list, a row per run")
     p.set_defaults(func=run)
 
 
@@ -21,6 +28,9 @@ def run(args) -> int:
     from evo_door.experiment.results import format_runs, list_runs
 
     rows = list_runs(args.folder)
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
     if not rows:
         print(f"{args.folder}: no runs")
         return 0

@@ -1,4 +1,4 @@
-"""``evo-door show RUN.h5``: best parameters, fitness and settings of a run."""
+"""``evo-door show RUN.h5``: best parameters, fitness, status and settings of a run."""
 
 from __future__ import annotations
 
@@ -8,28 +8,38 @@ ORDER = 42
 
 
 def register(sub) -> None:
-    p = sub.add_parser("show", help="print a run's best parameters, fitness and settings")
+    p = sub.add_parser("show", help="print a run's best parameters, fitness, status and settings")
     p.add_argument("results", metavar="RUN.h5", help="results file")
     p.add_argument(
         "--json",
         action="store_true",
-        help="one JSON object; its 'best' maps free parameter names to values",
+        help="one JSON object; its 'best' maps free parameter names to values, 'status' is "
+        "complete, running or interrupted, 'at_bound' names the estimates on a bound",
     )
     p.add_argument("--plot", metavar="FIT.png", help="draw the best response next to the target")
+    p.add_argument(
+        "--convergence",
+        metavar="CONV.png",
+        help="draw the best and mean fitness per generation (an interrupted run: so far)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from evo_door.experiment import Results
-    from evo_door.experiment.results import format_show, plot_fit
+    from evo_door.experiment.results import format_show, plot_convergence, plot_fit
 
     res = Results(args.results)
+    # figures first: a figure that cannot be written stops before anything is printed
     if args.plot:
         plot_fit(res, args.plot)
+    if args.convergence:
+        plot_convergence(res, args.convergence)
     if args.json:
         print(json.dumps(res.summary(), indent=2))
     else:
         print(format_show(res))
-        if args.plot:
-            print(f"wrote {args.plot}")
+        for written in (args.plot, args.convergence):
+            if written:
+                print(f"wrote {written}")
     return 0

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
-from evo_door.data.forcecsv import read_force_csv
+from evo_door.commands.data import add_read_options, check_finite, check_positive, trial_selection
+from evo_door.data.forcecsv import read_force
+from evo_door.data.trial import check_theta0
 from evo_door.errors import UserError
 from evo_door.sim import METHODS, simulate
 
@@ -20,21 +22,25 @@ def register(sub) -> None:
         "--input",
         required=True,
         metavar="IN.csv",
-        help="columns t (s) and force (N, tangential at the handle, + toward closing)",
+        help="a trial file (.csv, .h5, .tdms) read as `data import` reads it: time t (s; "
+        "or --rate) and force (N, tangential at the handle, + toward closing); other "
+        "channels are not used",
     )
+    add_read_options(p, several=False)
     p.add_argument(
         "--theta0",
         type=float,
         default=None,
         metavar="RAD",
-        help="initial angle in rad (0 open, pi/2 closed); default: the model's",
+        help="initial angle in rad (0 open, pi/2 closed; a model's own unit otherwise); "
+        "default: the input file's theta0, else the model's",
     )
     p.add_argument(
         "--dtheta0",
         type=float,
-        default=0.0,
+        default=None,
         metavar="RAD_S",
-        help="initial angular speed in rad/s (default 0)",
+        help="initial angular speed in rad/s (default: the input file's dtheta0, else 0)",
     )
     p.add_argument(
         "--method", choices=sorted(METHODS), help="integration scheme (default: the model's)"
@@ -54,17 +60,28 @@ def register(sub) -> None:
 def run(args) -> int:
     model, params = model_and_params(args)
     if args.substeps is not None and args.substeps < 1:
-        raise UserError("--substeps must be at least 1")
-    t, force = read_force_csv(args.input)
-    dt = float(t[1] - t[0])
+        raise UserError(f"--substeps {args.substeps}: must be at least 1")
+    check_positive(args.rate, "--rate")
+    check_finite(args.dtheta0, "--dtheta0")
+    if args.theta0 is not None:
+        check_theta0(args.theta0, model.theta_range, model.theta_unit)
+    inp = read_force(args.input, map=args.map, rate=args.rate, trial=trial_selection(args.trial))
+    # the initial state: the options, else what the input file says, else the model's rest
+    theta0, dtheta0 = args.theta0, args.dtheta0
+    if theta0 is None and inp.theta0 is not None:
+        theta0 = check_theta0(
+            inp.theta0, model.theta_range, model.theta_unit, f"{args.input}: theta0"
+        )
+    if dtheta0 is None:
+        dtheta0 = inp.dtheta0 if inp.dtheta0 is not None else 0.0
     response = simulate(
         model,
         params,
-        force,
-        dt,
-        theta0=args.theta0,
-        dtheta0=args.dtheta0,
-        t0=float(t[0]),
+        inp.force,
+        inp.dt,
+        theta0=theta0,
+        dtheta0=dtheta0,
+        t0=float(inp.t[0]),
         method=args.method,
         substeps=args.substeps,
     )
@@ -75,7 +92,7 @@ def run(args) -> int:
             "that point: try --method semi_implicit or more --substeps"
         )
     print(
-        f"wrote {args.out}: {t.size} samples, {t[-1] - t[0]:.3f} s, "
+        f"wrote {args.out}: {inp.n} samples at {inp.rate:.6g} Hz, {inp.duration:.3f} s, "
         f"theta {response.theta.min():.4f}..{response.theta.max():.4f} {model.theta_unit}"
     )
     return 0

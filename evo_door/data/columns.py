@@ -12,8 +12,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evo_door.data.trial import Trial
-from evo_door.data.units import CHANNELS, ChannelMap, UnitExpr, parse_unit, split_header
+from evo_door.data.trial import STEP_TOLERANCE, Trial, time_axis_problem
+from evo_door.data.units import (
+    CHANNELS,
+    ChannelMap,
+    UnitExpr,
+    parse_unit,
+    quote,
+    quote_list,
+    split_header,
+)
 from evo_door.errors import UserError
 from evo_door.params.declaration import suggest
 
@@ -26,10 +34,8 @@ DEFAULT_NAMES = {
     "ddtheta": ("ddtheta", "angular_acceleration"),
 }
 
-#: Successive time steps may differ by this fraction of the median step (text rounding
-#: of time stamps) before a file counts as not uniformly sampled; within it the time
-#: axis is replaced by the exact uniform grid.
-STEP_TOLERANCE = 0.01
+__all__ = ["STEP_TOLERANCE", "Column", "trial_from_columns"]
+
 #: Relative tolerance of an expected sampling rate.
 RATE_TOLERANCE = 0.002
 
@@ -44,6 +50,9 @@ class Column:
     #: Sample period the file declares for this column (TDMS waveforms), if any.
     dt: float | None = None
     t0: float = 0.0
+    #: (row, text) of the first cell that is not a number (a text file's), if any:
+    #: an error only if the column is used.
+    bad: tuple[int, str] | None = None
 
 
 def _at(row: int, line_of: Callable[[int], int] | None) -> str:
@@ -79,7 +88,7 @@ def _unit_of(col: Column, cmap: ChannelMap | None, channel: str, where: str) -> 
     if declared is None:
         declared = split_header(col.name)[1]
     if declared:
-        return parse_unit(declared, channel, f"{where}: column {col.name!r}")
+        return parse_unit(declared, channel, f"{where}: column {quote(col.name, 40)}")
     return UnitExpr(CHANNELS[channel][0])
 
 
@@ -91,6 +100,7 @@ def trial_from_columns(
     fields: dict | None = None,
     line_of: Callable[[int], int] | None = None,
     record_import: bool = True,
+    channels=tuple(CHANNELS),
 ) -> Trial:
     """Build and check one :class:`Trial`; raise a one-line :class:`UserError` on the first problem.
 
@@ -112,20 +122,29 @@ def trial_from_columns(
         Row (0-based data row) -> line of the file, for messages about text files.
     record_import : bool
         Note the file and the column mapping in ``meta["import"]``.
+    channels : tuple of str
+        The channels to take (``("t", "force")`` for a simulation's input); columns
+        of the others are not read, so not checked either.
+
+    Time stamps within :data:`~evo_door.data.trial.STEP_TOLERANCE` of a uniform grid
+    become that grid (the Trial notes it in ``meta["time_axis"]``); beyond it the file
+    is refused, naming the row (and line).
     """
     mapping = dict(mapping or {})
     fields = dict(fields or {})
     picked: dict[str, tuple[Column, UnitExpr]] = {}
     for channel in CHANNELS:
+        if channel not in channels:
+            continue
         cmap = mapping.get(channel)
         if cmap is not None:
             col = _find(columns, cmap.source)
             if col is None:
                 raise UserError(
-                    f"{where}: missing column {cmap.source!r} for channel "
+                    f"{where}: missing column {quote(cmap.source)} for channel "
                     f"{channel!r}"
                     + suggest(cmap.source, columns)
-                    + f"; columns: {', '.join(columns) or 'none'}"
+                    + f"; columns: {quote_list(columns)}"
                 )
         else:
             col = _default_column(columns, channel)
@@ -136,7 +155,7 @@ def trial_from_columns(
     if "force" not in picked:
         raise UserError(
             f"{where}: missing column 'force' (the user force; map another "
-            f"column with --map force=NAME:UNIT); columns: {', '.join(columns) or 'none'}"
+            f"column with --map force=NAME:UNIT); columns: {quote_list(columns)}"
         )
 
     n = picked["force"][0].values.size
@@ -145,11 +164,11 @@ def trial_from_columns(
     for channel, (col, _) in picked.items():
         if col.values.ndim != 1:
             raise UserError(
-                f"{where}: channel {channel!r} (column {col.name!r}) is not one-dimensional"
+                f"{where}: channel {channel!r} (column {quote(col.name)}) is not one-dimensional"
             )
         if col.values.size != n:
             raise UserError(
-                f"{where}: channel {channel!r} (column {col.name!r}) has "
+                f"{where}: channel {channel!r} (column {quote(col.name)}) has "
                 f"{col.values.size} rows, channel 'force' has {n}"
             )
     if n < 2:
@@ -157,12 +176,18 @@ def trial_from_columns(
 
     signals: dict[str, np.ndarray] = {}
     for channel, (col, unit) in picked.items():
+        if col.bad is not None:
+            row, text = col.bad
+            raise UserError(
+                f"{where}: column {quote(col.name)} is not a number at "
+                f"{_at(row, line_of)}: {quote(text)}"
+            )
         raw = np.asarray(col.values, dtype=np.float64)
         bad = ~np.isfinite(raw)
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
             raise UserError(
-                f"{where}: channel {channel!r} (column {col.name!r}) is not a "
+                f"{where}: channel {channel!r} (column {quote(col.name)}) is not a "
                 f"finite number at {_at(row, line_of)}: {float(raw[row])!r}"
             )
         signals[channel] = unit.apply(raw)
@@ -191,7 +216,7 @@ def trial_from_columns(
 
 
 def _time_axis(picked, signals, n, where, rate, line_of) -> np.ndarray:
-    """The exact uniform time axis, after checking the file's one."""
+    """The time axis: built from ``rate`` or a waveform's step, or the file's, checked."""
     if "t" not in picked:
         dts = {c.dt for c, _ in picked.values() if c.dt}
         if dts:
@@ -213,30 +238,26 @@ def _time_axis(picked, signals, n, where, rate, line_of) -> np.ndarray:
         return t0 + dt * np.arange(n)
     t = signals["t"]
     col = picked["t"][0]
-    step = np.diff(t)
-    if np.any(step <= 0):
-        row = int(np.flatnonzero(step <= 0)[0]) + 1
-        raise UserError(
-            f"{where}: channel 't' (column {col.name!r}) is not increasing at "
-            f"{_at(row, line_of)}: {float(t[row - 1])!r} then {float(t[row])!r} s"
+    problem = time_axis_problem(t)
+    if problem is not None:
+        row, what, detail = problem
+        hint = (
+            ""
+            if what == "is not increasing"
+            else " (resample it first: evo_door.data.preprocess.to_uniform)"
         )
-    median = float(np.median(step))
-    off = np.abs(step - median) > STEP_TOLERANCE * median
-    if off.any():
-        row = int(np.flatnonzero(off)[0]) + 1
         raise UserError(
-            f"{where}: channel 't' (column {col.name!r}) is not uniformly sampled "
-            f"at {_at(row, line_of)}: step {step[row - 1]:.6g} s, typical "
-            f"{median:.6g} s (resample it first: evo_door.data.preprocess.to_uniform)"
+            f"{where}: channel 't' (column {quote(col.name)}) {what} at "
+            f"{_at(row, line_of)}: {detail}{hint}"
         )
-    dt = (t[-1] - t[0]) / (n - 1)
-    _check_rate(1.0 / dt, rate, where, col.name, line_of)
-    return t[0] + dt * np.arange(n)
+    _check_rate((t.size - 1) / (t[-1] - t[0]), rate, where, col.name, line_of)
+    # the Trial puts stamps within STEP_TOLERANCE onto the exact grid and notes it
+    return t
 
 
 def _check_rate(actual, expected, where, name, line_of) -> None:
     if expected and abs(actual - expected) > RATE_TOLERANCE * expected:
         raise UserError(
-            f"{where}: channel 't' (column {name!r}) is sampled at {actual:.6g} Hz, "
+            f"{where}: channel 't' (column {quote(name)}) is sampled at {actual:.6g} Hz, "
             f"expected {expected:g} Hz, at {_at(1, line_of)}"
         )

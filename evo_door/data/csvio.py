@@ -23,33 +23,28 @@ from pathlib import Path
 
 import numpy as np
 
+from evo_door.channels import CHANNELS
 from evo_door.data.columns import Column, trial_from_columns
 from evo_door.data.trial import RESPONSE_CHANNELS, Trial
+from evo_door.data.units import quote
 from evo_door.errors import UserError
-from evo_door.files import atomic_write, to_json
+from evo_door.files import atomic_write, read_text, to_json
 
 META_PREFIX = "# evo-door trial:"
 METADATA_FIELDS = ("trial_id", "user_id", "kind", "theta0", "dtheta0", "sensors", "truth", "meta")
 
 
-def _read_lines(path: Path) -> list[str]:
-    if not path.is_file():
-        raise UserError(f"{path}: file not found")
-    try:
-        return path.read_text(encoding="utf-8-sig").splitlines()
-    except UnicodeDecodeError as exc:
-        raise UserError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
-
-
-def read_csv(path, mapping=None, rate=None, fields=None) -> Trial:
+def read_csv(path, mapping=None, rate=None, fields=None, channels=tuple(CHANNELS)) -> Trial:
     """Read one trial from a CSV file (see the module docstring).
 
     ``mapping`` is ``{channel: ChannelMap}`` (:func:`evo_door.data.units.parse_maps`),
     ``rate`` the expected sampling rate in Hz, ``fields`` Trial fields overriding the
-    file's metadata.
+    file's metadata, ``channels`` the channels to take (the other columns are not
+    read). UTF-8, a byte-order mark (as spreadsheets write it) allowed.
     """
     path = Path(path)
-    lines = _read_lines(path)
+    # a missing file, a folder, a picture or an HDF5 file: one line saying which
+    lines = read_text(path, "CSV file").splitlines()
     meta: dict = {}
     header_idx = None
     for i, line in enumerate(lines):
@@ -79,7 +74,7 @@ def read_csv(path, mapping=None, rate=None, fields=None) -> Trial:
         )
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
-        raise UserError(f"{path}: line {header_idx + 1}: column {dup!r} appears twice")
+        raise UserError(f"{path}: line {header_idx + 1}: column {quote(dup)} appears twice")
 
     body = [
         (i + 1, line)
@@ -87,8 +82,8 @@ def read_csv(path, mapping=None, rate=None, fields=None) -> Trial:
         if line.strip() and not line.lstrip().startswith("#")
     ]
     line_numbers = [ln for ln, _ in body]
-    data = _parse_body(path, body, names, delimiter)
-    columns = {name: Column(name, data[:, j]) for j, name in enumerate(names)}
+    data, bad = _parse_body(path, body, names, delimiter)
+    columns = {name: Column(name, data[:, j], bad=bad.get(name)) for j, name in enumerate(names)}
     merged = {k: meta[k] for k in METADATA_FIELDS if k in meta}
     merged.setdefault("trial_id", path.stem)
     merged.update({k: v for k, v in (fields or {}).items() if v is not None})
@@ -100,6 +95,7 @@ def read_csv(path, mapping=None, rate=None, fields=None) -> Trial:
         merged,
         line_of=lambda row: line_numbers[row],
         record_import=not meta or bool(mapping),
+        channels=channels,
     )
 
 
@@ -111,19 +107,25 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _parse_body(path, body, names, delimiter) -> np.ndarray:
+def _parse_body(path, body, names, delimiter) -> tuple[np.ndarray, dict[str, tuple[int, str]]]:
+    """The numbers of the data lines, and per column its first cell that is not one.
+
+    A cell that is not a number becomes NaN and is reported only if its column is
+    used (a notes column, or a response channel a simulation ignores, may hold text).
+    """
     if not body:
-        return np.empty((0, len(names)))
+        return np.empty((0, len(names))), {}
     try:
         data = np.loadtxt(
             [line for _, line in body], delimiter=delimiter, ndmin=2, dtype=np.float64
         )
         if data.shape[1] == len(names):
-            return data
+            return data, {}
     except ValueError:
         pass
-    # slow path: find the first bad cell and say where it is
-    rows = []
+    # slow path: cell by cell, noting where each column first holds something else
+    data = np.empty((len(body), len(names)))
+    bad: dict[str, tuple[int, str]] = {}
     for row, (lineno, line) in enumerate(body):
         cells = next(csv.reader([line], delimiter=delimiter))
         if len(cells) != len(names):
@@ -131,17 +133,13 @@ def _parse_body(path, body, names, delimiter) -> np.ndarray:
                 f"{path}: row {row} (line {lineno}) has {len(cells)} fields, "
                 f"the header has {len(names)}"
             )
-        values = []
-        for name, cell in zip(names, cells):
+        for j, cell in enumerate(cells):
             try:
-                values.append(float(cell))
+                data[row, j] = float(cell)
             except ValueError:
-                raise UserError(
-                    f"{path}: column {name!r} is not a number at row {row} "
-                    f"(line {lineno}): {cell.strip()!r}"
-                ) from None
-        rows.append(values)
-    return np.array(rows, dtype=np.float64)
+                data[row, j] = np.nan
+                bad.setdefault(names[j], (row, cell.strip()))
+    return data, bad
 
 
 def write_csv(path, trial: Trial, metadata: bool = True) -> None:

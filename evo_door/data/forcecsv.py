@@ -1,4 +1,11 @@
-"""Read a sampled input force (columns ``t`` in s and ``force`` in N) from CSV."""
+"""The input of a simulation: a sampled force, read as ``evo-door data import`` reads trials.
+
+A force input is a trial file of any format (CSV, HDF5, NI TDMS) read by the one
+reader (:func:`evo_door.data.read_trials`: the same column names, ``--map``, units in
+headers, delimiters, byte-order mark, checks and messages). It needs only the time
+(a ``t`` column, or the sampling rate) and the ``force``; response channels, if the
+file has any, are not used: a CSV's are not even read.
+"""
 
 from __future__ import annotations
 
@@ -6,43 +13,62 @@ from pathlib import Path
 
 import numpy as np
 
+from evo_door.data.trial import Trial
+from evo_door.data.units import parse_maps
 from evo_door.errors import UserError
 
+#: The channels a simulation's input needs.
+INPUT_CHANNELS = ("t", "force")
 
-def read_force_csv(path) -> tuple[np.ndarray, np.ndarray]:
-    """``(t, force)`` from a CSV with a header naming at least ``t`` and ``force``.
 
-    Time must be uniformly sampled and increasing; every value finite.
+def read_force(path, *, map=None, rate=None, trial=None) -> Trial:
+    """The force record of ``path`` as a :class:`Trial` with only ``t`` and ``force``.
+
+    Parameters
+    ----------
+    path : str or Path
+        A trial file: ``.csv`` (one trial), ``.h5`` or ``.tdms`` (choose with
+        ``trial`` when the file holds several).
+    map : list of str or dict, optional
+        ``["force=Fz:kN", "t=Time:ms"]``: only ``t`` and ``force`` may be mapped.
+    rate : float, optional
+        Sampling rate in Hz: builds the time axis of a file without one, else must match.
+    trial : str or int, optional
+        Which trial of a file holding several (id or position).
+
+    Returns
+    -------
+    Trial
+        ``t`` (uniform, s), ``force`` (N) and the file's metadata (``theta0``...);
+        no response channels.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"{path}: input file not found")
-    with path.open() as fh:
-        header = fh.readline().strip()
-    if not header:
-        raise UserError(f"{path}: empty file")
-    names = [h.strip().strip('"') for h in header.split(",")]
-    for col in ("t", "force"):
-        if col not in names:
-            raise UserError(f"{path}: missing column {col!r} (header: {header})")
-    try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError as exc:
-        raise UserError(f"{path}: not a numeric CSV ({exc})") from None
-    if data.shape[0] < 2:
-        raise UserError(f"{path}: needs at least two rows of samples")
-    t, force = data[:, names.index("t")], data[:, names.index("force")]
-    bad = ~(np.isfinite(t) & np.isfinite(force))
-    if bad.any():
-        raise UserError(f"{path}: non-finite value on data row {int(np.flatnonzero(bad)[0]) + 1}")
-    dt = np.diff(t)
-    if np.any(dt <= 0):
+    mapping = map if isinstance(map, dict) else parse_maps(map)
+    unused = sorted(set(mapping) - set(INPUT_CHANNELS))
+    if unused:
         raise UserError(
-            f"{path}: time is not increasing at data row {int(np.flatnonzero(dt <= 0)[0]) + 2}"
+            f"--map {mapping[unused[0]]}: a simulation's input is t and force only; "
+            f"channel {unused[0]!r} is not read"
         )
-    if np.ptp(dt) > 1e-6 * dt.mean() + 1e-9:
-        raise UserError(
-            f"{path}: time is not uniformly sampled (step between "
-            f"{dt.min():.6g} and {dt.max():.6g} s); resample it first"
-        )
-    return t, force
+    from evo_door.data.io import file_format, read_trial
+
+    if file_format(path) == "csv":
+        from evo_door.data.csvio import read_csv
+
+        found = read_csv(path, mapping, rate, channels=INPUT_CHANNELS)
+        if trial not in (None, found.trial_id, 0, -1):
+            raise UserError(
+                f"{path}: no trial {trial!r}; a CSV file holds one trial ({found.trial_id!r})"
+            )
+    else:
+        found = read_trial(path, trial, map=mapping, rate=rate)
+    return found.replace(theta=None, dtheta=None, ddtheta=None)
+
+
+def read_force_csv(path, map=None, rate=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, force)`` in s and N from a trial file (see :func:`read_force`).
+
+    Time stamps within :data:`~evo_door.data.trial.STEP_TOLERANCE` of a uniform grid
+    come back as that grid.
+    """
+    found = read_force(Path(path), map=map, rate=rate)
+    return found.t, found.force

@@ -49,6 +49,9 @@ from evo_door.files import (
 
 FORMAT = "evo-door trials"
 FORMAT_VERSION = 1
+#: The root ``format`` of a results file (``evo_door.experiment.store.FORMAT``; not
+#: imported from there: data sits below experiment).
+RUN_FORMAT = "evo-door run"
 #: gzip level of trial datasets: files are written once and kept, so smaller is better
 _COMPRESSION = 4
 
@@ -71,9 +74,34 @@ def read_h5(path, trials="all", mapping=None, rate=None, fields=None) -> list[Tr
     """Read trials from an HDF5 file (evo-door layout, or any file of 1-D datasets)."""
     path = Path(path)
     with open_h5(path, "file") as f:
-        if "trials" in f or _text(f.attrs.get("format", "")) == FORMAT:
-            return _read_layout(path, f, trials, mapping, rate, fields)
-        return _read_tables(path, f, trials, mapping, rate, fields)
+        # a run's file holds trials too (/trials), but read as trials it would only
+        # confuse: say what it is and where its trials are
+        if _text(f.attrs.get("format", "")) == RUN_FORMAT:
+            raise UserError(
+                f"{path}: is an evo-door results file (a run), not trials; "
+                f"`evo-door show {path}` shows it, its trials are in /trials"
+            )
+        try:
+            if "trials" in f or _text(f.attrs.get("format", "")) == FORMAT:
+                return _read_layout(path, f, trials, mapping, rate, fields)
+            return _read_tables(path, f, trials, mapping, rate, fields)
+        except OSError as exc:  # a damaged group or attribute, beyond one dataset
+            raise UserError(f"{path}: corrupt HDF5 file ({_first_line(exc)})") from None
+
+
+def _first_line(exc: Exception) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _values(path, ds) -> np.ndarray:
+    """A dataset's numbers, or one line naming the file and the dataset."""
+    try:
+        return np.asarray(ds[()], dtype=np.float64)
+    except OSError as exc:  # h5py: a damaged compressed chunk fails its filter
+        raise UserError(f"{path}: corrupt HDF5 data in {ds.name} ({_first_line(exc)})") from None
+    except (TypeError, ValueError):
+        raise UserError(f"{path}: dataset {ds.name} is not numeric ({ds.dtype})") from None
 
 
 def _select(path, available: list[str], trials) -> list[str]:
@@ -120,9 +148,7 @@ def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
             if hasattr(ds, "shape"):
                 unit = ds.attrs.get("unit")
                 columns[key] = Column(
-                    key,
-                    np.asarray(ds[()], dtype=np.float64),
-                    _text(unit) if unit is not None else None,
+                    key, _values(path, ds), _text(unit) if unit is not None else None
                 )
         attrs = read_attrs(g)
         meta_fields = {
@@ -174,9 +200,7 @@ def _read_tables(path, f, trials, mapping, rate, fields) -> list[Trial]:
             if hasattr(ds, "shape") and len(ds.shape) == 1:
                 unit = ds.attrs.get("unit", ds.attrs.get("units"))
                 columns[key] = Column(
-                    key,
-                    np.asarray(ds[()], dtype=np.float64),
-                    _text(unit) if unit is not None else None,
+                    key, _values(path, ds), _text(unit) if unit is not None else None
                 )
         tid = Path(path).stem if name == "/" else name.rsplit("/", 1)[-1]
         flds = {"trial_id": tid, **{k: v for k, v in (fields or {}).items() if v is not None}}

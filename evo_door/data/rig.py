@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -513,13 +514,40 @@ def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> Non
         )
 
 
+def params_source(model, params) -> str:
+    """Where a parameter set came from, as trial files record it.
+
+    A preset by its name (``"default"``), not by the path of its file on this machine:
+    the same command then writes the same file anywhere. ``"default, changed: M"`` when
+    values were set on top of the preset; a file of the user's by the path given.
+    """
+    from evo_door.params.sets import preset_path
+
+    source = getattr(params, "source", "") or ""
+    path = Path(source)
+    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+        return source
+    try:
+        preset = preset_path(model.name, path.stem, model.preset_dirs)
+    except UserError:
+        return source
+    if preset.resolve() != path.resolve():
+        return source
+    changed = [
+        name
+        for name, value in model.load_params(path.stem).as_dict().items()
+        if params[name] != value
+    ]
+    return path.stem + (f", changed: {', '.join(changed)}" if changed else "")
+
+
 def _truth(model, params, method, substeps) -> dict:
     values = params.as_dict() if hasattr(params, "as_dict") else model.params.as_dict(params)
     return {
         "model": model.name,
         "params": values,
         "units": {p.name: p.unit for p in model.params},
-        "params_source": getattr(params, "source", "") or "",
+        "params_source": params_source(model, params),
         "method": method or model.method,
         "substeps": int(substeps or model.substeps),
     }

@@ -75,44 +75,102 @@ def format_summary(trials: list[Trial], path="") -> str:
     return head + "\n" + "\n".join(lines)
 
 
-def plot_trials(trials: list[Trial], path, title: str = "") -> None:
-    """Force, angle and speed against time, one column per kind, one colour per user.
+#: matplotlib's tab10 with black for its grey, which the sensor limits (dotted) use.
+TRIAL_COLORS = [
+    "tab:blue",
+    "tab:orange",
+    "tab:green",
+    "tab:red",
+    "tab:purple",
+    "tab:brown",
+    "tab:pink",
+    "black",
+    "tab:olive",
+    "tab:cyan",
+]
 
-    Angles and speeds in degrees (labelled). An angle integrated from the gyroscope
-    (eq. 3.11) and a speed differentiated from the inclinometer are dashed; the
-    sensors' range limits are dotted; unlock / lock force peaks are marked; the speed
-    derived from a saturated inclinometer is left out.
+
+def trial_colors(trials: list[Trial], kinds: list[str]) -> dict:
+    """A colour per trial id, distinct within each column of the figure.
+
+    Up to ten trials in all: ten distinct colours over the whole figure; more: distinct
+    within a column (one column per kind), so two trials side by side never share one.
     """
     import matplotlib
-    from matplotlib.figure import Figure
 
+    def palette(n):
+        if n <= 10:
+            return TRIAL_COLORS[:n]
+        if n <= 20:
+            return [matplotlib.colormaps["tab20"](i) for i in range(n)]
+        return [matplotlib.colormaps["viridis"](i / (n - 1)) for i in range(n)]
+
+    if len(trials) <= 10:
+        return dict(zip((t.trial_id for t in trials), palette(len(trials))))
+    colors = {}
+    for kind in kinds:
+        ids = [t.trial_id for t in trials if t.kind == kind]
+        colors.update(zip(ids, palette(len(ids))))
+    return colors
+
+
+#: What the line styles of :func:`plot_trials` mean, as its key says it.
+STYLE_KEY = {
+    "measured": "solid: measured by the trial's sensor",
+    "derived": "dashed: derived (angle integrated from the gyroscope, "
+    "speed differentiated from the inclinometer)",
+    "limit": "dotted: sensor range limit",
+    "peak": "triangle: unlock / lock force peak",
+}
+
+
+def plot_trials(trials: list[Trial], path, title: str = "") -> None:
+    """Write :func:`trials_figure` to ``path`` (the format from its extension)."""
     from evo_door.files import save_figure
+
+    save_figure(trials_figure(trials, title), path, dpi=110)
+
+
+def trials_figure(trials: list[Trial], title: str = ""):
+    """Force, angle and speed against time, one column per kind, one colour per trial.
+
+    Angles and speeds in degrees (labelled). A key under the panels says what the line
+    styles mean: solid is what a sensor measured; dashed is derived, an angle
+    integrated from the gyroscope (eq. 3.11) or a speed differentiated from the
+    inclinometer (left out where the inclinometer saturates); dotted is a sensor's
+    range limit; triangles mark the unlock / lock force peaks. The legend names each
+    trial and its user.
+    """
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
     kinds = sorted(
         {t.kind for t in trials}, key=lambda k: KIND_ORDER.index(k) if k in KIND_ORDER else 99
     )
-    users = sorted({t.user_id for t in trials})
-    tab10 = matplotlib.colormaps["tab10"]
-    colors = {u: tab10(i % 10) for i, u in enumerate(users)}
-    fig = Figure(figsize=(4.6 * len(kinds) + 0.8, 8.0), layout="constrained")
+    colors = trial_colors(trials, kinds)
+    fig = Figure(figsize=(4.6 * len(kinds) + 0.8, 8.6), layout="constrained")
     axes = fig.subplots(3, len(kinds), sharex="col", squeeze=False)
     deg = 180.0 / math.pi
+    drawn = set()  # the line styles used, for the key
     for j, kind in enumerate(kinds):
         ax_f, ax_a, ax_w = axes[:, j]
         limits_drawn = set()
         for tr in (t for t in trials if t.kind == kind):
-            c = colors[tr.user_id]
+            c = colors[tr.trial_id]
             label = f"{tr.trial_id} ({tr.user_id})" if tr.user_id else tr.trial_id
             ax_f.plot(tr.t, tr.force, color=c, lw=0.9, label=label)
+            drawn.add("measured")
             peak = peak_or_none(tr)
             if peak:
                 ax_f.plot(peak.t, peak.force, "v" if peak.force > 0 else "^", color=c, ms=7)
+                drawn.add("peak")
             if tr.theta is not None:
                 ax_a.plot(tr.t, tr.theta * deg, color=c, lw=0.9)
             elif tr.dtheta is not None and tr.theta0 is not None:
                 ax_a.plot(
                     tr.t, angle_from_rate(tr.t, tr.dtheta, tr.theta0) * deg, "--", color=c, lw=0.9
                 )
+                drawn.add("derived")
             if tr.dtheta is not None:
                 ax_w.plot(tr.t, tr.dtheta * deg, color=c, lw=0.9)
             elif tr.theta is not None and tr.n > 30:
@@ -125,6 +183,7 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
                     >= int(0.05 * tr.rate) | 1
                 )
                 ax_w.plot(tr.t, np.where(valid, speed, np.nan), "--", color=c, lw=0.9)
+                drawn.add("derived")
             for ch, ax, scale in (
                 ("force", ax_f, 1.0),
                 ("theta", ax_a, deg),
@@ -139,6 +198,7 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
                         if np.min(np.abs(data - lim)) < 0.05 * (hi - lo):
                             ax.axhline(lim * scale, color="0.4", ls=":", lw=1.0)
                             limits_drawn.add(ch)
+                            drawn.add("limit")
         ax_f.set_title(
             {
                 "unlock": "pull to unlock (from closed)",
@@ -153,7 +213,22 @@ def plot_trials(trials: list[Trial], path, title: str = "") -> None:
         ax_w.set_xlabel("time [s]")
         for ax in (ax_f, ax_a, ax_w):
             ax.grid(alpha=0.3)
-        ax_f.legend(fontsize=7, loc="best")
+        ax_f.legend(fontsize=7, loc="best", title="trial (user)", title_fontsize=7)
+    proxies = {
+        "measured": Line2D([], [], color="0.2", lw=1.2),
+        "derived": Line2D([], [], color="0.2", lw=1.2, ls="--"),
+        "limit": Line2D([], [], color="0.4", lw=1.0, ls=":"),
+        "peak": Line2D([], [], color="0.2", marker="^", ls="none", ms=7),
+    }
+    used = [key for key in STYLE_KEY if key in drawn]
+    fig.legend(
+        [proxies[k] for k in used],
+        [STYLE_KEY[k] for k in used],
+        loc="outside lower center",
+        ncols=min(len(used), 2),
+        fontsize=8,
+        frameon=False,
+    )
     if title:
         fig.suptitle(title)
-    save_figure(fig, path, dpi=110)
+    return fig

@@ -19,6 +19,7 @@ target; ``force`` alone is enough to drive a simulation.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,7 +27,104 @@ import numpy as np
 from evo_door.channels import RESPONSE_CHANNELS, UNITS
 from evo_door.errors import UserError
 
-__all__ = ["RESPONSE_CHANNELS", "UNITS", "Trial"]
+__all__ = [
+    "RESPONSE_CHANNELS",
+    "STEP_TOLERANCE",
+    "UNITS",
+    "Trial",
+    "check_theta0",
+    "time_axis_problem",
+]
+
+#: How far, as a fraction of the sampling step, time stamps may stray from a uniform
+#: grid and still count as uniformly sampled: each step within this fraction of the
+#: median step, each stamp within this fraction of a step of the grid
+#: ``t0 + k * mean step``. Time stamps printed with 6 decimals are off by at most
+#: 0.5e-6 s, so their steps by 1e-6 s: 0.1 % of a 1024 Hz step (0.8 % at 8192 Hz). A
+#: dropped sample (100 %), a rate change or a drifting clock is far beyond it. Within
+#: it the stamps are replaced by the grid, so that every step, and the ``dt`` of the
+#: integrators, is exact; ``meta["time_axis"]`` says so.
+STEP_TOLERANCE = 0.01
+
+
+def time_axis_problem(t: np.ndarray) -> tuple[int, str, str] | None:
+    """The first reason the 1-D array ``t`` is not a uniform time axis, or None.
+
+    Returns ``(row, problem, detail)``: the data row at fault (0-based), what is wrong
+    (``"is not increasing"``, ``"is not uniformly sampled"``, ``"drifts from a uniform
+    time grid"``) and the numbers that show it, for a message
+    ``f"channel 't' {problem} at row {row}: {detail}"``. Steps within
+    :data:`STEP_TOLERANCE` pass (see there).
+
+    >>> time_axis_problem(np.round(np.arange(8) / 1024, 6)) is None
+    True
+    >>> time_axis_problem(np.array([0.0, 0.001, 0.002, 0.004, 0.005]))[:2]
+    (3, 'is not uniformly sampled')
+    """
+    step = np.diff(t)
+    if np.any(step <= 0):
+        row = int(np.flatnonzero(step <= 0)[0]) + 1
+        return row, "is not increasing", f"{float(t[row - 1])!r} then {float(t[row])!r} s"
+    median = float(np.median(step))
+    off = np.abs(step - median) > STEP_TOLERANCE * median
+    if off.any():
+        row = int(np.flatnonzero(off)[0]) + 1
+        return (
+            row,
+            "is not uniformly sampled",
+            f"step {step[row - 1]:.6g} s, typical {median:.6g} s",
+        )
+    shift = t - uniform_grid(t)
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    if np.max(np.abs(shift)) > STEP_TOLERANCE * dt:
+        row = int(np.argmax(np.abs(shift)))
+        return (
+            row,
+            "drifts from a uniform time grid",
+            f"{float(t[row])!r} s, {abs(shift[row]) / dt:.2g} step(s) from the grid "
+            f"t0 + k * {dt:.6g} s",
+        )
+    return None
+
+
+#: An initial angle may pass an end of the coordinate range by this fraction of the
+#: range: a door closed at pi/2 is often typed 1.5708.
+THETA0_MARGIN = 1e-3
+
+
+def check_theta0(
+    value, theta_range=(0.0, 0.5 * math.pi), unit: str = "rad", name: str = "--theta0"
+) -> float:
+    """``value`` as a float if it lies in ``theta_range`` (open, closed), else a UserError.
+
+    The message names ``name`` (an option, or a file and field) and the range; a value
+    in degrees where radians are expected is pointed out.
+
+    >>> check_theta0(1.5708)
+    1.5708
+    >>> check_theta0(90.0)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    evo_door.errors.UserError: --theta0 90: outside ... 0..1.5708 rad ...; in degrees? 90 deg is 1.5708 rad
+    """
+    lo, hi = (float(v) for v in theta_range)
+    value = float(value)
+    margin = THETA0_MARGIN * (hi - lo)
+    if lo - margin <= value <= hi + margin:
+        return value
+    hint = ""
+    if unit == "rad" and lo - margin <= math.radians(value) <= hi + margin:
+        hint = f"; in degrees? {value:g} deg is {math.radians(value):.6g} rad"
+    raise UserError(
+        f"{name} {value:g}: outside the coordinate range {lo:.6g}..{hi:.6g} {unit} "
+        f"({lo:.6g} fully open, {hi:.6g} closed){hint}"
+    )
+
+
+def uniform_grid(t: np.ndarray) -> np.ndarray:
+    """``t[0] + k * mean step``: the uniform grid through the first and last stamps."""
+    n = t.size
+    return t[0] + (t[-1] - t[0]) / (n - 1) * np.arange(n)
 
 
 @dataclass
@@ -75,7 +173,32 @@ class Trial:
             value = getattr(self, name)
             if value is not None:
                 setattr(self, name, np.ascontiguousarray(value, dtype=np.float64))
+        self._make_time_uniform()
         self.validate()
+
+    def _make_time_uniform(self) -> None:
+        """Rounded time stamps (within :data:`STEP_TOLERANCE`) onto the exact grid, noted."""
+        t = self.t
+        if t.ndim != 1 or t.size < 3 or not np.all(np.isfinite(t)):
+            return  # validate() says what is wrong
+        step = np.diff(t)
+        # uniform to floating-point precision already: keep the stamps as they are
+        if np.all(step > 0) and np.ptp(step) <= 1e-6 * step.mean():
+            return
+        if time_axis_problem(t) is not None:
+            return  # validate() refuses it
+        grid = uniform_grid(t)
+        self.t = grid
+        self.meta = {
+            **self.meta,
+            "time_axis": {
+                "uniform_grid": "t0 + k * step",
+                "t0": float(grid[0]),
+                "step": float((grid[-1] - grid[0]) / (grid.size - 1)),
+                "max_shift": float(np.max(np.abs(t - grid))),
+                "unit": "s",
+            },
+        }
 
     # -- derived ---------------------------------------------------------------
     @property
@@ -192,15 +315,7 @@ class Trial:
                 raise UserError(
                     f"{where}: channel {name!r} is not finite at row {int(np.flatnonzero(bad)[0])}"
                 )
-        step = np.diff(self.t)
-        if np.any(step <= 0):
-            raise UserError(
-                f"{where}: channel 't' is not increasing at row "
-                f"{int(np.flatnonzero(step <= 0)[0]) + 1}"
-            )
-        if np.ptp(step) > 1e-6 * step.mean() + 1e-12:
-            row = int(np.argmax(np.abs(step - step[0]))) + 1
-            raise UserError(
-                f"{where}: channel 't' is not uniformly sampled (row {row}: "
-                f"step {step[row - 1]:.6g} s, first step {step[0]:.6g} s)"
-            )
+        problem = time_axis_problem(self.t)
+        if problem is not None:
+            row, what, detail = problem
+            raise UserError(f"{where}: channel 't' {what} at row {row}: {detail}")

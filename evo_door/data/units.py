@@ -76,6 +76,40 @@ _EXPR = re.compile(
 )
 
 
+#: The most characters of a file's content (a header, a cell, a column name) an error
+#: message quotes: a CSV whose first line is 3 kB of JSON must not flood the terminal.
+QUOTE_WIDTH = 80
+
+
+def quote(text, width: int = QUOTE_WIDTH) -> str:
+    """``repr(text)`` cut to about ``width`` characters, for one-line messages.
+
+    >>> quote("force [N]"), quote("x" * 200, 10)
+    ("'force [N]'", "'xxxxxxx...' (200 characters)")
+    """
+    text = str(text)
+    if len(text) <= width:
+        return repr(text)
+    return f"{text[: width - 3] + '...'!r} ({len(text)} characters)"
+
+
+def quote_list(names, width: int = QUOTE_WIDTH) -> str:
+    """``a, b, c`` cut to about ``width`` characters; ``none`` if empty.
+
+    >>> quote_list(["t", "force"]), quote_list([f"c{i}" for i in range(100)], 40)
+    ('t, force', 'c0, c1, c2, c3, c4, ... (100 in all)')
+    """
+    names = [str(n) for n in names]
+    text = ", ".join(names) or "none"
+    if len(text) <= width:
+        return text
+    more = f", ... ({len(names)} in all)"
+    shown = text[: max(width - len(more), 10)]
+    # cut at the last whole name that fits
+    shown = shown[: shown.rfind(", ")] if ", " in shown else shown + "..."
+    return shown + more
+
+
 def canonical_unit(unit: str) -> str | None:
     """The table spelling of ``unit`` (None if unknown)."""
     unit = unit.strip()
@@ -110,13 +144,13 @@ def parse_unit(text: str, channel: str, where: str = "") -> UnitExpr:
     m = _EXPR.match(text or "")
     if not m:
         raise UserError(
-            f"{prefix}cannot read unit {text!r} for channel {channel!r} "
+            f"{prefix}cannot read unit {quote(text)} for channel {channel!r} "
             "(expected [FACTOR*]UNIT[+OFFSET], e.g. kN, -1*N, -1*deg+90)"
         )
     unit = canonical_unit(m["unit"])
     if unit is None:
         raise UserError(
-            f"{prefix}unknown unit {m['unit']!r} for channel {channel!r}"
+            f"{prefix}unknown unit {quote(m['unit'], 40)} for channel {channel!r}"
             + suggest(m["unit"], UNITS)
             + f"; known: {', '.join(UNITS)}"
         )

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment.yamltree import LinedList, LinedMap, apply_override, parse
+from evo_door.files import read_text
 from evo_door.optim.ga import GASettings
 from evo_door.optim.kernels import KINDS
 from evo_door.optim.local import LocalSettings
@@ -599,9 +600,7 @@ def load_experiment(
         if path is None:
             raise ValueError("give path or text")
         p = Path(path)
-        if not p.is_file():
-            raise UserError(f"{path}: experiment file not found")
-        text = p.read_text()
+        text = read_text(p, "experiment file")
         source = source or str(path)
         base_dir = p.resolve().parent if base_dir is None else Path(base_dir)
     source = source or "<experiment>"

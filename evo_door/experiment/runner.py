@@ -17,6 +17,8 @@ are independent runs with AMESim's "seed value", as if started one after the oth
 from __future__ import annotations
 
 import json
+import os
+import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -28,8 +30,9 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.config import AlgorithmSpec
+from evo_door.experiment.results import bound_hits
 from evo_door.experiment.setup import Setup
-from evo_door.files import ATTRS, remove_stale_temporaries, write_h5
+from evo_door.files import ATTRS, FileLock, remove_stale_temporaries, write_h5
 from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
@@ -54,6 +57,107 @@ class Job:
     fit_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     validation_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     seconds: float = 0.0
+
+
+#: what a locked results file says to another process
+_LOCKED = "a run is writing it"
+
+
+def _refuse_to_replace(path: Path, overwrite: bool) -> None:
+    """An existing file at a new run's ``--out``: what it is and what to do instead."""
+    try:
+        status = store.peek(path)[ATTRS].get("status")
+    except UserError:
+        raise UserError(
+            f"{path}: exists and is not an evo-door results file; evo-door will not "
+            "replace it: give another --out"
+        ) from None
+    if overwrite:
+        return
+    if status == "complete":
+        raise UserError(
+            f"{path}: holds a complete run; give another --out, or --force to replace it"
+        )
+    raise UserError(
+        f"{path}: holds an interrupted run; continue it with evo-door resume {path}, "
+        "or give --force to start it over"
+    )
+
+
+def check_memory(algorithm: AlgorithmSpec, n_free: int, available=None) -> int:
+    """Refuse a run whose GA could not fit in memory; return the estimate (bytes).
+
+    A GA run keeps every generation's population and fitness (exact resume) and, per
+    generation, DEAP's individuals (Python lists of floats: ~56 + 32 bytes a gene,
+    offspring and clones included, counted three times over) and the results file's
+    copy while it is written. ``available`` (bytes) defaults to the memory the system
+    says is available.
+    """
+    ga = algorithm.ga
+    if algorithm.kind != "ga":
+        return 0
+    # one job in memory at a time, per_trial or not
+    history = (ga.generations + 1) * ga.population * (n_free + 1) * 8 * 2
+    live = 3 * ga.population * (200 + 32 * n_free)
+    need = history + live
+    available = _available_memory() if available is None else available
+    if available and need > 0.8 * available:
+        raise UserError(
+            f"algorithm.population {ga.population:,} x {ga.generations + 1} generations of "
+            f"{n_free} free parameters needs about {_gib(need)} of memory (every "
+            f"generation is kept for an exact resume); this machine has {_gib(available)} "
+            "available: lower population or generations"
+        )
+    return need
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
+
+
+def _available_memory() -> int:
+    """Bytes of memory available to a new allocation (0 when the system does not say)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 0
+
+
+class _TermAsInterrupt:
+    """While a run runs, SIGTERM stops it as Ctrl-C does, at the next checkpoint.
+
+    A batch system's time limit or a plain ``kill`` sends SIGTERM; the handler only
+    notes it (an exception raised inside a signal handler can land in a place that
+    swallows it, such as a weakref callback), and the run raises KeyboardInterrupt once
+    the current generation is on disk. A second SIGTERM gets the previous handler (by
+    default: die at once; the last checkpoint is whole either way).
+    """
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+
+    def __enter__(self) -> _TermAsInterrupt:
+        try:
+            self._previous = signal.signal(signal.SIGTERM, self._handle)
+        except ValueError:  # not the main thread: signals are not ours to take
+            self._previous = None
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        self.requested = True
+        signal.signal(signal.SIGTERM, self._previous or signal.SIG_DFL)
+
+    def __exit__(self, *exc) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGTERM, self._previous)
 
 
 def default_output(exp) -> Path:
@@ -109,32 +213,63 @@ class ExperimentRun:
         # previous checkpoint (a resumed run starts from a file that has them)
         self._trials_on_disk = False
         self._hook = None
+        self._lock: FileLock | None = None
+        self._term: _TermAsInterrupt | None = None
 
     # -- construction ------------------------------------------------------------------
     @classmethod
-    def create(cls, exp, out=None, trials=None) -> ExperimentRun:
-        """A new run of the checked experiment ``exp`` writing to ``out``."""
+    def create(cls, exp, out=None, trials=None, overwrite: bool = False) -> ExperimentRun:
+        """A new run of the checked experiment ``exp`` writing to ``out``.
+
+        The file is locked from here until :meth:`run` ends (:class:`FileLock`): no
+        other process can write it meanwhile. An existing results file at ``out`` is
+        replaced only with ``overwrite``; any other existing file never is.
+        """
         from evo_door.experiment.setup import resolve
 
         path = Path(out) if out else default_output(exp)
         if path.suffix.lower() not in (".h5", ".hdf5"):
             raise UserError(f"{path}: results files are HDF5, name them .h5")
-        setup = resolve(exp, trials)
-        run = cls(
-            exp.resolved(),
-            exp.algorithm,
-            setup,
-            path,
-            {"text": exp.text, "source": exp.source, "overrides": list(exp.overrides)},
-            store.versions(),
-            cls.now(),
-        )
-        run.checkpoint()
+        if not path.parent.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(path).acquire(_LOCKED)
+        try:
+            if path.exists():
+                _refuse_to_replace(path, overwrite)
+            setup = resolve(exp, trials)
+            check_memory(exp.algorithm, len(setup.free))
+            run = cls(
+                exp.resolved(),
+                exp.algorithm,
+                setup,
+                path,
+                {"text": exp.text, "source": exp.source, "overrides": list(exp.overrides)},
+                store.versions(),
+                cls.now(),
+            )
+            run._lock = lock
+            run.checkpoint()
+        except BaseException:
+            lock.release()
+            raise
         return run
 
     @classmethod
     def open(cls, path) -> ExperimentRun:
-        """Rebuild a run from its results file (to resume it)."""
+        """Rebuild a run from its results file (to resume it), locked like :meth:`create`."""
+        lock = FileLock(path).acquire(_LOCKED)
+        try:
+            run = cls._from_file(path)
+        except BaseException:
+            lock.release()
+            raise
+        run._lock = lock
+        if run.status == "complete":  # nothing will be written
+            run.release()
+        return run
+
+    @classmethod
+    def _from_file(cls, path) -> ExperimentRun:
         tree = store.read_tree(path)
         config = json.loads(tree["experiment"]["resolved"])
         algorithm = AlgorithmSpec.from_resolved(config["algorithm"])
@@ -195,6 +330,20 @@ class ExperimentRun:
         (raise :class:`Interrupted` there to simulate a kill).
         """
         self._hook = on_checkpoint
+        try:
+            with _TermAsInterrupt() as self._term:
+                self._run_jobs(progress)
+        finally:
+            self.release()
+        return self
+
+    def release(self) -> None:
+        """Let go of the results file's lock (done by :meth:`run` however it ends)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def _run_jobs(self, progress: bool) -> None:
         for job in self.jobs:
             if job.done:
                 continue
@@ -230,11 +379,25 @@ class ExperimentRun:
             job.validation_errors = problem.validation_errors(job.best_x)
             job.done = True
             job.seconds += time.perf_counter() - t0
+            if progress:
+                print(self._end_line(job), file=sys.stderr, flush=True)
             self._checkpoint_and_hook(job)
         self.status = "complete"
         self.result = self._results()
         self.checkpoint()
-        return self
+
+    def _end_line(self, job: Job) -> str:
+        """The progress display's last line for a job: its fitness, and any estimate
+        that a search bound stopped (the bound, not the data, decided it)."""
+        s = self.setup
+        hits = bound_hits(s.free, job.best_x, s.lower, s.upper)
+        line = f"{self._label(job)}: best fitness {job.best_fitness:.4g} {s.objective.unit}"
+        for name, side in hits.items():
+            i = s.free.index(name)
+            bound = s.upper[i] if side == "upper" else s.lower[i]
+            unit = s.model.params[name].unit
+            line += f"; ! {name} on its {side} search bound ({bound:g} {unit}): widen free.{name}"
+        return line
 
     def _label(self, job: Job) -> str:
         return self.config["name"] + (f" [{job.name}]" if self.per_trial else "")
@@ -266,6 +429,8 @@ class ExperimentRun:
         self.checkpoint()
         if self._hook is not None:
             self._hook(self, job)
+        if self._term is not None and self._term.requested:
+            raise KeyboardInterrupt  # after a checkpoint: resume starts right here
 
     # -- results -----------------------------------------------------------------------
     @property

@@ -331,6 +331,14 @@ def local_from_tree(node: dict) -> LocalResult:
 
 
 def best_tree(run) -> dict:
+    """``/best``: the run's answer, its errors, and the estimates a bound decided.
+
+    ``at_bound`` maps each free parameter within 0.1 % of its search range from a bound
+    to ``"lower"`` or ``"upper"`` (:func:`evo_door.experiment.results.bound_hits`).
+    """
+    # imported here: results reads files through this module, so it imports store first
+    from evo_door.experiment.results import bound_hits
+
     res = run.result
     fit_ids = [t.trial_id for t in run.setup.fit]
     val_ids = [t.trial_id for t in run.setup.validation]
@@ -350,6 +358,7 @@ def best_tree(run) -> dict:
             "validation_errors": validation,
             "param_names": list(run.setup.model.params.names),
             "meaning": "mean of the per-trial fits" if run.per_trial else "best of the run",
+            "at_bound": bound_hits(run.setup.free, res["best_x"], run.setup.lower, run.setup.upper),
         },
         "x": np.asarray(res["best_x"], dtype=np.float64),
         "full": np.asarray(res["full"], dtype=np.float64),

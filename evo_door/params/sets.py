@@ -34,7 +34,7 @@ import numpy as np
 import yaml
 
 from evo_door.errors import ParameterError, UserError
-from evo_door.files import write_text
+from evo_door.files import read_text, write_text
 from evo_door.params.declaration import ParamTable, suggest
 from evo_door.yaml_numbers import format_float
 from evo_door.yaml_numbers import load as load_yaml
@@ -169,8 +169,8 @@ def _for_other_model(path: Path, model: str) -> bool:
     """True when a YAML file says ``model: <another one>`` (unreadable files: False,
     so that loading them reports what is wrong)."""
     try:
-        doc = load_yaml(path.read_text())
-    except (OSError, yaml.YAMLError):
+        doc = load_yaml(read_text(path))
+    except (UserError, yaml.YAMLError):
         return False
     return isinstance(doc, dict) and doc.get("model", model) != model
 
@@ -240,7 +240,7 @@ def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
             raise UserError(f"{spec}: parameter file not found")
         path = preset_path(table.model, str(spec), preset_dirs)
     try:
-        doc = load_yaml(path.read_text())
+        doc = load_yaml(read_text(path, "parameter file"))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" line {mark.line + 1}" if mark else ""

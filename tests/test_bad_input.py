@@ -1,0 +1,288 @@
+"""Every command against every kind of bad input: one line, exit 2, nothing left behind.
+
+Each case runs ``evo-door ARGS`` in-process on a workspace of good and bad files and
+checks what a user sees: exit status 2, exactly one line on stderr that starts with
+``evo-door: error:`` and names the file or option at fault, no traceback, and the
+workspace unchanged, byte for byte (no new file, no temporary, no lock file, no
+half-written output).
+"""
+
+import hashlib
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from evo_door.data import write_trials
+from evo_door.experiment import load_experiment, run_experiment
+from tests.test_cli import cli
+from tests.test_experiment import EXPERIMENT
+from tests.test_optim import make_trial
+
+PNG = b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4
+
+
+def _readonly_folder(tmp: Path) -> Path:
+    """A folder nobody may write in: chmod 555, or, for root (who ignores modes), /sys."""
+    if os.geteuid() != 0:
+        folder = tmp / "ro"
+        folder.mkdir()
+        folder.chmod(0o555)
+        return folder
+    folder = Path("/sys")
+    if not folder.is_dir() or os.access(folder, os.W_OK) and _writable(folder):
+        pytest.skip("no read-only folder on this machine")
+    return folder
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        (folder / ".evo-door-probe").touch()
+    except OSError:
+        return False
+    (folder / ".evo-door-probe").unlink()
+    return True
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory):
+    """The workspace: an experiment, trials, a complete run and assorted bad files."""
+    w = tmp_path_factory.mktemp("ws")
+    trials = [make_trial(s, 0.75, tid=f"t{s}") for s in (1, 2, 3)] + [make_trial(4, 0.75, tid="v1")]
+    write_trials(w / "trials.h5", trials)
+    (w / "exp.yaml").write_text(EXPERIMENT)
+    exp = load_experiment(w / "exp.yaml", ["algorithm.generations=2", "algorithm.polish=none"])
+    run_experiment(exp, out=w / "run.h5")
+    t = np.arange(64) / 1024
+    (w / "force.csv").write_text("t,force\n" + "".join(f"{a:.8f},1.0\n" for a in t))
+    (w / "picture.png").write_bytes(PNG)
+    (w / "afile").write_text("a file, not a folder\n")
+    (w / "folder").mkdir()
+    data = (w / "run.h5").read_bytes()
+    (w / "truncated.h5").write_bytes(data[: len(data) // 2])
+    (w / "truncated.yaml").write_text("model: door\nvalues:\n  M: [1.0,\n")
+    (w / "truncated.csv").write_text("t,force\n0.0,1.0\n0.0009765625,")
+    # a damaged compressed chunk inside an otherwise sound trial file
+    shutil.copy(w / "trials.h5", w / "corrupt.h5")
+    with h5py.File(w / "corrupt.h5") as f:
+        ds = f["trials/t1/dtheta"]
+        info = ds.id.get_chunk_info(0)
+    with open(w / "corrupt.h5", "r+b") as fh:
+        fh.seek(info.byte_offset + 16)
+        fh.write(b"\xff" * 64)
+    (w / "ro").mkdir()  # replaced by a truly read-only folder per test when not root
+    return w
+
+
+def snapshot(folder: Path) -> dict:
+    return {
+        str(p.relative_to(folder)): hashlib.sha1(p.read_bytes()).hexdigest()
+        if p.is_file()
+        else "dir"
+        for p in sorted(folder.rglob("*"))
+    }
+
+
+#: (command line, what the error must name). {w}: the workspace; {ro}: a read-only folder.
+CASES = {
+    # params
+    "params: missing file": ("params door --params {w}/missing.yaml", "missing.yaml"),
+    "params: binary (results file)": ("params door --params {w}/run.h5", "run.h5: binary"),
+    "params: binary (picture)": ("params door --params {w}/picture.png", "picture.png: binary"),
+    "params: truncated YAML": ("params door --params {w}/truncated.yaml", "truncated.yaml"),
+    "params: out of range": ("params door --set M=1e9", "'M'"),
+    "params: read-only target": ("params door --write {ro}/p.yaml", "p.yaml"),
+    "params: file as folder": ("params door --write {w}/afile/p.yaml", "afile"),
+    # simulate
+    "simulate: missing input": (
+        "simulate door --input {w}/missing.csv --out {w}/o.csv",
+        "missing.csv",
+    ),
+    "simulate: results file as input": (
+        "simulate door --input {w}/run.h5 --out {w}/o.csv",
+        "run.h5",
+    ),
+    "simulate: binary input": ("simulate door --input {w}/picture.png --out {w}/o.csv", "png"),
+    "simulate: truncated input": (
+        "simulate door --input {w}/truncated.csv --out {w}/o.csv",
+        "truncated.csv",
+    ),
+    "simulate: read-only target": (
+        "simulate door --input {w}/force.csv --out {ro}/o.csv",
+        "o.csv",
+    ),
+    "simulate: file as folder": (
+        "simulate door --input {w}/force.csv --out {w}/afile/o.csv",
+        "afile",
+    ),
+    "simulate: theta0 out of range": (
+        "simulate door --input {w}/force.csv --theta0 10 --out {w}/o.csv",
+        "--theta0",
+    ),
+    "simulate: substeps 0": (
+        "simulate door --input {w}/force.csv --substeps 0 --out {w}/o.csv",
+        "--substeps",
+    ),
+    # curve
+    "curve: unsupported image": (
+        "curve door --out {w}/c.csv --plot {w}/c.jpg2",
+        "c.jpg2",
+    ),
+    "curve: read-only target": ("curve door --out {ro}/c.csv", "c.csv"),
+    "curve: file as folder": ("curve door --out {w}/afile/c.csv", "afile"),
+    "curve: no points": ("curve door --points 0 --out {w}/c.csv", "--points"),
+    # draw
+    "draw: not an image": ("draw door --out {w}/d.txt", "d.txt"),
+    "draw: read-only target": ("draw door --out {ro}/d.png", "d.png"),
+    "draw: bad angles": ("draw door --angles 0,abc --out {w}/d.png", "--angles"),
+    # rig
+    "rig: read-only target": ("rig generate --model door --trials 1 --out {ro}/t.h5", "t.h5"),
+    "rig: file as folder": (
+        "rig generate --model door --trials 1 --out {w}/afile/t.h5",
+        "afile",
+    ),
+    "rig: no trials": ("rig generate --model door --trials 0 --out {w}/t.h5", "--trials"),
+    "rig: binary parameter file": (
+        "rig generate --model door --params {w}/run.h5 --out {w}/t.h5",
+        "run.h5",
+    ),
+    # data import
+    "data import: results file": ("data import {w}/run.h5 --out {w}/x.h5", "run.h5"),
+    "data import: missing": ("data import {w}/missing.csv --out {w}/x.h5", "missing.csv"),
+    "data import: picture": ("data import {w}/picture.png --out {w}/x.h5", "picture.png"),
+    "data import: truncated HDF5": ("data import {w}/truncated.h5 --out {w}/x.h5", "truncated.h5"),
+    "data import: corrupt chunk": ("data import {w}/corrupt.h5 --out {w}/x.h5", "corrupt.h5"),
+    "data import: read-only target": ("data import {w}/trials.h5 --out {ro}/x.h5", "x.h5"),
+    "data import: file as folder": ("data import {w}/trials.h5 --out {w}/afile/x.h5", "afile"),
+    # data show
+    "data show: results file": ("data show {w}/run.h5", "run.h5"),
+    "data show: corrupt chunk": ("data show {w}/corrupt.h5", "corrupt.h5"),
+    "data show: truncated": ("data show {w}/truncated.h5", "truncated.h5"),
+    "data show: unsupported image": ("data show {w}/trials.h5 --plot {w}/x.jpg2", "x.jpg2"),
+    "data show: read-only plot": ("data show {w}/trials.h5 --plot {ro}/x.png", "x.png"),
+    # run
+    "run: missing experiment": ("run {w}/missing.yaml --out {w}/r.h5", "missing.yaml"),
+    "run: results file as experiment": ("run {w}/run.h5 --out {w}/r.h5", "run.h5: binary"),
+    "run: picture as experiment": ("run {w}/picture.png --out {w}/r.h5", "picture.png"),
+    "run: file as folder": ("run {w}/exp.yaml --out {w}/afile/r.h5", "afile"),
+    "run: read-only target": ("run {w}/exp.yaml --out {ro}/r.h5", "r.h5"),
+    "run: /proc target": ("run {w}/exp.yaml --out /proc/r.h5", "/proc/r.h5"),
+    "run: complete run at --out": ("run {w}/exp.yaml --out {w}/run.h5", "--force"),
+    "run: results file as target data": (
+        "run {w}/exp.yaml --set target.data={w}/run.h5 --out {w}/r.h5",
+        "run.h5",
+    ),
+    "run: corrupt target data": (
+        "run {w}/exp.yaml --set target.data={w}/corrupt.h5 --out {w}/r.h5",
+        "corrupt.h5",
+    ),
+    "run: population beyond memory": (
+        "run {w}/exp.yaml --set algorithm.population=1e9 --out {w}/r.h5",
+        "algorithm.population",
+    ),
+    # show, runs, resume
+    "show: missing": ("show {w}/missing.h5", "missing.h5"),
+    "show: trials, not a run": ("show {w}/trials.h5", "trials.h5"),
+    "show: picture": ("show {w}/picture.png", "picture.png"),
+    "show: truncated": ("show {w}/truncated.h5", "truncated.h5"),
+    "show: plot to a folder": ("show {w}/run.h5 --plot {w}/folder", "folder"),
+    "show: unsupported image": ("show {w}/run.h5 --plot {w}/f.jpg2", "f.jpg2"),
+    "show: read-only plot": ("show {w}/run.h5 --plot {ro}/f.png", "f.png"),
+    "show: convergence to an unsupported image": (
+        "show {w}/run.h5 --convergence {w}/c.jpg2",
+        "c.jpg2",
+    ),
+    "compare: one run only": ("compare {w}/run.h5", "compare"),
+    "compare: a missing run": ("compare {w}/run.h5 {w}/missing.h5", "missing.h5"),
+    "compare: trials, not a run": ("compare {w}/run.h5 {w}/trials.h5", "trials.h5"),
+    "compare: a picture": ("compare {w}/run.h5 {w}/picture.png", "picture.png"),
+    "runs: missing folder": ("runs {w}/nowhere", "nowhere"),
+    "runs: a file": ("runs {w}/afile", "afile"),
+    "resume: missing": ("resume {w}/missing.h5", "missing.h5"),
+    "resume: trials, not a run": ("resume {w}/trials.h5", "trials.h5"),
+    "resume: truncated": ("resume {w}/truncated.h5", "truncated.h5"),
+    "resume: picture": ("resume {w}/picture.png", "picture.png"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_every_command_refuses_bad_input_in_one_line(case, ws, tmp_path, capsys):
+    command, names = CASES[case]
+    ro = _readonly_folder(tmp_path)
+    before = snapshot(ws)
+    args = command.format(w=ws, ro=ro).split()
+    res = cli(capsys, *args)
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("evo-door: error: "), res.stderr
+    assert "Traceback" not in res.stderr
+    assert names in lines[0], lines[0]
+    assert len(lines[0]) <= 400
+    assert snapshot(ws) == before
+    if ro.is_relative_to(tmp_path):
+        assert list(ro.iterdir()) == []
+
+
+def test_evo_door_alone_shows_the_usage_and_exits_2(capsys):
+    res = cli(capsys)
+    assert res.returncode == 2 and "usage: evo-door" in res.stderr and res.stdout == ""
+
+
+def test_a_complete_run_is_replaced_only_with_force(ws, tmp_path, capsys):
+    out = tmp_path / "r.h5"
+    shutil.copy(ws / "run.h5", out)
+    before = out.read_bytes()
+    assert cli(capsys, "run", ws / "exp.yaml", "--out", out, "--quiet").returncode == 2
+    assert out.read_bytes() == before
+    forced = cli(capsys, "run", ws / "exp.yaml", "--out", out, "--quiet", "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert out.read_bytes() != before
+    # never a file that is not a results file, --force or not
+    (tmp_path / "trials.h5").write_bytes((ws / "trials.h5").read_bytes())
+    res = cli(capsys, "run", ws / "exp.yaml", "--out", tmp_path / "trials.h5", "--force")
+    assert res.returncode == 2 and "not an evo-door results file" in res.stderr
+
+
+def test_one_writer_per_results_file_and_sigterm_leaves_a_resumable_run(ws, tmp_path, capsys):
+    """A run owns its file: a second run or a resume is refused while it runs; SIGTERM
+    stops it like Ctrl-C, with the last generation on disk and the lock gone."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from evo_door.experiment import Results
+    from evo_door.files import FileLock
+
+    out = tmp_path / "long.h5"
+    cmd = [sys.executable, "-m", "evo_door", "run", str(ws / "exp.yaml"), "--out", str(out)]
+    cmd += ["--set", "algorithm.generations=100000", "--set", "algorithm.polish=none"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while FileLock.holder(out) != proc.pid or not out.exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.05)
+        second = cli(capsys, "run", ws / "exp.yaml", "--out", out, "--force")
+        assert second.returncode == 2
+        assert f"a run is writing it (process {proc.pid})" in second.stderr
+        resumed = cli(capsys, "resume", out)
+        assert resumed.returncode == 2 and f"process {proc.pid}" in resumed.stderr
+        proc.send_signal(signal.SIGTERM)
+        try:
+            _, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise AssertionError(proc.communicate()) from None
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and f"evo-door resume {out}" in err
+    assert FileLock.holder(out) is None and not any(
+        p.name.startswith(".") for p in tmp_path.iterdir()
+    )
+    # the last finished generation is on disk, whole, ready for `evo-door resume`
+    res = Results(out)
+    assert res.attrs["status"] == "running" and res.attrs["generations_done"][0] >= 0
