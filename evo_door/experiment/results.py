@@ -201,7 +201,7 @@ class Results:
 
     def units(self) -> dict[str, str]:
         """Parameter name -> unit, from the model's declaration ({} if it cannot load)."""
-        return {} if self.model is None else {p.name: p.unit for p in self.model.params}
+        return _units(self.attrs["model"])
 
     @property
     def fitness_unit(self) -> str:
