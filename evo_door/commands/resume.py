@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from evo_door.commands._common import add_progress_arguments, show_progress
+
 ORDER = 41
 
 
@@ -12,17 +14,11 @@ def register(sub) -> None:
         "resume", help="continue an interrupted run; ends as an uninterrupted one would"
     )
     p.add_argument("results", metavar="RUN.h5", help="results file of the interrupted run")
-    p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    p.add_argument(
-        "--progress",
-        action="store_true",
-        help="show the progress bar even when stderr is not a terminal (logs, CI)",
-    )
+    add_progress_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from evo_door.commands.run import show_progress
     from evo_door.experiment import Results
     from evo_door.experiment.results import format_show
     from evo_door.experiment.runner import ExperimentRun

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from evo_door.commands._common import add_progress_arguments, show_progress
+
 ORDER = 40
 
 
@@ -26,12 +28,7 @@ def register(sub) -> None:
         action="store_true",
         help="replace an existing results file at --out (a complete or interrupted run)",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
-    p.add_argument(
-        "--progress",
-        action="store_true",
-        help="show the progress bar even when stderr is not a terminal (logs, CI)",
-    )
+    add_progress_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -60,10 +57,3 @@ def run(args) -> int:
     if not args.quiet:
         print(format_show(Results(job.path)))
     return 0
-
-
-def show_progress(args) -> bool:
-    """The progress bar: never with --quiet, always with --progress, else on a terminal."""
-    if args.quiet:
-        return False
-    return bool(args.progress or sys.stderr.isatty())
