@@ -25,8 +25,15 @@ RESPONSE_CHANNELS = ("theta", "dtheta", "ddtheta")
 UNITS = {name: unit for name, (unit, _) in CHANNELS.items()}
 
 
-def unit(channel: str) -> str:
-    """The SI unit of ``channel``."""
+def unit(channel: str, theta_unit: str = "rad") -> str:
+    """The SI unit of ``channel``; the response channels of a model whose coordinate is
+    not an angle (a drawer's stroke, ``theta_unit="m"``) take that unit.
+
+    >>> unit("ddtheta"), unit("dtheta", theta_unit="m"), unit("force", theta_unit="m")
+    ('rad/s^2', 'm/s', 'N')
+    """
+    if channel in RESPONSE_CHANNELS and theta_unit != "rad":
+        return theta_unit + ("", "/s", "/s^2")[RESPONSE_CHANNELS.index(channel)]
     return CHANNELS[channel][0]
 
 

@@ -124,6 +124,8 @@ def test_drawer_example_round_trip(tmp_path, monkeypatch):
         assert best[name] == pytest.approx(true, rel=0.03), (name, best[name])
     # the rig's true values score the fit, though the run names its model by file path
     assert summary["truth"] == pytest.approx(TRUTH)
+    # a stroke in metres: the fitness is in (m/s)^2 s, not (rad/s)^2 s
+    assert summary["fitness_unit"] == "(m/s)^2 s"
 
 
 def test_file_model_loads_once_and_finds_the_presets_beside_it(monkeypatch, capsys):

@@ -143,8 +143,20 @@ def _units(model_name: str) -> dict[str, str]:
     return {n: p.unit for n, p in _declared(model_name).items()}
 
 
-def _objective_unit(obj: dict) -> str:
-    return Objective(obj["kind"], obj["derivative"], obj["combine"]).unit
+@functools.cache
+def _theta_unit(model_name: str) -> str:
+    """The unit of a run's model coordinate (``rad`` when the model cannot be loaded)."""
+    from evo_door.models import get_model
+
+    try:
+        return get_model(model_name).theta_unit
+    except UserError:
+        return "rad"
+
+
+def _objective_unit(obj: dict, model_name: str = "") -> str:
+    objective = Objective(obj["kind"], obj["derivative"], obj["combine"])
+    return objective.unit_for(_theta_unit(model_name)) if model_name else objective.unit
 
 
 def _objective_text(obj: dict) -> str:
@@ -205,7 +217,7 @@ class Results:
 
     @property
     def fitness_unit(self) -> str:
-        return _objective_unit(self.config["objective"])
+        return _objective_unit(self.config["objective"], self.attrs["model"])
 
     def jobs(self) -> list[dict]:
         keys = sorted((k for k in self.tree["jobs"] if k != A), key=int)
@@ -580,7 +592,7 @@ def list_runs(folder) -> list[dict]:
                 "progress": _progress(a, cfg),
                 "objective": cfg["objective"],
                 "fitness": _num(fitness),
-                "fitness_unit": _objective_unit(cfg["objective"]),
+                "fitness_unit": _objective_unit(cfg["objective"], a.get("model", "")),
                 "values": values,
                 "units": _units(a.get("model", "")),
                 "at_bound": at_bound,
@@ -940,7 +952,7 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
             fontsize=9,
         )
         ax.set_xlabel("t [s]")
-        ax.set_ylabel(f"{channel} [{unit(channel)}]")
+        ax.set_ylabel(f"{channel} [{unit(channel, _theta_unit(res.attrs['model']))}]")
         ax.grid(alpha=0.3)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")

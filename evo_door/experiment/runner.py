@@ -391,7 +391,8 @@ class ExperimentRun:
         that a search bound stopped (the bound, not the data, decided it)."""
         s = self.setup
         hits = bound_hits(s.free, job.best_x, s.lower, s.upper)
-        line = f"{self._label(job)}: best fitness {job.best_fitness:.4g} {s.objective.unit}"
+        funit = s.objective.unit_for(s.model.theta_unit)
+        line = f"{self._label(job)}: best fitness {job.best_fitness:.4g} {funit}"
         for name, side in hits.items():
             i = s.free.index(name)
             bound = s.upper[i] if side == "upper" else s.lower[i]

@@ -57,7 +57,12 @@ class Objective:
 
     @property
     def unit(self) -> str:
-        return f"({unit(self.channel)})^2" + (" s" if self.kind == "ise" else "")
+        """The fitness unit for an angle coordinate: ``(rad/s)^2 s`` for ISE on speed."""
+        return self.unit_for("rad")
+
+    def unit_for(self, theta_unit: str) -> str:
+        """The fitness unit for a model whose coordinate is in ``theta_unit``."""
+        return f"({unit(self.channel, theta_unit)})^2" + (" s" if self.kind == "ise" else "")
 
     def combine_errors(self, errors: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """Fitness per row of ``errors`` (n_candidates, n_trials); inf where any trial blew up."""
