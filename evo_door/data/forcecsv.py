@@ -49,18 +49,9 @@ def read_force(path, *, map=None, rate=None, trial=None) -> Trial:
             f"--map {mapping[unused[0]]}: a simulation's input is t and force only; "
             f"channel {unused[0]!r} is not read"
         )
-    from evo_door.data.io import file_format, read_trial
+    from evo_door.data.io import read_trial
 
-    if file_format(path) == "csv":
-        from evo_door.data.csvio import read_csv
-
-        found = read_csv(path, mapping, rate, channels=INPUT_CHANNELS)
-        if trial not in (None, found.trial_id, 0, -1):
-            raise UserError(
-                f"{path}: no trial {trial!r}; a CSV file holds one trial ({found.trial_id!r})"
-            )
-    else:
-        found = read_trial(path, trial, map=mapping, rate=rate)
+    found = read_trial(path, trial, map=mapping, rate=rate, channels=INPUT_CHANNELS)
     return found.replace(theta=None, dtheta=None, ddtheta=None)
 
 

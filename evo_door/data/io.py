@@ -42,7 +42,7 @@ def file_format(path) -> str:
     )
 
 
-def read_trials(path, trials="all", *, map=None, rate=None, **fields) -> list[Trial]:
+def read_trials(path, trials="all", *, map=None, rate=None, channels=None, **fields) -> list[Trial]:
     """Read trials from a file, checked, in SI.
 
     Parameters
@@ -58,6 +58,9 @@ def read_trials(path, trials="all", *, map=None, rate=None, **fields) -> list[Tr
     rate : float, optional
         Expected sampling rate in Hz: a file at another rate is an error; builds the
         time axis for files without one.
+    channels : sequence of str, optional
+        Take only these channels of a CSV file (its other columns are not read, so
+        they may hold anything); other formats read every channel.
     **fields
         Trial fields to set on every trial read (``user_id="U2"``, ``kind="impulse"``,
         ``theta0=1.5708``...), overriding the file's metadata.
@@ -81,7 +84,7 @@ def read_trials(path, trials="all", *, map=None, rate=None, **fields) -> list[Tr
         return read_tdms(path, trials, mapping, rate, fields)
     from evo_door.data.csvio import read_csv
 
-    trial = read_csv(path, mapping, rate, fields)
+    trial = read_csv(path, mapping, rate, fields, **({"channels": channels} if channels else {}))
     if trials not in (None, "all"):
         wanted = [trials] if isinstance(trials, (str, int)) else list(trials)
         for w in wanted:
