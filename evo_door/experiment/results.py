@@ -126,32 +126,33 @@ def _progress(attrs: dict, config: dict) -> str:
 
 
 @functools.cache
-def _declared(model_name: str) -> dict:
-    """Parameter name -> declaration of a run's model ({} when it cannot be loaded).
+def _model(model_name: str):
+    """A run's model, or None where it cannot be loaded (a user model file moved away).
 
     Cached: ``runs`` lists many files of few models, and a model is loaded once.
     """
     from evo_door.models import get_model
 
     try:
-        return {p.name: p for p in get_model(model_name).params}
-    except UserError:  # a user model file moved away: values without units
-        return {}
+        return get_model(model_name)
+    except UserError:
+        return None
+
+
+def _declared(model_name: str) -> dict:
+    """Parameter name -> declaration of a run's model ({}: values without units)."""
+    model = _model(model_name)
+    return {} if model is None else {p.name: p for p in model.params}
 
 
 def _units(model_name: str) -> dict[str, str]:
     return {n: p.unit for n, p in _declared(model_name).items()}
 
 
-@functools.cache
 def _theta_unit(model_name: str) -> str:
     """The unit of a run's model coordinate (``rad`` when the model cannot be loaded)."""
-    from evo_door.models import get_model
-
-    try:
-        return get_model(model_name).theta_unit
-    except UserError:
-        return "rad"
+    model = _model(model_name)
+    return "rad" if model is None else model.theta_unit
 
 
 def _objective_unit(obj: dict, model_name: str = "") -> str:
@@ -183,15 +184,10 @@ class Results:
         self.attrs = self.tree[A]
         self.config = json.loads(self.tree["experiment"]["resolved"])
 
-    @functools.cached_property
+    @property
     def model(self):
         """The run's model, or None where it cannot be loaded (a user file moved away)."""
-        from evo_door.models import get_model
-
-        try:
-            return get_model(self.attrs["model"])
-        except UserError:
-            return None
+        return _model(self.attrs["model"])
 
     @property
     def complete(self) -> bool:
