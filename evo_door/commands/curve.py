@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import math
 import os
-from pathlib import Path
 
 import numpy as np
 
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.errors import UserError
-from evo_door.files import check_folder, save_figure, write_text
+from evo_door.files import check_folder, check_image_path, save_figure, write_text
 from evo_door.sim import quasi_static_curve
 
 ORDER = 30
@@ -61,16 +60,8 @@ def _check_options(args) -> None:
         if not os.access(folder, os.W_OK):
             raise UserError(f"{target}: cannot write in {folder}")
     if args.plot:
-        from matplotlib.figure import Figure
-
         # the CSV is written first: a plot that cannot be made must not leave it behind
-        fmt = Path(args.plot).suffix.lower().lstrip(".")
-        supported = Figure().canvas.get_supported_filetypes()
-        if fmt not in supported:
-            raise UserError(
-                f"{args.plot}: cannot write a {fmt or 'extension-less'} image; "
-                f"use one of {', '.join('.' + k for k in sorted(supported))}"
-            )
+        check_image_path(args.plot)
 
 
 def run(args) -> int:
