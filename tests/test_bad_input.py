@@ -191,6 +191,10 @@ CASES = {
     "show: plot to a folder": ("show {w}/run.h5 --plot {w}/folder", "folder"),
     "show: unsupported image": ("show {w}/run.h5 --plot {w}/f.jpg2", "f.jpg2"),
     "show: read-only plot": ("show {w}/run.h5 --plot {ro}/f.png", "f.png"),
+    "show: a good plot and a bad convergence image": (
+        "show {w}/run.h5 --plot {w}/f.png --convergence {w}/c.jpg2",
+        "c.jpg2",
+    ),
     "show: convergence to an unsupported image": (
         "show {w}/run.h5 --convergence {w}/c.jpg2",
         "c.jpg2",

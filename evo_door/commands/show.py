@@ -28,8 +28,14 @@ def register(sub) -> None:
 def run(args) -> int:
     from evo_door.experiment import Results
     from evo_door.experiment.results import format_show, plot_convergence, plot_fit
+    from evo_door.files import check_image_path
 
     res = Results(args.results)
+    # both image names checked before either figure is written: a bad second one must
+    # not leave the first behind
+    for target in (args.plot, args.convergence):
+        if target:
+            check_image_path(target)
     # figures first: a figure that cannot be written stops before anything is printed
     if args.plot:
         plot_fit(res, args.plot)
