@@ -290,3 +290,25 @@ def test_one_writer_per_results_file_and_sigterm_leaves_a_resumable_run(ws, tmp_
     # the last finished generation is on disk, whole, ready for `evo-door resume`
     res = Results(out)
     assert res.attrs["status"] == "running" and res.attrs["generations_done"][0] >= 0
+
+
+def test_a_run_that_cannot_start_leaves_no_folder_it_made(ws, tmp_path, capsys):
+    out = tmp_path / "new" / "deeper" / "r.h5"
+    res = cli(capsys, "run", ws / "exp.yaml", "--set", f"target.data={ws}/corrupt.h5", "--out", out)
+    assert res.returncode == 2 and "corrupt.h5" in res.stderr
+    assert list(tmp_path.iterdir()) == []
+    # a folder that was there stays, with what it held
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "notes.txt").write_text("mine")
+    res = cli(
+        capsys,
+        "run",
+        ws / "exp.yaml",
+        "--set",
+        f"target.data={ws}/corrupt.h5",
+        "--out",
+        tmp_path / "kept" / "r.h5",
+    )
+    assert res.returncode == 2 and sorted(p.name for p in (tmp_path / "kept").iterdir()) == [
+        "notes.txt"
+    ]

@@ -230,8 +230,9 @@ class ExperimentRun:
         path = Path(out) if out else default_output(exp)
         if path.suffix.lower() not in (".h5", ".hdf5"):
             raise UserError(f"{path}: results files are HDF5, name them .h5")
-        if not path.parent.exists():
-            path.parent.mkdir(parents=True, exist_ok=True)
+        # the folders this run makes, deepest first: removed again if it cannot start
+        made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
+        path.parent.mkdir(parents=True, exist_ok=True)
         lock = FileLock(path).acquire(_LOCKED)
         try:
             if path.exists():
@@ -251,6 +252,11 @@ class ExperimentRun:
             run.checkpoint()
         except BaseException:
             lock.release()
+            for folder in made:
+                try:
+                    folder.rmdir()  # only if empty: never what someone else put there
+                except OSError:
+                    break
             raise
         return run
 
