@@ -473,15 +473,27 @@ class Keep:
         self.build = build
 
 
-def write_group(group, tree: dict, compression: int = 1, compress_above: int = 4096) -> None:
-    """Write ``tree`` (see the module docstring) into an open HDF5 group."""
+def write_group(
+    group, tree: dict, compression: int = 1, compress_above: int = 4096, keep=None
+) -> None:
+    """Write ``tree`` (see the module docstring) into an open HDF5 group.
+
+    :class:`Keep` entries, at any depth, are appended to ``keep`` as (HDF5 path,
+    placeholder) for :func:`write_h5` to copy; without ``keep`` they are built.
+    """
     h5 = h5py()
     for key, value in tree.items():
         if key == ATTRS:
             write_attrs(group, value)
-        elif isinstance(value, dict):
+            continue
+        if isinstance(value, Keep):
+            if keep is not None:
+                keep.append((f"{group.name.rstrip('/')}/{key}", value))
+                continue
+            value = value.build()
+        if isinstance(value, dict):
             write_group(
-                group.create_group(key, track_order=True), value, compression, compress_above
+                group.create_group(key, track_order=True), value, compression, compress_above, keep
             )
         elif isinstance(value, str):
             group.create_dataset(key, data=value, dtype=h5.string_dtype())
@@ -521,21 +533,16 @@ def write_h5(
 ) -> None:
     """Write ``tree`` as the HDF5 file ``path``, atomically.
 
-    Top-level :class:`Keep` entries are copied from the file being replaced when it
-    has them (and built otherwise). ``compression`` is the gzip level of datasets of at
-    least ``compress_above`` elements.
+    :class:`Keep` entries (at any depth) are copied from the same place in the file
+    being replaced when it has them, and built otherwise. ``compression`` is the gzip
+    level of datasets of at least ``compress_above`` elements.
     """
     h5 = h5py()
     path = Path(path)
-    keep = {k: v for k, v in tree.items() if isinstance(v, Keep)}
+    keep: list = []
     with atomic_write(path, make_folder=make_folder) as tmp:
         with h5.File(tmp, "w", track_order=True) as f:
-            write_group(
-                f,
-                {k: v for k, v in tree.items() if not isinstance(v, Keep)},
-                compression,
-                compress_above,
-            )
+            write_group(f, tree, compression, compress_above, keep)
             old = None
             if keep and path.is_file():
                 try:
@@ -543,12 +550,14 @@ def write_h5(
                 except OSError:
                     old = None
             try:
-                for key, placeholder in keep.items():
-                    if old is not None and key in old:
-                        old.copy(old[key], f, name=key)
+                for name, placeholder in keep:
+                    parent, _, key = name.rpartition("/")
+                    target = f[parent or "/"]
+                    if old is not None and name in old:
+                        old.copy(old[name], target, name=key)
                     else:
                         write_group(
-                            f.create_group(key, track_order=True),
+                            target.create_group(key, track_order=True),
                             placeholder.build(),
                             compression,
                             compress_above,

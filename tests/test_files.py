@@ -158,6 +158,13 @@ def test_trees_round_trip_and_keep_copies_the_old_group(tmp_path):
     files.write_h5(tmp_path / "new.h5", {"g": Keep(lambda: {"z": np.zeros(2)})})
     with h5py.File(tmp_path / "new.h5") as f:
         assert f["g/z"].shape == (2,)
+    # at any depth: a stage of a pipeline keeps its trials while its sibling changes
+    files.write_h5(path, {"s": {"a": {"t": np.arange(5.0)}, "b": {"x": 1.0}}})
+    files.write_h5(
+        path, {"s": {"a": {"t": Keep(lambda: pytest.fail("must copy"))}, "b": {"x": 2.0}}}
+    )
+    with h5py.File(path) as f:
+        assert f["s/a/t"][()].tolist() == [0, 1, 2, 3, 4] and f["s/b/x"][()] == 2.0
 
 
 # -- files written before the consolidation -------------------------------------------

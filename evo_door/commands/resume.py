@@ -19,10 +19,12 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from evo_door.experiment import Results
+    from evo_door.experiment import Results, store
     from evo_door.experiment.results import format_show
     from evo_door.experiment.runner import ExperimentRun
 
+    if store.pipeline_attrs(args.results) is not None:
+        return resume_pipeline(args)
     job = ExperimentRun.open(args.results)
     if job.status == "complete":
         print(f"{args.results}: already complete, nothing to do")
@@ -41,3 +43,17 @@ def run(args) -> int:
     if not args.quiet:
         print(format_show(Results(job.path)))
     return 0
+
+
+def resume_pipeline(args) -> int:
+    from evo_door.commands.run import finish_pipeline
+    from evo_door.experiment.pipeline import PipelineRun
+
+    job = PipelineRun.open(args.results)
+    if job.status == "complete":
+        print(f"{args.results}: already complete, nothing to do")
+        return 0
+    if not args.quiet:
+        where = job.current.config["name"] if job.current else "the next stage"
+        print(f"{args.results}: resuming pipeline {job.pipeline.name} at stage {where}")
+    return finish_pipeline(job, args)

@@ -34,9 +34,12 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from evo_door.experiment import Results, load_experiment
+    from evo_door.experiment.pipeline import is_pipeline
     from evo_door.experiment.results import format_show
     from evo_door.experiment.runner import ExperimentRun
 
+    if is_pipeline(args.experiment):
+        return run_pipeline(args)
     exp = load_experiment(args.experiment, args.assignments)
     job = ExperimentRun.create(exp, args.out, overwrite=args.force)
     if not args.quiet:
@@ -45,15 +48,56 @@ def run(args) -> int:
             f"{len(job.setup.validation)} validation trial(s), free: "
             f"{', '.join(job.setup.free)}; writing {job.path}"
         )
-    try:
-        job.run(progress=show_progress(args))
-    except KeyboardInterrupt:
-        print(
-            f"evo-door: interrupted; {job.path} holds the last finished generation: "
-            f"evo-door resume {job.path}",
-            file=sys.stderr,
-        )
+    if not interruptible(job, args, "the last finished generation"):
         return 130
     if not args.quiet:
         print(format_show(Results(job.path)))
     return 0
+
+
+def interruptible(job, args, holds: str) -> bool:
+    """Run ``job``; False (and what to do, on stderr) when Ctrl-C or SIGTERM stopped it."""
+    try:
+        job.run(progress=show_progress(args))
+    except KeyboardInterrupt:
+        print(
+            f"evo-door: interrupted; {job.path} holds {holds}: evo-door resume {job.path}",
+            file=sys.stderr,
+        )
+        return False
+    return True
+
+
+def run_pipeline(args) -> int:
+    """A pipeline file: every stage, one results file (evo_door.experiment.pipeline)."""
+    from evo_door.experiment.pipeline import PipelineRun, load_pipeline
+
+    pipe = load_pipeline(args.experiment, args.assignments)
+    job = PipelineRun.create(pipe, args.out, overwrite=args.force)
+    if not args.quiet:
+        print(
+            f"{pipe.name}: {len(pipe.stages)} stages ({', '.join(job.stage_names)}); "
+            f"writing {job.path}"
+        )
+    return finish_pipeline(job, args)
+
+
+def finish_pipeline(job, args) -> int:
+    """Run (or resume) a pipeline and print where it ended (shared with ``resume``)."""
+    from evo_door.experiment import Results
+    from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
+    from evo_door.experiment.results import format_show
+
+    if not interruptible(job, args, "the last finished generation of the running stage"):
+        return 130
+    if not args.quiet:
+        print(format_pipeline(pipeline_summary(job.path)))
+        for name in job.stage_names:
+            print(f"\n== stage {name} ==")
+            print(format_show(Results(job.path, name)))
+        report_hint(job.path)
+    return 0
+
+
+def report_hint(path) -> None:
+    print(f"\nevo-door show {path} --stage NAME looks at one stage again")

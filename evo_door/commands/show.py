@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import json
 
+from evo_door.errors import UserError
+
 ORDER = 42
 
 
 def register(sub) -> None:
     p = sub.add_parser("show", help="print a run's best parameters, fitness, status and settings")
-    p.add_argument("results", metavar="RUN.h5", help="results file")
+    p.add_argument("results", metavar="RUN.h5", help="results file (a run's or a pipeline's)")
+    p.add_argument(
+        "--stage",
+        metavar="NAME",
+        help="one stage of a pipeline's results file (without it: every stage, after the "
+        "pipeline's status)",
+    )
     p.add_argument(
         "--json",
         action="store_true",
@@ -27,10 +35,29 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from evo_door.experiment import Results
+    from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
     from evo_door.experiment.results import format_show, plot_convergence, plot_fit
     from evo_door.files import check_image_path
 
-    res = Results(args.results)
+    pipeline = pipeline_summary(args.results) if args.stage is None else None
+    if pipeline is not None:
+        if args.plot or args.convergence:
+            names = ", ".join(s["name"] for s in pipeline["stages"])
+            raise UserError(
+                f"{args.results}: a pipeline: name the stage to draw with --stage ({names})"
+            )
+        started = [s["name"] for s in pipeline["stages"] if s["status"] != "not started"]
+        stages = {name: Results(args.results, name) for name in started}
+        if args.json:
+            doc = {**pipeline, "stage_results": {n: r.summary() for n, r in stages.items()}}
+            print(json.dumps(doc, indent=2))
+        else:
+            print(format_pipeline(pipeline))
+            for name, res in stages.items():
+                print(f"\n== stage {name} ==")
+                print(format_show(res))
+        return 0
+    res = Results(args.results, args.stage)
     # both image names checked before either figure is written: a bad second one must
     # not leave the first behind
     for target in (args.plot, args.convergence):

@@ -49,6 +49,7 @@ TOP_KEYS = (
     "objective",
     "algorithm",
     "per_trial",
+    "pooled",
     "simulation",
     "output",
 )
@@ -165,6 +166,7 @@ class Experiment:
     objective: Objective = field(default_factory=Objective)
     algorithm: AlgorithmSpec = field(default_factory=AlgorithmSpec)
     per_trial: bool = False
+    pooled: bool = False
     method: str | None = None
     substeps: int | None = None
     output: str = "results"
@@ -172,6 +174,14 @@ class Experiment:
     text: str = ""
     overrides: list = field(default_factory=list)
     locs: dict = field(default_factory=dict)
+
+    def uses(self) -> dict[str, str]:
+        """The ``{from: STAGE}`` parameter sets still to fill in: location -> stage."""
+        out = {}
+        for spec in (self.params, self.target.params):
+            if isinstance(spec, dict) and "from" in spec:
+                out[spec["where"]] = spec["from"]
+        return out
 
     def resolved(self) -> dict:
         """The configuration with every default filled in, as plain JSON-able data."""
@@ -186,6 +196,7 @@ class Experiment:
             "objective": asdict(self.objective),
             "algorithm": self.algorithm.resolved(),
             "per_trial": self.per_trial,
+            "pooled": self.pooled,
             "simulation": {"method": self.method, "substeps": self.substeps},
             "output": self.output,
         }
@@ -307,6 +318,11 @@ def _param_spec(reader: _Reader, key, base_dir: Path):
     v = reader.get(key)
     if v is None:
         return None
+    if isinstance(v, LinedMap) and "from" in v:
+        # an earlier stage's best parameters: a pipeline fills them in (pipeline.py)
+        if set(v) != {"from"} or not isinstance(v["from"], str) or not v["from"].strip():
+            raise reader.fail(key, "expected {from: STAGE}, the name of an earlier stage")
+        return {"from": v["from"].strip(), "where": v.where("from")}
     if isinstance(v, LinedMap):
         for name, value in v.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -594,8 +610,6 @@ def load_experiment(
     text, source, base_dir :
         Parse ``text`` instead of a file (``source`` names it in messages).
     """
-    from evo_door.models import get_model, resolve_model_name
-
     if text is None:
         if path is None:
             raise ValueError("give path or text")
@@ -611,6 +625,28 @@ def load_experiment(
     overrides = list(overrides or [])
     for item in overrides:
         apply_override(tree, item)
+    exp = experiment_from_tree(tree, text, source, base_dir, overrides)
+    for where, stage in exp.uses().items():
+        raise UserError(
+            f"{where}: {{from: {stage}}} takes an earlier stage's best parameters: it "
+            "belongs in a pipeline's stages (docs/case-study.md), not in an experiment"
+        )
+    return exp
+
+
+def experiment_from_tree(
+    tree: LinedMap, text: str, source: str, base_dir: Path, overrides=()
+) -> Experiment:
+    """The checked experiment of a parsed tree (a file's, or one stage of a pipeline).
+
+    ``{from: STAGE}`` parameter sets are left as ``{"from": STAGE, "where": LOC}``
+    (:meth:`Experiment.uses`) for the pipeline to fill in.
+    """
+    from evo_door.models import get_model, resolve_model_name
+
+    if not isinstance(tree, LinedMap):
+        raise UserError(f"{source}:1: an experiment is a mapping of keys ({', '.join(TOP_KEYS)})")
+    overrides = list(overrides)
     r = _Reader(tree, "", tree.loc)
     r.check_keys(TOP_KEYS, required=("model", "target", "free"))
     model_name = resolve_model_name(r.string("model", required=True), base_dir)
@@ -634,6 +670,7 @@ def load_experiment(
         objective=_objective(r),
         algorithm=_algorithm(r),
         per_trial=r.boolean("per_trial", False),
+        pooled=r.boolean("pooled", False),
         method=method,
         substeps=substeps,
         output=r.string("output", "results"),

@@ -178,9 +178,11 @@ def _fmt(v) -> str:
 class Results:
     """A results file, read once (see ``docs/experiments.md`` for the layout)."""
 
-    def __init__(self, path):
+    def __init__(self, path, stage: str | None = None):
         self.path = Path(path)
-        self.tree = store.read_tree(self.path)
+        #: the stage of a pipeline's file this is (None: a run's own file)
+        self.stage = stage
+        self.tree = store.read_tree(self.path, stage)
         self.attrs = self.tree[A]
         self.config = json.loads(self.tree["experiment"]["resolved"])
 
@@ -502,7 +504,7 @@ def format_show(res: Results) -> str:
 
 
 # -- a folder of runs ----------------------------------------------------------------
-def _peek_best(path, p: dict) -> tuple[dict[str, float], float]:
+def _peek_best(path, p: dict, stage=None) -> tuple[dict[str, float], float]:
     """The answer (or best so far) and its fitness, without reading the big arrays.
 
     A run with ``best`` has them in its attributes (:func:`store.peek`); one without
@@ -513,6 +515,8 @@ def _peek_best(path, p: dict) -> tuple[dict[str, float], float]:
     best, fit = {}, math.inf
     try:
         with open_h5(path, "results file") as f:
+            if stage is not None:
+                f = f["stages"][stage]
             free = read_attrs(f["setup"])["free"]
             for key in f["jobs"]:
                 ga = f["jobs"][key].get("ga")
@@ -536,10 +540,18 @@ def list_runs(folder) -> list[dict]:
     if not folder.is_dir():
         raise UserError(f"{folder}: no such folder")
     rows = []
+    entries = []
     for path in sorted(folder.glob("*.h5")):
         try:
-            p = store.peek(path)
-            values, fitness = _peek_best(path, p)
+            pipeline = store.pipeline_attrs(path)
+        except UserError:
+            pipeline = None
+        stages = pipeline["started"] if pipeline else [None]
+        entries += [(path, stage) for stage in stages]
+    for path, stage in entries:
+        try:
+            p = store.peek(path, stage)
+            values, fitness = _peek_best(path, p, stage)
         except UserError as exc:
             if "not an evo-door results file" in str(exc):
                 continue
@@ -579,7 +591,7 @@ def list_runs(folder) -> list[dict]:
             )
         rows.append(
             {
-                "file": path.name,
+                "file": path.name + (f" [{stage}]" if stage else ""),
                 "name": a.get("name", ""),
                 "model": a.get("model", ""),
                 "status": status.state,

@@ -37,6 +37,9 @@ from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
 
+#: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
+POOLED = "pooled"
+
 
 class Interrupted(Exception):
     """Raised by a checkpoint hook to stop a run as a kill would (tests)."""
@@ -66,7 +69,8 @@ _LOCKED = "a run is writing it"
 def _refuse_to_replace(path: Path, overwrite: bool) -> None:
     """An existing file at a new run's ``--out``: what it is and what to do instead."""
     try:
-        status = store.peek(path)[ATTRS].get("status")
+        pipeline = store.pipeline_attrs(path)
+        status = (pipeline or store.peek(path)[ATTRS]).get("status")
     except UserError:
         raise UserError(
             f"{path}: exists and is not an evo-door results file; evo-door will not "
@@ -74,12 +78,13 @@ def _refuse_to_replace(path: Path, overwrite: bool) -> None:
         ) from None
     if overwrite:
         return
+    what = "pipeline" if pipeline else "run"
     if status == "complete":
         raise UserError(
-            f"{path}: holds a complete run; give another --out, or --force to replace it"
+            f"{path}: holds a complete {what}; give another --out, or --force to replace it"
         )
     raise UserError(
-        f"{path}: holds an interrupted run; continue it with evo-door resume {path}, "
+        f"{path}: holds an interrupted {what}; continue it with evo-door resume {path}, "
         "or give --force to start it over"
     )
 
@@ -160,6 +165,32 @@ class _TermAsInterrupt:
             signal.signal(signal.SIGTERM, self._previous)
 
 
+def claim_output(path: Path, overwrite: bool, start):
+    """Lock the results file ``path`` of a new run and ``start(path, lock)`` it.
+
+    An existing results file is replaced only with ``overwrite``, any other file never;
+    if the run cannot start, the lock is let go and the folders made for ``path`` are
+    removed again (only if empty: never what someone else put there).
+    """
+    if path.suffix.lower() not in (".h5", ".hdf5"):
+        raise UserError(f"{path}: results files are HDF5, name them .h5")
+    made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]  # deepest first
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = FileLock(path).acquire(_LOCKED)
+    try:
+        if path.exists():
+            _refuse_to_replace(path, overwrite)
+        return start(path, lock)
+    except BaseException:
+        lock.release()
+        for folder in made:
+            try:
+                folder.rmdir()
+            except OSError:
+                break
+        raise
+
+
 def default_output(exp) -> Path:
     """``<output>/<name>-<YYYYmmdd-HHMMSS>.h5``, not overwriting anything."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -200,12 +231,21 @@ class ExperimentRun:
         self.created = created
         self.elapsed_before = elapsed  # seconds spent by earlier sessions of this run
         self.per_trial = bool(config["per_trial"])
+        # with per_trial, also one fit of every trial at once: the run's answer
+        self.pooled = self.per_trial and bool(config.get("pooled", False))
         if jobs is None:
+            everything = list(range(len(setup.fit)))
             if self.per_trial:
                 jobs = [Job(tr.trial_id, [i]) for i, tr in enumerate(setup.fit)]
+                if self.pooled:
+                    jobs.append(Job(POOLED, everything))
             else:
-                jobs = [Job("all", list(range(len(setup.fit))))]
+                jobs = [Job("all", everything)]
         self.jobs = jobs
+        #: writes the run's tree (:meth:`checkpoint`); a pipeline puts it in a stage's group
+        self.writer = None
+        #: shown before the run's name in the progress display (a pipeline's stage)
+        self.label_prefix = ""
         self.status = "complete" if all(j.done for j in jobs) else "running"
         self._t0 = time.perf_counter()
         self.result: dict = {}
@@ -225,40 +265,32 @@ class ExperimentRun:
         other process can write it meanwhile. An existing results file at ``out`` is
         replaced only with ``overwrite``; any other existing file never is.
         """
-        from evo_door.experiment.setup import resolve
 
-        path = Path(out) if out else default_output(exp)
-        if path.suffix.lower() not in (".h5", ".hdf5"):
-            raise UserError(f"{path}: results files are HDF5, name them .h5")
-        # the folders this run makes, deepest first: removed again if it cannot start
-        made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
-        path.parent.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(path).acquire(_LOCKED)
-        try:
-            if path.exists():
-                _refuse_to_replace(path, overwrite)
-            setup = resolve(exp, trials)
-            check_memory(exp.algorithm, len(setup.free))
-            run = cls(
-                exp.resolved(),
-                exp.algorithm,
-                setup,
-                path,
-                {"text": exp.text, "source": exp.source, "overrides": list(exp.overrides)},
-                store.versions(),
-                cls.now(),
-            )
+        def start(path: Path, lock: FileLock) -> ExperimentRun:
+            run = cls.new(exp, path, trials)
             run._lock = lock
             run.checkpoint()
-        except BaseException:
-            lock.release()
-            for folder in made:
-                try:
-                    folder.rmdir()  # only if empty: never what someone else put there
-                except OSError:
-                    break
-            raise
-        return run
+            return run
+
+        return claim_output(Path(out) if out else default_output(exp), overwrite, start)
+
+    @classmethod
+    def new(cls, exp, path, trials=None, versions=None, created=None) -> ExperimentRun:
+        """A new run of ``exp`` in memory: its data read and checked, nothing written,
+        no lock taken (:meth:`create` does both; a pipeline owns its file's lock)."""
+        from evo_door.experiment.setup import resolve
+
+        setup = resolve(exp, trials)
+        check_memory(exp.algorithm, len(setup.free))
+        return cls(
+            exp.resolved(),
+            exp.algorithm,
+            setup,
+            path,
+            {"text": exp.text, "source": exp.source, "overrides": list(exp.overrides)},
+            versions or store.versions(),
+            created or cls.now(),
+        )
 
     @classmethod
     def open(cls, path) -> ExperimentRun:
@@ -276,7 +308,13 @@ class ExperimentRun:
 
     @classmethod
     def _from_file(cls, path) -> ExperimentRun:
-        tree = store.read_tree(path)
+        run = cls.from_tree(store.read_tree(path), path)
+        remove_stale_temporaries(path)
+        return run
+
+    @classmethod
+    def from_tree(cls, tree: dict, path) -> ExperimentRun:
+        """Rebuild a run from its results tree (a file's root, or a pipeline stage's group)."""
         config = json.loads(tree["experiment"]["resolved"])
         algorithm = AlgorithmSpec.from_resolved(config["algorithm"])
         root = tree[ATTRS]
@@ -325,7 +363,6 @@ class ExperimentRun:
             else "running"
         )
         run._trials_on_disk = True
-        remove_stale_temporaries(path)
         return run
 
     # -- running -----------------------------------------------------------------------
@@ -407,7 +444,9 @@ class ExperimentRun:
         return line
 
     def _label(self, job: Job) -> str:
-        return self.config["name"] + (f" [{job.name}]" if self.per_trial else "")
+        return (
+            self.label_prefix + self.config["name"] + (f" [{job.name}]" if self.per_trial else "")
+        )
 
     def _run_ga(self, job: Job, problem, progress: bool) -> None:
         """The GA's one loop, with this run's hooks: progress, checkpoint, early stop."""
@@ -444,13 +483,21 @@ class ExperimentRun:
     def free(self) -> list[str]:
         return list(self.setup.free)
 
+    @property
+    def trial_jobs(self) -> list[Job]:
+        """The per-trial fits of a ``per_trial`` run (every job but the pooled one)."""
+        return [j for j in self.jobs if not (self.pooled and j.name == POOLED)]
+
     def _results(self) -> dict:
         """Best parameters, per-trial table, responses: filled when every job is done."""
-        xs = np.array([j.best_x for j in self.jobs])
-        if self.per_trial:
+        xs = np.array([j.best_x for j in self.trial_jobs])
+        if self.pooled:
+            best_x = self.jobs[-1].best_x
+            best_fitness = self.jobs[-1].best_fitness
+        elif self.per_trial:
             # each trial's own fit, combined as the objective combines trials
             best_x = xs.mean(axis=0)
-            fits = np.array([[j.best_fitness for j in self.jobs]])
+            fits = np.array([[j.best_fitness for j in self.trial_jobs]])
             best_fitness = float(self.setup.objective.combine_errors(fits, np.isfinite(fits))[0])
         else:
             best_x = xs[0]
@@ -466,8 +513,9 @@ class ExperimentRun:
         """
         problem = self.setup.problem()
         if self.per_trial:
-            fit = [problem.responses(job.best_x, indices=[i])[0] for i, job in enumerate(self.jobs)]
-            fit_errors = [float(job.fit_errors[0]) for job in self.jobs]
+            jobs = self.trial_jobs
+            fit = [problem.responses(job.best_x, indices=[i])[0] for i, job in enumerate(jobs)]
+            fit_errors = [float(job.fit_errors[0]) for job in jobs]
         else:
             fit = problem.responses(self.jobs[0].best_x)
             fit_errors = list(map(float, self.jobs[0].fit_errors))
@@ -476,6 +524,8 @@ class ExperimentRun:
         validation_errors = (
             problem.validation_errors(x) if self.per_trial else self.jobs[0].validation_errors
         )
+        if self.pooled:
+            validation_errors = self.jobs[-1].validation_errors
         d = self.setup.objective.derivative
         out = []
         for role, pack, responses, errors in (
@@ -509,11 +559,11 @@ class ExperimentRun:
         return self.elapsed_before + (time.perf_counter() - self._t0)
 
     def checkpoint(self) -> None:
-        """Write the whole run to its results file (atomically)."""
-        write_h5(
-            self.path,
-            store.run_tree(self, self._trials_on_disk),
-            compression=store.COMPRESSION,
-            make_folder=True,
-        )
+        """Write the whole run to its results file (atomically), or hand it to
+        :attr:`writer`."""
+        tree = store.run_tree(self, self._trials_on_disk)
+        if self.writer is not None:
+            self.writer(tree)
+        else:
+            write_h5(self.path, tree, compression=store.COMPRESSION, make_folder=True)
         self._trials_on_disk = True

@@ -38,6 +38,7 @@ from evo_door.files import ATTRS, Keep, decode_attr, open_h5, read_attrs, read_g
 from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
 from evo_door.optim.local import LocalResult
 from evo_door.optim.problem import Objective
+from evo_door.params.declaration import suggest
 
 FORMAT = "evo-door run"
 FORMAT_VERSION = 1
@@ -46,31 +47,68 @@ COMPRESSION = 1
 
 
 # -- reading -----------------------------------------------------------------------
+#: the root format of a pipeline's file: one run's tree per stage, in ``stages/<name>``
+PIPELINE_FORMAT = "evo-door pipeline"
+
+
 def _open(path):
     f = open_h5(path, "results file")
-    if decode_attr(f.attrs.get("format")) != FORMAT:
-        found = decode_attr(f.attrs.get("format"))
+    found = decode_attr(f.attrs.get("format"))
+    if found not in (FORMAT, PIPELINE_FORMAT):
         f.close()
         raise UserError(f"{path}: not an evo-door results file (format {found!r})")
     return f
 
 
-def read_tree(path) -> dict:
-    """The whole results file as a tree (see :mod:`evo_door.files`)."""
+def _run_group(f, path, stage):
+    """The group holding one run: the root of a run's file, a stage's group of a pipeline's."""
+    if decode_attr(f.attrs.get("format")) != PIPELINE_FORMAT:
+        if stage is not None:
+            raise UserError(f"{path}: holds one run, not a pipeline: there is no stage {stage!r}")
+        return f
+    declared = list(decode_attr(f.attrs.get("stages")) or [])
+    started = list(f["stages"]) if "stages" in f else []
+    if stage is None:
+        raise UserError(
+            f"{path}: a pipeline of stages {', '.join(declared)}: name one with --stage"
+        )
+    if stage not in started:
+        why = "has not started yet" if stage in declared else "is not a stage of it"
+        raise UserError(
+            f"{path}: stage {stage!r} {why}; stages with results: {', '.join(started) or 'none'}"
+            + (suggest(stage, declared) if stage not in declared else "")
+        )
+    return f["stages"][stage]
+
+
+def read_tree(path, stage: str | None = None) -> dict:
+    """The run in a results file as a tree (see :mod:`evo_door.files`); ``stage`` picks
+    one stage of a pipeline's file."""
     with _open(path) as f:
-        return read_group(f)
+        return read_group(_run_group(f, path, stage))
 
 
-def peek(path) -> dict:
+def pipeline_attrs(path) -> dict | None:
+    """The root attributes of a pipeline's file (``stages``, ``status``...), None for a run's."""
+    with _open(path) as f:
+        attrs = read_attrs(f)
+        if attrs.get("format") != PIPELINE_FORMAT:
+            return None
+        attrs["started"] = list(f["stages"]) if "stages" in f else []
+        return attrs
+
+
+def peek(path, stage: str | None = None) -> dict:
     """Root attributes, the resolved configuration and each job's GA attributes, cheaply."""
     try:
         with _open(path) as f:
-            jobs = f["jobs"]
+            g = _run_group(f, path, stage)
+            jobs = g["jobs"]
             return {
-                ATTRS: read_attrs(f),
-                "resolved": json.loads(f["experiment/resolved"][()]),
+                ATTRS: read_attrs(g),
+                "resolved": json.loads(g["experiment/resolved"][()]),
                 "jobs": {k: read_attrs(jobs[k]["ga"]) if "ga" in jobs[k] else {} for k in jobs},
-                "best": read_attrs(f["best"]) if "best" in f else None,
+                "best": read_attrs(g["best"]) if "best" in g else None,
             }
     except (OSError, KeyError) as exc:
         raise UserError(f"{path}: not a readable results file ({exc})") from None
@@ -342,9 +380,14 @@ def best_tree(run) -> dict:
     res = run.result
     fit_ids = [t.trial_id for t in run.setup.fit]
     val_ids = [t.trial_id for t in run.setup.validation]
-    if run.per_trial:
-        fit_errors = {j.name: float(j.fit_errors[0]) for j in run.jobs}
-        val = np.array([j.validation_errors for j in run.jobs]) if val_ids else np.zeros((0, 0))
+    if run.pooled:
+        job = run.jobs[-1]
+        fit_errors = dict(zip(fit_ids, map(float, job.fit_errors)))
+        validation = dict(zip(val_ids, map(float, job.validation_errors)))
+    elif run.per_trial:
+        jobs = run.trial_jobs
+        fit_errors = {j.name: float(j.fit_errors[0]) for j in jobs}
+        val = np.array([j.validation_errors for j in jobs]) if val_ids else np.zeros((0, 0))
         validation = {v: float(np.mean(val[:, i])) for i, v in enumerate(val_ids)}
     else:
         job = run.jobs[0]
@@ -357,7 +400,13 @@ def best_tree(run) -> dict:
             "fit_errors": fit_errors,
             "validation_errors": validation,
             "param_names": list(run.setup.model.params.names),
-            "meaning": "mean of the per-trial fits" if run.per_trial else "best of the run",
+            "meaning": (
+                "fit of every trial at once"
+                if run.pooled
+                else "mean of the per-trial fits"
+                if run.per_trial
+                else "best of the run"
+            ),
             "at_bound": bound_hits(run.setup.free, res["best_x"], run.setup.lower, run.setup.upper),
         },
         "x": np.asarray(res["best_x"], dtype=np.float64),
@@ -368,13 +417,13 @@ def best_tree(run) -> dict:
 def summary_tree(run) -> dict:
     xs = run.result["xs"]
     return {
-        ATTRS: {"names": list(run.setup.free), "trials": [j.name for j in run.jobs]},
+        ATTRS: {"names": list(run.setup.free), "trials": [j.name for j in run.trial_jobs]},
         "x": xs,
         "min": xs.min(axis=0),
         "max": xs.max(axis=0),
         "mean": xs.mean(axis=0),
         "std": xs.std(axis=0),
-        "fitness": np.array([j.best_fitness for j in run.jobs]),
+        "fitness": np.array([j.best_fitness for j in run.trial_jobs]),
     }
 
 

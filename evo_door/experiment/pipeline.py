@@ -1,0 +1,463 @@
+"""Pipelines: several experiments run as stages of one job, written to one results file.
+
+The case study (``experiments/case_study.yaml``, ``docs/case-study.md``) is a chain of
+estimations where each stage starts from what an earlier one found: the door's
+specifications from the measurements, the haptic model from the door, the specification
+from the chosen haptic behaviour. A pipeline file lists the stages, each an experiment
+written inline or named by file::
+
+    name: case-study
+    stages:
+      physical: experiments/default.yaml          # an experiment file
+      haptic:                                     # or an experiment, inline
+        model: haptic
+        target: {model: door, params: {from: physical}, inputs: {...}}
+        free: {inertia: [0.5, 3.0], ...}
+
+``{from: STAGE}`` in ``params`` or ``target.params`` stands for the full parameter set
+an earlier stage ended with (its free parameters' answer, everything else as it was in
+that stage). Everything is checked before the first stage starts: every stage as an
+experiment, every ``from`` naming an earlier stage of the same model.
+
+The results file holds one group per stage, ``stages/<name>``, each laid out exactly as
+a single run's file (:mod:`.store`), so everything that reads a run reads a stage
+(``Results(path, stage=...)``); the root says which stages there are and how far the
+pipeline got. Each stage checkpoints the whole file after every generation as a run
+does (the finished stages are copied over unchanged), so a killed pipeline resumes at
+the stage and generation where it stopped and ends with the numbers of an
+uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from evo_door.errors import UserError
+from evo_door.experiment import store
+from evo_door.experiment.config import (
+    Experiment,
+    _Reader,
+    _resolve_path,
+    _safe_name,
+    experiment_from_tree,
+)
+from evo_door.experiment.runner import _LOCKED, ExperimentRun, claim_output, default_output
+from evo_door.experiment.yamltree import LinedMap, apply_override, parse
+from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
+
+PIPELINE_KEYS = ("name", "description", "stages", "output", "report")
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Stage:
+    """One stage: its name and its checked experiment (``{from: ...}`` not filled in yet)."""
+
+    name: str
+    experiment: Experiment
+    where: str  # file:line of the stage in the pipeline file
+
+    def uses(self) -> list[str]:
+        """The earlier stages this one takes parameters from."""
+        return sorted(set(self.experiment.uses().values()))
+
+
+@dataclass
+class Pipeline:
+    """A checked pipeline file (see the module docstring)."""
+
+    name: str
+    stages: list[Stage]
+    description: str = ""
+    output: str = "results"
+    report: dict = field(default_factory=dict)
+    source: str = "<pipeline>"
+    text: str = ""
+    overrides: list = field(default_factory=list)
+    base_dir: str = "."
+
+    def stage(self, name: str) -> Stage:
+        return next(s for s in self.stages if s.name == name)
+
+    def resolved(self) -> dict:
+        return {
+            "name": self.name,
+            "description": self.description,
+            "output": self.output,
+            "report": self.report,
+            "stages": {s.name: {"uses": s.uses(), "where": s.where} for s in self.stages},
+        }
+
+
+def is_pipeline(path) -> bool:
+    """Whether the YAML file ``path`` is a pipeline (it has ``stages``), not an experiment."""
+    p = Path(path)
+    if p.suffix.lower() not in (".yaml", ".yml") or not p.is_file():
+        return False
+    try:
+        tree = parse(read_text(p, "experiment file"), str(path))
+    except UserError:
+        return False  # load_experiment says what is wrong with it
+    return isinstance(tree, LinedMap) and "stages" in tree
+
+
+def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None) -> Pipeline:
+    """Read and check a pipeline file; ``--set`` overrides take the stage's name first
+    (``stages.physical.algorithm.seed=3``) or a top-level key."""
+    if text is None:
+        p = Path(path)
+        text = read_text(p, "pipeline file")
+        source = source or str(path)
+        base_dir = p.resolve().parent if base_dir is None else Path(base_dir)
+    source = source or "<pipeline>"
+    base_dir = Path(base_dir) if base_dir is not None else Path.cwd()
+    tree = parse(text, source)
+    if not isinstance(tree, LinedMap):
+        raise UserError(f"{source}:1: a pipeline is a mapping of keys ({', '.join(PIPELINE_KEYS)})")
+    overrides = list(overrides)
+    for item in overrides:
+        apply_override(tree, item)
+    r = _Reader(tree, "", tree.loc)
+    r.check_keys(PIPELINE_KEYS, required=("stages",))
+    node = tree["stages"]
+    if not isinstance(node, LinedMap) or not node:
+        raise r.fail("stages", "expected a mapping of stage names to experiments (inline or files)")
+    default_name = Path(source).stem if not source.startswith("<") else "pipeline"
+    report = r.get("report") or {}
+    if not isinstance(report, dict):
+        raise r.fail("report", "expected a mapping of report settings")
+    pipe = Pipeline(
+        name=_safe_name(r.string("name", default_name)),
+        stages=[],
+        description=r.string("description", "") or "",
+        output=r.string("output", "results"),
+        report=json.loads(json.dumps(report)),
+        source=source,
+        text=text,
+        overrides=overrides,
+        base_dir=str(base_dir),
+    )
+    for name, value in node.items():
+        where = node.where(name)
+        if not isinstance(name, str) or _safe_name(name) != name:
+            raise UserError(f"{where}: stages: {name!r}: name stages with letters, digits, - _ .")
+        pipe.stages.append(Stage(name, _stage_experiment(name, value, where, base_dir), where))
+    _check_uses(pipe)
+    return pipe
+
+
+def _stage_experiment(name: str, value, where: str, base_dir: Path) -> Experiment:
+    if isinstance(value, str):
+        file = Path(_resolve_path(value, base_dir, where, f"stages.{name}"))
+        text = read_text(file, "experiment file")
+        exp = experiment_from_tree(parse(text, str(file)), text, str(file), file.parent)
+    elif isinstance(value, LinedMap):
+        import yaml
+
+        text = yaml.safe_dump(json.loads(json.dumps(value)), sort_keys=False)
+        exp = experiment_from_tree(value, text, where, base_dir)
+        if "name" not in value:
+            exp.name = name
+    else:
+        raise UserError(f"{where}: stages.{name}: expected an experiment (a mapping) or its file")
+    return exp
+
+
+def _model_name(name: str) -> str:
+    from evo_door.models import get_model
+
+    return get_model(name).name
+
+
+def _check_uses(pipe: Pipeline) -> None:
+    """Every ``{from: S}`` names an earlier stage whose model is the one it feeds."""
+    seen: dict[str, Stage] = {}
+    for stage in pipe.stages:
+        exp = stage.experiment
+        for spec, model in ((exp.params, exp.model), (exp.target.params, exp.target.model)):
+            if not (isinstance(spec, dict) and "from" in spec):
+                continue
+            source = spec["from"]
+            if source not in seen:
+                later = any(s.name == source for s in pipe.stages)
+                raise UserError(
+                    f"{spec['where']}: from: {source!r} is "
+                    + (
+                        "a later stage: a stage takes parameters from earlier ones"
+                        if later
+                        else "not a stage of this pipeline; stages: "
+                        + ", ".join(s.name for s in pipe.stages)
+                    )
+                )
+            given = seen[source].experiment.model
+            if _model_name(given) != _model_name(model):
+                raise UserError(
+                    f"{spec['where']}: from: {source!r} is a fit of model {given!r}, "
+                    f"but these parameters are for model {model!r}"
+                )
+        seen[stage.name] = stage
+
+
+def fill(exp: Experiment, values: dict[str, dict]) -> Experiment:
+    """``exp`` with each ``{from: S}`` replaced by ``values[S]`` (name -> value)."""
+    if isinstance(exp.params, dict) and "from" in exp.params:
+        exp.params = dict(values[exp.params["from"]])
+    if isinstance(exp.target.params, dict) and "from" in exp.target.params:
+        exp.target.params = dict(values[exp.target.params["from"]])
+    return exp
+
+
+class PipelineRun:
+    """A run of a pipeline, backed by its results file (see the module docstring).
+
+    Build one with :meth:`create` or :meth:`open` (to resume), then :meth:`run`.
+    """
+
+    def __init__(self, pipeline: Pipeline, path, created: str, versions: dict):
+        self.pipeline = pipeline
+        self.path = Path(path)
+        self.created = created
+        self.versions = versions
+        self.done: list[str] = []  # stages complete in the file
+        self.current: ExperimentRun | None = None  # a stage started and not finished
+        self.status = "running"
+        self.elapsed_before = 0.0
+        self._t0 = time.perf_counter()
+        self._lock: FileLock | None = None
+
+    @property
+    def stage_names(self) -> list[str]:
+        return [s.name for s in self.pipeline.stages]
+
+    # -- construction --------------------------------------------------------------------
+    @classmethod
+    def create(cls, pipeline: Pipeline, out=None, overwrite: bool = False) -> PipelineRun:
+        """A new run of ``pipeline`` writing ``out`` (locked until :meth:`run` ends)."""
+
+        def start(path: Path, lock: FileLock) -> PipelineRun:
+            run = cls(pipeline, path, ExperimentRun.now(), store.versions())
+            run._lock = lock
+            run.write()
+            return run
+
+        return claim_output(Path(out) if out else default_output(pipeline), overwrite, start)
+
+    @classmethod
+    def open(cls, path) -> PipelineRun:
+        """The pipeline in ``path``, to resume it (locked like :meth:`create`)."""
+        path = Path(path)
+        lock = FileLock(path).acquire(_LOCKED)
+        try:
+            attrs = store.pipeline_attrs(path)
+            if attrs is None:
+                raise UserError(f"{path}: holds one run, not a pipeline")
+            tree = _read_head(path)
+            head = tree["pipeline"][ATTRS]
+            try:
+                pipeline = load_pipeline(
+                    text=tree["pipeline"]["text"],
+                    source=head["source"],
+                    base_dir=head["base_dir"],
+                    overrides=head["overrides"],
+                )
+            except UserError as exc:
+                raise UserError(
+                    f"{path}: cannot resume: the pipeline's stages no longer load ({exc})"
+                ) from None
+            run = cls(pipeline, path, attrs["created"], tree["versions"][ATTRS])
+            run.elapsed_before = float(attrs.get("total_s", 0.0))
+            for name in attrs["started"]:
+                stage = store.peek(path, name)
+                if stage[ATTRS].get("status") == "complete" and stage["best"] is not None:
+                    run.done.append(name)
+                else:
+                    run.current = ExperimentRun.from_tree(store.read_tree(path, name), path)
+            if len(run.done) == len(pipeline.stages) and attrs.get("status") == "complete":
+                run.status = "complete"
+            run._lock = lock
+            remove_stale_temporaries(path)
+        except BaseException:
+            lock.release()
+            raise
+        if run.status == "complete":
+            run.release()
+        return run
+
+    # -- running -------------------------------------------------------------------------
+    def run(self, progress: bool = False, on_checkpoint=None) -> PipelineRun:
+        """Run (or continue) every stage; ``on_checkpoint(run, job)`` as for a run."""
+        try:
+            n = len(self.pipeline.stages)
+            for k, stage in enumerate(self.pipeline.stages, 1):
+                if stage.name in self.done:
+                    continue
+                run = self.current
+                if run is None or run.config["name"] != stage.experiment.name:
+                    run = self._start(stage)
+                self.current = run
+                run.writer = self._writer(stage.name)
+                run.label_prefix = f"stage {k}/{n} " if n > 1 else ""
+                if progress:
+                    print(self._stage_line(k, stage, run), file=sys.stderr, flush=True)
+                run.run(progress=progress, on_checkpoint=on_checkpoint)
+                self.done.append(stage.name)
+                self.current = None
+            self.status = "complete"
+            self.write()
+        finally:
+            self.release()
+        return self
+
+    def _start(self, stage: Stage) -> ExperimentRun:
+        """A stage's run, its ``{from: ...}`` filled in from the finished stages."""
+        from evo_door.experiment.results import Results
+
+        values = {name: Results(self.path, name).values() for name in stage.uses()}
+        exp = fill(stage.experiment, values)
+        try:
+            return ExperimentRun.new(exp, self.path, versions=self.versions)
+        except UserError as exc:
+            raise UserError(f"stage {stage.name}: {exc}") from None
+
+    def _stage_line(self, k: int, stage: Stage, run: ExperimentRun) -> str:
+        s = run.setup
+        uses = f", from {', '.join(stage.uses())}" if stage.uses() else ""
+        return (
+            f"stage {k}/{len(self.pipeline.stages)} {stage.name}: model {s.model_name}, "
+            f"{len(s.fit)} fitted trial(s), free: {', '.join(s.free)}{uses}"
+        )
+
+    def release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    # -- the file ------------------------------------------------------------------------
+    def elapsed(self) -> float:
+        return self.elapsed_before + (time.perf_counter() - self._t0)
+
+    def _writer(self, name: str):
+        def write(tree: dict) -> None:
+            self.write({name: tree})
+
+        return write
+
+    def write(self, trees: dict | None = None) -> None:
+        """The whole file: the finished stages copied, ``trees`` (stage -> run tree) new."""
+        trees = dict(trees or {})
+        stages = {name: Keep(_must_exist) for name in self.done if name not in trees}
+        stages.update(trees)
+        current = next(iter(trees), None)
+        write_h5(
+            self.path,
+            {
+                ATTRS: {
+                    "format": store.PIPELINE_FORMAT,
+                    "format_version": FORMAT_VERSION,
+                    "name": self.pipeline.name,
+                    "status": self.status,
+                    "stages": self.stage_names,
+                    "stages_done": len(self.done),
+                    "current": current or "",
+                    "created": self.created,
+                    "updated": ExperimentRun.now(),
+                    "total_s": self.elapsed(),
+                    "evo_door_version": self.versions.get("evo_door", ""),
+                },
+                "pipeline": {
+                    ATTRS: {
+                        "source": self.pipeline.source,
+                        "base_dir": self.pipeline.base_dir,
+                        "overrides": list(self.pipeline.overrides),
+                    },
+                    "text": self.pipeline.text,
+                    "resolved": json.dumps(self.pipeline.resolved(), indent=1),
+                },
+                "versions": {ATTRS: dict(self.versions)},
+                "stages": stages,
+            },
+            compression=store.COMPRESSION,
+            make_folder=True,
+        )
+
+
+def _must_exist():
+    raise UserError("a finished stage is missing from the results file being rewritten")
+
+
+def _read_head(path) -> dict:
+    """The pipeline's own groups (text, versions), not the stages."""
+    from evo_door.files import open_h5, read_group
+
+    with open_h5(path, "results file") as f:
+        return {"pipeline": read_group(f["pipeline"]), "versions": read_group(f["versions"])}
+
+
+def resume_pipeline(path, progress=False, on_checkpoint=None) -> PipelineRun:
+    """Continue an interrupted pipeline (a complete one is left as is)."""
+    run = PipelineRun.open(path)
+    if run.status == "complete":
+        return run
+    return run.run(progress=progress, on_checkpoint=on_checkpoint)
+
+
+# -- reading ---------------------------------------------------------------------------
+def pipeline_summary(path) -> dict | None:
+    """Where a pipeline's file stands (None for a single run's file), JSON-able.
+
+    ``status`` is complete, running (a process holds the file) or interrupted, as for a
+    run; ``stages`` gives each declared stage's state (``complete``, ``running``,
+    ``interrupted``, ``not started``) and its progress text.
+    """
+    from evo_door.experiment.results import Results
+
+    attrs = store.pipeline_attrs(path)
+    if attrs is None:
+        return None
+    stages = []
+    for name in attrs["stages"]:
+        if name in attrs["started"]:
+            status = Results(path, name).status()
+            stages.append({"name": name, "status": status.state, "text": status.text})
+        else:
+            stages.append({"name": name, "status": "not started", "text": "not started"})
+    state = attrs.get("status", "unknown")
+    hint = ""
+    if state != "complete":
+        holder = FileLock.holder(path)
+        if holder is not None:
+            state = "running"
+        else:
+            state, hint = "interrupted", f"evo-door resume {path}"
+    where = next((s for s in stages if s["status"] != "complete"), None)
+    text = state
+    if state != "complete" and where is not None:
+        k = attrs["stages"].index(where["name"]) + 1
+        text = f"{state} in stage {k}/{len(stages)} {where['name']} ({where['text']})"
+    return {
+        "file": str(path),
+        "name": attrs.get("name", ""),
+        "status": state,
+        "status_text": text,
+        "resume": hint,
+        "stages": stages,
+        "created": attrs.get("created", ""),
+        "total_s": float(attrs.get("total_s", 0.0)),
+    }
+
+
+def format_pipeline(summary: dict) -> str:
+    """The pipeline's header for ``show``: status and each stage's state."""
+    lines = [
+        f"pipeline {summary['name']}: {summary['status_text']}, "
+        f"{summary['total_s']:.0f} s so far, created {summary['created']}"
+    ]
+    if summary["resume"]:
+        lines.append(f"  {summary['resume']} continues it")
+    for k, s in enumerate(summary["stages"], 1):
+        lines.append(f"  stage {k} {s['name']}: {s['text']}")
+    return "\n".join(lines)
