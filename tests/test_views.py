@@ -443,3 +443,23 @@ def test_fit_plot_shows_target_under_a_dashed_model_errors_with_units_and_the_fo
     assert host.get_title().endswith(" (rad/s)^2 s")
     legend = [t.get_text() for t in host.get_legend().get_texts()]
     assert legend == ["target", "model (best)", "force"]
+
+
+# -- errors a person reads ---------------------------------------------------------------
+def test_each_trials_error_is_given_in_the_channels_unit_consistent_with_the_ise(ws, capsys):
+    res = Results(_file(ws, "a.h5"))  # ise on dtheta
+    errors = res.channel_errors()
+    assert set(errors) == {"t1", "t2", "t3", "v1"} and errors["v1"]["role"] == "validate"
+    fit = res.summary()["fit_errors"]
+    for r in res.responses():
+        e = errors[r["trial_id"]]
+        diff = r["model"] - r["target"]
+        assert e["unit"] == "rad/s" and e["max"] == pytest.approx(np.max(np.abs(diff)))
+        assert e["max_deg"] == pytest.approx(np.degrees(e["max"]))
+        if r["role"] == "fit":
+            # the ISE (trapezoid rule) is the mean square times the duration, near enough
+            duration = r["t"][-1] - r["t"][0]
+            assert fit[r["trial_id"]] == pytest.approx(e["rms"] ** 2 * duration, rel=0.05)
+    shown = cli(capsys, "show", _file(ws, "a.h5")).stdout
+    t1 = errors["t1"]
+    assert f"t1       {t1['rms']:.3g} / {t1['max']:.3g} rad/s ({t1['rms_deg']:.3g} /" in shown

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evo_door.channels import unit as channel_unit
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.files import FileLock, open_h5, read_attrs, save_figure
@@ -334,6 +335,7 @@ class Results:
             out["fit_errors"] = {k: _num(v) for k, v in b["fit_errors"].items()}
             out["validation_errors"] = {k: _num(v) for k, v in b["validation_errors"].items()}
             out["best_meaning"] = b.get("meaning", "")
+            out["channel_errors"] = self.channel_errors()
         if "summary" in self.tree:
             s = self.tree["summary"]
             out["per_trial_fits"] = {
@@ -356,6 +358,46 @@ class Results:
                 }
                 for i, n in enumerate(self.free)
             }
+        return out
+
+    def channel_errors(self) -> dict[str, dict]:
+        """Each trial's fit error as a person reads it: the RMS and the largest absolute
+        difference of the compared channel, model minus target, in its unit (and in
+        degrees for an angle, a speed or an acceleration), over the samples the objective
+        counts (a saturated sensor's are left out). Trial id -> {role, channel, unit,
+        rms, max, at (time of the max, s), rms_deg, max_deg}; {} before the run is done.
+        """
+        out = {}
+        theta_unit = _theta_unit(self.attrs["model"])
+        trials = {
+            g[A]["trial_id"]: g
+            for k, g in self.tree.get("trials", {}).items()
+            if k != A and isinstance(g, dict)
+        }
+        for r in self.responses():
+            channel = r["channel"]
+            diff = np.asarray(r["model"], dtype=float) - np.asarray(r["target"], dtype=float)
+            mask = np.isfinite(diff)
+            node = trials.get(r["trial_id"])
+            if node is not None and channel in node:
+                mask &= store.trial_from_tree(node).unsaturated(channel)
+            if not mask.any():
+                continue
+            d = np.where(mask, diff, 0.0)
+            k = int(np.argmax(np.abs(d)))
+            rms = float(np.sqrt(np.mean(diff[mask] ** 2)))
+            row = {
+                "role": r["role"],
+                "channel": channel,
+                "unit": channel_unit(channel, theta_unit),
+                "rms": rms,
+                "max": float(abs(d[k])),
+                "at": float(np.asarray(r["t"])[k]),
+            }
+            if theta_unit == "rad":
+                row["rms_deg"] = math.degrees(row["rms"])
+                row["max_deg"] = math.degrees(row["max"])
+            out[r["trial_id"]] = row
         return out
 
     def responses(self) -> list[dict]:
@@ -500,7 +542,25 @@ def format_show(res: Results) -> str:
             f"validation error in {funit}:    "
             + ", ".join(f"{k} {_fmt(v)}" for k, v in s["validation_errors"].items())
         )
+    lines += format_channel_errors(s.get("channel_errors") or {})
     return "\n".join(lines)
+
+
+def format_channel_errors(errors: dict) -> list[str]:
+    """``show``'s lines of each trial's RMS and largest error in the channel's unit."""
+    if not errors:
+        return []
+    first = next(iter(errors.values()))
+    deg = "rms_deg" in first
+    dunit = first["unit"].replace("rad", "deg")
+    lines = [f"error of {first['channel']} per trial, model - target (RMS / largest, at t):"]
+    for trial, e in errors.items():
+        text = f"{e['rms']:.3g} / {e['max']:.3g} {e['unit']}"
+        if deg:
+            text += f" ({e['rms_deg']:.3g} / {e['max_deg']:.3g} {dunit})"
+        role = "" if e["role"] == "fit" else "  (validation)"
+        lines.append(f"  {trial:<8} {text}, largest at {e['at']:.3f} s{role}")
+    return lines
 
 
 # -- a folder of runs ----------------------------------------------------------------

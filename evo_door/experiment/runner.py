@@ -508,24 +508,25 @@ class ExperimentRun:
     def responses(self) -> list[dict]:
         """Best response next to the target for every fitted and validation trial.
 
-        A fitted trial shows its own job's best (``per_trial``) or the run's best; a
-        validation trial shows the run's answer, ``result["best_x"]``.
+        A fitted trial shows its own job's best (``per_trial``) or the run's best (the
+        pooled fit of a ``per_trial`` run with ``pooled``); a validation trial shows the
+        run's answer, ``result["best_x"]``.
         """
         problem = self.setup.problem()
-        if self.per_trial:
+        if self.per_trial and not self.pooled:
             jobs = self.trial_jobs
             fit = [problem.responses(job.best_x, indices=[i])[0] for i, job in enumerate(jobs)]
             fit_errors = [float(job.fit_errors[0]) for job in jobs]
-        else:
-            fit = problem.responses(self.jobs[0].best_x)
-            fit_errors = list(map(float, self.jobs[0].fit_errors))
+        else:  # one fit of every trial: the run's, or the pooled one of a per_trial run
+            fit = problem.responses(self.jobs[-1].best_x)
+            fit_errors = list(map(float, self.jobs[-1].fit_errors))
         x = self.result["best_x"]
         validation = problem.responses(x, problem.validation)
         validation_errors = (
-            problem.validation_errors(x) if self.per_trial else self.jobs[0].validation_errors
+            problem.validation_errors(x)
+            if self.per_trial and not self.pooled
+            else self.jobs[-1].validation_errors
         )
-        if self.pooled:
-            validation_errors = self.jobs[-1].validation_errors
         d = self.setup.objective.derivative
         out = []
         for role, pack, responses, errors in (
