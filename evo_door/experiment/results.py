@@ -336,6 +336,10 @@ class Results:
             out["validation_errors"] = {k: _num(v) for k, v in b["validation_errors"].items()}
             out["best_meaning"] = b.get("meaning", "")
             out["channel_errors"] = self.channel_errors()
+            ident = self.identifiability()
+            if ident is not None:
+                out["identifiability"] = ident.as_dict()
+                out["identifiability_text"] = ident.format()
         if "summary" in self.tree:
             s = self.tree["summary"]
             out["per_trial_fits"] = {
@@ -359,6 +363,15 @@ class Results:
                 for i, n in enumerate(self.free)
             }
         return out
+
+    def identifiability(self):
+        """The identifiability of the run's answer (an
+        :class:`~evo_door.optim.identifiability.Identifiability`), None where the file has
+        none (a run not finished, or written before the check existed)."""
+        node = self.tree.get("best", {}).get("identifiability")
+        if node is None:
+            return None
+        return store.identifiability_from_tree(node)
 
     def channel_errors(self) -> dict[str, dict]:
         """Each trial's fit error as a person reads it: the RMS and the largest absolute
@@ -543,6 +556,8 @@ def format_show(res: Results) -> str:
             + ", ".join(f"{k} {_fmt(v)}" for k, v in s["validation_errors"].items())
         )
     lines += format_channel_errors(s.get("channel_errors") or {})
+    if s.get("identifiability_text"):
+        lines += ["", s["identifiability_text"]]
     return "\n".join(lines)
 
 

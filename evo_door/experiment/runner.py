@@ -60,6 +60,7 @@ class Job:
     fit_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     validation_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     seconds: float = 0.0
+    identifiability: object = None  # Identifiability at best_x (optim.identifiability)
 
 
 #: what a locked results file says to another process
@@ -189,6 +190,17 @@ def claim_output(path: Path, overwrite: bool, start):
             except OSError:
                 break
         raise
+
+
+def _identifiability(problem, x):
+    """The identifiability of a fit at ``x`` (None if the check cannot be made: a run's
+    answer is never lost to it)."""
+    from evo_door.optim.identifiability import identifiability
+
+    try:
+        return identifiability(problem, x)
+    except (UserError, ValueError, np.linalg.LinAlgError):
+        return None
 
 
 def default_output(exp) -> Path:
@@ -352,6 +364,8 @@ class ExperimentRun:
                 job.validation_errors = np.array(node["validation_errors"])
                 if "local" in node:
                     job.local = store.local_from_tree(node["local"])
+                if "identifiability" in node:
+                    job.identifiability = store.identifiability_from_tree(node["identifiability"])
         # every job done but the final write (best, responses) missing: still running
         run.status = (
             "complete"
@@ -420,6 +434,7 @@ class ExperimentRun:
             err, ok = problem.trial_errors(job.best_x)
             job.fit_errors = np.where(ok, err, np.inf)[0]
             job.validation_errors = problem.validation_errors(job.best_x)
+            job.identifiability = _identifiability(problem, job.best_x)
             job.done = True
             job.seconds += time.perf_counter() - t0
             if progress:
@@ -503,7 +518,17 @@ class ExperimentRun:
             best_x = xs[0]
             best_fitness = self.jobs[0].best_fitness
         full = self.setup.problem().full(best_x)[0]
-        return {"best_x": best_x, "best_fitness": best_fitness, "full": full, "xs": xs}
+        if self.per_trial and not self.pooled:  # the mean of the fits, on every trial
+            ident = _identifiability(self.setup.problem(), best_x)
+        else:
+            ident = self.jobs[-1].identifiability
+        return {
+            "best_x": best_x,
+            "best_fitness": best_fitness,
+            "full": full,
+            "xs": xs,
+            "identifiability": ident,
+        }
 
     def responses(self) -> list[dict]:
         """Best response next to the target for every fitted and validation trial.

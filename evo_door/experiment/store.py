@@ -269,6 +269,30 @@ def trial_from_tree(node: dict) -> Trial:
     return Trial(np.array(node["t"]), np.array(node["force"]), **kwargs)
 
 
+def _stored_base(attrs: dict, base: np.ndarray) -> np.ndarray:
+    """A run's base vector in its model's declaration order of today.
+
+    A run written before a parameter was added to its model stored fewer values: they
+    are matched by name, and each parameter added since takes its declared default.
+    """
+    names = attrs.get("param_names")
+    if names is None:
+        return base
+    from evo_door.models import get_model
+
+    try:
+        params = get_model(attrs["model"]).params
+    except UserError:
+        return base  # the model cannot be loaded here: the run says so when it starts
+    if list(names) == list(params.names):
+        return base
+    out = np.array(params.defaults, dtype=np.float64)
+    for name, value in zip(names, base):
+        if name in params.names:
+            out[params.index(name)] = value
+    return out
+
+
 def setup_from_tree(tree: dict):
     from evo_door.experiment.setup import Setup
 
@@ -283,7 +307,7 @@ def setup_from_tree(tree: dict):
         trials[role] = [trial_from_tree(tree["trials"][k]) for k in keys]
     return Setup(
         model_name=a["model"],
-        base=np.array(s["base"]),
+        base=_stored_base(a, np.array(s["base"])),
         free=list(a["free"]),
         lower=np.array(s["lower"]),
         upper=np.array(s["upper"]),
@@ -331,7 +355,15 @@ def job_tree(job) -> dict:
         node["best_x"] = np.asarray(job.best_x, dtype=np.float64)
         node["fit_errors"] = np.asarray(job.fit_errors, dtype=np.float64)
         node["validation_errors"] = np.asarray(job.validation_errors, dtype=np.float64)
+        if job.identifiability is not None:
+            node["identifiability"] = job.identifiability.to_tree()
     return node
+
+
+def identifiability_from_tree(node: dict):
+    from evo_door.optim.identifiability import Identifiability
+
+    return Identifiability.from_tree(node)
 
 
 def snapshot_from_tree(node: dict) -> dict:
@@ -411,6 +443,11 @@ def best_tree(run) -> dict:
         },
         "x": np.asarray(res["best_x"], dtype=np.float64),
         "full": np.asarray(res["full"], dtype=np.float64),
+        **(
+            {"identifiability": res["identifiability"].to_tree()}
+            if res.get("identifiability") is not None
+            else {}
+        ),
     }
 
 

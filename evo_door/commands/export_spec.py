@@ -1,0 +1,41 @@
+"""``evo-door export-spec RUN.h5``: a fit's specification table (seed tables 5.3 / 5.4)."""
+
+from __future__ import annotations
+
+ORDER = 46
+
+
+def register(sub) -> None:
+    from evo_door.experiment.spec import FORMATS
+
+    p = sub.add_parser(
+        "export-spec",
+        help="a fit's specification table (symbol, unit, value, per-trial range, "
+        "identifiability) as CSV, Markdown, LaTeX, HTML, or a parameter file",
+    )
+    p.add_argument("results", metavar="RUN.h5", help="results file (a run's or a pipeline's)")
+    p.add_argument("--stage", metavar="NAME", help="the stage of a pipeline's results file")
+    p.add_argument(
+        "--format",
+        default="md",
+        metavar="|".join(FORMATS),
+        help="md (default), csv, tex (booktabs), html, or yaml: a parameter file that "
+        "--params, experiments and the renderer read back",
+    )
+    p.add_argument("--out", metavar="FILE", help="write here (default: print)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from evo_door.errors import UserError
+    from evo_door.experiment import Results
+    from evo_door.experiment.spec import FORMATS, export
+
+    if args.format not in FORMATS:
+        raise UserError(f"--format {args.format!r}: choose one of {', '.join(FORMATS)}")
+    text = export(Results(args.results, args.stage), args.format, args.out)
+    if args.out:
+        print(f"wrote {args.out}")
+    else:
+        print(text, end="")
+    return 0

@@ -1,0 +1,47 @@
+"""``evo-door report RUN.h5``: one self-contained HTML page, figures embedded."""
+
+from __future__ import annotations
+
+import sys
+
+ORDER = 47
+
+
+def register(sub) -> None:
+    from evo_door.experiment.report import DEFAULT_JND, FORCE_FLOOR
+
+    p = sub.add_parser(
+        "report",
+        help="one self-contained HTML page of a run or a pipeline (figures embedded, and "
+        "as PNG): convergence, fits, parameter tables, identifiability, the perceptual check",
+    )
+    p.add_argument("results", metavar="RUN.h5", help="results file (a run's or a pipeline's)")
+    p.add_argument(
+        "--out", metavar="DIR", help="folder of the page and its figures (default RUN-report/)"
+    )
+    p.add_argument(
+        "--jnd",
+        type=float,
+        default=DEFAULT_JND,
+        help=f"force just-noticeable difference, a fraction (default {DEFAULT_JND:g})",
+    )
+    p.add_argument(
+        "--force-floor",
+        type=float,
+        default=FORCE_FLOOR,
+        metavar="N",
+        help=f"below this force the JND is taken of it (default {FORCE_FLOOR:g} N)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from evo_door.experiment.report import Settings, write_report
+
+    def log(text):
+        if sys.stderr.isatty():
+            print(text, file=sys.stderr, flush=True)
+
+    page = write_report(args.results, args.out, Settings(args.jnd, args.force_floor), log)
+    print(f"wrote {page} (and its figures as PNG in {page.parent})")
+    return 0

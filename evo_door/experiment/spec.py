@@ -1,0 +1,253 @@
+"""Specification tables: a fit's parameters as the seed's tables 5.3 and 5.4 give them.
+
+A product engineer takes one thing away from the method: a table of the mechanism's
+technical specifications (or of the haptic model's sensations), each with its symbol,
+unit and value, the range over the per-trial fits where there is one (seed table 5.3:
+min .. max over ten trials) and whether the data pin it down at all (identifiability).
+:func:`spec_table` builds it from a run (or a pipeline stage); :func:`render` writes it
+as CSV, Markdown, LaTeX, HTML or a parameter file (YAML) that ``--params``, experiments
+and the renderer read back.
+
+Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
+every free parameter whatever its group; geometry and numerical settings stay out of
+the table (the YAML file has them all). ``status`` says where a value comes from:
+``estimated`` (free in this fit), ``fixed`` (``fixed:`` of the experiment) or ``given``
+(the base set: a preset, a file or an earlier stage).
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import math
+from dataclasses import dataclass
+
+from evo_door.errors import UserError
+from evo_door.experiment.results import Results
+
+FORMATS = ("csv", "md", "tex", "html", "yaml")
+#: the groups a specification table lists (besides the free parameters)
+SPEC_GROUPS = ("specification", "sensation")
+
+
+@dataclass
+class SpecRow:
+    name: str
+    symbol: str
+    unit: str
+    value: float
+    status: str  # estimated, fixed, given
+    low: float = math.nan  # per-trial range (per_trial runs), else nan
+    high: float = math.nan
+    true: float = math.nan  # where the trials carry the truth
+    verdict: str = ""  # identifiability of an estimated value
+    se: float = math.nan  # standard error, unit of the value
+    note: str = ""
+    meaning: str = ""
+
+    @property
+    def has_range(self) -> bool:
+        return math.isfinite(self.low) and math.isfinite(self.high)
+
+
+@dataclass
+class SpecTable:
+    title: str
+    model: str  # how the run names its model (a name, an import path or a file)
+    source: str  # the results file (and stage)
+    rows: list[SpecRow]
+    values: dict  # every parameter -> value (the YAML file)
+    form: str  # "table 5.3" (a per-trial range) or "table 5.4" (one value)
+
+    @property
+    def has_range(self) -> bool:
+        return any(r.has_range for r in self.rows)
+
+
+def spec_table(res: Results) -> SpecTable:
+    """The specification table of a finished run or stage (see the module docstring)."""
+    if not res.complete:
+        raise UserError(
+            f"{res.path}: the run is not complete ({res.status().text}); a specification "
+            "comes from a finished fit"
+        )
+    model = res.model
+    if model is None:
+        raise UserError(f"{res.path}: model {res.attrs['model']!r} cannot be loaded")
+    summary = res.summary()
+    values = res.values()
+    fixed = res.config.get("fixed", {})
+    table = summary.get("table", {})
+    truth = summary.get("truth", {})
+    ident = res.identifiability()
+    verdicts = ident.as_dict() if ident is not None else {}
+    rows = []
+    for p in model.params:
+        if (p.group not in SPEC_GROUPS and p.name not in res.free) or p.name not in values:
+            continue  # (a parameter declared since the run was made has no value in it)
+        status = "estimated" if p.name in res.free else "fixed" if p.name in fixed else "given"
+        row = SpecRow(
+            p.name,
+            getattr(p, "symbol", "") or p.name,
+            p.unit,
+            float(values[p.name]),
+            status,
+            meaning=p.meaning,
+        )
+        if p.name in table:
+            row.low, row.high = table[p.name]["min"], table[p.name]["max"]
+        if p.name in truth:
+            row.true = float(truth[p.name])
+        if p.name in verdicts:
+            v = verdicts[p.name]
+            row.verdict, row.se = v["verdict"], v["se"]
+            if v["verdict"] != "identifiable":
+                row.note = v["reason"]
+        if p.name in summary.get("at_bound", {}):
+            row.note = (row.note + "; " if row.note else "") + (
+                f"on the {summary['at_bound'][p.name]} bound of its search range"
+            )
+        rows.append(row)
+    where = f"{res.path}" + (f", stage {res.stage}" if res.stage else "")
+    form = "table 5.3" if table else "table 5.4"
+    kind = "Sensations" if any(p.group == "sensation" for p in model.params) else "Specification"
+    return SpecTable(
+        title=f"{kind} of {res.attrs.get('name')} ({model.name} model)",
+        model=res.attrs["model"],
+        source=where,
+        rows=rows,
+        values=values,
+        form=form,
+    )
+
+
+# -- rendering ----------------------------------------------------------------------------
+def _num(v: float, digits: int = 6) -> str:
+    return "" if not math.isfinite(v) else f"{v:.{digits}g}"
+
+
+def _columns(t: SpecTable) -> list[tuple[str, callable]]:
+    cols = [
+        ("parameter", lambda r: r.name),
+        ("symbol", lambda r: r.symbol),
+        ("unit", lambda r: r.unit),
+        ("value", lambda r: _num(r.value)),
+    ]
+    if t.has_range:
+        cols += [("min", lambda r: _num(r.low)), ("max", lambda r: _num(r.high))]
+    if any(math.isfinite(r.true) for r in t.rows):
+        cols.append(("true", lambda r: _num(r.true)))
+    cols += [
+        ("status", lambda r: r.status),
+        ("identifiability", lambda r: r.verdict),
+        ("standard error", lambda r: _num(r.se, 3)),
+        ("note", lambda r: r.note),
+    ]
+    return cols
+
+
+def _caption(t: SpecTable) -> str:
+    what = (
+        "min and max over the per-trial fits, value of the fit of every trial at once"
+        if t.has_range
+        else "one value per parameter"
+    )
+    return f"{t.title}, in the form of seed {t.form} ({what}); from {t.source}"
+
+
+def render(t: SpecTable, fmt: str) -> str:
+    """The table as text in ``fmt`` (one of :data:`FORMATS`)."""
+    if fmt not in FORMATS:
+        raise UserError(f"--format {fmt!r}: choose one of {', '.join(FORMATS)}")
+    if fmt == "yaml":
+        return _yaml(t)
+    cols = _columns(t)
+    header = [c for c, _ in cols]
+    body = [[f(r) for _, f in cols] for r in t.rows]
+    if fmt == "csv":
+        out = io.StringIO()
+        out.write(f"# {_caption(t)}\n")
+        w = csv.writer(out, lineterminator="\n")
+        w.writerow(header)
+        w.writerows(body)
+        return out.getvalue()
+    if fmt == "md":
+        lines = [f"**{_caption(t)}**", "", "| " + " | ".join(header) + " |"]
+        lines.append("|" + "|".join("---" for _ in header) + "|")
+        lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in body]
+        return "\n".join(lines) + "\n"
+    if fmt == "tex":
+        return _tex(t, header, body)
+    return _html(t, header, body)
+
+
+def _tex_escape(text: str) -> str:
+    for a, b in (("\\", r"\textbackslash{}"), ("_", r"\_"), ("%", r"\%"), ("&", r"\&")):
+        text = text.replace(a, b)
+    for a, b in (("#", r"\#"), ("^", r"\^{}"), ("$", r"\$")):
+        text = text.replace(a, b)
+    return text
+
+
+def _tex(t: SpecTable, header, body) -> str:
+    align = "l" * 3 + "r" * (len(header) - 7) + "l" * 4
+    lines = [
+        r"% needs \usepackage{booktabs}",
+        r"\begin{table}[htbp]",
+        r"\centering",
+        rf"\caption{{{_tex_escape(_caption(t))}}}",
+        rf"\begin{{tabular}}{{{align}}}",
+        r"\toprule",
+        " & ".join(_tex_escape(h) for h in header) + r" \\",
+        r"\midrule",
+    ]
+    lines += [" & ".join(_tex_escape(c) for c in row) + r" \\" for row in body]
+    lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def table_html(t: SpecTable) -> str:
+    """The table as an HTML ``<table>`` (the report embeds it)."""
+    cols = _columns(t)
+    head = "".join(f"<th>{html.escape(c)}</th>" for c, _ in cols)
+    rows = []
+    for r in t.rows:
+        cls = "" if r.verdict in ("", "identifiable") else ' class="flag"'
+        cells = "".join(f"<td>{html.escape(f(r))}</td>" for _, f in cols)
+        rows.append(f"<tr{cls}>{cells}</tr>")
+    return (
+        f"<table><caption>{html.escape(_caption(t))}</caption>"
+        f"<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+    )
+
+
+def _html(t: SpecTable, header, body) -> str:
+    return (
+        '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>{html.escape(t.title)}</title><style>"
+        "body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
+        "td,th{border:1px solid #bbb;padding:.2em .5em;text-align:left}"
+        "tr.flag{background:#fde8e8}caption{font-weight:bold;margin-bottom:.5em}"
+        f"</style></head><body>{table_html(t)}</body></html>\n"
+    )
+
+
+def _yaml(t: SpecTable) -> str:
+    from evo_door.models import get_model
+    from evo_door.params.sets import ParamSet
+
+    model = get_model(t.model)
+    description = f"{t.title}, from {t.source}"
+    values = {n: v for n, v in t.values.items() if n in model.params}
+    return ParamSet.from_mapping(model.params, values, description).to_yaml()
+
+
+def export(res: Results, fmt: str, out=None) -> str:
+    """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically)."""
+    from evo_door.files import write_text
+
+    text = render(spec_table(res), fmt)
+    if out is not None:
+        write_text(out, text)
+    return text
