@@ -170,12 +170,13 @@ def test_closed_door_does_not_move_until_the_unlock_force(default, door):
     assert gone > 0
     held = r.theta[:gone]
     assert held.min() >= CLOSED - math.radians(0.5)
-    # the pull at the moment it gives: the latch's unlock force plus what the mechanism
-    # itself asks at the catch (the spring holds the door closed)
+    # the pull when it moves on: the latch's unlock force plus what the mechanism itself
+    # asks at the catch (the spring holds the door closed), and a little more, the
+    # pull's rise while the door is pushed through the catch's hold against friction
     latch_off = door.load_params("default", {"unlock_force": 0.0, "lock_force": 0.0})
     mech = quasi_static_force(door, latch_off, [CLOSED - math.radians(0.46)], -1e-3)[0]
     expected = -default["unlock_force"] + mech
-    assert f[gone] == pytest.approx(expected, rel=0.03)
+    assert 1.08 * expected <= f[gone] <= expected
     assert r.theta[-1] < CLOSED - math.radians(10)
 
 
@@ -318,7 +319,7 @@ def test_cli_simulate_curve_draw(tmp_path, capsys):
         == 0
     )
     text = curve.read_text().splitlines()
-    assert text[0] == "theta,force,direction" and len(text) == 23
+    assert text[0] == "theta,force,direction,speed" and len(text) >= 23  # + refined points
     png = tmp_path / "door.png"
     assert main(["draw", "door", "--params", "default", "--out", str(png)]) == 0
     assert png.stat().st_size > 10_000
@@ -357,9 +358,11 @@ def test_rig_trials_of_the_default_door_look_like_the_seed(door, default):
     peak = find_force_peak(unlock).force
     assert -1.3 * (default["unlock_force"] + 3.0) < peak < -default["unlock_force"]
     assert unlock.theta[-1] < CLOSED - math.radians(5)
-    # lock: the door rests on the lock ramp, the push peaks near lock_force, it ends closed
+    # lock: the door rests on the lock ramp, the push peaks near lock_force, it ends
+    # latched, seated on its catch at the end of the free play
     peak = find_force_peak(lock).force
     assert 0.8 * default["lock_force"] < peak < 1.5 * default["lock_force"]
-    assert lock.theta[-1] == pytest.approx(CLOSED, abs=math.radians(0.1))
+    seated = CLOSED - default["latch_loose_angle"]
+    assert lock.theta[-1] == pytest.approx(seated, abs=math.radians(0.05))
     # impulse: a push from fully open, measured by the gyroscope inside its range
     assert impulse.dtheta.max() < math.radians(100) and impulse.dtheta.max() > math.radians(30)

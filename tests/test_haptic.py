@@ -47,10 +47,12 @@ def test_slow_opening_peaks_at_open_force_then_falls_to_friction(haptic, seed, o
     peak = -c["opening"].min()
     friction = ps["friction_opening"] * math.tanh(ps["friction_slope"] * 1e-3)
     assert peak == pytest.approx(open_force + friction, rel=0.05)
-    # through the loose band the resistance is small (gasket and friction only)
+    # through the loose band the door seal pushes the door out: seat and gasket, small
     a = latch_angles_of(ps)
     loose = c["theta"] > a["theta_0"] + 1e-4
-    assert np.abs(c["opening"][loose]).max() < 0.1 * open_force
+    seal = ps["seat_force"] + ps["gasket_stiffness"] * ps["loose_angle"]
+    assert np.abs(c["opening"][loose]).max() <= seal + 0.1
+    assert seal < 0.25 * open_force
     # once unlocked (below the lock band) only friction remains: ~0
     below = c["theta"] < a["theta_3"] - 0.005
     assert np.abs(c["opening"][below]).max() < 0.5
@@ -333,4 +335,4 @@ def test_cli_simulate_and_curve(tmp_path):
         == 0
     )
     rows = np.genfromtxt(curve, delimiter=",", names=True, dtype=None, encoding="utf-8")
-    assert set(rows["direction"]) == {"opening", "closing"} and len(rows) == 182
+    assert set(rows["direction"]) == {"opening", "closing"} and len(rows) >= 182  # + refined

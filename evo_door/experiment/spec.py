@@ -89,7 +89,7 @@ def spec_table(res: Results) -> SpecTable:
         status = "estimated" if p.name in res.free else "fixed" if p.name in fixed else "given"
         row = SpecRow(
             p.name,
-            getattr(p, "symbol", "") or p.name,
+            p.symbol or p.name,
             p.unit,
             float(values[p.name]),
             status,

@@ -53,6 +53,7 @@ PARAMS = ParamTable(
             20.0,
             "sensation",
             "equivalent inertia at the handle, I = m R (heaviness)",
+            symbol="I",
         ),
         Param(
             "friction_closing",
@@ -62,6 +63,7 @@ PARAMS = ParamTable(
             100.0,
             "sensation",
             "dry friction while closing (dtheta > friction_speed_threshold)",
+            symbol="c_at+",
         ),
         Param(
             "friction_opening",
@@ -71,6 +73,7 @@ PARAMS = ParamTable(
             100.0,
             "sensation",
             "dry friction while opening (dtheta < friction_speed_threshold)",
+            symbol="c_at-",
         ),
         *[
             Param(
@@ -82,6 +85,7 @@ PARAMS = ParamTable(
                 "sensation",
                 f"dry-friction scale on section {k} of 8, "
                 f"[{(k - 1) * 90 / N_SECTIONS:g}, {k * 90 / N_SECTIONS:g}] deg",
+                symbol=f"A_{k}",
             )
             for k in range(1, N_SECTIONS + 1)
         ],
@@ -93,6 +97,7 @@ PARAMS = ParamTable(
             100.0,
             "sensation",
             "viscous friction, force c_v * |dtheta| against the motion (eq. 4.42)",
+            symbol="c_v",
         ),
         Param(
             "return_stiffness",
@@ -102,6 +107,7 @@ PARAMS = ParamTable(
             1000.0,
             "sensation",
             "return spring toward return_angle, e.g. a soft close (eq. 4.43); 0 = none",
+            symbol="k_ret",
         ),
         Param(
             "return_angle",
@@ -111,6 +117,7 @@ PARAMS = ParamTable(
             CLOSED,
             "sensation",
             "rest angle of the return spring (pi/2 pulls toward closed)",
+            symbol="theta_k",
         ),
         Param(
             "return_onset",
@@ -129,6 +136,7 @@ PARAMS = ParamTable(
             200.0,
             "sensation",
             "latch force to overcome to unlock (peak of the opening force); 0 = none",
+            symbol="k_1inf (theta_0 - theta_1)",
         ),
         Param(
             "close_force",
@@ -138,6 +146,7 @@ PARAMS = ParamTable(
             200.0,
             "sensation",
             "latch force to overcome to lock (peak of the closing force); 0 = none",
+            symbol="k_2inf (theta_2 - theta_3)",
         ),
         Param(
             "loose_angle",
@@ -147,6 +156,7 @@ PARAMS = ParamTable(
             0.1,
             "sensation",
             "free play below closed before the latch engages (seed: 0.5 deg)",
+            symbol="pi/2 - theta_0",
         ),
         Param(
             "transition_angle",
@@ -158,6 +168,33 @@ PARAMS = ParamTable(
             "snap zone between the unlock and the lock band",
         ),
         Param(
+            "open_hold",
+            "rad",
+            0.0,
+            0.0,
+            0.2,
+            "sensation",
+            "travel over which the latch holds open_force before it gives (push-through)",
+        ),
+        Param(
+            "close_hold",
+            "rad",
+            0.0,
+            0.0,
+            0.2,
+            "sensation",
+            "travel over which the latch holds close_force before the door snaps shut",
+        ),
+        Param(
+            "seat_force",
+            "N",
+            3.0,
+            0.0,
+            100.0,
+            "sensation",
+            "push of the door seal holding the latched door against its catch; 0 = none",
+        ),
+        Param(
             "gasket_stiffness",
             "N/rad",
             200.0,
@@ -165,6 +202,7 @@ PARAMS = ParamTable(
             1.0e4,
             "sensation",
             "soft push toward opening in the loose band (door seal)",
+            symbol="k_l",
         ),
         Param(
             "transition_damping",
@@ -174,6 +212,7 @@ PARAMS = ParamTable(
             1000.0,
             "sensation",
             "negative damping in the snap zone: the door leaves it on its own (eq. 4.41)",
+            symbol="c_n",
         ),
         # -- the door's end stops -----------------------------------------------------
         Param(
@@ -203,6 +242,7 @@ PARAMS = ParamTable(
             1.0e5,
             "device",
             "stiffness of the latch springs; band widths are force / stiffness",
+            symbol="k_inf",
         ),
         Param(
             "latch_damping",
@@ -212,6 +252,7 @@ PARAMS = ParamTable(
             1000.0,
             "device",
             "damping inside the latch bands (eq. 4.40)",
+            symbol="c_inf",
         ),
         Param(
             "radius",
@@ -221,6 +262,7 @@ PARAMS = ParamTable(
             1.0,
             "device",
             "radius of the handle's circular path on the device",
+            symbol="R",
         ),
         Param(
             "k_radial",
@@ -230,6 +272,7 @@ PARAMS = ParamTable(
             1.0e5,
             "device",
             "spring holding the end effector on the circle (eq. 4.32-4.33)",
+            symbol="k_r",
         ),
         Param(
             "c_radial",
@@ -239,6 +282,7 @@ PARAMS = ParamTable(
             1.0e4,
             "device",
             "damper holding the end effector on the circle",
+            symbol="c_r",
         ),
         Param(
             "k_plane",
@@ -248,6 +292,7 @@ PARAMS = ParamTable(
             1.0e5,
             "device",
             "spring holding the end effector in the plane x = 0 (eq. 4.21)",
+            symbol="k_x",
         ),
         Param(
             "c_plane",
@@ -257,6 +302,7 @@ PARAMS = ParamTable(
             1.0e4,
             "device",
             "damper holding the end effector in the plane x = 0",
+            symbol="c_x",
         ),
         Param(
             "c_energy",
@@ -266,6 +312,7 @@ PARAMS = ParamTable(
             1.0e4,
             "device",
             "tangential negative damping offsetting c_radial's loss (eq. 4.34-4.35)",
+            symbol="c_e",
         ),
         # -- numerics: smoothness of the switches ---------------------------------------
         Param(
@@ -276,6 +323,7 @@ PARAMS = ParamTable(
             2000.0,
             "numerics",
             "tanh slope of dry friction, F = c tanh(a dtheta) (eq. 3.1)",
+            symbol="a",
         ),
         Param(
             "friction_speed_threshold",
@@ -285,6 +333,7 @@ PARAMS = ParamTable(
             1.0,
             "numerics",
             "speed above which closing friction takes over from opening friction",
+            symbol="dtheta_0",
         ),
         Param(
             "window_slope",
@@ -330,6 +379,9 @@ CLOSE_FORCE = PARAMS.index("close_force")
 LOOSE_ANGLE = PARAMS.index("loose_angle")
 TRANSITION_ANGLE = PARAMS.index("transition_angle")
 GASKET_STIFFNESS = PARAMS.index("gasket_stiffness")
+OPEN_HOLD = PARAMS.index("open_hold")
+CLOSE_HOLD = PARAMS.index("close_hold")
+SEAT_FORCE = PARAMS.index("seat_force")
 TRANSITION_DAMPING = PARAMS.index("transition_damping")
 STOP_STIFFNESS = PARAMS.index("stop_stiffness")
 STOP_DAMPING = PARAMS.index("stop_damping")
@@ -376,11 +428,12 @@ def activation(x, x0, slope):
 def release(x, sharpness):
     """Smooth end of a latch band: ~1 inside it (x > 0), ~0 beyond it (x < 0).
 
-    ``x`` is the distance from the band's end, in band widths, positive inside.
-    R(x) = S(x, -delta, n), edge slope n = latch_sharpness per band width, centred
-    delta = (ln 2n + 1) / 2n widths *beyond* the end: then a spring that rises across
-    the band to F at its end, F (1 - x) R(x), peaks at exactly F (at x = -1/2n),
-    where an edge centred on the end would cut the peak by (ln 2n + 1) / 2n.
+    ``x`` is the distance from the band's end, in rise widths (force / stiffness),
+    positive inside. R(x) = S(x, -delta, n), edge slope n = latch_sharpness per rise
+    width, centred delta = (ln 2n + 1) / 2n widths *beyond* the end: then a spring
+    that reaches F at the band's end and goes on rising at the same slope beyond it,
+    F (1 - x) R(x) near the end, peaks at exactly F (at x = -1/2n), where an edge
+    centred on the end would cut the peak by (ln 2n + 1) / 2n.
     """
     u = sharpness * x
     if u > 25.0:  # n delta <= 4.3 for n <= 1000: S is exactly 1 or 0 out here
@@ -390,19 +443,32 @@ def release(x, sharpness):
     return 1.0 / (1.0 + math.exp(-2.0 * u - math.log(2.0 * sharpness) - 1.0))
 
 
+@njit(cache=True, inline="always")
+def rise_and_hold(d, rise, hold):
+    """Deflection the latch spring acts on (rad) at a deflection ``d`` into its band.
+
+    ``d - min(max(d - rise, 0), hold)``: ``k`` times it rises with ``d`` to the band's
+    force ``k rise``, **holds** that force over ``hold``, and rises again beyond the
+    band's end (where the release edge R has let go; the rise past the end is what
+    makes R's smooth peak exactly the force).
+    """
+    return d - min(max(d - rise, 0.0), hold)
+
+
 @njit(cache=True)
 def latch_angles(p):
     """The latch band limits (rad), derived from the sensations.
 
     Returns ``(theta_0, theta_1, theta_2, theta_3)``, going down from closed (pi/2):
-    loose band [theta_0, pi/2], unlock band [theta_1, theta_0], snap zone
-    [theta_2, theta_1], lock band [theta_3, theta_2].
+    loose band [theta_0, pi/2], unlock band [theta_1, theta_0] (rise open_force /
+    latch_stiffness, then open_hold), snap zone [theta_2, theta_1], lock band
+    [theta_3, theta_2] (rise close_force / latch_stiffness, then close_hold).
     """
     k = p[LATCH_STIFFNESS]
     theta_0 = CLOSED - p[LOOSE_ANGLE]
-    theta_1 = theta_0 - p[OPEN_FORCE] / k
+    theta_1 = theta_0 - p[OPEN_FORCE] / k - p[OPEN_HOLD]
     theta_2 = theta_1 - p[TRANSITION_ANGLE]
-    theta_3 = theta_2 - p[CLOSE_FORCE] / k
+    theta_3 = theta_2 - p[CLOSE_FORCE] / k - p[CLOSE_HOLD]
     return theta_0, theta_1, theta_2, theta_3
 
 
@@ -433,8 +499,8 @@ def tangential_force(theta, dtheta, p):
 
     Sum of the phases of seed section 4.3.3, with the spec's behaviour. Every effect
     is switched off by a zero: frictions, viscous_damping, return_stiffness,
-    open_force and close_force (both zero: no latch at all), gasket_stiffness,
-    transition_damping, stop_stiffness.
+    open_force and close_force (both zero: no latch at all), open_hold, close_hold,
+    seat_force, gasket_stiffness, transition_damping, stop_stiffness.
     """
     f = 0.0
 
@@ -465,13 +531,18 @@ def tangential_force(theta, dtheta, p):
             * activation(theta, p[RETURN_ONSET], p[WINDOW_SLOPE])
         )
 
-    # 4. Loose band [theta_0, pi/2] and beyond: the gasket pushes toward opening,
-    #      F_g = -k_l max(theta - theta_0, 0)
-    #    (zero at theta_0, where the latch hook takes over, so a latched door with no
-    #    hand on it rests at theta_0, at the edge of the free play).
+    # 4. Loose band [theta_0, pi/2] and beyond: the door seal pushes toward opening,
+    #      F_g = -k_l (theta - theta_0) - min(F_seat, k (theta - theta_0)),  theta > theta_0
+    #    (zero at theta_0, where the latch hook takes over). The seat F_seat, reached
+    #    at the latch stiffness k (what the device renders), beats friction, so a
+    #    latched door rests on its catch at theta_0, not anywhere in the free play:
+    #    a pull meets the catch at once, with no run-up (only with a catch to press
+    #    against, open_force > 0).
     theta_0 = CLOSED - p[LOOSE_ANGLE]
     if theta > theta_0:
         f -= p[GASKET_STIFFNESS] * (theta - theta_0)
+        if p[OPEN_FORCE] > 0.0:
+            f -= min(p[SEAT_FORCE], p[LATCH_STIFFNESS] * (theta - theta_0))
 
     # 5. The latch (eqs. 4.39-4.41, corrected), only if it has a force to give.
     #    Skipped below the lowest angle any latch term reaches: theta_0 minus
@@ -480,25 +551,32 @@ def tangential_force(theta, dtheta, p):
     close_force = p[CLOSE_FORCE]
     k = p[LATCH_STIFFNESS]
     n = p[LATCH_SHARPNESS]
-    k_length = open_force + close_force + k * p[TRANSITION_ANGLE]  # k (theta_0 - theta_3)
+    # k (theta_0 - theta_3)
+    k_length = open_force + close_force + k * (p[TRANSITION_ANGLE] + p[OPEN_HOLD] + p[CLOSE_HOLD])
     if (open_force > 0.0 or close_force > 0.0) and (theta_0 - theta) * k * n < k_length * (
         1.4 * n + 20.0
     ):
         c = p[LATCH_DAMPING]
-        w_1 = open_force / k  # unlock band width
-        w_2 = close_force / k  # lock band width
-        theta_1 = theta_0 - w_1
+        w_1 = open_force / k  # unlock rise
+        w_2 = close_force / k  # lock rise
+        h_1 = p[OPEN_HOLD]
+        h_2 = p[CLOSE_HOLD]
+        theta_1 = theta_0 - w_1 - h_1
         theta_2 = theta_1 - p[TRANSITION_ANGLE]
-        theta_3 = theta_2 - w_2
+        theta_3 = theta_2 - w_2 - h_2
 
         # 5a. Unlock band [theta_1, theta_0]: the hook, pushing toward closing; it
-        #     rises from 0 at theta_0 to open_force at theta_1, then lets go:
-        #       F_o = [k (theta_0 - theta) - c dtheta] R((theta - theta_1) / w_1)
-        #     (R: see `release`; the smooth peak is exactly open_force). Active in
-        #     both directions: it holds the latched door against the gasket and pulls
-        #     a closing door in (the snap).
+        #     rises from 0 at theta_0 to open_force over w_1, holds it over open_hold
+        #     h_1, then lets go at theta_1:
+        #       F_o = [k H(theta_0 - theta; w_1, h_1) - c dtheta] R((theta - theta_1) / w_1)
+        #     (H: `rise_and_hold`; R: `release`; the smooth peak is exactly
+        #     open_force). The hold is what makes it a threshold: a pull below
+        #     open_force (1 - w_1 / 2 (w_1 + h_1)) cannot do the work the band asks,
+        #     however brisk (docs/haptic-model.md). Active in both directions: it
+        #     holds the latched door against the seal and pulls a closing door in.
         if open_force > 0.0 and theta < theta_0:
-            f += (k * (theta_0 - theta) - c * dtheta) * release((theta - theta_1) / w_1, n)
+            spring = k * rise_and_hold(theta_0 - theta, w_1, h_1)
+            f += (spring - c * dtheta) * release((theta - theta_1) / w_1, n)
 
         # 5b. Snap zone [theta_2, theta_1]: negative damping, the door does not stay
         #       F_t = +c_n dtheta [S(theta, theta_2) - S(theta, theta_1)],  slope n / width
@@ -518,8 +596,9 @@ def tangential_force(theta, dtheta, p):
             )
 
         # 5c. Lock band [theta_3, theta_2]: the hook's ramp, pushing toward opening,
-        #     from 0 at theta_3 to close_force at theta_2, then lets go:
-        #       F_c = -[k (theta - theta_3) + c dtheta] R((theta_2 - theta) / w_2) G,
+        #     from 0 at theta_3 up to close_force over w_2, held over close_hold h_2,
+        #     then lets go at theta_2:
+        #       F_c = -[k H(theta - theta_3; w_2, h_2) + c dtheta] R((theta_2 - theta) / w_2) G,
         #       G   = S(dtheta, -3 / a_g, a_g)   ~1 unless clearly opening,
         #     so an opening door, once unlocked, feels ~0 here (the seed gates this
         #     spring with the closing direction too).
@@ -528,7 +607,8 @@ def tangential_force(theta, dtheta, p):
             if r > 0.0:
                 a_g = p[LATCH_GATE_SLOPE]
                 gate = activation(dtheta, -3.0 / a_g, a_g)
-                f -= (k * (theta - theta_3) + c * dtheta) * r * gate
+                spring = k * rise_and_hold(theta - theta_3, w_2, h_2)
+                f -= (spring + c * dtheta) * r * gate
 
     # 6. End stops: stiff, damped, never pulling (closed wall at pi/2, open stop at 0).
     ks = p[STOP_STIFFNESS]
@@ -648,9 +728,10 @@ def latch_angles_of(params) -> dict[str, float]:
 _NOTES = """\
 theta: 0 = fully open, pi/2 = closed; forces + toward closing. The latch bands follow
 from the sensations, going down from closed: loose band [theta_0, pi/2] with
-theta_0 = pi/2 - loose_angle; unlock band down to theta_1 = theta_0 - open_force /
-latch_stiffness; snap zone of transition_angle; lock band of close_force /
-latch_stiffness. Device space: virtual mass inertia / radius, model origin at device
+theta_0 = pi/2 - loose_angle (the seal's seat_force holds a latched door at theta_0);
+unlock band down to theta_1 = theta_0 - open_force / latch_stiffness - open_hold;
+snap zone of transition_angle; lock band of close_force / latch_stiffness +
+close_hold. Device space: virtual mass inertia / radius, model origin at device
 (0, -0.158, -0.138) m. Equations: docs/haptic-model.md."""
 
 #: ROS2 (semi-implicit) with 2 steps per 1024 Hz sample: stable for the stiffest

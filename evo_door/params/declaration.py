@@ -40,6 +40,9 @@ class Param:
         One of :data:`GROUPS`.
     meaning : str
         One line, in the user's words.
+    symbol : str
+        The symbol the seed writes it with, where it differs from ``name``
+        (``c_at+``, ``A_3``); specification tables show it.
     """
 
     name: str
@@ -49,6 +52,7 @@ class Param:
     upper: float
     group: str
     meaning: str
+    symbol: str = ""
 
     def __post_init__(self):
         if self.group not in GROUPS:

@@ -35,7 +35,7 @@ from evo_door.models.base import Model
 from evo_door.models.door.door import door, door_potential
 from evo_door.models.door.frictionforce import friction_force
 from evo_door.models.door.kinematics import pose
-from evo_door.models.door.latch import latch, latch_angles, latch_spring_force
+from evo_door.models.door.latch import latch, latch_potential
 from evo_door.models.door.parameters import N_SECTIONS, TABLE
 from evo_door.models.door.plate import plate, spring_potential, stop_h
 from evo_door.models.door.relativespeed import relative_speed, section_scale
@@ -69,6 +69,9 @@ LOCK_FORCE = TABLE.index("lock_force")
 LATCH_LOOSE_ANGLE = TABLE.index("latch_loose_angle")
 LATCH_OPEN_STIFFNESS = TABLE.index("latch_open_stiffness")
 LATCH_CLOSE_STIFFNESS = TABLE.index("latch_close_stiffness")
+LATCH_OPEN_HOLD = TABLE.index("latch_open_hold")
+LATCH_CLOSE_HOLD = TABLE.index("latch_close_hold")
+LATCH_SEAT_FORCE = TABLE.index("latch_seat_force")
 FRICTION_SCALE_1 = TABLE.index("friction_scale_1")
 A_LIN = TABLE.index("a")
 A_ROT = TABLE.index("a_rot")
@@ -125,6 +128,9 @@ def mechanism_force(theta, dtheta, p):
         p[LATCH_LOOSE_ANGLE],
         p[LATCH_OPEN_STIFFNESS],
         p[LATCH_CLOSE_STIFFNESS],
+        p[LATCH_OPEN_HOLD],
+        p[LATCH_CLOSE_HOLD],
+        p[LATCH_SEAT_FORCE],
         p[LATCH_DAMPING],
         p[LATCH_SHARPNESS],
         p[WALL_STIFFNESS],
@@ -156,52 +162,28 @@ def accel(theta, dtheta, force, p):
 def energy(theta, dtheta, p):
     """Mechanical energy (J): kinetic + gravity + spring at C + latch springs + stops.
 
-    Zero-referenced at the fully-open pose at rest. The latch's conservative force is
-    integrated numerically (it is piecewise smooth and local to the last degrees), the
-    stop and wall potentials are the one-sided ``k x^2 / 2``.
+    Zero-referenced at the fully-open pose at rest. The latch's potential is in closed
+    form (:func:`~evo_door.models.door.latch.latch_potential`), the stop and wall
+    potentials are the one-sided ``k x^2 / 2``.
     """
     inertia_o = p[I_Z] + p[M] * (p[G_X] ** 2 + p[G_Y] ** 2)
     e = 0.5 * inertia_o * dtheta * dtheta
     e += door_potential(theta, p[M], p[G_X], p[G_Y]) - door_potential(0.0, p[M], p[G_X], p[G_Y])
     k = pose(theta, p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY])
     e += spring_potential(k, p[L_CY], p[K], p[F_LOAD])
-    # latch: V(theta) = -int_{theta_3 - margin}^{theta} L F_latch, trapezoids
+    # latch: V(theta) = -int L F_latch dtheta, in closed form (latch.latch_potential)
     if p[UNLOCK_FORCE] > 0.0 or p[LOCK_FORCE] > 0.0:
-        t0, t1, t3 = latch_angles(
+        e += p[L] * latch_potential(
+            theta,
             p[UNLOCK_FORCE],
             p[LOCK_FORCE],
             p[LATCH_LOOSE_ANGLE],
             p[LATCH_OPEN_STIFFNESS],
             p[LATCH_CLOSE_STIFFNESS],
+            p[LATCH_OPEN_HOLD],
+            p[LATCH_CLOSE_HOLD],
+            p[LATCH_SEAT_FORCE],
         )
-        start = t3 - 40.0 / p[LATCH_SHARPNESS]
-        if theta > start:
-            top = min(theta, CLOSED + 1.0)
-            n = 4000
-            h = (top - start) / n
-            acc = 0.0
-            prev = latch_spring_force(
-                start,
-                p[UNLOCK_FORCE],
-                p[LOCK_FORCE],
-                p[LATCH_LOOSE_ANGLE],
-                p[LATCH_OPEN_STIFFNESS],
-                p[LATCH_CLOSE_STIFFNESS],
-                p[LATCH_SHARPNESS],
-            )
-            for i in range(1, n + 1):
-                cur = latch_spring_force(
-                    start + i * h,
-                    p[UNLOCK_FORCE],
-                    p[LOCK_FORCE],
-                    p[LATCH_LOOSE_ANGLE],
-                    p[LATCH_OPEN_STIFFNESS],
-                    p[LATCH_CLOSE_STIFFNESS],
-                    p[LATCH_SHARPNESS],
-                )
-                acc += 0.5 * (prev + cur) * h
-                prev = cur
-            e -= p[L] * acc
     if theta > CLOSED:
         e += 0.5 * p[WALL_STIFFNESS] * p[L] * (theta - CLOSED) ** 2
     if theta < 0.0:

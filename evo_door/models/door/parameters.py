@@ -179,11 +179,38 @@ _PARAMS = [
     Param(
         "latch_close_stiffness",
         "N/rad",
-        5.0e3,
+        2.0e4,
         1.0e2,
         1.0e7,
         "specification",
         "latch: catch stiffness felt at the handle while locking",
+    ),
+    Param(
+        "latch_open_hold",
+        "rad",
+        0.006,
+        0.0,
+        5.0 * _DEG,
+        "specification",
+        "latch: travel over which the catch holds unlock_force before it lets go",
+    ),
+    Param(
+        "latch_close_hold",
+        "rad",
+        0.009,
+        0.0,
+        5.0 * _DEG,
+        "specification",
+        "latch: travel over which the lock ramp holds lock_force before the door snaps in",
+    ),
+    Param(
+        "latch_seat_force",
+        "N",
+        10.0,
+        0.0,
+        300.0,
+        "specification",
+        "latch: push of the door seal that holds the latched door out against its catch",
     ),
 ]
 _PARAMS += [
@@ -196,6 +223,7 @@ _PARAMS += [
         "specification",
         f"pad friction F_atD scale A_{k} on section {k} of {N_SECTIONS} of [0, 90] deg "
         f"(eq. 5.8-5.9)",
+        symbol=f"A_{k}",
     )
     for k in range(1, N_SECTIONS + 1)
 ]
