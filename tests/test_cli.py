@@ -147,6 +147,6 @@ def test_curve_command_writes_both_directions(tmp_path, capsys):
     )
     assert res.returncode == 0, res.stderr
     lines = (tmp_path / "c.csv").read_text().splitlines()
-    assert lines[0] == "theta,force,direction" and len(lines) == 23
+    assert lines[0] == "theta,force,direction,speed" and len(lines) == 23
     assert {line.split(",")[2] for line in lines[1:]} == {"opening", "closing"}
     assert (tmp_path / "c.png").stat().st_size > 5000
