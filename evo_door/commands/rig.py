@@ -36,6 +36,23 @@ def register(sub) -> None:
         "the seed's pairs: inclinometer for unlock/lock, gyroscope for impulse)",
     )
     g.add_argument(
+        "--truth",
+        default="model",
+        metavar="TRUTH",
+        help="what the rig simulates: 'model' (default: the model itself) or 'rich' (the "
+        "physical door with Stribeck friction, handle play and sensor dynamics, "
+        "docs/model-mismatch.md; --model door)",
+    )
+    g.add_argument(
+        "--truth-set",
+        metavar="NAME=VALUE",
+        action="append",
+        default=[],
+        dest="truth_assignments",
+        help="override one parameter of the rich truth (SI units; e.g. stribeck_ratio=2); "
+        "repeatable",
+    )
+    g.add_argument(
         "--out",
         required=True,
         metavar="OUT.h5",
@@ -46,8 +63,9 @@ def register(sub) -> None:
 
 def run_generate(args) -> int:
     from evo_door.data.io import file_format, write_trials
-    from evo_door.data.rig import RigSettings, generate_trials, params_source
+    from evo_door.data.rig import RigSettings, generate_trials, make_truth, params_source
     from evo_door.data.show import format_summary
+    from evo_door.params import parse_assignments
 
     file_format(args.out)
     if args.users < 1 or args.trials < 1:
@@ -55,6 +73,9 @@ def run_generate(args) -> int:
     if args.rate <= 0:
         raise UserError("--rate must be positive")
     model, params = model_and_params(args)
+    truth = make_truth(
+        model, params, args.truth, parse_assignments(args.truth_assignments, "--truth-set")
+    )
     kinds = None if args.kinds is None else [k.strip() for k in args.kinds.split(",") if k.strip()]
     trials = generate_trials(
         model,
@@ -64,13 +85,15 @@ def run_generate(args) -> int:
         seed=args.seed,
         kinds=kinds,
         settings=RigSettings(rate=args.rate, all_sensors=args.all_sensors),
+        truth=truth,
     )
+    rich = "" if truth is None else f", truth {truth.name} ({truth.values.source})"
     write_trials(
         args.out,
         trials,
         description=f"virtual rig: model {model.name}, "
         f"params {params_source(model, params) or 'defaults'}, "
-        f"{args.users} users, {args.trials} trials, seed {args.seed}",
+        f"{args.users} users, {args.trials} trials, seed {args.seed}{rich}",
     )
     print(format_summary(trials, args.out))
     print(f"wrote {args.out}")

@@ -37,6 +37,14 @@ range and the trial would tell a fit nothing.
 **Determinism**: everything random comes from ``numpy.random.SeedSequence(seed)``,
 spawned into one generator for the users and one per trial (so trial k is the same
 whatever the number of trials); no global state.
+
+**The truth**: by default the rig simulates the model it is given, so a fit of that
+model can match the trials but for noise. ``truth="rich"`` (``--truth rich``) makes
+the physical door's trials with a richer truth instead
+(:mod:`evo_door.models.door.truth`: Stribeck friction, play and compliance at the
+handle, load cell and gyroscope with low-pass dynamics); the trials then carry the
+door's parameters as before (what a fit is scored against) and the truth's own under
+``truth["effects"]``. The default path never touches that module.
 """
 
 from __future__ import annotations
@@ -48,12 +56,14 @@ from pathlib import Path
 import numpy as np
 
 from evo_door import __version__
-from evo_door.data.sensors import CLOSED, DEG, SEED_SENSORS, Sensor
+from evo_door.data.sensors import CLOSED, DEG, SEED_SENSORS, FilteredSensor, Sensor
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 from evo_door.sim.simulate import simulate
 
 KINDS = ("unlock", "lock", "impulse")
+#: What the rig simulates: the model itself, or the door's richer truth.
+TRUTHS = ("model", "rich")
 #: Kinds cycled over the trials: impulses (the fitting targets) every other trial.
 DEFAULT_KINDS = ("impulse", "unlock", "impulse", "lock")
 #: Channels each kind measures (seed 3.4: inclinometer near closed, gyroscope in motion).
@@ -272,6 +282,8 @@ def run_closed_loop(
     chunk: int = 4,
     method=None,
     substeps=None,
+    truth=None,
+    state0=None,
 ) -> dict:
     """Simulate ``model`` under a user ``policy`` deciding the force chunk by chunk.
 
@@ -279,7 +291,15 @@ def run_closed_loop(
     from the previous chunk's end state with the force sample they share, which is
     exactly what one call over the whole force would compute (the integrators are
     one-step methods). Returns ``t, force, theta, dtheta, ddtheta`` (truth, no noise).
+
+    With a ``truth`` (:class:`~evo_door.models.door.truth.DoorTruth`) that truth is
+    simulated instead, from its ``state0`` (default: at rest with the door at
+    ``theta0``); the hand then acts on the truth's handle.
     """
+    if truth is not None:
+        if state0 is None:
+            state0 = truth.state(theta0, dtheta0)
+        return _run_truth_loop(truth, policy, dt, state0, t_max, chunk)
     n_max = int(round(t_max / dt)) + 1
     t = dt * np.arange(n_max)
     force = np.zeros(n_max)
@@ -317,6 +337,47 @@ def run_closed_loop(
         "dtheta": dtheta[:n],
         "ddtheta": ddtheta[:n],
     }
+
+
+def _run_truth_loop(truth, policy: _Policy, dt, state0, t_max, chunk) -> dict:
+    """:func:`run_closed_loop` on a truth with a handle state: the hand feels the handle,
+    the policy watches the door (what the inclinometer and gyroscope see)."""
+    n_max = int(round(t_max / dt)) + 1
+    t = dt * np.arange(n_max)
+    force = np.zeros(n_max)
+    out = {name: np.empty(n_max) for name in ("theta", "dtheta", "ddtheta", "theta_h", "dtheta_h")}
+    state = np.array(state0, dtype=np.float64)
+    out["theta"][0], out["dtheta"][0] = state[0], state[1]
+    out["theta_h"][0], out["dtheta_h"][0] = state[2], state[3]
+    k = 0
+    while k < n_max - 1 and not policy.finished:
+        k1 = min(k + chunk, n_max - 1)
+        force[k + 1 : k1 + 1] = policy.plan(
+            t[k + 1 : k1 + 1], t[k], out["theta_h"][k], out["dtheta_h"][k]
+        )
+        r, state, ok = truth.simulate(force[k : k1 + 1], dt, state)
+        if not ok:
+            raise UserError(
+                f"rig: the simulation of the {truth.name} truth blew up at t = {t[k]:.3f} s; "
+                "check its parameters"
+            )
+        for name, values in r.items():
+            out[name][k : k1 + 1] = values
+        policy.observe(t[k : k1 + 1], r["theta"], r["dtheta"])
+        k = k1
+    n = k + 1
+    return {"t": t[:n], "force": force[:n], **{name: v[:n] for name, v in out.items()}}
+
+
+def _settle_truth(truth, theta0, dt, duration=0.5) -> np.ndarray:
+    """The truth's state after resting with no force for ``duration`` s from ``theta0``."""
+    n = int(round(duration / dt)) + 1
+    _, end, ok = truth.simulate(np.zeros(n), dt, truth.state(theta0, 0.0))
+    if not ok:
+        raise UserError(
+            f"rig: the {truth.name} truth blew up while resting at theta = {theta0:.4f} rad"
+        )
+    return end
 
 
 def _settle(model, params, theta0, dt, duration=0.5, method=None, substeps=None):
@@ -377,19 +438,33 @@ def generate_trial(
     sensors: dict[str, Sensor] | None = None,
     method=None,
     substeps=None,
+    truth=None,
 ) -> Trial:
     """One rig trial of ``kind`` by ``user`` (already jittered) on ``model`` with ``params``.
 
     Raises UserError when the model does not support ``kind`` (``Model.rig_kinds``) or
-    when its response leaves the sensor's range (see the module docstring).
+    when its response leaves the sensor's range (see the module docstring). ``truth``
+    (a :class:`~evo_door.models.door.truth.DoorTruth`) is simulated in the model's
+    place, and measured by sensors with its dynamics.
     """
     _check_kinds(model, [kind])
     sensors = dict(SEED_SENSORS, **(sensors or {}))
     dt = 1.0 / settings.rate
     tremor = _tremor(user, rng)
     opts = {"method": method, "substeps": substeps}
+    state0 = None
+
+    def settle(theta):
+        nonlocal state0
+        if truth is None:
+            return _settle(model, params, theta, dt, **opts)
+        state0 = _settle_truth(truth, theta, dt)
+        return float(state0[0]), float(state0[1])
+
+    if truth is not None:
+        sensors = with_dynamics(sensors, truth.sensor_dynamics())
     if kind == "unlock":
-        theta0, dtheta0 = _settle(model, params, CLOSED, dt, **opts)
+        theta0, dtheta0 = settle(CLOSED)
         policy = HandPolicy(
             user,
             -1,
@@ -404,7 +479,7 @@ def generate_trial(
     elif kind == "lock":
         # a door that pulls itself shut over its last degrees comes to rest on the lock
         # ramp before the hand arrives: the push starts from where it rests
-        theta0, dtheta0 = _settle(model, params, CLOSED - user.lock_start, dt, **opts)
+        theta0, dtheta0 = settle(CLOSED - user.lock_start)
         policy = HandPolicy(
             user,
             +1,
@@ -417,15 +492,27 @@ def generate_trial(
             settings.t_max,
         )
     else:
-        theta0, dtheta0 = _settle(model, params, 0.0, dt, **opts)
+        theta0, dtheta0 = settle(0.0)
         policy = ImpulsePolicy(user, tremor, settings.settle, settings.t_max)
     clean = run_closed_loop(
-        model, params, policy, dt, theta0, dtheta0, settings.t_max, settings.chunk, **opts
+        model,
+        params,
+        policy,
+        dt,
+        theta0,
+        dtheta0,
+        settings.t_max,
+        settings.chunk,
+        **opts,
+        truth=truth,
+        state0=state0,
     )
 
     _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean)
     channels = ("force", "theta", "dtheta") if settings.all_sensors else KIND_CHANNELS[kind]
-    measured = {ch: sensors[ch].measure(clean[ch], rng) for ch in channels}
+    # the sensing element's dynamics (none for the seed's sensors), then noise, bias,
+    # quantisation and range
+    measured = {ch: sensors[ch].measure(sensors[ch].respond(clean[ch], dt), rng) for ch in channels}
     events = {"t_start": policy.t_start}
     if isinstance(policy, HandPolicy):
         events.update(t_event=policy.t_event, t_release=policy.t_release, gave_up=policy.gave_up)
@@ -442,7 +529,7 @@ def generate_trial(
         theta0=theta0,
         dtheta0=dtheta0,
         sensors={ch: sensors[ch].info() for ch in channels},
-        truth=_truth(model, params, method, substeps),
+        truth=_truth(model, params, method, substeps, truth),
         source=f"rig:{trial_id}",
         meta={
             "rig": {
@@ -541,9 +628,9 @@ def params_source(model, params) -> str:
     return path.stem + (f", changed: {', '.join(changed)}" if changed else "")
 
 
-def _truth(model, params, method, substeps) -> dict:
+def _truth(model, params, method, substeps, truth=None) -> dict:
     values = params.as_dict() if hasattr(params, "as_dict") else model.params.as_dict(params)
-    return {
+    out = {
         "model": model.name,
         "params": values,
         "units": {p.name: p.unit for p in model.params},
@@ -551,6 +638,56 @@ def _truth(model, params, method, substeps) -> dict:
         "method": method or model.method,
         "substeps": int(substeps or model.substeps),
     }
+    if truth is not None:
+        out.update(
+            method=truth.method, substeps=truth.substeps, variant=truth.name, effects=truth.record()
+        )
+    return out
+
+
+def with_dynamics(sensors: dict[str, Sensor], dynamics: dict) -> dict[str, Sensor]:
+    """``sensors`` with the channels of ``dynamics`` (channel -> (bandwidth Hz, order))
+    made :class:`~evo_door.data.sensors.FilteredSensor` (same range, noise, resolution)."""
+    out = dict(sensors)
+    for ch, (bandwidth, order) in dynamics.items():
+        base = {f.name: getattr(sensors[ch], f.name) for f in fields(Sensor)}
+        out[ch] = FilteredSensor(**base, bandwidth=bandwidth, order=order)
+    return out
+
+
+def make_truth(model, params, truth=None, truth_params=None, method=None, substeps=None):
+    """The truth the rig simulates: None for the model itself, else a ``DoorTruth``.
+
+    ``truth`` is None, ``"model"``, ``"rich"`` or a ready truth object;
+    ``truth_params`` (a mapping name -> value, a YAML path or a ParamSet) sets the rich
+    truth's parameters on top of its declared defaults.
+    """
+    if truth is None or (isinstance(truth, str) and truth == "model"):
+        if truth_params:
+            raise UserError("truth parameters need the rich truth (--truth rich)")
+        return None
+    if not isinstance(truth, str):
+        return truth
+    if truth not in TRUTHS:
+        from evo_door.params.declaration import suggest
+
+        raise UserError(
+            f"unknown truth {truth!r}" + suggest(truth, TRUTHS) + f"; truths: {', '.join(TRUTHS)}"
+        )
+    from evo_door.models.door.truth import DoorTruth, load_truth_params
+    from evo_door.params import ParamSet
+
+    if isinstance(truth_params, ParamSet):
+        values = truth_params
+    elif isinstance(truth_params, (str, Path)):
+        values = load_truth_params(truth_params)
+    else:
+        values = load_truth_params(None, dict(truth_params or {}))
+        changed = sorted(truth_params or {})
+        values = replace(
+            values, source="defaults" + (f", changed: {', '.join(changed)}" if changed else "")
+        )
+    return DoorTruth(model, params, values, method, substeps)
 
 
 # -- a campaign -----------------------------------------------------------------------
@@ -566,6 +703,8 @@ def generate_trials(
     method=None,
     substeps=None,
     progress: bool | None = None,
+    truth=None,
+    truth_params=None,
 ) -> list[Trial]:
     """A measurement campaign: ``trials`` trials by ``users`` virtual users.
 
@@ -587,6 +726,11 @@ def generate_trials(
         Sensor models replacing the seed's (:data:`~evo_door.data.sensors.SEED_SENSORS`).
     progress : bool or None
         tqdm bar (None: only on a terminal).
+    truth : None, "model" or "rich"
+        What is simulated (:func:`make_truth`): the model itself (default), or the
+        physical door's richer truth (:mod:`evo_door.models.door.truth`).
+    truth_params : mapping, YAML path or ParamSet, optional
+        The rich truth's parameters on top of its declared defaults.
     """
     from tqdm.auto import tqdm
 
@@ -596,6 +740,7 @@ def generate_trials(
     if not kinds:
         raise UserError("the rig needs at least one trial kind")
     _check_kinds(model, kinds)
+    truth = make_truth(model, params, truth, truth_params, method, substeps)
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
     user_seq, trial_root = root.spawn(2)
     people = make_users(users, np.random.default_rng(user_seq))
@@ -617,6 +762,7 @@ def generate_trials(
             sensors,
             method,
             substeps,
+            truth,
         )
         trial.meta["rig"].update(
             seed=int(root.entropy) if isinstance(root.entropy, int) else None, trial_index=k
