@@ -120,6 +120,12 @@ def test_a_killed_pipeline_resumes_at_its_stage_and_generation_to_the_same_numbe
             "pipe.yaml:15: free.kk: model 'oscillator' has no parameter 'kk'",
         ),
         ("name: two\n", "name: two\nstage: 3\n", "pipe.yaml:2: stage: unknown key"),
+        (
+            "name: two\n",
+            "name: two\nreport: {jdn: 0.1}\n",
+            "pipe.yaml:2: report.jdn: unknown key (did you mean 'jnd'?)",
+        ),
+        ("name: two\n", "name: two\nreport: {jnd: 2}\n", "report.jnd: must be <= 1"),
     ],
 )
 def test_pipeline_files_are_checked_before_any_stage_starts(folder, old, new, message):

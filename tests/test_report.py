@@ -68,3 +68,16 @@ def test_bad_settings_and_unfinished_runs_are_refused(pipeline_file, tmp_path):
     (tmp_path / "afile").write_text("x")
     with pytest.raises(UserError, match="not a folder"):
         write_report(pipeline_file, tmp_path / "afile")
+
+
+def test_the_pipeline_file_sets_the_jnd_and_the_command_line_wins(folder, tmp_path):  # noqa: F811
+    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.report import pipeline_settings
+
+    (folder / "pipe.yaml").write_text(
+        PIPELINE.replace("name: two\n", "name: two\nreport: {jnd: 0.2}\n")
+    )
+    path = PipelineRun.create(load_pipeline(folder / "pipe.yaml"), folder / "j.h5").run().path
+    summary = pipeline_summary(path)
+    assert pipeline_settings(path, summary).jnd == 0.2
+    assert pipeline_settings(path, summary, jnd=0.05).jnd == 0.05

@@ -22,26 +22,30 @@ def register(sub) -> None:
     p.add_argument(
         "--jnd",
         type=float,
-        default=DEFAULT_JND,
-        help=f"force just-noticeable difference, a fraction (default {DEFAULT_JND:g})",
+        help="force just-noticeable difference, a fraction (default: the pipeline file's "
+        f"report.jnd, else {DEFAULT_JND:g})",
     )
     p.add_argument(
         "--force-floor",
         type=float,
-        default=FORCE_FLOOR,
         metavar="N",
-        help=f"below this force the JND is taken of it (default {FORCE_FLOOR:g} N)",
+        help="below this force the JND is taken of it (default: the pipeline file's "
+        f"report.force_floor, else {FORCE_FLOOR:g} N)",
     )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from evo_door.experiment.report import Settings, write_report
+    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.report import pipeline_settings, write_report
 
     def log(text):
         if sys.stderr.isatty():
             print(text, file=sys.stderr, flush=True)
 
-    page = write_report(args.results, args.out, Settings(args.jnd, args.force_floor), log)
+    settings = pipeline_settings(
+        args.results, pipeline_summary(args.results), args.jnd, args.force_floor
+    )
+    page = write_report(args.results, args.out, settings, log)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
     return 0

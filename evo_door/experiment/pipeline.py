@@ -50,6 +50,8 @@ from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
 
 PIPELINE_KEYS = ("name", "description", "stages", "output", "report")
+#: settings of ``evo-door report`` a pipeline file may give (the command line wins)
+REPORT_KEYS = ("jnd", "force_floor")
 FORMAT_VERSION = 1
 
 
@@ -127,9 +129,13 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
     if not isinstance(node, LinedMap) or not node:
         raise r.fail("stages", "expected a mapping of stage names to experiments (inline or files)")
     default_name = Path(source).stem if not source.startswith("<") else "pipeline"
-    report = r.get("report") or {}
-    if not isinstance(report, dict):
-        raise r.fail("report", "expected a mapping of report settings")
+    rep = _Reader(r.get("report"), "report", tree.where("report"))
+    rep.check_keys(REPORT_KEYS)
+    report = {}
+    if "jnd" in rep.node:
+        report["jnd"] = rep.number("jnd", None, lo=0.0, hi=1.0, open_lo=True)
+    if "force_floor" in rep.node:
+        report["force_floor"] = rep.number("force_floor", None, lo=0.0, open_lo=True)
     pipe = Pipeline(
         name=_safe_name(r.string("name", default_name)),
         stages=[],

@@ -117,6 +117,23 @@ _STYLE = (
 )
 
 
+def pipeline_settings(path, pipeline=None, jnd=None, force_floor=None) -> Settings:
+    """The report's settings: the command line's, else the pipeline file's ``report:``,
+    else the defaults."""
+    import json
+
+    stored = {}
+    if pipeline is not None:
+        from evo_door.files import open_h5
+
+        with open_h5(path, "results file") as f:
+            stored = json.loads(f["pipeline/resolved"][()]).get("report") or {}
+    return Settings(
+        jnd if jnd is not None else stored.get("jnd", DEFAULT_JND),
+        force_floor if force_floor is not None else stored.get("force_floor", FORCE_FLOOR),
+    )
+
+
 def default_folder(path) -> Path:
     path = Path(path)
     return path.with_name(path.stem + "-report")
@@ -127,9 +144,9 @@ def write_report(path, out=None, settings: Settings | None = None, log=None) -> 
     (default ``<RUN>-report/`` next to it); returns the HTML file."""
     from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
 
-    settings = (settings or Settings()).check()
     t0 = time.perf_counter()
     pipeline = pipeline_summary(path)
+    settings = (settings or pipeline_settings(path, pipeline)).check()
     if pipeline is None:
         results = [Results(path)]
     else:
