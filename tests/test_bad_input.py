@@ -134,6 +134,11 @@ CASES = {
     "curve: read-only target": ("curve door --out {ro}/c.csv", "c.csv"),
     "curve: file as folder": ("curve door --out {w}/afile/c.csv", "afile"),
     "curve: no points": ("curve door --points 0 --out {w}/c.csv", "--points"),
+    "curve: speed not above 0": ("curve door --speed -0.02 --out {w}/c.csv", "--speed"),
+    "curve: coulomb and a speed": (
+        "curve door --coulomb --speed 0.02 --out {w}/c.csv",
+        "--coulomb and --speed",
+    ),
     # draw
     "draw: not an image": ("draw door --out {w}/d.txt", "d.txt"),
     "draw: read-only target": ("draw door --out {ro}/d.png", "d.png"),
@@ -183,6 +188,48 @@ CASES = {
         "run {w}/exp.yaml --set algorithm.population=1e9 --out {w}/r.h5",
         "algorithm.population",
     ),
+    # compare-objectives
+    "compare-objectives: missing experiment": (
+        "compare-objectives {w}/missing.yaml --out {w}/cmp",
+        "missing.yaml",
+    ),
+    "compare-objectives: results file as experiment": (
+        "compare-objectives {w}/run.h5 --out {w}/cmp",
+        "run.h5: binary",
+    ),
+    "compare-objectives: unknown kind": (
+        "compare-objectives {w}/exp.yaml --kinds ise,msq --out {w}/cmp",
+        "--kinds",
+    ),
+    "compare-objectives: derivative 3": (
+        "compare-objectives {w}/exp.yaml --derivatives 0,3 --out {w}/cmp",
+        "--derivatives",
+    ),
+    "compare-objectives: no seeds": (
+        "compare-objectives {w}/exp.yaml --seeds 0 --out {w}/cmp",
+        "--seeds",
+    ),
+    "compare-objectives: read-only target": (
+        "compare-objectives {w}/exp.yaml --out {ro}/cmp",
+        "cmp",
+    ),
+    "compare-objectives: file as folder": (
+        "compare-objectives {w}/exp.yaml --out {w}/afile/cmp",
+        "afile",
+    ),
+    # export-spec, report
+    "export-spec: missing": ("export-spec {w}/missing.h5", "missing.h5"),
+    "export-spec: trials, not a run": ("export-spec {w}/trials.h5", "trials.h5"),
+    "export-spec: unknown format": ("export-spec {w}/run.h5 --format xls", "--format 'xls'"),
+    "export-spec: a stage of a run": ("export-spec {w}/run.h5 --stage physical", "run.h5"),
+    "export-spec: read-only target": ("export-spec {w}/run.h5 --out {ro}/s.md", "s.md"),
+    "export-spec: file as folder": ("export-spec {w}/run.h5 --out {w}/afile/s.md", "afile"),
+    "report: missing": ("report {w}/missing.h5", "missing.h5"),
+    "report: a picture": ("report {w}/picture.png --out {w}/rep", "picture.png"),
+    "report: truncated": ("report {w}/truncated.h5 --out {w}/rep", "truncated.h5"),
+    "report: JND out of range": ("report {w}/run.h5 --jnd 1.5 --out {w}/rep", "--jnd"),
+    "report: a file as folder": ("report {w}/run.h5 --out {w}/afile", "afile"),
+    "report: read-only target": ("report {w}/run.h5 --out {ro}/rep", "rep"),
     # show, runs, resume
     "show: missing": ("show {w}/missing.h5", "missing.h5"),
     "show: trials, not a run": ("show {w}/trials.h5", "trials.h5"),

@@ -168,3 +168,16 @@ def test_the_commands_take_a_pipeline(folder, capsys):
     # a complete pipeline is not replaced without --force
     code, _, err = cli(capsys, "run", str(folder / "pipe.yaml"), "--out", str(out), "--quiet")
     assert code == 2 and "holds a complete pipeline" in err
+
+
+def test_compare_objectives_runs_on_a_stage_that_starts_from_earlier_ones(folder, capsys):
+    out = run_pipeline(folder).path
+    args = ["compare-objectives", folder / "pipe.yaml", "--stage", "second", "--kinds", "ise"]
+    args += ["--derivatives", "1", "--out", folder / "cmp", "--quiet"]
+    res = cli(capsys, *args)
+    assert res.returncode == 2 and "--from RUN.h5" in res.stderr
+    res = cli(capsys, *args, "--from", out)
+    assert res.returncode == 0, res.stderr
+    (run,) = sorted((folder / "cmp").glob("*.h5"))
+    # the stage's {from: first} came from the pipeline's results: first's answer
+    assert Results(run).values()["c"] == pytest.approx(Results(out, "first").best()["c"])

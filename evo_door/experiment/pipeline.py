@@ -48,6 +48,7 @@ from evo_door.experiment.config import (
 from evo_door.experiment.runner import _LOCKED, ExperimentRun, claim_output, default_output
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
+from evo_door.params.declaration import suggest
 
 PIPELINE_KEYS = ("name", "description", "stages", "output", "report")
 #: settings of ``evo-door report`` a pipeline file may give (the command line wins)
@@ -215,6 +216,31 @@ def fill(exp: Experiment, values: dict[str, dict]) -> Experiment:
     if isinstance(exp.target.params, dict) and "from" in exp.target.params:
         exp.target.params = dict(values[exp.target.params["from"]])
     return exp
+
+
+def stage_loader(path, stage: str, results=None):
+    """``loader(overrides) -> Experiment``: one stage of the pipeline file ``path`` as an
+    experiment of its own (``--set`` assignments apply to the stage), its ``{from: S}``
+    filled in from the stages of the results file ``results``."""
+    from evo_door.experiment.results import Results
+
+    def load(overrides=()):
+        pipe = load_pipeline(path, [f"stages.{stage}.{o}" for o in overrides])
+        names = [s.name for s in pipe.stages]
+        if stage not in names:
+            raise UserError(
+                f"{path}: no stage {stage!r}; stages: {', '.join(names)}" + suggest(stage, names)
+            )
+        exp = pipe.stage(stage).experiment
+        uses = pipe.stage(stage).uses()
+        if uses and results is None:
+            raise UserError(
+                f"{path}: stage {stage!r} starts from stage(s) {', '.join(uses)}: give the "
+                "results file of a run of the pipeline (--from RUN.h5)"
+            )
+        return fill(exp, {name: Results(results, name).values() for name in uses})
+
+    return load
 
 
 class PipelineRun:

@@ -113,7 +113,7 @@ def spec_table(res: Results) -> SpecTable:
     form = "table 5.3" if table else "table 5.4"
     kind = "Sensations" if any(p.group == "sensation" for p in model.params) else "Specification"
     return SpecTable(
-        title=f"{kind} of {res.attrs.get('name')} ({model.name} model)",
+        title=f"{kind}: {res.attrs.get('name')} ({model.name} model)",
         model=res.attrs["model"],
         source=where,
         rows=rows,
