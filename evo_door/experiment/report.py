@@ -256,21 +256,18 @@ def _correlation_figure(ident, label: str, path) -> None:
     size = 2.2 + 0.55 * n
     fig = Figure(figsize=(size + 1.2, size), layout="constrained")
     ax = fig.subplots()
-    c = np.nan_to_num(np.asarray(ident.correlation, dtype=float))
-    im = ax.imshow(c, cmap="RdBu_r", vmin=-1, vmax=1)
+    c = np.asarray(ident.correlation, dtype=float)
+    # an undetermined parameter has no correlation: a grey cell and "-", not a 0
+    im = ax.imshow(np.ma.masked_invalid(c), cmap="RdBu_r", vmin=-1, vmax=1)
+    ax.set_facecolor("0.8")
     ax.set_xticks(range(n), ident.names, rotation=45, ha="right", fontsize=8)
     ax.set_yticks(range(n), ident.names, fontsize=8)
     for i in range(n):
         for j in range(n):
-            ax.text(
-                j,
-                i,
-                f"{c[i, j]:+.2f}",
-                ha="center",
-                va="center",
-                fontsize=7,
-                color="white" if abs(c[i, j]) > 0.6 else "black",
-            )
+            v = c[i, j]
+            text = f"{v:+.2f}" if np.isfinite(v) else "-"
+            color = "white" if np.isfinite(v) and abs(v) > 0.6 else "black"
+            ax.text(j, i, text, ha="center", va="center", fontsize=7, color=color)
     fig.colorbar(im, ax=ax, label="correlation")
     ax.set_title(f"{label}: correlation of the estimates", fontsize=10)
     save_figure(fig, path, dpi=110)
