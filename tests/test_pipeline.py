@@ -181,3 +181,12 @@ def test_compare_objectives_runs_on_a_stage_that_starts_from_earlier_ones(folder
     (run,) = sorted((folder / "cmp").glob("*.h5"))
     # the stage's {from: first} came from the pipeline's results: first's answer
     assert Results(run).values()["c"] == pytest.approx(Results(out, "first").best()["c"])
+
+
+def test_the_progress_display_names_the_stage(folder, capsys):
+    pipe = load_pipeline(folder / "pipe.yaml")
+    PipelineRun.create(pipe, folder / "progress.h5").run(progress=True)
+    err = capsys.readouterr().err
+    assert "stage 1/2 first: model" in err and "stage 2/2 second: model" in err
+    # the GA's own lines carry the stage too
+    assert "stage 2/2 second: best fitness" in err
