@@ -1,0 +1,126 @@
+"""``evo-door render``: render a haptic parameter set on a device (headless for now)."""
+
+from __future__ import annotations
+
+from evo_door.commands._common import add_params_arguments
+from evo_door.errors import UserError
+
+ORDER = 60
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "render",
+        help="render the haptic model on a force-feedback device (servo loop, log)",
+        description="Render a haptic parameter set on a device: each cycle reads the "
+        "device, evaluates the haptic model's device-space force and commands it, "
+        "within the device's force limit. Headless with --user and --duration.",
+    )
+    add_params_arguments(p)
+    p.add_argument(
+        "--device",
+        default="sim",
+        metavar="sim|hapticmaster://HOST:PORT",
+        help="the device (default sim: a simulated admittance device)",
+    )
+    p.add_argument(
+        "--user", metavar="SCRIPT", help="virtual user of the simulated device: open, close, hold"
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="render time (s)")
+    p.add_argument("--rate", type=float, default=2500.0, metavar="HZ", help="loop rate (Hz)")
+    p.add_argument(
+        "--log-rate", type=float, default=1000.0, metavar="HZ", help="log rate (Hz, default 1000)"
+    )
+    p.add_argument("--log", metavar="LOG.h5", help="write the log (HDF5, a trial file)")
+    p.add_argument(
+        "--clamp",
+        action="store_true",
+        help="scale down a parameter set the device cannot render passively (logged) "
+        "instead of refusing it",
+    )
+    p.add_argument(
+        "--device-damping",
+        type=float,
+        metavar="N_S_M",
+        help="the device's own physical damping (N s/m) for the passivity check "
+        "(default: sim 40; a HapticMaster 0 unless given)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated sensor noise")
+    p.add_argument(
+        "--realtime", action="store_true", help="pace a simulated device on the wall clock"
+    )
+    p.set_defaults(func=run)
+
+
+def make_device(spec: str, user: str | None, radius: float, seed: int, damping=None):
+    """The device named by ``--device``."""
+    if spec == "sim":
+        from evo_door.render.device import SimDevice
+
+        extra = {} if damping is None else {"damping": damping}
+        return SimDevice(user or "hold", radius=radius, seed=seed, **extra), "sim"
+    if spec.startswith("hapticmaster://"):
+        from evo_door.render.hapticmaster import HapticMasterDevice, parse_address
+
+        if user:
+            raise UserError("--user drives the simulated device only")
+        host, port = parse_address(spec)
+        return HapticMasterDevice(host, port, damping=damping or 0.0), spec
+    raise UserError(f"--device {spec!r}: expected 'sim' or 'hapticmaster://HOST:PORT'")
+
+
+def run(args) -> int:
+    from evo_door.models import get_model
+    from evo_door.params.sets import parse_assignments
+    from evo_door.render.loop import ServoLoop
+
+    if args.duration is None or (args.user is None and args.device == "sim"):
+        raise UserError(
+            "the interactive renderer is not available yet: give --user SCRIPT and "
+            "--duration S for a headless run"
+        )
+    if args.log:
+        from evo_door.files import check_folder
+
+        check_folder(args.log)
+    params = get_model("haptic").load_params(args.params, parse_assignments(args.assignments))
+    if args.device_damping is not None and not args.device_damping >= 0:
+        raise UserError(f"--device-damping {args.device_damping:g}: must be >= 0 N s/m")
+    device, name = make_device(
+        args.device, args.user, params["radius"], args.seed, args.device_damping
+    )
+    loop = ServoLoop(
+        device,
+        params,
+        args.rate,
+        log_rate=args.log_rate,
+        clamp=args.clamp,
+        realtime=True if args.realtime else None,
+        device_name=name,
+    )
+    stats = loop.run(args.duration)
+    a = loop.log.array()
+    theta = a[:, 12]
+    print(
+        f"rendered {stats['cycles']} cycles at {args.rate:g} Hz on {name} ({stats['status']}); "
+        f"door {theta[0] * 57.29577951308232:.1f} -> {theta[-1] * 57.29577951308232:.1f} deg"
+    )
+    print(
+        f"period mean {stats['period_mean_s'] * 1e3:.4g} ms, p99 lateness "
+        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles, "
+        f"compute p99 {stats['compute_p99_s'] * 1e6:.3g} us/cycle, faults {stats['faults']}"
+    )
+    if "round_trip_mean_s" in stats:
+        print(
+            f"round trip mean {stats['round_trip_mean_s'] * 1e3:.3g} ms, "
+            f"p99 {stats['round_trip_p99_s'] * 1e3:.3g} ms"
+        )
+    if stats["watchdog"]:
+        print(f"watchdog: {stats['watchdog']}")
+    for ev in loop.log.events:
+        if ev["kind"] == "clamp":
+            print(f"clamped at {ev['t']:.3f} s: {ev['changes']}")
+    if args.log:
+        loop.write_log(args.log)
+        print(f"wrote {args.log}")
+    return 1 if loop.watchdog.tripped else 0

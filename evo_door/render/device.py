@@ -1,0 +1,250 @@
+"""Force-feedback devices behind one small interface, and a simulated one.
+
+Every device speaks :class:`Device`: ``start``, ``read`` (position m, velocity m/s,
+measured user force N, device frame), ``command`` (the force the host adds this cycle,
+N), ``step`` (simulated devices advance their physics; real ones do nothing) and
+``stop`` (idempotent, safe after errors). Duck typing is enough: a device need not
+inherit from :class:`Device`.
+
+:class:`SimDevice` is an admittance device like the MOOG HapticMaster: a point mass
+(the haptic model's virtual mass I / R, rendered natively) with its own viscous and
+Coulomb friction, a force sensor with seeded Gaussian noise, and saturation of the
+host's command at ``max_force``. A scripted virtual user (:func:`user_script`) drives
+it: a hand, a spring-damper, pulling the handle along the door's circle toward a
+target angle that moves with time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from evo_door.errors import UserError
+from evo_door.models.haptic import CLOSED, on_path
+
+#: Default saturation of a device's force (N): the HapticMaster's 200 N.
+MAX_FORCE = 200.0
+
+
+class Device:
+    """The interface every device implements (see the module docstring)."""
+
+    #: N, the device's saturation
+    max_force: float = MAX_FORCE
+    #: True for devices whose time is simulated (the loop then runs as fast as it can)
+    simulated: bool = False
+    #: N s/m, the device's own physical damping (for the passivity check)
+    damping: float = 0.0
+
+    def start(self) -> None:
+        """Start-up sequence."""
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position (m), velocity (m/s), measured user force (N): device-frame 3-vectors."""
+        raise NotImplementedError
+
+    def command(self, force: np.ndarray) -> None:
+        """The force (N, 3-vector) the host adds this cycle."""
+        raise NotImplementedError
+
+    def step(self, dt: float) -> None:
+        """Simulated devices advance their physics by ``dt`` (s); real ones do nothing."""
+
+    def stop(self) -> None:
+        """Shut-down: zero the host's force; idempotent, safe to call after errors."""
+
+
+# ---------------------------------------------------------------------------------
+# Virtual users
+# ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class UserScript:
+    """A hand on the handle pulling toward a target angle that moves with time.
+
+    The target goes from ``theta_start`` to ``theta_end`` (rad) along a smooth
+    (minimum-jerk) profile between ``t_begin`` and ``t_begin + t_move`` (s); the
+    hand is a spring ``stiffness`` (N/m) and damper ``damping`` (N s/m) toward the
+    target's point on the circle, its force limited to ``max_force`` (N).
+    """
+
+    name: str
+    theta_start: float
+    theta_end: float
+    t_begin: float = 0.2
+    t_move: float = 2.0
+    stiffness: float = 800.0
+    damping: float = 40.0
+    max_force: float = 80.0
+
+    def target(self, t: float) -> float:
+        s = min(max((t - self.t_begin) / self.t_move, 0.0), 1.0)
+        s = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
+        return self.theta_start + (self.theta_end - self.theta_start) * s
+
+
+#: the latched door rests at about closed minus the free play (0.5 deg)
+_LATCHED = CLOSED - 0.5 * math.pi / 180.0
+
+SCRIPTS = {
+    "open": UserScript("open", _LATCHED, 0.35),
+    "close": UserScript("close", 0.35, CLOSED + 0.02),
+    "hold": UserScript("hold", 0.8, 0.8),
+}
+
+
+def user_script(name: str) -> UserScript:
+    """The virtual user script ``name`` (``open``, ``close``, ``hold``)."""
+    try:
+        return SCRIPTS[name]
+    except KeyError:
+        raise UserError(
+            f"--user {name!r}: unknown script; choose one of {', '.join(SCRIPTS)}"
+        ) from None
+
+
+@njit(cache=True)
+def hand_force(pos, vel, target, stiffness, damping, limit, out):
+    """Spring-damper hand toward ``target`` (device frame, m), norm limited (N)."""
+    n2 = 0.0
+    for i in range(3):
+        out[i] = stiffness * (target[i] - pos[i]) - damping * vel[i]
+        n2 += out[i] * out[i]
+    if n2 > limit * limit:
+        scale = limit / math.sqrt(n2)
+        for i in range(3):
+            out[i] *= scale
+
+
+@njit(cache=True)
+def sim_step(pos, vel, f_user, f_cmd, mass, damping, coulomb, v_stick, dt, substeps):
+    """Advance the device's point mass by ``dt`` (s), semi-implicit Euler in substeps.
+
+    Force = user + host command - damping v - Coulomb friction; the friction is a
+    tanh of the speed with velocity scale ``v_stick`` (m/s), stable at the substep
+    as long as coulomb < 2 mass v_stick / h (checked by :class:`SimDevice`).
+    """
+    h = dt / substeps
+    for _ in range(substeps):
+        speed = math.sqrt(vel[0] * vel[0] + vel[1] * vel[1] + vel[2] * vel[2])
+        for i in range(3):
+            friction = 0.0
+            if speed > 0.0 and coulomb > 0.0:
+                friction = coulomb * math.tanh(speed / v_stick) * vel[i] / speed
+            a = (f_user[i] + f_cmd[i] - damping * vel[i] - friction) / mass
+            vel[i] += h * a
+            pos[i] += h * vel[i]
+
+
+class SimDevice(Device):
+    """A simulated admittance device driven by a scripted virtual user.
+
+    Parameters
+    ----------
+    script : UserScript or str
+        The virtual user.
+    radius : float
+        Radius of the handle's circle (m), to place the hand's target.
+    mass : float
+        Moving mass (kg); the loop sets it to the haptic model's I / R.
+    damping : float
+        The device's own viscous damping (N s/m): what lets a sampled loop render
+        stiff springs passively (Colgate-Schenkel).
+    coulomb, v_stick : float
+        The device's own dry friction (N) and its velocity scale (m/s).
+    noise : float
+        Standard deviation of the force sensor's noise (N), per axis.
+    max_force : float
+        Saturation of the host's command (N).
+    seed : int
+        Seed of the sensor noise.
+    """
+
+    simulated = True
+
+    def __init__(
+        self,
+        script: UserScript | str = "hold",
+        radius: float = 0.3,
+        mass: float = 4.0,
+        damping: float = 40.0,
+        coulomb: float = 0.3,
+        v_stick: float = 0.002,
+        noise: float = 0.05,
+        max_force: float = MAX_FORCE,
+        seed: int = 0,
+        substeps: int = 4,
+    ):
+        self.script = user_script(script) if isinstance(script, str) else script
+        self.radius = float(radius)
+        self.mass = float(mass)
+        self.damping = float(damping)
+        self.coulomb = float(coulomb)
+        self.v_stick = float(v_stick)
+        self.noise = float(noise)
+        self.max_force = float(max_force)
+        self.substeps = int(substeps)
+        self._rng = np.random.default_rng(seed)
+        self.t = 0.0
+        self.pos = np.array(on_path(self.script.theta_start, self.radius), dtype=np.float64)
+        self.vel = np.zeros(3)
+        self._user = np.zeros(3)
+        self._cmd = np.zeros(3)
+        self._target = np.zeros(3)
+        self.stopped = False
+
+    def set_mass(self, mass: float) -> None:
+        """The moving mass (kg): the virtual mass I / R the device renders natively."""
+        self.mass = float(mass)
+
+    def start(self) -> None:
+        self.stopped = False
+        self._update_user()
+
+    def _update_user(self) -> None:
+        s = self.script
+        self._target[:] = on_path(s.target(self.t), self.radius)
+        hand_force(
+            self.pos, self.vel, self._target, s.stiffness, s.damping, s.max_force, self._user
+        )
+
+    def read(self):
+        measured = self._user + self.noise * self._rng.standard_normal(3)
+        return self.pos.copy(), self.vel.copy(), measured
+
+    def command(self, force) -> None:
+        f = np.asarray(force, dtype=np.float64)
+        norm = float(np.sqrt(f @ f))
+        if not math.isfinite(norm):
+            f = np.zeros(3)
+        elif norm > self.max_force:  # the device's own saturation
+            f = f * (self.max_force / norm)
+        self._cmd[:] = f
+
+    def step(self, dt: float) -> None:
+        # enough substeps for the explicit update of the device's own friction and
+        # damping to stay stable (coulomb < 2 m v_s / h, damping h / m < 2), with
+        # a factor 2 of margin, whatever the loop rate and the mass
+        rate = max(self.coulomb / (2.0 * self.mass * self.v_stick), self.damping / self.mass)
+        substeps = max(self.substeps, math.ceil(2.0 * dt * rate))
+        cmd = self._cmd if not self.stopped else np.zeros(3)
+        sim_step(
+            self.pos,
+            self.vel,
+            self._user,
+            cmd,
+            self.mass,
+            self.damping,
+            self.coulomb,
+            self.v_stick,
+            dt,
+            substeps,
+        )
+        self.t += dt
+        self._update_user()
+
+    def stop(self) -> None:
+        self._cmd[:] = 0.0
+        self.stopped = True

@@ -1,0 +1,454 @@
+"""An emulated MOOG HapticMaster: its TCP string protocol backed by a simulated device.
+
+The emulator listens on 127.0.0.1 (by default), takes frames in the framing of
+:mod:`evo_door.render.hapticmaster` in any pieces and batches, and answers every
+command: device states (``init``, ``force``, ``stop`` ...), effects created by name
+(``biasforce``, ``spring``, ``damper``) with their settings, the model's position,
+velocity and acceleration, the measured force, and ``--- ERROR`` answers for anything
+else, as the device does. It records every command it received (:attr:`received`).
+
+Its physics is the device's own admittance model: a point mass (``inertia``, kg) with
+viscous damping, Coulomb friction and the enabled springs and dampers, moved by the sum
+of the enabled bias forces and a scripted user force. It runs in its own simulated time
+at 2.5 kHz, stepped with a compiled kernel whose velocity update is implicit in the
+damping and in the friction (a stick-or-slip projection), so it is stable at any
+setting. Simulated time advances, before each frame is answered, either by the wall
+time elapsed since the last frame (``clock="wall"``, the default: the device does not
+wait for the host) or by ``steps_per_query`` steps (``clock="query"``: reproducible,
+for tests). The user force is evaluated once per advance and held over its steps. The
+mass only moves in the ``force`` state; otherwise it is held where it is.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numba import njit
+
+from evo_door.errors import UserError
+from evo_door.render.hapticmaster import (
+    ERROR_PREFIX,
+    FrameReader,
+    HapticMasterError,
+    encode,
+    format_vector,
+    parse_vector,
+)
+
+#: Rate of the device's own control loop (Hz).
+DEVICE_RATE = 2500.0
+#: The longest stretch of wall time one advance simulates (s): a stalled emulator
+#: must not make the mass jump.
+MAX_ADVANCE = 0.05
+_STATES = ("init", "off", "force", "position", "home", "stop")
+_EFFECTS = ("biasforce", "spring", "damper")
+
+
+@njit(cache=True, nogil=True)
+def advance(pos, vel, n, dt, mass, damping, coulomb, force, spring_k, spring_pos, spring_b):
+    """``n`` steps of the device's mass; ``pos``/``vel`` updated in place.
+
+    Per step the external force (``force`` plus the springs at the current position)
+    is explicit; damping b (``damping`` per axis plus the springs' ``spring_b``) and
+    Coulomb friction of magnitude ``coulomb`` are implicit: the new velocity solves
+    ``m (v' - v) = dt (f - b v' - coulomb v' / |v'|)`` (exactly when b is the same on
+    every axis, else with axis 0's b in the friction term); it is zero (sticking) when
+    one step of friction can cancel the free velocity, so the friction never reverses
+    the motion or chatters. Returns the last acceleration.
+    """
+    acc = np.zeros(3)
+    f = np.zeros(3)
+    v_free = np.zeros(3)
+    b = np.zeros(3)  # the springs' damping is implicit too
+    for a in range(3):
+        b[a] = damping[a]
+        for s in range(spring_b.shape[0]):
+            b[a] += spring_b[s]
+    for _ in range(n):
+        for a in range(3):
+            f[a] = force[a]
+        for s in range(spring_k.shape[0]):
+            for a in range(3):
+                f[a] += spring_k[s] * (spring_pos[s, a] - pos[a])
+        # m (v' - v) = dt (f - b v' - coulomb v'/|v'|), solved for v'
+        for a in range(3):
+            v_free[a] = (mass * vel[a] + dt * f[a]) / (mass + dt * b[a])
+        speed = math.sqrt(v_free[0] ** 2 + v_free[1] ** 2 + v_free[2] ** 2)
+        slip = dt * coulomb / (mass + dt * b[0])
+        scale = 0.0 if speed <= slip else 1.0 - slip / speed
+        for a in range(3):
+            v_new = v_free[a] * scale
+            acc[a] = (v_new - vel[a]) / dt
+            vel[a] = v_new
+            pos[a] += dt * v_new
+    return acc
+
+
+def _zero_user(t: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    return np.zeros(3)
+
+
+class HapticMasterEmulator:
+    """A TCP server on ``host:port`` that behaves as a HapticMaster (``port=0``: any).
+
+    Parameters
+    ----------
+    inertia
+        The device's mass (kg); the protocol's ``set inertia`` changes it.
+    damping
+        Its viscous damping (N s/m), its physical damping in the passivity check.
+    coulomb_friction
+        Its Coulomb friction (N), ``set coulombfriction``.
+    user_force
+        ``f(t, position, velocity) -> [fx, fy, fz]``: the force (N) the simulated hand
+        applies at simulated time t (s) with the device's position (m) and velocity
+        (m/s); ``measforce`` reports it plus ``sensor_noise`` (N, standard deviation).
+    clock, steps_per_query
+        How simulated time advances (module docstring).
+    calibrated
+        What the calibration queries answer.
+    """
+
+    def __init__(
+        self,
+        port: int = 0,
+        host: str = "127.0.0.1",
+        *,
+        inertia: float = 4.0,
+        damping: float = 40.0,
+        coulomb_friction: float = 0.0,
+        user_force: Callable[[float, np.ndarray, np.ndarray], object] | None = None,
+        sensor_noise: float = 0.0,
+        clock: str = "wall",
+        steps_per_query: int = 1,
+        calibrated: bool = True,
+        position: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        seed: int = 0,
+    ) -> None:
+        if clock not in ("wall", "query"):
+            raise UserError(f"clock {clock!r}: expected 'wall' or 'query'")
+        if not inertia > 0:
+            raise UserError(f"inertia {inertia!r} kg: must be positive")
+        self.host = host
+        self.inertia = float(inertia)
+        self.damping = np.full(3, float(damping))
+        self.coulomb_friction = float(coulomb_friction)
+        self.user_force = user_force or _zero_user
+        self.sensor_noise = float(sensor_noise)
+        self.clock = clock
+        self.steps_per_query = int(steps_per_query)
+        self.calibrated = bool(calibrated)
+        self.dt = 1.0 / DEVICE_RATE
+        self.received: list[str] = []
+        self.state = "off"
+        self.initialised = False
+        self.effects: dict[str, dict] = {}
+        self.time = 0.0
+        self.position = np.array(position, dtype=np.float64)
+        self.velocity = np.zeros(3)
+        self.acceleration = np.zeros(3)
+        self._user = np.zeros(3)
+        self._rng = np.random.default_rng(seed)
+        self._lock = threading.Lock()
+        self._wall: float | None = None
+        self._steps = 0
+        self._clients: list[socket.socket] = []
+        self._threads: list[threading.Thread] = []
+        self._closed = threading.Event()
+        # compile (or load from cache) before any client waits on an answer
+        advance(
+            np.zeros(3),
+            np.zeros(3),
+            0,
+            self.dt,
+            1.0,
+            np.zeros(3),
+            0.0,
+            np.zeros(3),
+            np.zeros(0),
+            np.zeros((0, 3)),
+            np.zeros(0),
+        )
+        try:
+            self._server = socket.create_server((host, int(port)))
+        except OSError as exc:
+            raise UserError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+        self._server.settimeout(0.05)
+        self.port = self._server.getsockname()[1]
+        self._accept_thread = threading.Thread(
+            target=self._accept, name="hapticmaster-emulator", daemon=True
+        )
+        self._accept_thread.start()
+
+    # -- server ---------------------------------------------------------------------
+
+    @property
+    def address(self) -> str:
+        return f"hapticmaster://{self.host}:{self.port}"
+
+    def _accept(self) -> None:
+        while not self._closed.is_set():
+            try:
+                conn, _ = self._server.accept()
+            except TimeoutError:
+                continue  # a poll, so that close() is seen
+            except OSError:
+                return
+            conn.settimeout(None)
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._clients.append(conn)
+            thread = threading.Thread(target=self._serve, args=(conn,), daemon=True)
+            self._threads.append(thread)
+            thread.start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        reader = FrameReader()
+        with conn:
+            while not self._closed.is_set():
+                try:
+                    data = conn.recv(65536)
+                except OSError:
+                    return
+                if not data:
+                    return
+                try:
+                    texts = reader.feed(data)
+                except HapticMasterError:
+                    return  # a corrupt stream: the device drops the connection
+                replies = [encode(self._safe_answer(text)) for text in texts]
+                if replies:
+                    try:
+                        conn.sendall(b"".join(replies))
+                    except OSError:
+                        return
+
+    def _safe_answer(self, text: str) -> str:
+        try:
+            return self.answer_frame(text)
+        except Exception as exc:  # the emulator keeps answering, as the device would
+            return f"{ERROR_PREFIX}: internal error {type(exc).__name__}: {exc}"
+
+    def drop_clients(self) -> None:
+        """Cut every open connection (what a pulled cable looks like to the host)."""
+        for conn in list(self._clients):
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
+                conn.close()
+            except OSError:
+                pass
+        self._clients.clear()
+
+    def close(self) -> None:
+        self._closed.set()
+        try:
+            self._server.close()
+        except OSError:
+            pass
+        self.drop_clients()
+        self._accept_thread.join(timeout=1.0)
+        for thread in self._threads:
+            thread.join(timeout=1.0)
+
+    def __enter__(self) -> HapticMasterEmulator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def serve_forever(self, seconds: float = math.inf) -> None:
+        """Block until :meth:`close`, ``seconds`` pass, or Ctrl-C in the caller."""
+        end = time.monotonic() + seconds
+        while not self._closed.wait(min(0.2, max(end - time.monotonic(), 0.0))):
+            if time.monotonic() >= end:
+                return
+
+    # -- physics ----------------------------------------------------------------------
+
+    def _advance(self) -> None:
+        if self.clock == "query":
+            n = self.steps_per_query
+        else:
+            # whole device steps since the first frame, on the wall clock
+            now = time.perf_counter()
+            if self._wall is None:
+                self._wall, self._steps = now, 0
+            n = int((now - self._wall) / self.dt) - self._steps
+            cap = int(MAX_ADVANCE / self.dt)
+            if n > cap:  # a stall: skip the lost time rather than jump
+                self._steps += n - cap
+                n = cap
+            self._steps += n
+        user = self.user_force(self.time, self.position.copy(), self.velocity.copy())
+        self._user = np.asarray(user, dtype=np.float64).reshape(3)
+        if n <= 0:
+            return
+        if self.state != "force":
+            self.velocity[:] = 0.0
+            self.time += n * self.dt
+            return
+        force = self._user.copy()
+        springs = [e for e in self.effects.values() if e["type"] == "spring" and e["enabled"]]
+        k = np.array([e["stiffness"] for e in springs], dtype=np.float64)
+        b = np.array([e["dampfactor"] for e in springs], dtype=np.float64)
+        at = np.array([e["pos"] for e in springs], dtype=np.float64).reshape(len(springs), 3)
+        damping = self.damping.copy()
+        for e in self.effects.values():
+            if not e["enabled"]:
+                continue
+            if e["type"] == "biasforce":
+                force += e["force"]
+            elif e["type"] == "damper":
+                damping += e["dampcoeff"]
+        self.acceleration = advance(
+            self.position,
+            self.velocity,
+            n,
+            self.dt,
+            self.inertia,
+            damping,
+            self.coulomb_friction,
+            force,
+            k,
+            at,
+            b,
+        )
+        self.time += n * self.dt
+
+    def bias_force(self) -> np.ndarray:
+        """The sum of the enabled bias forces (N)."""
+        with self._lock:
+            total = np.zeros(3)
+            for e in self.effects.values():
+                if e["type"] == "biasforce" and e["enabled"]:
+                    total += e["force"]
+            return total
+
+    # -- protocol ---------------------------------------------------------------------
+
+    def answer_frame(self, text: str) -> str:
+        """The answer frame's text for one received frame (commands split on ``;``)."""
+        with self._lock:
+            self._advance()
+            commands = [c.strip() for c in text.split(";")]
+            if len(commands) > 1 and commands[-1] == "":
+                commands.pop()  # a trailing ';' as some clients send
+            self.received.extend(commands)
+            return ";".join(self._answer(c) for c in commands)
+
+    def _answer(self, command: str) -> str:
+        try:
+            return self._dispatch(command.split())
+        except (ValueError, IndexError, HapticMasterError):
+            return f"{ERROR_PREFIX}: cannot execute {command!r}"
+
+    def _dispatch(self, words: list[str]) -> str:
+        if not words:
+            return f"{ERROR_PREFIX}: empty command"
+        verb, args = words[0].lower(), words[1:]
+        if verb == "get":
+            return self._get(args)
+        if verb == "set":
+            return self._set(args[0], args[1:])
+        if verb == "create" and len(args) == 2 and args[0].lower() in _EFFECTS:
+            kind, name = args[0].lower(), args[1]
+            if name in self.effects or name.lower() in ("state", "inertia", "all"):
+                return f"{ERROR_PREFIX}: name {name!r} is already in use"
+            self.effects[name] = {
+                "type": kind,
+                "enabled": False,
+                "force": np.zeros(3),
+                "stiffness": 0.0,
+                "pos": np.zeros(3),
+                "dampfactor": 0.0,
+                "dampcoeff": np.zeros(3),
+            }
+            return f"Effect {kind} with name {name} created"
+        if verb == "remove" and len(args) == 1:
+            if args[0] == "all":
+                self.effects.clear()
+                return "All effects removed"
+            if self.effects.pop(args[0], None) is None:
+                return f"{ERROR_PREFIX}: no effect named {args[0]!r}"
+            return f"Effect {args[0]} removed"
+        return f"{ERROR_PREFIX}: unknown command {' '.join(words)!r}"
+
+    def _get(self, args: list[str]) -> str:
+        what, rest = args[0], args[1:]
+        values = {
+            "state": lambda: self.state,
+            "modelpos": lambda: format_vector(self.position),
+            "measpos": lambda: format_vector(self.position),
+            "modelvel": lambda: format_vector(self.velocity),
+            "modelacc": lambda: format_vector(self.acceleration),
+            "measforce": lambda: format_vector(
+                self._user + self.sensor_noise * self._rng.standard_normal(3)
+            ),
+            "inertia": lambda: f"{self.inertia:.9g}",
+            "coulombfriction": lambda: f"{self.coulomb_friction:.9g}",
+            "position_calibrated": lambda: "true" if self.calibrated else "false",
+            "force_calibrated": lambda: "true" if self.calibrated else "false",
+        }
+        if what.lower() in values and not rest:
+            return values[what.lower()]()
+        effect = self.effects.get(what)
+        if effect is not None and len(rest) == 1:
+            value = effect[rest[0].lower()]
+            if isinstance(value, np.ndarray):
+                return format_vector(value)
+            return str(value).lower()
+        return f"{ERROR_PREFIX}: cannot get {' '.join([what, *rest])!r}"
+
+    def _set(self, name: str, rest: list[str]) -> str:
+        value = " ".join(rest)
+        if name == "state":
+            state = value.lower()
+            if state not in _STATES:
+                return f"{ERROR_PREFIX}: unknown state {value!r}"
+            if state in ("force", "position") and not self.initialised:
+                return f"{ERROR_PREFIX}: set state init before set state {state}"
+            self.initialised = self.initialised or state == "init"
+            self.state = state
+            if state != "force":
+                self.velocity[:] = 0.0
+            return f"state set to '{state}'"
+        if name == "inertia":
+            inertia = float(value)
+            if not inertia > 0:
+                return f"{ERROR_PREFIX}: inertia must be positive"
+            self.inertia = inertia
+            return "Inertia set"
+        if name == "coulombfriction":
+            friction = float(value)
+            if not friction >= 0:
+                return f"{ERROR_PREFIX}: Coulomb friction must not be negative"
+            self.coulomb_friction = friction
+            return "Coulomb friction set"
+        effect = self.effects.get(name)
+        if effect is None or not rest:
+            return f"{ERROR_PREFIX}: no effect named {name!r}"
+        field = rest[0].lower()
+        arg = " ".join(rest[1:])
+        if field in ("enable", "disable") and len(rest) == 1:
+            effect["enabled"] = field == "enable"
+            return f"Effect {name} {field}d"
+        if field == "enabled":
+            effect["enabled"] = arg.strip().lower() in ("1", "true")
+            return f"Effect {name} {'enabled' if effect['enabled'] else 'disabled'}"
+        if field in ("force", "pos", "dampcoeff"):
+            vector = parse_vector(arg, field)
+            if not np.all(np.isfinite(vector)):
+                return f"{ERROR_PREFIX}: {field} {arg!r} is not finite"
+            effect[field] = vector
+            return f"Effect {name} {field} set"
+        if field in ("stiffness", "dampfactor"):
+            number = float(arg)
+            if not (math.isfinite(number) and number >= 0):
+                return f"{ERROR_PREFIX}: {field} {arg!r} must be finite and >= 0"
+            effect[field] = number
+            return f"Effect {name} {field} set"
+        return f"{ERROR_PREFIX}: effect {name!r} has no setting {field!r}"

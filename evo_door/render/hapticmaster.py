@@ -1,0 +1,413 @@
+"""The MOOG HapticMaster over its TCP/IP string protocol: framing and a client Device.
+
+The device takes ASCII commands (``set state force``, ``get modelpos``,
+``create biasforce NAME``, ``set NAME force [x,y,z]`` ...) in frames of an 8-byte
+header followed by the text. Public clients put the text length in the header's 4th
+byte and leave the rest zero; here bytes 0-3 are read as one big-endian unsigned
+length, which is the same bytes for every text under 256 characters and still frames
+longer ones. Several commands go in one frame separated by ``;`` and the device
+answers them in one frame, its answers separated by ``;`` in the same order. Replies
+use the same framing. An answer starting with ``--- ERROR`` is the device refusing.
+
+TCP is a byte stream: one ``recv`` may hold half a frame or three frames. The
+:class:`FrameReader` keeps a buffer and hands out whole frames only, so neither the
+client nor the emulator (:mod:`evo_door.render.emulator`) ever parses a partial reply.
+
+:class:`HapticMasterDevice` implements the render Device interface (``start``,
+``read``, ``command``, ``step``, ``stop``). The force the host adds goes to the device
+as a *bias force* it renders until told otherwise, which is why :meth:`stop` removes
+every effect whatever went wrong before. The ``set`` of the force is pipelined: sent at
+once, its acknowledgement read together with the next query's answer, so a cycle costs
+one network round trip, which :attr:`HapticMasterDevice.round_trips` records (the
+servo loop's passivity check needs the measured period, not the device's 0.4 ms).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import socket
+import string
+import time
+
+import numpy as np
+
+from evo_door.errors import UserError
+
+#: Bytes of the frame header; the text length is in bytes 0-3 (big-endian).
+HEADER_SIZE = 8
+#: The longest frame text accepted (a larger length means a corrupt stream).
+MAX_TEXT = 1 << 16
+#: What the device's error answers start with.
+ERROR_PREFIX = "--- ERROR"
+#: Name of the bias force through which the host adds its force.
+BIAS_NAME = "evoDoorForce"
+#: The batched per-cycle query; answers come back in this order.
+CYCLE_QUERY = "get modelpos;get modelvel;get measforce"
+
+_PRINTABLE = set(string.printable) - set("\t\n\r\x0b\x0c")
+_VECTOR = re.compile(r"^\[([^\[\]]*)\]$")
+
+
+class HapticMasterError(UserError):
+    """The device refused a command or answered something this client cannot read."""
+
+
+class HapticMasterConnectionLost(HapticMasterError, ConnectionError):
+    """The connection to the device dropped or timed out (the watchdog's cue)."""
+
+
+# -- framing ------------------------------------------------------------------------
+
+
+def encode(text: str) -> bytes:
+    """One frame: the 8-byte header then ``text`` as ASCII.
+
+    >>> encode("get state")[:8]
+    b'\\x00\\x00\\x00\\t\\x00\\x00\\x00\\x00'
+    """
+    try:
+        body = text.encode("ascii")
+    except UnicodeEncodeError:
+        raise HapticMasterError(f"command {text!r} is not ASCII") from None
+    if len(body) > MAX_TEXT:
+        raise HapticMasterError(f"command of {len(body)} bytes exceeds {MAX_TEXT} bytes")
+    return len(body).to_bytes(4, "big") + b"\x00\x00\x00\x00" + body
+
+
+def clean_text(body: bytes) -> str:
+    """A frame's text as the device means it: printable ASCII, quotes and edges removed."""
+    text = body.decode("ascii", errors="replace")
+    text = "".join(c for c in text if c in _PRINTABLE)
+    return text.replace('"', "").strip()
+
+
+class FrameReader:
+    """Reassembles frames from the pieces a stream delivers.
+
+    ``feed`` takes any bytes received (a part of a frame, several frames) and returns
+    the texts of the frames it completed, in order; the rest waits in the buffer.
+    """
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+
+    @property
+    def pending(self) -> int:
+        """Bytes received that do not yet make a whole frame."""
+        return len(self._buffer)
+
+    def feed(self, data: bytes) -> list[str]:
+        self._buffer += data
+        texts = []
+        while len(self._buffer) >= HEADER_SIZE:
+            size = int.from_bytes(self._buffer[:4], "big")
+            if size > MAX_TEXT:
+                head = bytes(self._buffer[:HEADER_SIZE]).hex()
+                self._buffer.clear()
+                raise HapticMasterError(
+                    f"corrupt frame header {head}: length {size} bytes exceeds {MAX_TEXT}"
+                )
+            end = HEADER_SIZE + size
+            if len(self._buffer) < end:
+                break
+            texts.append(clean_text(bytes(self._buffer[HEADER_SIZE:end])))
+            del self._buffer[:end]
+        return texts
+
+
+# -- answers ------------------------------------------------------------------------
+
+
+def parse_vector(answer: str, what: str = "answer") -> np.ndarray:
+    """``[x,y,z]`` (spaces allowed) as a float64 3-vector; anything else is an error.
+
+    >>> parse_vector("[0.1, -2, 3e-3]")
+    array([ 0.1  , -2.   ,  0.003])
+    """
+    match = _VECTOR.match(answer.strip())
+    parts = match.group(1).split(",") if match else []
+    if len(parts) != 3:
+        raise HapticMasterError(f"{what}: expected a vector [x,y,z], got {answer!r}")
+    try:
+        return np.array([float(p) for p in parts], dtype=np.float64)
+    except ValueError:
+        raise HapticMasterError(f"{what}: expected a vector [x,y,z], got {answer!r}") from None
+
+
+def split_answers(text: str, commands: list[str]) -> list[str]:
+    """The answers of a batched frame, one per command; device errors raised."""
+    answers = [a.strip() for a in text.split(";")]
+    if len(answers) != len(commands):
+        raise HapticMasterError(
+            f"{len(commands)} commands ({'; '.join(commands)}) got {len(answers)} answers: {text!r}"
+        )
+    for command, answer in zip(commands, answers, strict=True):
+        if answer.startswith(ERROR_PREFIX):
+            raise HapticMasterError(f"device refused {command!r}: {answer}")
+    return answers
+
+
+def format_vector(v) -> str:
+    """A 3-vector as the device reads it: ``[x,y,z]`` without spaces."""
+    return "[" + ",".join(f"{float(c):.9g}" for c in v) + "]"
+
+
+# -- the device ---------------------------------------------------------------------
+
+
+class HapticMasterDevice:
+    """A MOOG HapticMaster at ``host:port`` as a render Device.
+
+    Parameters
+    ----------
+    host, port
+        The device's address (the emulator listens on 127.0.0.1).
+    max_force
+        Saturation of the force the host commands (N); the client clips to it too.
+    timeout
+        Seconds to wait for any answer before the connection counts as lost.
+    init_wait
+        Seconds between ``set state init`` and ``set state force`` (a real device
+        homes in between; several seconds).
+    damping
+        The device's own physical damping (N s/m) as configured on it, for the
+        loop's passivity check (0 unless you know it).
+    native
+        Commands sent after start-up to configure what the device renders itself at
+        2.5 kHz (``set inertia 2.0``, ``set coulombfriction 1.5``, springs, dampers),
+        so the host loop only adds what the device cannot express.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        max_force: float = 200.0,
+        damping: float = 0.0,
+        timeout: float = 1.0,
+        init_wait: float = 2.0,
+        native: list[str] | tuple[str, ...] = (),
+        history: int = 1 << 16,
+    ) -> None:
+        self.host = host
+        self.port = int(port)
+        self.max_force = float(max_force)
+        self.damping = float(damping)
+        self.timeout = float(timeout)
+        self.init_wait = float(init_wait)
+        self.native = list(native)
+        self._sock: socket.socket | None = None
+        self._reader = FrameReader()
+        self._inbox: list[str] = []
+        self._unacked: list[str] = []  # pipelined commands whose answer is still due
+        self._rtt = np.zeros(int(history))
+        self._n_rtt = 0
+        self._force = np.zeros(3)
+        self._cmd_prefix = f"set {BIAS_NAME} force "
+
+    #: real time: the loop paces itself on the wall clock
+    simulated = False
+
+    # -- connection ---------------------------------------------------------------
+
+    @property
+    def address(self) -> str:
+        return f"hapticmaster://{self.host}:{self.port}"
+
+    @property
+    def connected(self) -> bool:
+        return self._sock is not None
+
+    def connect(self) -> None:
+        if self._sock is not None:
+            return
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=self.timeout)
+        except OSError as exc:
+            raise HapticMasterConnectionLost(
+                f"cannot connect to {self.address}: {exc.strerror or exc}"
+            ) from None
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(self.timeout)
+        self._sock = sock
+        self._reader = FrameReader()
+        self._inbox.clear()
+        self._unacked.clear()
+
+    def close(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            try:
+                sock.close()
+            except OSError:
+                pass
+
+    def _lost(self, why: str) -> HapticMasterConnectionLost:
+        self.close()
+        return HapticMasterConnectionLost(f"connection to {self.address} lost: {why}")
+
+    def _send(self, text: str) -> None:
+        if self._sock is None:
+            raise HapticMasterConnectionLost(f"not connected to {self.address}")
+        try:
+            self._sock.sendall(encode(text))
+        except OSError as exc:
+            raise self._lost(exc.strerror or str(exc) or type(exc).__name__) from None
+
+    def _receive(self) -> str:
+        """The text of the next whole frame, waiting at most ``timeout`` per piece."""
+        while not self._inbox:
+            if self._sock is None:
+                raise HapticMasterConnectionLost(f"not connected to {self.address}")
+            try:
+                data = self._sock.recv(65536)
+            except TimeoutError:
+                raise self._lost(f"no answer within {self.timeout:g} s") from None
+            except OSError as exc:
+                raise self._lost(exc.strerror or str(exc) or type(exc).__name__) from None
+            if not data:
+                raise self._lost("closed by the device")
+            self._inbox.extend(self._reader.feed(data))
+        return self._inbox.pop(0)
+
+    def _drain(self) -> None:
+        """Read the answers of pipelined commands; a refusal is raised."""
+        while self._unacked:
+            command = self._unacked.pop(0)
+            split_answers(self._receive(), [command])
+
+    def request(self, *commands: str) -> list[str]:
+        """Send ``commands`` as one batched frame and return their answers."""
+        self._drain()
+        self._send(";".join(commands))
+        return split_answers(self._receive(), list(commands))
+
+    # -- Device interface -----------------------------------------------------------
+
+    def start(self) -> None:
+        """Connect and run the device's start-up sequence, ending in force state.
+
+        ``remove all``, the calibration check, ``set state init``, a wait, ``set state
+        force``, then the bias force (created at zero, enabled) and the native effects.
+        """
+        self.connect()
+        try:
+            self.request("remove all")
+            pos_ok, force_ok = self.request("get position_calibrated", "get force_calibrated")
+            if pos_ok.lower() != "true" or force_ok.lower() != "true":
+                raise HapticMasterError(
+                    f"{self.address} is not calibrated (position: {pos_ok}, force: "
+                    f"{force_ok}): calibrate it with its own tools before rendering"
+                )
+            self.request("set state init")
+            time.sleep(self.init_wait)
+            self.request("set state force")
+            self.request(f"create biasforce {BIAS_NAME}")
+            self.request(f"set {BIAS_NAME} force [0,0,0]", f"set {BIAS_NAME} enable")
+            for command in self.native:
+                self.request(command)
+        except BaseException:
+            self.stop()
+            raise
+        self._force[:] = 0.0
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position (m), velocity (m/s), measured user force (N) in one round trip."""
+        t0 = time.perf_counter()
+        pos, vel, force = self.request(*CYCLE_QUERY.split(";"))
+        self._rtt[self._n_rtt % self._rtt.size] = time.perf_counter() - t0
+        self._n_rtt += 1
+        return (
+            parse_vector(pos, "get modelpos"),
+            parse_vector(vel, "get modelvel"),
+            parse_vector(force, "get measforce"),
+        )
+
+    def command(self, force) -> None:
+        """Set the bias force (N): sent now, its acknowledgement read with the next query.
+
+        A non-finite force becomes zero and a force over :attr:`max_force` is scaled
+        down to it: the last guard before the motors.
+        """
+        f = np.asarray(force, dtype=np.float64).reshape(3)
+        norm = math.sqrt(float(f @ f))
+        if not math.isfinite(norm):
+            f = np.zeros(3)
+        elif norm > self.max_force:
+            f = f * (self.max_force / norm)
+        self._force[:] = f
+        text = self._cmd_prefix + format_vector(f)
+        if len(self._unacked) >= 8:  # a loop commanding without reading: catch up
+            self._drain()
+        self._send(text)
+        self._unacked.append(text)
+
+    def set_mass(self, mass: float) -> None:
+        """The moving mass (kg) the device renders natively (``set inertia``)."""
+        self.request(f"set inertia {float(mass):.9g}")
+
+    def step(self, dt: float) -> None:
+        """The real device runs its own physics: nothing to do."""
+
+    def stop(self) -> None:
+        """``remove all`` (the bias force persists otherwise) and ``set state stop``.
+
+        Idempotent and safe after errors: a dead connection is closed without raising.
+        """
+        if self._sock is None:
+            return
+        try:
+            self._unacked.clear()
+            self._inbox.clear()
+            # answers still due from pipelined commands come first; send and read on
+            self._send("remove all")
+            self._send("set state stop")
+            deadline = time.perf_counter() + self.timeout
+            while time.perf_counter() < deadline:
+                if self._receive().startswith(("state set", ERROR_PREFIX)):
+                    break
+        except (HapticMasterError, OSError):
+            pass
+        finally:
+            self.close()
+            self._force[:] = 0.0
+
+    # -- measurements ---------------------------------------------------------------
+
+    @property
+    def last_round_trip(self) -> float:
+        """The last cycle's round trip (s), NaN before the first."""
+        if self._n_rtt == 0:
+            return math.nan
+        return float(self._rtt[(self._n_rtt - 1) % self._rtt.size])
+
+    @property
+    def round_trips(self) -> np.ndarray:
+        """The round trips of the recent cycles (s), oldest first."""
+        n = min(self._n_rtt, self._rtt.size)
+        if self._n_rtt <= self._rtt.size:
+            return self._rtt[:n].copy()
+        k = self._n_rtt % self._rtt.size
+        return np.concatenate([self._rtt[k:], self._rtt[:k]])
+
+    def __enter__(self) -> HapticMasterDevice:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``hapticmaster://HOST:PORT`` (or ``HOST:PORT``) as ``(host, port)``.
+
+    >>> parse_address("hapticmaster://127.0.0.1:7654")
+    ('127.0.0.1', 7654)
+    """
+    rest = text.removeprefix("hapticmaster://")
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UserError(f"device {text!r}: expected hapticmaster://HOST:PORT")
+    return host.strip("[]"), int(port)

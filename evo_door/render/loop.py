@@ -1,0 +1,361 @@
+"""The servo loop: read the device, evaluate the haptic model, command the force.
+
+Each cycle (:meth:`ServoLoop.run`):
+
+1. a pending parameter change (:meth:`ServoLoop.request_change`, validated when asked)
+   comes into force, whole: changes happen only between two cycles;
+2. ``device.read()``: position, velocity, measured user force;
+3. :func:`compute_command` (compiled): the haptic model's device-space force
+   (:func:`~evo_door.models.haptic.device_force`), made safe
+   (:func:`~evo_door.render.safety.limit_force`: finite, within the device limit),
+   and the door's state for the log (theta, dtheta, tangential user force);
+4. ``device.command(force)``, ``device.step(T)`` (simulated devices only move here);
+5. the log row, the watchdog.
+
+A simulated device runs in simulated time, as fast as the machine allows, unless
+``realtime``; a real device paces the loop on ``time.perf_counter`` and the period
+statistics (mean period, p99 lateness, missed cycles) say how well it kept time.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import threading
+import time
+
+import numpy as np
+from numba import njit
+
+from evo_door.errors import UserError
+from evo_door.models.haptic import DEVICE_OFFSET_Y, DEVICE_OFFSET_Z, PARAMS, device_force
+from evo_door.params import param_vector
+from evo_door.render.log import N_COLUMNS, RenderLog
+from evo_door.render.safety import NON_FINITE, Watchdog, check_passive, limit_force
+
+#: cycles run after which a paced loop checks passivity again with its measured period
+_RECHECK_AFTER = 250
+
+
+@njit(cache=True)
+def compute_command(pos, vel, user, p, limit, out, row):
+    """The force to command (N, device frame) into ``out``; the log row into ``row``.
+
+    Returns the fault code of :func:`~evo_door.render.safety.limit_force`; any
+    non-finite input (state, measured force, parameters) gives a zero force and
+    :data:`~evo_door.render.safety.NON_FINITE`.
+    """
+    finite = True
+    for i in range(3):
+        if not (math.isfinite(pos[i]) and math.isfinite(vel[i]) and math.isfinite(user[i])):
+            finite = False
+    if finite:
+        device_force(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], p, out)
+        code = limit_force(out, limit)
+    else:
+        out[0] = 0.0
+        out[1] = 0.0
+        out[2] = 0.0
+        code = NON_FINITE
+    for i in range(3):
+        row[i] = pos[i]
+        row[3 + i] = vel[i]
+        row[6 + i] = user[i]
+        row[9 + i] = out[i]
+    ym = pos[1] + DEVICE_OFFSET_Y
+    zm = pos[2] + DEVICE_OFFSET_Z
+    r2 = ym * ym + zm * zm
+    if r2 > 1e-18 and finite:
+        theta = math.atan2(ym, zm)
+        row[12] = theta
+        row[13] = (vel[1] * zm - vel[2] * ym) / r2
+        # e_theta = (cos, -sin) in (y, z): toward closing
+        row[14] = user[1] * math.cos(theta) - user[2] * math.sin(theta)
+    else:
+        row[12] = math.nan if not finite else 0.0
+        row[13] = math.nan if not finite else 0.0
+        row[14] = math.nan if not finite else 0.0
+    return code
+
+
+class ServoLoop:
+    """Renders a haptic parameter set on ``device``.
+
+    Parameters
+    ----------
+    device : Device
+        Any object with the :class:`~evo_door.render.device.Device` methods.
+    params : ParamSet
+        The haptic model's parameter set (checked for passivity at the loop period).
+    rate : float
+        Loop rate (Hz), default the HapticMaster's 2500.
+    log_rate : float
+        Log rate (Hz).
+    realtime : bool or None
+        Pace on the wall clock; default: only for devices that are not simulated.
+    clamp : bool
+        Scale down a set that is not passive instead of refusing it (logged).
+    watchdog_misses : int
+        Consecutive late cycles that trip the watchdog.
+    ramp_time : float
+        Time (s) the tripped watchdog takes to ramp the force to zero (<= 10 ms).
+    """
+
+    def __init__(
+        self,
+        device,
+        params,
+        rate: float = 2500.0,
+        *,
+        log_rate: float = 1000.0,
+        realtime: bool | None = None,
+        clamp: bool = False,
+        watchdog_misses: int = 10,
+        ramp_time: float = 0.008,
+        device_name: str = "",
+    ):
+        if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
+            raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
+        if getattr(params, "model", None) != "haptic":
+            raise UserError("the renderer takes a parameter set of the 'haptic' model")
+        if not 0.0 < ramp_time <= 0.01:
+            raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
+        self.device = device
+        self.device_name = device_name or type(device).__name__
+        self.rate = float(rate)
+        self.period = 1.0 / self.rate
+        self.clamp = bool(clamp)
+        self.limit = float(getattr(device, "max_force", 200.0))
+        self.damping = float(getattr(device, "damping", 0.0))
+        self.simulated = bool(getattr(device, "simulated", False))
+        self.realtime = (not self.simulated) if realtime is None else bool(realtime)
+        self.log = RenderLog(log_rate, PARAMS)
+        self.watchdog = Watchdog(watchdog_misses, ramp_time)
+        self._lock = threading.Lock()
+        self._pending = None
+        self._check_period = self.period
+        self.params, changes = check_passive(params, self.damping, self.period, self.clamp)
+        self._clamp_note = changes
+        self._p = param_vector(self.params, PARAMS)
+        self.faults = 0
+        self.saturated = 0
+        self.statistics: dict = {}
+        self.status = "new"
+        #: perf_counter at the first cycle (s)
+        self.t0 = 0.0
+
+    # -- parameter changes ---------------------------------------------------------
+    def request_change(self, values: dict):
+        """Validate ``values`` {name: SI value}; on success they apply between two cycles.
+
+        All or nothing: a value outside its declaration, an unknown name or a set that
+        is not passive at the loop period (unless the loop clamps) raises a UserError
+        with the reason, and the running set stays as it was. Returns the new set
+        (after any clamp).
+        """
+        with self._lock:
+            base = self._pending[0] if self._pending is not None else self.params
+        try:
+            new = base.replace(dict(values))
+            new, changes = check_passive(new, self.damping, self._check_period, self.clamp)
+        except UserError as exc:
+            self.log.event(self._now, "refused", str(exc), values=dict(values))
+            raise
+        with self._lock:
+            self._pending = (new, dict(values), changes)
+        return new
+
+    _now = 0.0
+
+    def _apply_pending(self, t: float) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, None
+        if pending is None:
+            return
+        new, values, changes = pending
+        self.params = new
+        self._p = param_vector(new, PARAMS)
+        self._set_mass()
+        self.log.params(t, self._p)
+        self.log.event(t, "change", "parameters changed", values=values)
+        if changes:
+            self.log.event(t, "clamp", "clamped to be passive", changes=changes)
+
+    def _set_mass(self) -> None:
+        set_mass = getattr(self.device, "set_mass", None)
+        if set_mass is not None:
+            set_mass(self.params["inertia"] / self.params["radius"])
+
+    # -- the loop --------------------------------------------------------------------
+    def run(self, duration: float | None = None, stop: threading.Event | None = None) -> dict:
+        """Run for ``duration`` seconds (loop time) or until ``stop`` is set.
+
+        Returns the statistics (also in ``self.statistics`` and the log). The device
+        is stopped on the way out, whatever happened.
+        """
+        if duration is None and stop is None:
+            raise UserError("give a duration or a stop event")
+        if duration is not None and not (math.isfinite(duration) and duration > 0):
+            raise UserError(f"--duration {duration:g}: must be > 0 s")
+        n_cycles = math.inf if duration is None else int(round(duration * self.rate))
+        T = self.period
+        dev = self.device
+        cmd = np.zeros(3)
+        last = np.zeros(3)
+        row = np.zeros(N_COLUMNS)
+        pos = np.zeros(3)
+        vel = np.zeros(3)
+        user = np.zeros(3)
+        starts: list[float] = []
+        lateness: list[float] = []
+        compute: list[float] = []
+        missed = 0
+        self.log.params(0.0, self._p)
+        if self._clamp_note:
+            self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
+        self.status = "running"
+        k = 0
+        # a paced loop must not stop for a cyclic garbage collection (tens of ms);
+        # reference counting still frees the per-cycle arrays
+        gc_was_enabled = gc.isenabled()
+        if self.realtime:
+            gc.disable()
+        try:
+            dev.start()
+            self._set_mass()
+            t0 = self.t0 = time.perf_counter()
+            while k < n_cycles and not (stop is not None and stop.is_set()):
+                t = k * T
+                if self.realtime:
+                    now = self._wait_until(t0, t)
+                    late = now - t
+                    if late > T:  # missed its slot: count, skip ahead, keep the schedule
+                        skip = int(late / T)
+                        missed += skip
+                        k += skip
+                        t = k * T
+                    lateness.append(late)
+                    starts.append(now)
+                else:
+                    now = t
+                    late = 0.0
+                tic = time.perf_counter()
+                self._now = t
+                self._apply_pending(t)
+                try:
+                    p_, v_, f_ = dev.read()
+                    pos[:] = p_
+                    vel[:] = v_
+                    user[:] = f_
+                except Exception as exc:  # a dropped connection, a device error
+                    self.watchdog.trip(now, f"device read failed: {exc}")
+                    self.log.event(t, "fault", f"device read failed: {exc}")
+                if self.watchdog.tripped:
+                    factor = self.watchdog.factor(now)
+                    cmd[:] = last * factor
+                    row[9:12] = cmd
+                    try:
+                        dev.command(cmd)
+                    except Exception:  # the connection is gone: nothing more to send
+                        factor = 0.0
+                    if factor == 0.0:
+                        self.log.add(t, row)
+                        break
+                else:
+                    code = compute_command(pos, vel, user, self._p, self.limit, cmd, row)
+                    if code == NON_FINITE:
+                        self.faults += 1
+                        if self.faults <= 100:
+                            self.log.event(t, "fault", "non-finite state or force: zero force")
+                    elif code:
+                        self.saturated += 1
+                    try:
+                        dev.command(cmd)
+                        last[:] = cmd
+                    except Exception as exc:  # the connection dropped while sending
+                        self.watchdog.trip(now, f"device command failed: {exc}")
+                        self.log.event(t, "fault", f"device command failed: {exc}")
+                dev.step(T)
+                self.log.add(t, row)
+                compute.append(time.perf_counter() - tic)
+                self.watchdog.cycle(now, late > T)
+                if self.watchdog.tripped and self.watchdog.tripped_at == now:
+                    self.log.event(t, "watchdog", self.watchdog.reason)
+                k += 1
+                if self.realtime and len(starts) == _RECHECK_AFTER:  # cycles run, not slots
+                    self._recheck(float(np.mean(np.diff(starts))), t)
+        finally:
+            if gc_was_enabled:
+                gc.enable()
+            try:
+                dev.stop()
+            finally:
+                self.status = "watchdog" if self.watchdog.tripped else "done"
+        self.statistics = self._stats(k, starts, lateness, compute, missed)
+        return self.statistics
+
+    def _wait_until(self, t0: float, t: float) -> float:
+        while True:
+            now = time.perf_counter() - t0
+            left = t - now
+            if left <= 0:
+                return now
+            if left > 0.002:
+                time.sleep(left - 0.0015)
+
+    def _recheck(self, measured: float, t: float) -> None:
+        """Passivity again with the measured period (over TCP, the round trip)."""
+        self._check_period = max(self.period, measured)
+        if self._check_period <= self.period * 1.05:
+            return
+        try:
+            new, changes = check_passive(self.params, self.damping, self._check_period, self.clamp)
+        except UserError as exc:
+            self.watchdog.trip(t, f"measured period {measured * 1e3:.3g} ms: {exc}")
+            self.log.event(t, "watchdog", self.watchdog.reason)
+            return
+        if changes:
+            with self._lock:
+                self._pending = (new, {}, changes)
+
+    def _stats(self, cycles, starts, lateness, compute, missed) -> dict:
+        comp = np.array(compute) if compute else np.zeros(1)
+        stats = {
+            "cycles": int(cycles),
+            "cycles_run": len(compute),
+            "rate_hz": self.rate,
+            "realtime": self.realtime,
+            "compute_mean_s": float(comp.mean()),
+            "compute_p99_s": float(np.percentile(comp, 99)),
+            "faults": self.faults,
+            "saturated_cycles": self.saturated,
+            "status": self.status,
+            "watchdog": self.watchdog.reason,
+        }
+        if self.realtime and len(starts) > 1:
+            late = np.array(lateness)
+            stats.update(
+                period_mean_s=float(np.mean(np.diff(starts))),
+                lateness_p99_s=float(np.percentile(late, 99)),
+                missed_cycles=int(missed),
+                on_time_fraction=1.0 - missed / max(cycles, 1),  # of the schedule's slots
+            )
+        else:  # simulated time: the period is exact; compute time says if it could keep up
+            stats.update(
+                period_mean_s=self.period,
+                lateness_p99_s=0.0,
+                missed_cycles=int(np.sum(comp > self.period)),
+                on_time_fraction=float(np.mean(comp <= self.period)),
+            )
+        rtt = getattr(self.device, "round_trips", None)  # a networked device's
+        if rtt is not None and len(rtt):
+            stats.update(
+                round_trip_mean_s=float(np.mean(rtt)),
+                round_trip_p99_s=float(np.percentile(rtt, 99)),
+            )
+        return stats
+
+    def write_log(self, path) -> None:
+        self.log.write(
+            path, loop_rate=self.rate, device=self.device_name, statistics=self.statistics
+        )
