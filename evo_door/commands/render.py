@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+import threading
+
 from evo_door.commands._common import add_params_arguments
 from evo_door.errors import UserError
 
@@ -45,6 +48,20 @@ def register(sub) -> None:
         help="the device's own physical damping (N s/m) for the passivity check "
         "(default: sim 40; a HapticMaster 0 unless given)",
     )
+    p.add_argument(
+        "--control",
+        metavar="[HOST:]PORT",
+        help="serve the control port (evo-door push): 127.0.0.1 unless HOST is given, "
+        "which then requires --token",
+    )
+    p.add_argument("--token", help="token the control port requires of every request")
+    p.add_argument(
+        "--friction",
+        choices=("implicit", "tanh"),
+        default="implicit",
+        help="dry-friction law: implicit Coulomb, stable at any level (default), or the "
+        "model's tanh, which rings above 2 m v_s / T (for comparison)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated sensor noise")
     p.add_argument(
         "--realtime", action="store_true", help="pace a simulated device on the wall clock"
@@ -74,11 +91,15 @@ def run(args) -> int:
     from evo_door.params.sets import parse_assignments
     from evo_door.render.loop import ServoLoop
 
-    if args.duration is None or (args.user is None and args.device == "sim"):
+    interactive = args.duration is None and sys.stdin.isatty() and sys.stdout.isatty()
+    if args.duration is None and not interactive and args.control is None:
         raise UserError(
-            "the interactive renderer is not available yet: give --user SCRIPT and "
-            "--duration S for a headless run"
+            "give --duration S (and --user SCRIPT on the simulated device) for a headless "
+            "run, --control PORT to run until interrupted, or run on a terminal to step "
+            "the sensations with the keys"
         )
+    if args.duration is not None and args.user is None and args.device == "sim":
+        raise UserError("a headless run on the simulated device needs --user SCRIPT")
     if args.log:
         from evo_door.files import check_folder
 
@@ -95,10 +116,11 @@ def run(args) -> int:
         args.rate,
         log_rate=args.log_rate,
         clamp=args.clamp,
-        realtime=True if args.realtime else None,
+        realtime=True if (args.realtime or args.duration is None) else None,
         device_name=name,
+        friction=args.friction,
     )
-    stats = loop.run(args.duration)
+    stats = _run_loop(loop, args, interactive)
     a = loop.log.array()
     theta = a[:, 12]
     print(
@@ -124,3 +146,51 @@ def run(args) -> int:
         loop.write_log(args.log)
         print(f"wrote {args.log}")
     return 1 if loop.watchdog.tripped else 0
+
+
+def _run_loop(loop, args, interactive: bool) -> dict:
+    """Run the loop, with the control port (--control) and the key UI (a terminal)."""
+    server = None
+    if args.control is not None:
+        from evo_door.render.control import ControlServer, parse_control
+
+        host, port = parse_control(args.control)
+        server = ControlServer(loop, host, port, token=args.token).start()
+        print(f"control port {server.address[0]}:{server.address[1]} (evo-door push)")
+    elif args.token:
+        raise UserError("--token goes with --control")
+    try:
+        if not interactive:
+            if args.duration is not None:
+                return loop.run(args.duration)
+            import signal
+
+            stop = threading.Event()
+            # Ctrl-C ends an open-ended run between two cycles; the log is kept
+            previous = signal.signal(signal.SIGINT, lambda *_: stop.set())
+            try:
+                return loop.run(stop=stop)
+            finally:
+                signal.signal(signal.SIGINT, previous)
+        from evo_door.render.keys import run_terminal
+
+        stop = threading.Event()
+        result: dict = {}
+
+        def serve() -> None:
+            try:
+                result.update(loop.run(stop=stop))
+            finally:
+                stop.set()
+
+        thread = threading.Thread(target=serve, name="evo-door-servo", daemon=True)
+        thread.start()
+        try:
+            run_terminal(loop, stop)
+        finally:
+            stop.set()
+            thread.join()
+        return result
+    finally:
+        if server is not None:
+            server.close()

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import CLOSED, on_path
+from evo_door.models.haptic import CLOSED, DEVICE_OFFSET_Y, DEVICE_OFFSET_Z, on_path
 
 #: Default saturation of a device's force (N): the HapticMaster's 200 N.
 MAX_FORCE = 200.0
@@ -85,6 +85,29 @@ class UserScript:
         return self.theta_start + (self.theta_end - self.theta_start) * s
 
 
+@dataclass(frozen=True)
+class ForceScript:
+    """A hand that pushes the handle along the door's tangent with a set force.
+
+    ``segments`` are ``((force N, duration s), ...)``, force + toward closing,
+    applied one after the other from t = 0 (zero after the last); the handle starts
+    at rest at ``theta_start`` (rad). The force follows the tangent at the handle's
+    current position; it does not depend on the motion (a pure force source).
+    """
+
+    name: str
+    theta_start: float
+    segments: tuple = ()
+
+    def force(self, t: float) -> float:
+        end = 0.0
+        for value, duration in self.segments:
+            end += duration
+            if t < end:
+                return float(value)
+        return 0.0
+
+
 #: the latched door rests at about closed minus the free play (0.5 deg)
 _LATCHED = CLOSED - 0.5 * math.pi / 180.0
 
@@ -143,8 +166,8 @@ class SimDevice(Device):
 
     Parameters
     ----------
-    script : UserScript or str
-        The virtual user.
+    script : UserScript, ForceScript or str
+        The virtual user: a hand toward a moving target, or a set tangential force.
     radius : float
         Radius of the handle's circle (m), to place the hand's target.
     mass : float
@@ -166,7 +189,7 @@ class SimDevice(Device):
 
     def __init__(
         self,
-        script: UserScript | str = "hold",
+        script: UserScript | ForceScript | str = "hold",
         radius: float = 0.3,
         mass: float = 4.0,
         damping: float = 40.0,
@@ -194,6 +217,9 @@ class SimDevice(Device):
         self._cmd = np.zeros(3)
         self._target = np.zeros(3)
         self.stopped = False
+        # load the kernel (numba's cache) now, not in a paced loop's first cycle
+        z = np.zeros(3)
+        sim_step(z, z.copy(), z, z, 1.0, 0.0, 0.0, 1.0, 0.0, 1)
 
     def set_mass(self, mass: float) -> None:
         """The moving mass (kg): the virtual mass I / R the device renders natively."""
@@ -205,6 +231,13 @@ class SimDevice(Device):
 
     def _update_user(self) -> None:
         s = self.script
+        if isinstance(s, ForceScript):
+            ym = self.pos[1] + DEVICE_OFFSET_Y
+            zm = self.pos[2] + DEVICE_OFFSET_Z
+            r = math.hypot(ym, zm)
+            f = s.force(self.t) / r if r > 0.0 else 0.0
+            self._user[:] = (0.0, f * zm, -f * ym)  # along e_theta = (0, cos, -sin)
+            return
         self._target[:] = on_path(s.target(self.t), self.radius)
         hand_force(
             self.pos, self.vel, self._target, s.stiffness, s.damping, s.max_force, self._user

@@ -5,8 +5,12 @@ Each cycle (:meth:`ServoLoop.run`):
 1. a pending parameter change (:meth:`ServoLoop.request_change`, validated when asked)
    comes into force, whole: changes happen only between two cycles;
 2. ``device.read()``: position, velocity, measured user force;
-3. :func:`compute_command` (compiled): the haptic model's device-space force
-   (:func:`~evo_door.models.haptic.device_force`), made safe
+3. :func:`compute_command_implicit` (compiled, the default): the haptic model's
+   device-space force (:func:`~evo_door.models.haptic.device_force`) without its
+   dry friction, plus that friction rendered by the implicit Coulomb law for the
+   device's mass and the loop period (stable at any level, holds still below it);
+   or, with ``friction="tanh"``, :func:`compute_command`: the model's force as it
+   is, tanh friction included (rings above 2 m v_s / T). Either made safe
    (:func:`~evo_door.render.safety.limit_force`: finite, within the device limit),
    and the door's state for the log (theta, dtheta, tangential user force);
 4. ``device.command(force)``, ``device.step(T)`` (simulated devices only move here);
@@ -28,10 +32,25 @@ import numpy as np
 from numba import njit
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import DEVICE_OFFSET_Y, DEVICE_OFFSET_Z, PARAMS, device_force
+from evo_door.models.haptic import (
+    DEVICE_OFFSET_Y,
+    DEVICE_OFFSET_Z,
+    FRICTION_CLOSING,
+    FRICTION_OPENING,
+    FRICTION_SPEED_THRESHOLD,
+    PARAMS,
+    device_force,
+    section_scale,
+)
 from evo_door.params import param_vector
+from evo_door.render.friction import implicit_coulomb
 from evo_door.render.log import N_COLUMNS, RenderLog
 from evo_door.render.safety import NON_FINITE, Watchdog, check_passive, limit_force
+
+#: dry-friction laws of the loop: the implicit (set-valued) Coulomb law, the default,
+#: or the haptic model's own explicit tanh (for comparison: rings above
+#: :func:`~evo_door.render.friction.tanh_stability_limit`)
+FRICTION_LAWS = ("implicit", "tanh")
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
@@ -41,22 +60,86 @@ _RECHECK_AFTER = 250
 def compute_command(pos, vel, user, p, limit, out, row):
     """The force to command (N, device frame) into ``out``; the log row into ``row``.
 
+    The haptic model's force as it is, dry friction included (its explicit tanh).
+
     Returns the fault code of :func:`~evo_door.render.safety.limit_force`; any
     non-finite input (state, measured force, parameters) gives a zero force and
     :data:`~evo_door.render.safety.NON_FINITE`.
     """
-    finite = True
-    for i in range(3):
-        if not (math.isfinite(pos[i]) and math.isfinite(vel[i]) and math.isfinite(user[i])):
-            finite = False
+    finite = _finite_state(pos, vel, user)
     if finite:
         device_force(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], p, out)
         code = limit_force(out, limit)
     else:
-        out[0] = 0.0
-        out[1] = 0.0
-        out[2] = 0.0
-        code = NON_FINITE
+        code = _no_force(out)
+    _fill_row(pos, vel, user, out, finite, row)
+    return code
+
+
+@njit(cache=True)
+def compute_command_implicit(pos, vel, user, p, p_free, mass, period, damping, limit, out, row):
+    """:func:`compute_command` with the dry friction rendered by the implicit law.
+
+    ``p`` is the parameter vector in force and ``p_free`` the same with both dry
+    friction levels at zero: the model's force without its tanh friction. Along the
+    door's tangent at the handle, ``e_t = (0, cos th, -sin th)`` (toward closing),
+    the friction is :func:`~evo_door.render.friction.implicit_coulomb` for the
+    device's moving ``mass`` (kg) over the loop ``period`` (s): the forces on the
+    mass this step are the measured user force, the model's other forces and the
+    device's own ``damping`` (N s/m); the levels are ``A(theta) friction_closing``
+    against a step toward closing faster than ``friction_speed_threshold`` and
+    ``A(theta) friction_opening`` otherwise, as the model selects them. Sticks
+    (the handle stops this step) whenever the other forces stay below the level;
+    never drives the handle through zero speed, whatever the level.
+    """
+    finite = _finite_state(pos, vel, user)
+    if finite:
+        device_force(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], p_free, out)
+        ym = pos[1] + DEVICE_OFFSET_Y
+        zm = pos[2] + DEVICE_OFFSET_Z
+        r = math.sqrt(ym * ym + zm * zm)
+        if r > 1e-9 and mass > 0.0 and period > 0.0:
+            s = ym / r
+            c = zm / r
+            theta = math.atan2(ym, zm)
+            v_t = vel[1] * c - vel[2] * s
+            f_t = (user[1] + out[1]) * c - (user[2] + out[2]) * s - damping * v_t
+            v_free = v_t + period * f_t / mass
+            scale = section_scale(theta, p)
+            opening = scale * p[FRICTION_OPENING]
+            forward = opening
+            if v_free > p[FRICTION_SPEED_THRESHOLD] * r:
+                forward = scale * p[FRICTION_CLOSING]
+            f = implicit_coulomb(v_t, f_t, mass, period, forward, opening)
+            out[1] += f * c
+            out[2] -= f * s
+        code = limit_force(out, limit)
+    else:
+        code = _no_force(out)
+    _fill_row(pos, vel, user, out, finite, row)
+    return code
+
+
+@njit(cache=True)
+def _no_force(out):
+    """Zero force for a non-finite input; the fault code that says so."""
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    return NON_FINITE
+
+
+@njit(cache=True)
+def _finite_state(pos, vel, user):
+    for i in range(3):
+        if not (math.isfinite(pos[i]) and math.isfinite(vel[i]) and math.isfinite(user[i])):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _fill_row(pos, vel, user, out, finite, row):
+    """The log row of a cycle: state, measured and commanded force, door state."""
     for i in range(3):
         row[i] = pos[i]
         row[3 + i] = vel[i]
@@ -75,7 +158,6 @@ def compute_command(pos, vel, user, p, limit, out, row):
         row[12] = math.nan if not finite else 0.0
         row[13] = math.nan if not finite else 0.0
         row[14] = math.nan if not finite else 0.0
-    return code
 
 
 class ServoLoop:
@@ -99,6 +181,8 @@ class ServoLoop:
         Consecutive late cycles that trip the watchdog.
     ramp_time : float
         Time (s) the tripped watchdog takes to ramp the force to zero (<= 10 ms).
+    friction : str
+        Dry-friction law: ``"implicit"`` (default) or the model's ``"tanh"``.
     """
 
     def __init__(
@@ -113,6 +197,7 @@ class ServoLoop:
         watchdog_misses: int = 10,
         ramp_time: float = 0.008,
         device_name: str = "",
+        friction: str = "implicit",
     ):
         if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
             raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
@@ -120,6 +205,9 @@ class ServoLoop:
             raise UserError("the renderer takes a parameter set of the 'haptic' model")
         if not 0.0 < ramp_time <= 0.01:
             raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
+        if friction not in FRICTION_LAWS:
+            raise UserError(f"--friction {friction!r}: choose one of {', '.join(FRICTION_LAWS)}")
+        self.friction = friction
         self.device = device
         self.device_name = device_name or type(device).__name__
         self.rate = float(rate)
@@ -136,7 +224,8 @@ class ServoLoop:
         self._check_period = self.period
         self.params, changes = check_passive(params, self.damping, self.period, self.clamp)
         self._clamp_note = changes
-        self._p = param_vector(self.params, PARAMS)
+        self._set_vectors()
+        self._mass = self.params["inertia"] / self.params["radius"]
         self.faults = 0
         self.saturated = 0
         self.statistics: dict = {}
@@ -174,17 +263,30 @@ class ServoLoop:
             return
         new, values, changes = pending
         self.params = new
-        self._p = param_vector(new, PARAMS)
+        self._set_vectors()
         self._set_mass()
         self.log.params(t, self._p)
         self.log.event(t, "change", "parameters changed", values=values)
         if changes:
             self.log.event(t, "clamp", "clamped to be passive", changes=changes)
 
+    def _set_vectors(self) -> None:
+        """Kernel vectors of the set in force: as it is, and without dry friction."""
+        self._p = param_vector(self.params, PARAMS)
+        self._p_free = self._p.copy()
+        self._p_free[FRICTION_CLOSING] = 0.0
+        self._p_free[FRICTION_OPENING] = 0.0
+
     def _set_mass(self) -> None:
+        """The device renders the virtual mass I / R natively; the implicit friction
+        needs the mass that moves, that one, or the device's own if it cannot be set."""
+        virtual = self.params["inertia"] / self.params["radius"]
         set_mass = getattr(self.device, "set_mass", None)
         if set_mass is not None:
-            set_mass(self.params["inertia"] / self.params["radius"])
+            set_mass(virtual)
+            self._mass = virtual
+        else:
+            self._mass = float(getattr(self.device, "mass", virtual))
 
     # -- the loop --------------------------------------------------------------------
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> dict:
@@ -200,6 +302,7 @@ class ServoLoop:
         n_cycles = math.inf if duration is None else int(round(duration * self.rate))
         T = self.period
         dev = self.device
+        implicit = self.friction == "implicit"
         cmd = np.zeros(3)
         last = np.zeros(3)
         row = np.zeros(N_COLUMNS)
@@ -211,6 +314,7 @@ class ServoLoop:
         compute: list[float] = []
         missed = 0
         self.log.params(0.0, self._p)
+        self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
         self.status = "running"
@@ -221,6 +325,12 @@ class ServoLoop:
         if self.realtime:
             gc.disable()
         try:
+            # load both kernels now (numba's cache: milliseconds), not in the first slot
+            compute_command(pos, vel, user, self._p, self.limit, cmd, row)
+            compute_command_implicit(
+                pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
+            )
+            cmd[:] = 0.0
             dev.start()
             self._set_mass()
             t0 = self.t0 = time.perf_counter()
@@ -262,7 +372,22 @@ class ServoLoop:
                         self.log.add(t, row)
                         break
                 else:
-                    code = compute_command(pos, vel, user, self._p, self.limit, cmd, row)
+                    if implicit:
+                        code = compute_command_implicit(
+                            pos,
+                            vel,
+                            user,
+                            self._p,
+                            self._p_free,
+                            self._mass,
+                            self._check_period,
+                            self.damping,
+                            self.limit,
+                            cmd,
+                            row,
+                        )
+                    else:
+                        code = compute_command(pos, vel, user, self._p, self.limit, cmd, row)
                     if code == NON_FINITE:
                         self.faults += 1
                         if self.faults <= 100:
@@ -324,6 +449,7 @@ class ServoLoop:
             "cycles": int(cycles),
             "cycles_run": len(compute),
             "rate_hz": self.rate,
+            "friction": self.friction,
             "realtime": self.realtime,
             "compute_mean_s": float(comp.mean()),
             "compute_p99_s": float(np.percentile(comp, 99)),

@@ -1,0 +1,290 @@
+"""The renderer's control port: change the parameters of a running renderer over TCP.
+
+``evo-door render ... --control PORT`` starts a :class:`ControlServer` next to the
+servo loop; ``evo-door push`` (and, later, the web console of issue 15) is its client.
+
+Binding. The server binds to 127.0.0.1 unless told otherwise (``--control HOST:PORT``);
+any address that is not a loopback one requires a token (``--token T``), else the
+server refuses to start. With a token, every request must carry it.
+
+Protocol. A TCP stream of lines, UTF-8, one JSON object per line (at most 64 KiB), one
+answer line per request, in order; a connection may send any number of requests.
+
+Requests::
+
+    {"token": T, "set": {"NAME": VALUE, ...}}   change parameters (SI units)
+    {"token": T, "get": "params"}               the set in force
+    {"token": T, "get": "state"}                the device and door state
+    {"token": T, "get": "declaration"}          names, units, bounds, groups
+
+(``token`` only when the server has one.) Answers::
+
+    {"ok": true, "applied": {NAME: VALUE}, "in_force": bool, "t": S}
+    {"ok": true, "params": {NAME: VALUE}, "units": {NAME: UNIT}, "t": S}
+    {"ok": true, "t": S, "theta": RAD, "dtheta": RAD_S, "force": N,
+     "position": [M x3], "velocity": [M_S x3], "user_force": [N x3],
+     "command": [N x3], "status": "running"}
+    {"ok": false, "error": "one line: why"}
+
+A change goes through :meth:`ServoLoop.request_change`: it is checked against the
+declaration and the passivity condition at the measured loop period, and comes into
+force whole between two cycles, or is refused and the set in force stays as it was;
+``in_force`` says whether the loop had applied it when the answer left (it waits up
+to 0.5 s; a loop that is not running yet applies it at its first cycle). The log
+records every set with its time. ``applied`` holds the values after any clamp
+(``--clamp``). Changes are serialised: two clients never interleave one.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+import math
+import socket
+import socketserver
+import threading
+import time
+
+from evo_door.errors import UserError
+from evo_door.models.haptic import PARAMS
+from evo_door.render.log import COLUMNS
+
+#: the longest request line (bytes)
+MAX_LINE = 65536
+#: how long a change request waits to see the loop apply it (s)
+APPLY_WAIT = 0.5
+
+
+def parse_control(spec) -> tuple[str, int]:
+    """``PORT`` or ``HOST:PORT`` of ``--control`` / ``--to`` -> (host, port)."""
+    text = str(spec).strip()
+    host, sep, port_text = text.rpartition(":")
+    if not sep:
+        host, port_text = "127.0.0.1", text
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise UserError(f"{text!r}: expected PORT or HOST:PORT") from None
+    if not 0 <= port <= 65535:
+        raise UserError(f"{text!r}: port must be in 0..65535")
+    return host, port
+
+
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and ``localhost``."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _finite(x) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+class _Handler(socketserver.StreamRequestHandler):
+    timeout = 600.0
+
+    def handle(self) -> None:
+        server: ControlServer = self.server.control  # type: ignore[attr-defined]
+        while True:
+            try:
+                line = self.rfile.readline(MAX_LINE + 1)
+            except (OSError, ValueError):
+                return
+            if not line:
+                return
+            if len(line) > MAX_LINE:
+                answer = {"ok": False, "error": f"request longer than {MAX_LINE} bytes"}
+                self._send(answer)
+                return
+            if not line.strip():
+                continue
+            self._send(server.answer(line))
+
+    def _send(self, answer: dict) -> None:
+        try:
+            self.wfile.write((json.dumps(answer) + "\n").encode())
+            self.wfile.flush()
+        except OSError:
+            pass
+
+
+class _TCPServer(socketserver.ThreadingTCPServer):
+    daemon_threads = True
+    allow_reuse_address = True
+
+
+class ControlServer:
+    """Serves :mod:`the control protocol <evo_door.render.control>` for ``loop``.
+
+    Parameters
+    ----------
+    loop : ServoLoop
+        The running (or about to run) loop.
+    host, port : str, int
+        Where to listen; port 0 picks a free one (see :attr:`address`).
+    token : str or None
+        Required on every request when given; required to bind a non-loopback address.
+    """
+
+    def __init__(self, loop, host: str = "127.0.0.1", port: int = 0, token: str | None = None):
+        if not is_loopback(host) and not token:
+            raise UserError(
+                f"--control {host}:{port}: a control port on a non-loopback address "
+                "requires --token"
+            )
+        self.loop = loop
+        self.token = token or None
+        self._change_lock = threading.Lock()
+        cls = _TCPServer
+        if ":" in host:
+            cls = type("_TCPServer6", (_TCPServer,), {"address_family": socket.AF_INET6})
+        try:
+            self._server = cls((host, port), _Handler)
+        except OSError as exc:
+            raise UserError(f"--control {host}:{port}: cannot listen: {exc.strerror}") from None
+        self._server.control = self
+        self._thread: threading.Thread | None = None
+
+    @property
+    def address(self) -> tuple[str, int]:
+        host, port = self._server.server_address[:2]
+        return host, port
+
+    def start(self) -> ControlServer:
+        """Serve in a daemon thread."""
+        self._thread = threading.Thread(
+            target=self._server.serve_forever,
+            kwargs={"poll_interval": 0.05},
+            name="evo-door-control",
+            daemon=True,
+        )
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        if self._thread is not None:
+            self._server.shutdown()
+            self._thread.join(timeout=5.0)
+        self._server.server_close()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- requests ------------------------------------------------------------------
+    def answer(self, line: bytes | str) -> dict:
+        """The answer to one request line (never raises)."""
+        try:
+            request = json.loads(line)
+        except (ValueError, UnicodeDecodeError):
+            return {"ok": False, "error": "not a JSON object on one line"}
+        if not isinstance(request, dict):
+            return {"ok": False, "error": "not a JSON object on one line"}
+        if self.token is not None:
+            given = request.get("token")
+            if not isinstance(given, str) or not hmac.compare_digest(
+                given.encode(), self.token.encode()
+            ):
+                return {"ok": False, "error": "missing or wrong token"}
+        try:
+            if "set" in request:
+                return self._set(request["set"])
+            what = request.get("get")
+            if what == "params":
+                return self._params()
+            if what == "state":
+                return self._state()
+            if what == "declaration":
+                return {"ok": True, "declaration": PARAMS.rows()}
+            return {
+                "ok": False,
+                "error": 'expected {"set": {...}} or {"get": "params"|"state"|"declaration"}',
+            }
+        except UserError as exc:
+            return {"ok": False, "error": " ".join(str(exc).split())}
+
+    def _set(self, values) -> dict:
+        if not isinstance(values, dict) or not values:
+            raise UserError('"set" takes a non-empty object {name: value}')
+        for name, value in values.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise UserError(f"parameter {name!r}: {value!r} is not a number")
+        loop = self.loop
+        with self._change_lock:
+            new = loop.request_change({str(k): float(v) for k, v in values.items()})
+            applied = {name: new[name] for name in values}
+            # the values the clamp changed too
+            for name in PARAMS.names:
+                if name not in applied and new[name] != loop.params[name]:
+                    applied[name] = new[name]
+            deadline = time.monotonic() + APPLY_WAIT
+            in_force = False
+            while loop.status == "running" and time.monotonic() < deadline:
+                if loop._pending is None:
+                    in_force = True
+                    break
+                time.sleep(0.0005)
+        return {"ok": True, "applied": applied, "in_force": in_force, "t": loop._now}
+
+    def _params(self) -> dict:
+        p = self.loop.params
+        return {
+            "ok": True,
+            "params": p.as_dict(),
+            "units": {q.name: q.unit for q in PARAMS},
+            "t": self.loop._now,
+        }
+
+    def _state(self) -> dict:
+        loop = self.loop
+        rows = loop.log._rows  # appended by the loop; the last one is a finished row
+        row = rows[-1] if rows else None
+        out = {"ok": True, "t": loop._now, "status": loop.status}
+        if row is None:
+            return out
+        col = COLUMNS.index
+        out.update(
+            theta=_finite(row[col("theta")]),
+            dtheta=_finite(row[col("dtheta")]),
+            force=_finite(row[col("force")]),
+            position=[_finite(x) for x in row[0:3]],
+            velocity=[_finite(x) for x in row[3:6]],
+            user_force=[_finite(x) for x in row[6:9]],
+            command=[_finite(x) for x in row[9:12]],
+        )
+        return out
+
+
+def request(host: str, port: int, message: dict, timeout: float = 5.0) -> dict:
+    """Send one request, return the answer (a UserError when the port cannot answer)."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as sock:
+            sock.sendall((json.dumps(message) + "\n").encode())
+            data = b""
+            while not data.endswith(b"\n"):
+                chunk = sock.recv(65536)
+                if not chunk:
+                    break
+                data += chunk
+    except TimeoutError:
+        raise UserError(f"the renderer at {host}:{port} did not answer in {timeout:g} s") from None
+    except OSError as exc:
+        raise UserError(
+            f"cannot reach the renderer at {host}:{port}: {exc.strerror or exc}"
+        ) from None
+    try:
+        answer = json.loads(data)
+    except ValueError:
+        raise UserError(f"{host}:{port} did not answer with the control protocol") from None
+    if not isinstance(answer, dict) or "ok" not in answer:
+        raise UserError(f"{host}:{port} did not answer with the control protocol")
+    return answer

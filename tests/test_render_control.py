@@ -1,0 +1,255 @@
+"""The renderer's control port, `evo-door push` and the key map of the terminal UI."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import pytest
+
+from evo_door.cli import build_parser, main
+from evo_door.errors import UserError
+from evo_door.models import get_model
+from evo_door.models.haptic import PARAMS
+from evo_door.render.control import ControlServer, parse_control, request
+from evo_door.render.device import SimDevice
+from evo_door.render.keys import LETTERS, key_change, key_map, nice_step
+from evo_door.render.loop import ServoLoop
+
+
+@pytest.fixture(scope="module")
+def seed_trial():
+    return get_model("haptic").load_params("seed_trial")
+
+
+class _YieldingSim(SimDevice):
+    """The simulated device, giving up the GIL each cycle as a paced loop does while it
+    waits (an unpaced simulated loop never blocks and would starve the test's thread)."""
+
+    def step(self, dt):
+        super().step(dt)
+        time.sleep(0)
+
+
+@pytest.fixture
+def running(seed_trial):
+    """A ServoLoop on the simulated device in its own thread, with its control server."""
+    build_parser()  # import every command before the loop competes for the GIL
+    loop = ServoLoop(_YieldingSim("open", radius=seed_trial["radius"], seed=3), seed_trial)
+    stop = threading.Event()
+    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
+    server = ControlServer(loop, "127.0.0.1", 0, token="s3cret").start()
+    thread.start()
+    deadline = time.monotonic() + 10.0
+    while loop.log.n < 10 and time.monotonic() < deadline:  # some cycles have run
+        time.sleep(0.001)
+    yield loop, server
+    stop.set()
+    thread.join(10.0)
+    server.close()
+
+
+def _ask(server, message, token="s3cret"):
+    host, port = server.address
+    return request(host, port, {"token": token, **message} if token else message)
+
+
+def test_pushed_change_is_applied_between_cycles_and_logged(running, seed_trial):
+    loop, server = running
+    old = seed_trial["friction_closing"]
+    answer = _ask(server, {"set": {"friction_closing": 7.5, "viscous_damping": 0.4}})
+    assert answer["ok"], answer
+    assert answer["applied"] == {"friction_closing": 7.5, "viscous_damping": 0.4}
+    assert answer["in_force"]
+    assert loop.params["friction_closing"] == 7.5
+    assert _ask(server, {"get": "params"})["params"]["viscous_damping"] == 0.4
+    # the log's parameter history: the first set, then the change, at a cycle boundary
+    times, sets = loop.log.param_times, loop.log.param_sets
+    assert len(times) == 2 and times[0] == 0.0
+    i = PARAMS.index("friction_closing")
+    assert sets[0][i] == old and sets[1][i] == 7.5
+    cycles = times[1] / loop.period
+    assert cycles == pytest.approx(round(cycles), abs=1e-6) and cycles >= 1
+    assert any(e["kind"] == "change" and e["t"] == times[1] for e in loop.log.events)
+    state = _ask(server, {"get": "state"})
+    assert state["ok"] and state["status"] == "running"
+    assert 0.0 <= state["theta"] <= 1.6 and len(state["command"]) == 3
+
+
+@pytest.mark.parametrize(
+    "change, reason",
+    [
+        ({"friction_closing": 500.0}, "outside its declared range"),
+        ({"stop_stiffness": 100000.0}, "not passive"),
+        ({"friction_closing": 9.0, "stop_stiffness": 100000.0}, "not passive"),
+        ({"no_such_thing": 1.0}, "no_such_thing"),
+        ({"friction_closing": "a lot"}, "not a number"),
+    ],
+)
+def test_refused_change_leaves_the_set_and_says_why(running, change, reason):
+    loop, server = running
+    before = loop.params.as_dict()
+    answer = _ask(server, {"set": change})
+    assert not answer["ok"]
+    assert reason in answer["error"] and "\n" not in answer["error"]
+    time.sleep(0.02)  # cycles run: nothing pending comes into force
+    assert loop.params.as_dict() == before
+    assert loop._pending is None
+    assert len(loop.log.param_times) == 1
+
+
+def test_wrong_or_missing_token_is_refused(running):
+    loop, server = running
+    before = loop.params.as_dict()
+    for token in ("guess", None):
+        answer = _ask(server, {"set": {"friction_closing": 8.0}}, token=token)
+        assert answer == {"ok": False, "error": "missing or wrong token"}
+        assert not _ask(server, {"get": "params"}, token=token)["ok"]
+    assert loop.params.as_dict() == before
+
+
+def test_garbage_and_batched_lines_on_one_connection(running):
+    """Bad lines get a one-line error and the connection goes on; answers keep order."""
+    _, server = running
+    with socket.create_connection(server.address, timeout=5) as sock:
+        sock.sendall(b'not json\n{"token": "s3cret", "get": "params"}\n{"token": "s3cret"}\n')
+        data = b""
+        while data.count(b"\n") < 3:
+            data += sock.recv(65536)
+    first, second, third = (json.loads(x) for x in data.splitlines())
+    assert not first["ok"] and "JSON" in first["error"]
+    assert second["ok"] and "friction_closing" in second["params"]
+    assert not third["ok"] and "expected" in third["error"]
+
+
+def test_non_loopback_bind_requires_a_token(seed_trial):
+    loop = ServoLoop(SimDevice("hold"), seed_trial)
+    with pytest.raises(UserError, match="requires --token"):
+        ControlServer(loop, "0.0.0.0", 0)
+    server = ControlServer(loop, "127.0.0.1", 0)  # loopback: no token needed
+    assert server.address[0] == "127.0.0.1"
+    server.close()
+
+
+def test_render_cli_refuses_open_control_port_without_token(capsys):
+    args = ["render", "--params", "seed_trial", "--user", "open", "--duration", "0.01"]
+    assert main([*args, "--control", "0.0.0.0:0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("evo-door: error:") and "--token" in err and "\n" not in err
+
+
+def test_render_cli_serves_the_control_port(capsys, tmp_path):
+    args = ["render", "--params", "seed_trial", "--user", "hold", "--duration", "0.05"]
+    assert main([*args, "--control", "0", "--log", str(tmp_path / "l.h5")]) == 0
+    assert "control port 127.0.0.1:" in capsys.readouterr().out
+
+
+def test_parse_control():
+    assert parse_control("7700") == ("127.0.0.1", 7700)
+    assert parse_control("0.0.0.0:81") == ("0.0.0.0", 81)
+    assert parse_control("[::1]:81") == ("::1", 81)
+    with pytest.raises(UserError):
+        parse_control("host:port")
+    with pytest.raises(UserError):
+        parse_control("70000")
+
+
+# -- evo-door push ---------------------------------------------------------------------
+def test_push_cli_sends_only_what_differs(running, capsys, tmp_path, seed_trial):
+    loop, server = running
+    to = "{}:{}".format(*server.address)
+    path = tmp_path / "p.yaml"
+    seed_trial.replace({"open_force": 25.0}).to_yaml(path)
+    assert main(["push", str(path), "--to", to, "--token", "s3cret"]) == 0
+    out = capsys.readouterr().out
+    assert "1 value(s) in force" in out and "open_force = 25 N" in out
+    assert loop.params["open_force"] == 25.0
+    assert main(["push", str(path), "--to", to, "--token", "s3cret"]) == 0
+    assert "nothing to push" in capsys.readouterr().out
+    assert main(["push", "--set", "loose_angle=0.01", "--to", to, "--token", "s3cret"]) == 0
+    assert "loose_angle = 0.01 rad (0.573 deg)" in capsys.readouterr().out
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("evo-door: error:")
+    return err
+
+
+def test_push_cli_one_line_errors(running, capsys, tmp_path):
+    loop, server = running
+    to = "{}:{}".format(*server.address)
+    before = loop.params.as_dict()
+    # refused by the renderer, with its reason
+    assert main(["push", "--set", "stop_stiffness=100000", "--to", to, "--token", "s3cret"]) == 2
+    err = _one_line_error(capsys)
+    assert "the renderer refused" in err and "not passive" in err
+    assert main(["push", "--set", "open_force=20", "--to", to, "--token", "nope"]) == 2
+    assert "wrong token" in _one_line_error(capsys)
+    # checked before sending
+    assert main(["push", "--set", "open_force=900", "--to", to]) == 2
+    assert "declared range" in _one_line_error(capsys)
+    assert main(["push", str(tmp_path / "missing.yaml"), "--to", to]) == 2
+    _one_line_error(capsys)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model: haptic\nvalues: [1, 2\n")
+    assert main(["push", str(bad), "--to", to]) == 2
+    _one_line_error(capsys)
+    assert main(["push", "--to", to]) == 2
+    _one_line_error(capsys)
+    assert loop.params.as_dict() == before
+    # unreachable: a port nobody listens on
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        free = s.getsockname()[1]
+    assert main(["push", "--set", "open_force=20", "--to", f"127.0.0.1:{free}"]) == 2
+    assert "cannot reach the renderer" in _one_line_error(capsys)
+
+
+# -- the key map -----------------------------------------------------------------------
+def test_key_map_covers_every_sensation_with_two_keys():
+    keys = key_map()
+    sensations = [p.name for p in PARAMS if p.group == "sensation"]
+    assert len(keys) == 2 * len(sensations)
+    assert "q" not in keys and "Q" not in keys
+    for letter, name in zip(LETTERS, sensations):
+        (n_down, down), (n_up, up) = keys[letter], keys[letter.upper()]
+        assert n_down == n_up == name and down == -up
+        span = PARAMS[name].upper - PARAMS[name].lower
+        assert span / 50 <= up <= span / 20 * (1 + 1e-12)  # 2 % .. 5 % of the range
+    assert {n for n, _ in keys.values()} == set(sensations)
+
+
+def test_key_change_steps_and_stops_on_the_bounds(seed_trial):
+    values = seed_trial.as_dict()
+    keys = key_map()
+    assert key_change("B", values, keys) == {"friction_closing": values["friction_closing"] + 5}
+    assert key_change("b", values, keys) == {
+        "friction_closing": max(values["friction_closing"] - 5, 0)
+    }
+    assert key_change("q", values, keys) is None and key_change("?", values, keys) is None
+    top = dict(values, inertia=PARAMS["inertia"].upper)
+    assert key_change("A", top, keys) is None
+    low = dict(values, inertia=PARAMS["inertia"].lower + 0.1)
+    assert key_change("a", low, keys) == {"inertia": PARAMS["inertia"].lower}
+    # every key's change passes the declaration
+    for key in keys:
+        change = key_change(key, values, keys)
+        if change is not None:
+            seed_trial.replace(change)
+
+
+def test_key_change_goes_through_the_loop(seed_trial):
+    loop = ServoLoop(SimDevice("hold"), seed_trial)
+    change = key_change("P", loop.params.as_dict())  # P: the 15th sensation, up
+    name = next(iter(change))
+    new = loop.request_change(change)
+    assert new[name] == change[name]
+
+
+def test_nice_step():
+    assert nice_step(100.0) == 5.0 and nice_step(1000.0) == 50.0
+    assert nice_step(0.2) == 0.01 and nice_step(19.95) == 0.5 and nice_step(0.1) == 0.005
+    assert nice_step(0.0) == 0.0
