@@ -1,4 +1,5 @@
-"""Shared fixtures: small analytic test models that need no door physics."""
+"""Shared fixtures: small analytic test models that need no door physics; the
+HapticMaster emulator and a client started on it."""
 
 import pytest
 from numba import njit
@@ -40,3 +41,23 @@ def oscillator():
 OSCILLATOR_MODEL = Model(
     "oscillator", "linear oscillator", OSCILLATOR_PARAMS, oscillator_accel, method="rk4", substeps=1
 )
+
+
+# -- the HapticMaster emulator (tests/test_hapticmaster.py, test_render_native.py) ----
+@pytest.fixture
+def emulator():
+    """An emulated HapticMaster on 127.0.0.1 that advances only when told (tests)."""
+    from evo_door.render.emulator import HapticMasterEmulator
+
+    emu = HapticMasterEmulator(port=0, clock="query", steps_per_query=0)
+    yield emu
+    emu.close()
+
+
+def started(emu, **kwargs):
+    """A HapticMasterDevice connected to ``emu`` and through its start-up sequence."""
+    from evo_door.render.hapticmaster import HapticMasterDevice
+
+    device = HapticMasterDevice("127.0.0.1", emu.port, init_wait=0.0, timeout=2.0, **kwargs)
+    device.start()
+    return device

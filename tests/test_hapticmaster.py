@@ -29,19 +29,7 @@ from evo_door.render.hapticmaster import (
     parse_vector,
     split_answers,
 )
-
-
-@pytest.fixture
-def emulator():
-    emu = HapticMasterEmulator(port=0, clock="query", steps_per_query=0)
-    yield emu
-    emu.close()
-
-
-def started(emu, **kwargs) -> HapticMasterDevice:
-    device = HapticMasterDevice("127.0.0.1", emu.port, init_wait=0.0, timeout=2.0, **kwargs)
-    device.start()
-    return device
+from tests.conftest import started
 
 
 def exchange(sock: socket.socket, reader: FrameReader, n: int) -> list[str]:

@@ -82,8 +82,8 @@ def test_pushed_change_is_applied_between_cycles_and_logged(running, seed_trial)
     "change, reason",
     [
         ({"friction_closing": 500.0}, "outside its declared range"),
-        ({"stop_stiffness": 100000.0}, "not passive"),
-        ({"friction_closing": 9.0, "stop_stiffness": 100000.0}, "not passive"),
+        ({"k_radial": 100000.0}, "not passive"),
+        ({"friction_closing": 9.0, "k_radial": 100000.0}, "not passive"),
         ({"no_such_thing": 1.0}, "no_such_thing"),
         ({"friction_closing": "a lot"}, "not a number"),
     ],
@@ -183,7 +183,7 @@ def test_push_cli_one_line_errors(running, capsys, tmp_path):
     to = "{}:{}".format(*server.address)
     before = loop.params.as_dict()
     # refused by the renderer, with its reason
-    assert main(["push", "--set", "stop_stiffness=100000", "--to", to, "--token", "s3cret"]) == 2
+    assert main(["push", "--set", "k_radial=100000", "--to", to, "--token", "s3cret"]) == 2
     err = _one_line_error(capsys)
     assert "the renderer refused" in err and "not passive" in err
     assert main(["push", "--set", "open_force=20", "--to", to, "--token", "nope"]) == 2
@@ -253,3 +253,46 @@ def test_nice_step():
     assert nice_step(100.0) == 5.0 and nice_step(1000.0) == 50.0
     assert nice_step(0.2) == 0.01 and nice_step(19.95) == 0.5 and nice_step(0.1) == 0.005
     assert nice_step(0.0) == 0.0
+
+
+# -- the loop's public view and concurrent changes ----------------------------------
+def test_concurrent_changes_from_two_operators_are_all_kept(seed_trial):
+    """The control port and the keys change different parameters at the same time,
+    while a change already waits for the next cycle: each is validated on top of the
+    others, none is lost (validation made slow to open the window wide)."""
+    loop = ServoLoop(SimDevice("hold"), seed_trial)
+    validate = loop._passive
+
+    def slow(params):
+        time.sleep(0.05)
+        return validate(params)
+
+    loop._passive = slow
+    threads = [
+        threading.Thread(target=loop.request_change, args=({name: value},))
+        for name, value in (("friction_closing", 2.5), ("viscous_damping", 0.7))
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(10.0)
+    assert loop.pending
+    loop.run(0.001)  # the cycles apply what waits
+    assert not loop.pending
+    assert loop.params["friction_closing"] == 2.5
+    assert loop.params["viscous_damping"] == 0.7
+    change = next(e for e in loop.log.events if e["kind"] == "change")
+    assert change["values"] == {"friction_closing": 2.5, "viscous_damping": 0.7}
+
+
+def test_snapshot_is_the_last_cycle_and_nan_before_the_first(seed_trial):
+    loop = ServoLoop(SimDevice("open", seed=1), seed_trial)
+    before = loop.snapshot()
+    assert before["status"] == "new" and before["theta"] != before["theta"]  # NaN
+    loop.run(0.5)
+    snap = loop.snapshot()
+    last = loop.log.array()[-1]
+    assert snap["status"] == "done" and snap["params"] is loop.params
+    # copied every 25 cycles (10 ms at 2500 Hz): within the last 10 ms of the log
+    assert abs(snap["theta"] - last[12]) < 10e-3 * abs(loop.log.array()[-10:, 13]).max() + 1e-9
+    assert snap["t"] == pytest.approx(0.5 - loop.period)

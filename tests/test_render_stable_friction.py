@@ -1,6 +1,7 @@
 """Dry friction of 20 N rendered in the servo loop: the implicit law holds and releases.
 
-A SimDevice at 2500 Hz (its default 40 N s/m damping, 0.05 N sensor noise) renders
+A SimDevice at 2500 Hz (40 N s/m damping, which the tanh law's explicitly sampled end
+stops need to pass the passivity check; 0.05 N sensor noise) renders
 the seed_trial set with both friction levels at 20 N and a hand that pushes the
 handle along the door's tangent: 0.5 N, then 15 N (below the level: must hold), then
 25 N (above: must slide). The model's tanh at friction_slope 1000 s/rad (velocity
@@ -34,7 +35,7 @@ def twenty_newton():
 
 def _push(params, friction=None):
     """dtheta (rad/s) and theta (rad) at every cycle, per segment (first 40 ms cut)."""
-    dev = SimDevice(ForceScript("push", 0.8, SEGMENTS), seed=3)
+    dev = SimDevice(ForceScript("push", 0.8, SEGMENTS), seed=3, damping=40.0)
     kwargs = {} if friction is None else {"friction": friction}
     loop = ServoLoop(dev, params, RATE, log_rate=RATE, **kwargs)
     loop.run(sum(d for _, d in SEGMENTS))
@@ -112,7 +113,8 @@ def test_render_cli_takes_the_friction_law_and_logs_it(tmp_path, capsys):
     log = tmp_path / "l.h5"
     args = ["render", "--params", "seed_trial", "--device", "sim", "--user", "hold"]
     for law in ("tanh", "implicit"):
-        extra = ["--friction", law] if law == "tanh" else []  # implicit: the default
+        # implicit: the default; tanh samples the end stops explicitly: damping needed
+        extra = ["--friction", law, "--device-damping", "40"] if law == "tanh" else []
         assert main([*args, "--duration", "0.2", *extra, "--log", str(log)]) == 0
         with open_h5(log) as f:
             render = read_attrs(f["render"])
@@ -120,3 +122,74 @@ def test_render_cli_takes_the_friction_law_and_logs_it(tmp_path, capsys):
         assert any(e["kind"] == "friction" and law in e["message"] for e in render["events"])
     with pytest.raises(SystemExit):
         main([*args, "--duration", "0.2", "--friction", "coulomb"])
+
+
+# -- stiff springs: the end stops and the latch ---------------------------------------
+def _free_door(stop_stiffness):
+    """seed_trial with nothing but the end stop's spring along the tangent: no
+    friction, no damping, no latch; the stop undamped (a pure spring)."""
+    zero = ("stop_damping", "close_force", "open_force", "seat_force", "gasket_stiffness")
+    zero += ("friction_closing", "friction_opening", "viscous_damping", "transition_damping")
+    base = get_model("haptic").load_params("seed_trial")
+    return base.replace({**dict.fromkeys(zero, 0.0), "stop_stiffness": stop_stiffness})
+
+
+def _rebound(params, implicit, device_damping=0.0):
+    """Speed ratio out / in of the door thrown against the closed stop (no hand on it).
+
+    A SimDevice without damping or friction of its own, driven cycle by cycle by the
+    loop's kernels: a 20 N push for 50 ms from 1.53 rad, then nothing."""
+    from evo_door.models.haptic import PARAMS
+    from evo_door.params import param_vector
+    from evo_door.render.loop import compute_command
+
+    m = params["inertia"] / params["radius"]
+    dev = SimDevice(
+        ForceScript("throw", 1.53, ((20.0, 0.05),)), mass=m, damping=device_damping, coulomb=0.0
+    )
+    p = param_vector(params, PARAMS)
+    out, row = np.zeros(3), np.zeros(15)
+    w = np.zeros(2500)
+    theta = np.zeros(2500)
+    for i in range(w.size):
+        pos, vel, f = dev.read()
+        if implicit:
+            compute_command_implicit(pos, vel, f, p, p, m, 1 / RATE, dev.damping, 200.0, out, row)
+        else:
+            compute_command(pos, vel, f, p, 200.0, out, row)
+        dev.command(out)
+        dev.step(1 / RATE)
+        theta[i], w[i] = row[12], row[13]
+    hit = int(np.flatnonzero(theta > np.pi / 2)[0])
+    assert w[hit - 1] > 0.5 and theta[hit + 400] < np.pi / 2  # it came in fast, bounced out
+    return -w[hit + 200 : hit + 400].min() / w[hit - 1]
+
+
+@pytest.mark.parametrize("stiffness", [2.0e4, 1.0e5])  # N/rad: seed_trial's, the bound
+def test_an_undamped_stop_rendered_implicitly_never_returns_more_than_it_took(stiffness):
+    """Passivity where it shows: with no damping anywhere, the explicitly sampled stop
+    (K T / 2 = 13-67 N s/m of energy leak) throws the door back faster than it came;
+    the step solved implicitly returns it slower, at either stiffness."""
+    door = _free_door(stiffness)
+    assert _rebound(door, implicit=True) < 0.97
+    assert _rebound(door, implicit=False) > 1.02
+
+
+def test_the_latch_at_the_seeds_stiffness_holds_then_releases_without_ringing():
+    """seed_trial's latch (2000 N/rad; the seed's own was 1000) made a pure spring
+    (latch_damping 0): a hand pulling 10 N, half the unlock force, holds the door in
+    the unlock band, still; 25 N pulls it through, opening without a reversal."""
+    params = get_model("haptic").load_params("seed_trial").replace({"latch_damping": 0.0})
+    segments = ((-10.0, 0.6), (-25.0, 0.4))
+    dev = SimDevice(ForceScript("pull", np.pi / 2 - params["loose_angle"], segments), seed=4)
+    loop = ServoLoop(dev, params, RATE, log_rate=RATE)
+    loop.run(1.0)
+    a = loop.log.array()
+    theta, w = a[:, 12], a[:, 13]
+    band = np.pi / 2 - params["loose_angle"] - params["open_force"] / params["latch_stiffness"]
+    held = w[1000:1500]  # 0.4-0.6 s
+    assert np.all(theta[:1500] > band)  # never left the band under 10 N
+    assert np.abs(held).max() < 1e-3  # rad/s: still
+    released = w[1510:]
+    assert theta[-1] < band - 0.1  # through the latch and opening
+    assert released.max() < 1e-3  # toward opening all along, no reversal

@@ -23,7 +23,7 @@ def register(sub) -> None:
         help="address to listen on (default 127.0.0.1, this machine only)",
     )
     p.add_argument("--inertia", type=float, default=4.0, help="device mass, kg (default 4)")
-    p.add_argument("--damping", type=float, default=40.0, help="device damping, N s/m (default 40)")
+    p.add_argument("--damping", type=float, default=2.0, help="device damping, N s/m (default 2)")
     p.add_argument(
         "--coulomb", type=float, default=0.0, help="device Coulomb friction, N (default 0)"
     )

@@ -27,14 +27,28 @@ def register(sub) -> None:
         help="the device (default sim: a simulated admittance device)",
     )
     p.add_argument(
-        "--user", metavar="SCRIPT", help="virtual user of the simulated device: open, close, hold"
+        "--user",
+        metavar="SCRIPT",
+        help="virtual user of the simulated device: open, close, unlock, lock, swing, "
+        "shake, hold (docs/renderer.md)",
     )
     p.add_argument("--duration", type=float, metavar="S", help="render time (s)")
     p.add_argument("--rate", type=float, default=2500.0, metavar="HZ", help="loop rate (Hz)")
     p.add_argument(
         "--log-rate", type=float, default=1000.0, metavar="HZ", help="log rate (Hz, default 1000)"
     )
-    p.add_argument("--log", metavar="LOG.h5", help="write the log (HDF5, a trial file)")
+    p.add_argument(
+        "--log",
+        metavar="LOG.h5",
+        help="write the log (HDF5, a trial file); while rendering, its rows go to "
+        "LOG.h5.partial as they come, which --recover turns into a log after a crash",
+    )
+    p.add_argument(
+        "--recover",
+        metavar="LOG.h5.partial",
+        help="write the log a crashed render left in its side file (to --log, default "
+        "the name without .partial) and exit",
+    )
     p.add_argument(
         "--clamp",
         action="store_true",
@@ -46,7 +60,7 @@ def register(sub) -> None:
         type=float,
         metavar="N_S_M",
         help="the device's own physical damping (N s/m) for the passivity check "
-        "(default: sim 40; a HapticMaster 0 unless given)",
+        "(default: sim 2; a HapticMaster 0 unless given)",
     )
     p.add_argument(
         "--control",
@@ -87,6 +101,8 @@ def make_device(spec: str, user: str | None, radius: float, seed: int, damping=N
 
 
 def run(args) -> int:
+    if args.recover:
+        return _recover(args)
     from evo_door.models import get_model
     from evo_door.params.sets import parse_assignments
     from evo_door.render.loop import ServoLoop
@@ -120,7 +136,64 @@ def run(args) -> int:
         device_name=name,
         friction=args.friction,
     )
-    stats = _run_loop(loop, args, interactive)
+    if args.log:  # crash safety: the rows so far go to LOG.h5.partial as they come
+        loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
+    try:
+        try:
+            stats = _run_loop(loop, args, interactive)
+        except BaseException as exc:  # KeyboardInterrupt too: keep the log, then raise
+            if args.log:
+                _write_interrupted(loop, args.log, exc)
+            raise
+        return _report(loop, args, stats, name)
+    finally:
+        loop.log.close()
+        if loop.log.spill_error:
+            print(f"evo-door: warning: {loop.log.spill_error}", file=sys.stderr)
+
+
+def _recover(args) -> int:
+    """``--recover``: a crashed render's side file as a log."""
+    from pathlib import Path
+
+    from evo_door.render.log import recover
+
+    source = Path(args.recover)
+    if not source.is_file():
+        raise UserError(f"--recover {args.recover}: no such file")
+    if source.suffix != ".partial" and not args.log:
+        raise UserError(f"--recover {args.recover}: not a side file (*.partial); give --log OUT.h5")
+    out = recover(source, args.log)
+    print(f"recovered {out} from {source} (the render ended without a clean stop)")
+    return 0
+
+
+def _write_interrupted(loop, path, exc: BaseException) -> None:
+    """Write the log of a render that ``exc`` ended (stderr says so); the side file
+    stays if even that fails."""
+    log = loop.log
+    if log.n < 2:  # ended before it rendered (a bad option, a device that failed to start)
+        log.close()
+        if log.spill_path is not None:
+            log.spill_path.unlink(missing_ok=True)
+        return
+    what = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    log.event((log.n - 1) / log.rate, "interrupted", f"the render ended on {what}")
+    stats = {**loop.statistics, "interrupted": what}
+    try:
+        log.write(path, loop_rate=loop.rate, device=loop.device_name, statistics=stats)
+    except Exception as err:  # the first error is the one to raise
+        print(
+            f"evo-door: the log of the interrupted render was not written ({err}); "
+            f"its rows so far are in {log.spill_path}",
+            file=sys.stderr,
+        )
+    else:
+        print(f"evo-door: render interrupted ({what}); wrote {path}", file=sys.stderr)
+
+
+def _report(loop, args, stats: dict, name: str) -> int:
+    """The render's summary lines; the log."""
     a = loop.log.array()
     theta = a[:, 12]
     print(

@@ -48,7 +48,6 @@ import time
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.render.log import COLUMNS
 
 #: the longest request line (bytes)
 MAX_LINE = 65536
@@ -229,38 +228,29 @@ class ControlServer:
             deadline = time.monotonic() + APPLY_WAIT
             in_force = False
             while loop.status == "running" and time.monotonic() < deadline:
-                if loop._pending is None:
+                if not loop.pending:
                     in_force = True
                     break
                 time.sleep(0.0005)
-        return {"ok": True, "applied": applied, "in_force": in_force, "t": loop._now}
+        return {"ok": True, "applied": applied, "in_force": in_force, "t": loop.snapshot()["t"]}
 
     def _params(self) -> dict:
-        p = self.loop.params
+        snap = self.loop.snapshot()
         return {
             "ok": True,
-            "params": p.as_dict(),
+            "params": snap["params"].as_dict(),
             "units": {q.name: q.unit for q in PARAMS},
-            "t": self.loop._now,
+            "t": snap["t"],
         }
 
     def _state(self) -> dict:
-        loop = self.loop
-        rows = loop.log._rows  # appended by the loop; the last one is a finished row
-        row = rows[-1] if rows else None
-        out = {"ok": True, "t": loop._now, "status": loop.status}
-        if row is None:
+        snap = self.loop.snapshot()
+        out = {"ok": True, "t": snap["t"], "status": snap["status"]}
+        if not math.isfinite(snap["theta"]):  # no cycle yet
             return out
-        col = COLUMNS.index
-        out.update(
-            theta=_finite(row[col("theta")]),
-            dtheta=_finite(row[col("dtheta")]),
-            force=_finite(row[col("force")]),
-            position=[_finite(x) for x in row[0:3]],
-            velocity=[_finite(x) for x in row[3:6]],
-            user_force=[_finite(x) for x in row[6:9]],
-            command=[_finite(x) for x in row[9:12]],
-        )
+        out.update({k: _finite(snap[k]) for k in ("theta", "dtheta", "force")})
+        for k in ("position", "velocity", "user_force", "command"):
+            out[k] = [_finite(x) for x in snap[k]]
         return out
 
 

@@ -23,7 +23,16 @@ import numpy as np
 from numba import njit
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import CLOSED, DEVICE_OFFSET_Y, DEVICE_OFFSET_Z, on_path
+from evo_door.models.haptic import (
+    C_PLANE,
+    CLOSED,
+    DEVICE_OFFSET_Y,
+    DEVICE_OFFSET_Z,
+    K_PLANE,
+    PARAMS,
+    on_path,
+)
+from evo_door.params import param_vector
 
 #: Default saturation of a device's force (N): the HapticMaster's 200 N.
 MAX_FORCE = 200.0
@@ -65,9 +74,11 @@ class UserScript:
     """A hand on the handle pulling toward a target angle that moves with time.
 
     The target goes from ``theta_start`` to ``theta_end`` (rad) along a smooth
-    (minimum-jerk) profile between ``t_begin`` and ``t_begin + t_move`` (s); the
-    hand is a spring ``stiffness`` (N/m) and damper ``damping`` (N s/m) toward the
-    target's point on the circle, its force limited to ``max_force`` (N).
+    (minimum-jerk) profile between ``t_begin`` and ``t_begin + t_move`` (s); or, when
+    ``waypoints`` ``((t s, theta rad), ...)`` are given, from each waypoint to the
+    next in the same way (held before the first and after the last). The hand is a
+    spring ``stiffness`` (N/m) and damper ``damping`` (N s/m) toward the target's
+    point on the circle, its force limited to ``max_force`` (N).
     """
 
     name: str
@@ -78,11 +89,32 @@ class UserScript:
     stiffness: float = 800.0
     damping: float = 40.0
     max_force: float = 80.0
+    waypoints: tuple = ()
 
     def target(self, t: float) -> float:
-        s = min(max((t - self.t_begin) / self.t_move, 0.0), 1.0)
-        s = s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
-        return self.theta_start + (self.theta_end - self.theta_start) * s
+        if self.waypoints:
+            return _through_waypoints(self.waypoints, t)
+        return _min_jerk(self.theta_start, self.theta_end, (t - self.t_begin) / self.t_move)
+
+
+def _min_jerk(a: float, b: float, s: float) -> float:
+    """From ``a`` to ``b`` along the minimum-jerk profile, ``s`` in [0, 1] (clipped)."""
+    s = min(max(s, 0.0), 1.0)
+    return a + (b - a) * s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def _through_waypoints(points, t: float) -> float:
+    if t <= points[0][0]:
+        return points[0][1]
+    for (t0, a), (t1, b) in zip(points[:-1], points[1:], strict=True):
+        if t < t1:
+            return _min_jerk(a, b, (t - t0) / (t1 - t0))
+    return points[-1][1]
+
+
+def _back_and_forth(t0: float, a: float, b: float, half_period: float, n: int) -> tuple:
+    """Waypoints from ``a`` to ``b`` and back, ``n`` legs of ``half_period`` s each."""
+    return tuple((t0 + i * half_period, a if i % 2 == 0 else b) for i in range(n + 1))
 
 
 @dataclass(frozen=True)
@@ -111,15 +143,32 @@ class ForceScript:
 #: the latched door rests at about closed minus the free play (0.5 deg)
 _LATCHED = CLOSED - 0.5 * math.pi / 180.0
 
+#: past the latch's bands, where the door is free (8 deg from closed)
+_PAST_LATCH = CLOSED - 8.0 * math.pi / 180.0
+
+#: the virtual users of ``--user`` (angles in rad, times in s)
 SCRIPTS = {
+    # from latched through the latch to 20 deg open, in 2 s
     "open": UserScript("open", _LATCHED, 0.35),
+    # from 20 deg open to shut, pushing 1.1 deg past closed, in 2 s
     "close": UserScript("close", 0.35, CLOSED + 0.02),
+    # through the latch only, slowly (1.5 s), then held past it
+    "unlock": UserScript("unlock", _LATCHED, _PAST_LATCH, t_move=1.5),
+    # from past the latch to shut, slowly (1.5 s), the hand aiming 3.4 deg beyond
+    "lock": UserScript("lock", _PAST_LATCH, CLOSED + 0.06, t_move=1.5),
+    # full swings between 20 and 69 deg, 1.5 s each way, three times
+    "swing": UserScript("swing", 0.35, 0.35, waypoints=_back_and_forth(0.2, 0.35, 1.2, 1.5, 6)),
+    # small fast shakes (+-1.7 deg at 3 Hz) about 46 deg, 3 s
+    "shake": UserScript(
+        "shake", 0.8, 0.8, waypoints=_back_and_forth(0.2, 0.77, 0.83, 1.0 / 6.0, 18)
+    ),
+    # held at 46 deg
     "hold": UserScript("hold", 0.8, 0.8),
 }
 
 
 def user_script(name: str) -> UserScript:
-    """The virtual user script ``name`` (``open``, ``close``, ``hold``)."""
+    """The virtual user script ``name``, one of :data:`SCRIPTS`."""
     try:
         return SCRIPTS[name]
     except KeyError:
@@ -142,12 +191,16 @@ def hand_force(pos, vel, target, stiffness, damping, limit, out):
 
 
 @njit(cache=True)
-def sim_step(pos, vel, f_user, f_cmd, mass, damping, coulomb, v_stick, dt, substeps):
+def sim_step(
+    pos, vel, f_user, f_cmd, mass, damping, coulomb, v_stick, dt, substeps, k_plane, c_plane
+):
     """Advance the device's point mass by ``dt`` (s), semi-implicit Euler in substeps.
 
-    Force = user + host command - damping v - Coulomb friction; the friction is a
-    tanh of the speed with velocity scale ``v_stick`` (m/s), stable at the substep
-    as long as coulomb < 2 mass v_stick / h (checked by :class:`SimDevice`).
+    Force = user + host command - damping v - Coulomb friction, plus on x alone the
+    device's native plane constraint ``-k_plane x - c_plane v_x`` (N/m, N s/m; zero
+    unless :meth:`SimDevice.render_natively` set them); the friction is a tanh of the
+    speed with velocity scale ``v_stick`` (m/s), stable at the substep as long as
+    coulomb < 2 mass v_stick / h (:class:`SimDevice` picks the substeps).
     """
     h = dt / substeps
     for _ in range(substeps):
@@ -156,8 +209,10 @@ def sim_step(pos, vel, f_user, f_cmd, mass, damping, coulomb, v_stick, dt, subst
             friction = 0.0
             if speed > 0.0 and coulomb > 0.0:
                 friction = coulomb * math.tanh(speed / v_stick) * vel[i] / speed
-            a = (f_user[i] + f_cmd[i] - damping * vel[i] - friction) / mass
-            vel[i] += h * a
+            f = f_user[i] + f_cmd[i] - damping * vel[i] - friction
+            if i == 0:
+                f -= k_plane * pos[0] + c_plane * vel[0]
+            vel[i] += h * (f / mass)
             pos[i] += h * vel[i]
 
 
@@ -192,7 +247,7 @@ class SimDevice(Device):
         script: UserScript | ForceScript | str = "hold",
         radius: float = 0.3,
         mass: float = 4.0,
-        damping: float = 40.0,
+        damping: float = 2.0,
         coulomb: float = 0.3,
         v_stick: float = 0.002,
         noise: float = 0.05,
@@ -217,13 +272,32 @@ class SimDevice(Device):
         self._cmd = np.zeros(3)
         self._target = np.zeros(3)
         self.stopped = False
+        #: the plane constraint rendered natively (N/m, N s/m); 0 until asked
+        self.k_plane = 0.0
+        self.c_plane = 0.0
         # load the kernel (numba's cache) now, not in a paced loop's first cycle
         z = np.zeros(3)
-        sim_step(z, z.copy(), z, z, 1.0, 0.0, 0.0, 1.0, 0.0, 1)
+        sim_step(z, z.copy(), z, z, 1.0, 0.0, 0.0, 1.0, 0.0, 1, 0.0, 0.0)
 
     def set_mass(self, mass: float) -> None:
         """The moving mass (kg): the virtual mass I / R the device renders natively."""
         self.mass = float(mass)
+
+    def render_natively(self, params) -> tuple[str, ...]:
+        """Render the haptic set's plane constraint in the device's own step.
+
+        As :meth:`HapticMasterDevice.render_natively
+        <evo_door.render.hapticmaster.HapticMasterDevice.render_natively>` does on the
+        real device: ``-k_plane x - c_plane v_x`` becomes part of :func:`sim_step`,
+        integrated at the substep instead of held over a loop period, and the names
+        ``("k_plane", "c_plane")`` are returned for the host to leave out of its own
+        force. Call again with a changed set to change them. ``params`` is a haptic
+        ParamSet or kernel vector.
+        """
+        p = param_vector(params, PARAMS)
+        self.k_plane = float(p[K_PLANE])
+        self.c_plane = float(p[C_PLANE])
+        return ("k_plane", "c_plane")
 
     def start(self) -> None:
         self.stopped = False
@@ -258,9 +332,14 @@ class SimDevice(Device):
 
     def step(self, dt: float) -> None:
         # enough substeps for the explicit update of the device's own friction and
-        # damping to stay stable (coulomb < 2 m v_s / h, damping h / m < 2), with
-        # a factor 2 of margin, whatever the loop rate and the mass
-        rate = max(self.coulomb / (2.0 * self.mass * self.v_stick), self.damping / self.mass)
+        # damping to stay stable (coulomb < 2 m v_s / h, damping h / m < 2) and of
+        # the native plane spring (omega h < 2), with a factor 2 of margin (4 on the
+        # spring), whatever the loop rate and the mass
+        rate = max(
+            self.coulomb / (2.0 * self.mass * self.v_stick),
+            (self.damping + self.c_plane) / self.mass,
+            math.sqrt(self.k_plane / self.mass),
+        )
         substeps = max(self.substeps, math.ceil(2.0 * dt * rate))
         cmd = self._cmd if not self.stopped else np.zeros(3)
         sim_step(
@@ -274,6 +353,8 @@ class SimDevice(Device):
             self.v_stick,
             dt,
             substeps,
+            self.k_plane,
+            self.c_plane,
         )
         self.t += dt
         self._update_user()

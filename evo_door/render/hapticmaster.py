@@ -33,6 +33,8 @@ import time
 import numpy as np
 
 from evo_door.errors import UserError
+from evo_door.models.haptic import C_PLANE, K_PLANE, PARAMS
+from evo_door.params import param_vector
 
 #: Bytes of the frame header; the text length is in bytes 0-3 (big-endian).
 HEADER_SIZE = 8
@@ -44,6 +46,11 @@ ERROR_PREFIX = "--- ERROR"
 BIAS_NAME = "evoDoorForce"
 #: The batched per-cycle query; answers come back in this order.
 CYCLE_QUERY = "get modelpos;get modelvel;get measforce"
+#: Names of the device's own effects that render the haptic model's plane constraint.
+PLANE_SPRING = "evoDoorPlane"
+PLANE_DAMPER = "evoDoorPlaneDamper"
+#: The haptic parameters the device renders itself once :meth:`render_natively` ran.
+NATIVE_PARAMS = ("k_plane", "c_plane")
 
 _PRINTABLE = set(string.printable) - set("\t\n\r\x0b\x0c")
 _VECTOR = re.compile(r"^\[([^\[\]]*)\]$")
@@ -153,6 +160,52 @@ def format_vector(v) -> str:
     return "[" + ",".join(f"{float(c):.9g}" for c in v) + "]"
 
 
+# -- native effects -----------------------------------------------------------------
+
+
+def native_commands(params, max_force: float | None = None) -> list[str]:
+    """The commands that set the device's own effects to the haptic set ``params``.
+
+    What of the haptic model the HapticMaster renders itself at 2.5 kHz: the plane
+    constraint ``F_x = -k_plane x - c_plane v_x`` (eq. 4.21), exactly a spring of
+    stiffness ``k_plane`` (N/m) along ``[1,0,0]`` about ``[0,0,0]`` (it pulls only on
+    the x component of the displacement) plus a damper ``[c_plane,0,0]`` (N s/m).
+    Every setting is sent, so the commands configure the effects whatever state they
+    were in; the effects must exist (:meth:`HapticMasterDevice.render_natively`
+    creates them). ``max_force`` (N) caps the spring's force as the host's is capped.
+
+    The rest stays on the host: the door's viscous damping, dry friction and latch
+    depend on the door angle and the direction of motion, and the radial spring
+    holds the handle on a circle about the hinge, not at a point; none of them is a
+    spring, damper or bias force of the device. The virtual mass I / R is native too,
+    through ``set inertia`` (:meth:`HapticMasterDevice.set_mass`).
+
+    ``params`` is a haptic ParamSet or kernel vector.
+
+    >>> from evo_door.models.haptic import MODEL
+    >>> for command in native_commands(MODEL.load_params("seed_trial")):
+    ...     print(command)  # doctest: +ELLIPSIS
+    set evoDoorPlane stiffness ...
+    set evoDoorPlane dampfactor 0
+    set evoDoorPlane direction [1,0,0]
+    set evoDoorPlane pos [0,0,0]
+    set evoDoorPlane deadband 0
+    set evoDoorPlaneDamper dampcoef [...,0,0]
+    """
+    p = param_vector(params, PARAMS)
+    commands = [
+        f"set {PLANE_SPRING} stiffness {float(p[K_PLANE]):.9g}",
+        f"set {PLANE_SPRING} dampfactor 0",
+        f"set {PLANE_SPRING} direction [1,0,0]",
+        f"set {PLANE_SPRING} pos [0,0,0]",
+        f"set {PLANE_SPRING} deadband 0",
+    ]
+    if max_force is not None:
+        commands.append(f"set {PLANE_SPRING} maxforce {float(max_force):.9g}")
+    commands.append(f"set {PLANE_DAMPER} dampcoef {format_vector((p[C_PLANE], 0.0, 0.0))}")
+    return commands
+
+
 # -- the device ---------------------------------------------------------------------
 
 
@@ -206,6 +259,7 @@ class HapticMasterDevice:
         self._n_rtt = 0
         self._force = np.zeros(3)
         self._cmd_prefix = f"set {BIAS_NAME} force "
+        self._native_created = False  # the plane's effects exist on the device
 
     #: real time: the loop paces itself on the wall clock
     simulated = False
@@ -235,6 +289,7 @@ class HapticMasterDevice:
         self._reader = FrameReader()
         self._inbox.clear()
         self._unacked.clear()
+        self._native_created = False
 
     def close(self) -> None:
         sock, self._sock = self._sock, None
@@ -295,6 +350,7 @@ class HapticMasterDevice:
         self.connect()
         try:
             self.request("remove all")
+            self._native_created = False
             pos_ok, force_ok = self.request("get position_calibrated", "get force_calibrated")
             if pos_ok.lower() != "true" or force_ok.lower() != "true":
                 raise HapticMasterError(
@@ -347,6 +403,31 @@ class HapticMasterDevice:
     def set_mass(self, mass: float) -> None:
         """The moving mass (kg) the device renders natively (``set inertia``)."""
         self.request(f"set inertia {float(mass):.9g}")
+
+    def render_natively(self, params) -> tuple[str, ...]:
+        """Let the device render what it can of the haptic set ``params`` itself.
+
+        Configures the plane constraint as the device's own spring and damper
+        (:func:`native_commands`): the first call after :meth:`start` creates
+        :data:`PLANE_SPRING` and :data:`PLANE_DAMPER`, sets them and enables them, all
+        in one frame; later calls (a parameter change) only set their values, in one
+        frame. Returns the names of the parameters the device now renders
+        (:data:`NATIVE_PARAMS`): the host must leave them out of its own force and of
+        its passivity check, since the device's 2.5 kHz loop renders them. A refusal
+        raises :class:`HapticMasterError`.
+        """
+        commands = native_commands(params, self.max_force)
+        if not self._native_created:
+            commands = [
+                f"create spring {PLANE_SPRING}",
+                f"create damper {PLANE_DAMPER}",
+                *commands,
+                f"set {PLANE_SPRING} enable",
+                f"set {PLANE_DAMPER} enable",
+            ]
+        self.request(*commands)
+        self._native_created = True
+        return NATIVE_PARAMS
 
     def step(self, dt: float) -> None:
         """The real device runs its own physics: nothing to do."""

@@ -91,14 +91,13 @@ def shown(value: float, unit: str) -> str:
 
 def screen(loop, keys: dict, message: str = "") -> str:
     """The text of one screen: the state, then a line per parameter with its keys."""
-    params = loop.params
-    rows = loop.log._rows
-    lines = [f"evo-door render: {loop.device_name} at {loop.rate:g} Hz, {loop.status}"]
-    if rows:
-        r = rows[-1]
+    snap = loop.snapshot()
+    params = snap["params"]
+    lines = [f"evo-door render: {snap['device']} at {snap['rate']:g} Hz, {snap['status']}"]
+    if math.isfinite(snap["theta"]):
         lines.append(
-            f"t {loop._now:8.2f} s   theta {r[12] * _DEG:7.2f} deg   "
-            f"dtheta {r[13] * _DEG:8.2f} deg/s   user force {r[14]:7.2f} N"
+            f"t {snap['t']:8.2f} s   theta {snap['theta'] * _DEG:7.2f} deg   "
+            f"dtheta {snap['dtheta'] * _DEG:8.2f} deg/s   user force {snap['force']:7.2f} N"
         )
     lines.append("key down/up  parameter                  value         step")
     by_name: dict[str, list] = {}

@@ -19,16 +19,41 @@ trial file: ``evo-door data show LOG.h5`` reads it and an experiment takes it as
                            values (n_sets x n_params, SI)
         events             json attribute: faults, clamps, watchdog, refused changes
     attributes of /render: rate, log_rate, device, statistics (loop period)
+
+Rows live in preallocated float64 blocks of :data:`BLOCK_ROWS` rows; a cycle writes
+its rows in place (:func:`_resample`, compiled), so :meth:`RenderLog.add` allocates
+nothing in the steady state.
+
+Crash safety: :meth:`RenderLog.spill_to` starts a background thread that appends the
+finished rows (every :data:`SPILL_ROWS`, about a second at 1 kHz), the events and the
+parameter sets to the side file ``LOG.h5.partial``; :meth:`RenderLog.write` removes it
+once the log is written, and :func:`recover` turns one left by a crash into a log.
+The side file is a sequence of records, each a 4-byte tag, its length (uint64,
+little-endian) and its payload; a record cut short by a kill is ignored::
+
+    magic    b"EVO-DOOR RENDER LOG PARTIAL 1\n"
+    HEAD     JSON: columns, rate (log, Hz), loop_rate (Hz), device, names, units
+    ROWS     float64 little-endian, m x N_COLUMNS, the next m rows of the log
+    EVTS     JSON: a list of further events
+    PARS     JSON: {"t": [...], "values": [[...], ...]}, further parameter sets
 """
 
 from __future__ import annotations
 
+import json
+import os
+import queue
+import struct
+import threading
+from pathlib import Path
+
 import numpy as np
+from numba import njit
 
 from evo_door import __version__
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
-from evo_door.files import ATTRS, Dataset, write_h5
+from evo_door.files import ATTRS, Dataset, check_folder, to_json, write_h5
 
 #: columns of a log row
 COLUMNS = (
@@ -49,40 +74,110 @@ COLUMNS = (
     "force",
 )
 N_COLUMNS = len(COLUMNS)
+#: rows of one preallocated block (8192 x 15 float64: 0.98 MB, 8.2 s at 1 kHz)
+BLOCK_ROWS = 8192
+#: finished rows that go to the side file at a time (1.02 s at 1 kHz)
+SPILL_ROWS = 1024
+#: suffix of the side file of a log being written
+PARTIAL_SUFFIX = ".partial"
+_MAGIC = b"EVO-DOOR RENDER LOG PARTIAL 1\n"
+_RECORD = struct.Struct("<4sQ")
+_ROW_DTYPE = np.dtype("<f8")
+
+
+@njit(cache=True)
+def _resample(t, row, prev_t, prev, k, rate, block, fill):
+    """Rows of the ticks ``k / rate, (k + 1) / rate, ...`` up to ``t`` (s), by linear
+    interpolation between the previous cycle (``prev_t``, ``prev``) and this one
+    (``t``, ``row``), into ``block[fill:]``, as many as fit. Returns how many it wrote;
+    once every tick up to ``t`` is written, ``prev`` becomes ``row``."""
+    cap = block.shape[0]
+    span = t - prev_t
+    m = 0
+    tick = k / rate
+    while tick <= t and fill + m < cap:
+        w = (tick - prev_t) / span if span > 0 else 1.0
+        for j in range(row.shape[0]):
+            block[fill + m, j] = prev[j] + w * (row[j] - prev[j])
+        m += 1
+        tick = (k + m) / rate
+    if tick > t:
+        for j in range(row.shape[0]):
+            prev[j] = row[j]
+    return m
+
+
+def partial_path(path) -> Path:
+    """The side file of the log ``path``: ``path`` + ``.partial``."""
+    return Path(str(path) + PARTIAL_SUFFIX)
 
 
 class RenderLog:
-    """Rows at ``rate`` (Hz) interpolated from the loop's cycles, plus events."""
+    """Rows at ``rate`` (Hz) interpolated from the loop's cycles, plus events.
 
-    def __init__(self, rate: float = 1000.0, table=None):
+    ``table`` is the parameter declaration (names and units of the parameter sets);
+    rows are kept in blocks of ``block_rows`` (tests use small ones).
+    """
+
+    def __init__(self, rate: float = 1000.0, table=None, block_rows: int = BLOCK_ROWS):
         if not rate > 0:
             raise UserError(f"--log-rate {rate}: must be > 0 Hz")
         self.rate = float(rate)
         self.table = table
-        self._rows: list[np.ndarray] = []
+        self.block_rows = int(block_rows)
+        self._blocks: list[np.ndarray] = []
+        self._block = self._new_block()
+        self._fill = 0  # rows written in the current block
         self._prev_t: float | None = None
         self._prev = np.zeros(N_COLUMNS)
-        self._k = 0  # next tick index
+        self._k = 0  # next tick index: the number of rows
+        self._next_tick = 0.0  # its time, k / rate (s)
         self.param_times: list[float] = []
         self.param_sets: list[np.ndarray] = []
         self.events: list[dict] = []
+        self._names = list(table.names) if table is not None else []
+        self._units = [p.unit for p in table] if table is not None else []
+        self._spill: _Spill | None = None
+        # load the kernel now (numba's cache: milliseconds), not in a servo cycle
+        _resample(0.0, self._prev, -1.0, self._prev.copy(), 0, 1.0, np.empty((0, N_COLUMNS)), 0)
+
+    def _new_block(self) -> np.ndarray:
+        block = np.empty((self.block_rows, N_COLUMNS), dtype=_ROW_DTYPE)
+        self._blocks.append(block)
+        return block
 
     def add(self, t: float, row: np.ndarray) -> None:
         """One cycle at time ``t`` (s) with its ``row`` (see :data:`COLUMNS`)."""
-        tick = self._k / self.rate
-        if self._prev_t is None:
-            if t >= tick:
-                self._rows.append(row.copy())
-                self._k += 1
+        if t < self._next_tick:  # no tick this cycle (most cycles at 2500 Hz)
+            self._prev[:] = row
+            self._prev_t = t
+            return
+        if self._prev_t is None:  # the first cycle: its row is the first tick's
+            if t >= self._k / self.rate:
+                self._block[self._fill] = row
+                self._advance(1)
+            self._prev[:] = row
         else:
-            span = t - self._prev_t
-            while tick <= t:
-                w = (tick - self._prev_t) / span if span > 0 else 1.0
-                self._rows.append(self._prev + w * (row - self._prev))
-                self._k += 1
-                tick = self._k / self.rate
+            while True:
+                if self._fill == self.block_rows:
+                    self._block = self._new_block()
+                    self._fill = 0
+                m = _resample(
+                    t, row, self._prev_t, self._prev, self._k, self.rate, self._block, self._fill
+                )
+                if m:
+                    self._advance(m)
+                if self._fill < self.block_rows:
+                    break
         self._prev_t = t
-        self._prev[:] = row
+        self._next_tick = self._k / self.rate
+
+    def _advance(self, m: int) -> None:
+        self._fill += m
+        self._k += m
+        spill = self._spill
+        if spill is not None and self._k - spill.rows >= SPILL_ROWS:
+            spill.send_rows(self)
 
     def params(self, t: float, vector) -> None:
         """The parameter set in force from time ``t`` (s)."""
@@ -94,14 +189,41 @@ class RenderLog:
 
     @property
     def n(self) -> int:
-        return len(self._rows)
+        return self._k
+
+    def last(self) -> np.ndarray | None:
+        """A copy of the last finished row, or None; safe from another thread."""
+        n = self._k
+        if n == 0:
+            return None
+        i = n - 1
+        return self._blocks[i // self.block_rows][i % self.block_rows].copy()
+
+    def rows(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Rows ``start:stop`` (a copy when they span blocks, else a view)."""
+        stop = self._k if stop is None else min(stop, self._k)
+        if start >= stop:
+            return np.zeros((0, N_COLUMNS))
+        b = self.block_rows
+        first, last = start // b, (stop - 1) // b
+        if first == last:
+            return self._blocks[first][start - first * b : stop - first * b]
+        parts = [self._blocks[first][start - first * b :]]
+        parts.extend(self._blocks[first + 1 : last])
+        parts.append(self._blocks[last][: stop - last * b])
+        return np.concatenate(parts)
 
     def array(self) -> np.ndarray:
-        return np.array(self._rows).reshape(-1, N_COLUMNS)
+        """All the rows, n x :data:`N_COLUMNS` (a new array)."""
+        a = self.rows(0)
+        return a.copy() if a.base is not None else a
 
     def trial(self, device: str = "") -> Trial:
         """The log as a trial (tangential user force, theta, dtheta)."""
         a = self.array()
+        return self._trial(a, device)
+
+    def _trial(self, a: np.ndarray, device: str) -> Trial:
         if a.shape[0] < 2:
             raise UserError("render log: fewer than two samples, nothing to write")
         t = np.arange(a.shape[0]) / self.rate
@@ -118,15 +240,68 @@ class RenderLog:
             meta={"device": device, "log_rate": self.rate},
         )
 
+    # -- crash safety ------------------------------------------------------------------
+    def spill_to(self, path, *, loop_rate: float | None = None, device: str = "") -> Path:
+        """From now on, append the finished rows, the events and the parameter sets to
+        the side file ``path.partial`` (a background thread writes it). ``loop_rate``
+        (Hz) and ``device`` go into it for :func:`recover`. Returns the side file.
+
+        A side file already there (a render that ended without a clean stop) is
+        refused: recover it (:func:`recover`) or remove it first.
+        """
+        if self._spill is not None:
+            raise UserError(f"render log: already spilling to {self._spill.path}")
+        side = partial_path(path)
+        check_folder(side)
+        if side.exists():
+            raise UserError(
+                f"{side}: a render log left by a render that did not end cleanly; "
+                "recover it (evo-door render --recover) or remove it"
+            )
+        header = {
+            "format": "evo-door render log partial",
+            "software": f"evo-door {__version__}",
+            "columns": list(COLUMNS),
+            "rate": self.rate,
+            "loop_rate": None if loop_rate is None else float(loop_rate),
+            "device": device,
+            "names": self._names,
+            "units": self._units,
+            "log": str(path),
+        }
+        self._spill = _Spill(side, header)
+        self._spill.send_rows(self)
+        return side
+
+    @property
+    def spill_path(self) -> Path | None:
+        """The side file being written, if any."""
+        return self._spill.path if self._spill is not None else None
+
+    @property
+    def spill_error(self) -> str | None:
+        """Why the side file could not be written (its writer then stops), if it failed."""
+        return self._spill.error if self._spill is not None else None
+
+    def close(self) -> None:
+        """Write the rows not yet spilled and stop the side file's writer (idempotent;
+        the side file stays until :meth:`write` has written the log)."""
+        if self._spill is not None:
+            self._spill.close(self)
+
+    # -- writing -----------------------------------------------------------------------
     def write(self, path, *, loop_rate: float, device: str, statistics: dict) -> None:
-        """Write the log to ``path`` (HDF5, atomically)."""
+        """Write the log to ``path`` (HDF5, atomically); then remove the side file."""
+        self.close()
+        self._write(path, self.array(), loop_rate, device, statistics)
+        if self._spill is not None:
+            self._spill.path.unlink(missing_ok=True)
+
+    def _write(self, path, a, loop_rate, device, statistics) -> None:
         from evo_door.data.h5io import FORMAT, FORMAT_VERSION, _trial_tree
 
-        tr = self.trial(device)
-        a = self.array()
+        tr = self._trial(a, device)
         col = COLUMNS.index
-        names = list(self.table.names) if self.table is not None else []
-        units = [p.unit for p in self.table] if self.table is not None else []
         render = {
             ATTRS: {
                 "rate": float(loop_rate),
@@ -141,7 +316,7 @@ class RenderLog:
             "user_force": Dataset(a[:, col("fx") : col("fx") + 3], {"unit": "N"}),
             "command": Dataset(a[:, col("cx") : col("cx") + 3], {"unit": "N"}),
             "params": {
-                ATTRS: {"names": names, "units": units},
+                ATTRS: {"names": list(self._names), "units": list(self._units)},
                 "t": Dataset(np.array(self.param_times), {"unit": "s"}),
                 "values": np.array(self.param_sets).reshape(len(self.param_times), -1),
             },
@@ -157,3 +332,184 @@ class RenderLog:
             "render": render,
         }
         write_h5(path, tree, compression=4, compress_above=1)
+
+
+class _Spill:
+    """The side file of a log and the thread that appends to it.
+
+    The loop's thread only puts views of finished rows (never written again) and
+    slices of the event and parameter lists (append-only) on a queue; this thread
+    encodes and writes them, flushes, and syncs the rows to the disk.
+    """
+
+    def __init__(self, path: Path, header: dict):
+        self.path = path
+        self.rows = 0  # rows sent
+        self._events = 0  # events sent
+        self._params = 0  # parameter sets sent
+        self.error: str | None = None
+        self._closed = False
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        try:
+            self._file = open(path, "xb")  # noqa: SIM115 (the writer thread closes it)
+            self._file.write(_MAGIC)
+            self._record(b"HEAD", json.dumps(header).encode())
+            self._file.flush()
+        except OSError as exc:
+            raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        self._thread = threading.Thread(target=self._work, name="evo-door-log-spill", daemon=True)
+        self._thread.start()
+
+    def send_rows(self, log: RenderLog) -> None:
+        """Queue what the side file lacks: finished rows, events, parameter sets."""
+        if self._closed:
+            return
+        n_ev, n_par = len(log.events), len(log.param_times)
+        if n_ev > self._events:
+            self._queue.put((b"EVTS", log.events[self._events : n_ev]))
+            self._events = n_ev
+        if n_par > self._params:
+            sets = (log.param_times[self._params : n_par], log.param_sets[self._params : n_par])
+            self._queue.put((b"PARS", sets))
+            self._params = n_par
+        b = log.block_rows
+        while self.rows < log.n:  # one view per block touched
+            start = self.rows
+            stop = min(log.n, (start // b + 1) * b)
+            self._queue.put(
+                (b"ROWS", log._blocks[start // b][start % b : start % b + stop - start])
+            )
+            self.rows = stop
+
+    def close(self, log: RenderLog) -> None:
+        if self._closed:
+            return
+        self.send_rows(log)
+        self._closed = True
+        self._queue.put(None)
+        self._thread.join()
+
+    def _record(self, tag: bytes, payload) -> None:
+        data = memoryview(payload).cast("B")
+        self._file.write(_RECORD.pack(tag, data.nbytes))
+        self._file.write(data)
+
+    def _work(self) -> None:
+        try:
+            while True:
+                item = self._queue.get()
+                if item is None:
+                    return
+                if self.error is not None:
+                    continue  # drain: the file is unusable
+                tag, payload = item
+                try:
+                    if tag == b"ROWS":
+                        self._record(tag, np.ascontiguousarray(payload, dtype=_ROW_DTYPE))
+                    elif tag == b"PARS":
+                        times, sets = payload
+                        text = to_json({"t": times, "values": [list(v) for v in sets]})
+                        self._record(tag, text.encode())
+                    else:
+                        self._record(tag, to_json(payload).encode())
+                    self._file.flush()
+                    if tag == b"ROWS":
+                        os.fsync(self._file.fileno())
+                except OSError as exc:
+                    self.error = f"{self.path}: cannot write ({exc.strerror or exc})"
+        finally:
+            self._file.close()
+
+
+# -- recovery --------------------------------------------------------------------------
+def read_partial(path) -> tuple[dict, np.ndarray, list[dict], list[float], list[list[float]]]:
+    """The header, rows, events, parameter times and sets of a side file.
+
+    Records cut short (a kill while writing) and anything after them are ignored.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise UserError(f"{path}: render log side file not found") from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not data.startswith(_MAGIC):
+        raise UserError(f"{path}: not the side file of a render log")
+    pos = len(_MAGIC)
+    view = memoryview(data)  # slices without copies
+    header = None
+    rows: list[np.ndarray] = []
+    events: list[dict] = []
+    times: list[float] = []
+    sets: list[list[float]] = []
+    row_bytes = N_COLUMNS * _ROW_DTYPE.itemsize
+    while pos + _RECORD.size <= len(data):
+        tag, size = _RECORD.unpack_from(data, pos)
+        body = view[pos + _RECORD.size : pos + _RECORD.size + size]
+        if len(body) < size:
+            break  # cut short by the crash
+        pos += _RECORD.size + size
+        try:
+            if tag == b"ROWS":
+                if size % row_bytes:
+                    break
+                rows.append(np.frombuffer(body, dtype=_ROW_DTYPE).reshape(-1, N_COLUMNS))
+            elif tag == b"HEAD":
+                header = json.loads(bytes(body))
+            elif tag == b"EVTS":
+                events.extend(json.loads(bytes(body)))
+            elif tag == b"PARS":
+                item = json.loads(bytes(body))
+                times.extend(item["t"])
+                sets.extend(item["values"])
+            else:
+                break  # not a record: damaged
+        except (ValueError, KeyError, TypeError):
+            break
+    if header is None:
+        raise UserError(f"{path}: render log side file without its header")
+    a = np.concatenate(rows) if rows else np.zeros((0, N_COLUMNS))
+    return header, a.astype(np.float64, copy=False), events, times, sets
+
+
+def recover(partial_path, out_path=None) -> Path:
+    """Turn the side file of a render that ended without a clean stop into a log.
+
+    ``out_path`` defaults to the side file's name without ``.partial``. The log has
+    the layout of :meth:`RenderLog.write`, statistics ``{"recovered": true}`` and a
+    last event (kind ``"recovered"``) that says so; the side file is removed once the
+    log is written. Returns the log's path.
+    """
+    side = Path(partial_path)
+    if out_path is None:
+        if not side.name.endswith(PARTIAL_SUFFIX):
+            raise UserError(f"{side}: give the log to write (the name lacks {PARTIAL_SUFFIX})")
+        out_path = side.with_name(side.name[: -len(PARTIAL_SUFFIX)])
+    out_path = Path(out_path)
+    header, a, events, times, sets = read_partial(side)
+    log = RenderLog(float(header["rate"]))
+    log._names = list(header.get("names", []))
+    log._units = list(header.get("units", []))
+    log.events = events
+    log.param_times = [float(t) for t in times]
+    log.param_sets = [np.array(v, dtype=np.float64) for v in sets]
+    if a.shape[0] < 2:
+        raise UserError(f"{side}: fewer than two rows of the render were saved; nothing to recover")
+    end = (a.shape[0] - 1) / log.rate
+    log.event(
+        end,
+        "recovered",
+        f"the session ended without a clean stop; rows up to {end:.3f} s recovered from {side.name}",
+    )
+    loop_rate = header.get("loop_rate")
+    log._write(
+        out_path,
+        a,
+        float("nan") if loop_rate is None else loop_rate,
+        str(header.get("device", "")),
+        {"recovered": True},
+    )
+    if out_path.resolve() != side.resolve():
+        side.unlink(missing_ok=True)
+    return out_path

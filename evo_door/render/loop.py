@@ -33,19 +33,22 @@ from numba import njit
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import (
+    C_ENERGY,
     DEVICE_OFFSET_Y,
     DEVICE_OFFSET_Z,
     FRICTION_CLOSING,
     FRICTION_OPENING,
     FRICTION_SPEED_THRESHOLD,
     PARAMS,
+    RADIUS,
     device_force,
     section_scale,
+    tangential_force,
 )
 from evo_door.params import param_vector
 from evo_door.render.friction import implicit_coulomb
 from evo_door.render.log import N_COLUMNS, RenderLog
-from evo_door.render.safety import NON_FINITE, Watchdog, check_passive, limit_force
+from evo_door.render.safety import IMPLICIT, NON_FINITE, Watchdog, check_passive, limit_force
 
 #: dry-friction laws of the loop: the implicit (set-valued) Coulomb law, the default,
 #: or the haptic model's own explicit tanh (for comparison: rings above
@@ -54,6 +57,8 @@ FRICTION_LAWS = ("implicit", "tanh")
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
+#: cycles between two copies of the state for :meth:`ServoLoop.snapshot` (100 Hz at 2500 Hz)
+_SNAPSHOT_EVERY = 25
 
 
 @njit(cache=True)
@@ -76,21 +81,45 @@ def compute_command(pos, vel, user, p, limit, out, row):
     return code
 
 
+#: Finite-difference steps of the local stiffness and damping along the tangent:
+#: angle (rad) and angular speed (rad/s), well inside the latch's release edge
+#: (band / latch_sharpness, about 5e-4 rad) and its speed gate (1 / latch_gate_slope).
+_DTHETA_STEP = 1e-7
+_OMEGA_STEP = 1e-6
+
+
 @njit(cache=True)
 def compute_command_implicit(pos, vel, user, p, p_free, mass, period, damping, limit, out, row):
-    """:func:`compute_command` with the dry friction rendered by the implicit law.
+    """:func:`compute_command` with the door's own law rendered implicitly.
 
     ``p`` is the parameter vector in force and ``p_free`` the same with both dry
     friction levels at zero: the model's force without its tanh friction. Along the
-    door's tangent at the handle, ``e_t = (0, cos th, -sin th)`` (toward closing),
-    the friction is :func:`~evo_door.render.friction.implicit_coulomb` for the
-    device's moving ``mass`` (kg) over the loop ``period`` (s): the forces on the
-    mass this step are the measured user force, the model's other forces and the
-    device's own ``damping`` (N s/m); the levels are ``A(theta) friction_closing``
-    against a step toward closing faster than ``friction_speed_threshold`` and
-    ``A(theta) friction_opening`` otherwise, as the model selects them. Sticks
-    (the handle stops this step) whenever the other forces stay below the level;
-    never drives the handle through zero speed, whatever the level.
+    door's tangent at the handle, ``e_t = (0, cos th, -sin th)`` (toward closing), the
+    device's moving ``mass`` m (kg) takes one step of the loop ``period`` T (s) under
+    the measured user force, its own ``damping`` (N s/m), the model's tangential force
+    and the dry friction. Two things are solved over that step rather than taken
+    from the state at its start:
+
+    * **stiff springs and dampers** (latch bands, end stops, seal, snap zone): the
+      model's tangential force is linearised about the state,
+      ``f(x + T v', v') ~ f0 - K T v' - C (v' - v)`` with the local stiffness
+      ``K = -df/dx`` (N/m, only its stiffening part) and damping ``C = -df/dv``
+      (N s/m) by finite differences, and the new speed solves
+      ``(m + T C + T^2 K) v' = (m + T C) v + T (F + f_fric)``: a backward-Euler step
+      of the door, stable and dissipative at any stiffness, where the force of the
+      state at the start of the step (explicit) is passive only while the device's
+      damping exceeds ``K T / 2`` (Colgate-Schenkel);
+    * **dry friction**, :func:`~evo_door.render.friction.implicit_coulomb` on that
+      effective mass: the levels are ``A(theta) friction_closing`` against a step
+      toward closing faster than ``friction_speed_threshold`` and
+      ``A(theta) friction_opening`` otherwise, as the model selects them. It sticks
+      (the handle stops this step) whenever the other forces stay below the level
+      and never drives the handle through zero speed, whatever the level.
+
+    The command along ``e_t`` is the model's force at the end of the step plus the
+    friction; across it (the circle and the plane constraints) the model's force as
+    it is. It assumes the device moves its mass m over T under the command, as an
+    admittance device does (the loop passes the measured period as T).
     """
     finite = _finite_state(pos, vel, user)
     if finite:
@@ -103,14 +132,26 @@ def compute_command_implicit(pos, vel, user, p, p_free, mass, period, damping, l
             c = zm / r
             theta = math.atan2(ym, zm)
             v_t = vel[1] * c - vel[2] * s
+            omega = v_t / r
+            # local stiffness and damping of the tangential law (N/m, N s/m)
+            f0 = _tangential(theta, omega, p_free)
+            k = -(_tangential(theta + _DTHETA_STEP, omega, p_free) - f0) / _DTHETA_STEP / r
+            cd = -(_tangential(theta, omega + _OMEGA_STEP, p_free) - f0) / _OMEGA_STEP / r
+            k = max(k, 0.0)
+            cd = max(cd, -0.5 * mass / period)  # keeps m + T C >= m / 2
+            m_damped = mass + period * cd
+            m_eff = m_damped + period * period * k
+            v_start = m_damped * v_t / m_eff
             f_t = (user[1] + out[1]) * c - (user[2] + out[2]) * s - damping * v_t
-            v_free = v_t + period * f_t / mass
+            v_free = v_start + period * f_t / m_eff
             scale = section_scale(theta, p)
             opening = scale * p[FRICTION_OPENING]
             forward = opening
             if v_free > p[FRICTION_SPEED_THRESHOLD] * r:
                 forward = scale * p[FRICTION_CLOSING]
-            f = implicit_coulomb(v_t, f_t, mass, period, forward, opening)
+            f = implicit_coulomb(v_start, f_t, m_eff, period, forward, opening)
+            v_new = v_start + period * (f_t + f) / m_eff
+            f += -k * period * v_new - cd * (v_new - v_t)
             out[1] += f * c
             out[2] -= f * s
         code = limit_force(out, limit)
@@ -118,6 +159,12 @@ def compute_command_implicit(pos, vel, user, p, p_free, mass, period, damping, l
         code = _no_force(out)
     _fill_row(pos, vel, user, out, finite, row)
     return code
+
+
+@njit(cache=True)
+def _tangential(theta, omega, p):
+    """The model's force along e_theta (N): its tangential law and c_energy's push."""
+    return tangential_force(theta, omega, p) + p[C_ENERGY] * p[RADIUS] * omega
 
 
 @njit(cache=True)
@@ -219,10 +266,16 @@ class ServoLoop:
         self.realtime = (not self.simulated) if realtime is None else bool(realtime)
         self.log = RenderLog(log_rate, PARAMS)
         self.watchdog = Watchdog(watchdog_misses, ramp_time)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # guards _pending between the loop and the rest
+        self._changing = threading.RLock()  # one change validated at a time
         self._pending = None
         self._check_period = self.period
-        self.params, changes = check_passive(params, self.damping, self.period, self.clamp)
+        #: names the loop does not render by a sampled explicit law (solved over the
+        #: step, or rendered by the device itself): out of the passivity check
+        self.exclude = IMPLICIT if friction == "implicit" else frozenset()
+        self._native: tuple[str, ...] = ()
+        self._last_row = np.full(N_COLUMNS, np.nan)
+        self.params, changes = self._passive(params)
         self._clamp_note = changes
         self._set_vectors()
         self._mass = self.params["inertia"] / self.params["radius"]
@@ -242,19 +295,61 @@ class ServoLoop:
         with the reason, and the running set stays as it was. Returns the new set
         (after any clamp).
         """
-        with self._lock:
-            base = self._pending[0] if self._pending is not None else self.params
-        try:
-            new = base.replace(dict(values))
-            new, changes = check_passive(new, self.damping, self._check_period, self.clamp)
-        except UserError as exc:
-            self.log.event(self._now, "refused", str(exc), values=dict(values))
-            raise
-        with self._lock:
-            self._pending = (new, dict(values), changes)
+        with self._changing:  # concurrent callers (control port, keys) queue here
+            with self._lock:
+                base = self._pending[0] if self._pending is not None else self.params
+                before = dict(self._pending[1]) if self._pending is not None else {}
+            try:
+                new = base.replace(dict(values))
+                new, changes = self._passive(new)
+            except UserError as exc:
+                self.log.event(self._now, "refused", str(exc), values=dict(values))
+                raise
+            with self._lock:
+                self._pending = (new, {**before, **values}, changes)
         return new
 
     _now = 0.0
+
+    @property
+    def pending(self) -> bool:
+        """A validated change waits for the next cycle."""
+        return self._pending is not None
+
+    def snapshot(self) -> dict:
+        """The loop's state for a display, safe from any thread (copied at 100 Hz).
+
+        ``t`` (s, loop time), ``status``, ``params`` (the ParamSet in force),
+        ``pending`` (a change waits for the next cycle), the last cycle's door state
+        ``theta`` (rad), ``dtheta`` (rad/s), ``force`` (N, the user's, on the
+        tangent), ``position`` (m), ``velocity`` (m/s), ``user_force`` and
+        ``command`` (N) in device axes (NaN before the first cycle), the counts
+        ``faults`` and ``saturated``, ``watchdog`` (its reason), ``rate``, ``device``.
+        """
+        row = self._last_row  # replaced whole, never written in place
+        return {
+            "t": self._now,
+            "status": self.status,
+            "params": self.params,
+            "pending": self.pending,
+            "theta": float(row[12]),
+            "dtheta": float(row[13]),
+            "force": float(row[14]),
+            "position": row[0:3].tolist(),
+            "velocity": row[3:6].tolist(),
+            "user_force": row[6:9].tolist(),
+            "command": row[9:12].tolist(),
+            "faults": self.faults,
+            "saturated": self.saturated,
+            "watchdog": self.watchdog.reason,
+            "rate": self.rate,
+            "device": self.device_name,
+        }
+
+    def _passive(self, params):
+        """Colgate-Schenkel at the period in force, without what is not sampled explicitly."""
+        exclude = self.exclude | frozenset(self._native)
+        return check_passive(params, self.damping, self._check_period, self.clamp, exclude)
 
     def _apply_pending(self, t: float) -> None:
         with self._lock:
@@ -263,6 +358,7 @@ class ServoLoop:
             return
         new, values, changes = pending
         self.params = new
+        self._set_native()
         self._set_vectors()
         self._set_mass()
         self.log.params(t, self._p)
@@ -270,9 +366,19 @@ class ServoLoop:
         if changes:
             self.log.event(t, "clamp", "clamped to be passive", changes=changes)
 
+    def _set_native(self) -> None:
+        """What the device renders itself (its own springs, dampers at its own rate)."""
+        native = getattr(self.device, "render_natively", None)
+        if native is not None:
+            self._native = tuple(native(self.params))
+
     def _set_vectors(self) -> None:
-        """Kernel vectors of the set in force: as it is, and without dry friction."""
-        self._p = param_vector(self.params, PARAMS)
+        """Kernel vectors of the set in force: as it is, and without dry friction;
+        both without what the device renders natively."""
+        p = param_vector(self.params, PARAMS)
+        for name in self._native:
+            p[PARAMS.index(name)] = 0.0
+        self._p = p
         self._p_free = self._p.copy()
         self._p_free[FRICTION_CLOSING] = 0.0
         self._p_free[FRICTION_OPENING] = 0.0
@@ -332,6 +438,8 @@ class ServoLoop:
             )
             cmd[:] = 0.0
             dev.start()
+            self._set_native()
+            self._set_vectors()
             self._set_mass()
             t0 = self.t0 = time.perf_counter()
             while k < n_cycles and not (stop is not None and stop.is_set()):
@@ -402,6 +510,8 @@ class ServoLoop:
                         self.log.event(t, "fault", f"device command failed: {exc}")
                 dev.step(T)
                 self.log.add(t, row)
+                if k % _SNAPSHOT_EVERY == 0:
+                    self._last_row = row.copy()
                 compute.append(time.perf_counter() - tic)
                 self.watchdog.cycle(now, late > T)
                 if self.watchdog.tripped and self.watchdog.tripped_at == now:
@@ -409,14 +519,19 @@ class ServoLoop:
                 k += 1
                 if self.realtime and len(starts) == _RECHECK_AFTER:  # cycles run, not slots
                     self._recheck(float(np.mean(np.diff(starts))), t)
+        except BaseException:
+            self.status = "failed"
+            raise
         finally:
             if gc_was_enabled:
                 gc.enable()
             try:
                 dev.stop()
             finally:
-                self.status = "watchdog" if self.watchdog.tripped else "done"
-        self.statistics = self._stats(k, starts, lateness, compute, missed)
+                if self.status != "failed":
+                    self.status = "watchdog" if self.watchdog.tripped else "done"
+                # also when the loop raised: an interrupted log keeps its statistics
+                self.statistics = self._stats(k, starts, lateness, compute, missed)
         return self.statistics
 
     def _wait_until(self, t0: float, t: float) -> float:
@@ -433,15 +548,18 @@ class ServoLoop:
         self._check_period = max(self.period, measured)
         if self._check_period <= self.period * 1.05:
             return
-        try:
-            new, changes = check_passive(self.params, self.damping, self._check_period, self.clamp)
-        except UserError as exc:
-            self.watchdog.trip(t, f"measured period {measured * 1e3:.3g} ms: {exc}")
-            self.log.event(t, "watchdog", self.watchdog.reason)
-            return
-        if changes:
-            with self._lock:
-                self._pending = (new, {}, changes)
+        with self._changing:
+            with self._lock:  # a change waiting is checked too, on top of the set
+                base, values = (self.params, {}) if self._pending is None else self._pending[:2]
+            try:
+                new, changes = self._passive(base)
+            except UserError as exc:
+                self.watchdog.trip(t, f"measured period {measured * 1e3:.3g} ms: {exc}")
+                self.log.event(t, "watchdog", self.watchdog.reason)
+                return
+            if changes or values:
+                with self._lock:
+                    self._pending = (new, values, changes)
 
     def _stats(self, cycles, starts, lateness, compute, missed) -> dict:
         comp = np.array(compute) if compute else np.zeros(1)

@@ -70,8 +70,26 @@ def _values(params) -> dict[str, float]:
     return params.as_dict() if hasattr(params, "as_dict") else PARAMS.as_dict(params)
 
 
-def passivity(params, damping: float, period: float) -> dict:
+#: What the loop's implicit law renders (:func:`~evo_door.render.loop.compute_command_implicit`):
+#: the door's tangential springs and its snap-zone damping, solved over the step on
+#: the device's mass, stable and dissipative at any stiffness; left out of the check.
+IMPLICIT = frozenset(
+    (
+        "latch_stiffness",
+        "stop_stiffness",
+        "gasket_stiffness",
+        "return_stiffness",
+        "transition_damping",
+    )
+)
+
+
+def passivity(params, damping: float, period: float, exclude=frozenset()) -> dict:
     """The Colgate-Schenkel check of a haptic parameter set.
+
+    ``exclude`` names the springs and dampings not rendered by a sampled explicit law
+    (solved implicitly by the loop, :data:`IMPLICIT`, or rendered by the device itself
+    at its own rate): they are left out of K and B.
 
     Returns ``{"ok", "K", "K_name", "B", "b", "T", "margin", "reason"}``: K (N/m) the
     stiffest virtual spring and which parameter it is, B (N s/m) the size of the most
@@ -80,10 +98,10 @@ def passivity(params, damping: float, period: float) -> dict:
     """
     v = _values(params)
     radius = v["radius"]
-    springs = {n: v[n] / radius if per_r else v[n] for n, per_r in _STIFFNESSES}
-    k_name = max(springs, key=springs.get)
-    k = springs[k_name]
-    b_neg = sum(v[n] / radius if per_r else v[n] for n, per_r in _NEGATIVE_DAMPINGS)
+    springs = {n: v[n] / radius if r else v[n] for n, r in _STIFFNESSES if n not in exclude}
+    k_name = max(springs, key=springs.get) if springs else "none"
+    k = springs.get(k_name, 0.0)
+    b_neg = sum(v[n] / radius if r else v[n] for n, r in _NEGATIVE_DAMPINGS if n not in exclude)
     need = k * period / 2.0 + abs(b_neg)
     margin = damping - need
     ok = margin > 0.0
@@ -99,7 +117,7 @@ def passivity(params, damping: float, period: float) -> dict:
     )
 
 
-def clamp_passive(params, damping: float, period: float, safety: float = 0.9):
+def clamp_passive(params, damping: float, period: float, safety: float = 0.9, exclude=frozenset()):
     """A copy of ``params`` made passive by scaling down what breaks the condition.
 
     Negative dampings are scaled to at most half the device damping, then every
@@ -110,16 +128,17 @@ def clamp_passive(params, damping: float, period: float, safety: float = 0.9):
     v = _values(params)
     radius = v["radius"]
     changes: dict[str, tuple[float, float]] = {}
-    b_neg = sum(v[n] / radius if per_r else v[n] for n, per_r in _NEGATIVE_DAMPINGS)
+    negative = [(n, r) for n, r in _NEGATIVE_DAMPINGS if n not in exclude]
+    b_neg = sum(v[n] / radius if r else v[n] for n, r in negative)
     scale_b = 1.0 if b_neg <= 0.5 * damping else 0.5 * damping / b_neg
     if scale_b < 1.0:
-        for name, _ in _NEGATIVE_DAMPINGS:
+        for name, _ in negative:
             changes[name] = (v[name], v[name] * scale_b)
         b_neg *= scale_b
     k_max = safety * 2.0 * (damping - b_neg) / period
     for name, per_r in _STIFFNESSES:
         k = v[name] / radius if per_r else v[name]
-        if k > k_max:
+        if name not in exclude and k > k_max:
             new = k_max * radius if per_r else k_max
             if new < PARAMS[name].lower:
                 raise UserError(
@@ -132,18 +151,19 @@ def clamp_passive(params, damping: float, period: float, safety: float = 0.9):
     return new_params, changes
 
 
-def check_passive(params, damping: float, period: float, clamp: bool = False):
+def check_passive(params, damping: float, period: float, clamp: bool = False, exclude=frozenset()):
     """``params`` if passive; else clamped (``clamp``) or a UserError with the reason.
 
-    Returns ``(params, changes)``; ``changes`` is empty unless clamped.
+    ``exclude`` as in :func:`passivity`. Returns ``(params, changes)``; ``changes`` is
+    empty unless clamped.
     """
-    check = passivity(params, damping, period)
+    check = passivity(params, damping, period, exclude)
     if check["ok"]:
         return params, {}
     if not clamp:
         hint = "; --device-damping states the device's own" if damping <= 0.0 else ""
         raise UserError(f"parameter set refused: {check['reason']} (--clamp scales it down{hint})")
-    return clamp_passive(params, damping, period)
+    return clamp_passive(params, damping, period, exclude=exclude)
 
 
 class Watchdog:

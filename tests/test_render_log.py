@@ -1,0 +1,295 @@
+"""The renderer's log: rows in blocks, the side file while rendering, recovery."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from evo_door.cli import main
+from evo_door.data.io import read_trials
+from evo_door.errors import UserError
+from evo_door.files import open_h5, read_attrs
+from evo_door.models import get_model
+from evo_door.models.haptic import PARAMS
+from evo_door.render.device import SimDevice
+from evo_door.render.log import (
+    BLOCK_ROWS,
+    N_COLUMNS,
+    SPILL_ROWS,
+    RenderLog,
+    partial_path,
+    read_partial,
+    recover,
+)
+from evo_door.render.loop import ServoLoop
+
+
+def _cycles(n: int, seed: int = 0):
+    """Jittered cycle times around 2500 Hz, one long gap (missed cycles), a repeated
+    time; random rows."""
+    rng = np.random.default_rng(seed)
+    dt = rng.uniform(0.0002, 0.0006, n)
+    dt[n // 3] = 0.0123  # 12 ticks in one cycle: crosses small blocks
+    dt[n // 2] = 0.0  # the same time twice
+    t = np.cumsum(dt)
+    t -= t[0]
+    return t, rng.normal(size=(n, N_COLUMNS))
+
+
+def _list_log(t, rows, rate):
+    """The log as a plain list of rows, built one tick at a time (the reference)."""
+    out = []
+    k = 0
+    for i, (ti, row) in enumerate(zip(t, rows)):
+        while k / rate <= ti:
+            if i == 0:
+                out.append(row.copy())
+                k += 1
+                break
+            span = ti - t[i - 1]
+            w = (k / rate - t[i - 1]) / span if span > 0 else 1.0
+            out.append(rows[i - 1] + w * (row - rows[i - 1]))
+            k += 1
+    return np.array(out).reshape(-1, N_COLUMNS)
+
+
+@pytest.mark.parametrize("block_rows", [1, 7, 64, BLOCK_ROWS])
+def test_blocks_hold_the_rows_a_plain_list_would(block_rows):
+    t, rows = _cycles(3000)
+    log = RenderLog(1000.0, block_rows=block_rows)
+    for ti, row in zip(t, rows):
+        log.add(ti, row)
+    a = log.array()
+    ref = _list_log(t, rows, 1000.0)
+    assert log.n == a.shape[0] == ref.shape[0] == int(np.floor(t[-1] * 1000.0)) + 1
+    np.testing.assert_array_equal(a, ref)
+    # and against numpy's interpolation, away from the repeated time
+    ticks = np.arange(log.n) / 1000.0
+    h = len(t) // 2
+    away = (ticks <= t[h - 2]) | (ticks > t[h + 1])
+    keep = np.r_[: h - 1, h + 1 : len(t)]
+    for j in (0, 7, 14):
+        ref_j = np.interp(ticks[away], t[keep], rows[keep, j])
+        np.testing.assert_allclose(a[away, j], ref_j, rtol=0, atol=1e-12)
+    assert away.sum() >= log.n - 2
+    np.testing.assert_array_equal(log.last(), ref[-1])
+    np.testing.assert_array_equal(log.rows(5, 40), ref[5:40])
+
+
+def test_add_allocates_nothing_per_row_in_a_block():
+    log = RenderLog(1000.0)
+    row = np.ones(N_COLUMNS)
+    for k in range(100):
+        log.add(k * 0.0004, row)
+    tracemalloc.start()
+    try:
+        before, _ = tracemalloc.get_traced_memory()
+        for k in range(100, 3100):  # 1200 rows, within the first block
+            log.add(k * 0.0004, row)
+        after, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert log.n == 1240 < BLOCK_ROWS
+    assert after - before < 2000  # bytes; a list of row arrays takes > 200 000
+
+
+@pytest.mark.slow
+def test_sixty_seconds_of_render_hold_under_ten_megabytes(seed_trial):
+    loop = ServoLoop(SimDevice("open", radius=seed_trial["radius"]), seed_trial, 2500.0)
+    loop.run(60.0)
+    log = loop.log
+    assert log.n == 60000
+    held = sum(b.nbytes for b in log._blocks)
+    assert len(log._blocks) == -(-60000 // BLOCK_ROWS)
+    assert 60000 * N_COLUMNS * 8 <= held < 10e6
+    assert np.isfinite(log.array()).all()
+
+
+@pytest.fixture(scope="module")
+def seed_trial():
+    return get_model("haptic").load_params("seed_trial")
+
+
+def _wait_for_size(path, size, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if path.exists() and path.stat().st_size >= size:
+            return path.stat().st_size
+        time.sleep(0.01)
+    raise AssertionError(f"{path} did not reach {size} bytes")
+
+
+def test_the_side_file_grows_and_recovers_the_rows_exactly(tmp_path):
+    out = tmp_path / "l.h5"
+    log = RenderLog(1000.0, PARAMS)
+    vector = np.linspace(1.0, 2.0, len(PARAMS))
+    log.params(0.0, vector)
+    log.event(0.0, "friction", "a note", values={"k": 1.5})
+    side = log.spill_to(out, loop_rate=2500.0, device="sim")
+    assert side == partial_path(out) == tmp_path / "l.h5.partial"
+    head = side.stat().st_size
+    rng = np.random.default_rng(1)
+    sizes = []
+    k = 0
+    for target in (1, 2, 3):
+        while log.n < target * BLOCK_ROWS:
+            log.add(k * 0.0004, rng.normal(size=N_COLUMNS))
+            k += 1
+        if target == 2:
+            log.params(k * 0.0004, 2 * vector)
+        sizes.append(_wait_for_size(side, head + target * BLOCK_ROWS * N_COLUMNS * 8))
+    assert sizes[0] < sizes[1] < sizes[2]
+    n_spilled = 3 * BLOCK_ROWS
+    # not closed: as a crash leaves it
+    _, rows, events, times, sets = read_partial(side)
+    np.testing.assert_array_equal(rows, log.array()[:n_spilled])
+    assert [e["kind"] for e in events] == ["friction"] and times[0] == 0.0
+    recovered = tmp_path / "r.h5"
+    assert recover(side, recovered) == recovered
+    assert not side.exists()
+    (tr,) = read_trials(recovered)
+    a = log.array()[:n_spilled]
+    assert tr.n == n_spilled and tr.rate == pytest.approx(1000.0)
+    np.testing.assert_array_equal(tr.theta, a[:, 12])
+    with open_h5(recovered) as f:
+        np.testing.assert_array_equal(f["render/command"][()], a[:, 9:12])
+        attrs = read_attrs(f["render"])
+        assert attrs["statistics"] == {"recovered": True}
+        assert attrs["rate"] == 2500.0 and attrs["device"] == "sim"
+        assert attrs["events"][-1]["kind"] == "recovered"
+        assert "without a clean stop" in attrs["events"][-1]["message"]
+        np.testing.assert_array_equal(f["render/params/values"][()], [vector, 2 * vector])
+        assert list(read_attrs(f["render/params"])["names"]) == list(PARAMS.names)
+    log.close()
+    log.close()  # idempotent
+
+
+def test_write_removes_the_side_file_and_a_left_one_is_refused(tmp_path):
+    out = tmp_path / "l.h5"
+    log = RenderLog(1000.0, PARAMS)
+    log.params(0.0, np.ones(len(PARAMS)))
+    side = log.spill_to(out)
+    for k in range(5000):
+        log.add(k * 0.0004, np.full(N_COLUMNS, float(k)))
+    log.write(out, loop_rate=2500.0, device="sim", statistics={})
+    assert not side.exists()
+    (tr,) = read_trials(out)
+    assert tr.n == log.n == 2000
+    side.write_bytes(b"left by a crash")
+    with pytest.raises(UserError, match=r"l\.h5\.partial: .*did not end cleanly"):
+        RenderLog(1000.0).spill_to(out)
+    with pytest.raises(UserError, match="not the side file of a render log"):
+        recover(side)
+
+
+def test_a_side_file_cut_mid_record_recovers_the_whole_records(tmp_path):
+    out = tmp_path / "l.h5"
+    log = RenderLog(1000.0, PARAMS)
+    log.params(0.0, np.ones(len(PARAMS)))
+    side = log.spill_to(out)
+    for k in range(int(2.5 * SPILL_ROWS * 2.5)):
+        log.add(k * 0.0004, np.full(N_COLUMNS, float(k)))
+    log.close()
+    data = side.read_bytes()
+    side.write_bytes(data[:-100])  # the last record cut short
+    _, rows, *_ = read_partial(side)
+    assert rows.shape[0] == 2 * SPILL_ROWS
+    np.testing.assert_array_equal(rows, log.array()[: 2 * SPILL_ROWS])
+    assert recover(side) == out and read_trials(out)[0].n == 2 * SPILL_ROWS
+
+
+class _FailingDevice(SimDevice):
+    """A simulated device whose read (or step) raises after ``after`` cycles."""
+
+    def __init__(self, *args, after: int, error: BaseException, where: str, **kw):
+        super().__init__(*args, **kw)
+        self.after, self.error, self.where, self.count = after, error, where, 0
+
+    def read(self):
+        self.count += 1
+        if self.where == "read" and self.count > self.after:
+            raise self.error
+        return super().read()
+
+    def step(self, dt):
+        if self.where == "step" and self.count >= self.after:
+            raise self.error
+        super().step(dt)
+
+
+@pytest.mark.parametrize(
+    "error, where", [(KeyboardInterrupt(), "read"), (RuntimeError("device on fire"), "step")]
+)
+def test_a_render_that_raises_still_writes_its_log(tmp_path, monkeypatch, capsys, error, where):
+    import evo_door.commands.render as command
+
+    def make(spec, user, radius, seed, damping=None):
+        return _FailingDevice(user, radius=radius, after=1000, error=error, where=where), "sim"
+
+    monkeypatch.setattr(command, "make_device", make)
+    log = tmp_path / "l.h5"
+    args = ["render", "--params", "seed_trial", "--user", "open", "--duration", "2"]
+    if isinstance(error, KeyboardInterrupt):
+        assert main([*args, "--log", str(log)]) == 130
+    else:
+        with pytest.raises(RuntimeError, match="device on fire"):
+            main([*args, "--log", str(log)])
+    err = capsys.readouterr().err
+    assert f"wrote {log}" in err and type(error).__name__ in err
+    assert not partial_path(log).exists()
+    (tr,) = read_trials(log)
+    # cycles 0..999 at 2500 Hz: ticks 0..399 at 1 kHz
+    assert tr.n == 400 and np.isfinite(tr.theta).all()
+    with open_h5(log) as f:
+        attrs = read_attrs(f["render"])
+        assert attrs["events"][-1]["kind"] == "interrupted"
+        assert type(error).__name__ in attrs["statistics"]["interrupted"]
+        # the loop's own statistics survive the error
+        assert attrs["statistics"]["status"] == "failed"
+        assert attrs["statistics"]["cycles_run"] in (999, 1000)  # the last one, cut or not
+        assert f["render/position"].shape == (400, 3)
+
+
+@pytest.mark.slow
+def test_recover_a_render_killed_mid_run(tmp_path, capsys):
+    log = tmp_path / "x.h5"
+    side = partial_path(log)
+    cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
+    cmd += ["--device", "sim", "--user", "open", "--duration", "30", "--realtime"]
+    proc = subprocess.Popen([*cmd, "--log", str(log)], stdout=subprocess.DEVNULL)
+    try:
+        # two chunks of rows (2 s at 1 kHz) on the disk, then a kill
+        _wait_for_size(side, 2 * SPILL_ROWS * N_COLUMNS * 8 + 200, timeout=30.0)
+        os.kill(proc.pid, signal.SIGKILL)
+        assert proc.wait(timeout=10) == -signal.SIGKILL
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert not log.exists() and side.exists()
+    out = tmp_path / "out.h5"
+    assert main(["render", "--recover", str(side), "--log", str(out)]) == 0
+    assert not side.exists()
+    capsys.readouterr()
+    assert main(["data", "show", str(out)]) == 0
+    assert "render" in capsys.readouterr().out
+    (tr,) = read_trials(out)
+    assert tr.n >= 2 * SPILL_ROWS and tr.t[-1] >= 1.0
+    assert tr.theta[0] > 1.5 and np.isfinite(tr.theta).all()
+
+
+def test_recover_refuses_what_is_not_a_side_file(tmp_path, capsys):
+    missing = tmp_path / "none.h5.partial"
+    assert main(["render", "--recover", str(missing)]) == 2
+    garbage = tmp_path / "g.h5.partial"
+    garbage.write_text("not a render")
+    assert main(["render", "--recover", str(garbage)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert "no such file" in err[0] and "not the side file" in err[1]
