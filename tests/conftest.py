@@ -61,3 +61,20 @@ def started(emu, **kwargs):
     device = HapticMasterDevice("127.0.0.1", emu.port, init_wait=0.0, timeout=2.0, **kwargs)
     device.start()
     return device
+
+
+# -- a simulated device for loops run in a thread ---------------------------------------
+def yielding_sim(*args, **kwargs):
+    """A SimDevice that gives up the GIL each cycle, as a paced loop does while it
+    waits (an unpaced simulated loop in a thread never blocks and would starve the
+    test's own thread)."""
+    import time
+
+    from evo_door.render.device import SimDevice
+
+    class YieldingSim(SimDevice):
+        def step(self, dt):
+            super().step(dt)
+            time.sleep(0)
+
+    return YieldingSim(*args, **kwargs)

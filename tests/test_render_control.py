@@ -17,6 +17,7 @@ from evo_door.render.control import ControlServer, parse_control, request
 from evo_door.render.device import SimDevice
 from evo_door.render.keys import LETTERS, key_change, key_map, nice_step
 from evo_door.render.loop import ServoLoop
+from tests.conftest import yielding_sim
 
 
 @pytest.fixture(scope="module")
@@ -24,20 +25,11 @@ def seed_trial():
     return get_model("haptic").load_params("seed_trial")
 
 
-class _YieldingSim(SimDevice):
-    """The simulated device, giving up the GIL each cycle as a paced loop does while it
-    waits (an unpaced simulated loop never blocks and would starve the test's thread)."""
-
-    def step(self, dt):
-        super().step(dt)
-        time.sleep(0)
-
-
 @pytest.fixture
 def running(seed_trial):
     """A ServoLoop on the simulated device in its own thread, with its control server."""
     build_parser()  # import every command before the loop competes for the GIL
-    loop = ServoLoop(_YieldingSim("open", radius=seed_trial["radius"], seed=3), seed_trial)
+    loop = ServoLoop(yielding_sim("open", radius=seed_trial["radius"], seed=3), seed_trial)
     stop = threading.Event()
     thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
     server = ControlServer(loop, "127.0.0.1", 0, token="s3cret").start()

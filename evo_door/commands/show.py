@@ -11,7 +11,11 @@ ORDER = 42
 
 def register(sub) -> None:
     p = sub.add_parser("show", help="print a run's best parameters, fitness, status and settings")
-    p.add_argument("results", metavar="RUN.h5", help="results file (a run's or a pipeline's)")
+    p.add_argument(
+        "results",
+        metavar="RUN.h5",
+        help="results file (a run's or a pipeline's), or a render log (a participant's session)",
+    )
     p.add_argument(
         "--stage",
         metavar="NAME",
@@ -38,7 +42,17 @@ def run(args) -> int:
     from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
     from evo_door.experiment.results import format_show, plot_convergence, plot_fit
     from evo_door.files import check_image_path
+    from evo_door.render.log import format_session, is_render_log, read_session
 
+    if is_render_log(args.results):  # a renderer's log: the participant's session
+        if args.stage or args.plot or args.convergence:
+            raise UserError(
+                f"{args.results}: a render log: --stage, --plot and --convergence are for "
+                "results files (evo-door data show --plot draws a log)"
+            )
+        session = read_session(args.results)
+        print(json.dumps(session) if args.json else format_session(session, args.results))
+        return 0
     pipeline = pipeline_summary(args.results) if args.stage is None else None
     if pipeline is not None:
         if args.plot or args.convergence:

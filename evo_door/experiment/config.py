@@ -314,7 +314,8 @@ def _resolve_path(text: str, base_dir: Path, where: str, key: str) -> str:
 
 
 def _param_spec(reader: _Reader, key, base_dir: Path):
-    """A parameter set given as preset name, YAML file or inline mapping."""
+    """A parameter set given as preset name, YAML file, render log (the session's chosen
+    set) or inline mapping."""
     v = reader.get(key)
     if v is None:
         return None
@@ -335,7 +336,7 @@ def _param_spec(reader: _Reader, key, base_dir: Path):
         raise reader.fail(
             key, f"expected a preset name, a parameter file or a mapping, got {_show(v)}"
         )
-    if v.endswith((".yaml", ".yml")) or "/" in v:
+    if v.endswith((".yaml", ".yml", ".h5", ".hdf5")) or "/" in v:  # .h5: a render log
         return _resolve_path(v, base_dir, reader.node.where(key), reader.key_path(key))
     return v
 

@@ -235,6 +235,11 @@ def load_params(
 
 def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
     path = Path(spec)
+    if path.suffix.lower() in (".h5", ".hdf5") and path.is_file():
+        from evo_door.render.log import is_render_log
+
+        if is_render_log(path):
+            return _load_render_log(table, path)
     if not path.is_file():
         if path.suffix or "/" in str(spec):
             raise UserError(f"{spec}: parameter file not found")
@@ -248,6 +253,18 @@ def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
             f"{path}:{line} is not valid YAML ({getattr(exc, 'problem', exc)})"
         ) from None
     return params_from_document(table, doc, str(path))
+
+
+def _load_render_log(table: ParamTable, path: Path) -> ParamSet:
+    """A render log (the web console's session record) as a parameter set: the
+    participant's chosen set, else the last set in force (haptic model only)."""
+    from evo_door.render.log import session_params
+
+    values, what = session_params(path)
+    unknown = [name for name in values if name not in table.names]
+    if unknown or set(values) != set(table.names):
+        raise UserError(f"{path}: a render log holds a haptic set, not one of {table.model!r}")
+    return ParamSet.from_mapping(table, values, what, str(path))
 
 
 def params_from_document(table: ParamTable, doc, source: str) -> ParamSet:

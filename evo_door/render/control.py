@@ -16,6 +16,9 @@ Requests::
     {"token": T, "get": "params"}               the set in force
     {"token": T, "get": "state"}                the device and door state
     {"token": T, "get": "declaration"}          names, units, bounds, groups
+    {"token": T, "get": "health"}               the loop's timing so far
+    {"token": T, "get": "rows", "since": K}     the log's door rows from row K, at 100 Hz
+    {"token": T, "event": {"kind": KIND, ...}}  a session event, into the log
 
 (``token`` only when the server has one.) Answers::
 
@@ -24,7 +27,18 @@ Requests::
     {"ok": true, "t": S, "theta": RAD, "dtheta": RAD_S, "force": N,
      "position": [M x3], "velocity": [M_S x3], "user_force": [N x3],
      "command": [N x3], "status": "running"}
+    {"ok": true, "t": S, "status": ..., "rate_hz", "cycles", "missed_cycles",
+     "on_time_fraction", "lateness_p99_s", "period_mean_s", "compute_p99_s",
+     "faults", "saturated_cycles", "watchdog"}
+    {"ok": true, "rows": [[t S, theta RAD, dtheta RAD_S, force N], ...], "next": K2}
+    {"ok": true, "t": S}                         (an event recorded at loop time S)
     {"ok": false, "error": "one line: why"}
+
+``rows`` hands out the 1 kHz log's rows ``K, K + 10, ...`` (100 Hz, for a live
+display); ask again with ``since`` = ``next``. Session events (the web console's) are
+one of :data:`EVENT_KINDS`; those that carry a parameter set (``params``) must give
+declared names with finite values within their bounds. They go into the log's events
+and, through them, its session record (:mod:`evo_door.render.log`).
 
 A change goes through :meth:`ServoLoop.request_change`: it is checked against the
 declaration and the passivity condition at the measured loop period, and comes into
@@ -46,8 +60,11 @@ import socketserver
 import threading
 import time
 
+import numpy as np
+
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
+from evo_door.render.log import COLUMNS
 
 #: the longest request line (bytes)
 MAX_LINE = 65536
@@ -197,7 +214,13 @@ class ControlServer:
         try:
             if "set" in request:
                 return self._set(request["set"])
+            if "event" in request:
+                return self._event(request["event"])
             what = request.get("get")
+            if what == "health":
+                return {"ok": True, "t": self.loop.snapshot()["t"], **self.loop.health()}
+            if what == "rows":
+                return self._rows(request.get("since", 0))
             if what == "params":
                 return self._params()
             if what == "state":
@@ -206,7 +229,8 @@ class ControlServer:
                 return {"ok": True, "declaration": PARAMS.rows()}
             return {
                 "ok": False,
-                "error": 'expected {"set": {...}} or {"get": "params"|"state"|"declaration"}',
+                "error": 'expected {"set": {...}}, {"event": {...}} or {"get": '
+                '"params"|"state"|"health"|"rows"|"declaration"}',
             }
         except UserError as exc:
             return {"ok": False, "error": " ".join(str(exc).split())}
@@ -234,6 +258,38 @@ class ControlServer:
                 time.sleep(0.0005)
         return {"ok": True, "applied": applied, "in_force": in_force, "t": loop.snapshot()["t"]}
 
+    def _rows(self, since) -> dict:
+        if isinstance(since, bool) or not isinstance(since, int) or since < 0:
+            raise UserError('"since" must be a row index >= 0')
+        log = self.loop.log
+        n = log.n
+        start = min(since, n)
+        start += (-start) % ROWS_EVERY  # on the 100 Hz grid: rows 0, 10, 20 ...
+        if start >= n:
+            return {"ok": True, "rows": [], "next": start}
+        rows = log.rows(start, n)[::ROWS_EVERY]
+        col = [COLUMNS.index(c) for c in ("theta", "dtheta", "force")]
+        t = (start + ROWS_EVERY * np.arange(len(rows))) / log.rate
+        out = np.column_stack([t, rows[:, col]])
+        out[~np.isfinite(out)] = 0.0
+        return {"ok": True, "rows": out.tolist(), "next": start + ROWS_EVERY * len(rows)}
+
+    def _event(self, event) -> dict:
+        if not isinstance(event, dict) or event.get("kind") not in EVENT_KINDS:
+            raise UserError(f"an event is an object with a kind among {', '.join(EVENT_KINDS)}")
+        event = dict(event)
+        kind = event.pop("kind")
+        if "params" in event:
+            event["params"] = _checked_set(event["params"])
+        if kind == "chosen":  # the whole set: what is not given is the set in force
+            event["params"] = {**self.loop.params.as_dict(), **event.get("params", {})}
+        text = json.dumps(event)
+        if len(text) > 16_384:
+            raise UserError("an event takes at most 16 KiB")
+        t = self.loop.snapshot()["t"]
+        self.loop.log.event(t, kind, f"session: {kind}", **event)
+        return {"ok": True, "t": t}
+
     def _params(self) -> dict:
         snap = self.loop.snapshot()
         return {
@@ -252,6 +308,40 @@ class ControlServer:
         for k in ("position", "velocity", "user_force", "command"):
             out[k] = [_finite(x) for x in snap[k]]
         return out
+
+
+#: rows of the 1 kHz log per row that ``{"get": "rows"}`` hands out (100 Hz)
+ROWS_EVERY = 10
+
+#: the session events of the web console (issue 15) the log records
+EVENT_KINDS = (
+    "participant",
+    "ab_store",
+    "ab_switch",
+    "ab_choice",
+    "undo",
+    "reset",
+    "save",
+    "chosen",
+    "note",
+)
+
+
+def _checked_set(values) -> dict:
+    """``values`` {name: SI value}: declared names, finite numbers within bounds."""
+    if not isinstance(values, dict) or not values:
+        raise UserError('"params" must be a non-empty object {name: value}')
+    out = {}
+    for name, value in values.items():
+        if name not in PARAMS.names:
+            raise UserError(f"unknown parameter {name!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise UserError(f"parameter {name!r}: {value!r} is not a number")
+        q = PARAMS[name]
+        if not (math.isfinite(value) and q.lower <= value <= q.upper):
+            raise UserError(f"{name} = {value!r} {q.unit}: outside [{q.lower:g}, {q.upper:g}]")
+        out[name] = float(value)
+    return out
 
 
 def request(host: str, port: int, message: dict, timeout: float = 5.0) -> dict:

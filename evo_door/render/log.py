@@ -331,7 +331,157 @@ class RenderLog:
             "trials": {"render": _trial_tree(tr)},
             "render": render,
         }
+        session = session_tree(self.events, self._names, self._units)
+        if session is not None:
+            tree["session"] = session
         write_h5(path, tree, compression=4, compress_above=1)
+
+
+# -- the session record (the web console's participant sessions, issue 15) ----------
+#: the event kinds that belong to a participant's session
+SESSION_KINDS = ("participant", "ab_store", "ab_switch", "ab_choice", "undo", "reset", "save")
+SESSION_KINDS += ("chosen", "note")
+
+
+def session_tree(events, names, units) -> dict | None:
+    """The ``/session`` group of a log from its events; None without session events.
+
+    Layout::
+
+        /session               participant (str, the last one given), events (json:
+                               every session event, time-stamped), choices (json: the
+                               A/B preferences), chosen_t (s, -1 without a choice)
+            chosen             the participant's final set (SI, in ``names`` order),
+                               attributes names, units; absent without a choice
+    """
+    mine = [e for e in events if e.get("kind") in SESSION_KINDS]
+    if not mine:
+        return None
+    participant = ""
+    for e in mine:
+        if e["kind"] == "participant":
+            participant = str(e.get("id", ""))
+    chosen = [e for e in mine if e["kind"] == "chosen"]
+    tree = {
+        ATTRS: {
+            "participant": participant,
+            "events": mine,
+            "choices": [e for e in mine if e["kind"] == "ab_choice"],
+            "chosen_t": chosen[-1]["t"] if chosen else -1.0,
+        }
+    }
+    values = chosen[-1].get("params", {}) if chosen else {}
+    if chosen and all(n in values for n in names):  # the control port completes it
+        vector = np.array([values[n] for n in names], dtype=np.float64)
+        tree["chosen"] = Dataset(vector, {"names": list(names), "units": list(units)})
+    return tree
+
+
+def read_session(path) -> dict:
+    """A render log's session: participant, duration, parameter sets, the choice.
+
+    Returns ``{"participant", "duration_s", "device", "sets": [(t, {name: value})],
+    "changes", "choices", "chosen": {name: value} or None, "chosen_t", "events",
+    "statistics"}``; a log without a session record has an empty participant, no
+    choice and the session events list empty. A file that is not a render log is a
+    UserError.
+    """
+    from evo_door.files import open_h5, read_attrs
+
+    with open_h5(path) as f:
+        if "render" not in f:
+            raise UserError(f"{path}: not a render log (no /render group)")
+        render = read_attrs(f["render"])
+        names = list(read_attrs(f["render/params"])["names"])
+        times = f["render/params/t"][()]
+        values = f["render/params/values"][()]
+        duration = float(f["render/t"][-1]) if f["render/t"].shape[0] else 0.0
+        session = read_attrs(f["session"]) if "session" in f else {}
+        chosen = None
+        if "session/chosen" in f:
+            ds = f["session/chosen"]
+            chosen = dict(zip(read_attrs(ds)["names"], ds[()].tolist(), strict=True))
+    events = render.get("events", [])
+    return {
+        "participant": session.get("participant", ""),
+        "duration_s": duration,
+        "device": render.get("device", ""),
+        "sets": [
+            (float(t), dict(zip(names, v.tolist(), strict=True)))
+            for t, v in zip(times, values, strict=True)
+        ],
+        "changes": [e for e in events if e.get("kind") == "change"],
+        "choices": session.get("choices", []),
+        "chosen": chosen,
+        "chosen_t": session.get("chosen_t", -1.0),
+        "events": session.get("events", []),
+        "statistics": render.get("statistics", {}),
+    }
+
+
+def is_render_log(path) -> bool:
+    """Whether ``path`` is an HDF5 file holding a render log (never raises)."""
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            return "render" in f and "render/params" in f
+    except Exception:  # not a file, not HDF5: the caller's own reader says why
+        return False
+
+
+def format_session(s: dict, path="") -> str:
+    """:func:`read_session`'s summary for people (angles in degrees, units)."""
+    from evo_door.models.haptic import PARAMS
+
+    def shown(name, value):
+        unit = PARAMS[name].unit
+        if unit == "rad":
+            return f"{np.degrees(value):.4g} deg"
+        return f"{value:.4g} {unit}" if unit != "1" else f"{value:.4g}"
+
+    stats = s["statistics"]
+    lines = [f"render log {path}".rstrip()]
+    who = s["participant"] or "(no participant id)"
+    lines.append(
+        f"  participant {who}, {s['duration_s']:.1f} s on {s['device'] or '?'}, "
+        f"{len(s['changes'])} parameter changes, {len(s['choices'])} A/B choices"
+    )
+    if "on_time_fraction" in stats:
+        lines.append(
+            f"  loop {stats.get('rate_hz', 0):g} Hz, {100 * stats['on_time_fraction']:.3f} % of "
+            f"cycles on time, {stats.get('faults', 0)} faults, status {stats.get('status', '?')}"
+        )
+    for e in s["choices"]:
+        lines.append(f"  at {e['t']:7.1f} s: prefers {e.get('slot', '?')}")
+    start = s["sets"][0][1] if s["sets"] else {}
+    final = s["chosen"] if s["chosen"] is not None else (s["sets"][-1][1] if s["sets"] else {})
+    title = f"chosen at {s['chosen_t']:.1f} s" if s["chosen"] is not None else "last set in force"
+    differs = [n for n in final if final[n] != start.get(n)]
+    lines.append(f"  {title} (differs from the starting set in {len(differs)} parameters):")
+    for name in differs:
+        lines.append(
+            f"    {name:24s} {shown(name, start[name]):>14s} -> {shown(name, final[name])}"
+        )
+    if s["chosen"] is None:
+        lines.append("  no final choice recorded: --params LOG.h5 takes the last set in force")
+    return "\n".join(lines)
+
+
+def session_params(path) -> tuple[dict, str]:
+    """The parameter set a render log stands for, and what it is.
+
+    The participant's chosen set when the session has one, else the last set in
+    force. Returns ``({name: value}, description)``.
+    """
+    s = read_session(path)
+    if s["chosen"] is not None:
+        who = f" of participant {s['participant']}" if s["participant"] else ""
+        return s["chosen"], f"{path}: the set chosen{who} at {s['chosen_t']:.1f} s"
+    if not s["sets"]:
+        raise UserError(f"{path}: the log holds no parameter set")
+    t, values = s["sets"][-1]
+    return values, f"{path}: the last set in force (from {t:.1f} s; no choice recorded)"
 
 
 class _Spill:

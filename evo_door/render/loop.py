@@ -207,6 +207,74 @@ def _fill_row(pos, vel, user, out, finite, row):
         row[14] = math.nan if not finite else 0.0
 
 
+class LoopTiming:
+    """The loop's timing in constant memory: counts and histograms.
+
+    A session of an hour at 2500 Hz is 9 million cycles: keeping every start time
+    would grow without bound, so the lateness and the work of each cycle go into
+    histograms with bins growing by :data:`GROWTH` (5 %) from :data:`FIRST` (1 us;
+    below it, bin 0) to 1 s (the last bin takes everything longer), small enough to
+    read a percentile from another thread at display rate. Percentiles are the upper
+    edge of their bin: within 5 % above the true value.
+    """
+
+    FIRST = 1e-6  # s, upper edge of bin 0
+    GROWTH = 1.05
+    BINS = 2 + int(math.log(1.0 / FIRST) / math.log(GROWTH))
+
+    def __init__(self, period: float):
+        self.period = float(period)
+        self.late = [0] * self.BINS  # lists: a cheaper += per cycle than an array's
+        self.work = [0] * self.BINS
+        self.starts = 0
+        self.first = 0.0
+        self.last = 0.0
+        self.missed = 0  # slots skipped by a paced loop
+        self.over = 0  # cycles whose work took longer than the period
+        self.work_sum = 0.0
+        self.worked = 0
+
+    def _bin(self, seconds: float) -> int:
+        if seconds <= self.FIRST:
+            return 0
+        return min(1 + int(math.log(seconds / self.FIRST) / _LOG_GROWTH), self.BINS - 1)
+
+    def start(self, now: float, late: float) -> None:
+        """A paced cycle started at ``now`` (s), ``late`` (s) after its slot."""
+        if self.starts == 0:
+            self.first = now
+        self.last = now
+        self.starts += 1
+        self.late[self._bin(late)] += 1
+
+    def worked_for(self, seconds: float) -> None:
+        """A cycle's work (read, model, command, log) took ``seconds``."""
+        self.work[self._bin(seconds)] += 1
+        self.work_sum += seconds
+        self.worked += 1
+        if seconds > self.period:
+            self.over += 1
+
+    def period_mean(self) -> float:
+        """Mean time between the starts of paced cycles (s); the period if unpaced."""
+        if self.starts < 2:
+            return self.period
+        return (self.last - self.first) / (self.starts - 1)
+
+    def percentile(self, which: str, q: float) -> float:
+        """The ``q`` percentile (0-100) of ``"late"`` or ``"work"`` (s): its bin's
+        upper edge (0 when nothing was counted)."""
+        hist = self.late if which == "late" else self.work
+        counts = np.cumsum(hist)
+        if counts[-1] == 0:
+            return 0.0
+        k = int(np.searchsorted(counts, q / 100.0 * counts[-1]))
+        return self.FIRST * self.GROWTH**k
+
+
+_LOG_GROWTH = math.log(LoopTiming.GROWTH)
+
+
 class ServoLoop:
     """Renders a haptic parameter set on ``device``.
 
@@ -275,6 +343,7 @@ class ServoLoop:
         self.exclude = IMPLICIT if friction == "implicit" else frozenset()
         self._native: tuple[str, ...] = ()
         self._last_row = np.full(N_COLUMNS, np.nan)
+        self.timing = LoopTiming(self.period)
         self.params, changes = self._passive(params)
         self._clamp_note = changes
         self._set_vectors()
@@ -346,6 +415,13 @@ class ServoLoop:
             "device": self.device_name,
         }
 
+    def health(self) -> dict:
+        """The loop's timing so far, for a display (any thread): the statistics of
+        :meth:`run`'s end, computed now."""
+        return self._stats(self._k)
+
+    _k = 0
+
     def _passive(self, params):
         """Colgate-Schenkel at the period in force, without what is not sampled explicitly."""
         exclude = self.exclude | frozenset(self._native)
@@ -415,10 +491,7 @@ class ServoLoop:
         pos = np.zeros(3)
         vel = np.zeros(3)
         user = np.zeros(3)
-        starts: list[float] = []
-        lateness: list[float] = []
-        compute: list[float] = []
-        missed = 0
+        timing = self.timing = LoopTiming(T)
         self.log.params(0.0, self._p)
         self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
         if self._clamp_note:
@@ -449,11 +522,10 @@ class ServoLoop:
                     late = now - t
                     if late > T:  # missed its slot: count, skip ahead, keep the schedule
                         skip = int(late / T)
-                        missed += skip
+                        timing.missed += skip
                         k += skip
                         t = k * T
-                    lateness.append(late)
-                    starts.append(now)
+                    timing.start(now, late)
                 else:
                     now = t
                     late = 0.0
@@ -512,13 +584,14 @@ class ServoLoop:
                 self.log.add(t, row)
                 if k % _SNAPSHOT_EVERY == 0:
                     self._last_row = row.copy()
-                compute.append(time.perf_counter() - tic)
+                timing.worked_for(time.perf_counter() - tic)
                 self.watchdog.cycle(now, late > T)
                 if self.watchdog.tripped and self.watchdog.tripped_at == now:
                     self.log.event(t, "watchdog", self.watchdog.reason)
                 k += 1
-                if self.realtime and len(starts) == _RECHECK_AFTER:  # cycles run, not slots
-                    self._recheck(float(np.mean(np.diff(starts))), t)
+                self._k = k
+                if self.realtime and timing.starts == _RECHECK_AFTER:  # cycles run, not slots
+                    self._recheck(timing.period_mean(), t)
         except BaseException:
             self.status = "failed"
             raise
@@ -531,7 +604,7 @@ class ServoLoop:
                 if self.status != "failed":
                     self.status = "watchdog" if self.watchdog.tripped else "done"
                 # also when the loop raised: an interrupted log keeps its statistics
-                self.statistics = self._stats(k, starts, lateness, compute, missed)
+                self.statistics = self._stats(k)
         return self.statistics
 
     def _wait_until(self, t0: float, t: float) -> float:
@@ -561,35 +634,34 @@ class ServoLoop:
                 with self._lock:
                     self._pending = (new, values, changes)
 
-    def _stats(self, cycles, starts, lateness, compute, missed) -> dict:
-        comp = np.array(compute) if compute else np.zeros(1)
+    def _stats(self, cycles) -> dict:
+        tm = self.timing
         stats = {
             "cycles": int(cycles),
-            "cycles_run": len(compute),
+            "cycles_run": tm.worked,
             "rate_hz": self.rate,
             "friction": self.friction,
             "realtime": self.realtime,
-            "compute_mean_s": float(comp.mean()),
-            "compute_p99_s": float(np.percentile(comp, 99)),
+            "compute_mean_s": tm.work_sum / tm.worked if tm.worked else 0.0,
+            "compute_p99_s": tm.percentile("work", 99),
             "faults": self.faults,
             "saturated_cycles": self.saturated,
             "status": self.status,
             "watchdog": self.watchdog.reason,
         }
-        if self.realtime and len(starts) > 1:
-            late = np.array(lateness)
+        if self.realtime and tm.starts > 1:
             stats.update(
-                period_mean_s=float(np.mean(np.diff(starts))),
-                lateness_p99_s=float(np.percentile(late, 99)),
-                missed_cycles=int(missed),
-                on_time_fraction=1.0 - missed / max(cycles, 1),  # of the schedule's slots
+                period_mean_s=tm.period_mean(),
+                lateness_p99_s=tm.percentile("late", 99),
+                missed_cycles=int(tm.missed),
+                on_time_fraction=1.0 - tm.missed / max(cycles, 1),  # of the schedule's slots
             )
         else:  # simulated time: the period is exact; compute time says if it could keep up
             stats.update(
                 period_mean_s=self.period,
                 lateness_p99_s=0.0,
-                missed_cycles=int(np.sum(comp > self.period)),
-                on_time_fraction=float(np.mean(comp <= self.period)),
+                missed_cycles=int(tm.over),
+                on_time_fraction=1.0 - tm.over / max(tm.worked, 1),
             )
         rtt = getattr(self.device, "round_trips", None)  # a networked device's
         if rtt is not None and len(rtt):
