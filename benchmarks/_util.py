@@ -6,6 +6,7 @@ import os
 import platform
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -39,3 +40,13 @@ def half_sine_pulses(t, pulses) -> np.ndarray:
         on = (t >= start) & (t < start + width)
         f[on] = amp * np.sin(np.pi * (t[on] - start) / width)
     return f
+
+
+def publish(text: str, name: str, write: bool = True) -> None:
+    """Print a benchmark's Markdown report and, unless asked not to, write it to
+    ``benchmarks/NAME`` (through the project's atomic writer)."""
+    print(text)
+    if write:
+        from evo_door.files import write_text
+
+        write_text(Path(__file__).with_name(name), text)

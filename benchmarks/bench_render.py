@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._util import machine_line  # noqa: E402
+from benchmarks._util import machine_line, publish  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.render.device import SimDevice  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
@@ -149,12 +149,7 @@ def main(argv=None) -> int:
         "lateness p99 is over all cycles run. The round trip is the batched query's, "
         "send to complete answer; the cycle work (read, model, command, log) includes it.",
     ]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if not args.no_write:
-        from evo_door.files import write_text
-
-        write_text(Path(__file__).with_name("render.md"), text)
+    publish("\n".join(lines) + "\n", "render.md", write=not args.no_write)
     return 0
 
 

@@ -475,6 +475,7 @@ def test_data_show_plots_a_render_log(tmp_path):
         (["--user", "open", "--duration", "-1"], "must be > 0"),
         (["--user", "open", "--duration", "1", "--rate", "5"], "--rate"),
         (["--user", "open", "--duration", "1", "--set", "k_radial=1e5"], "not passive"),
+        (["--user", "open", "--duration", "1", "--watchdog-misses", "0"], "1..1000"),
     ],
 )
 def test_render_bad_input(extra, message, capsys):

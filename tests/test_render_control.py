@@ -288,3 +288,29 @@ def test_snapshot_is_the_last_cycle_and_nan_before_the_first(seed_trial):
     # copied every 25 cycles (10 ms at 2500 Hz): within the last 10 ms of the log
     assert abs(snap["theta"] - last[12]) < 10e-3 * abs(loop.log.array()[-10:, 13]).max() + 1e-9
     assert snap["t"] == pytest.approx(0.5 - loop.period)
+
+
+def test_a_paced_loop_leaves_the_control_port_served(seed_trial):
+    """At 2500 Hz the paced loop spins between cycles; it must give the interpreter to
+    the control port's thread there, or a console's requests wait for seconds."""
+    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True, watchdog_misses=10**6)
+    stop = threading.Event()
+    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
+    waits = []
+    with ControlServer(loop, "127.0.0.1", 0) as server:
+        thread.start()
+        time.sleep(0.3)
+        with socket.create_connection(server.address, timeout=10.0) as sock:
+            stream = sock.makefile("rwb")
+            for _ in range(40):
+                tic = time.perf_counter()
+                stream.write(b'{"get": "health"}\n')
+                stream.flush()
+                assert json.loads(stream.readline())["ok"]
+                waits.append(time.perf_counter() - tic)
+                time.sleep(0.01)
+        stop.set()
+        thread.join(10.0)
+    waits = sorted(waits)
+    assert waits[len(waits) // 2] < 0.02  # s: the median answer, milliseconds
+    assert waits[-3] < 0.2  # s: all but the two slowest

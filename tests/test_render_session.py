@@ -132,3 +132,17 @@ def test_a_session_is_the_target_of_the_specification_stage(seed_trial, tmp_path
     out = tmp_path / "run.h5"
     assert main(["run", str(exp), "--out", str(out), "--quiet"]) == 0
     assert main(["show", str(out)]) == 0
+
+
+def test_rows_come_in_bounded_answers(seed_trial):
+    from evo_door.render.control import MAX_ROWS, ROWS_EVERY
+
+    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial)
+    loop.run(3.0)  # 3000 log rows: 300 at 100 Hz
+    with ControlServer(loop, "127.0.0.1", 0) as server:
+        host, port = server.address
+        first = request(host, port, {"get": "rows", "since": 0})
+        assert len(first["rows"]) == MAX_ROWS and first["next"] == MAX_ROWS * ROWS_EVERY
+        rest = request(host, port, {"get": "rows", "since": first["next"]})
+        assert len(first["rows"]) + len(rest["rows"]) == 300 and rest["next"] == 3000
+        np.testing.assert_allclose(rest["rows"][0][0], MAX_ROWS * ROWS_EVERY / 1000.0)

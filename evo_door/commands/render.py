@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 
 from evo_door.commands._common import add_params_arguments
 from evo_door.errors import UserError
 
 ORDER = 60
+
+#: niceness added to the console's process (the servo loop's thread takes -15)
+CONSOLE_NICENESS = 10
 
 
 def register(sub) -> None:
@@ -70,6 +74,25 @@ def register(sub) -> None:
     )
     p.add_argument("--token", help="token the control port requires of every request")
     p.add_argument(
+        "--console",
+        action="store_true",
+        help="serve the operator's web console (evo-door console) for this render and "
+        "print its URL; runs until Ctrl-C without --duration",
+    )
+    p.add_argument(
+        "--console-port",
+        type=int,
+        default=8765,
+        metavar="P",
+        help="the console's port (default 8765; 0: any free)",
+    )
+    p.add_argument(
+        "--console-host",
+        default="127.0.0.1",
+        metavar="H",
+        help="the console's address (default 127.0.0.1; any other requires a token)",
+    )
+    p.add_argument(
         "--friction",
         choices=("implicit", "tanh"),
         default="implicit",
@@ -79,6 +102,13 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated sensor noise")
     p.add_argument(
         "--realtime", action="store_true", help="pace a simulated device on the wall clock"
+    )
+    p.add_argument(
+        "--watchdog-misses",
+        type=int,
+        default=10,
+        metavar="N",
+        help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
     )
     p.set_defaults(func=run)
 
@@ -107,13 +137,18 @@ def run(args) -> int:
     from evo_door.params.sets import parse_assignments
     from evo_door.render.loop import ServoLoop
 
-    interactive = args.duration is None and sys.stdin.isatty() and sys.stdout.isatty()
-    if args.duration is None and not interactive and args.control is None:
+    # the web console has the keys: the terminal's key UI never runs next to it
+    interactive = (
+        args.duration is None and not args.console and sys.stdin.isatty() and sys.stdout.isatty()
+    )
+    if args.duration is None and not interactive and args.control is None and not args.console:
         raise UserError(
             "give --duration S (and --user SCRIPT on the simulated device) for a headless "
-            "run, --control PORT to run until interrupted, or run on a terminal to step "
-            "the sensations with the keys"
+            "run, --control PORT or --console to run until interrupted, or run on a "
+            "terminal to step the sensations with the keys"
         )
+    if not 0 <= args.console_port <= 65535:
+        raise UserError(f"--console-port {args.console_port}: must be in 0..65535")
     if args.duration is not None and args.user is None and args.device == "sim":
         raise UserError("a headless run on the simulated device needs --user SCRIPT")
     if args.log:
@@ -121,6 +156,8 @@ def run(args) -> int:
 
         check_folder(args.log)
     params = get_model("haptic").load_params(args.params, parse_assignments(args.assignments))
+    if not 1 <= args.watchdog_misses <= 1000:
+        raise UserError(f"--watchdog-misses {args.watchdog_misses}: must be in 1..1000 cycles")
     if args.device_damping is not None and not args.device_damping >= 0:
         raise UserError(f"--device-damping {args.device_damping:g}: must be >= 0 N s/m")
     device, name = make_device(
@@ -135,6 +172,7 @@ def run(args) -> int:
         realtime=True if (args.realtime or args.duration is None) else None,
         device_name=name,
         friction=args.friction,
+        watchdog_misses=args.watchdog_misses,
     )
     if args.log:  # crash safety: the rows so far go to LOG.h5.partial as they come
         loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
@@ -223,16 +261,27 @@ def _report(loop, args, stats: dict, name: str) -> int:
 
 def _run_loop(loop, args, interactive: bool) -> dict:
     """Run the loop, with the control port (--control) and the key UI (a terminal)."""
-    server = None
-    if args.control is not None:
-        from evo_door.render.control import ControlServer, parse_control
+    server = console = None
+    token = args.token
+    if args.control is not None or args.console:
+        import secrets
 
-        host, port = parse_control(args.control)
-        server = ControlServer(loop, host, port, token=args.token).start()
-        print(f"control port {server.address[0]}:{server.address[1]} (evo-door push)")
+        from evo_door.render.control import ControlServer, is_loopback, parse_control
+
+        if args.control is not None:
+            host, port = parse_control(args.control)
+        else:  # the console's own: loopback, any free port, a random token
+            host, port = "127.0.0.1", 0
+            token = token or secrets.token_urlsafe(16)
+        server = ControlServer(loop, host, port, token=token).start()
+        print(f"control port {server.address[0]}:{server.address[1]} (evo-door push)", flush=True)
+        if args.console and not token and not is_loopback(args.console_host):
+            token = secrets.token_urlsafe(16)  # the page's only (the port has none)
     elif args.token:
         raise UserError("--token goes with --control")
     try:
+        if server is not None and args.console:
+            console = _start_console(args, server.address, token)
         if not interactive:
             if args.duration is not None:
                 return loop.run(args.duration)
@@ -265,5 +314,100 @@ def _run_loop(loop, args, interactive: bool) -> dict:
             thread.join()
         return result
     finally:
-        if server is not None:
-            server.close()
+        try:
+            if console is not None:
+                _stop_console(console)
+        finally:
+            if server is not None:
+                server.close()
+
+
+#: how long ``render --console`` waits for the console to print its URL (s)
+CONSOLE_START = 30.0
+
+
+def _start_console(args, address, token):
+    """Spawn ``evo-door console`` for the control port at ``address``; print its URL."""
+    import os
+    import subprocess
+
+    from evo_door.commands.console import TOKEN_ENV
+
+    host, port = address
+    if host in ("0.0.0.0", "::"):
+        host = "127.0.0.1"
+    command = [
+        sys.executable,
+        "-m",
+        "evo_door",
+        "console",
+        "--control",
+        f"[{host}]:{port}" if ":" in host else f"{host}:{port}",
+        "--host",
+        args.console_host,
+        "--port",
+        str(args.console_port),
+        "--with-parent",
+    ]
+    env = dict(os.environ)
+    env.pop(TOKEN_ENV, None)
+    if token:
+        env[TOKEN_ENV] = token  # not on the command line, which every local user can read
+    # its own session: Ctrl-C reaches the renderer, which then stops the console
+    child = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+        text=True,
+        start_new_session=True,
+        # below the servo loop: the page's curves and messages can wait, its cycles not
+        preexec_fn=(lambda: os.nice(CONSOLE_NICENESS)) if hasattr(os, "nice") else None,
+    )
+    url: list[str] = []
+    errors: list[str] = []
+    started = threading.Event()
+
+    def relay_out() -> None:
+        for line in child.stdout:
+            if not started.is_set():
+                url.append(line.strip())
+                started.set()
+            else:
+                sys.stdout.write(line)
+        started.set()  # closed: the console ended
+
+    def relay_err() -> None:  # its errors: kept until it runs, then shown
+        for line in child.stderr:
+            if started.is_set() and url and url[0].startswith("console "):
+                sys.stderr.write(line)
+            else:
+                errors.append(line.strip())
+
+    for target in (relay_out, relay_err):
+        threading.Thread(target=target, name="evo-door-console-io", daemon=True).start()
+    started.wait(CONSOLE_START)
+    first = url[0] if url else ""
+    if not first.startswith("console "):
+        _stop_console(child)
+        time.sleep(0.1)  # its last words
+        why = next((e for e in reversed(errors) if e), "") or "it printed no URL"
+        raise UserError(
+            f"--console: the console did not start: {why.removeprefix('evo-door: error: ')}"
+        )
+    print(first, flush=True)
+    return child
+
+
+def _stop_console(child) -> None:
+    """End the console process and wait for it."""
+    import subprocess
+
+    if child.poll() is None:
+        child.terminate()
+        try:
+            child.wait(5.0)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()

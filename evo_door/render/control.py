@@ -35,10 +35,11 @@ Requests::
     {"ok": false, "error": "one line: why"}
 
 ``rows`` hands out the 1 kHz log's rows ``K, K + 10, ...`` (100 Hz, for a live
-display); ask again with ``since`` = ``next``. Session events (the web console's) are
-one of :data:`EVENT_KINDS`; those that carry a parameter set (``params``) must give
-declared names with finite values within their bounds. They go into the log's events
-and, through them, its session record (:mod:`evo_door.render.log`).
+display), at most :data:`MAX_ROWS` per answer; ask again with ``since`` = ``next``.
+Session events (the web console's) are one of :data:`EVENT_KINDS`; those that carry
+a parameter set (``params``) must give declared names with finite values within their
+bounds. They go into the log's events and, through them, its session record
+(:mod:`evo_door.render.log`).
 
 A change goes through :meth:`ServoLoop.request_change`: it is checked against the
 declaration and the passivity condition at the measured loop period, and comes into
@@ -267,6 +268,7 @@ class ControlServer:
         start += (-start) % ROWS_EVERY  # on the 100 Hz grid: rows 0, 10, 20 ...
         if start >= n:
             return {"ok": True, "rows": [], "next": start}
+        n = min(n, start + ROWS_EVERY * MAX_ROWS)  # a bounded answer: ask again for more
         rows = log.rows(start, n)[::ROWS_EVERY]
         col = [COLUMNS.index(c) for c in ("theta", "dtheta", "force")]
         t = (start + ROWS_EVERY * np.arange(len(rows))) / log.rate
@@ -312,6 +314,10 @@ class ControlServer:
 
 #: rows of the 1 kHz log per row that ``{"get": "rows"}`` hands out (100 Hz)
 ROWS_EVERY = 10
+
+#: rows per ``rows`` answer at most (2 s at 100 Hz): the renderer's process holds the
+#: GIL while it encodes one, and the servo loop must not wait long for it
+MAX_ROWS = 200
 
 #: the session events of the web console (issue 15) the log records
 EVENT_KINDS = (

@@ -1,0 +1,541 @@
+"""The operator's web console in a real browser (issue 15).
+
+``evo-door render --params seed_trial --device sim --user swing --console`` runs as a
+user starts it, in its own process; headless Chromium (Debian's ``chromium`` and
+``chromium-driver``, driven by Selenium) opens the URL it prints and works the page:
+sliders, keys, a forged out-of-range change, A/B, the final choice. Then the render is
+stopped with Ctrl-C (SIGINT) and its log says what the renderer applied and when:
+each change between two cycles (at a multiple of the loop period), one parameter set
+per change, the chosen set, and ``evo-door show`` summarises the session.
+
+The tests share one renderer and one page and run in file order (a session); the last
+one stops the renderer. They are skipped where Chromium, its driver or Selenium is
+missing, except on CI (``CI`` set) unless ``EVO_DOOR_BROWSER_TESTS=0``: there a missing
+browser is a failure, so the browser tests cannot silently drop out.
+
+Run them alone: ``pytest -m browser``. ``EVO_DOOR_WRITE_FIGURES=1`` writes the page's
+screenshot to ``docs/figures/console.png`` (else to the test's temporary folder).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _program(path: str, name: str) -> str | None:
+    return path if os.access(path, os.X_OK) else shutil.which(name)
+
+
+CHROMIUM = _program("/usr/bin/chromium", "chromium")
+CHROMEDRIVER = _program("/usr/bin/chromedriver", "chromedriver")
+_MISSING = [
+    what
+    for what, there in (
+        ("chromium (apt-get install chromium)", CHROMIUM),
+        ("chromedriver (apt-get install chromium-driver)", CHROMEDRIVER),
+        ("selenium (pip install selenium)", importlib.util.find_spec("selenium")),
+        ("aiohttp (pip install aiohttp)", importlib.util.find_spec("aiohttp")),
+    )
+    if not there
+]
+#: on CI the browser tests must run: a missing browser fails them instead of a skip
+REQUIRED = bool(os.environ.get("CI")) and os.environ.get("EVO_DOOR_BROWSER_TESTS", "1") != "0"
+_WHY = "the browser tests need " + ", ".join(_MISSING)
+if _MISSING and not REQUIRED:
+    pytest.skip(_WHY, allow_module_level=True)
+if not _MISSING:  # else (on CI) the session fixture fails every test with _WHY
+    from selenium import webdriver
+    from selenium.common.exceptions import NoAlertPresentException, TimeoutException
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+from evo_door.cli import main  # noqa: E402
+from evo_door.models import get_model  # noqa: E402
+from evo_door.models.haptic import PARAMS  # noqa: E402
+from evo_door.render.keys import GROUP, key_map  # noqa: E402
+from evo_door.render.log import read_session  # noqa: E402
+
+RATE = 2500.0  # Hz, the loop rate (render's default)
+PERIOD = 1.0 / RATE  # s
+#: how long the renderer gets to print its console URL (numba's cache, the console's start)
+START_TIMEOUT = 60.0
+#: how long the page gets to show what the renderer applied (s)
+APPLY_TIMEOUT = 10.0
+SENSATIONS = [p.name for p in PARAMS if p.group == GROUP]
+STEP = {name: abs(step) for name, step in key_map().values()}
+UP_KEY = {name: key for key, (name, step) in key_map().items() if step > 0}
+DOWN_KEY = {name: key for key, (name, step) in key_map().items() if step < 0}
+
+#: run in the page before its own script: keeps every WebSocket the page opens, what
+#: the page sent and what it received, so a test can check every message and send a
+#: forged one on the page's socket (with the native send, which the record skips)
+CAPTURE_SOCKETS = """
+(() => {
+  const Native = window.WebSocket;
+  const nativeSend = Native.prototype.send;
+  window.__sockets = [];
+  window.__sent = [];
+  window.__received = [];
+  window.__closed = [];
+  window.WebSocket = function (url, protocols) {
+    const sock = protocols === undefined ? new Native(url) : new Native(url, protocols);
+    window.__sockets.push(sock);
+    sock.send = function (data) {
+      try { window.__sent.push(JSON.parse(data)); } catch (err) {}
+      return nativeSend.call(this, data);
+    };
+    sock.addEventListener("close", (ev) => {
+      window.__closed.push({code: ev.code, reason: ev.reason, at_ms: performance.now()});
+    });
+    sock.addEventListener("message", (ev) => {
+      try { window.__received.push(JSON.parse(ev.data)); } catch (err) {}
+    });
+    return sock;
+  };
+  window.WebSocket.prototype = Native.prototype;
+  for (const k of ["CONNECTING", "OPEN", "CLOSING", "CLOSED"]) window.WebSocket[k] = Native[k];
+})();
+"""
+
+
+class Session:
+    """The renderer's process, its console URL, the page, and what the page did."""
+
+    def __init__(self, proc, url: str, folder: Path, log: Path, lines: list[str]):
+        self.proc = proc
+        self.url = url
+        self.folder = folder
+        self.log = log
+        self.lines = lines  # the renderer's stdout
+        self.started = time.monotonic()
+        self.driver = None
+        self.applied: list[dict] = []  # each change the page made, in order
+        self.refused: list[dict] = []  # forged changes that must not be in the log
+        self.chosen: dict | None = None
+        self.participant = ""
+        self.preferred: str | None = None
+
+
+def _read_lines(stream, out: queue.Queue, lines: list[str]) -> None:
+    for line in stream:
+        lines.append(line.rstrip("\n"))
+        out.put(line)
+    out.put(None)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium on a blank page, started before the renderer (as an operator's
+    browser already runs: its start-up costs the loop's cores a second or two)."""
+    if _MISSING:  # REQUIRED: CI must not lose the browser tests silently
+        pytest.fail(f"{_WHY}; CI requires them (EVO_DOOR_BROWSER_TESTS=0 skips)", pytrace=False)
+    options = Options()
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1366,900"):
+        options.add_argument(arg)
+    options.binary_location = CHROMIUM
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    try:
+        driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": CAPTURE_SOCKETS})
+        driver.get("about:blank")
+        yield driver
+    finally:
+        driver.quit()
+
+
+@pytest.fixture(scope="module")
+def session(browser, tmp_path_factory):
+    """``evo-door render ... --console`` in its own process, in a fresh folder (the
+    page's Save writes there), until the last test stops it with Ctrl-C."""
+    folder = tmp_path_factory.mktemp("console")
+    log = folder / "session.h5"
+    command = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
+    command += ["--device", "sim", "--user", "swing", "--realtime"]
+    command += ["--console", "--console-port", "0", "--log", str(log)]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        command,
+        cwd=folder,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    lines: list[str] = []
+    out: queue.Queue = queue.Queue()
+    threading.Thread(target=_read_lines, args=(proc.stdout, out, lines), daemon=True).start()
+    url = None
+    deadline = time.monotonic() + START_TIMEOUT
+    try:
+        while url is None:
+            try:
+                line = out.get(timeout=max(deadline - time.monotonic(), 0.01))
+            except queue.Empty:
+                break
+            if line is None:
+                break
+            if line.startswith("console "):
+                url = line.split()[1]
+        if url is None:
+            pytest.fail("the renderer printed no console URL:\n" + "\n".join(lines))
+        s = Session(proc, url, folder, log, lines)
+        yield s
+    finally:
+        if proc.poll() is None:  # a test failed before the last one stopped it
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+@pytest.fixture(scope="module")
+def page(browser, session):
+    """The console's page in the browser, connected to the renderer."""
+    browser.get(session.url)
+    wait(browser, lambda d: d.find_element(By.ID, "connection").text == "connected")
+    wait(browser, lambda d: all(_in_force_or_none(d, n) is not None for n in SENSATIONS))
+    session.driver = browser
+    return browser
+
+
+# -- helpers ---------------------------------------------------------------------------
+def wait(driver, condition, timeout: float = APPLY_TIMEOUT, what: str = ""):
+    try:
+        return WebDriverWait(driver, timeout, poll_frequency=0.05).until(condition)
+    except TimeoutException:
+        message = driver.find_element(By.ID, "message").text
+        closed = driver.execute_script("return window.__closed;")
+        raise AssertionError(
+            f"timed out: {what} (#message: {message!r}; sockets closed: {closed})"
+        ) from None
+
+
+def _in_force_or_none(driver, name: str) -> float | None:
+    value = driver.find_element(By.ID, f"slider-{name}").get_attribute("data-in-force")
+    return None if value in (None, "") else float(value)
+
+
+def in_force(driver, name: str) -> float:
+    """The SI value the renderer applied, as the page shows it (``data-in-force``)."""
+    value = _in_force_or_none(driver, name)
+    assert value is not None, f"slider-{name} has no data-in-force"
+    return value
+
+
+def same(a: float, b: float) -> bool:
+    return abs(a - b) <= 1e-9 * max(1.0, abs(a), abs(b))
+
+
+def wait_in_force(driver, name: str, value: float) -> None:
+    wait(
+        driver,
+        lambda d: same(in_force(d, name), value),
+        what=f"{name} in force {value!r} (now {in_force(driver, name)!r})",
+    )
+
+
+def set_slider(driver, name: str, value: float) -> float:
+    """Move a slider to ``value`` as a drag does (input events, then change on release);
+    returns the value the slider took."""
+    return float(
+        driver.execute_script(
+            "const s = document.getElementById(arguments[0]);"
+            "s.value = String(arguments[1]);"
+            "s.dispatchEvent(new Event('input', {bubbles: true}));"
+            "s.dispatchEvent(new Event('change', {bubbles: true}));"
+            "return s.value;",
+            f"slider-{name}",
+            value,
+        )
+    )
+
+
+def press(driver, key: str) -> None:
+    """A key on the page (not in a text field)."""
+    driver.execute_script("if (document.activeElement) document.activeElement.blur();")
+    driver.find_element(By.TAG_NAME, "body").send_keys(key)
+
+
+def received(driver, kind: str) -> list[dict]:
+    return driver.execute_script(
+        "return window.__received.filter((m) => m.type === arguments[0]);", kind
+    )
+
+
+def sent(driver, kind: str) -> list[dict]:
+    """What the page itself sent (not the forged messages)."""
+    return driver.execute_script(
+        "return window.__sent.filter((m) => m.type === arguments[0]);", kind
+    )
+
+
+def forge(driver, text: str) -> None:
+    """Send raw text on the page's own (open) WebSocket, as a hostile script could."""
+    driver.execute_script(
+        "const open = window.__sockets.filter((s) => s.readyState === 1);"
+        "WebSocket.prototype.send.call(open[open.length - 1], arguments[0]);",
+        text,
+    )
+
+
+def click(driver, element_id: str) -> None:
+    driver.find_element(By.ID, element_id).click()
+
+
+def accept_confirmation(driver) -> None:
+    """Accept the page's confirmation: a window.confirm, or its own dialog."""
+    try:
+        driver.switch_to.alert.accept()
+        return
+    except NoAlertPresentException:
+        pass
+    wait(driver, lambda d: d.find_element(By.ID, "choose-confirm").is_displayed(), 5.0)
+    click(driver, "choose-confirm")
+
+
+def change(session, name: str, value: float) -> None:
+    """A change the page made; the log must hold it."""
+    session.applied.append({name: value})
+
+
+# -- the page ----------------------------------------------------------------------------
+def test_page_connects_and_shows_the_loop_health_and_the_declaration(session, page):
+    assert page.find_element(By.ID, "connection").text == "connected"
+    wait(page, lambda d: "2500" in d.find_element(By.ID, "health").text, what="rate in #health")
+    health = page.find_element(By.ID, "health").text
+    assert "Hz" in health and "%" in health, health
+    assert "running" in health, health
+    # a slider per sensation, with the declared bounds, at the set in force
+    start = get_model("haptic").load_params("seed_trial")
+    for name in SENSATIONS:
+        slider = page.find_element(By.ID, f"slider-{name}")
+        p = PARAMS[name]
+        assert float(slider.get_attribute("min")) == pytest.approx(p.lower, rel=1e-12, abs=1e-15)
+        assert float(slider.get_attribute("max")) == pytest.approx(p.upper, rel=1e-12, abs=1e-15)
+        assert same(in_force(page, name), start[name]), name
+        assert page.find_element(By.ID, f"value-{name}").text.strip(), name
+
+
+def test_screenshot_of_the_page_in_motion(session, page, tmp_path):
+    # the virtual user swings the door for about 9 s: the strip chart and the
+    # force-angle trace fill while it does
+    time.sleep(max(0.0, 6.0 - (time.monotonic() - session.started)))
+    wait(page, lambda d: len(received(d, "tick")) > 30, what="ticks")
+    png = page.get_screenshot_as_png()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+    write = os.environ.get("EVO_DOOR_WRITE_FIGURES") == "1"
+    path = ROOT / "docs" / "figures" / "console.png" if write else tmp_path / "console.png"
+    from evo_door.files import atomic_write
+
+    with atomic_write(path) as tmp:
+        tmp.write_bytes(png)
+    # the ticks carry the door's motion: the swing covers tens of degrees
+    thetas = [row[1] for m in received(page, "tick") for row in m.get("rows", [])]
+    assert thetas and math.degrees(max(thetas) - min(thetas)) > 20.0
+
+
+def test_moving_a_slider_changes_the_renderers_set(session, page):
+    name = "friction_closing"  # N, 0 .. 100, step 5
+    assert same(in_force(page, name), 1.5)
+    assert set_slider(page, name, 10.0) == 10.0
+    wait_in_force(page, name, 10.0)
+    change(session, name, 10.0)
+    assert page.find_element(By.ID, f"value-{name}").text.replace(" ", "") == "10N"
+
+
+def test_a_parameter_key_steps_it_by_its_step(session, page):
+    name = "friction_opening"  # N, step 5: keys c (down) and C (up)
+    before = in_force(page, name)
+    press(page, UP_KEY[name])
+    wait_in_force(page, name, before + STEP[name])
+    change(session, name, before + STEP[name])
+    press(page, DOWN_KEY[name])
+    wait_in_force(page, name, before)
+    change(session, name, before)
+
+
+def test_the_page_cannot_set_a_value_outside_the_declaration(session, page):
+    # the slider stops at its bound: friction_scale_3 already sits on its upper bound 1,
+    # and neither the slider nor its up key sends anything
+    name = "friction_scale_3"
+    assert same(in_force(page, name), 1.0)
+    assert set_slider(page, name, 5.0) == 1.0
+    press(page, UP_KEY[name])
+    press(page, DOWN_KEY["inertia"])  # a key that does send, after the one that must not
+    wait_in_force(page, "inertia", 1.2 - STEP["inertia"])
+    change(session, "inertia", 1.2 - STEP["inertia"])
+    assert not [m for m in sent(page, "set") if name in m["values"]]
+    # a hostile script on the page's socket: the server refuses and nothing changes
+    name = "friction_closing"
+    before = in_force(page, name)
+    forged = {"type": "set", "values": {name: 1000.0}, "source": "slider"}
+    forge(page, json.dumps(forged))
+    wait(page, lambda d: received(d, "refused"), what="refused")
+    refusal = received(page, "refused")[-1]
+    assert refusal["values"] == {name: 1000.0}
+    assert "1000" in refusal["error"] and "100" in refusal["error"], refusal
+    wait(page, lambda d: "Refused" in d.find_element(By.ID, "message").text, what="alert")
+    alert = page.find_element(By.ID, "message")
+    assert alert.get_attribute("role") == "alert" and name in alert.text
+    session.refused.append({name: 1000.0})
+    # not a number, infinity, a name the declaration does not have, a device parameter
+    for text in (
+        '{"type": "set", "values": {"friction_closing": NaN}}',
+        '{"type": "set", "values": {"friction_closing": 1e999}}',
+        '{"type": "set", "values": {"friction_closing": "5"}}',
+        '{"type": "set", "values": {"bogus": 1.0}}',
+        '{"type": "set", "values": {"k_radial": 1e5}}',
+    ):
+        n = len(received(page, "refused")) + len(received(page, "error"))
+        forge(page, text)
+        wait(
+            page,
+            lambda d, n=n: len(received(d, "refused")) + len(received(d, "error")) > n,
+            what=f"refusal of {text}",
+        )
+    time.sleep(0.5)  # two params polls of the console (4 Hz)
+    assert same(in_force(page, name), before)
+
+
+def test_ab_store_feel_prefer_and_choose(session, page):
+    damping = "viscous_damping"  # N s/rad, 0 .. 100, step 5
+    a_value = in_force(page, damping)
+    click(page, "store-a")
+    wait(page, lambda d: any(m.get("A") for m in received(d, "ab")), what="A stored")
+    assert set_slider(page, damping, 5.0) == 5.0
+    wait_in_force(page, damping, 5.0)
+    change(session, damping, 5.0)
+    click(page, "store-b")
+    wait(page, lambda d: any(m.get("B") for m in received(d, "ab")), what="B stored")
+    click(page, "feel-a")
+    wait_in_force(page, damping, a_value)
+    change(session, damping, a_value)
+    assert same(in_force(page, "friction_closing"), 10.0)  # A holds the earlier changes
+    # blind: the participant sees 1 and 2, not which set is A
+    click(page, "blind")
+    wait(page, lambda d: "1" in d.find_element(By.ID, "feel-a").text, what="blind labels")
+    assert "A" not in page.find_element(By.ID, "feel-a").text.replace("Feel", "")
+    click(page, "feel-b")
+    wait_in_force(page, damping, 5.0)
+    change(session, damping, 5.0)
+    click(page, "prefer-b")
+    session.preferred = "B"
+    click(page, "blind")
+    wait(page, lambda d: "A" in d.find_element(By.ID, "feel-a").text, what="labels back")
+    # the participant, then the final choice (confirmed)
+    field = page.find_element(By.ID, "participant")
+    field.clear()
+    field.send_keys("P07\n")
+    session.participant = "P07"
+    click(page, "choose")
+    accept_confirmation(page)
+    wait(page, lambda d: received(d, "chosen"), what="chosen")
+    session.chosen = {name: in_force(page, name) for name in SENSATIONS}
+    assert session.chosen[damping] == 5.0
+
+
+def test_save_writes_the_set_in_force(session, page):
+    field = page.find_element(By.ID, "save-name")
+    field.clear()
+    field.send_keys("../browser choice")  # a hostile stem stays in the console's folder
+    click(page, "save")
+    wait(page, lambda d: received(d, "saved"), what="saved")
+    path = Path(received(page, "saved")[-1]["path"])
+    assert path.parent.resolve() == session.folder.resolve() and path.suffix == ".yaml"
+    saved = get_model("haptic").load_params(str(path))
+    for name in SENSATIONS:
+        assert same(saved[name], in_force(page, name)), name
+
+
+def test_every_value_the_page_sent_is_within_the_declaration(session, page):
+    # and the page kept its one socket all along (a drop would have lost clicks)
+    assert page.execute_script("return window.__closed;") == []
+    assert page.execute_script("return window.__sockets.length;") == 1
+    changes = sent(page, "set")
+    assert len(changes) >= 4
+    for message in changes:
+        assert message["source"] in ("slider", "key"), message
+        for name, value in message["values"].items():
+            p = PARAMS[name]
+            assert p.group == GROUP and math.isfinite(value), message
+            assert p.lower <= value <= p.upper, message
+
+
+# -- the log -----------------------------------------------------------------------------
+def test_the_log_holds_each_change_between_two_cycles_and_the_choice(session, capsys):
+    if session.driver is None:  # run alone: no page, nothing to check
+        pytest.skip("the page did not open (see the tests above)")
+    proc = session.proc
+    proc.send_signal(signal.SIGINT)  # the operator's Ctrl-C: the render ends, log written
+    assert proc.wait(60) == 0, "\n".join(session.lines)
+    assert session.log.is_file() and not Path(str(session.log) + ".partial").exists()
+    s = read_session(session.log)
+    changes, sets = s["changes"], s["sets"]
+    # every change came into force between two cycles, at the start of one, and the
+    # parameter-set table has one row per change, at its time
+    assert len(sets) == len(changes) + 1 and sets[0][0] == 0.0
+    for change_, (t, values) in zip(changes, sets[1:], strict=True):
+        cycle = change_["t"] / PERIOD
+        assert abs(cycle - round(cycle)) < 1e-6, change_["t"]
+        assert t == change_["t"]
+        for name, value in change_["values"].items():
+            assert same(values[name], value), (name, values[name], value)
+    # each change made from the page is there, in order (undo/A-B push whole sets)
+    i = 0
+    for wanted in session.applied:
+        while i < len(changes) and not all(
+            name in changes[i]["values"] and same(changes[i]["values"][name], value)
+            for name, value in wanted.items()
+        ):
+            i += 1
+        assert i < len(changes), f"{wanted} not in the log's changes {changes}"
+        i += 1
+    # nothing refused reached the renderer, nothing left the declaration
+    for t, values in sets:
+        for name in SENSATIONS:
+            p = PARAMS[name]
+            assert p.lower <= values[name] <= p.upper, (t, name, values[name])
+    assert session.refused and all(
+        not same(values[name], value)
+        for forged in session.refused
+        for name, value in forged.items()
+        for _, values in sets
+    )
+    # the session record: participant, A/B preference, the chosen set
+    assert s["participant"] == session.participant == "P07"
+    assert [c["slot"] for c in s["choices"]] == [session.preferred]
+    assert s["chosen"] is not None and s["chosen_t"] > 0
+    for name, value in session.chosen.items():
+        assert same(s["chosen"][name], value), name
+    kinds = {e["kind"] for e in s["events"]}
+    assert {"participant", "ab_store", "ab_switch", "ab_choice", "chosen", "save"} <= kinds
+    # the loop ran to the end without its watchdog
+    assert s["statistics"]["status"] == "done", s["statistics"]
+    # evo-door show summarises it
+    capsys.readouterr()
+    assert main(["show", str(session.log)]) == 0
+    text = capsys.readouterr().out
+    assert "participant P07" in text and "1 A/B choices" in text, text
+    assert f"{len(changes)} parameter changes" in text, text
+    assert "chosen at" in text and "viscous_damping" in text and "friction_closing" in text, text

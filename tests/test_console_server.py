@@ -1,0 +1,496 @@
+"""The web console's server (issue 15) against a real renderer: API, WebSocket, security.
+
+No browser: HTTP with urllib, the WebSocket with aiohttp's client. The renderer is a
+ServoLoop on the simulated device in a thread with its control port, as in
+tests/test_render_control.py; the console runs its event loop in another thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+aiohttp = pytest.importorskip("aiohttp")
+
+from evo_door.cli import build_parser, main  # noqa: E402
+from evo_door.errors import UserError  # noqa: E402
+from evo_door.models import get_model  # noqa: E402
+from evo_door.models.haptic import PARAMS  # noqa: E402
+from evo_door.render.console import server as console_server  # noqa: E402
+from evo_door.render.console.server import ConsoleServer, safe_stem  # noqa: E402
+from evo_door.render.control import ControlServer, request  # noqa: E402
+from evo_door.render.keys import key_map  # noqa: E402
+from evo_door.render.loop import ServoLoop  # noqa: E402
+from evo_door.sim.simulate import force_angle_curve  # noqa: E402
+from tests.conftest import yielding_sim  # noqa: E402
+
+TOKEN = "s3cret-token"
+SENSATIONS = [p.name for p in PARAMS if p.group == "sensation"]
+
+
+@pytest.fixture(scope="module")
+def seed_trial():
+    return get_model("haptic").load_params("seed_trial")
+
+
+@pytest.fixture
+def renderer(seed_trial):
+    """A renderer whose passivity check a sensation can fail: the model's tanh friction
+    sampled explicitly on a device damped at 60 N s/m (seed_trial passes, a snap-zone
+    damping of 50 N s/rad does not)."""
+    build_parser()
+    device = yielding_sim("open", radius=seed_trial["radius"], seed=3, damping=60.0)
+    loop = ServoLoop(device, seed_trial, friction="tanh")
+    stop = threading.Event()
+    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
+    control = ControlServer(loop, "127.0.0.1", 0, token=TOKEN).start()
+    thread.start()
+    deadline = time.monotonic() + 10.0
+    while loop.log.n < 10 and time.monotonic() < deadline:
+        time.sleep(0.001)
+    yield loop, control
+    stop.set()
+    thread.join(10.0)
+    control.close()
+
+
+class _Served:
+    """A ConsoleServer running its event loop in a thread."""
+
+    def __init__(self, server: ConsoleServer):
+        self.server = server
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.url = self._call(server.start())
+        self.base = f"http://127.0.0.1:{server.port}/"
+
+    def _call(self, coro, timeout=30.0):
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def close(self):
+        self._call(self.server.stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5.0)
+        self.loop.close()
+
+
+@pytest.fixture
+def console(renderer, tmp_path):
+    loop, control = renderer
+    served = _Served(ConsoleServer(control.address, TOKEN, "127.0.0.1", 0, tmp_path))
+    yield served
+    served.close()
+
+
+def _get(url, headers=None):
+    """(status, headers, body) of a GET."""
+    req = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return r.status, r.headers, r.read()
+    except urllib.error.HTTPError as err:
+        return err.code, err.headers, err.read()
+
+
+def _api(console, path):
+    status, _, body = _get(f"{console.base}{path}?token={TOKEN}")
+    assert status == 200, body
+    return json.loads(body)
+
+
+async def _next(ws, kind, timeout=5.0):
+    """The next message of type ``kind`` (ticks and others skipped)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise AssertionError(f"no {kind!r} message within {timeout} s")
+        msg = await ws.receive_json(timeout=left)
+        if msg["type"] == kind:
+            return msg
+
+
+def _page(console, session, origin=None, token=TOKEN):
+    origin = f"http://127.0.0.1:{console.server.port}" if origin is None else origin
+    query = f"?token={token}" if token else ""
+    return session.ws_connect(f"{console.base}ws{query}", headers={"Origin": origin})
+
+
+def _session(scenario):
+    async def run():
+        async with aiohttp.ClientSession() as session:
+            return await scenario(session)
+
+    return asyncio.run(run())
+
+
+def _events(loop, kind):
+    return [e for e in loop.log.events if e["kind"] == kind]
+
+
+# -- the API ----------------------------------------------------------------------------
+def test_declaration_lists_the_sensations_with_bounds_steps_and_two_keys(console):
+    body = _api(console, "api/declaration")
+    rows = body["params"]
+    assert [r["name"] for r in rows] == SENSATIONS
+    assert body["display"] == {"rad": "deg"}
+    keys = key_map()
+    seen = set()
+    for row in rows:
+        p = PARAMS[row["name"]]
+        assert (row["lower"], row["upper"], row["unit"]) == (p.lower, p.upper, p.unit)
+        span = p.upper - p.lower
+        assert span / 50 <= row["step"] <= span / 20 * (1 + 1e-12)
+        down, up = row["keys"]
+        assert keys[down] == (p.name, -row["step"]) and keys[up] == (p.name, row["step"])
+        seen |= {down, up}
+    assert len(seen) == 2 * len(rows)
+
+
+def test_curve_is_the_force_angle_curve_of_the_set_in_force(console, renderer):
+    loop, control = renderer
+    haptic = get_model("haptic")
+
+    def check():
+        body = _api(console, "api/curve")
+        ref = force_angle_curve(haptic, loop.params)
+        assert body["theta_deg"] == pytest.approx(ref["theta"] * 180 / math.pi, rel=1e-12)
+        assert body["opening"] == pytest.approx(ref["opening"], rel=1e-12, abs=1e-12)
+        assert body["closing"] == pytest.approx(ref["closing"], rel=1e-12, abs=1e-12)
+        return body
+
+    first = check()
+    old = loop.params["close_force"]
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            await ws.send_json({"type": "set", "values": {"close_force": 30.0}})
+            return await _next(ws, "params")
+
+    _session(scenario)
+    second = check()  # a new set, a new curve
+    # the latch's peak rises with the declared close force
+    rise = max(second["closing"]) - max(first["closing"])
+    assert rise == pytest.approx(30.0 - old, rel=1e-3)
+    assert second["params_t"] > first["params_t"]
+
+
+# -- changes over the WebSocket ----------------------------------------------------------
+def test_set_changes_the_renderer_between_cycles_and_every_page_hears(console, renderer):
+    loop, _ = renderer
+
+    async def scenario(session):
+        async with _page(console, session) as one, _page(console, session) as two:
+            hello = await _next(one, "hello")
+            assert hello["params"] == loop.params.as_dict() == hello["start"]
+            assert hello["ab"] == {
+                "A": None,
+                "B": None,
+                "active": None,
+                "blind": False,
+                "choice": None,
+            }
+            tick = await _next(one, "tick")
+            assert tick["state"]["status"] == "running" and "on_time_fraction" in tick["health"]
+            await one.send_json(
+                {"type": "set", "values": {"friction_closing": 7.5}, "source": "key"}
+            )
+            mine, theirs = await _next(one, "params"), await _next(two, "params")
+        # closed and opened again: the new page starts from the set in force
+        async with _page(console, session) as three:
+            again = await _next(three, "hello")
+        return mine, theirs, again
+
+    mine, theirs, again = _session(scenario)
+    assert mine == theirs and mine["source"] == "key"
+    assert mine["params"]["friction_closing"] == 7.5 == loop.params["friction_closing"]
+    assert again["params"]["friction_closing"] == 7.5
+    change = _events(loop, "change")[-1]
+    assert change["values"] == {"friction_closing": 7.5}
+    cycles = change["t"] / loop.period
+    assert cycles == pytest.approx(round(cycles), abs=1e-6) and cycles >= 1
+    assert loop.log.param_times[-1] == change["t"]
+
+
+def test_ticks_carry_the_log_rows_at_100_hz(console, renderer):
+    loop, _ = renderer
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            return [await _next(ws, "tick") for _ in range(4)]
+
+    ticks = _session(scenario)
+    rows = [r for tick in ticks for r in tick["rows"]]
+    assert len(rows) >= 2
+    t = [r[0] for r in rows]
+    assert all(b - a == pytest.approx(0.01, abs=1e-9) for a, b in zip(t, t[1:]))
+    log = loop.log.array()
+    k = round(t[-1] * loop.log.rate)
+    assert rows[-1][1] == pytest.approx(log[k, 12], abs=1e-12)  # theta of that log row
+
+
+@pytest.mark.parametrize(
+    "values, reason",
+    [
+        ({"friction_closing": 500.0}, "outside its declared range"),
+        ({"friction_closing": float("nan")}, "outside its declared range"),
+        ({"friction_closing": True}, "not a number"),
+        ({"k_radial": 10.0}, "not a sensation parameter"),
+        ({"no_such_thing": 1.0}, "not a sensation parameter"),
+        ({"transition_damping": 50.0}, "not passive"),  # the renderer's refusal
+        ({"friction_closing": 9.0, "transition_damping": 50.0}, "not passive"),
+    ],
+)
+def test_refused_values_change_nothing_and_say_why(console, renderer, values, reason):
+    loop, _ = renderer
+    before = loop.params.as_dict()
+    n_sets = len(loop.log.param_times)
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            text = json.dumps({"type": "set", "values": values})  # NaN as JavaScript can't
+            await ws.send_str(text)
+            return await _next(ws, "refused")
+
+    refused = _session(scenario)
+    assert reason in refused["error"] and "\n" not in refused["error"]
+    time.sleep(0.02)
+    assert loop.params.as_dict() == before and len(loop.log.param_times) == n_sets
+    assert console.server.console.undo == []
+
+
+def test_a_push_from_elsewhere_reaches_the_pages(console, renderer):
+    loop, control = renderer
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            await _next(ws, "hello")
+            answer = await asyncio.to_thread(
+                request, *control.address, {"token": TOKEN, "set": {"open_force": 25.0}}
+            )
+            assert answer["ok"]
+            return await _next(ws, "params")
+
+    msg = _session(scenario)
+    assert msg["source"] == "push" and msg["params"]["open_force"] == 25.0
+
+
+def test_undo_and_reset_restore_the_sets(console, renderer, seed_trial):
+    loop, _ = renderer
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            for values in ({"friction_closing": 7.5}, {"viscous_damping": 0.4}):
+                await ws.send_json({"type": "set", "values": values})
+                await _next(ws, "params")
+            await ws.send_json({"type": "undo"})
+            undone = await _next(ws, "params")
+            assert undone["source"] == "undo"
+            assert loop.params["viscous_damping"] == seed_trial["viscous_damping"]
+            assert loop.params["friction_closing"] == 7.5
+            await ws.send_json({"type": "reset"})
+            reset = await _next(ws, "params")
+            assert reset["source"] == "reset"
+            assert loop.params.as_dict() == seed_trial.as_dict() == reset["params"]
+            await ws.send_json({"type": "undo"})  # the reset itself can be undone
+            await _next(ws, "params")
+            assert loop.params["friction_closing"] == 7.5
+            await ws.send_json({"type": "undo"})
+            await _next(ws, "params")
+            await ws.send_json({"type": "undo"})
+            return await _next(ws, "error")
+
+    empty = _session(scenario)
+    assert empty["error"] == "nothing to undo"
+    assert loop.params.as_dict() == seed_trial.as_dict()
+    assert len(_events(loop, "undo")) == 3 and len(_events(loop, "reset")) == 1
+
+
+def test_save_writes_a_parameter_file_inside_save_dir_never_over_another(
+    console, renderer, tmp_path
+):
+    loop, _ = renderer
+    kept = tmp_path / "keep.yaml"
+    kept.write_text("not mine\n")
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            await ws.send_json({"type": "set", "values": {"open_force": 31.0}})
+            await _next(ws, "params")
+            paths = []
+            for name in ("../x", "../x", "keep", "/etc/passwd"):
+                await ws.send_json({"type": "save", "name": name})
+                paths.append(Path((await _next(ws, "saved"))["path"]))
+            return paths
+
+    paths = _session(scenario)
+    assert [p.name for p in paths] == ["x.yaml", "x-2.yaml", "keep-2.yaml", "etc_passwd.yaml"]
+    assert all(p.parent == tmp_path.resolve() for p in paths)
+    assert kept.read_text() == "not mine\n"
+    haptic = get_model("haptic")
+    for path in paths:
+        assert haptic.load_params(path).as_dict() == loop.params.as_dict()
+    assert haptic.load_params(paths[0])["open_force"] == 31.0
+    assert [e["path"] for e in _events(loop, "save")] == [str(p) for p in paths]
+    assert safe_stem("..") == "console" and safe_stem("a b") == "a_b"
+
+
+def test_ab_participant_and_choice_reach_the_log(console, renderer):
+    loop, _ = renderer
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            await ws.send_json({"type": "participant", "id": "P07"})
+            assert (await _next(ws, "participant"))["id"] == "P07"
+            for slot, value in (("A", 7.5), ("B", 12.0)):
+                await ws.send_json({"type": "set", "values": {"friction_closing": value}})
+                await _next(ws, "params")
+                await ws.send_json({"type": "ab_store", "slot": slot})
+                await _next(ws, "ab")
+            await ws.send_json({"type": "ab_blind", "blind": True})
+            assert (await _next(ws, "ab"))["blind"] is True
+            await ws.send_json({"type": "ab_switch", "slot": "A"})
+            switched = await _next(ws, "params")
+            assert switched["source"] == "ab" and loop.params["friction_closing"] == 7.5
+            ab = await _next(ws, "ab")
+            assert ab["active"] == "A" and ab["A"]["friction_closing"] == 7.5
+            await ws.send_json({"type": "ab_choice", "slot": "A"})
+            assert (await _next(ws, "ab"))["choice"] == "A"
+            await ws.send_json({"type": "choose"})
+            await _next(ws, "chosen")
+            await ws.send_json({"type": "ab_switch", "slot": "C"})
+            return await _next(ws, "error")
+
+    bad_slot = _session(scenario)
+    assert "slot" in bad_slot["error"]
+    assert [e["id"] for e in _events(loop, "participant")] == ["P07"]
+    stores = _events(loop, "ab_store")
+    assert [(e["slot"], e["params"]["friction_closing"]) for e in stores] == [
+        ("A", 7.5),
+        ("B", 12.0),
+    ]
+    (switch,) = _events(loop, "ab_switch")
+    assert switch["slot"] == "A" and switch["blind"] is True
+    (choice,) = _events(loop, "ab_choice")
+    assert choice["slot"] == "A" and choice["params"]["friction_closing"] == 7.5
+    (chosen,) = _events(loop, "chosen")
+    assert chosen["params"] == loop.params.as_dict()
+    times = [e["t"] for e in stores + [switch, choice, chosen]]
+    assert times == sorted(times)
+
+
+# -- security ----------------------------------------------------------------------------
+def test_foreign_origin_and_missing_token_get_403(console):
+    port = console.server.port
+
+    async def handshake(session, **kw):
+        try:
+            async with _page(console, session, **kw) as ws:
+                await _next(ws, "hello")
+                return 101
+        except aiohttp.WSServerHandshakeError as err:
+            return err.status
+
+    async def scenario(session):
+        return (
+            await handshake(session),
+            await handshake(session, origin="http://evil.example"),
+            await handshake(session, origin=f"http://127.0.0.1:{port + 1}"),
+            await handshake(session, token=None),
+            await handshake(session, token="guess"),
+        )
+
+    assert _session(scenario) == (101, 403, 403, 403, 403)
+    assert _get(f"{console.base}api/declaration")[0] == 403
+    assert _get(f"{console.base}api/declaration?token=guess")[0] == 403
+    # the first visit sets the cookie; the cookie alone then opens everything
+    status, headers, _ = _get(f"{console.base}?token={TOKEN}")
+    assert status == 200
+    cookie = headers["Set-Cookie"]
+    assert "HttpOnly" in cookie and "SameSite=Strict" in cookie
+    pair = cookie.split(";")[0]
+    status, headers, _ = _get(f"{console.base}api/declaration", {"Cookie": pair})
+    assert status == 200
+    assert headers["X-Frame-Options"] == "DENY"
+    csp = headers["Content-Security-Policy"]
+    assert "default-src 'self'" in csp and f"ws://127.0.0.1:{port}" in csp
+    assert "Access-Control-Allow-Origin" not in headers
+    # DNS rebinding: a name that is not the server's
+    spoofed = {"Cookie": pair, "Host": f"evil.example:{port}"}
+    assert _get(f"{console.base}api/declaration", spoofed)[0] == 403
+
+
+def test_non_loopback_bind_requires_a_token(capsys):
+    with pytest.raises(UserError, match="requires --token"):
+        ConsoleServer(("127.0.0.1", 1), None, "0.0.0.0", 0)
+    assert main(["console", "--control", "127.0.0.1:1", "--host", "0.0.0.0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "requires --token" in err
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_console_cli_one_line_errors(capsys, monkeypatch, renderer, tmp_path):
+    monkeypatch.setattr(console_server, "CONNECT_WAIT", 0.3)
+    started = time.monotonic()
+    assert main(["console", "--control", f"127.0.0.1:{_free_port()}"]) == 2
+    assert time.monotonic() - started < 5.0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("evo-door: error: cannot reach the renderer")
+    assert main(["console", "--control", "nowhere"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
+    _, control = renderer
+    to = "{}:{}".format(*control.address)
+    assert main(["console", "--control", to, "--token", "guess", "--port", "0"]) == 2
+    assert "wrong token" in capsys.readouterr().err
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert main(["console", "--control", to, "--token", TOKEN, "--port", str(port)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot listen" in err
+    args = ["console", "--control", to, "--save-dir", str(tmp_path / "no")]
+    assert main(args) == 2 and "--save-dir" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_render_console_spawns_the_console_and_stops_it(tmp_path):
+    """render --console prints the page's URL, the page answers while the render
+    runs, and the console process is gone when the render ends."""
+    cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
+    cmd += ["--user", "hold", "--duration", "4", "--realtime", "--console", "--console-port", "0"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+    try:
+        url = ""
+        for line in proc.stdout:
+            if line.startswith("console "):
+                url = line.split()[1]
+                break
+        assert url.startswith("http://127.0.0.1:") and "?token=" in url
+        base, query = url.split("?")
+        status, _, body = _get(f"{base}api/declaration?{query}")
+        assert status == 200 and json.loads(body)["params"][0]["name"] == SENSATIONS[0]
+        assert _get(f"{base}api/declaration")[0] == 403
+        rest = proc.stdout.read()
+        assert proc.wait(30) == 0, rest
+    finally:
+        proc.kill()
+    with pytest.raises(OSError):
+        urllib.request.urlopen(f"{base}api/declaration?{query}", timeout=2)
