@@ -312,5 +312,7 @@ def test_a_paced_loop_leaves_the_control_port_served(seed_trial):
         stop.set()
         thread.join(10.0)
     waits = sorted(waits)
-    assert waits[len(waits) // 2] < 0.02  # s: the median answer, milliseconds
-    assert waits[-3] < 0.2  # s: all but the two slowest
+    # starved, the slowest answers take seconds (1-10 s measured); served, a few ms
+    # (loaded machines: tens of ms)
+    assert waits[len(waits) // 2] < 0.1  # s: the median answer
+    assert waits[-3] < 0.5  # s: all but the two slowest
