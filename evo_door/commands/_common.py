@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import sys
 
-from evo_door.models import get_model
-from evo_door.params import parse_assignments
-
 #: Help text of every MODEL argument.
 MODEL_HELP = "model: a name (haptic, door), package.module:MODEL or path/to/file.py:MODEL"
 
@@ -47,6 +44,9 @@ def add_params_arguments(parser) -> None:
 
 def model_and_params(args):
     """The model named by ``args.model`` and its checked parameter set."""
+    from evo_door.models import get_model
+    from evo_door.params import parse_assignments
+
     model = get_model(args.model)
     params = model.load_params(args.params, parse_assignments(args.assignments))
     return model, params

@@ -15,12 +15,8 @@ from __future__ import annotations
 import math
 import os
 
-import numpy as np
-
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.errors import UserError
-from evo_door.files import check_folder, check_image_path, save_figure, write_text
-from evo_door.sim.simulate import force_angle_curve
 
 ORDER = 30
 #: Least width (deg) of the panel next to closed in the plot.
@@ -75,6 +71,8 @@ def register(sub) -> None:
 
 def _check_options(args) -> None:
     """Every option and target before anything is computed or written."""
+    from evo_door.files import check_folder, check_image_path
+
     if args.points < 2:
         raise UserError(f"--points {args.points}: must be at least 2 (both ends of the range)")
     if args.speed is not None:
@@ -96,6 +94,9 @@ def _check_options(args) -> None:
 
 
 def run(args) -> int:
+    from evo_door.files import write_text
+    from evo_door.sim.simulate import force_angle_curve
+
     _check_options(args)
     model, params = model_and_params(args)
     curve = force_angle_curve(model, params, speed=args.speed, n=args.points)
@@ -123,6 +124,8 @@ def zoom_near_closed(curve, closed) -> dict:
     added in the last :data:`SEARCH_DEG` (where it changes fast), plus a quarter of
     that on the open side, at least the last :data:`ZOOM_DEG`.
     """
+    import numpy as np
+
     theta = curve["theta"]
     near = curve["added"] & (theta >= closed - np.radians(SEARCH_DEG))
     lo = closed - np.radians(ZOOM_DEG)
@@ -135,6 +138,8 @@ def zoom_near_closed(curve, closed) -> dict:
 
 def curve_csv(curve) -> str:
     """The CSV text: :data:`HEADER`, then the opening rows, then the closing rows."""
+    import numpy as np
+
     lines = [HEADER]
     speed = f"{curve['speed']:.10g}"
     for direction in ("opening", "closing"):
@@ -153,6 +158,7 @@ def describe(curve, unit="rad") -> str:
 
 def peak_lines(curve, unit="rad") -> list[str]:
     """The extreme forces of each direction and where they are, with units."""
+    import numpy as np
 
     def where(i):
         t = curve["theta"][i]
@@ -170,6 +176,8 @@ def peak_lines(curve, unit="rad") -> list[str]:
 
 def plot_curve(curve, path, title="", zoom=None, unit="rad") -> None:
     """Write :func:`curve_figure` to ``path`` (the format from its extension)."""
+    from evo_door.files import save_figure
+
     save_figure(curve_figure(curve, title, zoom, unit), path, dpi=120)
 
 
@@ -178,6 +186,7 @@ def curve_figure(curve, title="", zoom=None, unit="rad"):
 
     ``unit`` is the unit of ``theta``: angles in rad are drawn in degrees.
     """
+    import numpy as np
     from matplotlib.figure import Figure
 
     panels = [curve] if zoom is None else [curve, zoom]

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 ORDER = 46
 
+#: ``evo_door.experiment.spec.FORMATS``, written out so that the parser does not import
+#: the experiment package (tests/test_cli_startup.py checks they agree).
+FORMAT_NAMES = ("csv", "md", "tex", "html", "yaml")
+
 
 def register(sub) -> None:
-    from evo_door.experiment.spec import FORMATS
-
     p = sub.add_parser(
         "export-spec",
         help="a fit's specification table (symbol, unit, value, per-trial range, "
@@ -18,7 +20,7 @@ def register(sub) -> None:
     p.add_argument(
         "--format",
         default="md",
-        metavar="|".join(FORMATS),
+        metavar="|".join(FORMAT_NAMES),
         help="md (default), csv, tex (booktabs), html, or yaml: a parameter file that "
         "--params, experiments and the renderer read back",
     )

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 
 from evo_door.commands._common import MODEL_HELP, add_params_arguments
-from evo_door.models import get_model
-from evo_door.params import parse_assignments
 
 ORDER = 10
 
@@ -26,7 +24,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    model = get_model(args.model)
+    from evo_door.models import get_declaration
+    from evo_door.params import parse_assignments
+
+    # the declaration only: a bundled model's is read without numba (quick start-up)
+    model = get_declaration(args.model)
     values = None
     if args.params or args.assignments or args.write:
         ps = model.load_params(args.params, parse_assignments(args.assignments))

@@ -6,10 +6,14 @@ import sys
 
 ORDER = 47
 
+#: The report's defaults (``DEFAULT_JND``, ``FORCE_FLOOR`` N of
+#: :mod:`evo_door.experiment.report`), for the help only, written out so that the parser
+#: does not import the experiment package (tests/test_cli_startup.py checks they agree).
+DEFAULT_JND = 0.10
+FORCE_FLOOR = 1.0
+
 
 def register(sub) -> None:
-    from evo_door.experiment.report import DEFAULT_JND, FORCE_FLOOR
-
     p = sub.add_parser(
         "report",
         help="one self-contained HTML page of a run or a pipeline (figures embedded, and "

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.commands.data import add_read_options, check_finite, check_positive, trial_selection
-from evo_door.data.forcecsv import read_force
-from evo_door.data.trial import check_theta0
 from evo_door.errors import UserError
-from evo_door.sim import METHODS, simulate
 
 ORDER = 20
+
+#: The integration schemes, ``sorted(evo_door.sim.METHODS)``: written out so that the
+#: parser does not import numba (tests/test_cli_startup.py checks they agree).
+METHOD_NAMES = ("rk4", "semi_implicit")
 
 
 def register(sub) -> None:
@@ -43,7 +44,7 @@ def register(sub) -> None:
         help="initial angular speed in rad/s (default: the input file's dtheta0, else 0)",
     )
     p.add_argument(
-        "--method", choices=sorted(METHODS), help="integration scheme (default: the model's)"
+        "--method", choices=METHOD_NAMES, help="integration scheme (default: the model's)"
     )
     p.add_argument(
         "--substeps", type=int, help="integration steps per input sample (default: the model's)"
@@ -58,6 +59,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from evo_door.data.forcecsv import read_force
+    from evo_door.data.trial import check_theta0
+    from evo_door.sim import simulate
+
     model, params = model_and_params(args)
     if args.substeps is not None and args.substeps < 1:
         raise UserError(f"--substeps {args.substeps}: must be at least 1")

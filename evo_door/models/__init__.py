@@ -6,18 +6,22 @@ path: see :func:`get_model`.
 
 from evo_door.models.base import (
     REGISTRY,
+    Declaration,
     Model,
     available_models,
     check_model,
+    get_declaration,
     get_model,
     resolve_model_name,
 )
 
 __all__ = [
+    "Declaration",
     "Model",
     "REGISTRY",
     "available_models",
     "check_model",
+    "get_declaration",
     "get_model",
     "resolve_model_name",
 ]

@@ -108,11 +108,43 @@ class Model:
         return available_presets(self.params.model, self.preset_dirs)
 
 
+@dataclass(frozen=True)
+class Declaration:
+    """What can be read of a model without its compiled kernel: its name, title,
+    parameter declaration, notes and presets (``evo-door params MODEL``).
+
+    A bundled model keeps it in a module of its own that does not import numba (for
+    example :mod:`evo_door.models.haptic_params`), so that reading it is quick;
+    :func:`get_declaration` returns it, or the :class:`Model` itself (which has the
+    same attributes) for any other model.
+    """
+
+    name: str
+    title: str
+    params: ParamTable
+    notes: str = ""
+    preset_dirs: tuple[Path, ...] = ()
+
+    def load_params(self, spec=None, overrides=None) -> ParamSet:
+        """As :meth:`Model.load_params`."""
+        return load_params(self.params, spec, overrides, self.preset_dirs)
+
+    def presets(self) -> list[str]:
+        """As :meth:`Model.presets`."""
+        return available_presets(self.params.model, self.preset_dirs)
+
+
 #: name -> "module:attribute" of the bundled models: the fallback when the installed
 #: metadata does not (yet) list them in the ``evo_door.models`` entry-point group.
 REGISTRY: dict[str, str] = {
     "haptic": "evo_door.models.haptic:MODEL",
     "door": "evo_door.models.door:MODEL",
+}
+
+#: name -> "module:attribute" of the bundled models' :class:`Declaration` (no numba),
+#: for the names of :data:`REGISTRY` whose declaration lives apart from the kernels.
+DECLARATIONS: dict[str, str] = {
+    "haptic": "evo_door.models.haptic_params:DECLARATION",
 }
 
 #: Models already loaded, by the key :func:`get_model` resolves a name to.
@@ -304,6 +336,29 @@ def get_model(name: str) -> Model:
         model = replace(model, preset_dirs=model.preset_dirs + (presets,))
     _MODELS[key] = model
     return model
+
+
+def get_declaration(name: str) -> Declaration | Model:
+    """The declaration of the model called ``name`` (as :func:`get_model` finds it),
+    read without importing numba when it is a bundled model of :data:`DECLARATIONS`
+    that no installed package registers differently; else the :class:`Model` itself.
+    """
+    name = str(name).strip()
+    if name not in DECLARATIONS or name in _MODELS:
+        return get_model(name)
+    targets = {
+        ep.value for ep in importlib.metadata.entry_points(group=MODEL_GROUP) if ep.name == name
+    }
+    if targets - {REGISTRY[name]}:
+        return get_model(name)
+    declaration, _ = _from_module(DECLARATIONS[name], name)
+    # the presets folder get_model would add: beside the model's module, not this one
+    spec = importlib.util.find_spec(REGISTRY[name].split(":")[0])
+    origin = getattr(spec, "origin", None)
+    presets = Path(origin).parent / "presets" if origin else None
+    if presets is not None and presets.is_dir() and presets not in declaration.preset_dirs:
+        declaration = replace(declaration, preset_dirs=declaration.preset_dirs + (presets,))
+    return declaration
 
 
 def _registered(name: str):

@@ -1,0 +1,134 @@
+"""Start-up of the command line: building the parser, ``--help`` and ``params haptic``
+import none of the heavy libraries (numba, scipy, matplotlib, h5py, deap, aiohttp).
+
+Checked on ``sys.modules`` of a fresh interpreter, not on time (the time is
+benchmarks/bench_startup.py's).
+"""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("numba", "scipy", "matplotlib", "h5py", "deap", "aiohttp")
+
+# Runs CODE in a fresh interpreter, then prints (as the last line) the heavy modules
+# it left in sys.modules, as JSON.
+_PROBE = """
+import contextlib, io, json, sys
+out = io.StringIO()
+with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+{code}
+heavy = sorted({{m.split(".")[0] for m in sys.modules}} & set({heavy!r}))
+print(out.getvalue())
+print(json.dumps(heavy))
+"""
+
+
+def _probe(code: str) -> tuple[str, list[str]]:
+    body = "\n".join("    " + line for line in code.strip().splitlines())
+    script = _PROBE.format(code=body, heavy=HEAVY)
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    *printed, last = done.stdout.rstrip("\n").splitlines()
+    return "\n".join(printed), json.loads(last)
+
+
+def test_build_parser_imports_nothing_heavy():
+    printed, heavy = _probe(
+        """
+import evo_door.cli
+parser = evo_door.cli.build_parser()
+print(sorted(parser._subparsers._group_actions[0].choices))
+"""
+    )
+    assert heavy == []
+    # every command was registered (the probe is not vacuous)
+    for command in ("params", "simulate", "curve", "run", "report", "export-spec"):
+        assert repr(command) in printed
+
+
+def test_help_imports_nothing_heavy():
+    printed, heavy = _probe(
+        """
+import evo_door.cli
+try:
+    evo_door.cli.main(["--help"])
+except SystemExit as exc:
+    assert exc.code == 0, exc.code
+"""
+    )
+    assert heavy == []
+    assert "usage: evo-door" in printed
+
+
+@pytest.mark.parametrize(
+    "extra", [[], ["--json"], ["--params", "seed_trial", "--set", "inertia=2.5", "--json"]]
+)
+def test_params_haptic_imports_nothing_heavy(extra):
+    printed, heavy = _probe(
+        f"""
+import evo_door.cli
+assert evo_door.cli.main(["params", "haptic", *{extra!r}]) == 0
+"""
+    )
+    assert heavy == []
+    if "--json" in extra:
+        rows = {r["name"]: r for r in json.loads(printed)["params"]}
+        assert "inertia" in rows and "latch_gate_slope" in rows
+        if "--set" in extra:
+            assert rows["inertia"]["value"] == 2.5
+    else:
+        assert printed.startswith("Haptic model of the dishwasher door (haptic):")
+
+
+def test_haptic_declaration_is_the_models():
+    from evo_door.models import get_declaration, get_model, haptic, haptic_params
+
+    model = get_model("haptic")
+    declared = haptic_params.DECLARATION
+    assert haptic.PARAMS is haptic_params.PARAMS is model.params is declared.params
+    assert (declared.name, declared.title, declared.notes) == (
+        model.name,
+        model.title,
+        model.notes,
+    )
+    assert declared.presets() == model.presets()
+    assert (
+        declared.load_params("seed_trial", {"inertia": 2.0}).as_dict()
+        == model.load_params("seed_trial", {"inertia": 2.0}).as_dict()
+    )
+    # once the model is loaded, its declaration is the model itself
+    assert get_declaration("haptic") is model
+
+
+def test_declaration_of_other_models_is_the_model():
+    from evo_door.models import get_declaration, get_model
+
+    for name in ("door", "tests.conftest:OSCILLATOR_MODEL"):
+        assert get_declaration(name) is get_model(name)
+
+
+def test_declaration_of_unknown_model_is_a_user_error():
+    from evo_door.errors import UserError
+    from evo_door.models import get_declaration
+
+    with pytest.raises(UserError, match="unknown model 'haptc'"):
+        get_declaration("haptc")
+
+
+def test_constants_written_out_for_the_parser_agree_with_the_library():
+    """The commands spell out a few library constants so as not to import the library
+    at start-up; they must not drift from it."""
+    from evo_door.commands import export_spec, report, simulate
+    from evo_door.experiment import report as report_lib
+    from evo_door.experiment.spec import FORMATS
+    from evo_door.sim import METHODS
+
+    assert simulate.METHOD_NAMES == tuple(sorted(METHODS))
+    assert export_spec.FORMAT_NAMES == tuple(FORMATS)
+    assert report.DEFAULT_JND == report_lib.DEFAULT_JND
+    assert report.FORCE_FLOOR == report_lib.FORCE_FLOOR
