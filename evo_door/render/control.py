@@ -282,7 +282,7 @@ class ControlServer:
         event = dict(event)
         kind = event.pop("kind")
         if "params" in event:
-            event["params"] = _checked_set(event["params"])
+            event["params"] = checked_values(event["params"])
         if kind == "chosen":  # the whole set: what is not given is the set in force
             event["params"] = {**self.loop.params.as_dict(), **event.get("params", {})}
         text = json.dumps(event)
@@ -333,19 +333,25 @@ EVENT_KINDS = (
 )
 
 
-def _checked_set(values) -> dict:
-    """``values`` {name: SI value}: declared names, finite numbers within bounds."""
+def checked_values(values, key="params", names=None, what="parameter of the declaration"):
+    """``values`` {name: SI value} checked (a UserError with the reason otherwise):
+    a non-empty object under ``key``, names among ``names`` (default: the whole
+    declaration; else a ``what``), finite numbers within their declared bounds."""
     if not isinstance(values, dict) or not values:
-        raise UserError('"params" must be a non-empty object {name: value}')
+        raise UserError(f'"{key}" must be a non-empty object {{name: value}}')
+    allowed = PARAMS.names if names is None else names
     out = {}
     for name, value in values.items():
-        if name not in PARAMS.names:
-            raise UserError(f"unknown parameter {name!r}")
+        if name not in allowed:
+            raise UserError(f"{name!r} is not a {what}")
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserError(f"parameter {name!r}: {value!r} is not a number")
         q = PARAMS[name]
         if not (math.isfinite(value) and q.lower <= value <= q.upper):
-            raise UserError(f"{name} = {value!r} {q.unit}: outside [{q.lower:g}, {q.upper:g}]")
+            raise UserError(
+                f"{name} = {value!r} {q.unit}: outside its declared range "
+                f"[{q.lower:g}, {q.upper:g}] {q.unit}"
+            )
         out[name] = float(value)
     return out
 

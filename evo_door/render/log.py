@@ -421,24 +421,22 @@ def read_session(path) -> dict:
 
 def is_render_log(path) -> bool:
     """Whether ``path`` is an HDF5 file holding a render log (never raises)."""
-    try:
-        import h5py
+    from evo_door.files import open_h5
 
-        with h5py.File(path, "r") as f:
+    try:
+        with open_h5(path) as f:
             return "render" in f and "render/params" in f
-    except Exception:  # not a file, not HDF5: the caller's own reader says why
+    except (UserError, OSError):  # not a file, not HDF5: the caller's own reader says why
         return False
 
 
 def format_session(s: dict, path="") -> str:
     """:func:`read_session`'s summary for people (angles in degrees, units)."""
     from evo_door.models.haptic import PARAMS
+    from evo_door.render.keys import shown as shown_unit
 
     def shown(name, value):
-        unit = PARAMS[name].unit
-        if unit == "rad":
-            return f"{np.degrees(value):.4g} deg"
-        return f"{value:.4g} {unit}" if unit != "1" else f"{value:.4g}"
+        return shown_unit(value, PARAMS[name].unit).strip()
 
     stats = s["statistics"]
     lines = [f"render log {path}".rstrip()]

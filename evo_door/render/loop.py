@@ -63,8 +63,6 @@ _RECHECK_AFTER = 250
 _NICENESS = -20
 #: the interpreter's thread switch interval while a paced loop runs (s; default 5 ms)
 _SWITCH_INTERVAL = 1e-4
-#: cycles between two copies of the state for :meth:`ServoLoop.snapshot` (100 Hz at 2500 Hz)
-_SNAPSHOT_EVERY = 25
 
 
 @njit(cache=True)
@@ -348,7 +346,6 @@ class ServoLoop:
         #: step, or rendered by the device itself): out of the passivity check
         self.exclude = IMPLICIT if friction == "implicit" else frozenset()
         self._native: tuple[str, ...] = ()
-        self._last_row = np.full(N_COLUMNS, np.nan)
         self.timing = LoopTiming(self.period)
         self.params, changes = self._passive(params)
         self._clamp_note = changes
@@ -392,16 +389,19 @@ class ServoLoop:
         return self._pending is not None
 
     def snapshot(self) -> dict:
-        """The loop's state for a display, safe from any thread (copied at 100 Hz).
+        """The loop's state for a display, safe from any thread (the log's last row).
 
         ``t`` (s, loop time), ``status``, ``params`` (the ParamSet in force),
-        ``pending`` (a change waits for the next cycle), the last cycle's door state
+        ``pending`` (a change waits for the next cycle), the door state of the log's last
+        row (1 kHz)
         ``theta`` (rad), ``dtheta`` (rad/s), ``force`` (N, the user's, on the
         tangent), ``position`` (m), ``velocity`` (m/s), ``user_force`` and
         ``command`` (N) in device axes (NaN before the first cycle), the counts
         ``faults`` and ``saturated``, ``watchdog`` (its reason), ``rate``, ``device``.
         """
-        row = self._last_row  # replaced whole, never written in place
+        row = self.log.last()  # a copy of the last finished log row
+        if row is None:
+            row = np.full(N_COLUMNS, np.nan)
         return {
             "t": self._now,
             "status": self.status,
@@ -593,8 +593,6 @@ class ServoLoop:
                         self.log.event(t, "fault", f"device command failed: {exc}")
                 dev.step(T)
                 self.log.add(t, row)
-                if k % _SNAPSHOT_EVERY == 0:
-                    self._last_row = row.copy()
                 timing.worked_for(time.perf_counter() - tic)
                 self.watchdog.cycle(now, late > T)
                 if self.watchdog.tripped and self.watchdog.tripped_at == now:

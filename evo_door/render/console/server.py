@@ -53,7 +53,7 @@ from aiohttp import WSMsgType, web
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.render.control import is_loopback
+from evo_door.render.control import checked_values, is_loopback
 from evo_door.render.keys import GROUP, key_map, nice_step
 
 #: the page's files (index.html, console.js, console.css)
@@ -140,23 +140,9 @@ def declaration() -> dict:
 def check_values(values) -> dict[str, float]:
     """A page's change {name: SI value}, checked: declared sensation names, finite
     numbers within their bounds (a UserError with the reason otherwise)."""
-    if not isinstance(values, dict) or not values:
-        raise UserError('"values" must be a non-empty object {name: value}')
-    allowed = set(sensation_names())
-    out = {}
-    for name, value in values.items():
-        if name not in allowed:
-            raise UserError(f"{name!r} is not a sensation parameter of the declaration")
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise UserError(f"parameter {name!r}: {value!r} is not a number")
-        q = PARAMS[name]
-        if not (math.isfinite(value) and q.lower <= value <= q.upper):
-            raise UserError(
-                f"{name} = {value!r} {q.unit}: outside its declared range "
-                f"[{q.lower:g}, {q.upper:g}] {q.unit}"
-            )
-        out[name] = float(value)
-    return out
+    return checked_values(
+        values, "values", set(sensation_names()), "sensation parameter of the declaration"
+    )
 
 
 def safe_stem(name) -> str:
