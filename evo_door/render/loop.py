@@ -59,10 +59,48 @@ FRICTION_LAWS = ("implicit", "tanh")
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
-#: the niceness of a paced loop's thread (-20 highest, 0 normal), where permitted
+#: the niceness of a paced loop's thread (-20 highest, 0 normal), where real-time
+#: scheduling is not permitted but this is
 _NICENESS = -20
+#: the real-time priority (SCHED_FIFO, 1-99) of a paced loop's thread, where permitted:
+#: above every normal thread on its core, below the kernel's own real-time threads
+_RT_PRIORITY = 10
+#: ... and of the process's other threads meanwhile (the control port, the log's spill):
+#: they share the loop's interpreter lock, and a normal thread that the scheduler
+#: preempts while holding it stalls the loop for milliseconds (a priority inversion)
+_RT_PRIORITY_OTHERS = 5
+#: a real-time loop sleeps until this long (s) before its slot, then spins: it wakes
+#: within tens of microseconds, and while it sleeps the core and the interpreter are free
+_RT_SPIN = 1.5e-4
 #: the interpreter's thread switch interval while a paced loop runs (s; default 5 ms)
 _SWITCH_INTERVAL = 1e-4
+
+
+def _set_other_threads(own: int, policy: int, priority: int, only=None) -> int:
+    """Set the scheduling of this process's threads but ``own`` (Linux); how many took it.
+
+    ``only``: change only the real-time threads at that priority (to undo). Threads
+    started later inherit their creator's scheduling: the control port's handlers do.
+    """
+    try:
+        tids = [int(name) for name in os.listdir("/proc/self/task")]
+    except OSError:
+        return 0
+    done = 0
+    for t in tids:
+        if t == own:
+            continue
+        try:
+            if only is not None and (
+                os.sched_getscheduler(t) != os.SCHED_FIFO
+                or os.sched_getparam(t).sched_priority != only
+            ):
+                continue
+            os.sched_setscheduler(t, policy, os.sched_param(priority))
+            done += 1
+        except OSError:  # gone meanwhile, or not permitted
+            pass
+    return done
 
 
 @njit(cache=True)
@@ -331,6 +369,7 @@ class ServoLoop:
         self.device_name = device_name or type(device).__name__
         self.rate = float(rate)
         self.period = 1.0 / self.rate
+        self._realtime_sched = False  # the loop thread runs under SCHED_FIFO (run)
         self.clamp = bool(clamp)
         self.limit = float(getattr(device, "max_force", 200.0))
         self.damping = float(getattr(device, "damping", 0.0))
@@ -622,11 +661,21 @@ class ServoLoop:
     def _raise_priority(self):
         """Give this thread (the loop's) precedence over the machine's other work.
 
-        A paced loop spins on its core; anything else the scheduler runs there (a
-        browser drawing the console, the console's process) costs it whole periods.
-        A higher priority (niceness ``_NICENESS``, Linux: per thread) keeps it there.
-        Without the permission the loop runs at its normal priority and says so in
-        the log. Returns the niceness to restore, or None.
+        A paced loop holds its core; anything else the scheduler runs there (a browser
+        drawing the console, the console's process, a test suite) costs it whole
+        periods. In order of preference, where permitted (Linux: per thread):
+
+        * real-time scheduling (SCHED_FIFO, priority ``_RT_PRIORITY``): no normal
+          thread runs on the loop's core while it wants it, and it can sleep between
+          cycles (``_wait_until``) because it wakes on time;
+        * niceness ``_NICENESS``: a larger share of the core, but a sleep would wake
+          late, so the loop spins;
+        * neither: normal priority, said in the log.
+
+        The kernel keeps 5 % of every second from real-time threads by default
+        (``sched_rt_runtime_us``), so a loop that never sleeps (its cycle longer than
+        its period) cannot lock the core up; it misses cycles and the watchdog trips.
+        Returns what ``_restore_priority`` needs.
         """
         tid = threading.get_native_id()
         cpus = None
@@ -636,18 +685,43 @@ class ServoLoop:
                 os.sched_setaffinity(0, {max(cpus)})
         except (OSError, AttributeError):
             cpus = None
+        self._realtime_sched = False
+        try:
+            policy = os.sched_getscheduler(0)
+            param = os.sched_getparam(0)
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(_RT_PRIORITY))
+        except (OSError, AttributeError) as exc:
+            rt_refused = exc
+        else:
+            self._realtime_sched = True
+            others = _set_other_threads(tid, os.SCHED_FIFO, _RT_PRIORITY_OTHERS)
+            self.log.event(
+                0.0,
+                "priority",
+                f"loop thread real-time (SCHED_FIFO, priority {_RT_PRIORITY}); "
+                f"{others} other thread(s) of the process at priority {_RT_PRIORITY_OTHERS}",
+            )
+            return tid, None, cpus, (policy, param)
         try:
             before = os.getpriority(os.PRIO_PROCESS, tid)
             os.setpriority(os.PRIO_PROCESS, tid, _NICENESS)
         except (OSError, AttributeError) as exc:  # not permitted, or not this OS
-            self.log.event(0.0, "priority", f"normal priority ({exc})")
-            return (tid, None, cpus)
-        self.log.event(0.0, "priority", f"loop thread at niceness {_NICENESS} (was {before})")
-        return tid, before, cpus
+            self.log.event(0.0, "priority", f"normal priority ({rt_refused}; {exc})")
+            return (tid, None, cpus, None)
+        self.log.event(
+            0.0,
+            "priority",
+            f"loop thread at niceness {_NICENESS} (was {before}); real-time refused: {rt_refused}",
+        )
+        return tid, before, cpus, None
 
     def _restore_priority(self, saved) -> None:
-        tid, before, cpus = saved
+        tid, before, cpus, sched = saved
+        self._realtime_sched = False
         try:
+            if sched is not None:
+                os.sched_setscheduler(0, *sched)
+                _set_other_threads(tid, os.SCHED_OTHER, 0, only=_RT_PRIORITY_OTHERS)
             if before is not None:
                 os.setpriority(os.PRIO_PROCESS, tid, before)
             if cpus is not None:
@@ -658,18 +732,26 @@ class ServoLoop:
     def _wait_until(self, t0: float, t: float) -> float:
         """Wait for the slot at ``t`` (s after ``t0``): sleep while it is far, then spin.
 
-        The spin holds the interpreter; the process's other threads (the control port)
-        get it at the switch interval, 0.1 ms while a paced loop runs (``run``). A
-        ``time.sleep(0)`` per turn served them sooner but, being a system call, let the
-        scheduler take the core from the loop: 2-3 % more cycles late with a browser
-        drawing the console (``benchmarks/console.md``)."""
+        A real-time loop (``_raise_priority``) sleeps until ``_RT_SPIN`` before the
+        slot: it wakes within tens of microseconds, and the sleep leaves the
+        interpreter to the process's other threads (the control port) and the core to
+        the rest of the machine. Otherwise the loop spins from 1.5 ms before: a normal
+        thread's sleep wakes 50-100 us late, more on a busy core. The spin holds the
+        interpreter; the other threads get it at the switch interval, 0.1 ms while a
+        paced loop runs (``run``). A ``time.sleep(0)`` per turn served them sooner
+        but, being a system call, let the scheduler take the core from the loop: 2-3 %
+        more cycles late with a browser drawing the console (``benchmarks/console.md``)."""
+        if self._realtime_sched:
+            far, early = _RT_SPIN, _RT_SPIN
+        else:
+            far, early = 0.002, 0.0015
         while True:
             now = time.perf_counter() - t0
             left = t - now
             if left <= 0:
                 return now
-            if left > 0.002:
-                time.sleep(left - 0.0015)
+            if left > far:
+                time.sleep(left - early)
 
     def _recheck(self, measured: float, t: float) -> None:
         """Passivity again with the measured period (over TCP, the round trip)."""
