@@ -36,8 +36,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from evo_door.errors import UserError
 
 ATTRS = "@attrs"
@@ -59,9 +57,12 @@ def h5py():
 def jsonable(value):
     """``value`` with numpy scalars and arrays (and tuples, bytes) as plain Python.
 
+    >>> import numpy as np
     >>> jsonable({"x": np.arange(2), "k": np.int64(3), "pair": (1.5, b"a")})
     {'x': [0, 1], 'k': 3, 'pair': [1.5, 'a']}
     """
+    import numpy as np  # here, not at the top: commands that write no file start quicker
+
     if isinstance(value, dict):
         return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -93,6 +94,8 @@ def encode_attr(value):
         return JSON_PREFIX + to_json(value)
     if isinstance(value, str) and value.startswith(JSON_PREFIX):
         return JSON_PREFIX + to_json(value)
+    import numpy as np
+
     if isinstance(value, np.generic):
         return value.item()
     return value
@@ -104,6 +107,8 @@ def decode_attr(value):
         value = value.decode()
     if isinstance(value, str) and value.startswith(JSON_PREFIX):
         return json.loads(value[len(JSON_PREFIX) :])
+    import numpy as np
+
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -481,6 +486,8 @@ def write_group(
     :class:`Keep` entries, at any depth, are appended to ``keep`` as (HDF5 path,
     placeholder) for :func:`write_h5` to copy; without ``keep`` they are built.
     """
+    import numpy as np
+
     h5 = h5py()
     for key, value in tree.items():
         if key == ATTRS:

@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import difflib
 import math
+import numbers
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported where a vector is built, not on import
+    import numpy as np
 
 from evo_door.errors import ParameterError
 
@@ -66,7 +69,7 @@ class Param:
     def check(self, value, source: str = "") -> float:
         """Return ``value`` as a float or raise :class:`ParameterError` naming it."""
         where = f"{source}: " if source else ""
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):  # numpy's too
             raise ParameterError(
                 f"{where}parameter {self.name!r} must be a number in {self.unit}, got {value!r}"
             )
@@ -135,14 +138,20 @@ class ParamTable:
 
     @property
     def defaults(self) -> np.ndarray:
+        import numpy as np  # here: the declaration alone (evo-door params) needs no numpy
+
         return np.array([p.default for p in self.params], dtype=np.float64)
 
     @property
     def lower(self) -> np.ndarray:
+        import numpy as np  # here: the declaration alone (evo-door params) needs no numpy
+
         return np.array([p.lower for p in self.params], dtype=np.float64)
 
     @property
     def upper(self) -> np.ndarray:
+        import numpy as np  # here: the declaration alone (evo-door params) needs no numpy
+
         return np.array([p.upper for p in self.params], dtype=np.float64)
 
     # -- building vectors -------------------------------------------------
@@ -162,6 +171,8 @@ class ParamTable:
 
     def as_dict(self, vector: np.ndarray) -> dict[str, float]:
         """Name -> value for a kernel vector."""
+        import numpy as np
+
         vector = np.asarray(vector, dtype=np.float64)
         if vector.shape != (len(self),):
             raise ValueError(f"{self.model}: expected {len(self)} values, got {vector.shape}")

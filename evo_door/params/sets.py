@@ -29,9 +29,12 @@ import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
 import yaml
+
+if TYPE_CHECKING:  # numpy is imported where a vector is built, not on import
+    import numpy as np
 
 from evo_door.errors import ParameterError, UserError
 from evo_door.files import read_text, write_text
@@ -54,6 +57,8 @@ class ParamSet:
     source: str = ""
 
     def __post_init__(self):
+        import numpy as np  # here: the declaration alone (evo-door params) needs no numpy
+
         vec = np.array(self.vector, dtype=np.float64)
         vec.setflags(write=False)
         object.__setattr__(self, "vector", vec)
@@ -108,6 +113,8 @@ def param_vector(params, table: ParamTable | None = None) -> np.ndarray:
     from a writable one (a second compilation), hence the copy. With ``table`` the
     length is checked against that declaration.
     """
+    import numpy as np
+
     p = np.array(getattr(params, "vector", params), dtype=np.float64, order="C")
     if table is not None and p.shape != (len(table),):
         raise UserError(f"model {table.model!r} takes {len(table)} parameters, got shape {p.shape}")
