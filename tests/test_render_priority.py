@@ -105,7 +105,7 @@ def test_without_permission_the_loop_says_so_and_runs_at_a_raised_niceness(seed_
     assert "real-time refused: Operation not permitted" in message or "normal priority" in message
     assert not loop._realtime_sched
     # a normal thread wakes late: it spins the last 1.5 ms rather than sleep into a slot
-    assert stats["status"] == "done" and stats["cycles"] == 750
+    assert stats["status"] == "done" and stats["cycles"] == 750  # no slot past the end
     assert all(w >= 0.0005 for w in waits)
 
 

@@ -571,9 +571,11 @@ class ServoLoop:
                     now = self._wait_until(t0, t)
                     late = now - t
                     if late > T:  # missed its slot: count, skip ahead, keep the schedule
-                        skip = int(late / T)
+                        skip = min(int(late / T), n_cycles - k)  # none past the end
                         timing.missed += skip
                         k += skip
+                        if k >= n_cycles:
+                            break
                         t = k * T
                     timing.start(now, late)
                 else:
