@@ -22,22 +22,28 @@ Trials are passed concatenated: ``force`` and ``target`` hold every trial one af
 the other, trial ``j`` occupying ``offsets[j]:offsets[j + 1]``, with its own sample
 period ``dt[j]`` and initial state ``theta0[j], dtheta0[j]``.
 
-:func:`population_errors` takes the model's ``accel`` as a numba first-class function
-(:data:`~evo_door.sim.integrators.ACCEL_TYPE`) with an explicit signature, so it is
-compiled once, cached on disk and shared by every model and every process; the loop
-over individuals runs in parallel (``prange``).
+:func:`population_errors` takes the model's ``accel``; the compiled kernels behind it
+take it as a numba first-class function (:data:`~evo_door.sim.integrators.ACCEL_TYPE`)
+with an explicit signature, so they are compiled once, cached on disk and shared by
+every model and every process; the loop over individuals runs in parallel
+(``prange``). A model with a fast form (:func:`~evo_door.sim.integrators.prepared_form`,
+the door's pose table) runs it: each individual's parameters are prepared once, inside
+the parallel loop, and serve all its trials.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit, prange, types
 
 from evo_door.sim.integrators import (
     ACCEL_TYPE,
     BLOWUP_SPEED,
+    PREPARE_TYPE,
     advance,
+    kernel_form,
 )
 
 MAX_SQUARE = 0
@@ -108,27 +114,6 @@ def trial_error(
     return acc, True
 
 
-@njit(
-    types.void(
-        ACCEL_TYPE,
-        _mat,
-        _vec,
-        _vec,
-        _bvec,
-        _ivec,
-        _vec,
-        _vec,
-        _vec,
-        types.int64,
-        types.int64,
-        types.int64,
-        types.int64,
-        _mat,
-        _bmat,
-    ),
-    cache=True,
-    parallel=True,
-)
 def population_errors(
     accel,
     P,
@@ -149,11 +134,66 @@ def population_errors(
     """Objective of every individual (rows of ``P``) on every trial.
 
     Fills ``err_out[i, j]`` and ``ok_out[i, j]`` for individual ``i`` and trial ``j``
-    (see the module docstring for the packing of trials).
+    (see the module docstring for the packing of trials). ``accel`` is the model's
+    right-hand side; where it has a fast form, that runs (the errors are those of
+    :func:`evo_door.sim.simulate`, which runs it too).
     """
+    form = kernel_form(accel, P.shape[1])
+    _population_errors(
+        form.accel, form.prepare, form.size, P, force, target, mask, offsets, dt,
+        theta0, dtheta0, substeps, method, derivative, kind, err_out, ok_out,
+    )  # fmt: skip
+
+
+@njit(
+    types.void(
+        ACCEL_TYPE,
+        PREPARE_TYPE,
+        types.int64,
+        _mat,
+        _vec,
+        _vec,
+        _bvec,
+        _ivec,
+        _vec,
+        _vec,
+        _vec,
+        types.int64,
+        types.int64,
+        types.int64,
+        types.int64,
+        _mat,
+        _bmat,
+    ),
+    cache=True,
+    parallel=True,
+)
+def _population_errors(
+    accel,
+    prepare,
+    size,
+    P,
+    force,
+    target,
+    mask,
+    offsets,
+    dt,
+    theta0,
+    dtheta0,
+    substeps,
+    method,
+    derivative,
+    kind,
+    err_out,
+    ok_out,
+):
+    """:func:`population_errors` on a :func:`~evo_door.sim.integrators.kernel_form`:
+    each row of ``P`` is prepared (``prepare`` into ``size`` floats) once and serves
+    every trial."""
     n_trials = offsets.shape[0] - 1
     for i in prange(P.shape[0]):
-        p = P[i]
+        p = np.empty(size)
+        prepare(P[i], p)
         for j in range(n_trials):
             e, ok = trial_error(
                 accel,

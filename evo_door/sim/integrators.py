@@ -28,12 +28,25 @@ Two schemes:
     frozen, approximate Jacobian. Stable for the stiff latch springs and steep
     tanh frictions at any step.
 
+A model may also have a faster form of its right-hand side that reads, besides the
+parameters, data computed from them once per parameter set (the door's pose table):
+:func:`register_prepared` declares it, as ``fast_accel(theta, dtheta, force, q)`` on a
+*prepared vector* ``q`` that ``prepare(p, q)`` fills from the parameter vector ``p``.
+The entry points (:func:`evo_door.sim.simulate`, :func:`evo_door.sim.simulate_batch`,
+:func:`evo_door.optim.kernels.population_errors`) look the model's ``accel`` up with
+:func:`prepared_form` and, where there is one, prepare each parameter set once and
+integrate with the fast form; :func:`integrate_batch` does it per individual
+inside the compiled parallel loop, so a population never holds more than one
+prepared vector per individual in flight.
+
 Set ``NUMBA_DISABLE_JIT=1`` to run all kernels as plain Python (debugging, coverage).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange, types
@@ -52,8 +65,64 @@ ACCEL_SIGNATURE = types.float64(types.float64, types.float64, types.float64, typ
 #: The numba type of an acceleration function as a kernel argument.
 ACCEL_TYPE = types.FunctionType(ACCEL_SIGNATURE)
 
+#: Signature of a model's ``prepare(p, q)``: fill the prepared vector ``q`` from ``p``.
+PREPARE_SIGNATURE = types.void(types.float64[::1], types.float64[::1])
+#: The numba type of a ``prepare`` function as a kernel argument.
+PREPARE_TYPE = types.FunctionType(PREPARE_SIGNATURE)
+
 _vec = types.float64[::1]
 _mat = types.float64[:, ::1]
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """The fast form of a model's right-hand side (see the module docstring).
+
+    ``accel(theta, dtheta, force, q)`` has :data:`ACCEL_SIGNATURE` and takes a prepared
+    vector ``q`` of ``size`` floats that ``prepare(p, q)`` (:data:`PREPARE_SIGNATURE`,
+    compiled) fills from a parameter vector ``p``.
+    """
+
+    accel: Callable
+    prepare: Callable
+    size: int
+
+    def vector(self, p) -> np.ndarray:
+        """The prepared vector of the parameter vector ``p``."""
+        q = np.empty(self.size)
+        self.prepare(np.ascontiguousarray(p, dtype=np.float64), q)
+        return q
+
+
+#: model accel -> its :class:`Prepared` form
+_PREPARED: dict[object, Prepared] = {}
+
+
+def register_prepared(accel, fast_accel, prepare, size: int) -> None:
+    """Declare ``fast_accel`` on ``prepare``-d vectors of ``size`` floats as the fast
+    form of the model right-hand side ``accel`` (the door does at import)."""
+    _PREPARED[accel] = Prepared(fast_accel, prepare, int(size))
+
+
+def prepared_form(accel) -> Prepared | None:
+    """The :class:`Prepared` form registered for ``accel``, or None."""
+    try:
+        return _PREPARED.get(accel)
+    except TypeError:  # an unhashable callable: no fast form
+        return None
+
+
+@njit(PREPARE_SIGNATURE, cache=True, nogil=True)
+def copy_params(p, q):
+    """The prepared vector of a model without a fast form: its parameter vector."""
+    q[:] = p
+
+
+def kernel_form(accel, n_params: int) -> Prepared:
+    """What the batch kernels integrate for the model right-hand side ``accel`` of
+    ``n_params`` parameters: its registered fast form, else ``accel`` itself on a copy
+    of each parameter vector (one kernel serves both)."""
+    return prepared_form(accel) or Prepared(accel, copy_params, int(n_params))
 
 
 @njit(cache=True, nogil=True)
@@ -200,6 +269,8 @@ def integrate(
 @njit(
     types.void(
         ACCEL_TYPE,
+        PREPARE_TYPE,
+        types.int64,
         _mat,
         _vec,
         types.float64,
@@ -217,6 +288,8 @@ def integrate(
 )
 def integrate_batch(
     accel,
+    prepare,
+    size,
     P,
     force,
     dt,
@@ -229,11 +302,17 @@ def integrate_batch(
     ddtheta_out,
     ok_out,
 ):
-    """Integrate one trial for every row of the parameter matrix ``P`` (numba prange)."""
+    """Integrate one trial for every row of the parameter matrix ``P`` (numba prange).
+
+    ``accel``, ``prepare`` and ``size`` are a :func:`kernel_form`: each row is prepared
+    (into a vector of ``size`` floats) inside the parallel loop and integrated with
+    ``accel`` on it."""
     for i in prange(P.shape[0]):
+        q = np.empty(size)
+        prepare(P[i], q)
         ok_out[i] = integrate(
             accel,
-            P[i],
+            q,
             force,
             dt,
             substeps,

@@ -19,7 +19,14 @@ from numba import njit, prange, types
 from evo_door.channels import CHANNELS
 from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
-from evo_door.sim.integrators import ACCEL_TYPE, METHODS, integrate, integrate_batch
+from evo_door.sim.integrators import (
+    ACCEL_TYPE,
+    METHODS,
+    integrate,
+    integrate_batch,
+    kernel_form,
+    prepared_form,
+)
 
 
 @dataclass
@@ -93,6 +100,9 @@ def simulate(
     method, substeps :
         Override the model's integration defaults.
 
+    A model with a fast form (:func:`~evo_door.sim.integrators.register_prepared`, the
+    door's pose table) runs it: the parameter set is prepared once, then integrated.
+
     Examples
     --------
     The physical door, fully open, given a 20 N push toward closing for 0.1 s, then let
@@ -111,8 +121,12 @@ def simulate(
     theta0 = model.theta0 if theta0 is None else float(theta0)
     n = force.size
     out = np.empty((3, n))
+    accel = model.accel
+    fast = prepared_form(accel)
+    if fast is not None:
+        accel, p = fast.accel, fast.vector(p)
     ok = integrate(
-        model.accel,
+        accel,
         p,
         force,
         float(dt),
@@ -132,7 +146,8 @@ def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, s
     """Simulate one input for every row of ``P`` in one compiled parallel call.
 
     Returns ``(theta, dtheta, ddtheta, ok)``: three ``(len(P), len(force))`` arrays
-    and a boolean array that is False where a simulation blew up.
+    and a boolean array that is False where a simulation blew up. A model with a fast
+    form (see :func:`simulate`) is prepared row by row inside the compiled loop.
     """
     force = check_force(force, dt)
     P = np.ascontiguousarray(P, dtype=np.float64)
@@ -142,8 +157,7 @@ def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, s
     n_ind, n = P.shape[0], force.size
     theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
     ok = np.zeros(n_ind, dtype=np.bool_)
-    integrate_batch(
-        model.accel,
+    args = (
         P,
         force,
         float(dt),
@@ -156,6 +170,8 @@ def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, s
         ddtheta,
         ok,
     )
+    form = kernel_form(model.accel, P.shape[1])
+    integrate_batch(form.accel, form.prepare, form.size, *args)
     return theta, dtheta, ddtheta, ok
 
 

@@ -16,8 +16,14 @@ LATCH  (latch)      the catch near closed: unlock / lock springs and the wall
 
 :func:`accel` wires them into the one compiled right-hand side that the integrators
 take. Every block returns the generalised force (N m) it puts on theta, found by
-virtual work (the plate is massless), and :func:`accel` sums them; a new block (a
-soft-close damper, say) is one more function and one more ``q +=`` line here.
+virtual work (the plate is massless), and :func:`loads` sums them; a new block (a
+soft-close damper, say) is one more function and one more ``q +=`` line there.
+
+:func:`accel` is the closed form. Simulations and the GA run :func:`accel_tabulated`,
+the same blocks with the chain's pose taken from a table (:mod:`.posetable`), on a
+vector that :func:`prepare` fills once per parameter set; the door registers the pair
+with :func:`~evo_door.sim.integrators.register_prepared` ("The fast path" in
+``docs/physical-model.md``).
 
 :func:`energy` gives the door's mechanical energy (kinetic, gravity, spring, latch and
 stop potentials) for the conservation tests. Equations and the drawing of the
@@ -32,14 +38,24 @@ import numpy as np
 from numba import njit
 
 from evo_door.models.base import Model
-from evo_door.models.door.door import door, door_potential
+from evo_door.models.door.door import door, door_moment, door_potential
 from evo_door.models.door.frictionforce import friction_force
 from evo_door.models.door.kinematics import pose
-from evo_door.models.door.latch import latch, latch_potential
+from evo_door.models.door.latch import latch, latch_angles, latch_potential
 from evo_door.models.door.parameters import N_SECTIONS, TABLE
 from evo_door.models.door.plate import plate, spring_potential, stop_h
+from evo_door.models.door.posetable import (
+    NODE,
+    TABLE_HI,
+    TABLE_LO,
+    TABLE_SIZE,
+    TABLE_TOLERANCE,
+    build_pose_table,
+    table_pose_trig,
+)
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.params import param_vector
+from evo_door.sim.integrators import register_prepared
 
 PARAMS = TABLE
 
@@ -113,36 +129,52 @@ def mechanism_force(theta, dtheta, p):
     and hinge friction.
     """
     k = pose(theta, p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY])
+    return loads(k, theta, dtheta, p, pad_scale(theta, p), True)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def loads(k, theta, dtheta, p, scale, with_latch):
+    """:func:`mechanism_force` at the pose ``k``, the pad friction scaled by ``scale``.
+
+    ``with_latch`` False leaves the latch out (the caller knows it gives 0 there).
+    """
     pl = plate(k, dtheta, p[L_CY], p[K], p[F_LOAD], p[F_ATC], p[T_ATA], p[A_LIN], p[A_ROT])
-    pad = relative_speed(k, dtheta, p[L_DX], p[L_DY], p[F_ATD] * pad_scale(theta, p), p[A_LIN])
+    pad = relative_speed(k, dtheta, p[L_DX], p[L_DY], p[F_ATD] * scale, p[A_LIN])
     slot = friction_force(
         k, dtheta, pad.F_Dx, pad.F_Dy, pad.T_B, pl.m, p[MU], p[T_ATB], p[A_LIN], p[A_ROT]
     )
     q = pl.q + slot.q
-    q += latch(
-        theta,
-        dtheta,
-        p[L],
-        p[UNLOCK_FORCE],
-        p[LOCK_FORCE],
-        p[LATCH_LOOSE_ANGLE],
-        p[LATCH_OPEN_STIFFNESS],
-        p[LATCH_CLOSE_STIFFNESS],
-        p[LATCH_OPEN_HOLD],
-        p[LATCH_CLOSE_HOLD],
-        p[LATCH_SEAT_FORCE],
-        p[LATCH_DAMPING],
-        p[LATCH_SHARPNESS],
-        p[WALL_STIFFNESS],
-        p[WALL_DAMPING],
-    )
+    if with_latch:
+        q += latch(
+            theta,
+            dtheta,
+            p[L],
+            p[UNLOCK_FORCE],
+            p[LOCK_FORCE],
+            p[LATCH_LOOSE_ANGLE],
+            p[LATCH_OPEN_STIFFNESS],
+            p[LATCH_CLOSE_STIFFNESS],
+            p[LATCH_OPEN_HOLD],
+            p[LATCH_CLOSE_HOLD],
+            p[LATCH_SEAT_FORCE],
+            p[LATCH_DAMPING],
+            p[LATCH_SHARPNESS],
+            p[WALL_STIFFNESS],
+            p[WALL_DAMPING],
+        )
     q += stop_h(theta, dtheta, p[STOP_STIFFNESS], p[STOP_DAMPING])
     return q
 
 
 @njit(cache=True, nogil=True)
 def accel(theta, dtheta, force, p):
-    """Angular acceleration (rad/s^2) of the door under the user force ``force`` (N at E)."""
+    """Angular acceleration (rad/s^2) of the door under the user force ``force`` (N at E).
+
+    The closed form: the chain's pose computed afresh at every call. Simulations and
+    the GA run :func:`accel_tabulated` on a :func:`prepare`-d vector instead (same
+    model, the pose from a table); this one is the reference and what the energy,
+    curve and truth code call.
+    """
     return door(
         theta,
         dtheta,
@@ -156,6 +188,119 @@ def accel(theta, dtheta, force, p):
         p[T_ATO],
         p[A_ROT],
     )
+
+
+# -- the fast path: a kernel vector with the pose table appended -----------------------
+N_PARAMS = len(TABLE)
+# Header of a prepared vector, after the parameters (what depends on the parameters
+# but not on the state, worked out once per parameter set):
+#: 1.0 when the pose table passed its check (else the closed form is used throughout)
+TABLE_OK = N_PARAMS
+#: the largest error the table's check found (for tests and reports)
+TABLE_ERROR = N_PARAMS + 1
+#: 1.0 when every section scale of the pad friction is 1 (A(theta) = 1)
+PAD_UNIFORM = N_PARAMS + 2
+#: 1 / I_O (1 / (kg m^2))
+INV_INERTIA = N_PARAMS + 3
+#: 1.0 when there is a catch (unlock or lock force above 0) ...
+HAS_LATCH = N_PARAMS + 4
+#: ... and the foot of its lock ramp theta_3 (rad), below which it gives nothing
+LATCH_THETA_3 = N_PARAMS + 5
+#: First float of the pose table (:mod:`~evo_door.models.door.posetable`).
+TABLE_START = N_PARAMS + 6
+#: Length of a prepared vector.
+PREPARED_SIZE = TABLE_START + TABLE_SIZE
+
+
+@njit(cache=True, nogil=True)
+def prepare(p, q):
+    """Fill the prepared vector ``q`` (:data:`PREPARED_SIZE`) for the parameters ``p``.
+
+    ``q`` holds ``p``, then what depends on ``p`` but not on the state (the header
+    above: 1 / I_O, whether the pad friction is uniform, where the latch begins), then
+    the pose table of ``p``'s geometry with its check
+    (:func:`~evo_door.models.door.posetable.build_pose_table`): some 50 us, 1-2 % of a
+    5 s trial, once per parameter set for all its trials.
+    """
+    n = p.shape[0]
+    for i in range(n):
+        q[i] = p[i]
+    uniform = 1.0
+    for j in range(N_SECTIONS):
+        if p[FRICTION_SCALE_1 + j] != 1.0:
+            uniform = 0.0
+    q[PAD_UNIFORM] = uniform
+    q[INV_INERTIA] = 1.0 / (p[I_Z] + p[M] * (p[G_X] * p[G_X] + p[G_Y] * p[G_Y]))
+    q[HAS_LATCH] = 1.0 if p[UNLOCK_FORCE] > 0.0 or p[LOCK_FORCE] > 0.0 else 0.0
+    q[LATCH_THETA_3] = latch_angles(
+        p[UNLOCK_FORCE],
+        p[LOCK_FORCE],
+        p[LATCH_LOOSE_ANGLE],
+        p[LATCH_OPEN_STIFFNESS],
+        p[LATCH_CLOSE_STIFFNESS],
+        p[LATCH_OPEN_HOLD],
+        p[LATCH_CLOSE_HOLD],
+    )[2]
+    scratch = np.empty(NODE)
+    err = build_pose_table(p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY], q, TABLE_START, scratch)
+    q[TABLE_ERROR] = err
+    q[TABLE_OK] = 1.0 if err <= TABLE_TOLERANCE else 0.0
+
+
+# error_model="numpy": a float division by zero gives inf / nan instead of raising, so
+# numba drops its zero test before each of the ~10 divisions; none of them can divide
+# by zero (I_O > 0, the slot's denominator is floored, tanh's denominators are >= 1).
+@njit(cache=True, nogil=True, error_model="numpy")
+def accel_tabulated(theta, dtheta, force, q):
+    """:func:`accel` on a :func:`prepare`-d vector ``q``: the pose from its table.
+
+    Same blocks, same equations; the chain's pose (and cos, sin of theta for gravity)
+    is interpolated, to within 1e-11 of the closed form
+    (:mod:`~evo_door.models.door.posetable`), and the header's values replace work per
+    call (1 / I_O, the uniform pad, the latch's test of "far below the catch", the
+    same test :func:`~evo_door.models.door.latch.latch` makes). Outside the table's
+    angles, or when the table failed its check, the pose is the closed form.
+    """
+    if q[TABLE_OK] != 0.0 and TABLE_LO <= theta <= TABLE_HI:
+        k, c, s = table_pose_trig(theta, q[L_OA], q[L_BX], q, TABLE_START)
+    else:
+        k = pose(theta, q[L_OA], q[L_BX], q[L_BY], q[L_CX], q[L_CY])
+        c = math.cos(theta)
+        s = math.sin(theta)
+    if q[PAD_UNIFORM] != 0.0:
+        scale = 1.0
+    else:
+        scale = section_scale(
+            theta, q[FRICTION_SCALE_1 : FRICTION_SCALE_1 + N_SECTIONS], q[SECTION_SHARPNESS]
+        )
+    # latch() gives exactly 0 below its window and short of the wall: skip the call
+    with_latch = theta > CLOSED or (
+        q[HAS_LATCH] != 0.0 and not (q[LATCH_THETA_3] - theta) * q[LATCH_SHARPNESS] > 20.0
+    )
+    moment = door_moment(
+        c,
+        s,
+        dtheta,
+        force,
+        loads(k, theta, dtheta, q, scale, with_latch),
+        q[L],
+        q[M],
+        q[G_X],
+        q[G_Y],
+        q[T_ATO],
+        q[A_ROT],
+    )
+    return moment * q[INV_INERTIA]
+
+
+def prepared_vector(params) -> np.ndarray:
+    """The prepared kernel vector of a ParamSet or a parameter vector (plain Python)."""
+    q = np.empty(PREPARED_SIZE)
+    prepare(param_vector(params, TABLE), q)
+    return q
+
+
+register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE)
 
 
 @njit(cache=True, nogil=True)

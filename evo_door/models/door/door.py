@@ -34,9 +34,19 @@ def door(theta, dtheta, force, q_ext, L, M, I_z, G_x, G_y, T_atO, a_rot):
     Output: ``ddtheta`` (rad/s^2). Affine in ``force``.
     """
     inertia_o = I_z + M * (G_x * G_x + G_y * G_y)
-    q_gravity = -M * GRAVITY * (G_x * math.cos(theta) - G_y * math.sin(theta))
+    q = door_moment(
+        math.cos(theta), math.sin(theta), dtheta, force, q_ext, L, M, G_x, G_y, T_atO, a_rot
+    )
+    return q / inertia_o
+
+
+@njit(cache=True, nogil=True, inline="always")
+def door_moment(cos_theta, sin_theta, dtheta, force, q_ext, L, M, G_x, G_y, T_atO, a_rot):
+    """The moment about O (N m), ``I_O ddtheta``, given ``cos theta`` and ``sin theta``
+    (the pose table has them; the fast path multiplies by a stored ``1 / I_O``)."""
+    q_gravity = -M * GRAVITY * (G_x * cos_theta - G_y * sin_theta)
     q_o = -dry_friction(T_atO, a_rot, dtheta)
-    return (force * L + q_gravity + q_o + q_ext) / inertia_o
+    return force * L + q_gravity + q_o + q_ext
 
 
 @njit(cache=True, nogil=True)

@@ -24,19 +24,18 @@ with mu < 2). Generalised force: ``q = (F_By + f_B) dy_B/dtheta + (T_pad + T_b) 
 
 from __future__ import annotations
 
-import math
 from collections import namedtuple
 
 from numba import njit
 
-from evo_door.models.door.laws import dry_friction
+from evo_door.models.door.laws import dry_friction, tanh
 
 #: Output of :func:`friction_force`: slot normal force N (N, + toward +x), total
 #: vertical force at B (N), total torque at B (N m), generalised force q (N m).
 SlotLoad = namedtuple("SlotLoad", ["N", "F_By", "T_B", "q"])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def friction_force(k, dtheta, F_Bx, F_By, T_pad, m_plate, mu, T_atB, a, a_rot):
     """Slot friction at B, with the pad's effect, as one load on the plate.
 
@@ -46,7 +45,7 @@ def friction_force(k, dtheta, F_Bx, F_By, T_pad, m_plate, mu, T_atB, a, a_rot):
     ``a`` (s/m), ``a_rot`` (s/rad). Output: a :data:`SlotLoad`.
     """
     t_b = -dry_friction(T_atB, a_rot, k.dphi * dtheta)
-    s = math.tanh(a * k.dBy * dtheta)
+    s = tanh(a * k.dBy * dtheta)
     m0 = m_plate + k.ABx * F_By - k.ABy * F_Bx + T_pad + t_b
     sigma = 1.0 if m0 >= 0.0 else -1.0
     if k.ABy < 0.0:

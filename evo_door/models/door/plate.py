@@ -32,7 +32,7 @@ from evo_door.models.door.laws import dry_friction
 PlateLoad = namedtuple("PlateLoad", ["F_spring", "F_fricC", "T_A", "q", "m"])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def plate(k, dtheta, L_Cy, K, F_load, F_atC, T_atA, a, a_rot):
     """Loads of the plate at C (spring, friction) and A (joint friction).
 

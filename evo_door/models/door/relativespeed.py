@@ -38,7 +38,7 @@ from evo_door.models.door.laws import activation, dry_friction_2d
 PadLoad = namedtuple("PadLoad", ["V_Dx", "V_Dy", "F_Dx", "F_Dy", "T_B"])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def relative_speed(k, dtheta, L_Dx, L_Dy, F_atD, a):
     """Pad friction at D carried to B.
 
