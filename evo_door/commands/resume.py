@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from evo_door.commands._common import add_progress_arguments, show_progress
+from evo_door.commands.run import add_executor_argument
 
 ORDER = 41
 
@@ -14,6 +15,11 @@ def register(sub) -> None:
         "resume", help="continue an interrupted run; ends as an uninterrupted one would"
     )
     p.add_argument("results", metavar="RUN.h5", help="results file of the interrupted run")
+    add_executor_argument(
+        p,
+        "where the GA's evaluations run (local, processes[:N], dask[:N], tcp://HOST:PORT); "
+        "default: the one the run used; the result does not depend on it",
+    )
     add_progress_arguments(p)
     p.set_defaults(func=run)
 
@@ -23,6 +29,10 @@ def run(args) -> int:
     from evo_door.experiment.results import format_show
     from evo_door.experiment.runner import ExperimentRun
 
+    if args.executor is not None:
+        from evo_door.optim.executors import preflight
+
+        preflight(args.executor)
     if store.pipeline_attrs(args.results) is not None:
         return resume_pipeline(args)
     job = ExperimentRun.open(args.results)
@@ -34,7 +44,7 @@ def run(args) -> int:
         where = f"generation {done[0]}" if done and done[0] >= 0 else "the start"
         print(f"{args.results}: resuming {job.config['name']} from {where}")
     try:
-        job.run(progress=show_progress(args))
+        job.run(progress=show_progress(args), executor=args.executor)
     except KeyboardInterrupt:
         print(
             f"evo-door: interrupted again; evo-door resume {job.path} continues it", file=sys.stderr

@@ -28,8 +28,21 @@ def register(sub) -> None:
         action="store_true",
         help="replace an existing results file at --out (a complete or interrupted run)",
     )
+    add_executor_argument(p)
     add_progress_arguments(p)
     p.set_defaults(func=run)
+
+
+#: the help of ``--executor`` (run, resume, batch)
+EXECUTOR_HELP = (
+    "where the GA's evaluations run: local (default: this process, numba threads), "
+    "processes[:N] (a local pool), dask[:N] (a local Dask cluster) or tcp://HOST:PORT "
+    "(a Dask scheduler); beats the file's executor; the result is the same on every one"
+)
+
+
+def add_executor_argument(p, help=EXECUTOR_HELP) -> None:
+    p.add_argument("--executor", metavar="EXECUTOR", default=None, help=help)
 
 
 def run(args) -> int:
@@ -40,13 +53,17 @@ def run(args) -> int:
 
     if is_pipeline(args.experiment):
         return run_pipeline(args)
+    from evo_door.optim.executors import preflight
+
     exp = load_experiment(args.experiment, args.assignments)
+    exp.executor = preflight(args.executor or exp.executor)
     job = ExperimentRun.create(exp, args.out, overwrite=args.force)
     if not args.quiet:
+        on = "" if exp.executor == "local" else f"; executor {exp.executor}"
         print(
             f"{exp.name}: {len(job.setup.fit)} fitted trial(s), "
             f"{len(job.setup.validation)} validation trial(s), free: "
-            f"{', '.join(job.setup.free)}; writing {job.path}"
+            f"{', '.join(job.setup.free)}; writing {job.path}{on}"
         )
     if not interruptible(job, args, "the last finished generation"):
         return 130
@@ -58,7 +75,7 @@ def run(args) -> int:
 def interruptible(job, args, holds: str) -> bool:
     """Run ``job``; False (and what to do, on stderr) when Ctrl-C or SIGTERM stopped it."""
     try:
-        job.run(progress=show_progress(args))
+        job.run(progress=show_progress(args), executor=getattr(args, "executor", None))
     except KeyboardInterrupt:
         print(
             f"evo-door: interrupted; {job.path} holds {holds}: evo-door resume {job.path}",
@@ -71,8 +88,14 @@ def interruptible(job, args, holds: str) -> bool:
 def run_pipeline(args) -> int:
     """A pipeline file: every stage, one results file (evo_door.experiment.pipeline)."""
     from evo_door.experiment.pipeline import PipelineRun, load_pipeline
+    from evo_door.optim.executors import preflight
 
     pipe = load_pipeline(args.experiment, args.assignments)
+    if args.executor is not None:
+        pipe.executor = args.executor
+    for name in {pipe.executor} | {s.experiment.executor for s in pipe.stages}:
+        if name is not None:
+            preflight(name)
     job = PipelineRun.create(pipe, args.out, overwrite=args.force)
     if not args.quiet:
         print(

@@ -52,8 +52,9 @@ TOP_KEYS = (
     "pooled",
     "simulation",
     "output",
+    "executor",
 )
-DATA_TARGET_KEYS = ("data", "trials", "kinds", "validate", "preprocess")
+DATA_TARGET_KEYS = ("data", "trials", "kinds", "users", "validate", "preprocess")
 MODEL_TARGET_KEYS = (
     "model",
     "params",
@@ -104,6 +105,7 @@ class TargetSpec:
     kind: str  # "data" or "model"
     trials: object = "all"  # "all" or list of trial ids
     kinds: list = field(default_factory=list)  # with trials: all, only these trial kinds
+    users: list = field(default_factory=list)  # only these users' trials (kind "data")
     validate: list = field(default_factory=list)
     data: str | None = None  # resolved path (kind "data")
     model: str | None = None  # target model (kind "model")
@@ -170,6 +172,9 @@ class Experiment:
     method: str | None = None
     substeps: int | None = None
     output: str = "results"
+    #: where the GA's evaluations run (:mod:`evo_door.optim.executors`); provenance,
+    #: not part of the result, so not in :meth:`resolved`
+    executor: str = "local"
     source: str = "<experiment>"
     text: str = ""
     overrides: list = field(default_factory=list)
@@ -372,6 +377,36 @@ def _kinds(t: _Reader) -> list:
     return list(v)
 
 
+def _users(t: _Reader) -> list:
+    v = t.get("users", [])
+    if isinstance(v, (str, int)) and not isinstance(v, bool):
+        v = [v]
+    if not isinstance(v, list) or not all(
+        isinstance(u, (str, int)) and not isinstance(u, bool) for u in v
+    ):
+        raise t.fail("users", f"expected a list of user ids (e.g. [U1]), got {_show(v)}")
+    users = [str(u) for u in v]
+    dup = sorted({u for u in users if users.count(u) > 1})
+    if dup:
+        raise t.fail("users", f"user {dup[0]!r} listed twice")
+    return users
+
+
+def executor_setting(reader: _Reader) -> str:
+    """The ``executor`` key of an experiment or a pipeline (default ``local``), checked."""
+    from evo_door.optim.executors import DEFAULT, check_executor
+
+    value = reader.get("executor", DEFAULT)
+    if not isinstance(value, str):
+        raise reader.fail(
+            "executor", f"expected a name (local, processes, dask), got {_show(value)}"
+        )
+    try:
+        return check_executor(value)
+    except UserError as exc:
+        raise reader.fail("executor", str(exc).removeprefix("executor ")) from None
+
+
 # -- the sections -----------------------------------------------------------------
 def _preprocess(t: _Reader) -> PreprocessSpec:
     if "preprocess" not in t.node:
@@ -401,6 +436,7 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
     locs.setdefault("trials", t.node.loc)
     locs.setdefault("validate", t.node.loc)
     locs.setdefault("kinds", t.node.loc)
+    locs.setdefault("users", t.node.loc)
     if "data" in t.node:
         t.check_keys(DATA_TARGET_KEYS, required=("data",))
         path = _resolve_path(
@@ -410,6 +446,7 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
             "data",
             trials=_id_list(t, "trials", True),
             kinds=_kinds(t),
+            users=_users(t),
             validate=_id_list(t, "validate", False),
             data=path,
             preprocess=_preprocess(t),
@@ -675,6 +712,7 @@ def experiment_from_tree(
         method=method,
         substeps=substeps,
         output=r.string("output", "results"),
+        executor=executor_setting(r),
         source=source,
         text=text,
         overrides=overrides,

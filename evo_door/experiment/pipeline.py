@@ -43,6 +43,7 @@ from evo_door.experiment.config import (
     _Reader,
     _resolve_path,
     _safe_name,
+    executor_setting,
     experiment_from_tree,
 )
 from evo_door.experiment.runner import _LOCKED, ExperimentRun, claim_output, default_output
@@ -50,7 +51,7 @@ from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
 from evo_door.params.declaration import suggest
 
-PIPELINE_KEYS = ("name", "description", "stages", "output", "report")
+PIPELINE_KEYS = ("name", "description", "stages", "output", "report", "executor")
 #: settings of ``evo-door report`` a pipeline file may give (the command line wins)
 REPORT_KEYS = ("jnd", "force_floor")
 FORMAT_VERSION = 1
@@ -82,6 +83,8 @@ class Pipeline:
     text: str = ""
     overrides: list = field(default_factory=list)
     base_dir: str = "."
+    #: where every stage's GA runs (None: each stage's own ``executor``, else local)
+    executor: str | None = None
 
     def stage(self, name: str) -> Stage:
         return next(s for s in self.stages if s.name == name)
@@ -147,6 +150,7 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
         text=text,
         overrides=overrides,
         base_dir=str(base_dir),
+        executor=executor_setting(r) if "executor" in tree else None,
     )
     for name, value in node.items():
         where = node.where(name)
@@ -260,6 +264,9 @@ class PipelineRun:
         self.elapsed_before = 0.0
         self._t0 = time.perf_counter()
         self._lock: FileLock | None = None
+        #: the executor of every stage (``--executor``, the file's ``executor``), or
+        #: None: each stage's own
+        self.executor: str | None = pipeline.executor
 
     @property
     def stage_names(self) -> list[str]:
@@ -302,6 +309,7 @@ class PipelineRun:
                 ) from None
             run = cls(pipeline, path, attrs["created"], tree["versions"][ATTRS])
             run.elapsed_before = float(attrs.get("total_s", 0.0))
+            run.executor = attrs.get("executor") or pipeline.executor
             for name in attrs["started"]:
                 stage = store.peek(path, name)
                 if stage[ATTRS].get("status") == "complete" and stage["best"] is not None:
@@ -320,29 +328,52 @@ class PipelineRun:
         return run
 
     # -- running -------------------------------------------------------------------------
-    def run(self, progress: bool = False, on_checkpoint=None) -> PipelineRun:
-        """Run (or continue) every stage; ``on_checkpoint(run, job)`` as for a run."""
+    def run(self, progress: bool = False, on_checkpoint=None, executor=None) -> PipelineRun:
+        """Run (or continue) every stage; ``on_checkpoint(run, job)`` as for a run.
+
+        ``executor`` (a name, or an executor already started) replaces the pipeline's;
+        one executor serves all the stages (one started here is closed at the end).
+        """
+        import contextlib
+
+        from evo_door.optim.executors import Executor, check_executor, open_executor
+
+        if isinstance(executor, Executor):
+            self.executor = executor.name
+        elif executor is not None:
+            self.executor = check_executor(executor)
+        left = any(s.name not in self.done for s in self.pipeline.stages)
+        if isinstance(executor, Executor):
+            shared = contextlib.nullcontext(executor)
+        elif self.executor is not None and left:
+            shared = open_executor(self.executor)
+        else:
+            shared = contextlib.nullcontext(None)
         try:
-            n = len(self.pipeline.stages)
-            for k, stage in enumerate(self.pipeline.stages, 1):
-                if stage.name in self.done:
-                    continue
-                run = self.current
-                if run is None or run.config["name"] != stage.experiment.name:
-                    run = self._start(stage)
-                self.current = run
-                run.writer = self._writer(stage.name)
-                run.label_prefix = f"stage {k}/{n} " if n > 1 else ""
-                if progress:
-                    print(self._stage_line(k, stage, run), file=sys.stderr, flush=True)
-                run.run(progress=progress, on_checkpoint=on_checkpoint)
-                self.done.append(stage.name)
-                self.current = None
-            self.status = "complete"
-            self.write()
+            with shared as ex:
+                self._run_stages(progress, on_checkpoint, ex)
         finally:
             self.release()
         return self
+
+    def _run_stages(self, progress: bool, on_checkpoint, ex) -> None:
+        n = len(self.pipeline.stages)
+        for k, stage in enumerate(self.pipeline.stages, 1):
+            if stage.name in self.done:
+                continue
+            run = self.current
+            if run is None or run.config["name"] != stage.experiment.name:
+                run = self._start(stage)
+            self.current = run
+            run.writer = self._writer(stage.name)
+            run.label_prefix = f"stage {k}/{n} " if n > 1 else ""
+            if progress:
+                print(self._stage_line(k, stage, run), file=sys.stderr, flush=True)
+            run.run(progress=progress, on_checkpoint=on_checkpoint, executor=ex)
+            self.done.append(stage.name)
+            self.current = None
+        self.status = "complete"
+        self.write()
 
     def _start(self, stage: Stage) -> ExperimentRun:
         """A stage's run, its ``{from: ...}`` filled in from the finished stages."""
@@ -399,6 +430,7 @@ class PipelineRun:
                     "updated": ExperimentRun.now(),
                     "total_s": self.elapsed(),
                     "evo_door_version": self.versions.get("evo_door", ""),
+                    "executor": self.executor or "",
                 },
                 "pipeline": {
                     ATTRS: {

@@ -12,10 +12,16 @@ every evaluation is a deterministic compiled function of the genes.
 
 Job ``k`` of a run with seed ``s`` draws from ``random.Random(s)``: the per-trial fits
 are independent runs with AMESim's "seed value", as if started one after the other.
+
+The GA's evaluations run on the run's executor (``executor:``, ``--executor``;
+:mod:`evo_door.optim.executors`), started once for the run (or handed over by a
+pipeline) and closed after it; the executor changes where the numbers are computed,
+never what they are, and is recorded as provenance (the root's ``executor``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -33,6 +39,8 @@ from evo_door.experiment.config import AlgorithmSpec
 from evo_door.experiment.results import bound_hits
 from evo_door.experiment.setup import Setup
 from evo_door.files import ATTRS, FileLock, remove_stale_temporaries, write_h5
+from evo_door.optim.executors import DEFAULT as DEFAULT_EXECUTOR
+from evo_door.optim.executors import Executor, check_executor, open_executor
 from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
@@ -192,6 +200,29 @@ def claim_output(path: Path, overwrite: bool, start):
         raise
 
 
+def users_trials(exp, trials=None) -> list:
+    """The target's trials of the users ``target.users`` names (data targets)."""
+    spec = exp.target
+    where = spec.locs.get("users", spec.locs.get("trials", exp.source))
+    if trials is None:
+        if spec.kind != "data":
+            raise UserError(f"{where}: target.users: selects among a data file's trials")
+        from evo_door.data.io import read_trials
+
+        try:
+            trials = read_trials(spec.data)
+        except UserError as exc:
+            raise UserError(f"{spec.locs['data']}: target.data: {exc}") from None
+    present = sorted({str(tr.user_id) for tr in trials if tr.user_id})
+    for user in spec.users:
+        if user not in present:
+            raise UserError(
+                f"{where}: target.users: no trial of user {user!r}; users: "
+                + (", ".join(present) or "none (the trials carry no user id)")
+            )
+    return [tr for tr in trials if str(tr.user_id) in spec.users]
+
+
 def _identifiability(problem, x):
     """The identifiability of a fit at ``x`` (None if the check cannot be made: a run's
     answer is never lost to it)."""
@@ -267,6 +298,9 @@ class ExperimentRun:
         self._hook = None
         self._lock: FileLock | None = None
         self._term: _TermAsInterrupt | None = None
+        #: where the GA's evaluations run (an executor's name); provenance only
+        self.executor = DEFAULT_EXECUTOR
+        self._ex: Executor | None = None
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -292,9 +326,11 @@ class ExperimentRun:
         no lock taken (:meth:`create` does both; a pipeline owns its file's lock)."""
         from evo_door.experiment.setup import resolve
 
+        if exp.target.users:
+            trials = users_trials(exp, trials)
         setup = resolve(exp, trials)
         check_memory(exp.algorithm, len(setup.free))
-        return cls(
+        run = cls(
             exp.resolved(),
             exp.algorithm,
             setup,
@@ -303,6 +339,8 @@ class ExperimentRun:
             versions or store.versions(),
             created or cls.now(),
         )
+        run.executor = exp.executor
+        return run
 
     @classmethod
     def open(cls, path) -> ExperimentRun:
@@ -377,22 +415,44 @@ class ExperimentRun:
             else "running"
         )
         run._trials_on_disk = True
+        run.executor = str(root.get("executor", DEFAULT_EXECUTOR))
         return run
 
     # -- running -----------------------------------------------------------------------
-    def run(self, progress: bool = False, on_checkpoint=None) -> ExperimentRun:
+    def run(self, progress: bool = False, on_checkpoint=None, executor=None) -> ExperimentRun:
         """Run (or continue) every job; checkpoint after every generation.
 
         ``on_checkpoint(run, job)`` is called after each checkpoint is on disk
-        (raise :class:`Interrupted` there to simulate a kill).
+        (raise :class:`Interrupted` there to simulate a kill). ``executor`` is where
+        the GA's evaluations run: a name (it replaces :attr:`executor`) or an
+        executor already started (a pipeline's, shared by its stages); by default
+        :attr:`executor`, started here if a GA is left to run and closed at the end.
         """
         self._hook = on_checkpoint
+        if isinstance(executor, str):
+            self.executor = check_executor(executor)
+        elif executor is not None:
+            self.executor = executor.name
         try:
-            with _TermAsInterrupt() as self._term:
+            with _TermAsInterrupt() as self._term, self._executor(executor, progress) as self._ex:
                 self._run_jobs(progress)
         finally:
+            self._ex = None
             self.release()
         return self
+
+    def _executor(self, given, progress: bool):
+        """The executor of :meth:`run`: ``given`` if started, else one for this run."""
+        if isinstance(given, Executor):
+            return contextlib.nullcontext(given)
+        ga_left = self.algorithm.kind == "ga" and not all(j.done for j in self.jobs)
+        ex = open_executor(self.executor if ga_left else DEFAULT_EXECUTOR)
+        if progress and ex.name != DEFAULT_EXECUTOR:
+            print(f"{self._label_root()}: starting executor {ex.name} ...", file=sys.stderr)
+        return ex
+
+    def _label_root(self) -> str:
+        return self.label_prefix + self.config["name"]
 
     def release(self) -> None:
         """Let go of the results file's lock (done by :meth:`run` however it ends)."""
@@ -466,6 +526,8 @@ class ExperimentRun:
     def _run_ga(self, job: Job, problem, progress: bool) -> None:
         """The GA's one loop, with this run's hooks: progress, checkpoint, early stop."""
         settings = self.algorithm.ga
+        # shipped to workers by the model's name: they load its compiled code from cache
+        problem.model_name = self.setup.model_name
 
         def checkpoint(state):
             job.ga = state
@@ -483,7 +545,12 @@ class ExperimentRun:
                     initial=0 if job.ga is None else job.ga.generation,
                 ),
             )
-        state = GeneticAlgorithm(settings).run(problem, job.ga, hooks)
+        ex = self._ex
+        if ex is None or ex.name == DEFAULT_EXECUTOR:
+            state = GeneticAlgorithm(settings).run(problem, job.ga, hooks)
+        else:
+            with ex.bind(problem) as remote:
+                state = GeneticAlgorithm(settings).run(remote, job.ga, hooks)
         job.ga_stop = state.stop_reason
 
     def _checkpoint_and_hook(self, job: Job) -> None:
@@ -588,6 +655,7 @@ class ExperimentRun:
         """Write the whole run to its results file (atomically), or hand it to
         :attr:`writer`."""
         tree = store.run_tree(self, self._trials_on_disk)
+        tree[ATTRS]["executor"] = self.executor
         if self.writer is not None:
             self.writer(tree)
         else:

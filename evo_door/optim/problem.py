@@ -128,6 +128,14 @@ class Problem:
         Trials not fitted; :meth:`validation_errors` reports the model's error on them.
     method, substeps :
         Integration scheme and sub-steps per sample (default: the model's).
+    model_name : str, optional
+        What :func:`~evo_door.models.get_model` finds ``model`` by (a name, an import
+        path or a file path), default ``model.name``. A problem is pickled with the
+        model by that name (a worker process loads the model's compiled code from
+        numba's cache instead of compiling a pickled copy of it).
+
+    A candidate's fitness depends on its genes only, never on the other candidates of
+    the batch: executors (:mod:`evo_door.optim.executors`) may cut a batch in chunks.
     """
 
     def __init__(
@@ -142,8 +150,10 @@ class Problem:
         validation: Sequence[Trial] = (),
         method: str | None = None,
         substeps: int | None = None,
+        model_name: str | None = None,
     ):
         self.model = model
+        self.model_name = model_name
         self.free = tuple(free)
         self.index = np.array([model.params.index(n) for n in self.free], dtype=np.int64)
         self.lower = np.array(lower, dtype=np.float64).reshape(len(self.free))
@@ -161,6 +171,19 @@ class Problem:
         if len(self.fit) == 0:
             raise UserError("no trial to fit")
         self.validation = TrialPack(validation, objective.derivative)
+
+    # -- pickling (to worker processes) -------------------------------------------
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["model"] = self.model_name or self.model.name
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        from evo_door.models import get_model
+
+        state = dict(state)
+        state["model"] = get_model(state["model"])
+        self.__dict__.update(state)
 
     # -- vectors --------------------------------------------------------------
     @property
@@ -271,4 +294,5 @@ class Problem:
             self.validation.trials,
             self.method,
             self.substeps,
+            self.model_name,
         )
