@@ -12,7 +12,6 @@ kernels' pure-Python twins, ``py_func``), timed in the same run.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -23,7 +22,8 @@ sys.path.insert(0, str(ROOT))
 
 import numba  # noqa: E402
 
-from benchmarks._util import half_sine_pulses, machine_line, median_time  # noqa: E402
+from benchmarks._util import half_sine_pulses, machine_line, median_time, publish  # noqa: E402
+from benchmarks.plain import pure_python_trials, solve_trial  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.sim import simulate, simulate_batch  # noqa: E402
 from evo_door.sim.simulate import param_vector  # noqa: E402
@@ -49,49 +49,16 @@ def main(argv=None):
     one = median_time(lambda: simulate(model, p, f, DT, theta0=0.0), 15)
 
     # plain way: solve_ivp around the compiled accel (what a user of numba alone would
-    # write) and around pure Python (what scipy alone gives)
-    from scipy.integrate import solve_ivp
-
-    def rhs_compiled(time_, y):
-        return (y[1], model.accel(y[0], y[1], float(np.interp(time_, t, f)), p))
-
-    compiled_rhs = median_time(
-        lambda: solve_ivp(
-            rhs_compiled, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-6, atol=1e-9, max_step=4 * DT
-        ),
-        3,
-    )
-    # pure Python: the same code with NUMBA_DISABLE_JIT=1, in a fresh process
-    os.environ["NUMBA_DISABLE_JIT"] = "1"
+    # write) and around pure Python (what scipy alone gives: NUMBA_DISABLE_JIT=1 in a
+    # fresh process)
+    y0 = (0.0, 0.0)
+    solve_trial(model.accel, p, DT, f, y0, "RK45")
+    compiled_rhs = median_time(lambda: solve_trial(model.accel, p, DT, f, y0, "RK45"), 3)
     python_rhs = None
     try:
-        import subprocess
-
-        code = (
-            f"import time, numpy as np, sys; sys.path.insert(0, {str(ROOT)!r});"
-            "from benchmarks.bench_door import force_profile, DT;"
-            "from evo_door.models import get_model;"
-            "from evo_door.sim.simulate import param_vector;"
-            "from scipy.integrate import solve_ivp;"
-            "m = get_model('door'); p = param_vector(m.load_params('default'));"
-            "t, f = force_profile();"
-            "rhs = lambda s, y: (y[1], m.accel(y[0], y[1], float(np.interp(s, t, f)), p));"
-            "t0 = time.perf_counter();"
-            "solve_ivp(rhs, (t[0], t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-6, atol=1e-9, max_step=4 * DT);"
-            "print(time.perf_counter() - t0)"
-        )
-        out = subprocess.run(
-            [sys.executable, "-c", code],
-            capture_output=True,
-            text=True,
-            env=dict(os.environ),
-            timeout=600,
-        )
-        python_rhs = float(out.stdout.strip().splitlines()[-1])
-    except Exception as exc:  # pragma: no cover - reported, not fatal
-        print(f"pure-Python reference failed: {exc}")
-    finally:
-        os.environ.pop("NUMBA_DISABLE_JIT", None)
+        python_rhs = pure_python_trials("door", "default", f, DT, y0, ("RK45",))["RK45"][0]
+    except RuntimeError as exc:  # reported, not fatal
+        print(exc)
 
     # batch scaling with threads
     rng = np.random.default_rng(0)
@@ -143,11 +110,7 @@ def main(argv=None):
     ]
     for n, s in rows:
         lines.append(f"| {n} | {s:.3f} | {s / 100 * 1e3:.2f} ms | {rows[0][1] / s:.2f}x |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if not args.no_write:
-        (Path(__file__).parent / "door.md").write_text(text)
-        print(f"wrote {Path(__file__).parent / 'door.md'}")
+    publish("\n".join(lines) + "\n", "door.md", write=not args.no_write)
 
 
 if __name__ == "__main__":

@@ -11,8 +11,6 @@ device-space force evaluation from Python under 2 us, from compiled code under 1
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -24,7 +22,8 @@ sys.path.insert(0, str(ROOT))
 import numba  # noqa: E402
 from numba import njit  # noqa: E402
 
-from benchmarks._util import half_sine_pulses, machine_line, median_time  # noqa: E402
+from benchmarks._util import half_sine_pulses, machine_line, median_time, publish  # noqa: E402
+from benchmarks.plain import pure_python_trials  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.haptic import device_force, device_force_vector, on_path  # noqa: E402
 from evo_door.sim import simulate  # noqa: E402
@@ -50,20 +49,23 @@ def _servo_loop(y, z, p, out):
     return acc
 
 
-PLAIN_CODE = """
-import sys, time, numpy as np
-sys.path.insert(0, {root!r})
-from benchmarks.bench_haptic import force_profile, DT
-from evo_door.models import get_model
-from evo_door.sim.simulate import param_vector
-from scipy.integrate import solve_ivp
-m = get_model('haptic'); p = param_vector(m.load_params('seed_trial'))
-t, f = force_profile()
-rhs = lambda s, y: (y[1], m.accel(y[0], y[1], float(np.interp(s, t, f)), p))
-t0 = time.perf_counter()
-solve_ivp(rhs, (t[0], t[-1]), [np.pi / 2, 0.0], t_eval=t, method='RK45', rtol=1e-6, atol=1e-9, max_step=4 * DT)
-print(time.perf_counter() - t0)
-"""
+def device_force_costs(p, quick: bool = False) -> tuple[float, float]:
+    """Seconds per device-force evaluation: from Python (the convenience wrapper, on
+    floats) and from compiled code (a servo loop over a creeping handle)."""
+    pos = on_path(0.7, 0.3)
+    vel = (0.0, 0.05, -0.04)
+    buf = np.empty(3)
+    device_force_vector(pos, vel, p, buf)
+    n_py = 10_000 if quick else 50_000
+    py_call = (
+        median_time(lambda: [device_force_vector(pos, vel, p, buf) for _ in range(n_py)], 5) / n_py
+    )
+    n_c = 200_000 if quick else 2_000_000
+    angle = 0.5 + 1e-6 * np.arange(n_c)  # the handle creeping along its path
+    y, z = 0.3 * np.sin(angle) - 0.158, 0.3 * np.cos(angle) - 0.138
+    _servo_loop(y[:10], z[:10], p, buf)
+    c_call = median_time(lambda: _servo_loop(y, z, p, buf), 5) / n_c
+    return py_call, c_call
 
 
 def main(argv=None):
@@ -79,30 +81,14 @@ def main(argv=None):
     one = median_time(lambda: simulate(model, p, f, DT), 31)
 
     # the plain way: solve_ivp with the model's pure-Python right-hand side
-    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    out = subprocess.run(
-        [sys.executable, "-c", PLAIN_CODE.format(root=str(ROOT))],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=900,
-    )
-    plain = float(out.stdout.strip().splitlines()[-1]) if out.returncode == 0 else float("nan")
+    try:
+        plain = pure_python_trials("haptic", "seed_trial", f, DT, (model.theta0, 0.0), ("RK45",))
+        plain = plain["RK45"][0]
+    except RuntimeError as exc:
+        print(exc)
+        plain = float("nan")
 
-    # device force from Python (the convenience wrapper, on floats) and from compiled code
-    pos = on_path(0.7, 0.3)
-    vel = (0.0, 0.05, -0.04)
-    buf = np.empty(3)
-    device_force_vector(pos, vel, p, buf)
-    n_py = 50_000
-    py_call = (
-        median_time(lambda: [device_force_vector(pos, vel, p, buf) for _ in range(n_py)], 5) / n_py
-    )
-    n_c = 2_000_000
-    angle = 0.5 + 1e-6 * np.arange(n_c)  # the handle creeping along its path
-    y, z = 0.3 * np.sin(angle) - 0.158, 0.3 * np.cos(angle) - 0.138
-    _servo_loop(y[:10], z[:10], p, buf)
-    c_call = median_time(lambda: _servo_loop(y, z, p, buf), 5) / n_c
+    py_call, c_call = device_force_costs(p)
 
     rows = [
         (
@@ -145,11 +131,7 @@ def main(argv=None):
     for what, value, target, ok in rows:
         verdict = "" if ok is None else ("met" if ok else "**missed**")
         lines.append(f"| {what} | {value} | {target} | {verdict} |")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if not args.no_write:
-        (Path(__file__).parent / "haptic.md").write_text(text)
-        print(f"wrote {Path(__file__).parent / 'haptic.md'}")
+    publish("\n".join(lines) + "\n", "haptic.md", write=not args.no_write)
 
 
 if __name__ == "__main__":

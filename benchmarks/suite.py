@@ -1,0 +1,1098 @@
+"""One benchmark suite: the workbench against the plain way, in one run on one machine.
+
+``python -m benchmarks`` runs the sections below in one process (the command-line
+ones in subprocesses, as a user types them), prints a table per section with times
+and ratios, and writes ``suite-<timestamp>.json`` (every metric), ``suite-<timestamp>.png``
+(the ratios and the scaling curves) and ``suite-<timestamp>.md`` in ``--out``
+(default ``benchmarks/results/``); a full run (not ``--quick``, not ``--only``) also
+replaces ``benchmarks/suite.md``.
+
+Sections (``--only``):
+
+``trial``
+    one 5 s trial per model (door, haptic) by evo-door's compiled fixed-step
+    integrator and by scipy ``solve_ivp`` (RK45, LSODA) with a Python right-hand side
+    around the compiled ``accel`` and around the pure-Python model; each one's error
+    against Radau at rtol 1e-10; the door kernel target (<= 3 ms on one thread).
+``ga``
+    a 100 x 20 GA by the workbench and by the plain loop (the same DEAP-based GA, each
+    individual one ``solve_ivp``), the plain one timed on a few generations and
+    extrapolated per evaluation.
+``scaling``
+    one batched evaluation against population and trials, GA runs against
+    generations, numba threads 1 and 2 (door model).
+``executors``
+    ``evo-door run --executor local|processes|dask`` and a Dask scheduler with 1 and
+    2 workers (``tcp://``), end to end in subprocesses.
+``device``
+    the haptic device-force cost (from Python, from compiled code) and the servo loop
+    on the simulated device, paced on the wall clock.
+``startup``
+    wall time of ``evo-door --help`` and ``evo-door params haptic`` (target < 0.3 s).
+
+A ratio is the plain (or reference) way's value divided by the workbench's: how many
+times faster the workbench is. ``--compare OLD.json [NEW.json]`` prints new / old per
+metric (below 1: the new run is faster).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from evo_door.errors import UserError  # noqa: E402
+
+SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup")
+DEFAULT_OUT = HERE / "results"
+
+#: targets (issue 16): one 5 s door trial on one thread; commands that do not simulate
+DOOR_TRIAL_TARGET = 3e-3
+HAPTIC_TRIAL_TARGET = 2e-3
+STARTUP_TARGET = 0.3
+DEVICE_PY_TARGET = 2e-6
+DEVICE_C_TARGET = 100e-9
+ON_TIME_TARGET = 0.999
+
+
+@dataclass
+class Metric:
+    """One measured figure. ``ratio`` = the value of ``ratio_to`` / this value for a
+    workbench figure against its plain way (a speed-up), or as ``note`` says."""
+
+    name: str
+    section: str
+    label: str
+    value: float | None
+    unit: str
+    ratio: float | None = None
+    ratio_to: str | None = None
+    target: float | None = None
+    target_text: str | None = None
+    met: bool | None = None
+    note: str | None = None
+
+
+@dataclass
+class Suite:
+    quick: bool
+    metrics: list[Metric] = field(default_factory=list)
+    #: scaling curves for the figure: name -> {"x": [...], "y": [...], "xlabel", "ylabel"}
+    curves: dict = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    tables: dict = field(default_factory=dict)
+
+    def add(self, name, section, label, value, unit, **kw) -> Metric:
+        m = Metric(name, section, label, None if value is None else float(value), unit, **kw)
+        if m.target is not None and m.value is not None and m.met is None:
+            m.met = bool(m.value <= m.target)
+        self.metrics.append(m)
+        return m
+
+    def get(self, name) -> Metric | None:
+        return next((m for m in self.metrics if m.name == name), None)
+
+
+# -- formatting ---------------------------------------------------------------------
+def fmt(value, unit: str) -> str:
+    """``value`` with its unit, seconds scaled to s / ms / us / ns."""
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return "n/a"
+    if unit == "s":
+        a = abs(value)
+        if a >= 1:
+            return f"{value:.3g} s"
+        if a >= 1e-3:
+            return f"{value * 1e3:.3g} ms"
+        if a >= 1e-6:
+            return f"{value * 1e6:.3g} us"
+        return f"{value * 1e9:.3g} ns"
+    if unit == "1":
+        return f"{value:.4g}"
+    if unit == "%":
+        return f"{value:.3f} %"
+    return f"{value:.3g} {unit}"
+
+
+def fmt_ratio(r) -> str:
+    if r is None or not np.isfinite(r):
+        return ""
+    return f"{r:.3g}x" if r < 100 else f"{r:.0f}x"
+
+
+def progress(text: str) -> None:
+    print(f"[suite] {text}", file=sys.stderr, flush=True)
+
+
+# -- section: one trial ---------------------------------------------------------------
+def section_trial(suite: Suite) -> None:
+    """One 5 s trial per model: workbench, solve_ivp (compiled / pure-Python right-hand
+    side, RK45 / LSODA), each against Radau."""
+    import numba
+
+    from benchmarks import bench_door, bench_haptic
+    from benchmarks._util import median_time
+    from benchmarks.plain import pure_python_trials, solve_trial
+    from evo_door.models import get_model
+    from evo_door.sim import simulate
+    from evo_door.sim.simulate import param_vector
+
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    rows = []
+    try:
+        for name, preset, mod in (
+            ("door", "default", bench_door),
+            ("haptic", "seed_trial", bench_haptic),
+        ):
+            model = get_model(name)
+            p = param_vector(model.load_params(preset))
+            _, f = mod.force_profile()
+            dt = mod.DT
+            theta0 = 0.0 if name == "door" else model.theta0
+            y0 = (theta0, 0.0)
+            r = simulate(model, p, f, dt, theta0=theta0)  # compile / load the cache
+            wb = median_time(
+                partial(simulate, model, p, f, dt, theta0=theta0), 7 if suite.quick else 31
+            )
+            ref = solve_trial(model.accel, p, dt, f, y0, "Radau", reference=not suite.quick)
+
+            def errors(theta, dtheta, ref=ref):
+                """Max |theta error| (rad), max and RMS |dtheta error| (rad/s)."""
+                dw = dtheta - ref[1]
+                return (
+                    float(np.max(np.abs(theta - ref[0]))),
+                    float(np.max(np.abs(dw))),
+                    float(np.sqrt(np.mean(dw**2))),
+                )
+
+            target = DOOR_TRIAL_TARGET if name == "door" else HAPTIC_TRIAL_TARGET
+            key = f"trial.{name}"
+            e = errors(r.theta, r.dtheta)
+            suite.add(
+                f"{key}.workbench",
+                "trial",
+                f"{name}: evo-door `simulate` ({model.method} x{model.substeps}, 1 thread)",
+                wb,
+                "s",
+                target=target,
+                target_text=f"<= {target * 1e3:g} ms",
+            )
+            ways = [("workbench", f"evo-door `simulate` ({model.method} x{model.substeps})", wb, e)]
+            for method in ("RK45", "LSODA"):
+                solve_trial(model.accel, p, dt, f, y0, method)  # warm scipy's code paths
+                secs = median_time(
+                    partial(solve_trial, model.accel, p, dt, f, y0, method),
+                    1 if suite.quick else 3,
+                )
+                sol = solve_trial(model.accel, p, dt, f, y0, method)
+                ways.append(
+                    (
+                        f"{method.lower()}_compiled",
+                        f"`solve_ivp` {method}, compiled `accel`",
+                        secs,
+                        errors(*sol),
+                    )
+                )
+            try:
+                pure = pure_python_trials(name, preset, f, dt, y0)
+                for method, (secs, th, dth) in pure.items():
+                    ways.append(
+                        (
+                            f"{method.lower()}_python",
+                            f"`solve_ivp` {method}, pure-Python model",
+                            secs,
+                            errors(th, dth),
+                        )
+                    )
+            except RuntimeError as exc:
+                suite.notes.append(f"{name}: {exc}")
+                for method in ("RK45", "LSODA"):
+                    ways.append(
+                        (
+                            f"{method.lower()}_python",
+                            f"`solve_ivp` {method}, pure-Python model",
+                            None,
+                            (None, None, None),
+                        )
+                    )
+            for way, label, secs, (et, ed, er) in ways:
+                if way != "workbench":
+                    suite.add(
+                        f"{key}.{way}",
+                        "trial",
+                        f"{name}: {label}",
+                        secs,
+                        "s",
+                        ratio=None if secs is None else secs / wb,
+                        ratio_to=f"{key}.workbench",
+                    )
+                suite.add(
+                    f"{key}.{way}.error_theta",
+                    "trial",
+                    f"{name}: {label}, max |theta error|",
+                    et,
+                    "rad",
+                )
+                suite.add(
+                    f"{key}.{way}.error_dtheta",
+                    "trial",
+                    f"{name}: {label}, max |dtheta error|",
+                    ed,
+                    "rad/s",
+                )
+                suite.add(
+                    f"{key}.{way}.error_dtheta_rms",
+                    "trial",
+                    f"{name}: {label}, RMS dtheta error",
+                    er,
+                    "rad/s",
+                )
+                rows.append((name, label, secs, None if secs is None else secs / wb, et, ed, er))
+    finally:
+        numba.set_num_threads(threads)
+    ref_text = (
+        "Radau rtol 1e-10, atol 1e-12 (max step one sample)"
+        if not suite.quick
+        else "Radau rtol 1e-6, atol 1e-9 (--quick: a smoke test, not a reference)"
+    )
+    lines = [
+        "| model | way | seconds per 5 s trial | / workbench | max abs theta error (rad) "
+        "| max abs dtheta error (rad/s) | RMS dtheta error (rad/s) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, label, secs, ratio, *errs in rows:
+        cells = " | ".join("n/a" if e is None else f"{e:.2e}" for e in errs)
+        lines.append(
+            f"| {name} | {label} | {fmt(secs, 's')} | {fmt_ratio(ratio) or '1'} | {cells} |"
+        )
+    suite.tables["trial"] = (
+        f"One 5 s trial at 1024 Hz (5120 samples; door `default` pushed from open and "
+        f"pulled back, haptic `seed_trial` unlocked, swung and latched), errors against "
+        f"{ref_text}. `solve_ivp`: rtol 1e-6, atol 1e-9, max step "
+        "4 samples, the force interpolated linearly between samples as the compiled "
+        "integrators read it; pure-Python: the same code with `NUMBA_DISABLE_JIT=1` in a "
+        "fresh process.\n\n" + "\n".join(lines)
+    )
+
+
+# -- section: GA ----------------------------------------------------------------------
+def section_ga(suite: Suite) -> None:
+    """100 x 20 GA: workbench against the plain loop (extrapolated)."""
+    from benchmarks.bench_ga import make_problem, time_eval, time_ga
+    from benchmarks.plain import PlainProblem
+    from evo_door.models import get_model
+    from evo_door.optim import GASettings, GeneticAlgorithm
+
+    plain_pop, plain_gens = (10, 1) if suite.quick else (100, 1)
+    gens = 3 if suite.quick else 20  # --quick: the workbench's GA 100 x 3
+    lines = [
+        f"| model | workbench GA 100 x {gens} | evaluations | plain GA (extrapolated) | plain per "
+        "evaluation | plain timed on | speed-up |",
+        "|---|---:|---:|---:|---:|---|---:|",
+    ]
+    for name in ("door", "haptic"):
+        model = get_model(name)
+        problem = make_problem(model)
+        time_eval(problem, 4, repeat=1)  # compile / load caches
+        secs, state = time_ga(problem, 100, gens)
+        plain = PlainProblem(problem)
+        t0 = time.perf_counter()
+        GeneticAlgorithm(GASettings(population=plain_pop, generations=plain_gens, seed=1)).run(
+            plain
+        )
+        per_eval = (time.perf_counter() - t0) / plain.evaluations  # GA bookkeeping included
+        plain_total = per_eval * state.evaluations
+        key = f"ga.{name}"
+        suite.add(f"{key}.workbench", "ga", f"{name}: workbench GA 100 x {gens}", secs, "s")
+        suite.add(
+            f"{key}.evaluations",
+            "ga",
+            f"{name}: evaluations of the 100 x {gens} GA",
+            state.evaluations,
+            "1",
+        )
+        suite.add(
+            f"{key}.plain",
+            "ga",
+            f"{name}: plain scipy + DEAP GA 100 x {gens} (extrapolated)",
+            plain_total,
+            "s",
+            ratio=plain_total / secs,
+            ratio_to=f"{key}.workbench",
+            note=f"timed on population {plain_pop} x generations 0-{plain_gens} "
+            f"({plain.evaluations} evaluations), extrapolated per evaluation to "
+            f"{state.evaluations}",
+        )
+        suite.add(
+            f"{key}.plain_per_evaluation", "ga", f"{name}: plain, one evaluation", per_eval, "s"
+        )
+        lines.append(
+            f"| {name} | {fmt(secs, 's')} | {state.evaluations} | {fmt(plain_total, 's')} | "
+            f"{fmt(per_eval, 's')} | population {plain_pop}, generations 0-{plain_gens} "
+            f"({plain.evaluations} evaluations) | {fmt_ratio(plain_total / secs)} |"
+        )
+    suite.tables["ga"] = (
+        f"A GA of population 100 x {gens} generations "
+        + ("(--quick; AMESim's settings are 100 x 20)" if suite.quick else "(AMESim's settings)")
+        + " on one 5 s trial, "
+        "max-square objective on angular speed, four free parameters (`bench_ga.py`). "
+        "Plain: the same DEAP-based GA loop, each individual one `solve_ivp` (RK45, "
+        "rtol 1e-6, Python right-hand side around the compiled `accel`); timed on the "
+        "first generations shown, extrapolated per evaluation to the workbench's "
+        "evaluation count.\n\n" + "\n".join(lines)
+    )
+
+
+# -- section: scaling -----------------------------------------------------------------
+def section_scaling(suite: Suite) -> None:
+    """Batched evaluation against population and trials; GA against generations; threads."""
+    import numba
+
+    from benchmarks.bench_ga import linear_fit, make_problem, time_eval, time_ga
+    from evo_door.models import get_model
+
+    model = get_model("door")
+    pops = (25, 50) if suite.quick else (25, 50, 100, 200)
+    trials = (1, 2) if suite.quick else (1, 2, 4)
+    gens = (2, 4) if suite.quick else (5, 10, 20, 40)
+    ga_pop = 25 if suite.quick else 100
+    repeat = 1 if suite.quick else 3
+    problems = {k: make_problem(model, k) for k in trials}
+    time_eval(problems[1], 4, repeat=1)
+    lines = ["| what | seconds | per unit | ratio |", "|---|---:|---:|---:|"]
+    base = None
+    pop_x, pop_y = [], []
+    for n in pops:
+        s = time_eval(problems[1], n, repeat)
+        base = base or s / n
+        suite.add(
+            f"scaling.population.{n}",
+            "scaling",
+            f"door, 1 trial, population {n}: one batched evaluation",
+            s,
+            "s",
+        )
+        lines.append(
+            f"| population {n}, 1 trial | {fmt(s, 's')} | {fmt(s / n, 's')} per individual | |"
+        )
+        pop_x.append(n)
+        pop_y.append(s)
+    tr_x, tr_y = [], []
+    n_pop = pops[-1] if suite.quick else 100
+    for k in trials:
+        s = time_eval(problems[k], n_pop, repeat)
+        suite.add(
+            f"scaling.trials.{k}",
+            "scaling",
+            f"door, population {n_pop}, {k} trial(s): one batched evaluation",
+            s,
+            "s",
+        )
+        lines.append(
+            f"| {k} trial(s), population {n_pop} | {fmt(s, 's')} | {fmt(s / (k * n_pop), 's')} per trial-individual | |"
+        )
+        tr_x.append(k * n_pop)
+        tr_y.append(s)
+    a, b, r2 = (
+        linear_fit(pop_x + tr_x, pop_y + tr_y)
+        if len(pop_x + tr_x) > 2
+        else (np.nan, np.nan, np.nan)
+    )
+    suite.add(
+        "scaling.per_trial_individual",
+        "scaling",
+        "door: slope of evaluation time against trials x population",
+        a,
+        "s",
+        note=f"R^2 = {r2:.4f}",
+    )
+    g_x, g_y = [], []
+    for g in gens:
+        s = time_ga(problems[1], ga_pop, g)[0]
+        per = s / (g + 1)  # generation 0 is evaluated too
+        suite.add(
+            f"scaling.generations.{g}",
+            "scaling",
+            f"door GA population {ga_pop} x {g} generations",
+            s,
+            "s",
+        )
+        suite.add(
+            f"scaling.generations.{g}.per_generation",
+            "scaling",
+            f"door GA, {g} generations: time per generation",
+            per,
+            "s",
+        )
+        lines.append(
+            f"| GA {ga_pop} x {g} generations | {fmt(s, 's')} | {fmt(per, 's')} per generation | |"
+        )
+        g_x.append(g)
+        g_y.append(per)
+    flat = max(g_y) / min(g_y)
+    suite.add(
+        "scaling.generations.flatness",
+        "scaling",
+        "largest / smallest time per generation",
+        flat,
+        "1",
+        note="1 = perfectly flat",
+    )
+    max_threads = numba.config.NUMBA_NUM_THREADS
+    th = numba.get_num_threads()
+    t_x, t_y = [], []
+    try:
+        for n in (1, 2):
+            if n > max_threads:
+                suite.add(
+                    f"scaling.threads.{n}",
+                    "scaling",
+                    f"door, population 100: {n} numba threads",
+                    None,
+                    "s",
+                    note="not available: fewer cores",
+                )
+                continue
+            numba.set_num_threads(n)
+            s = time_eval(problems[1], 100, repeat)
+            t_x.append(n)
+            t_y.append(s)
+            one = suite.get("scaling.threads.1")
+            suite.add(
+                f"scaling.threads.{n}",
+                "scaling",
+                f"door, population 100, 1 trial: {n} numba thread(s)",
+                s,
+                "s",
+                ratio=None if one is None else one.value / s,
+                ratio_to=None if one is None else "scaling.threads.1",
+            )
+            r = "" if one is None else fmt_ratio(one.value / s)
+            lines.append(
+                f"| population 100, {n} numba thread(s) | {fmt(s, 's')} | {fmt(s / 100, 's')} per individual | {r} |"
+            )
+    finally:
+        numba.set_num_threads(th)
+    suite.curves["population"] = {"x": pop_x, "y": pop_y, "label": "1 trial, population n"}
+    suite.curves["trials"] = {"x": tr_x, "y": tr_y, "label": f"population {n_pop}, 1/2/4 trials"}
+    suite.curves["generations"] = {"x": g_x, "y": g_y}
+    suite.curves["threads"] = {"x": t_x, "y": t_y}
+    suite.tables["scaling"] = (
+        f"Door model, one 5 s trial per trial. One batched evaluation (`Problem.evaluate`, "
+        f"numba threads {th}) against population and trials: {fmt(a, 's')} per "
+        f"trial-individual (linear fit, R^2 = {r2:.4f}). GA runs: time per generation "
+        f"(generation 0 included) should stay flat: largest / smallest {flat:.2f}.\n\n"
+        + "\n".join(lines)
+    )
+
+
+# -- section: executors ---------------------------------------------------------------
+def _run_experiment_cli(exp: Path, out: Path, executor: str | None) -> dict:
+    """``evo-door run EXP --out OUT [--executor X] --quiet`` in a fresh process: wall
+    time, the run's own total time and best parameters (``evo-door show --json``)."""
+    cmd = [sys.executable, "-m", "evo_door", "run", str(exp), "--out", str(out), "--quiet"]
+    if executor is not None:
+        cmd += ["--executor", executor]
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+    }
+    t0 = time.perf_counter()
+    done = subprocess.run(
+        cmd, capture_output=True, text=True, env=env, cwd=exp.parent, timeout=1200
+    )
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(last)
+    shown = subprocess.run(
+        [sys.executable, "-m", "evo_door", "show", str(out), "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    if shown.returncode != 0:
+        raise RuntimeError((shown.stderr.strip().splitlines() or ["show failed"])[-1])
+    info = json.loads(shown.stdout)
+    return {
+        "wall": wall,
+        "run": info.get("seconds"),
+        "params": info.get("best"),
+        "evaluations": info.get("evaluations"),
+    }
+
+
+REFUSED = "unrecognized arguments: --executor"
+
+
+def section_executors(suite: Suite) -> None:
+    """``evo-door run --executor X`` end to end, each in a fresh process."""
+    from benchmarks.bench_ga import make_problem
+    from evo_door.data.io import write_trials
+    from evo_door.models import get_model
+
+    pop, gens = (20, 2) if suite.quick else (100, 5)
+    model = get_model("door")
+    problem = make_problem(model, 2)
+    free = "\n".join(
+        f"  {n}: [{float(lo)!r}, {float(hi)!r}]"
+        for n, lo, hi in zip(problem.free, problem.lower, problem.upper)
+    )
+    text = (
+        f"name: bench_executors\nmodel: door\ntarget: {{data: trials.h5}}\nfree:\n{free}\n"
+        "objective: {kind: max_square, derivative: 1}\n"
+        f"algorithm: {{population: {pop}, generations: {gens}, seed: 1}}\n"
+    )
+    # (metric key, --executor, what it is)
+    cases = [
+        ("local", "local", "local (compiled batch on numba threads)"),
+        ("processes", "processes", "processes (a pool, one per core)"),
+        ("dask_1_worker", "dask:1", "Dask, local cluster of 1 worker"),
+        ("dask_2_workers", "dask:2", "Dask, local cluster of 2 workers"),
+    ]
+    if suite.quick:
+        cases = cases[:2]
+        suite.notes.append("executors: --quick runs local and processes only")
+    lines = [
+        "| executor | `--executor` | wall time of `evo-door run` | run's own time | "
+        "local / this | same best as local |",
+        "|---|---|---:|---:|---:|---|",
+    ]
+    results = {}
+    refused = None
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        write_trials(tmp / "trials.h5", problem.fit.trials)
+        exp = tmp / "bench.yaml"
+        exp.write_text(text)
+        for key, executor, label in cases:
+            why = res = None
+            if refused and key != "local":
+                why = refused
+            else:
+                try:
+                    res = _run_experiment_cli(exp, tmp / f"{key}.h5", executor)
+                except RuntimeError as exc:
+                    if REFUSED in str(exc) and key == "local":
+                        refused = "not available: `evo-door run` refuses `--executor`"
+                        res = _run_experiment_cli(exp, tmp / f"{key}.h5", None)
+                    else:
+                        why = f"not available: {exc}"
+            results[key] = res
+            local = results.get("local")
+            name = f"executors.{key}"
+            if res is None:
+                suite.add(name, "executors", f"`evo-door run` on {label}", None, "s", note=why)
+                lines.append(f"| {label} | `{executor}` | n/a | n/a | | {why} |")
+                continue
+            ratio = None if local is None or key == "local" else local["wall"] / res["wall"]
+            same = (
+                None
+                if local is None or key == "local"
+                else (res["params"], res["evaluations"]) == (local["params"], local["evaluations"])
+            )
+            suite.add(
+                name,
+                "executors",
+                f"`evo-door run` (door GA {pop} x {gens}, 2 trials) on {label}: wall time",
+                res["wall"],
+                "s",
+                ratio=ratio,
+                ratio_to=None if ratio is None else "executors.local",
+                note=None
+                if same is None
+                else f"same best parameters and evaluation count as local: {same}",
+            )
+            suite.add(
+                f"{name}.run",
+                "executors",
+                f"{label}: the run's own time (results file)",
+                res["run"],
+                "s",
+            )
+            lines.append(
+                f"| {label} | `{executor}` | {fmt(res['wall'], 's')} | {fmt(res['run'], 's')} | "
+                f"{fmt_ratio(ratio)} | {'' if same is None else ('yes' if same else '**no**')} |"
+            )
+    if refused:
+        suite.notes.append(f"executors: {refused}")
+    suite.tables["executors"] = (
+        f"`evo-door run` of a door GA (population {pop} x {gens} generations, two 5 s "
+        "trials) in a fresh process per executor, start-up included (a Dask cluster is "
+        "started and closed inside the run); the run's own time is the results file's. "
+        "local / this above 1: faster than local.\n\n" + "\n".join(lines)
+    )
+
+
+# -- section: device ------------------------------------------------------------------
+def section_device(suite: Suite) -> None:
+    """Device-force cost and the servo loop on the simulated device."""
+    from benchmarks.bench_haptic import device_force_costs
+    from benchmarks.bench_render import RATE, sim_run
+    from evo_door.models import get_model
+    from evo_door.sim.simulate import param_vector
+
+    model = get_model("haptic")
+    params = model.load_params("seed_trial")
+    py_call, c_call = device_force_costs(param_vector(params), quick=suite.quick)
+    suite.add(
+        "device.force_python",
+        "device",
+        "device force from Python (`device_force_vector`)",
+        py_call,
+        "s",
+        target=DEVICE_PY_TARGET,
+        target_text="< 2 us",
+    )
+    suite.add(
+        "device.force_compiled",
+        "device",
+        "device force from compiled code (servo loop)",
+        c_call,
+        "s",
+        target=DEVICE_C_TARGET,
+        target_text="< 100 ns",
+    )
+    seconds = 1.0 if suite.quick else 10.0
+    sim_run(params, 0.2, "implicit")  # compile / load
+    s = sim_run(params, seconds, "implicit")
+    on_time = s["on_time_fraction"]
+    suite.add(
+        "device.servo.on_time",
+        "device",
+        f"servo loop, sim device, {RATE:g} Hz, {seconds:g} s: cycles on time",
+        on_time * 100,
+        "%",
+        target_text=">= 99.9 %",
+        met=on_time >= ON_TIME_TARGET,
+    )
+    suite.add(
+        "device.servo.period_mean",
+        "device",
+        "servo loop: mean period",
+        s["period_mean_s"],
+        "s",
+        note=f"nominal {1 / RATE * 1e3:g} ms",
+    )
+    suite.add(
+        "device.servo.lateness_p99", "device", "servo loop: p99 lateness", s["lateness_p99_s"], "s"
+    )
+    suite.add(
+        "device.servo.compute_p99", "device", "servo loop: p99 cycle work", s["compute_p99_s"], "s"
+    )
+    suite.add("device.servo.missed", "device", "servo loop: missed cycles", s["missed_cycles"], "1")
+    suite.tables["device"] = (
+        f"Haptic model `seed_trial`. Servo loop paced on the wall clock with the simulated "
+        f"device (user `open`, implicit friction) for {seconds:g} s (`bench_render.py`).\n\n"
+        + _generic_table([m for m in suite.metrics if m.section == "device"])
+    )
+
+
+# -- section: start-up ----------------------------------------------------------------
+def section_startup(suite: Suite) -> None:
+    from benchmarks.bench_startup import cases, wall_time
+
+    repeat = 2 if suite.quick else 7
+    keys = {
+        "`evo-door --help`": "startup.help",
+        "`evo-door params haptic`": "startup.params_haptic",
+        '`python -c "import numba"`': "startup.import_numba",
+        "`python -c pass`": "startup.python",
+    }
+    for label, cmd in cases():
+        target = (
+            STARTUP_TARGET if keys[label] in ("startup.help", "startup.params_haptic") else None
+        )
+        suite.add(
+            keys[label],
+            "startup",
+            f"{label}, fresh process",
+            wall_time(cmd, repeat),
+            "s",
+            target=target,
+            target_text=None if target is None else "< 0.3 s",
+        )
+    suite.tables["startup"] = (
+        f"Wall time of a fresh process, median of {repeat} runs after one untimed run.\n\n"
+        + _generic_table([m for m in suite.metrics if m.section == "startup"])
+    )
+
+
+RUNNERS = {
+    "trial": section_trial,
+    "ga": section_ga,
+    "scaling": section_scaling,
+    "executors": section_executors,
+    "device": section_device,
+    "startup": section_startup,
+}
+
+
+# -- output ---------------------------------------------------------------------------
+def _generic_table(metrics) -> str:
+    lines = ["| metric | value | ratio | target | |", "|---|---:|---:|---|---|"]
+    for m in metrics:
+        verdict = "" if m.met is None else ("met" if m.met else "**not met**")
+        value = fmt(m.value, m.unit) if m.value is not None else f"n/a ({m.note})"
+        lines.append(
+            f"| {m.label} | {value} | {fmt_ratio(m.ratio)} | {m.target_text or ''} | {verdict} |"
+        )
+    return "\n".join(lines)
+
+
+def targets_table(suite: Suite) -> str:
+    lines = ["| target | measured | | ", "|---|---:|---|"]
+    for m in suite.metrics:
+        if m.met is None:
+            continue
+        lines.append(
+            f"| {m.label}: {m.target_text} | {fmt(m.value, m.unit)} | {'met' if m.met else '**not met**'} |"
+        )
+    return "\n".join(lines)
+
+
+def machine() -> dict:
+    import numba
+    import scipy
+
+    import evo_door
+
+    versions = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "numba": numba.__version__,
+        "evo_door": evo_door.__version__,
+    }
+    for mod in ("deap", "distributed", "matplotlib"):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except ImportError:
+            versions[mod] = None
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return {
+        "platform": platform.platform(),
+        "cpus": os.cpu_count(),
+        "numba_threads": numba.config.NUMBA_NUM_THREADS,
+        "versions": versions,
+        "commit": commit or None,
+    }
+
+
+def to_markdown(suite: Suite, info: dict, sections, seconds: float) -> str:
+    from benchmarks._util import machine_line
+
+    lines = [
+        "# Benchmark suite (`python -m benchmarks`)",
+        "",
+        machine_line(f", numba threads {info['numba_threads']}")
+        + f" Commit {info['commit']}." * bool(info["commit"]),
+        "",
+        f"Sections: {', '.join(sections)}{' (--quick: smoke run, not a measurement)' if suite.quick else ''}; "
+        f"{seconds:.0f} s in all. A ratio is the plain (or reference) way's time over the "
+        "workbench's: how many times faster the workbench is.",
+        "",
+    ]
+    if any(m.met is not None for m in suite.metrics):
+        lines += ["## Targets", "", targets_table(suite), ""]
+    for s in sections:
+        if s in suite.tables:
+            lines += [f"## {s}", "", suite.tables[s], ""]
+    if suite.notes:
+        lines += ["## Notes", ""] + [f"- {n}" for n in suite.notes] + [""]
+    return "\n".join(lines)
+
+
+def figure(suite: Suite):
+    """The ratios (log scale), the scaling curves and the targets, as a matplotlib Figure."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(15, 8.5), layout="constrained")
+    axes = fig.subplots(2, 3)
+    ax = axes[0, 0]
+    ratios = [
+        m
+        for m in suite.metrics
+        if m.ratio is not None and m.ratio_to and m.ratio_to.endswith(".workbench")
+    ]
+    if ratios:
+        y = range(len(ratios))
+        ax.barh(y, [m.ratio for m in ratios], color="tab:blue")
+        for i, m in enumerate(ratios):
+            ax.text(m.ratio, i, f" {fmt_ratio(m.ratio)}", va="center", fontsize=7)
+        names = [m.name.replace("trial.", "trial ").replace("ga.", "GA ") for m in ratios]
+        ax.set_yticks(list(y), names, fontsize=7)
+        ax.set_xscale("log")
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.invert_yaxis()
+    ax.set_xlabel("plain way's time / workbench's (log scale)")
+    ax.set_title("Speed-up over the plain way")
+    ax = axes[0, 1]
+    for key in ("population", "trials"):
+        c = suite.curves.get(key)
+        if c and c["x"]:
+            ax.plot(c["x"], c["y"], "o-", label=c["label"])
+    ax.set_xlabel("trials x population")
+    ax.set_ylabel("one batched evaluation (s)")
+    ax.set_title("Door: evaluation cost against batch size")
+    if ax.lines:
+        ax.legend(fontsize=8)
+        ax.set_ylim(bottom=0)
+    ax = axes[0, 2]
+    c = suite.curves.get("generations")
+    if c and c["x"]:
+        ax.plot(c["x"], np.asarray(c["y"]) * 1e3, "o-")
+        ax.set_ylim(0, 1.3e3 * max(c["y"]))
+    ax.set_xlabel("generations")
+    ax.set_ylabel("time per generation (ms)")
+    ax.set_title("Door GA: time per generation (flat)")
+    ax = axes[1, 0]
+    c = suite.curves.get("threads")
+    if c and c["x"]:
+        ax.bar([str(n) for n in c["x"]], c["y"], color="tab:green")
+    ax.set_xlabel("numba threads")
+    ax.set_ylabel("one batched evaluation, population 100 (s)")
+    ax.set_title("Door: threads")
+    ax = axes[1, 1]
+    ex = [
+        (m.name.split(".", 1)[1].replace("_", " "), m.value)
+        for m in suite.metrics
+        if m.section == "executors" and m.name.count(".") == 1 and m.value is not None
+    ]
+    if ex:
+        ax.bar(range(len(ex)), [e[1] for e in ex], color="tab:orange")
+        ax.set_xticks(range(len(ex)), [e[0] for e in ex], fontsize=8)
+    ax.set_ylabel("wall time of evo-door run (s)")
+    ax.set_title("Executors (start-up and cluster included)")
+    ax = axes[1, 2]
+    tg = [m for m in suite.metrics if m.target and m.value is not None]
+    if tg:
+        frac = [m.value / m.target for m in tg]
+        colors = ["tab:green" if m.met else "tab:red" for m in tg]
+        y = list(range(len(tg)))
+        ax.hlines(y, 1.0, frac, colors=colors, lw=6)
+        ax.scatter(frac, y, color=colors, zorder=3)
+        for i, (f, m) in enumerate(zip(frac, tg)):
+            ax.text(f, i - 0.3, f" {fmt(m.value, m.unit)}", fontsize=7)
+        ax.set_yticks(y, [m.name for m in tg], fontsize=7)
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_xlim(min(0.1, min(frac) / 2), max(10.0, max(frac) * 2))
+        ax.set_ylim(len(tg) - 0.5, -0.7)
+    ax.set_xlabel("measured / target (log scale; below 1: met)")
+    ax.set_title("Targets")
+    return fig
+
+
+def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> dict:
+    from evo_door.files import save_figure, write_text
+
+    info = machine()
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    doc = {
+        "suite": "evo-door benchmarks",
+        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "quick": suite.quick,
+        "sections": list(sections),
+        "seconds": seconds,
+        "machine": info,
+        "machine_line": _machine_line(info),
+        "ratio_meaning": "the ratio_to metric's value divided by this one's (for a plain way: "
+        "how many times slower than the workbench)",
+        "metrics": [asdict(m) for m in suite.metrics],
+        "curves": suite.curves,
+        "notes": suite.notes,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "json": out / f"suite-{stamp}.json",
+        "png": out / f"suite-{stamp}.png",
+        "md": out / f"suite-{stamp}.md",
+    }
+    write_text(paths["json"], json.dumps(doc, indent=1, default=_json_default) + "\n")
+    save_figure(figure(suite), paths["png"])
+    md = to_markdown(suite, info, sections, seconds)
+    write_text(paths["md"], md)
+    if write_md:
+        write_text(HERE / "suite.md", md)
+        paths["summary"] = HERE / "suite.md"
+    return paths
+
+
+def _machine_line(info) -> str:
+    v = info["versions"]
+    return f"{info['platform']}, {info['cpus']} CPUs, Python {v['python']}, numba {v['numba']}"
+
+
+def _json_default(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(type(x).__name__)
+
+
+# -- compare --------------------------------------------------------------------------
+def load_json(path) -> dict:
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise UserError(f"{p}: no such file") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{p}: not a suite JSON file ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), list):
+        raise UserError(f"{p}: not a suite JSON file (no metrics list)")
+    return doc
+
+
+def compare(old: dict, new: dict) -> str:
+    """A table of new / old per metric both runs have (below 1: smaller now)."""
+    before = {m["name"]: m for m in old["metrics"]}
+    lines = [
+        f"old: {old.get('date')} ({old.get('machine_line', '')})",
+        f"new: {new.get('date')} ({new.get('machine_line', '')})",
+        "",
+        f"{'metric':<52} {'old':>12} {'new':>12} {'new/old':>8}",
+    ]
+    shared = 0
+    for m in new["metrics"]:
+        o = before.get(m["name"])
+        if o is None:
+            continue
+        shared += 1
+        a, b = o["value"], m["value"]
+        r = f"{b / a:.3f}" if a not in (None, 0) and b is not None else "n/a"
+        lines.append(f"{m['name']:<52} {fmt(a, o['unit']):>12} {fmt(b, m['unit']):>12} {r:>8}")
+    only = sorted(set(before) ^ {m["name"] for m in new["metrics"]})
+    if only:
+        lines.append(
+            f"\n{len(only)} metric(s) in one run only: {', '.join(only[:8])}{' ...' * (len(only) > 8)}"
+        )
+    if not shared:
+        lines.append("no metric in common")
+    return "\n".join(lines)
+
+
+# -- command line ---------------------------------------------------------------------
+def parse_sections(text: str | None) -> list[str]:
+    if not text:
+        return list(SECTIONS)
+    names = [s.strip() for s in text.split(",") if s.strip()]
+    bad = [s for s in names if s not in SECTIONS]
+    if bad or not names:
+        raise UserError(
+            f"--only: unknown section {', '.join(map(repr, bad)) or repr(text)} (choose from {', '.join(SECTIONS)})"
+        )
+    return [s for s in SECTIONS if s in names]
+
+
+def build_parser(prog: str = "python -m benchmarks") -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog=prog,
+        description="Run evo-door's benchmarks as one suite: times and ratios against the "
+        "plain way (scipy solve_ivp, a plain GA loop), scaling, targets.",
+    )
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="smoke run (under two minutes): fewer repeats and points",
+    )
+    ap.add_argument(
+        "--only",
+        metavar="SECTION[,SECTION]",
+        help=f"run only these sections ({', '.join(SECTIONS)})",
+    )
+    ap.add_argument(
+        "--out",
+        metavar="DIR",
+        default=None,
+        help="folder of the JSON, PNG and Markdown (default benchmarks/results/)",
+    )
+    ap.add_argument(
+        "--compare",
+        metavar="JSON",
+        nargs="+",
+        help="OLD.json: run, then print new / old per metric; OLD.json NEW.json: compare two runs without running",
+    )
+    return ap
+
+
+def main(argv=None, prog: str = "python -m benchmarks") -> int:
+    args = build_parser(prog).parse_args(argv)
+    try:
+        return _main(args)
+    except UserError as exc:
+        name = "evo-door" if prog.startswith("evo-door") else "benchmarks"
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _main(args) -> int:
+    old = None
+    if args.compare:
+        if len(args.compare) > 2:
+            raise UserError("--compare takes OLD.json, or OLD.json NEW.json")
+        old = load_json(args.compare[0])
+        if len(args.compare) == 2:
+            print(compare(old, load_json(args.compare[1])))
+            return 0
+    sections = parse_sections(args.only)
+    out = Path(args.out) if args.out else DEFAULT_OUT
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: not a folder")
+    suite = Suite(quick=args.quick)
+    t_start = time.perf_counter()
+    failed = []
+    for i, name in enumerate(sections, 1):
+        progress(f"{i}/{len(sections)} {name} ...")
+        t0 = time.perf_counter()
+        try:
+            RUNNERS[name](suite)
+        except Exception as exc:  # one broken section does not lose the others' figures
+            failed.append(name)
+            line = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+            suite.notes.append(f"section {name} failed: {line}")
+            progress(f"{i}/{len(sections)} {name} FAILED: {line}")
+            continue
+        progress(f"{i}/{len(sections)} {name} done in {time.perf_counter() - t0:.0f} s")
+    seconds = time.perf_counter() - t_start
+    write_md = not args.quick and args.only is None and not failed
+    paths = save(suite, out, sections, seconds, write_md)
+    info = machine()
+    print(to_markdown(suite, info, sections, seconds))
+    for p in paths.values():
+        print(f"wrote {p}")
+    if old is not None:
+        new = json.loads(paths["json"].read_text())
+        print()
+        print(compare(old, new))
+    if failed:
+        print(f"benchmarks: {len(failed)} section(s) failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,148 @@
+"""The benchmark suite (``python -m benchmarks``): a quick run writes its JSON and
+figure, ``--compare`` prints new / old per metric, bad options are one-line errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: metrics every run of the whole suite has (the issue's list of ratios and targets)
+REQUIRED = (
+    "trial.door.workbench",
+    "trial.door.rk45_compiled",
+    "trial.door.lsoda_compiled",
+    "trial.door.rk45_python",
+    "trial.door.lsoda_python",
+    "trial.door.workbench.error_dtheta",
+    "trial.door.lsoda_compiled.error_theta",
+    "trial.haptic.workbench",
+    "trial.haptic.rk45_compiled",
+    "trial.haptic.lsoda_python",
+    "ga.door.workbench",
+    "ga.door.plain",
+    "ga.haptic.workbench",
+    "ga.haptic.plain",
+    "scaling.population.25",
+    "scaling.trials.1",
+    "scaling.trials.2",
+    "scaling.generations.flatness",
+    "scaling.threads.1",
+    "executors.local",
+    "executors.processes",
+    "device.force_python",
+    "device.force_compiled",
+    "device.servo.on_time",
+    "startup.help",
+    "startup.params_haptic",
+)
+
+
+def bench(*args, timeout=600):
+    return subprocess.run(
+        [sys.executable, "-m", "benchmarks", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def suite_doc(metrics):
+    return {
+        "date": "2026-01-01T00:00:00",
+        "machine_line": "test",
+        "metrics": [
+            {"name": n, "value": v, "unit": "s", "section": n.split(".")[0]} for n, v in metrics
+        ],
+    }
+
+
+@pytest.mark.slow
+def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
+    done = bench("--quick", "--out", str(tmp_path), timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (js,) = tmp_path.glob("suite-*.json")
+    (png,) = tmp_path.glob("suite-*.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    doc = json.loads(js.read_text())
+    assert doc["quick"] is True and doc["machine"]["cpus"] >= 1
+    assert doc["machine"]["versions"]["numba"]
+    metrics = {m["name"]: m for m in doc["metrics"]}
+    missing = [n for n in REQUIRED if n not in metrics]
+    assert not missing, missing
+    for m in metrics.values():
+        assert set(m) >= {"name", "value", "unit", "ratio", "target", "met"}
+    # the plain way is slower than the compiled integrator, its ratio says by how much
+    for name in ("trial.door.rk45_python", "ga.door.plain"):
+        m = metrics[name]
+        assert m["ratio_to"].endswith(".workbench")
+        wb = metrics[m["ratio_to"]]
+        assert m["ratio"] == pytest.approx(m["value"] / wb["value"])
+        assert m["ratio"] > 1
+    # the targets carry their verdict
+    for name in ("trial.door.workbench", "startup.help", "startup.params_haptic"):
+        assert metrics[name]["target"] is not None and isinstance(metrics[name]["met"], bool)
+    # the compiled door trial agrees with Radau (the quick reference is loose)
+    assert metrics["trial.door.workbench.error_theta"]["value"] < 1e-3
+    # every section announced its progress, the table was printed
+    for section in ("trial", "ga", "scaling", "executors", "device", "startup"):
+        assert f"{section} done in" in done.stderr
+    assert "## Targets" in done.stdout
+    # and a run compares with it
+    again = bench("--compare", str(js), str(js))
+    assert again.returncode == 0, again.stderr
+    assert "trial.door.workbench" in again.stdout and "1.000" in again.stdout
+
+
+def test_compare_prints_new_over_old_per_metric(tmp_path):
+    old, new = tmp_path / "old.json", tmp_path / "new.json"
+    old.write_text(json.dumps(suite_doc([("trial.door.workbench", 0.006), ("only.old", 1.0)])))
+    new.write_text(json.dumps(suite_doc([("trial.door.workbench", 0.003), ("only.new", 1.0)])))
+    done = bench("--compare", str(old), str(new), timeout=120)
+    assert done.returncode == 0, done.stderr
+    (row,) = [line for line in done.stdout.splitlines() if line.startswith("trial.door")]
+    assert row.split()[-1] == "0.500"
+    assert "6 ms" in row and "3 ms" in row
+    assert "only.new" in done.stdout and "only.old" in done.stdout  # in one run only
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--only", "trial,bogus"], "unknown section 'bogus'"),
+        (["--compare", "missing.json", "other.json"], "no such file"),
+    ],
+)
+def test_bad_options_are_one_line_errors(tmp_path, args, words):
+    done = bench(*args, "--out", str(tmp_path), timeout=120)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("benchmarks: error:")
+    assert words in lines[0]
+    assert not list(tmp_path.iterdir())  # nothing ran, nothing written
+
+
+def test_compare_refuses_a_file_that_is_not_a_suite(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"metrics": 3}')
+    done = bench("--compare", str(bad), str(bad), timeout=120)
+    assert done.returncode == 2
+    assert (
+        done.stderr.strip() == f"benchmarks: error: {bad}: not a suite JSON file (no metrics list)"
+    )
+
+
+def test_evo_door_bench_runs_the_suite_of_the_checkout():
+    done = subprocess.run(
+        [sys.executable, "-m", "evo_door", "bench", "--only", "nope"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().startswith("evo-door: error: --only: unknown section 'nope'")
