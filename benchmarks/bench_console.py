@@ -275,9 +275,18 @@ def main(argv=None) -> int:
         "and a browser connected. A cycle is late when it starts more than one period after "
         "its slot; missed cycles are slots skipped; the lateness p99 is over all cycles run. "
         "The load average (1 min, mean of the run's start and end) shows whether other "
-        "processes shared the 2 cores: the renderer's paced loop spins on one core, so "
-        "anything that takes both cores (the console, Chromium's renderer, other jobs) "
-        "costs it whole periods.",
+        "processes shared the 2 cores. The render log's `priority` event says how the loop "
+        'was scheduled (real-time where permitted: `docs/renderer.md`, "Keeping time").',
+        "",
+        "How it got here (the same day, steady figures of (b)): the loop spinning with the "
+        "interpreter's 5 ms switch interval, 99.5-99.6 % (the control port starved); a "
+        "`time.sleep(0)` per turn, 95-96.5 %; a 0.1 ms switch interval, 99.6 %; the loop's "
+        "thread on a core of its own at niceness -20 and the console at +10, 99.78-99.86 %. "
+        "Then the loop under real-time scheduling (SCHED_FIFO), sleeping until 0.15 ms "
+        "before each slot, and the renderer's other threads real-time too while it runs: a "
+        "normal thread preempted while holding the interpreter lock had been stalling the "
+        "loop for 1-2 ms (a priority inversion). With the two cores also busy with other "
+        "engineers' test suites (load average 2.5-5.5), (b) then kept 99.89-99.91 %.",
     ]
     publish("\n".join(lines) + "\n", "console.md", write=not args.no_write)
     return 0
