@@ -136,7 +136,7 @@ def test_door_round_trip_on_max_square_ga_then_polish():
         Objective("max_square", 1),
     )
     state = GeneticAlgorithm(GASettings(population=40, generations=8, seed=1)).run(prob)
-    res = polish(prob, state.best_x, LocalSettings(max_iterations=20))
+    res = polish(prob, state.best_x, LocalSettings(max_iterations=40))
     assert res.fitness <= state.best_fitness
     rel = dict(zip(free, np.abs(res.x / prob.base[prob.index] - 1.0)))
     print({k: f"{v:.2e}" for k, v in rel.items()})

@@ -37,7 +37,15 @@ The entry points (:func:`evo_door.sim.simulate`, :func:`evo_door.sim.simulate_ba
 :func:`prepared_form` and, where there is one, prepare each parameter set once and
 integrate with the fast form; :func:`integrate_batch` does it per individual
 inside the compiled parallel loop, so a population never holds more than one
-prepared vector per individual in flight.
+prepared vector per individual in flight. A fast form may come with its own
+:func:`integrate` compiled around it (:func:`integrate_with`, the right-hand side
+inlined into the stages rather than called through a pointer): :func:`integrate`
+runs it when handed that fast form.
+
+Numba's disk cache keys a function on its own file only: code inlined or linked
+from another module (these steps into a model's specialised integrator) is not
+checked, so after editing one module, clear the ``__pycache__/*.nb[ic]`` files of the
+modules that compile it in.
 
 Set ``NUMBA_DISABLE_JIT=1`` to run all kernels as plain Python (debugging, coverage).
 """
@@ -86,6 +94,8 @@ class Prepared:
     accel: Callable
     prepare: Callable
     size: int
+    #: :func:`integrate` compiled around ``accel`` (:func:`integrate_with`), or None
+    integrate: Callable | None = None
 
     def vector(self, p) -> np.ndarray:
         """The prepared vector of the parameter vector ``p``."""
@@ -96,12 +106,23 @@ class Prepared:
 
 #: model accel -> its :class:`Prepared` form
 _PREPARED: dict[object, Prepared] = {}
+#: fast accel -> :func:`integrate` specialised to it
+_SPECIALISED: dict[object, Callable] = {}
 
 
-def register_prepared(accel, fast_accel, prepare, size: int) -> None:
+def register_prepared(accel, fast_accel, prepare, size: int, integrate=None) -> None:
     """Declare ``fast_accel`` on ``prepare``-d vectors of ``size`` floats as the fast
-    form of the model right-hand side ``accel`` (the door does at import)."""
-    _PREPARED[accel] = Prepared(fast_accel, prepare, int(size))
+    form of the model right-hand side ``accel`` (the door does at import).
+
+    ``integrate``, if given, is :func:`integrate` without its first argument,
+    compiled around ``fast_accel`` (a module-level ``njit`` that calls
+    :func:`integrate_with` with ``fast_accel``): :func:`integrate` then runs it when
+    handed ``fast_accel``. Called directly rather than through a function pointer,
+    the right-hand side is inlined into the RK4 stages (some 6 % of a door trial).
+    """
+    _PREPARED[accel] = Prepared(fast_accel, prepare, int(size), integrate)
+    if integrate is not None:
+        _SPECIALISED[fast_accel] = integrate
 
 
 def prepared_form(accel) -> Prepared | None:
@@ -125,7 +146,7 @@ def kernel_form(accel, n_params: int) -> Prepared:
     return prepared_form(accel) or Prepared(accel, copy_params, int(n_params))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def rk4_step(accel, p, theta, dtheta, a_start, f0, f1, h):
     """One RK4 step of length ``h`` with the force going linearly from f0 to f1.
 
@@ -145,7 +166,7 @@ def rk4_step(accel, p, theta, dtheta, a_start, f0, f1, h):
     return theta_new, dtheta_new
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def jacobian(accel, p, theta, dtheta, force, a_start):
     """Stabilising part of (d ddtheta / d theta, d ddtheta / d dtheta), forward differences.
 
@@ -162,7 +183,7 @@ def jacobian(accel, p, theta, dtheta, force, a_start):
     return min(a_t, 0.0), min(a_w, 0.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def ros2_step(accel, p, theta, dtheta, a_start, f1, h, a_t, a_w):
     """One ROS2 step; (a_t, a_w) is the (possibly frozen) Jacobian row of ddtheta.
 
@@ -190,7 +211,7 @@ def ros2_step(accel, p, theta, dtheta, a_start, f1, h, a_t, a_w):
     return theta + h * (1.5 * k1t + 0.5 * k2t), dtheta + h * (1.5 * k1w + 0.5 * k2w)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
     """Move the state over one sample period ``dt`` in ``substeps`` steps.
 
@@ -217,31 +238,20 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
     return theta, dtheta
 
 
-@njit(
-    types.boolean(
-        ACCEL_TYPE,
-        _vec,
-        _vec,
-        types.float64,
-        types.int64,
-        types.float64,
-        types.float64,
-        types.int64,
-        _vec,
-        _vec,
-        _vec,
-    ),
-    cache=True,
-    nogil=True,
-)
-def integrate(
+@njit(cache=True, nogil=True, inline="always")
+def integrate_with(
     accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
 ):
-    """Integrate one trial; fill the three output arrays at the force's sample instants.
+    """The body of :func:`integrate`, generic in ``accel``.
 
-    Returns ``True`` on success, ``False`` if the state became non-finite or the speed
-    exceeded :data:`BLOWUP_SPEED` (the rest of the outputs is then NaN).
+    :func:`integrate_compiled` hands it a first-class function (called through a
+    pointer); a model's specialised integrator (:func:`register_prepared`) hands it
+    its compiled right-hand side by name, which LLVM then inlines into the stages.
+    ``inline="always"`` here and in the steps is what lets numba cache that: the
+    right-hand side stays a direct call, never a value passed to another compiled
+    function (a dispatcher as a value is a "dynamic global" numba will not cache).
     """
+
     n = force.shape[0]
     theta = theta0
     dtheta = dtheta0
@@ -264,6 +274,54 @@ def integrate(
         dtheta_out[k + 1] = dtheta
         ddtheta_out[k + 1] = a_now
     return True
+
+
+#: Signature of :func:`integrate` without its first argument (a specialised form).
+INTEGRATE_SIGNATURE = types.boolean(
+    _vec,
+    _vec,
+    types.float64,
+    types.int64,
+    types.float64,
+    types.float64,
+    types.int64,
+    _vec,
+    _vec,
+    _vec,
+)
+
+
+@njit(types.boolean(ACCEL_TYPE, *INTEGRATE_SIGNATURE.args), cache=True, nogil=True)
+def integrate_compiled(
+    accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+):
+    """:func:`integrate` for compiled callers: ``accel`` through a function pointer."""
+    return integrate_with(
+        accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+    )
+
+
+def integrate(
+    accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+):
+    """Integrate one trial; fill the three output arrays at the force's sample instants.
+
+    Returns ``True`` on success, ``False`` if the state became non-finite or the speed
+    exceeded :data:`BLOWUP_SPEED` (the rest of the outputs is then NaN). Runs the
+    integrator specialised to ``accel`` where one is registered
+    (:func:`register_prepared`), else :func:`integrate_compiled`.
+    """
+    try:
+        special = _SPECIALISED.get(accel)
+    except TypeError:  # an unhashable callable
+        special = None
+    if special is not None:
+        return special(
+            p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+        )
+    return integrate_compiled(
+        accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+    )
 
 
 @njit(
@@ -310,7 +368,7 @@ def integrate_batch(
     for i in prange(P.shape[0]):
         q = np.empty(size)
         prepare(P[i], q)
-        ok_out[i] = integrate(
+        ok_out[i] = integrate_compiled(
             accel,
             q,
             force,

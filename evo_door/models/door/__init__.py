@@ -55,7 +55,7 @@ from evo_door.models.door.posetable import (
 )
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.params import param_vector
-from evo_door.sim.integrators import register_prepared
+from evo_door.sim.integrators import INTEGRATE_SIGNATURE, integrate_with, register_prepared
 
 PARAMS = TABLE
 
@@ -105,6 +105,10 @@ assert all(
 
 CLOSED = 0.5 * math.pi
 
+#: LLVM's fast-math flags for the fast path: no signed zeros, reciprocals, fused
+#: multiply-adds. Never ``nnan`` / ``ninf``: the integrators' blow-up test needs them.
+FAST = {"nsz", "arcp", "contract"}
+
 
 @njit(cache=True, nogil=True)
 def pad_scale(theta, p):
@@ -129,41 +133,48 @@ def mechanism_force(theta, dtheta, p):
     and hinge friction.
     """
     k = pose(theta, p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY])
-    return loads(k, theta, dtheta, p, pad_scale(theta, p), True)
+    q = loads(k, dtheta, p, pad_scale(theta, p))
+    q += latch_load(theta, dtheta, p)
+    q += stop_h(theta, dtheta, p[STOP_STIFFNESS], p[STOP_DAMPING])
+    return q
 
 
 @njit(cache=True, nogil=True, inline="always")
-def loads(k, theta, dtheta, p, scale, with_latch):
-    """:func:`mechanism_force` at the pose ``k``, the pad friction scaled by ``scale``.
+def loads(k, dtheta, p, scale):
+    """The plate's, pad's and slot's generalised force (N m) at the pose ``k``.
 
-    ``with_latch`` False leaves the latch out (the caller knows it gives 0 there).
+    The pad friction is scaled by ``scale``; the latch (:func:`latch_load`) and the
+    stop H (:func:`~evo_door.models.door.plate.stop_h`) are added by the caller, which
+    knows where they give 0.
     """
     pl = plate(k, dtheta, p[L_CY], p[K], p[F_LOAD], p[F_ATC], p[T_ATA], p[A_LIN], p[A_ROT])
     pad = relative_speed(k, dtheta, p[L_DX], p[L_DY], p[F_ATD] * scale, p[A_LIN])
     slot = friction_force(
         k, dtheta, pad.F_Dx, pad.F_Dy, pad.T_B, pl.m, p[MU], p[T_ATB], p[A_LIN], p[A_ROT]
     )
-    q = pl.q + slot.q
-    if with_latch:
-        q += latch(
-            theta,
-            dtheta,
-            p[L],
-            p[UNLOCK_FORCE],
-            p[LOCK_FORCE],
-            p[LATCH_LOOSE_ANGLE],
-            p[LATCH_OPEN_STIFFNESS],
-            p[LATCH_CLOSE_STIFFNESS],
-            p[LATCH_OPEN_HOLD],
-            p[LATCH_CLOSE_HOLD],
-            p[LATCH_SEAT_FORCE],
-            p[LATCH_DAMPING],
-            p[LATCH_SHARPNESS],
-            p[WALL_STIFFNESS],
-            p[WALL_DAMPING],
-        )
-    q += stop_h(theta, dtheta, p[STOP_STIFFNESS], p[STOP_DAMPING])
-    return q
+    return pl.q + slot.q
+
+
+@njit(cache=True, nogil=True)
+def latch_load(theta, dtheta, p):
+    """The latch's generalised force (N m) on theta (:func:`~.latch.latch` on ``p``)."""
+    return latch(
+        theta,
+        dtheta,
+        p[L],
+        p[UNLOCK_FORCE],
+        p[LOCK_FORCE],
+        p[LATCH_LOOSE_ANGLE],
+        p[LATCH_OPEN_STIFFNESS],
+        p[LATCH_CLOSE_STIFFNESS],
+        p[LATCH_OPEN_HOLD],
+        p[LATCH_CLOSE_HOLD],
+        p[LATCH_SEAT_FORCE],
+        p[LATCH_DAMPING],
+        p[LATCH_SHARPNESS],
+        p[WALL_STIFFNESS],
+        p[WALL_DAMPING],
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -202,10 +213,14 @@ TABLE_ERROR = N_PARAMS + 1
 PAD_UNIFORM = N_PARAMS + 2
 #: 1 / I_O (1 / (kg m^2))
 INV_INERTIA = N_PARAMS + 3
-#: 1.0 when there is a catch (unlock or lock force above 0) ...
-HAS_LATCH = N_PARAMS + 4
-#: ... and the foot of its lock ramp theta_3 (rad), below which it gives nothing
-LATCH_THETA_3 = N_PARAMS + 5
+#: The angle (rad) above which the latch (or, without a catch, the wall) may act: the
+#: foot of the lock ramp theta_3 less the width where its activation is 0 to double
+#: precision, and a margin (the latch tests that edge itself, exactly); pi/2 without
+#: a catch, -inf if the test cannot be made (NaN or zero sharpness).
+LATCH_FROM = N_PARAMS + 4
+#: Lowest angle (rad) the pose table serves: ``TABLE_LO``, or +inf if the table
+#: failed its check (the closed form is used throughout).
+TABLE_FROM = N_PARAMS + 5
 #: First float of the pose table (:mod:`~evo_door.models.door.posetable`).
 TABLE_START = N_PARAMS + 6
 #: Length of a prepared vector.
@@ -217,7 +232,8 @@ def prepare(p, q):
     """Fill the prepared vector ``q`` (:data:`PREPARED_SIZE`) for the parameters ``p``.
 
     ``q`` holds ``p``, then what depends on ``p`` but not on the state (the header
-    above: 1 / I_O, whether the pad friction is uniform, where the latch begins), then
+    above: 1 / I_O, whether the pad friction is uniform, where the latch begins, where
+    the table applies), then
     the pose table of ``p``'s geometry with its check
     (:func:`~evo_door.models.door.posetable.build_pose_table`): some 50 us, 1-2 % of a
     5 s trial, once per parameter set for all its trials.
@@ -231,37 +247,46 @@ def prepare(p, q):
             uniform = 0.0
     q[PAD_UNIFORM] = uniform
     q[INV_INERTIA] = 1.0 / (p[I_Z] + p[M] * (p[G_X] * p[G_X] + p[G_Y] * p[G_Y]))
-    q[HAS_LATCH] = 1.0 if p[UNLOCK_FORCE] > 0.0 or p[LOCK_FORCE] > 0.0 else 0.0
-    q[LATCH_THETA_3] = latch_angles(
-        p[UNLOCK_FORCE],
-        p[LOCK_FORCE],
-        p[LATCH_LOOSE_ANGLE],
-        p[LATCH_OPEN_STIFFNESS],
-        p[LATCH_CLOSE_STIFFNESS],
-        p[LATCH_OPEN_HOLD],
-        p[LATCH_CLOSE_HOLD],
-    )[2]
+    if p[UNLOCK_FORCE] > 0.0 or p[LOCK_FORCE] > 0.0:
+        theta_3 = latch_angles(
+            p[UNLOCK_FORCE],
+            p[LOCK_FORCE],
+            p[LATCH_LOOSE_ANGLE],
+            p[LATCH_OPEN_STIFFNESS],
+            p[LATCH_CLOSE_STIFFNESS],
+            p[LATCH_OPEN_HOLD],
+            p[LATCH_CLOSE_HOLD],
+        )[2]
+        # latch() is exactly 0 where (theta_3 - theta) sharpness > 20 and theta <= pi/2
+        edge = theta_3 - 20.0 / p[LATCH_SHARPNESS]
+        edge -= 1e-9 * (1.0 + abs(edge))
+        latch_from = min(edge, CLOSED) if p[LATCH_SHARPNESS] > 0.0 else -math.inf
+        q[LATCH_FROM] = latch_from if not math.isnan(latch_from) else -math.inf
+    else:
+        q[LATCH_FROM] = CLOSED
     scratch = np.empty(NODE)
     err = build_pose_table(p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY], q, TABLE_START, scratch)
     q[TABLE_ERROR] = err
     q[TABLE_OK] = 1.0 if err <= TABLE_TOLERANCE else 0.0
+    q[TABLE_FROM] = TABLE_LO if err <= TABLE_TOLERANCE else math.inf
 
 
 # error_model="numpy": a float division by zero gives inf / nan instead of raising, so
 # numba drops its zero test before each of the ~10 divisions; none of them can divide
 # by zero (I_O > 0, the slot's denominator is floored, tanh's denominators are >= 1).
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def accel_tabulated(theta, dtheta, force, q):
     """:func:`accel` on a :func:`prepare`-d vector ``q``: the pose from its table.
 
     Same blocks, same equations; the chain's pose (and cos, sin of theta for gravity)
     is interpolated, to within 1e-11 of the closed form
     (:mod:`~evo_door.models.door.posetable`), and the header's values replace work per
-    call (1 / I_O, the uniform pad, the latch's test of "far below the catch", the
-    same test :func:`~evo_door.models.door.latch.latch` makes). Outside the table's
-    angles, or when the table failed its check, the pose is the closed form.
+    call (1 / I_O, the uniform pad, where the latch can act: below :data:`LATCH_FROM`
+    it is not called, nor the stop above 0). Outside the table's angles, or when the
+    table failed its check, the pose is the closed form. Fast-math :data:`FAST`;
+    :func:`integrate_tabulated` runs it inlined into the integrator.
     """
-    if q[TABLE_OK] != 0.0 and TABLE_LO <= theta <= TABLE_HI:
+    if q[TABLE_FROM] <= theta <= TABLE_HI:
         k, c, s = table_pose_trig(theta, q[L_OA], q[L_BX], q, TABLE_START)
     else:
         k = pose(theta, q[L_OA], q[L_BX], q[L_BY], q[L_CX], q[L_CY])
@@ -273,23 +298,13 @@ def accel_tabulated(theta, dtheta, force, q):
         scale = section_scale(
             theta, q[FRICTION_SCALE_1 : FRICTION_SCALE_1 + N_SECTIONS], q[SECTION_SHARPNESS]
         )
-    # latch() gives exactly 0 below its window and short of the wall: skip the call
-    with_latch = theta > CLOSED or (
-        q[HAS_LATCH] != 0.0 and not (q[LATCH_THETA_3] - theta) * q[LATCH_SHARPNESS] > 20.0
-    )
-    moment = door_moment(
-        c,
-        s,
-        dtheta,
-        force,
-        loads(k, theta, dtheta, q, scale, with_latch),
-        q[L],
-        q[M],
-        q[G_X],
-        q[G_Y],
-        q[T_ATO],
-        q[A_ROT],
-    )
+    q_ext = loads(k, dtheta, q, scale)
+    # the latch and the stop give exactly 0 over most of the stroke: skip their calls
+    if theta > q[LATCH_FROM]:
+        q_ext += latch_load(theta, dtheta, q)
+    if theta < 0.0:
+        q_ext += stop_h(theta, dtheta, q[STOP_STIFFNESS], q[STOP_DAMPING])
+    moment = door_moment(c, s, dtheta, force, q_ext, q[L], q[M], q[G_X], q[G_Y], q[T_ATO], q[A_ROT])
     return moment * q[INV_INERTIA]
 
 
@@ -300,7 +315,28 @@ def prepared_vector(params) -> np.ndarray:
     return q
 
 
-register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE)
+@njit(INTEGRATE_SIGNATURE, cache=True, nogil=True)
+def integrate_tabulated(
+    q, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+):
+    """:func:`~evo_door.sim.integrators.integrate` compiled around
+    :func:`accel_tabulated` (called directly, inlined into the integrator's stages)."""
+    return integrate_with(
+        accel_tabulated,
+        q,
+        force,
+        dt,
+        substeps,
+        theta0,
+        dtheta0,
+        method,
+        theta_out,
+        dtheta_out,
+        ddtheta_out,
+    )
+
+
+register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE, integrate_tabulated)
 
 
 @njit(cache=True, nogil=True)

@@ -25,7 +25,9 @@ slot  quantity                                    derivative
 ====  ==========================================  ==============================
 
 and the rest of the pose follows by the same arithmetic as the closed form
-(:func:`table_pose`). With exact slopes the interpolant is C1 and its error is
+(:func:`table_pose`). Each interval holds its cubic per quantity in power form, so
+a lookup is three multiply-adds per quantity (:func:`build_pose_table`). With exact
+slopes the interpolant is C1 and its error is
 ``h^4 / 384 max |f''''|``: 1e-12 of the quantities' size on the default grid
 (``tests/test_door_fast.py``). The velocity ratios are tabulated as values (with
 their exact slopes), not differentiated from the positions, so they are as accurate
@@ -56,10 +58,11 @@ TABLE_HI = 0.5 * math.pi + 0.25
 TABLE_INTERVALS = 256
 #: Quantities per node (see the module docstring).
 N_QUANTITIES = 8
-#: Floats per node: each quantity's value and its slope times the spacing h.
-NODE = 2 * N_QUANTITIES
+#: Floats per interval: each quantity's cubic in power form, ``c0 + t (c1 + t (c2 +
+#: t c3))`` with ``t`` in [0, 1] across the interval (:func:`build_pose_table`).
+NODE = 4 * N_QUANTITIES
 #: Floats of a whole table.
-TABLE_SIZE = (TABLE_INTERVALS + 1) * NODE
+TABLE_SIZE = TABLE_INTERVALS * NODE
 #: Largest error (m for lengths, rad for angles, m/rad and 1 for ratios, per unit of
 #: the geometry's size ``l_AB + l_BC``) the mid-interval check accepts.
 TABLE_TOLERANCE = 1e-9
@@ -110,25 +113,19 @@ def pose_rates(theta, L_OA, L_Bx, L_By, L_Cx, L_Cy, out):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _hermite_node(theta, start):
-    """Interval index (its first float in ``q``) and the four Hermite weights at theta."""
+def _interval(theta, start):
+    """The interval's first float in ``q`` and the position ``t`` in [0, 1] across it."""
     u = (theta - TABLE_LO) * (TABLE_INTERVALS / (TABLE_HI - TABLE_LO))
     i = int(u)
     if i >= TABLE_INTERVALS:
         i = TABLE_INTERVALS - 1
-    t = u - i
-    r = 1.0 - t
-    w00 = (1.0 + 2.0 * t) * r * r  # value at the left node
-    w10 = t * r * r  # h * slope at the left node
-    w01 = t * t * (3.0 - 2.0 * t)  # value at the right node
-    w11 = -t * t * r  # h * slope at the right node
-    return start + i * NODE, w00, w10, w01, w11
+    return start + i * NODE, u - i
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _value(q, base, j, w00, w10, w01, w11):
-    a = base + 2 * j
-    return w00 * q[a] + w10 * q[a + 1] + w01 * q[a + NODE] + w11 * q[a + NODE + 1]
+def _value(q, base, j, t):
+    a = base + 4 * j
+    return q[a] + t * (q[a + 1] + t * (q[a + 2] + t * q[a + 3]))
 
 
 @njit(cache=True, nogil=True)
@@ -148,15 +145,15 @@ def table_pose_trig(theta, L_OA, L_Bx, q, start):
 
     The door's gravity needs cos and sin of theta: they come with the pose.
     """
-    base, w00, w10, w01, w11 = _hermite_node(theta, start)
-    c = _value(q, base, 0, w00, w10, w01, w11)
-    s = _value(q, base, 1, w00, w10, w01, w11)
-    hy = _value(q, base, 2, w00, w10, w01, w11)
-    dby = _value(q, base, 3, w00, w10, w01, w11)
-    dphi = _value(q, base, 4, w00, w10, w01, w11)
-    qx = _value(q, base, 5, w00, w10, w01, w11)
-    qy = _value(q, base, 6, w00, w10, w01, w11)
-    phi = _value(q, base, 7, w00, w10, w01, w11)
+    base, t = _interval(theta, start)
+    c = _value(q, base, 0, t)
+    s = _value(q, base, 1, t)
+    hy = _value(q, base, 2, t)
+    dby = _value(q, base, 3, t)
+    dphi = _value(q, base, 4, t)
+    qx = _value(q, base, 5, t)
+    qy = _value(q, base, 6, t)
+    phi = _value(q, base, 7, t)
     ax = L_OA * c
     ay = L_OA * s
     by = ay + hy
@@ -171,7 +168,11 @@ def table_pose_trig(theta, L_OA, L_Bx, q, start):
 def build_pose_table(L_OA, L_Bx, L_By, L_Cx, L_Cy, q, start, scratch):
     """Fill ``q[start:start + TABLE_SIZE]`` for this geometry; return the check's error.
 
-    ``scratch`` is a float64 array of at least ``NODE`` values. The returned number is
+    ``scratch`` is a float64 array of at least ``NODE`` values. Each interval holds,
+    per quantity, the power-form coefficients of the cubic Hermite interpolant between
+    its two nodes (values ``y0``, ``y1`` and slopes times h ``m0``, ``m1``):
+    ``y0``, ``m0``, ``3 (y1 - y0) - 2 m0 - m1``, ``2 (y0 - y1) + m0 + m1``, so that a
+    lookup is three multiply-adds per quantity. The returned number is
     the largest difference, at the middle of every interval, between the interpolant
     and the closed form over the quantities that carry a length (h_y, q_x, q_y, in
     units of the geometry's size ``l_AB + l_BC``) and the angles and ratios (phi,
@@ -179,12 +180,23 @@ def build_pose_table(L_OA, L_Bx, L_By, L_Cx, L_Cy, q, start, scratch):
     finite somewhere on the grid (a geometry through a dead centre).
     """
     h = (TABLE_HI - TABLE_LO) / TABLE_INTERVALS
-    for i in range(TABLE_INTERVALS + 1):
-        pose_rates(TABLE_LO + i * h, L_OA, L_Bx, L_By, L_Cx, L_Cy, scratch)
+    left = 0  # scratch[left:left + 2 N_QUANTITIES]: the interval's left node
+    right = 2 * N_QUANTITIES
+    pose_rates(TABLE_LO, L_OA, L_Bx, L_By, L_Cx, L_Cy, scratch[left:right])
+    for i in range(TABLE_INTERVALS):
+        pose_rates(TABLE_LO + (i + 1) * h, L_OA, L_Bx, L_By, L_Cx, L_Cy, scratch[right:])
         a = start + i * NODE
         for j in range(N_QUANTITIES):
-            q[a + 2 * j] = scratch[2 * j]
-            q[a + 2 * j + 1] = h * scratch[2 * j + 1]
+            y0 = scratch[left + 2 * j]
+            m0 = h * scratch[left + 2 * j + 1]
+            y1 = scratch[right + 2 * j]
+            m1 = h * scratch[right + 2 * j + 1]
+            q[a + 4 * j] = y0
+            q[a + 4 * j + 1] = m0
+            q[a + 4 * j + 2] = 3.0 * (y1 - y0) - 2.0 * m0 - m1
+            q[a + 4 * j + 3] = 2.0 * (y0 - y1) + m0 + m1
+        for j in range(2 * N_QUANTITIES):
+            scratch[left + j] = scratch[right + j]
     size = math.hypot(L_Bx - L_OA, L_By) + math.hypot(L_Cx - L_Bx, L_Cy - L_By)
     worst = 0.0
     for i in range(TABLE_INTERVALS):
