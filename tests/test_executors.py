@@ -146,6 +146,19 @@ def test_the_experiment_key_and_the_flag_are_checked(tmp_path, capsys):
     assert not (tmp_path / "r.h5").exists()
 
 
+def test_an_address_where_nothing_listens_is_refused_before_a_file_is_written(tmp_path, capsys):
+    from evo_door.cli import main
+
+    path = tmp_path / "small.yaml"
+    path.write_text(SMALL)
+    out = tmp_path / "r.h5"
+    port = _free_port()  # nothing listens there
+    assert main(["run", str(path), "--executor", f"tcp://127.0.0.1:{port}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"executor tcp://127.0.0.1:{port}: no Dask scheduler answers there" in err
+    assert err.count("\n") == 1 and not out.exists()
+
+
 def test_dask_missing_names_the_fix(monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
     msg = _message(lambda: open_executor("dask").__enter__())

@@ -140,9 +140,9 @@ def check_executor(text) -> str:
 
 
 def preflight(text) -> str:
-    """Check what can be checked before a run writes anything: the name, and that Dask
-    is installed for ``dask`` and ``tcp://`` (reaching a scheduler is checked when the
-    run starts it)."""
+    """Check what can be checked before a run writes anything: the name, that Dask is
+    installed for ``dask`` and ``tcp://``, and that something listens at a scheduler's
+    address (whether it is a Dask scheduler is checked when the run connects)."""
     spec = ExecutorSpec.parse(text)
     if spec.kind in ("dask", "scheduler"):
         import importlib.util
@@ -151,7 +151,26 @@ def preflight(text) -> str:
             raise UserError(
                 f"executor {spec.text} needs Dask distributed, which is not installed: {DASK_HINT}"
             )
+    if spec.kind == "scheduler":
+        _check_listening(spec)
     return spec.text
+
+
+def _check_listening(spec: ExecutorSpec) -> None:
+    """A one-line :class:`UserError` if nothing accepts a TCP connection at a scheduler's
+    address (refused at once, or no answer within ``CONNECT_TIMEOUT``)."""
+    import socket
+
+    m = _ADDRESS.match(spec.address)
+    host = m.group("host").strip("[]")
+    try:
+        with socket.create_connection((host, int(m.group("port"))), timeout=CONNECT_TIMEOUT):
+            pass
+    except OSError as exc:
+        raise UserError(
+            f"executor {spec.text}: no Dask scheduler answers there ({exc.strerror or exc}); "
+            "start one (dask scheduler) or check the address"
+        ) from None
 
 
 def open_executor(text) -> Executor:
