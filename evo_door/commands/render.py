@@ -11,7 +11,8 @@ from evo_door.errors import UserError
 
 ORDER = 60
 
-#: niceness added to the console's process (the servo loop's thread takes -15)
+#: niceness added to the console's process (spawned before the servo loop starts, so it
+#: keeps normal scheduling while the loop's thread runs real-time or at niceness -20)
 CONSOLE_NICENESS = 10
 
 
