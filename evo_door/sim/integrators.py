@@ -106,8 +106,6 @@ class Prepared:
 
 #: model accel -> its :class:`Prepared` form
 _PREPARED: dict[object, Prepared] = {}
-#: fast accel -> :func:`integrate` specialised to it
-_SPECIALISED: dict[object, Callable] = {}
 
 
 def register_prepared(accel, fast_accel, prepare, size: int, integrate=None) -> None:
@@ -121,8 +119,6 @@ def register_prepared(accel, fast_accel, prepare, size: int, integrate=None) -> 
     the right-hand side is inlined into the RK4 stages (some 6 % of a door trial).
     """
     _PREPARED[accel] = Prepared(fast_accel, prepare, int(size), integrate)
-    if integrate is not None:
-        _SPECIALISED[fast_accel] = integrate
 
 
 def prepared_form(accel) -> Prepared | None:
@@ -311,10 +307,7 @@ def integrate(
     integrator specialised to ``accel`` where one is registered
     (:func:`register_prepared`), else :func:`integrate_compiled`.
     """
-    try:
-        special = _SPECIALISED.get(accel)
-    except TypeError:  # an unhashable callable
-        special = None
+    special = next((f.integrate for f in _PREPARED.values() if f.accel is accel), None)
     if special is not None:
         return special(
             p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
