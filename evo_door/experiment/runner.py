@@ -526,8 +526,6 @@ class ExperimentRun:
     def _run_ga(self, job: Job, problem, progress: bool) -> None:
         """The GA's one loop, with this run's hooks: progress, checkpoint, early stop."""
         settings = self.algorithm.ga
-        # shipped to workers by the model's name: they load its compiled code from cache
-        problem.model_name = self.setup.model_name
 
         def checkpoint(state):
             job.ga = state

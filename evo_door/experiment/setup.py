@@ -55,6 +55,7 @@ class Setup:
             self.validation,
             self.method,
             self.substeps,
+            self.model_name,  # a pickled problem finds its model by it (executors)
         )
 
     def start_vector(self) -> np.ndarray:

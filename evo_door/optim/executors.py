@@ -50,7 +50,6 @@ import pickle
 import re
 import shutil
 import tempfile
-import threading
 import uuid
 
 from evo_door.errors import UserError
@@ -167,10 +166,16 @@ def _check_listening(spec: ExecutorSpec) -> None:
         with socket.create_connection((host, int(m.group("port"))), timeout=CONNECT_TIMEOUT):
             pass
     except OSError as exc:
-        raise UserError(
-            f"executor {spec.text}: no Dask scheduler answers there ({exc.strerror or exc}); "
-            "start one (dask scheduler) or check the address"
-        ) from None
+        raise _no_scheduler(spec.text, exc.strerror or exc) from None
+
+
+def _no_scheduler(name: str, why) -> UserError:
+    """The one-line error for a scheduler address nobody answers at."""
+    why = " ".join(str(why).split())[:120]
+    return UserError(
+        f"executor {name}: no Dask scheduler answers there ({why}); "
+        "start one (dask scheduler) or check the address"
+    )
 
 
 def open_executor(text) -> Executor:
@@ -185,7 +190,6 @@ def open_executor(text) -> Executor:
 
 
 # -- what runs in a worker ------------------------------------------------------------
-_THREADS_LOCK = threading.Lock()
 #: a pool worker's problems by token (read once from the file the parent wrote)
 _SHIPPED: dict = {}
 
@@ -217,10 +221,6 @@ def _load_shipped(token: str, path: str):
 def _evaluate_shipped(token: str, path: str, X):
     """``evaluate(X)`` of the problem a pool's parent shipped in ``path`` (pool task)."""
     return _load_shipped(token, path).evaluate(X)
-
-
-def _init_pool_worker(threads: int) -> None:
-    _set_threads(threads)
 
 
 def _call(fn, item, threads):
@@ -377,7 +377,7 @@ class ProcessExecutor(Executor):
         return ProcessPoolExecutor(
             max_workers=self.slots,
             mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_pool_worker,
+            initializer=_set_threads,
             initargs=(self.threads,),
         )
 
@@ -530,11 +530,7 @@ class DaskExecutor(Executor):
                     self.spec.address, timeout=CONNECT_TIMEOUT, set_as_default=False
                 )
             except (OSError, TimeoutError) as exc:
-                raise UserError(
-                    f"executor {self.name}: no Dask scheduler answers there "
-                    f"({' '.join(str(exc).split())[:120]}); start one (dask scheduler) or "
-                    "check the address"
-                ) from None
+                raise _no_scheduler(self.name, exc) from None
             try:
                 self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError):
