@@ -151,6 +151,19 @@ def linear_fit(x, y):
     return a, b, 1.0 - np.sum((np.asarray(y) - pred) ** 2) / ss if ss > 0 else 1.0
 
 
+def experiment_yaml(model, problem, population, generations, seed=1, run="bench") -> str:
+    """The experiment file of ``problem``'s GA on the trials of ``trials.h5`` next to it."""
+    free = "\n".join(
+        f"  {n}: [{float(lo)!r}, {float(hi)!r}]"
+        for n, lo, hi in zip(problem.free, problem.lower, problem.upper)
+    )
+    return (
+        f"name: {run}\nmodel: {model}\ntarget: {{data: trials.h5}}\nfree:\n{free}\n"
+        "objective: {kind: max_square, derivative: 1}\n"
+        f"algorithm: {{population: {population}, generations: {generations}, seed: {seed}}}\n"
+    )
+
+
 def time_run(name, problem, population=100, generations=20, seed=1):
     """Seconds of ``run_experiment`` for the same GA: checkpoint to HDF5 every generation.
 
@@ -162,15 +175,7 @@ def time_run(name, problem, population=100, generations=20, seed=1):
     from evo_door.data.io import write_trials
     from evo_door.experiment import load_experiment, run_experiment
 
-    free = "\n".join(
-        f"  {n}: [{float(lo)!r}, {float(hi)!r}]"
-        for n, lo, hi in zip(problem.free, problem.lower, problem.upper)
-    )
-    text = (
-        f"name: bench\nmodel: {name}\ntarget: {{data: trials.h5}}\nfree:\n{free}\n"
-        "objective: {kind: max_square, derivative: 1}\n"
-        f"algorithm: {{population: {population}, generations: {generations}, seed: {seed}}}\n"
-    )
+    text = experiment_yaml(name, problem, population, generations, seed)
     import subprocess
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -543,22 +543,14 @@ REFUSED = "unrecognized arguments: --executor"
 
 def section_executors(suite: Suite) -> None:
     """``evo-door run --executor X`` end to end, each in a fresh process."""
-    from benchmarks.bench_ga import make_problem
+    from benchmarks.bench_ga import experiment_yaml, make_problem
     from evo_door.data.io import write_trials
     from evo_door.models import get_model
 
     pop, gens = (20, 2) if suite.quick else (100, 5)
     model = get_model("door")
     problem = make_problem(model, 2)
-    free = "\n".join(
-        f"  {n}: [{float(lo)!r}, {float(hi)!r}]"
-        for n, lo, hi in zip(problem.free, problem.lower, problem.upper)
-    )
-    text = (
-        f"name: bench_executors\nmodel: door\ntarget: {{data: trials.h5}}\nfree:\n{free}\n"
-        "objective: {kind: max_square, derivative: 1}\n"
-        f"algorithm: {{population: {pop}, generations: {gens}, seed: 1}}\n"
-    )
+    text = experiment_yaml("door", problem, pop, gens, run="bench_executors")
     # (metric key, --executor, what it is)
     cases = [
         ("local", "local", "local (compiled batch on numba threads)"),
