@@ -1,9 +1,10 @@
-"""Shared fixtures: small analytic test models that need no door physics; the
-HapticMaster emulator and a client started on it."""
+"""Shared fixtures: small analytic test models that need no door physics; the bundled
+models' usual parameter sets; the HapticMaster emulator and a client started on it."""
 
 import pytest
 from numba import njit
 
+from evo_door.models import get_model
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
 
@@ -23,6 +24,24 @@ OSCILLATOR_PARAMS = ParamTable(
         Param("theta_eq", "rad", 0.0, -10.0, 10.0, "geometry", "equilibrium angle"),
     ],
 )
+
+
+@pytest.fixture(scope="session")
+def door():
+    """The physical door model."""
+    return get_model("door")
+
+
+@pytest.fixture(scope="session")
+def default(door):
+    """The door's ``default`` preset (parameter sets are read-only)."""
+    return door.load_params("default")
+
+
+@pytest.fixture(scope="session")
+def seed_trial():
+    """The haptic model's ``seed_trial`` preset."""
+    return get_model("haptic").load_params("seed_trial")
 
 
 @pytest.fixture(scope="session")

@@ -39,11 +39,6 @@ TOKEN = "s3cret-token"
 SENSATIONS = [p.name for p in PARAMS if p.group == "sensation"]
 
 
-@pytest.fixture(scope="module")
-def seed_trial():
-    return get_model("haptic").load_params("seed_trial")
-
-
 @pytest.fixture
 def renderer(seed_trial):
     """A renderer whose passivity check a sensation can fail: the model's tanh friction

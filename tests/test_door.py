@@ -7,7 +7,6 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from evo_door.cli import main
-from evo_door.models import get_model
 from evo_door.models.door import energy_of, kinematics, laws
 from evo_door.models.door.drawing import draw_mechanism
 from evo_door.sim import quasi_static_curve, quasi_static_force, simulate
@@ -16,16 +15,6 @@ from evo_door.sim.simulate import param_vector
 DT = 1.0 / 1024.0
 CLOSED = 0.5 * math.pi
 FRICTIONS = ("T_atO", "T_atA", "T_atB", "mu", "F_atC", "F_atD")
-
-
-@pytest.fixture(scope="module")
-def door():
-    return get_model("door")
-
-
-@pytest.fixture(scope="module")
-def default(door):
-    return door.load_params("default")
 
 
 def frictionless(door, **extra):

@@ -24,16 +24,6 @@ CLOSED = 0.5 * math.pi
 GEOMETRY = ("L_OA", "L_Bx", "L_By", "L_Cx", "L_Cy")
 
 
-@pytest.fixture(scope="module")
-def door():
-    return get_model("door")
-
-
-@pytest.fixture(scope="module")
-def default(door):
-    return door.load_params("default")
-
-
 def geometry(ps):
     return tuple(float(ps[n]) for n in GEOMETRY)
 

@@ -14,7 +14,6 @@ from evo_door.cli import main
 from evo_door.data.io import read_trials
 from evo_door.errors import UserError
 from evo_door.files import open_h5, read_attrs
-from evo_door.models import get_model
 from evo_door.models.haptic import PARAMS, device_force, on_path
 from evo_door.params import param_vector
 from evo_door.render.device import SimDevice, UserScript
@@ -32,11 +31,6 @@ from evo_door.render.safety import (
 )
 
 LIMIT = 200.0
-
-
-@pytest.fixture(scope="module")
-def seed_trial():
-    return get_model("haptic").load_params("seed_trial")
 
 
 # -- simulated device ------------------------------------------------------------------

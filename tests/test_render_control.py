@@ -11,18 +11,12 @@ import pytest
 
 from evo_door.cli import build_parser, main
 from evo_door.errors import UserError
-from evo_door.models import get_model
 from evo_door.models.haptic import PARAMS
 from evo_door.render.control import ControlServer, parse_control, request
 from evo_door.render.device import SimDevice
 from evo_door.render.keys import LETTERS, key_change, key_map, nice_step
 from evo_door.render.loop import ServoLoop
 from tests.conftest import yielding_sim
-
-
-@pytest.fixture(scope="module")
-def seed_trial():
-    return get_model("haptic").load_params("seed_trial")
 
 
 @pytest.fixture

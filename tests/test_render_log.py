@@ -16,7 +16,6 @@ from evo_door.cli import main
 from evo_door.data.io import read_trials
 from evo_door.errors import UserError
 from evo_door.files import open_h5, read_attrs
-from evo_door.models import get_model
 from evo_door.models.haptic import PARAMS
 from evo_door.render.device import SimDevice
 from evo_door.render.log import (
@@ -110,11 +109,6 @@ def test_sixty_seconds_of_render_hold_under_ten_megabytes(seed_trial):
     assert len(log._blocks) == -(-60000 // BLOCK_ROWS)
     assert 60000 * N_COLUMNS * 8 <= held < 10e6
     assert np.isfinite(log.array()).all()
-
-
-@pytest.fixture(scope="module")
-def seed_trial():
-    return get_model("haptic").load_params("seed_trial")
 
 
 def _wait_for_size(path, size, timeout=10.0):

@@ -12,7 +12,6 @@ import time
 import pytest
 
 import evo_door.render.loop as loop_module
-from evo_door.models.base import get_model
 from evo_door.render.device import SimDevice
 from evo_door.render.loop import ServoLoop
 
@@ -40,11 +39,6 @@ def _realtime_permitted() -> bool:
 needs_realtime = pytest.mark.skipif(
     not _realtime_permitted(), reason="real-time scheduling not permitted here"
 )
-
-
-@pytest.fixture(scope="module")
-def seed_trial():
-    return get_model("haptic").load_params("seed_trial")
 
 
 def _priority_events(loop):

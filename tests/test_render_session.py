@@ -20,11 +20,6 @@ from evo_door.render.loop import ServoLoop
 from tests.conftest import yielding_sim
 
 
-@pytest.fixture(scope="module")
-def seed_trial():
-    return get_model("haptic").load_params("seed_trial")
-
-
 def _session(seed_trial, path, choose=True):
     """A scripted session over the control port while the loop runs in its thread."""
     loop = ServoLoop(yielding_sim("hold", seed=1), seed_trial)

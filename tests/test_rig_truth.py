@@ -39,16 +39,6 @@ DT = 1.0 / 1024
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="module")
-def door():
-    return get_model("door")
-
-
-@pytest.fixture(scope="module")
-def default(door):
-    return door.load_params("default")
-
-
 def make_truth(door, params, values, substeps=None):
     return DoorTruth(door, params, load_truth_params(None, values), substeps=substeps)
 
