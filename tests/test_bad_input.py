@@ -256,6 +256,17 @@ CASES = {
     "resume: trials, not a run": ("resume {w}/trials.h5", "trials.h5"),
     "resume: truncated": ("resume {w}/truncated.h5", "truncated.h5"),
     "resume: picture": ("resume {w}/picture.png", "picture.png"),
+    "resume: unknown executor": ("resume {w}/run.h5 --executor gpu", "'gpu'"),
+    "run: unknown executor": ("run {w}/exp.yaml --executor gpu --out {w}/r.h5", "'gpu'"),
+    "run: no workers in a pool": (
+        "run {w}/exp.yaml --executor processes:0 --out {w}/r.h5",
+        "processes:0",
+    ),
+    "batch: read-only target": ("batch {w}/exp.yaml --out {ro}/b", "b"),
+    "batch: file as folder": ("batch {w}/exp.yaml --out {w}/afile/b", "afile"),
+    "batch: bad --set": ("batch {w}/exp.yaml --set =3 --out {w}/b", "--set"),
+    "batch: unknown executor": ("batch {w}/exp.yaml --executor gpu --out {w}/b", "'gpu'"),
+    "bench: unknown section": ("bench --only nope --out {w}/bench", "nope"),
 }
 
 
