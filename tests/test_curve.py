@@ -24,6 +24,9 @@ from evo_door.sim.simulate import (
 from tests.test_cli import cli
 from tests.test_input_files import one_line_error
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 CLOSED = 0.5 * math.pi
 #: Names of the latch forces: (pulled to open, pushed to close).
 LATCH = {"haptic": ("open_force", "close_force"), "door": ("unlock_force", "lock_force")}

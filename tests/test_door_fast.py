@@ -2,7 +2,7 @@
 
 The fast path (``accel_tabulated`` on a prepared vector, what ``simulate``,
 ``simulate_batch`` and the GA run) must be the closed-form model to within far less
-than the integrator's own error against Radau (2e-4 rad/s, ``test_door.py``).
+than the integrator's own error against a converged reference (5e-5 rad/s, ``test_door.py``).
 """
 
 import math
@@ -18,6 +18,9 @@ from evo_door.optim.kernels import ISE, population_errors
 from evo_door.sim import simulate, simulate_batch
 from evo_door.sim.integrators import RK4, integrate, prepared_form
 from evo_door.sim.simulate import param_vector
+
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
 
 DT = 1.0 / 1024.0
 CLOSED = 0.5 * math.pi
@@ -210,7 +213,7 @@ TRIALS = {
 
 @pytest.mark.parametrize("name", sorted(TRIALS))
 def test_fast_trial_is_the_closed_form_trial(door, name):
-    """Far below RK4's own error against Radau (2e-4 rad/s, 2e-5 rad)."""
+    """Far below RK4's own error against a converged reference (5e-5 rad/s, 1e-7 rad)."""
     values, shape, theta0 = TRIALS[name]
     ps = door.load_params("default", values)
     if theta0 is None:

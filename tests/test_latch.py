@@ -25,6 +25,9 @@ from evo_door.models.haptic import latch_angles_of, tangential_force
 from evo_door.params import param_vector
 from evo_door.sim import quasi_static_force, simulate
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 DT = 1.0 / 1024.0
 CLOSED = 0.5 * math.pi
 DEG = math.pi / 180.0

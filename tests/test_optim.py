@@ -17,6 +17,9 @@ from evo_door.optim.operators import (
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL as OSC
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 DT = 1.0 / 1024.0
 TRUE = {"k": 100.0, "c": 2.0, "inertia": 1.5}
 

@@ -17,6 +17,9 @@ from evo_door.models import get_model
 from evo_door.optim import GASettings, GeneticAlgorithm, Objective, Problem, slsqp
 from evo_door.sim import simulate
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 DT = 1.0 / 1024.0
 
 

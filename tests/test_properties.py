@@ -20,6 +20,9 @@ from evo_door.models import get_model
 from evo_door.models.door import kinematics
 from evo_door.params import load_params
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 CLOSED = 0.5 * math.pi
 #: 40 examples a property (EVO_DOOR_EXAMPLES=600 for a deeper search). With ``CI`` set
 #: (``.ci/run`` sets it) the draws are the same every run, so a red CI reproduces;

@@ -13,6 +13,9 @@ from evo_door.models import haptic
 from evo_door.params import param_vector
 from evo_door.render import friction as fr
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 T = 1.0 / fr.DEFAULT_RATE  # s, the HapticMaster's servo period
 M = 4.0  # kg, the seed's virtual mass (inertia 1.2 kg m / radius 0.3 m)
 

@@ -20,6 +20,9 @@ from evo_door.render import friction as fr
 from evo_door.render.device import ForceScript, SimDevice
 from evo_door.render.loop import ServoLoop, compute_command_implicit
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 RATE = 2500.0
 SLOPE = 1000.0  # s/rad
 SEGMENTS = ((0.5, 0.2), (15.0, 0.4), (25.0, 0.3))  # (N toward closing, s)

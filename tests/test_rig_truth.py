@@ -35,6 +35,9 @@ from evo_door.params import param_vector
 from evo_door.sim import simulate
 from tests.test_cli import cli
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 DT = 1.0 / 1024
 REPO = Path(__file__).resolve().parents[1]
 

@@ -19,6 +19,9 @@ from evo_door.experiment import Results
 from evo_door.models import available_models, base, get_model
 from tests.conftest import OSCILLATOR_MODEL
 
+# compared against references: run again on a generic CPU in CI (pyproject markers)
+pytestmark = pytest.mark.numerics
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "drawer"
 #: The soft_close preset: the true values of the example's rig trials.
