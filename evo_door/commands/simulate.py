@@ -61,9 +61,11 @@ def register(sub) -> None:
 def run(args) -> int:
     from evo_door.data.forcecsv import read_force
     from evo_door.data.trial import check_theta0
+    from evo_door.files import Output, claim_outputs
     from evo_door.sim import simulate
 
     model, params = model_and_params(args)
+    claim = claim_outputs([Output(args.out)], [args.input, params.source])
     if args.substeps is not None and args.substeps < 1:
         raise UserError(f"--substeps {args.substeps}: must be at least 1")
     check_positive(args.rate, "--rate")
@@ -91,6 +93,7 @@ def run(args) -> int:
         substeps=args.substeps,
     )
     response.to_csv(args.out)
+    claim.note()
     if not response.ok:
         raise UserError(
             f"simulation blew up (non-finite state); {args.out} holds NaN from "
