@@ -118,3 +118,41 @@ def test_a_trial_output_that_does_not_exist_needs_no_force(tmp_path):
         claim_outputs([Output(tmp_path / "t.h5", kind=TRIALS)], [])
     claim = claim_outputs([Output(tmp_path / "t.h5", kind=DERIVED)], [])
     assert claim.replaced == [tmp_path / "t.h5"]
+
+
+# -- simulate: a response outside the model's range ----------------------------------
+def test_simulate_warns_when_a_force_in_kn_drives_the_door_past_closed(tmp_path, capsys):
+    inp = _force_csv(tmp_path / "f.csv", 20.0)  # 20 kN read as kN: 20000 N
+    out = tmp_path / "o.csv"
+    res = cli(capsys, "simulate", "door", "--input", inp, "--map", "force=force:kN", "--out", out)
+    assert res.returncode == 0, res.stderr
+    (line,) = res.stderr.splitlines()
+    assert line.startswith("evo-door: warning: the response reaches 10")
+    assert "deg" in line and "past closed" in line and "range 0..90 deg" in line
+    # the same force in N stays in the range: nothing said
+    quiet = cli(capsys, "simulate", "door", "--input", inp, "--out", tmp_path / "p.csv")
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+
+
+def test_simulate_warns_past_fully_open_too(tmp_path, capsys):
+    inp = _force_csv(tmp_path / "f.csv", -2.0)
+    args = ["simulate", "haptic", "--input", inp, "--map", "force=force:kN", "--theta0", "1.2"]
+    res = cli(capsys, *args, "--out", tmp_path / "o.csv")
+    assert res.returncode == 0 and "past fully open" in res.stderr, res.stderr
+    assert "deg at t = " in res.stderr
+
+
+@pytest.mark.parametrize("name", ["door", "haptic"])
+def test_a_hands_push_against_a_stop_stays_within_the_warning_margin(name):
+    """RANGE_MARGIN's premise: 200 N held against either end stop for 2 s is not warned."""
+    from evo_door.commands.simulate import range_warning
+    from evo_door.models import get_model
+    from evo_door.sim import simulate
+
+    model = get_model(name)
+    params = model.load_params(None)
+    for force, theta0 in ((200.0, 1.2), (-200.0, 0.3)):
+        response = simulate(model, params, np.full(2048, force), 1 / 1024, theta0=theta0)
+        assert range_warning(model, response) is None, (force, response.theta.min())
+    kn = simulate(model, params, np.full(2048, 2e4), 1 / 1024, theta0=1.2)
+    assert "past closed" in range_warning(model, kn)
