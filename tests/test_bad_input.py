@@ -74,6 +74,13 @@ def ws(tmp_path_factory):
         fh.seek(info.byte_offset + 16)
         fh.write(b"\xff" * 64)
     (w / "ro").mkdir()  # replaced by a truly read-only folder per test when not root
+    # parameter files, for outputs named like an input (p.csv: YAML all the same)
+    from evo_door.models import get_model
+
+    get_model("door").load_params(None).to_yaml(w / "p.yaml")
+    shutil.copy(w / "p.yaml", w / "p.csv")
+    get_model("haptic").load_params("seed_trial").to_yaml(w / "hp.yaml")
+    (w / "side.partial").write_bytes(b"a render's side file\n")
     return w
 
 
@@ -85,6 +92,9 @@ def snapshot(folder: Path) -> dict:
         for p in sorted(folder.rglob("*"))
     }
 
+
+#: what the error says when an output is one of the command's inputs
+IN = "is also an input of this command"
 
 #: (command line, what the error must name). {w}: the workspace; {ro}: a read-only folder.
 CASES = {
@@ -267,6 +277,71 @@ CASES = {
     "batch: bad --set": ("batch {w}/exp.yaml --set =3 --out {w}/b", "--set"),
     "batch: unknown executor": ("batch {w}/exp.yaml --executor gpu --out {w}/b", "'gpu'"),
     "bench: unknown section": ("bench --only nope --out {w}/bench", "nope"),
+    # a trial file is replaced only with --force (data import: or extended, --append)
+    "data import: trial file at --out": (
+        "data import {w}/force.csv --out {w}/trials.h5",
+        "--force to replace it or --append",
+    ),
+    "rig: trial file at --out": (
+        "rig generate --model door --trials 1 --out {w}/trials.h5",
+        "--force to replace it",
+    ),
+    "render: trial file at --log": (
+        "render --params seed_trial --user hold --duration 0.1 --log {w}/trials.h5",
+        "--force to replace it",
+    ),
+    # no command writes over one of its inputs, --force or not
+    "params: --write onto --params": ("params door --params {w}/p.yaml --write {w}/p.yaml", IN),
+    "simulate: --out onto --input": ("simulate door --input {w}/force.csv --out {w}/force.csv", IN),
+    "simulate: --out onto --params": (
+        "simulate door --params {w}/p.csv --input {w}/force.csv --out {w}/p.csv",
+        IN,
+    ),
+    "curve: --out onto --params": ("curve door --params {w}/p.csv --out {w}/p.csv", IN),
+    "curve: --plot onto --out": ("curve door --out {w}/c.png --plot {w}/c.png", "both --out"),
+    "draw: --out onto --params": ("draw door --params {w}/p.yaml --out {w}/p.yaml", IN),
+    "rig: --out onto --params": (
+        "rig generate --model door --params {w}/p.csv --trials 1 --out {w}/p.csv",
+        IN,
+    ),
+    "rig: --out onto --params, --force": (
+        "rig generate --model door --params {w}/p.csv --trials 1 --out {w}/p.csv --force",
+        IN,
+    ),
+    "data import: --out onto an input": ("data import {w}/trials.h5 --out {w}/trials.h5", IN),
+    "data import: --out onto an input, --force": (
+        "data import {w}/trials.h5 --out {w}/trials.h5 --force",
+        IN,
+    ),
+    "data import: --out onto an input, --append": (
+        "data import {w}/trials.h5 --out {w}/trials.h5 --append",
+        IN,
+    ),
+    "data import: --out onto an input by another name": (
+        "data import {w}/folder/../trials.h5 --out {w}/trials.h5 --force",
+        IN,
+    ),
+    "data show: --plot onto the trials": ("data show {w}/trials.h5 --plot {w}/trials.h5", IN),
+    "show: --plot onto the results": ("show {w}/run.h5 --plot {w}/run.h5", IN),
+    "show: --convergence onto the results": ("show {w}/run.h5 --convergence {w}/run.h5", IN),
+    "show: --plot and --convergence one file": (
+        "show {w}/run.h5 --plot {w}/f.png --convergence {w}/f.png",
+        "both --plot",
+    ),
+    "export-spec: --out onto the results": ("export-spec {w}/run.h5 --out {w}/run.h5", IN),
+    "export-spec: --out onto the results, yaml": (
+        "export-spec {w}/run.h5 --format yaml --out {w}/run.h5",
+        IN,
+    ),
+    "report: --out onto the results": ("report {w}/run.h5 --out {w}/run.h5", IN),
+    "render: --log onto --params, --force": (
+        "render --params {w}/hp.yaml --user hold --duration 0.1 --log {w}/hp.yaml --force",
+        IN,
+    ),
+    "render: --recover onto its side file": (
+        "render --recover {w}/side.partial --log {w}/side.partial --force",
+        IN,
+    ),
 }
 
 

@@ -113,9 +113,9 @@ def test_implicit_friction_never_reverses_a_sliding_handle():
 
 
 def test_render_cli_takes_the_friction_law_and_logs_it(tmp_path, capsys):
-    log = tmp_path / "l.h5"
     args = ["render", "--params", "seed_trial", "--device", "sim", "--user", "hold"]
     for law in ("tanh", "implicit"):
+        log = tmp_path / f"{law}.h5"  # a render log is replaced only with --force
         # implicit: the default; tanh samples the end stops explicitly: damping needed
         extra = ["--friction", law, "--device-damping", "40"] if law == "tanh" else []
         assert main([*args, "--duration", "0.2", *extra, "--log", str(log)]) == 0

@@ -13,7 +13,6 @@ force changes fast, so that every latch peak is in the file
 from __future__ import annotations
 
 import math
-import os
 
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.errors import UserError
@@ -70,8 +69,9 @@ def register(sub) -> None:
 
 
 def _check_options(args) -> None:
-    """Every option and target before anything is computed or written."""
-    from evo_door.files import check_folder, check_image_path
+    """Every option before anything is computed or written (the targets:
+    :func:`~evo_door.files.claim_outputs`)."""
+    from evo_door.files import check_image_path
 
     if args.points < 2:
         raise UserError(f"--points {args.points}: must be at least 2 (both ends of the range)")
@@ -83,22 +83,18 @@ def _check_options(args) -> None:
                 f"--coulomb and --speed {args.speed:g}: give one (--coulomb, the default, "
                 "is the limit of slow motion)"
             )
-    targets = [args.out] + ([args.plot] if args.plot else [])
-    for target in targets:
-        folder = check_folder(target).parent
-        if not os.access(folder, os.W_OK):
-            raise UserError(f"{target}: cannot write in {folder}")
     if args.plot:
         # the CSV is written first: a plot that cannot be made must not leave it behind
         check_image_path(args.plot)
 
 
 def run(args) -> int:
-    from evo_door.files import write_text
+    from evo_door.files import Output, claim_outputs, write_text
     from evo_door.sim.simulate import force_angle_curve
 
     _check_options(args)
     model, params = model_and_params(args)
+    claim = claim_outputs([Output(args.out), Output(args.plot, "--plot")], [params.source])
     curve = force_angle_curve(model, params, speed=args.speed, n=args.points)
     write_text(args.out, curve_csv(curve))
     print(f"wrote {args.out} ({describe(curve, model.theta_unit)})")
@@ -114,6 +110,7 @@ def run(args) -> int:
             unit=model.theta_unit,
         )
         print(f"wrote {args.plot}")
+    claim.note()
     return 0
 
 

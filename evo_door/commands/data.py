@@ -106,6 +106,9 @@ def register(sub) -> None:
         "segments); needs --theta0 or a theta0 in the file",
     )
     imp.add_argument("--append", action="store_true", help="keep the trials already in OUT.h5")
+    imp.add_argument(
+        "--force", action="store_true", help="replace OUT.h5 if it exists (else: refused)"
+    )
     imp.set_defaults(func=run_import)
 
     show = dsub.add_parser(
@@ -130,9 +133,13 @@ def run_import(args) -> int:
     from evo_door.data import preprocess
     from evo_door.data.io import file_format, read_trials, write_trials
     from evo_door.data.trial import check_theta0
+    from evo_door.files import TRIALS, Output, claim_outputs
 
     if file_format(args.out) != "h5":
         raise UserError(f"--out {args.out}: write an HDF5 trial file (.h5)")
+    claim = claim_outputs(
+        [Output(args.out, kind=TRIALS)], args.inputs, force=args.force, append=args.append
+    )
     # the trials' angle convention (0 fully open, pi/2 closed): 90 is a degree slip
     if args.theta0 is not None:
         check_theta0(args.theta0)
@@ -177,9 +184,11 @@ def run_import(args) -> int:
     if clash:
         raise UserError(
             f"{args.out} already holds trial(s) {', '.join(clash)}; "
-            "give the new one another id (--id) or leave out --append to replace the file"
+            "give the new one another id (--id), or --force instead of --append to replace "
+            "the file"
         )
     write_trials(args.out, kept + out)
+    claim.note()
     if args.append:
         held = [t.trial_id for t in kept + out]
         print(f"added to {args.out}: {len(out)} trial(s): {', '.join(ids)}")
@@ -191,10 +200,13 @@ def run_import(args) -> int:
 
 def run_show(args) -> int:
     from evo_door.data.show import format_summary, plot_trials
+    from evo_door.files import Output, claim_outputs
 
+    claim = claim_outputs([Output(args.plot, "--plot")], [args.path])
     trials = _read(args.path, args)
     print(format_summary(trials, args.path))
     if args.plot:
         plot_trials(trials, args.plot, title=Path(args.path).name)
         print(f"wrote {args.plot}")
+        claim.note()
     return 0

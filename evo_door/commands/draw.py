@@ -38,8 +38,10 @@ def run(args) -> int:
         raise UserError(f"--angles {args.angles!r}: at most six angles")
     from pathlib import Path
 
+    from evo_door.files import Output, claim_outputs
     from evo_door.models.door.drawing import draw_mechanism
 
+    claim = claim_outputs([Output(args.out)], [params.source])
     draw_mechanism(
         params,
         angles,
@@ -47,4 +49,5 @@ def run(args) -> int:
         title=f"{model.title}: {Path(params.source).stem if params.source else 'defaults'}",
     )
     print(f"wrote {args.out}")
+    claim.note()
     return 0

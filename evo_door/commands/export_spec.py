@@ -32,12 +32,15 @@ def run(args) -> int:
     from evo_door.errors import UserError
     from evo_door.experiment import Results
     from evo_door.experiment.spec import FORMATS, export
+    from evo_door.files import Output, claim_outputs
 
     if args.format not in FORMATS:
         raise UserError(f"--format {args.format!r}: choose one of {', '.join(FORMATS)}")
+    claim = claim_outputs([Output(args.out)], [args.results])
     text = export(Results(args.results, args.stage), args.format, args.out)
     if args.out:
         print(f"wrote {args.out}")
+        claim.note()
     else:
         print(text, end="")
     return 0

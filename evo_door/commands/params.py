@@ -34,8 +34,14 @@ def run(args) -> int:
         ps = model.load_params(args.params, parse_assignments(args.assignments))
         values = ps.as_dict()
         if args.write:
+            from evo_door.files import Output, claim_outputs
+
+            # a parameter file written from --params and --set is derived: replaced
+            # (and said), but never the file it was read from
+            claim = claim_outputs([Output(args.write, "--write")], [ps.source])
             ps.to_yaml(args.write)
             print(f"wrote {args.write}")
+            claim.note()
             return 0
     if args.json:
         rows = model.params.rows()

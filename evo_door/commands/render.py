@@ -55,6 +55,11 @@ def register(sub) -> None:
         "the name without .partial) and exit",
     )
     p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --log (a participant's session: else refused)",
+    )
+    p.add_argument(
         "--clamp",
         action="store_true",
         help="scale down a parameter set the device cannot render passively (logged) "
@@ -152,11 +157,8 @@ def run(args) -> int:
         raise UserError(f"--console-port {args.console_port}: must be in 0..65535")
     if args.duration is not None and args.user is None and args.device == "sim":
         raise UserError("a headless run on the simulated device needs --user SCRIPT")
-    if args.log:
-        from evo_door.files import check_folder
-
-        check_folder(args.log)
     params = get_model("haptic").load_params(args.params, parse_assignments(args.assignments))
+    claim = _claim_log(args, args.log, [params.source])
     if not 1 <= args.watchdog_misses <= 1000:
         raise UserError(f"--watchdog-misses {args.watchdog_misses}: must be in 1..1000 cycles")
     if args.device_damping is not None and not args.device_damping >= 0:
@@ -184,7 +186,7 @@ def run(args) -> int:
             if args.log:
                 _write_interrupted(loop, args.log, exc)
             raise
-        return _report(loop, args, stats, name)
+        return _report(loop, args, stats, name, claim)
     finally:
         loop.log.close()
         if loop.log.spill_error:
@@ -202,9 +204,21 @@ def _recover(args) -> int:
         raise UserError(f"--recover {args.recover}: no such file")
     if source.suffix != ".partial" and not args.log:
         raise UserError(f"--recover {args.recover}: not a side file (*.partial); give --log OUT.h5")
+    if args.log is None and source.suffix == ".partial":
+        args.log = str(source.with_suffix(""))  # recover's default: the name without .partial
+    claim = _claim_log(args, args.log, [source])
     out = recover(source, args.log)
+    claim.note()
     print(f"recovered {out} from {source} (the render ended without a clean stop)")
     return 0
+
+
+def _claim_log(args, log, inputs):
+    """The rule of every output (:func:`~evo_door.files.claim_outputs`) for the log: a
+    trial file, a participant's session, replaced only with ``--force``."""
+    from evo_door.files import TRIALS, Output, claim_outputs
+
+    return claim_outputs([Output(log, "--log", TRIALS)], inputs, force=args.force)
 
 
 def _write_interrupted(loop, path, exc: BaseException) -> None:
@@ -231,8 +245,8 @@ def _write_interrupted(loop, path, exc: BaseException) -> None:
         print(f"evo-door: render interrupted ({what}); wrote {path}", file=sys.stderr)
 
 
-def _report(loop, args, stats: dict, name: str) -> int:
-    """The render's summary lines; the log."""
+def _report(loop, args, stats: dict, name: str, claim) -> int:
+    """The render's summary lines; the log (``claim``: what writing it replaces)."""
     a = loop.log.array()
     theta = a[:, 12]
     print(
@@ -257,6 +271,7 @@ def _report(loop, args, stats: dict, name: str) -> int:
     if args.log:
         loop.write_log(args.log)
         print(f"wrote {args.log}")
+        claim.note()
     return 1 if loop.watchdog.tripped else 0
 
 

@@ -40,16 +40,24 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from pathlib import Path
+
     from evo_door.experiment.pipeline import pipeline_summary
-    from evo_door.experiment.report import pipeline_settings, write_report
+    from evo_door.experiment.report import default_folder, pipeline_settings, write_report
+    from evo_door.files import Output, claim_outputs
 
     def log(text):
         if sys.stderr.isatty():
             print(text, file=sys.stderr, flush=True)
 
+    # the page and its figures are derived: a report made again replaces them (and
+    # says so); the folder is made if need be, never where the results file is
+    folder = Path(args.out) if args.out else default_folder(args.results)
+    claim = claim_outputs([Output(folder / "report.html", makes_folder=True)], [args.results])
     settings = pipeline_settings(
         args.results, pipeline_summary(args.results), args.jnd, args.force_floor
     )
     page = write_report(args.results, args.out, settings, log)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
+    claim.note()
     return 0

@@ -58,6 +58,7 @@ def register(sub) -> None:
         metavar="OUT.h5",
         help="trial file (.h5; .csv for a single trial; .tdms)",
     )
+    g.add_argument("--force", action="store_true", help="replace OUT if it exists (else: refused)")
     g.set_defaults(func=run_generate)
 
 
@@ -65,6 +66,7 @@ def run_generate(args) -> int:
     from evo_door.data.io import file_format, write_trials
     from evo_door.data.rig import RigSettings, generate_trials, make_truth, params_source
     from evo_door.data.show import format_summary
+    from evo_door.files import TRIALS, Output, claim_outputs
     from evo_door.params import parse_assignments
 
     file_format(args.out)
@@ -73,6 +75,7 @@ def run_generate(args) -> int:
     if args.rate <= 0:
         raise UserError("--rate must be positive")
     model, params = model_and_params(args)
+    claim = claim_outputs([Output(args.out, kind=TRIALS)], [params.source], force=args.force)
     truth = make_truth(
         model, params, args.truth, parse_assignments(args.truth_assignments, "--truth-set")
     )
@@ -97,4 +100,5 @@ def run_generate(args) -> int:
     )
     print(format_summary(trials, args.out))
     print(f"wrote {args.out}")
+    claim.note()
     return 0

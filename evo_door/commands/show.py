@@ -41,7 +41,7 @@ def run(args) -> int:
     from evo_door.experiment import Results
     from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
     from evo_door.experiment.results import format_show, plot_convergence, plot_fit
-    from evo_door.files import check_image_path
+    from evo_door.files import Output, check_image_path, claim_outputs
     from evo_door.render.log import format_session, is_render_log, read_session
 
     if is_render_log(args.results):  # a renderer's log: the participant's session
@@ -71,6 +71,9 @@ def run(args) -> int:
                 print(f"\n== stage {name} ==")
                 print(format_show(res))
         return 0
+    claim = claim_outputs(
+        [Output(args.plot, "--plot"), Output(args.convergence, "--convergence")], [args.results]
+    )
     res = Results(args.results, args.stage)
     # both image names checked before either figure is written: a bad second one must
     # not leave the first behind
@@ -89,4 +92,5 @@ def run(args) -> int:
         for written in (args.plot, args.convergence):
             if written:
                 print(f"wrote {written}")
+    claim.note()
     return 0

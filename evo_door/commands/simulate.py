@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import sys
+
 from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
 from evo_door.commands.data import add_read_options, check_finite, check_positive, trial_selection
 from evo_door.errors import UserError
 
 ORDER = 20
+
+#: How far (a fraction of the model's range: 4.5 deg for a door) a response may pass an
+#: end of the range before it is pointed out. The end stops are stiff springs that a
+#: hand's push of 200 N presses in by less than that (tests/test_outputs.py checks it
+#: for the door and the haptic model); a force read in kN instead of N goes far beyond.
+RANGE_MARGIN = 0.05
 
 #: The integration schemes, ``sorted(evo_door.sim.METHODS)``: written out so that the
 #: parser does not import numba (tests/test_cli_startup.py checks they agree).
@@ -61,9 +69,11 @@ def register(sub) -> None:
 def run(args) -> int:
     from evo_door.data.forcecsv import read_force
     from evo_door.data.trial import check_theta0
+    from evo_door.files import Output, claim_outputs
     from evo_door.sim import simulate
 
     model, params = model_and_params(args)
+    claim = claim_outputs([Output(args.out)], [args.input, params.source])
     if args.substeps is not None and args.substeps < 1:
         raise UserError(f"--substeps {args.substeps}: must be at least 1")
     check_positive(args.rate, "--rate")
@@ -91,6 +101,10 @@ def run(args) -> int:
         substeps=args.substeps,
     )
     response.to_csv(args.out)
+    claim.note()
+    outside = range_warning(model, response)
+    if outside:
+        print(f"evo-door: warning: {outside}", file=sys.stderr)
     if not response.ok:
         raise UserError(
             f"simulation blew up (non-finite state); {args.out} holds NaN from "
@@ -101,3 +115,35 @@ def run(args) -> int:
         f"theta {response.theta.min():.4f}..{response.theta.max():.4f} {model.theta_unit}"
     )
     return 0
+
+
+def range_warning(model, response) -> str | None:
+    """What to say when ``response`` leaves the model's physical range (None if not).
+
+    The range is ``model.theta_range`` (fully open to closed; the door and the haptic
+    model both keep the default 0..pi/2 rad, held by their end stops). A response that
+    passes an end by more than :data:`RANGE_MARGIN` of the range is most likely driven
+    by a force in the wrong unit or sign, which the simulation itself cannot tell.
+    """
+    import numpy as np
+
+    lo, hi = (float(v) for v in model.theta_range)
+    theta = response.theta[np.isfinite(response.theta)]
+    if theta.size == 0:
+        return None
+    margin = RANGE_MARGIN * (hi - lo)
+    low, high = float(theta.min()), float(theta.max())
+    if lo - margin <= low and high <= hi + margin:
+        return None
+    worst = high if high - hi >= lo - low else low
+    at = float(response.t[int(np.flatnonzero(response.theta == worst)[0])])
+    end = "closed" if worst > hi else "fully open"
+    if model.theta_unit == "rad":
+        reach, span = f"{np.degrees(worst):.1f} deg", f"{np.degrees(lo):g}..{np.degrees(hi):g} deg"
+    else:
+        unit = model.theta_unit
+        reach, span = f"{worst:.4g} {unit}", f"{lo:.4g}..{hi:.4g} {unit}"
+    return (
+        f"the response reaches {reach} at t = {at:.3f} s, past {end}: outside the "
+        f"model's range {span} (fully open..closed); is the force in N (--map force=COL:UNIT)?"
+    )
