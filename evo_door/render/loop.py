@@ -482,7 +482,7 @@ class ServoLoop:
         self._set_native()
         self._set_vectors()
         self._set_mass()
-        self.log.params(t, self._p)
+        self.log.params(t, self._set_vector())
         self.log.event(t, "change", "parameters changed", values=values)
         if changes:
             self.log.event(t, "clamp", "clamped to be passive", changes=changes)
@@ -492,6 +492,11 @@ class ServoLoop:
         native = getattr(self.device, "render_natively", None)
         if native is not None:
             self._native = tuple(native(self.params))
+
+    def _set_vector(self):
+        """The set in force as a vector, for the log: the whole set, including what the
+        device renders natively (``_p`` zeroes that, which is no change of the set)."""
+        return param_vector(self.params, PARAMS)
 
     def _set_vectors(self) -> None:
         """Kernel vectors of the set in force: as it is, and without dry friction;
@@ -537,7 +542,7 @@ class ServoLoop:
         vel = np.zeros(3)
         user = np.zeros(3)
         timing = self.timing = LoopTiming(T)
-        self.log.params(0.0, self._p)
+        self.log.params(0.0, self._set_vector())
         self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
