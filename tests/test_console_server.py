@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import re
 import socket
 import subprocess
 import sys
@@ -180,6 +181,32 @@ def test_curve_is_the_force_angle_curve_of_the_set_in_force(console, renderer):
     rise = max(second["closing"]) - max(first["closing"])
     assert rise == pytest.approx(30.0 - old, rel=1e-3)
     assert second["params_t"] > first["params_t"]
+
+
+# -- the loop's health on the page ---------------------------------------------------------
+def test_every_health_field_the_page_reads_comes_in_its_hello_and_each_tick(console, renderer):
+    """The servo panel showed a red "running (no data)" on a healthy loop: the hello
+    carried no health, so a page that came back (a new renderer on the same port) kept
+    the last one's status and tick time until a tick came; and the page read fields
+    the server never sends. The hello now carries the health read as the page opens."""
+    script = (console_server.STATIC / "console.js").read_text()
+    read = set(re.findall(r"\bhl\.([a-z_0-9]+)", script))
+    assert {"status", "on_time_fraction", "missed_cycles", "watchdog"} <= read, read
+
+    async def open_page(session):
+        async with _page(console, session) as ws:
+            return await _next(ws, "hello"), await _next(ws, "tick")
+
+    first_hello, first_tick = _session(open_page)
+    time.sleep(0.3)  # no page open: the console polls nothing meanwhile
+    hello, tick = _session(open_page)
+    for message in (first_hello, first_tick, hello, tick):
+        health = message["health"]
+        assert read <= set(health), f"the page reads {sorted(read - set(health))}, not sent"
+        assert health["status"] == "running" == message["state"]["status"]
+        assert health["watchdog"] == "" and health["cycles"] > 0
+    # read when the page opened, not kept from the last page's ticks
+    assert hello["health"]["t"] > first_tick["health"]["t"]
 
 
 # -- changes over the WebSocket ----------------------------------------------------------
