@@ -540,8 +540,9 @@ def test_the_log_holds_each_change_between_two_cycles_and_the_choice(session, ca
         assert same(s["chosen"][name], value), name
     kinds = {e["kind"] for e in s["events"]}
     assert {"participant", "ab_store", "ab_switch", "ab_choice", "chosen", "save"} <= kinds
-    # the loop ran to the end without its watchdog
-    assert s["statistics"]["status"] == "done", s["statistics"]
+    # the loop ran until the operator stopped it, without its watchdog
+    assert s["statistics"]["status"] == "stopped", s["statistics"]
+    assert s["stopped"] == "stopped by the operator"
     # evo-door show summarises it
     capsys.readouterr()
     assert main(["show", str(session.log)]) == 0

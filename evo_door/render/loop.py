@@ -394,8 +394,9 @@ class ServoLoop:
         self.saturated = 0
         self.statistics: dict = {}
         self.status = "new"
-        #: perf_counter at the first cycle (s)
+        #: perf_counter at the first cycle and when the loop ended (s; 0 until then)
         self.t0 = 0.0
+        self.t_end = 0.0
 
     # -- parameter changes ---------------------------------------------------------
     def request_change(self, values: dict):
@@ -524,8 +525,9 @@ class ServoLoop:
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> dict:
         """Run for ``duration`` seconds (loop time) or until ``stop`` is set.
 
-        Returns the statistics (also in ``self.statistics`` and the log). The device
-        is stopped on the way out, whatever happened.
+        Returns the statistics (also in ``self.statistics`` and the log); their
+        ``status`` is ``done``, ``stopped`` (by ``stop``), ``watchdog`` or ``failed``
+        (the loop raised). The device is stopped on the way out, whatever happened.
         """
         if duration is None and stop is None:
             raise UserError("give a duration or a stop event")
@@ -547,6 +549,7 @@ class ServoLoop:
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
         self.status = "running"
+        self.t0 = self.t_end = 0.0
         k = 0
         # a paced loop must not stop for a cyclic garbage collection (tens of ms);
         # reference counting still frees the per-cycle arrays
@@ -656,14 +659,23 @@ class ServoLoop:
             sys.setswitchinterval(switch_interval)
             if niceness is not None:
                 self._restore_priority(niceness)
+            self.t_end = time.perf_counter()
             try:
                 dev.stop()
             finally:
                 if self.status != "failed":
-                    self.status = "watchdog" if self.watchdog.tripped else "done"
+                    stopped = stop is not None and stop.is_set() and k < n_cycles
+                    self.status = self._end_status(stopped)
                 # also when the loop raised: an interrupted log keeps its statistics
                 self.statistics = self._stats(k)
         return self.statistics
+
+    def _end_status(self, stopped: bool) -> str:
+        """How a loop that did not raise ended: ``watchdog`` (tripped), ``stopped``
+        (its stop event came before its duration, if it had one) or ``done``."""
+        if self.watchdog.tripped:
+            return "watchdog"
+        return "stopped" if stopped else "done"
 
     def _raise_priority(self):
         """Give this thread (the loop's) precedence over the machine's other work.
@@ -792,6 +804,9 @@ class ServoLoop:
             "saturated_cycles": self.saturated,
             "status": self.status,
             "watchdog": self.watchdog.reason,
+            # wall-clock time the cycles took (s): the loop time of a paced loop, less
+            # for a simulated device run as fast as it goes
+            "wall_s": ((self.t_end or time.perf_counter()) - self.t0) if self.t0 else 0.0,
         }
         if self.realtime and tm.starts > 1:
             stats.update(
