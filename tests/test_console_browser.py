@@ -326,6 +326,11 @@ def test_page_connects_and_shows_the_loop_health_and_the_declaration(session, pa
     health = page.find_element(By.ID, "health").text
     assert "Hz" in health and "%" in health, health
     assert "running" in health, health
+    # the loop's health came with the hello, and the status is the loop's own, not a
+    # stale one ("running (no data)")
+    hello = received(page, "hello")[0]
+    assert hello["health"]["status"] == "running", hello.get("health")
+    assert page.find_element(By.ID, "h-status").text == "running"
     # a slider per sensation, with the declared bounds, at the set in force
     start = get_model("haptic").load_params("seed_trial")
     for name in SENSATIONS:
@@ -535,8 +540,9 @@ def test_the_log_holds_each_change_between_two_cycles_and_the_choice(session, ca
         assert same(s["chosen"][name], value), name
     kinds = {e["kind"] for e in s["events"]}
     assert {"participant", "ab_store", "ab_switch", "ab_choice", "chosen", "save"} <= kinds
-    # the loop ran to the end without its watchdog
-    assert s["statistics"]["status"] == "done", s["statistics"]
+    # the loop ran until the operator stopped it, without its watchdog
+    assert s["statistics"]["status"] == "stopped", s["statistics"]
+    assert s["stopped"] == "stopped by the operator"
     # evo-door show summarises it
     capsys.readouterr()
     assert main(["show", str(session.log)]) == 0

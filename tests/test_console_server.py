@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import re
 import socket
 import subprocess
 import sys
@@ -180,6 +181,32 @@ def test_curve_is_the_force_angle_curve_of_the_set_in_force(console, renderer):
     rise = max(second["closing"]) - max(first["closing"])
     assert rise == pytest.approx(30.0 - old, rel=1e-3)
     assert second["params_t"] > first["params_t"]
+
+
+# -- the loop's health on the page ---------------------------------------------------------
+def test_every_health_field_the_page_reads_comes_in_its_hello_and_each_tick(console, renderer):
+    """The servo panel showed a red "running (no data)" on a healthy loop: the hello
+    carried no health, so a page that came back (a new renderer on the same port) kept
+    the last one's status and tick time until a tick came; and the page read fields
+    the server never sends. The hello now carries the health read as the page opens."""
+    script = (console_server.STATIC / "console.js").read_text()
+    read = set(re.findall(r"\bhl\.([a-z_0-9]+)", script))
+    assert {"status", "on_time_fraction", "missed_cycles", "watchdog"} <= read, read
+
+    async def open_page(session):
+        async with _page(console, session) as ws:
+            return await _next(ws, "hello"), await _next(ws, "tick")
+
+    first_hello, first_tick = _session(open_page)
+    time.sleep(0.3)  # no page open: the console polls nothing meanwhile
+    hello, tick = _session(open_page)
+    for message in (first_hello, first_tick, hello, tick):
+        health = message["health"]
+        assert read <= set(health), f"the page reads {sorted(read - set(health))}, not sent"
+        assert health["status"] == "running" == message["state"]["status"]
+        assert health["watchdog"] == "" and health["cycles"] > 0
+    # read when the page opened, not kept from the last page's ticks
+    assert hello["health"]["t"] > first_tick["health"]["t"]
 
 
 # -- changes over the WebSocket ----------------------------------------------------------
@@ -468,9 +495,11 @@ def test_console_cli_one_line_errors(capsys, monkeypatch, renderer, tmp_path):
 @pytest.mark.slow
 def test_render_console_spawns_the_console_and_stops_it(tmp_path):
     """render --console prints the page's URL, the page answers while the render
-    runs, and the console process is gone when the render ends."""
+    runs, and the console process is gone when the render ends. A console keeps the
+    loop on the wall clock without --realtime (unpaced, a 4 s render ended in about
+    one and the page with it, its summary giving a period the loop never kept)."""
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
-    cmd += ["--user", "hold", "--duration", "4", "--realtime", "--console", "--console-port", "0"]
+    cmd += ["--user", "hold", "--duration", "4", "--console", "--console-port", "0"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, text=True)
     try:
         url = ""
@@ -479,12 +508,15 @@ def test_render_console_spawns_the_console_and_stops_it(tmp_path):
                 url = line.split()[1]
                 break
         assert url.startswith("http://127.0.0.1:") and "?token=" in url
+        printed = time.monotonic()  # the loop starts after the console is up
         base, query = url.split("?")
         status, _, body = _get(f"{base}api/declaration?{query}")
         assert status == 200 and json.loads(body)["params"][0]["name"] == SENSATIONS[0]
         assert _get(f"{base}api/declaration")[0] == 403
         rest = proc.stdout.read()
         assert proc.wait(30) == 0, rest
+        assert time.monotonic() - printed > 3.5  # the 4 s on the wall clock; unpaced about 1 s
+        assert "period mean 0.4" in rest and "unpaced" not in rest, rest
     finally:
         proc.kill()
     with pytest.raises(OSError):

@@ -428,6 +428,22 @@ def test_one_second_render_log_layout(tmp_path):
         assert list(names) == list(PARAMS.names)
 
 
+def test_an_unpaced_render_says_so_and_gives_no_period(tmp_path, capsys):
+    """On the simulated device with only --duration the loop runs as fast as it can:
+    its summary gave the nominal period as if kept ("period mean 0.4 ms")."""
+    args = ["render", "--params", "seed_trial", "--user", "hold", "--duration", "0.2"]
+    log = tmp_path / "l.h5"
+    assert main([*args, "--log", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "unpaced: 0.2 s of simulated time in " in out and "period mean" not in out, out
+    assert main(["show", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "unpaced (simulated time)" in out and "on time" not in out, out
+    assert main([*args, "--realtime"]) == 0
+    out = capsys.readouterr().out
+    assert "period mean 0.4" in out and "unpaced" not in out, out
+
+
 @pytest.mark.slow
 def test_headless_render_writes_a_log_data_show_reads(tmp_path, capsys):
     log = tmp_path / "l.h5"

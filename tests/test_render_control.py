@@ -15,6 +15,7 @@ from evo_door.models.haptic import PARAMS
 from evo_door.render.control import ControlServer, parse_control, request
 from evo_door.render.device import SimDevice
 from evo_door.render.keys import LETTERS, key_change, key_map, nice_step
+from evo_door.render.log import format_session, read_session, session_params
 from evo_door.render.loop import ServoLoop
 from tests.conftest import yielding_sim
 
@@ -156,6 +157,39 @@ def test_push_cli_sends_only_what_differs(running, capsys, tmp_path, seed_trial)
     assert "nothing to push" in capsys.readouterr().out
     assert main(["push", "--set", "loose_angle=0.01", "--to", to, "--token", "s3cret"]) == 0
     assert "loose_angle = 0.01 rad (0.573 deg)" in capsys.readouterr().out
+
+
+def test_push_logs_only_the_changes_it_made(seed_trial, tmp_path, capsys):
+    """The device renders k_plane and c_plane itself, so the loop zeroes them in the
+    force it computes; the log took that vector for the set in force, and every push
+    showed them dropping to zero (and a log used as a set lost them). It holds the
+    set in force, whole."""
+    loop = ServoLoop(yielding_sim("open", radius=seed_trial["radius"], seed=3), seed_trial)
+    assert seed_trial["k_plane"] > 0 and seed_trial["c_plane"] > 0  # or this tests nothing
+    stop = threading.Event()
+    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
+    pushed = tmp_path / "p.yaml"
+    seed_trial.replace({"open_force": 25.0}).to_yaml(pushed)  # the whole set, one value new
+    with ControlServer(loop, "127.0.0.1", 0) as server:
+        thread.start()
+        deadline = time.monotonic() + 10.0
+        while loop.log.n < 10 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert main(["push", str(pushed), "--to", "{}:{}".format(*server.address)]) == 0
+        stop.set()
+        thread.join(10.0)
+    assert "1 value(s) in force" in capsys.readouterr().out
+    log = tmp_path / "l.h5"
+    loop.write_log(log)
+    s = read_session(log)
+    (_, start), (_, after) = s["sets"]
+    assert start == seed_trial.as_dict()
+    assert [n for n in start if after[n] != start[n]] == ["open_force"]
+    assert [c["values"] for c in s["changes"]] == [{"open_force": 25.0}]
+    summary = format_session(s)
+    assert "differs from the starting set in 1 parameters" in summary, summary
+    assert "k_plane" not in summary and "c_plane" not in summary
+    assert session_params(log)[0] == seed_trial.replace({"open_force": 25.0}).as_dict()
 
 
 def _one_line_error(capsys) -> str:

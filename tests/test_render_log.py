@@ -16,6 +16,7 @@ from evo_door.cli import main
 from evo_door.data.io import read_trials
 from evo_door.errors import UserError
 from evo_door.files import open_h5, read_attrs
+from evo_door.models import get_model
 from evo_door.models.haptic import PARAMS
 from evo_door.render.device import SimDevice
 from evo_door.render.log import (
@@ -25,7 +26,9 @@ from evo_door.render.log import (
     RenderLog,
     partial_path,
     read_partial,
+    read_session,
     recover,
+    session_params,
 )
 from evo_door.render.loop import ServoLoop
 
@@ -277,6 +280,47 @@ def test_recover_a_render_killed_mid_run(tmp_path, capsys):
     (tr,) = read_trials(out)
     assert tr.n >= 2 * SPILL_ROWS and tr.t[-1] >= 1.0
     assert tr.theta[0] > 1.5 and np.isfinite(tr.theta).all()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "how", [["--duration", "60", "--realtime"], ["--control", "0"]], ids=["duration", "open"]
+)
+def test_ctrl_c_stops_a_render_alike_with_or_without_duration(how, tmp_path, capsys):
+    """Ctrl-C ended a render with --duration as a failure (exit 130, status failed,
+    an "interrupted" log) and one without as done (exit 0): both are an operator's
+    stop, exit 0, their log whole and marked so."""
+    log = tmp_path / "l.h5"
+    cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
+    cmd += ["--device", "sim", "--user", "swing", *how, "--log", str(log)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # rendering: a chunk of rows (a second at 1 kHz) in the side file
+        _wait_for_size(partial_path(log), SPILL_ROWS * N_COLUMNS * 8 + 200, timeout=60.0)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "(stopped by the operator)" in out and f"wrote {log}" in out and not err
+    assert log.is_file() and not partial_path(log).exists()
+    s = read_session(log)
+    assert s["statistics"]["status"] == "stopped" and s["stopped"] == "stopped by the operator"
+    with open_h5(log) as f:
+        events = read_attrs(f["render"])["events"]
+    assert events[-1]["kind"] == "stopped" and "interrupted" not in {e["kind"] for e in events}
+    (tr,) = read_trials(log)
+    assert tr.n >= SPILL_ROWS and np.isfinite(tr.theta).all()
+    assert s["statistics"]["cycles_run"] == pytest.approx(tr.n * 2.5, abs=3)  # every cycle
+    capsys.readouterr()
+    assert main(["show", str(log)]) == 0
+    assert "status stopped by the operator" in capsys.readouterr().out
+    # a log is a parameter set: the one rendered
+    values, _ = session_params(log)
+    assert values == get_model("haptic").load_params("seed_trial").as_dict()
+    assert main(["render", "--params", str(log), "--user", "hold", "--duration", "0.05"]) == 0
 
 
 def test_recover_refuses_what_is_not_a_side_file(tmp_path, capsys):

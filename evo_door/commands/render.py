@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
 import threading
 import time
@@ -83,7 +85,8 @@ def register(sub) -> None:
         "--console",
         action="store_true",
         help="serve the operator's web console (evo-door console) for this render and "
-        "print its URL; runs until Ctrl-C without --duration",
+        "print its URL; the loop keeps the wall clock (as --realtime); runs until Ctrl-C "
+        "without --duration",
     )
     p.add_argument(
         "--console-port",
@@ -107,7 +110,11 @@ def register(sub) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated sensor noise")
     p.add_argument(
-        "--realtime", action="store_true", help="pace a simulated device on the wall clock"
+        "--realtime",
+        action="store_true",
+        help="pace a simulated device on the wall clock (implied by --console and by a run "
+        "without --duration; a real device always is); else --duration S of simulated "
+        "time runs as fast as the machine allows",
     )
     p.add_argument(
         "--watchdog-misses",
@@ -172,25 +179,64 @@ def run(args) -> int:
         args.rate,
         log_rate=args.log_rate,
         clamp=args.clamp,
-        realtime=True if (args.realtime or args.duration is None) else None,
+        realtime=_paced(args),
         device_name=name,
         friction=args.friction,
         watchdog_misses=args.watchdog_misses,
     )
     if args.log:  # crash safety: the rows so far go to LOG.h5.partial as they come
         loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
+    stop = threading.Event()
     try:
-        try:
-            stats = _run_loop(loop, args, interactive)
-        except BaseException as exc:  # KeyboardInterrupt too: keep the log, then raise
-            if args.log:
-                _write_interrupted(loop, args.log, exc)
-            raise
-        return _report(loop, args, stats, name, claim)
+        with _stop_on_ctrl_c(stop, loop):
+            try:
+                stats = _run_loop(loop, args, interactive, stop)
+            except BaseException as exc:  # a second Ctrl-C too: keep the log, then raise
+                if args.log:
+                    _write_interrupted(loop, args.log, exc)
+                raise
+            return _report(loop, args, stats, name, claim)
     finally:
         loop.log.close()
         if loop.log.spill_error:
             print(f"evo-door: warning: {loop.log.spill_error}", file=sys.stderr)
+
+
+def _paced(args) -> bool | None:
+    """Whether the loop keeps the wall clock: with ``--realtime``, a console (a person
+    feels and watches it), or no ``--duration`` (a person ends it); a real device
+    always (None: the loop's default). A simulated device with only ``--duration``
+    runs in simulated time, as fast as the machine allows."""
+    return True if (args.realtime or args.console or args.duration is None) else None
+
+
+#: what the log and the summary say of a render ended by Ctrl-C (or the key UI's q)
+STOPPED = "stopped by the operator"
+
+
+@contextlib.contextmanager
+def _stop_on_ctrl_c(stop: threading.Event, loop):
+    """Ctrl-C (SIGINT) sets ``stop``: the loop ends between two cycles and the render
+    ends as one that ran its course, its log whole (status ``stopped``, exit 0), with
+    or without ``--duration``. Another Ctrl-C while the loop still runs interrupts at
+    once (a device that hangs); while the log is written it is ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals go to the main thread only: an embedding caller's own
+        return
+
+    def on_sigint(signum, frame) -> None:
+        if not stop.is_set():
+            stop.set()
+        elif loop.status in ("new", "running"):
+            raise KeyboardInterrupt
+        else:
+            print("evo-door: writing the log, one moment", file=sys.stderr, flush=True)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _recover(args) -> int:
@@ -247,17 +293,23 @@ def _write_interrupted(loop, path, exc: BaseException) -> None:
 
 def _report(loop, args, stats: dict, name: str, claim) -> int:
     """The render's summary lines; the log (``claim``: what writing it replaces)."""
+    stopped = stats["status"] == "stopped"
+    if stopped:  # the log says who ended it, and when
+        loop.log.event(loop.snapshot()["t"], "stopped", STOPPED)
+    if loop.log.n < 2:  # stopped before it rendered: nothing to summarise or log
+        print(f"{STOPPED} before the render started; no log written")
+        loop.log.close()
+        if loop.log.spill_path is not None:
+            loop.log.spill_path.unlink(missing_ok=True)
+        return 0
     a = loop.log.array()
     theta = a[:, 12]
+    status = STOPPED if stopped else stats["status"]
     print(
-        f"rendered {stats['cycles']} cycles at {args.rate:g} Hz on {name} ({stats['status']}); "
+        f"rendered {stats['cycles']} cycles at {args.rate:g} Hz on {name} ({status}); "
         f"door {theta[0] * 57.29577951308232:.1f} -> {theta[-1] * 57.29577951308232:.1f} deg"
     )
-    print(
-        f"period mean {stats['period_mean_s'] * 1e3:.4g} ms, p99 lateness "
-        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles, "
-        f"compute p99 {stats['compute_p99_s'] * 1e6:.3g} us/cycle, faults {stats['faults']}"
-    )
+    print(_timing_line(stats))
     if "round_trip_mean_s" in stats:
         print(
             f"round trip mean {stats['round_trip_mean_s'] * 1e3:.3g} ms, "
@@ -275,8 +327,26 @@ def _report(loop, args, stats: dict, name: str, claim) -> int:
     return 1 if loop.watchdog.tripped else 0
 
 
-def _run_loop(loop, args, interactive: bool) -> dict:
-    """Run the loop, with the control port (--control) and the key UI (a terminal)."""
+def _timing_line(stats: dict) -> str:
+    """How the loop kept time. An unpaced loop (simulated time) kept no period: it
+    says so, with the wall-clock time it took, rather than the nominal period."""
+    compute = f"compute p99 {stats['compute_p99_s'] * 1e6:.3g} us/cycle, faults {stats['faults']}"
+    if not stats["realtime"]:
+        simulated = stats["cycles"] / stats["rate_hz"]
+        return (
+            f"unpaced: {simulated:.4g} s of simulated time in {stats['wall_s']:.3g} s "
+            f"(not kept on the wall clock; --realtime paces it), {compute}"
+        )
+    return (
+        f"period mean {stats['period_mean_s'] * 1e3:.4g} ms, p99 lateness "
+        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles, "
+        + compute
+    )
+
+
+def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
+    """Run the loop, with the control port (--control) and the key UI (a terminal),
+    until its duration or ``stop`` (Ctrl-C, the key UI's q)."""
     server = console = None
     token = args.token
     if args.control is not None or args.console:
@@ -299,20 +369,9 @@ def _run_loop(loop, args, interactive: bool) -> dict:
         if server is not None and args.console:
             console = _start_console(args, server.address, token)
         if not interactive:
-            if args.duration is not None:
-                return loop.run(args.duration)
-            import signal
-
-            stop = threading.Event()
-            # Ctrl-C ends an open-ended run between two cycles; the log is kept
-            previous = signal.signal(signal.SIGINT, lambda *_: stop.set())
-            try:
-                return loop.run(stop=stop)
-            finally:
-                signal.signal(signal.SIGINT, previous)
+            return loop.run(args.duration, stop=stop)
         from evo_door.render.keys import run_terminal
 
-        stop = threading.Event()
         result: dict = {}
 
         def serve() -> None:

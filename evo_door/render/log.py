@@ -382,8 +382,9 @@ def read_session(path) -> dict:
 
     Returns ``{"participant", "duration_s", "device", "sets": [(t, {name: value})],
     "changes", "choices", "chosen": {name: value} or None, "chosen_t", "events",
-    "statistics"}``; a log without a session record has an empty participant, no
-    choice and the session events list empty. A file that is not a render log is a
+    "statistics", "stopped"}`` (``stopped``: who ended the render, as its ``stopped``
+    event says, e.g. "stopped by the operator"; else ""); a log without a session
+    record has an empty participant, no choice and the session events list empty. A file that is not a render log is a
     UserError.
     """
     from evo_door.files import open_h5, read_attrs
@@ -402,6 +403,7 @@ def read_session(path) -> dict:
             ds = f["session/chosen"]
             chosen = dict(zip(read_attrs(ds)["names"], ds[()].tolist(), strict=True))
     events = render.get("events", [])
+    ended = [e.get("message", "") for e in events if e.get("kind") == "stopped"]
     return {
         "participant": session.get("participant", ""),
         "duration_s": duration,
@@ -416,6 +418,7 @@ def read_session(path) -> dict:
         "chosen_t": session.get("chosen_t", -1.0),
         "events": session.get("events", []),
         "statistics": render.get("statistics", {}),
+        "stopped": ended[-1] if ended else "",
     }
 
 
@@ -445,10 +448,16 @@ def format_session(s: dict, path="") -> str:
         f"  participant {who}, {s['duration_s']:.1f} s on {s['device'] or '?'}, "
         f"{len(s['changes'])} parameter changes, {len(s['choices'])} A/B choices"
     )
-    if "on_time_fraction" in stats:
+    status = s.get("stopped") or stats.get("status", "?")
+    if stats.get("realtime") is False:  # simulated time: it kept no clock to be on time for
+        lines.append(
+            f"  loop {stats.get('rate_hz', 0):g} Hz unpaced (simulated time), "
+            f"{stats.get('faults', 0)} faults, status {status}"
+        )
+    elif "on_time_fraction" in stats:
         lines.append(
             f"  loop {stats.get('rate_hz', 0):g} Hz, {100 * stats['on_time_fraction']:.3f} % of "
-            f"cycles on time, {stats.get('faults', 0)} faults, status {stats.get('status', '?')}"
+            f"cycles on time, {stats.get('faults', 0)} faults, status {status}"
         )
     for e in s["choices"]:
         lines.append(f"  at {e['t']:7.1f} s: prefers {e.get('slot', '?')}")

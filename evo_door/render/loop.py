@@ -394,8 +394,9 @@ class ServoLoop:
         self.saturated = 0
         self.statistics: dict = {}
         self.status = "new"
-        #: perf_counter at the first cycle (s)
+        #: perf_counter at the first cycle and when the loop ended (s; 0 until then)
         self.t0 = 0.0
+        self.t_end = 0.0
 
     # -- parameter changes ---------------------------------------------------------
     def request_change(self, values: dict):
@@ -482,7 +483,7 @@ class ServoLoop:
         self._set_native()
         self._set_vectors()
         self._set_mass()
-        self.log.params(t, self._p)
+        self.log.params(t, self._set_vector())
         self.log.event(t, "change", "parameters changed", values=values)
         if changes:
             self.log.event(t, "clamp", "clamped to be passive", changes=changes)
@@ -492,6 +493,11 @@ class ServoLoop:
         native = getattr(self.device, "render_natively", None)
         if native is not None:
             self._native = tuple(native(self.params))
+
+    def _set_vector(self):
+        """The set in force as a vector, for the log: the whole set, including what the
+        device renders natively (``_p`` zeroes that, which is no change of the set)."""
+        return param_vector(self.params, PARAMS)
 
     def _set_vectors(self) -> None:
         """Kernel vectors of the set in force: as it is, and without dry friction;
@@ -519,8 +525,9 @@ class ServoLoop:
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> dict:
         """Run for ``duration`` seconds (loop time) or until ``stop`` is set.
 
-        Returns the statistics (also in ``self.statistics`` and the log). The device
-        is stopped on the way out, whatever happened.
+        Returns the statistics (also in ``self.statistics`` and the log); their
+        ``status`` is ``done``, ``stopped`` (by ``stop``), ``watchdog`` or ``failed``
+        (the loop raised). The device is stopped on the way out, whatever happened.
         """
         if duration is None and stop is None:
             raise UserError("give a duration or a stop event")
@@ -537,11 +544,12 @@ class ServoLoop:
         vel = np.zeros(3)
         user = np.zeros(3)
         timing = self.timing = LoopTiming(T)
-        self.log.params(0.0, self._p)
+        self.log.params(0.0, self._set_vector())
         self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
         self.status = "running"
+        self.t0 = self.t_end = 0.0
         k = 0
         # a paced loop must not stop for a cyclic garbage collection (tens of ms);
         # reference counting still frees the per-cycle arrays
@@ -651,14 +659,23 @@ class ServoLoop:
             sys.setswitchinterval(switch_interval)
             if niceness is not None:
                 self._restore_priority(niceness)
+            self.t_end = time.perf_counter()
             try:
                 dev.stop()
             finally:
                 if self.status != "failed":
-                    self.status = "watchdog" if self.watchdog.tripped else "done"
+                    stopped = stop is not None and stop.is_set() and k < n_cycles
+                    self.status = self._end_status(stopped)
                 # also when the loop raised: an interrupted log keeps its statistics
                 self.statistics = self._stats(k)
         return self.statistics
+
+    def _end_status(self, stopped: bool) -> str:
+        """How a loop that did not raise ended: ``watchdog`` (tripped), ``stopped``
+        (its stop event came before its duration, if it had one) or ``done``."""
+        if self.watchdog.tripped:
+            return "watchdog"
+        return "stopped" if stopped else "done"
 
     def _raise_priority(self):
         """Give this thread (the loop's) precedence over the machine's other work.
@@ -787,6 +804,9 @@ class ServoLoop:
             "saturated_cycles": self.saturated,
             "status": self.status,
             "watchdog": self.watchdog.reason,
+            # wall-clock time the cycles took (s): the loop time of a paced loop, less
+            # for a simulated device run as fast as it goes
+            "wall_s": ((self.t_end or time.perf_counter()) - self.t0) if self.t0 else 0.0,
         }
         if self.realtime and tm.starts > 1:
             stats.update(

@@ -31,7 +31,11 @@ The HTTP and WebSocket API (every number in SI units)::
     GET /api/curve               quasi-static force-angle curve of the set in force
     GET /ws                      WebSocket, JSON messages:
         server -> page: hello, tick (~30/s), params (source slider, key, undo, reset,
-                        ab or push), refused, saved, ab, participant, chosen, error
+                        ab or push), refused, saved, ab, participant, chosen, error;
+                        hello and tick carry ``health`` (the control port's health
+                        answer: status, rate_hz, cycles, missed_cycles,
+                        on_time_fraction, lateness_p99_s, faults, saturated_cycles,
+                        watchdog: "" or why it tripped) and ``state``
         page -> server: set {values, source}, undo, reset, save {name},
                         participant {id}, ab_store / ab_switch / ab_choice {slot},
                         ab_blind {blind}, choose
@@ -367,6 +371,8 @@ class Console:
             page.post(text, droppable)
 
     def hello(self) -> dict:
+        """A page's first message: the set in force, the session so far, and the loop's
+        health and state as read when it opened (:meth:`read_health`)."""
         return {
             "type": "hello",
             "params": self.params,
@@ -375,7 +381,28 @@ class Console:
             "participant": self.participant,
             "ab": self._ab_state(),
             "rows": list(self.history),
+            "health": self._health,
+            "state": self._tick_state(),
         }
+
+    async def read_health(self) -> None:
+        """Read the loop's health and state now, for a page that opens: it shows them
+        from its hello, not from a tick that comes later (meanwhile a page that came
+        back to a new renderer showed the old one's, a "running" with no data). Ticks
+        poll only while a page is open, so what is kept may be old."""
+        try:
+            health, state = await self.client.ask({"get": "health"}, {"get": "state"})
+        except UserError as exc:
+            self._lost(exc)
+            return
+        if health.get("ok"):
+            self._health = {k: v for k, v in health.items() if k != "ok"}
+        if state.get("ok"):
+            self._state = {k: state.get(k) for k in _STATE_KEYS if k != "status"}
+
+    def _tick_state(self) -> dict:
+        """The door's state for a page, with the loop's status (from its health)."""
+        return {**self._state, "status": self._health.get("status")}
 
     def _ab_state(self) -> dict:
         return dict(self.ab)
@@ -424,7 +451,6 @@ class Console:
             self.history.extend(new)
         if len(answers) > 1 and answers[1].get("ok"):
             self._health = {k: v for k, v in answers[1].items() if k != "ok"}
-        status = self._health.get("status")
         if new:
             t, theta, dtheta, force = new[-1][:4]
             self._state = {"t": t, "theta": theta, "dtheta": dtheta, "force": force}
@@ -432,12 +458,7 @@ class Console:
             (state,) = await self.client.ask({"get": "state"})
             if state.get("ok"):
                 self._state = {k: state.get(k) for k in _STATE_KEYS if k != "status"}
-        tick = {
-            "type": "tick",
-            "rows": new,
-            "state": {**self._state, "status": status},
-            "health": self._health,
-        }
+        tick = {"type": "tick", "rows": new, "state": self._tick_state(), "health": self._health}
         self.broadcast(tick, droppable=True)
 
     async def _params_loop(self) -> None:
@@ -742,6 +763,7 @@ async def _ws(request: web.Request) -> web.WebSocketResponse:
     ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=MAX_PAGE_MESSAGE)
     await ws.prepare(request)
     page = _Page(ws)
+    await console.read_health()
     page.post(console.hello())
     console.pages.add(page)
     try:

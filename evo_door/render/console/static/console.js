@@ -5,7 +5,7 @@
  * GET /api/curve and the WebSocket /ws; every number in a message is SI (rad, rad/s, N),
  * the page shows angles in degrees, labelled, and every number with its unit.
  *
- * Conventions (CASE_STUDY.md): theta 0 = fully open (door horizontal), pi/2 = closed
+ * Conventions (docs/conventions.md): theta 0 = fully open (door horizontal), pi/2 = closed
  * (vertical); force + toward closing; opening means dtheta < 0.
  */
 "use strict";
@@ -156,6 +156,13 @@
 
   function setConnected(on) {
     S.connected = on;
+    if (on) {
+      // a new connection may reach another renderer: nothing of the last one is shown
+      // as current (its "running", its tick time) until the hello says what runs now
+      S.health = null;
+      S.state = null;
+      S.tickAt = 0;
+    }
     const el = $("connection");
     el.textContent = on ? "connected" : "disconnected";
     el.className = on ? "good" : "bad";
@@ -175,6 +182,11 @@
         S.target = {};
         applyParams(msg.params || {}, "hello");
         if (Array.isArray(msg.rows)) loadHistory(msg.rows);
+        // the loop's health as the page opened: shown at once, not from the first tick
+        if (msg.health) S.health = msg.health;
+        if (msg.state) S.state = msg.state;
+        S.tickAt = performance.now();
+        updateHealth();
         break;
       case "tick":
         onTick(msg);
@@ -1359,14 +1371,9 @@
   }
 
   // ---------------------------------------------------------------- health
-  function watchdogState(wd) {
-    if (wd === null || wd === undefined || wd === false || wd === "") return { tripped: false, text: "ok" };
-    if (typeof wd === "string") return wd === "ok" ? { tripped: false, text: "ok" } : { tripped: true, text: "TRIPPED: " + wd };
-    if (typeof wd === "object") {
-      const tripped = !!wd.tripped;
-      return { tripped: tripped, text: tripped ? "TRIPPED" + (wd.reason ? ": " + wd.reason : "") : "ok" };
-    }
-    return { tripped: !!wd, text: wd ? "TRIPPED" : "ok" };
+  // the health's watchdog: "" while it has not tripped, else why it tripped
+  function watchdogState(reason) {
+    return reason ? { tripped: true, text: "TRIPPED: " + reason } : { tripped: false, text: "ok" };
   }
 
   function setField(id, text, bad) {
@@ -1376,19 +1383,25 @@
     el.classList.toggle("bad", !!bad);
   }
 
+  // The health fields are those of the control port's health answer, which the server
+  // passes on in hello and every tick (tests/test_console_server.py checks that every
+  // field read from hl here is sent).
   function updateHealth() {
     const hl = S.health || {};
     const st = S.state || {};
-    const stale = S.connected && S.tickAt > 0 && performance.now() - S.tickAt > STALE_TICK_S * 1000;
+    const age = (performance.now() - S.tickAt) / 1000;
+    const stale = S.connected && S.tickAt > 0 && age > STALE_TICK_S;
     const status = hl.status || st.status || (S.connected ? "waiting" : "-");
     const onTime = Number(hl.on_time_fraction);
     const late = !isFinite(onTime) || onTime < ON_TIME_MIN;
     const wd = watchdogState(hl.watchdog);
-    setField("h-status", (S.connected ? status : "no connection") + (stale ? " (no data)" : ""), !S.connected || stale);
+    // stale: the last status is not the loop's now, so it is not shown as if it were
+    const shown = !S.connected ? "no connection" : stale ? "no data for " + age.toFixed(0) + " s" : status;
+    setField("h-status", shown, !S.connected || stale);
     setField("h-rate", isFinite(hl.rate_hz) ? fmt(hl.rate_hz) + " Hz" : "-", false);
     setField("h-ontime", isFinite(onTime) ? (onTime * 100).toFixed(3) + " %" : "-", late);
-    const missed = hl.missed !== undefined ? hl.missed : hl.missed_cycles;
-    const saturated = hl.saturated !== undefined ? hl.saturated : hl.saturated_cycles;
+    const missed = hl.missed_cycles;
+    const saturated = hl.saturated_cycles;
     setField("h-missed", isFinite(missed) ? String(missed) : "-", missed > 0);
     if (isFinite(hl.cycles)) $("h-missed").title = missed + " of " + hl.cycles + " cycles";
     setField("h-late", isFinite(hl.lateness_p99_s) ? fmt(hl.lateness_p99_s * 1e3, 3) + " ms" : "-", false);
