@@ -1132,7 +1132,7 @@ def build_parser(prog: str = "python -m benchmarks") -> argparse.ArgumentParser:
     ap.add_argument(
         "--quick",
         action="store_true",
-        help="smoke run (under two minutes): fewer repeats and points",
+        help="smoke run: fewer repeats and points, small GAs; not a measurement",
     )
     ap.add_argument(
         "--only",

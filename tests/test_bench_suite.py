@@ -217,3 +217,17 @@ def test_casestudy_markdown_states_each_estimate_against_the_truth():
     assert "| haptic | inertia | - | 1.1 kg m | - | - |" in text
     assert "Largest error against the truth: 4.00 %." in text
     assert "0.02 .. 0.03 rad/s (dtheta)" in text
+
+
+def test_evo_door_bench_help_names_every_section():
+    from benchmarks.suite import SECTIONS
+
+    done = subprocess.run(
+        [sys.executable, "-m", "evo_door", "bench", "--help"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert ", ".join(SECTIONS) in " ".join(done.stdout.split())
