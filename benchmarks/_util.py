@@ -21,14 +21,14 @@ def median_time(fn, repeat: int) -> float:
     return statistics.median(times)
 
 
-def machine_line(extra: str = "") -> str:
+def machine_line(extra: str = "", how: str = "medians of repeats") -> str:
     """Where and when a benchmark ran, for the first lines of its report."""
     import numba
 
     return (
         f"Machine: {platform.platform()}, {os.cpu_count()} CPUs{extra}, Python "
         f"{platform.python_version()}, numba {numba.__version__}. Measured "
-        f"{time.strftime('%Y-%m-%d %H:%M')}, medians of repeats; other processes may "
+        f"{time.strftime('%Y-%m-%d %H:%M')}, {how}; other processes may "
         "have shared the cores."
     )
 

@@ -29,6 +29,12 @@ Sections (``--only``):
     on the simulated device, paced on the wall clock.
 ``startup``
     wall time of ``evo-door --help`` and ``evo-door params haptic`` (target < 0.3 s).
+``casestudy``
+    the main job, ``evo-door run experiments/case_study.yaml``, once in a fresh
+    process: wall time, each stage's time, evaluations and fit, each estimate's error
+    against the virtual door's truth where the trials carry it, the perceptual check
+    (``bench_casestudy.py``); a measured run (not ``--quick``) also replaces
+    ``benchmarks/casestudy.md``, the figures README and ``docs/case-study.md`` quote.
 
 A ratio is the plain (or reference) way's value divided by the workbench's: how many
 times faster the workbench is. ``--compare OLD.json [NEW.json]`` prints new / old per
@@ -58,7 +64,7 @@ if str(ROOT) not in sys.path:
 
 from evo_door.errors import UserError  # noqa: E402
 
-SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup")
+SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy")
 DEFAULT_OUT = HERE / "results"
 
 #: targets (issue 16): one 5 s door trial on one thread; commands that do not simulate
@@ -726,6 +732,85 @@ def section_startup(suite: Suite) -> None:
     )
 
 
+# -- section: the main job -----------------------------------------------------------
+def section_casestudy(suite: Suite) -> None:
+    """``evo-door run experiments/case_study.yaml`` once: times, fits, errors."""
+    from benchmarks.bench_casestudy import figures, markdown, run_pipeline
+
+    load_start = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "case-study.h5"
+        wall = run_pipeline(out, suite.quick)
+        fig = figures(out, wall)
+    load_end = os.getloadavg()[0]
+    suite.add("casestudy.wall", "casestudy", "main job: wall time of `evo-door run`", wall, "s")
+    suite.add(
+        "casestudy.total", "casestudy", "main job: the pipeline's own time", fig["total"], "s"
+    )
+    for s in fig["stages"]:
+        key = f"casestudy.{s['stage']}"
+        suite.add(f"{key}.seconds", "casestudy", f"stage {s['stage']}: time", s["seconds"], "s")
+        suite.add(
+            f"{key}.evaluations",
+            "casestudy",
+            f"stage {s['stage']}: evaluations",
+            s["evaluations"],
+            "1",
+        )
+        suite.add(
+            f"{key}.fitness",
+            "casestudy",
+            f"stage {s['stage']}: fitness",
+            s["fitness"],
+            s["fitness_unit"],
+        )
+        if s["rms_fit"]:
+            suite.add(
+                f"{key}.rms_fit_max",
+                "casestudy",
+                f"stage {s['stage']}: largest RMS {s['channel']} error over the fit trials",
+                max(s["rms_fit"]),
+                s["channel_unit"],
+            )
+        for p in s["params"]:
+            suite.add(
+                f"{key}.{p['name']}",
+                "casestudy",
+                f"stage {s['stage']}: {p['name']}",
+                p["value"],
+                p["unit"],
+            )
+            if p["error_pct"] is not None:
+                suite.add(
+                    f"{key}.{p['name']}.error",
+                    "casestudy",
+                    f"stage {s['stage']}: {p['name']}, error against the truth",
+                    p["error_pct"],
+                    "%",
+                )
+    pc = fig["perceptual"]
+    if pc is not None:
+        for d in ("opening", "closing"):
+            suite.add(
+                f"casestudy.perceptual.{d}",
+                "casestudy",
+                f"perceptual check, {d}: share of the stroke beyond the JND",
+                pc[d]["fraction_pct"],
+                "%",
+            )
+    how = (
+        "--quick: every stage's GA 8 x 1 without polish, a smoke test, not a measurement"
+        if suite.quick
+        else "the pipeline as the file states it"
+    )
+    suite.tables["casestudy"] = (
+        f"The main job ({how}), on the bundled trials. Load average (1 min) "
+        f"{load_start:.2f} before the run (other processes' load) and {load_end:.2f} at "
+        f"its end (the run's own threads included): with other processes on the "
+        f"{os.cpu_count()} cores, the times are longer than on a quiet machine.\n\n" + markdown(fig)
+    )
+
+
 RUNNERS = {
     "trial": section_trial,
     "ga": section_ga,
@@ -733,6 +818,7 @@ RUNNERS = {
     "executors": section_executors,
     "device": section_device,
     "startup": section_startup,
+    "casestudy": section_casestudy,
 }
 
 
@@ -789,11 +875,41 @@ def machine() -> dict:
         commit = ""
     return {
         "platform": platform.platform(),
+        "cpu": cpu_model(),
         "cpus": os.cpu_count(),
         "numba_threads": numba.config.NUMBA_NUM_THREADS,
         "versions": versions,
         "commit": commit or None,
     }
+
+
+def cpu_model() -> str:
+    """The processor's name (Linux: /proc/cpuinfo), else what platform knows."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def casestudy_markdown(suite: Suite, info: dict) -> str:
+    """``benchmarks/casestudy.md``: the main job's figures that the README and
+    ``docs/case-study.md`` quote, with the machine that made them."""
+    from benchmarks._util import machine_line
+
+    return "\n".join(
+        [
+            "# The main job, measured (`python -m benchmarks --only casestudy`)",
+            "",
+            machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}", how="one run")
+            + f" Commit {info['commit']}." * bool(info["commit"]),
+            "",
+            suite.tables["casestudy"],
+            "",
+        ]
+    )
 
 
 def to_markdown(suite: Suite, info: dict, sections, seconds: float) -> str:
@@ -802,7 +918,7 @@ def to_markdown(suite: Suite, info: dict, sections, seconds: float) -> str:
     lines = [
         "# Benchmark suite (`python -m benchmarks`)",
         "",
-        machine_line(f", numba threads {info['numba_threads']}")
+        machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}")
         + f" Commit {info['commit']}." * bool(info["commit"]),
         "",
         f"Sections: {', '.join(sections)}{' (--quick: smoke run, not a measurement)' if suite.quick else ''}; "
@@ -933,6 +1049,9 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     if write_md:
         write_text(HERE / "suite.md", md)
         paths["summary"] = HERE / "suite.md"
+    if not suite.quick and "casestudy" in suite.tables:  # measured: the figures docs quote
+        write_text(HERE / "casestudy.md", casestudy_markdown(suite, info))
+        paths["casestudy"] = HERE / "casestudy.md"
     return paths
 
 
@@ -1013,7 +1132,7 @@ def build_parser(prog: str = "python -m benchmarks") -> argparse.ArgumentParser:
     ap.add_argument(
         "--quick",
         action="store_true",
-        help="smoke run (under two minutes): fewer repeats and points",
+        help="smoke run: fewer repeats and points, small GAs; not a measurement",
     )
     ap.add_argument(
         "--only",

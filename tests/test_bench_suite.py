@@ -38,6 +38,12 @@ REQUIRED = (
     "device.servo.on_time",
     "startup.help",
     "startup.params_haptic",
+    "casestudy.wall",
+    "casestudy.physical.seconds",
+    "casestudy.physical.M.error",
+    "casestudy.latch.unlock_force.error",
+    "casestudy.redesign.fitness",
+    "casestudy.perceptual.opening",
 )
 
 
@@ -89,7 +95,7 @@ def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
     # the compiled door trial agrees with Radau (the quick reference is loose)
     assert metrics["trial.door.workbench.error_theta"]["value"] < 1e-3
     # every section announced its progress, the table was printed
-    for section in ("trial", "ga", "scaling", "executors", "device", "startup"):
+    for section in ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy"):
         assert f"{section} done in" in done.stderr
     assert "## Targets" in done.stdout
     # and a run compares with it
@@ -146,3 +152,82 @@ def test_evo_door_bench_runs_the_suite_of_the_checkout():
     )
     assert done.returncode == 2
     assert done.stderr.strip().startswith("evo-door: error: --only: unknown section 'nope'")
+
+
+@pytest.mark.slow
+def test_casestudy_section_runs_the_main_job_and_leaves_the_quoted_figures_alone(tmp_path):
+    quoted = ROOT / "benchmarks" / "casestudy.md"
+    before = quoted.read_bytes() if quoted.exists() else None
+    done = bench("--quick", "--only", "casestudy", "--out", str(tmp_path), timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (js,) = tmp_path.glob("suite-*.json")
+    doc = json.loads(js.read_text())
+    metrics = {m["name"]: m for m in doc["metrics"]}
+    stages = ("physical", "latch", "haptic", "specification", "redesign")
+    for stage in stages:
+        assert metrics[f"casestudy.{stage}.seconds"]["value"] > 0
+        assert metrics[f"casestudy.{stage}.evaluations"]["value"] > 0
+    # the stages fitted to the virtual door's trials are scored against its truth
+    error = metrics["casestudy.physical.F_load.error"]
+    assert error["unit"] == "%"
+    truth = 101.45  # the default door's pre-load, which made the bundled trials
+    value = metrics["casestudy.physical.F_load"]["value"]
+    assert error["value"] == pytest.approx(100 * (value - truth) / truth)
+    assert metrics["casestudy.wall"]["value"] >= metrics["casestudy.total"]["value"]
+    assert doc["machine"]["cpu"]
+    assert "| physical | F_load |" in done.stdout and "--quick" in done.stdout
+    # a smoke run is no measurement: the figures the docs quote stay as they were
+    assert (quoted.read_bytes() if quoted.exists() else None) == before
+
+
+def test_casestudy_markdown_states_each_estimate_against_the_truth():
+    from benchmarks.bench_casestudy import markdown
+
+    def param(name, value, true, unit="N"):
+        return {
+            "name": name,
+            "unit": unit,
+            "value": value,
+            "true": true,
+            "error_pct": None if true is None else 100 * (value - true) / true,
+            "ci_pct": 2.0,
+            "verdict": "identifiable",
+            "partner": "",
+            "partner_r": None,
+        }
+
+    stage = {
+        "stage": "physical",
+        "model": "door",
+        "seconds": 12.3,
+        "evaluations": 2100,
+        "fitness": 1e-5,
+        "fitness_unit": "(rad/s)^2 s",
+        "channel": "dtheta",
+        "channel_unit": "rad/s",
+        "rms_fit": [0.02, 0.03],
+        "rms_validation": [0.04],
+        "params": [param("F_load", 103.0, 100.0), param("M", 1.2, 1.25, "kg")],
+    }
+    free = dict(stage, stage="haptic", params=[param("inertia", 1.1, None, "kg m")])
+    text = markdown({"wall": 65.4, "total": 60.1, "stages": [stage, free], "perceptual": None})
+    assert "**65 s**" in text and "own time 60 s" in text
+    assert "| physical | F_load | - | 103 N | 100 N | +3.00 % | +-2 % | identifiable |" in text
+    assert "| physical | M | - | 1.2 kg | 1.25 kg | -4.00 % |" in text
+    assert "| haptic | inertia | - | 1.1 kg m | - | - |" in text
+    assert "Largest error against the truth: 4.00 %." in text
+    assert "0.02 .. 0.03 rad/s (dtheta)" in text
+
+
+def test_evo_door_bench_help_names_every_section():
+    from benchmarks.suite import SECTIONS
+
+    done = subprocess.run(
+        [sys.executable, "-m", "evo_door", "bench", "--help"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert ", ".join(SECTIONS) in " ".join(done.stdout.split())

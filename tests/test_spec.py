@@ -1,9 +1,12 @@
 """Specification tables (export-spec) and identifiability as recorded by a run."""
 
 import csv
+import dataclasses
 import io
 import math
+import re
 
+import numpy as np
 import pytest
 
 from evo_door.data.io import write_trials
@@ -55,7 +58,7 @@ def test_a_per_trial_table_has_the_range_of_the_fits_and_the_pooled_value(runs):
 def test_formats_hold_the_same_numbers(runs):
     table = spec_table(Results(runs / "plain.h5"))
     assert table.form == "table 5.4"
-    rows = list(csv.reader(line for line in io.StringIO(render(table, "csv")) if line[0] != "#"))
+    rows = list(csv.reader(io.StringIO(render(table, "csv"))))
     header, body = rows[0], {r[0]: dict(zip(rows[0], r)) for r in rows[1:]}
     assert header[:4] == ["parameter", "symbol", "unit", "value"] and "min" not in header
     for r in table.rows:
@@ -68,6 +71,48 @@ def test_formats_hold_the_same_numbers(runs):
     assert tex.count(r" \\") == len(table.rows) + 1
     page = render(table, "html")
     assert page.startswith("<!DOCTYPE html>") and page.count("<tr") == len(table.rows) + 1
+
+
+def test_the_csv_is_a_header_and_rows_that_csv_and_numpy_read_as_they_are(runs):
+    table = spec_table(Results(runs / "pooled.h5"))
+    text = render(table, "csv")
+    columns = ["parameter", "symbol", "unit", "value", "min", "max", "true"]
+    columns += ["status", "identifiability", "standard error", "note"]
+    reader = csv.DictReader(io.StringIO(text))
+    rows = list(reader)
+    assert reader.fieldnames == columns  # the first line is the header, nothing before it
+    assert [r["parameter"] for r in rows] == [r.name for r in table.rows]
+    for row, want in zip(rows, table.rows):
+        assert float(row["value"]) == pytest.approx(want.value, rel=1e-5)
+        if want.has_range:
+            assert float(row["min"]) == pytest.approx(want.low, rel=1e-5)
+    data = np.genfromtxt(io.StringIO(text), delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert data.dtype.names[:7] == tuple(columns[:7])
+    assert len(data) == len(table.rows)
+    assert np.allclose(data["value"], [r.value for r in table.rows], rtol=1e-5)
+    assert np.allclose(data["true"], [r.true for r in table.rows], equal_nan=True)
+
+
+def _md_cells(line: str) -> list[str]:
+    """The cells of a Markdown table row as GitHub reads them: split at the pipes that
+    are not escaped, the outer two dropped, ``\\|`` read back as a pipe."""
+    parts = re.split(r"(?<!\\)\|", line.strip())
+    assert parts[0] == "" and parts[-1] == "", line
+    return [p.strip().replace("\\|", "|") for p in parts[1:-1]]
+
+
+def test_markdown_keeps_a_pipe_inside_a_cell(runs):
+    table = spec_table(Results(runs / "plain.h5"))
+    note = "correlation +0.990 with k (|r| > 0.95)"
+    table.rows[0] = dataclasses.replace(table.rows[0], note=note, verdict="correlated")
+    md = render(table, "md")
+    rows = [line for line in md.splitlines() if line.startswith("|")]
+    header = _md_cells(rows[0])
+    assert len(rows) == len(table.rows) + 2  # header, rule, one row per parameter
+    for line in rows[2:]:
+        assert len(_md_cells(line)) == len(header), line
+    first = dict(zip(header, _md_cells(rows[2])))
+    assert first["note"] == note and first["identifiability"] == "correlated"
 
 
 def test_the_yaml_is_a_parameter_file_that_reads_back_to_the_runs_values(runs, capsys, tmp_path):

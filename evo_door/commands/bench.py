@@ -19,11 +19,15 @@ def register(sub) -> None:
         help="run the benchmark suite (source checkout only): times and ratios against "
         "scipy solve_ivp and a plain GA loop, scaling, targets; JSON and PNG",
     )
-    p.add_argument("--quick", action="store_true", help="smoke run (under two minutes)")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="smoke run: fewer repeats and points, small GAs; not a measurement",
+    )
     p.add_argument(
         "--only",
         metavar="SECTION[,SECTION]",
-        help="only these sections: trial, ga, scaling, executors, device, startup",
+        help="only these sections: trial, ga, scaling, executors, device, startup, casestudy",
     )
     p.add_argument(
         "--out", metavar="DIR", help="folder of the results (default benchmarks/results/)"

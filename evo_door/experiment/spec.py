@@ -166,20 +166,32 @@ def render(t: SpecTable, fmt: str) -> str:
     header = [c for c, _ in cols]
     body = [[f(r) for _, f in cols] for r in t.rows]
     if fmt == "csv":
+        # Header and rows only: a comment line would be read as data by spreadsheets
+        # and pandas.read_csv. The caption is in the other formats (and the YAML's
+        # description); the columns say the rest.
         out = io.StringIO()
-        out.write(f"# {_caption(t)}\n")
         w = csv.writer(out, lineterminator="\n")
         w.writerow(header)
         w.writerows(body)
         return out.getvalue()
     if fmt == "md":
-        lines = [f"**{_caption(t)}**", "", "| " + " | ".join(header) + " |"]
+        lines = [f"**{_md_cell(_caption(t))}**", "", _md_row(header)]
         lines.append("|" + "|".join("---" for _ in header) + "|")
-        lines += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |" for row in body]
+        lines += [_md_row(row) for row in body]
         return "\n".join(lines) + "\n"
     if fmt == "tex":
         return _tex(t, header, body)
     return _html(t, header, body)
+
+
+def _md_cell(text: str) -> str:
+    """A Markdown table cell: a pipe inside it (``|r| > 0.95``) escaped, so that it
+    does not split the cell, and read as a pipe."""
+    return text.replace("|", "\\|")
+
+
+def _md_row(cells) -> str:
+    return "| " + " | ".join(_md_cell(c) for c in cells) + " |"
 
 
 def _tex_escape(text: str) -> str:

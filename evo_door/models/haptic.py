@@ -14,7 +14,7 @@ dimensions of a mechanism. It has two faces that share one parameter vector:
     tangential law rotated into device axes. A servo loop (1-2.5 kHz) calls it.
 
 Everything that shapes the feel is in one function, :func:`tangential_force`, to be
-read top to bottom. Conventions (spec): ``theta`` 0 = fully open, pi/2 = closed;
+read top to bottom. Conventions (``docs/conventions.md``): ``theta`` 0 = fully open, pi/2 = closed;
 ``dtheta < 0`` is opening; a tangential force is positive toward closing; SI units.
 The equations, and how they correct the seed's eqs. 4.39-4.47, are written out in
 ``docs/haptic-model.md``.
@@ -171,7 +171,8 @@ def section_scale(theta, p):
 def tangential_force(theta, dtheta, p):
     """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing.
 
-    Sum of the phases of seed section 4.3.3, with the spec's behaviour. Every effect
+    Sum of the phases of seed section 4.3.3, with the behaviour its text describes
+    (where its equations say otherwise: ``docs/conventions.md``). Every effect
     is switched off by a zero: frictions, viscous_damping, return_stiffness,
     open_force and close_force (both zero: no latch at all), open_hold, close_hold,
     seat_force, gasket_stiffness, transition_damping, stop_stiffness.

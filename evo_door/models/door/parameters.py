@@ -1,7 +1,8 @@
 """Parameter declaration of the physical door model (seed chapter 3, tables 5.2-5.4).
 
-Names are the seed's symbols as ``../shared/spec/CASE_STUDY.md`` writes them. Geometry
-is given in the **fully-open pose** (theta = 0) in the cabinet frame of
+Names are the seed's symbols written plainly (``T_atO`` for T_at_O); what the seed is,
+and the conventions of angles, signs and units: ``docs/conventions.md``. Geometry is
+given in the **fully-open pose** (theta = 0) in the cabinet frame of
 ``docs/physical-model.md``: origin at the door hinge O, x horizontal and positive out
 of the cabinet (toward the user standing in front of the open door), y vertically up.
 

@@ -1,0 +1,233 @@
+"""The main job, measured: ``evo-door run experiments/case_study.yaml`` once, timed.
+
+What the README and ``docs/case-study.md`` say about the main job (how long it takes,
+how close the door's estimates come to the virtual door's truth, how well each stage
+fits, what the perceptual check finds) is quoted from this benchmark's output, so that
+a new run on another machine refreshes every figure at once:
+
+    python -m benchmarks --only casestudy     # writes benchmarks/casestudy.md too
+
+The run happens in a fresh process, as a user types it (start-up and numba's cache
+loading included in the wall time); the figures are then read back from its results
+file. ``quick=True`` shrinks every stage's GA (population 8, 1 generation, no polish):
+a smoke test of this code, not a measurement.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+PIPELINE = ROOT / "experiments" / "case_study.yaml"
+
+#: every stage's GA in a --quick run: enough to exercise the code, nothing more
+QUICK_SETTINGS = ("population=8", "generations=1", "polish=none")
+
+
+def stage_names(pipeline: Path = PIPELINE) -> list[str]:
+    """The stages the pipeline file declares, in order."""
+    import yaml
+
+    return list(yaml.safe_load(pipeline.read_text())["stages"])
+
+
+def run_pipeline(out: Path, quick: bool) -> float:
+    """Run the main job into ``out`` in a fresh process; its wall time (s)."""
+    cmd = [sys.executable, "-m", "evo_door", "run", str(PIPELINE), "--out", str(out), "--quiet"]
+    if quick:
+        for stage in stage_names():
+            for setting in QUICK_SETTINGS:
+                cmd += ["--set", f"stages.{stage}.algorithm.{setting}"]
+    # the checkout's evo_door, also when another one is installed
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+    }
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=3600)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError((done.stderr.strip().splitlines() or ["no output"])[-1])
+    return wall
+
+
+def stage_figures(path: Path, stage: str) -> dict:
+    """One stage's time, evaluations, fitness, per-trial errors and parameters."""
+    from evo_door.experiment import Results
+
+    res = Results(path, stage)
+    s = res.summary()
+    errors = s.get("channel_errors", {})
+    fit = [e for e in errors.values() if e["role"] == "fit"]
+    val = [e for e in errors.values() if e["role"] != "fit"]
+    ident = s.get("identifiability", {})
+    params = []
+    for name in res.free:
+        value = s["best"][name]
+        true = s["truth"].get(name)
+        row = {
+            "name": name,
+            "unit": s["units"].get(name, ""),
+            "value": value,
+            "true": true,
+            "error_pct": None if not true else 100.0 * (value - true) / true,
+            "ci_pct": None,
+            "verdict": "",
+            "partner": "",
+            "partner_r": None,
+        }
+        if name in s.get("table", {}):
+            row["min"], row["max"] = s["table"][name]["min"], s["table"][name]["max"]
+        if name in ident:
+            i = ident[name]
+            row["ci_pct"] = 100.0 * i["ci_rel"] if math.isfinite(i["ci_rel"]) else None
+            row["verdict"] = i["verdict"]
+            row["partner"], row["partner_r"] = i["partner"] or "", i["partner_r"]
+        params.append(row)
+    return {
+        "stage": stage,
+        "model": s["model"],
+        "seconds": s["seconds"],
+        "evaluations": s["evaluations"],
+        "fitness": s["fitness"],
+        "fitness_unit": s["fitness_unit"],
+        "channel": (fit or val or [{"channel": "", "unit": ""}])[0]["channel"],
+        "channel_unit": (fit or val or [{"channel": "", "unit": ""}])[0]["unit"],
+        "rms_fit": [e["rms"] for e in fit],
+        "rms_validation": [e["rms"] for e in val],
+        "params": params,
+    }
+
+
+def perceptual(path: Path, stages: list[str]) -> dict | None:
+    """The report's perceptual check (default JND) of the last mechanism stage fitted to
+    a chosen feel (the redesign's door, else the specification's), or None."""
+    from evo_door.experiment import Results
+    from evo_door.experiment.report import Settings, _target_model, perceptual_check
+    from evo_door.sim.simulate import force_angle_curve
+
+    fitted = [Results(path, s) for s in stages]
+    to_model = [r for r in fitted if _target_model(r) is not None and r.model.name == "door"]
+    if not to_model:
+        return None
+    final = to_model[-1]
+    target_model, chosen = _target_model(final)
+    model = final.model
+    mech = model.load_params({n: v for n, v in final.values().items() if n in model.params})
+    check = perceptual_check(
+        force_angle_curve(model, mech), force_angle_curve(target_model, chosen), Settings()
+    )
+    out = {"stage": final.stage}
+    for d, c in check.items():
+        angle, diff, thr = c["worst"]
+        out[d] = {
+            "fraction_pct": 100.0 * c["fraction"],
+            "worst_n": diff,
+            "worst_deg": math.degrees(angle),
+            "jnd_n": thr,
+        }
+    return out
+
+
+def figures(path: Path, wall: float) -> dict:
+    """Everything the section reports, from the main job's results file."""
+    from evo_door.experiment.pipeline import pipeline_summary
+
+    summary = pipeline_summary(path)
+    stages = [s["name"] for s in summary["stages"]]
+    return {
+        "wall": wall,
+        "total": summary["total_s"],
+        "stages": [stage_figures(path, s) for s in stages],
+        "perceptual": perceptual(path, stages),
+    }
+
+
+# -- text -------------------------------------------------------------------------------
+def _g(v, digits: int = 4) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.{digits}g}"
+
+
+def _range(values, digits: int = 3) -> str:
+    if not values:
+        return "-"
+    lo, hi = min(values), max(values)
+    return _g(lo, digits) if lo == hi else f"{_g(lo, digits)} .. {_g(hi, digits)}"
+
+
+def _verdict(p: dict) -> str:
+    if p["verdict"] == "correlated" and p["partner"]:
+        return f"correlated with {p['partner']} (r = {p['partner_r']:+.2f})"
+    return p["verdict"] or "-"
+
+
+def markdown(fig: dict) -> str:
+    """The section's tables (Markdown): stages, parameters, perceptual check."""
+    lines = [
+        f"Wall time of `evo-door run experiments/case_study.yaml` in a fresh process: "
+        f"**{fig['wall']:.0f} s** (the pipeline's own time {fig['total']:.0f} s).",
+        "",
+        "| stage | model | time | evaluations | fitness | RMS error per fit trial "
+        "| RMS error, validation trial |",
+        "|---|---|---:|---:|---|---|---|",
+    ]
+    for s in fig["stages"]:
+        unit = f" {s['channel_unit']}" if s["channel_unit"] else ""
+        lines.append(
+            f"| {s['stage']} | {s['model']} | {s['seconds']:.1f} s | {s['evaluations']} | "
+            f"{_g(s['fitness'], 3)} {s['fitness_unit']} | "
+            f"{_range(s['rms_fit'])}{unit} ({s['channel']}) | "
+            f"{_range(s['rms_validation'])}{unit if s['rms_validation'] else ''} |"
+        )
+    lines += [
+        "",
+        "Each stage's estimates; where the trials carry the virtual door's truth (the "
+        "stages fitted to its trials), the error against it. 95 % CI: the half-width of "
+        "the identifiability check's confidence interval, relative to the value.",
+        "",
+        "| stage | parameter | per-trial min .. max | estimate | true | error | 95 % CI "
+        "| verdict |",
+        "|---|---|---|---|---|---:|---:|---|",
+    ]
+    for s in fig["stages"]:
+        for p in s["params"]:
+            unit = "" if p["unit"] in ("", "1") else f" {p['unit']}"
+            span = f"{_g(p['min'])} .. {_g(p['max'])}{unit}" if "min" in p else "-"
+            true = "-" if p["true"] is None else f"{_g(p['true'])}{unit}"
+            err = "-" if p["error_pct"] is None else f"{p['error_pct']:+.2f} %"
+            ci = "-" if p["ci_pct"] is None else f"+-{p['ci_pct']:.3g} %"
+            lines.append(
+                f"| {s['stage']} | {p['name']} | {span} | {_g(p['value'])}{unit} | {true} | "
+                f"{err} | {ci} | {_verdict(p)} |"
+            )
+    errors = [
+        abs(p["error_pct"])
+        for s in fig["stages"]
+        for p in s["params"]
+        if p["error_pct"] is not None
+    ]
+    if errors:
+        lines += ["", f"Largest error against the truth: {max(errors):.2f} %."]
+    pc = fig["perceptual"]
+    if pc is not None:
+        lines += [
+            "",
+            f"Perceptual check of the `{pc['stage']}` door against the chosen feel (force "
+            "JND 10 %, floor 1 N; `evo-door report` draws it):",
+            "",
+            "| direction | stroke beyond the JND | largest difference |",
+            "|---|---:|---|",
+        ]
+        for d in ("opening", "closing"):
+            c = pc[d]
+            lines.append(
+                f"| {d} | {c['fraction_pct']:.1f} % | {c['worst_n']:+.1f} N at "
+                f"{c['worst_deg']:.1f} deg (JND {c['jnd_n']:.2f} N) |"
+            )
+    return "\n".join(lines)
