@@ -11,6 +11,7 @@ from evo_door.errors import UserError
 from evo_door.experiment import Interrupted, Results
 from evo_door.experiment.pipeline import (
     PipelineRun,
+    format_pipeline,
     is_pipeline,
     load_pipeline,
     pipeline_summary,
@@ -76,6 +77,37 @@ def test_a_stage_starts_from_the_earlier_stages_answer(folder):
     assert pipeline_summary(run.path)["status"] == "complete"
 
 
+def test_the_results_file_records_which_stage_each_stage_started_from(folder, capsys):
+    """Provenance survives the run: the stage's experiment is filled in a copy, so the
+    file still says second took its values and its target from first (it said [])."""
+    out = run_pipeline(folder).path
+    with h5py.File(out) as f:
+        stages = json.loads(f["pipeline/resolved"][()])["stages"]
+    assert stages["first"]["uses"] == [] and stages["first"]["from"] == {}
+    assert stages["second"]["uses"] == ["first"]
+    assert stages["second"]["from"] == {"params": "first", "target.params": "first"}
+    shown = cli(capsys, "show", out)
+    assert shown.returncode == 0, shown.stderr
+    head = shown.stdout.split("\n\n")[0].splitlines()
+    # a finished pipeline's time is its total, not a count "so far"
+    assert head[0].startswith("pipeline two: complete, ") and "so far" not in head[0]
+    assert head[1] == "  stage 1 first: complete"
+    assert head[2] == (
+        "  stage 2 second: complete (params from stage first, target.params from stage first)"
+    )
+    doc = json.loads(cli(capsys, "show", out, "--json").stdout)
+    assert [s["from"] for s in doc["stages"]] == [
+        {},
+        {"params": "first", "target.params": "first"},
+    ]
+    assert doc["stages"][1]["uses"] == ["first"]
+    assert doc["stage_results"]["second"]["from"] == {"params": "first", "target.params": "first"}
+    one = cli(capsys, "show", out, "--stage", "second")
+    assert "  stage second: params from stage first, target.params from stage first" in (one.stdout)
+    doc = json.loads(cli(capsys, "show", out, "--stage", "first", "--json").stdout)
+    assert doc["stage"] == "first" and doc["from"] == {}
+
+
 @pytest.mark.parametrize("stage, generation", [("first", 2), ("second", 1)])
 def test_a_killed_pipeline_resumes_at_its_stage_and_generation_to_the_same_numbers(
     folder, stage, generation
@@ -90,6 +122,7 @@ def test_a_killed_pipeline_resumes_at_its_stage_and_generation_to_the_same_numbe
         run_pipeline(folder, "cut.h5", kill)
     summary = pipeline_summary(folder / "cut.h5")
     assert summary["status"] == "interrupted" and stage in summary["status_text"]
+    assert " s so far, created " in format_pipeline(summary).splitlines()[0]
     assert f"generation {generation}" in summary["status_text"]
     resumed = resume_pipeline(folder / "cut.h5")
     assert resumed.status == "complete"
@@ -188,5 +221,6 @@ def test_the_progress_display_names_the_stage(folder, capsys):
     PipelineRun.create(pipe, folder / "progress.h5").run(progress=True)
     err = capsys.readouterr().err
     assert "stage 1/2 first: model" in err and "stage 2/2 second: model" in err
+    assert "free: k, from first\n" in err  # the stage's sources, kept while it runs
     # the GA's own lines carry the stage too
     assert "stage 2/2 second: best fitness" in err

@@ -188,6 +188,13 @@ class Experiment:
                 out[spec["where"]] = spec["from"]
         return out
 
+    def sources(self) -> dict[str, str]:
+        """The ``{from: STAGE}`` parameter sets by key: ``params`` / ``target.params`` -> stage."""
+        keys = (("params", self.params), ("target.params", self.target.params))
+        return {
+            key: spec["from"] for key, spec in keys if isinstance(spec, dict) and "from" in spec
+        }
+
     def resolved(self) -> dict:
         """The configuration with every default filled in, as plain JSON-able data."""
         out = {

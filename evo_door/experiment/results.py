@@ -293,6 +293,13 @@ class Results:
     def progress(self) -> str:
         return _progress(self.attrs, self.config)
 
+    def sources(self) -> dict[str, str]:
+        """A pipeline stage's ``{from: STAGE}``: ``params`` / ``target.params`` -> the
+        earlier stage it took them from ({} for a run's own file, or a stage of its own)."""
+        if self.stage is None:
+            return {}
+        return store.stage_sources(self.path).get(self.stage, {})
+
     def summary(self) -> dict:
         """Everything ``show --json`` prints (JSON-able)."""
         cfg = self.config
@@ -300,6 +307,8 @@ class Results:
         status = self.status()
         out = {
             "file": str(self.path),
+            "stage": self.stage,
+            "from": self.sources(),
             "name": self.attrs.get("name"),
             "model": self.attrs.get("model"),
             "status": status.state,
@@ -489,6 +498,8 @@ def format_show(res: Results) -> str:
     ]
     if s["status"] == "interrupted":
         lines.append(f"  {s['status_text']}; {s['resume']} continues it")
+    if s["from"]:  # a pipeline's stage that started from earlier ones
+        lines.append(f"  stage {s['stage']}: {format_sources(s['from'])}")
     lines += [
         f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
         f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
@@ -559,6 +570,15 @@ def format_show(res: Results) -> str:
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
     return "\n".join(lines)
+
+
+def format_sources(sources: dict[str, str]) -> str:
+    """Where a pipeline stage's ``{from: STAGE}`` came from, for a person.
+
+    >>> format_sources({"params": "physical", "target.params": "latch"})
+    'params from stage physical, target.params from stage latch'
+    """
+    return ", ".join(f"{key} from stage {stage}" for key, stage in sources.items())
 
 
 def format_channel_errors(errors: dict) -> list[str]:
