@@ -250,6 +250,8 @@ CASES = {
     "compare: a missing run": ("compare {w}/run.h5 {w}/missing.h5", "missing.h5"),
     "compare: trials, not a run": ("compare {w}/run.h5 {w}/trials.h5", "trials.h5"),
     "compare: a picture": ("compare {w}/run.h5 {w}/picture.png", "picture.png"),
+    "compare: --stage, no pipeline": ("compare {w}/run.h5 {w}/run.h5 --stage latch", "--stage"),
+    "compare: a stage of a run": ("compare {w}/run.h5 {w}/run.h5:latch", "run.h5: holds one run"),
     "runs: missing folder": ("runs {w}/nowhere", "nowhere"),
     "runs: a file": ("runs {w}/afile", "afile"),
     "resume: missing": ("resume {w}/missing.h5", "missing.h5"),

@@ -203,6 +203,53 @@ def test_the_commands_take_a_pipeline(folder, capsys):
     assert code == 2 and "holds a complete pipeline" in err
 
 
+def test_compare_takes_a_stage_of_each_pipeline_or_one_file_s_stage(folder, capsys):
+    """compare --stage S: stage S of every pipeline given; P.h5:S one file's stage, beside a
+    run's own file or another stage of the same pipeline. Refusals: one line, exit 2, the
+    folder untouched."""
+    import shutil
+
+    from evo_door.experiment import load_experiment, run_experiment
+    from tests.test_bad_input import snapshot
+    from tests.test_experiment import EXPERIMENT
+
+    a, b = run_pipeline(folder, "a.h5").path, folder / "b.h5"
+    shutil.copy(a, b)  # a second pipeline's file, as far as compare can tell
+    (folder / "exp.yaml").write_text(EXPERIMENT)
+    single = run_experiment(load_experiment(folder / "exp.yaml"), folder / "single.h5").path
+    res = cli(capsys, "compare", a, b, "--stage", "second", "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["stages"] == ["second", "second"] and doc["runs"][0]["stage"] == "second"
+    assert doc["runs"][0]["params"]["k"]["value"] == Results(a, "second").best()["k"]
+    # a run's own file beside a stage: by --stage (it applies to the pipeline) or FILE:STAGE
+    for args in ([single, b, "--stage", "first"], [single, f"{b}:first"]):
+        res = cli(capsys, "compare", *args)
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.splitlines()[0].split() == ["single.h5", "b.h5", "[first]"]
+    res = cli(capsys, "compare", f"{a}:first", f"{a}:second", "--json")
+    assert json.loads(res.stdout)["differences"]["name"] == ["first", "second"]
+    before = snapshot(folder)
+    for args, message in [
+        ([single, b], f"{b}: a pipeline of stages first, second: name the stage to compare "
+                      f"with --stage NAME, or {b}:NAME"),
+        ([a, b, "--stage", "thrid"], "stage 'thrid' is not a stage of it; stages with "
+                                     "results: first, second"),
+        ([single, f"{b}:third"], "stage 'third' is not a stage of it; stages with results: "
+                                 "first, second"),
+        ([single, f"{b}:"], "name the stage after the colon"),
+        ([single, f"{single}:first"], "single.h5: holds one run, not a pipeline"),
+        ([single, single, "--stage", "first"], "--stage first: none of the files given is a "
+                                               "pipeline's"),
+        ([single, f"{folder}/missing.h5:first"], "missing.h5: results file not found"),
+    ]:  # fmt: skip
+        res = cli(capsys, "compare", *args)
+        lines = res.stderr.splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and res.stdout == "", res.stderr
+        assert lines[0].startswith("evo-door: error: ") and message in lines[0], lines[0]
+    assert snapshot(folder) == before
+
+
 def test_compare_objectives_runs_on_a_stage_that_starts_from_earlier_ones(folder, capsys):
     out = run_pipeline(folder).path
     args = ["compare-objectives", folder / "pipe.yaml", "--stage", "second", "--kinds", "ise"]

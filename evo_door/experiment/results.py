@@ -829,6 +829,7 @@ def _run_entry(res: Results, params: list[str]) -> dict:
     t = res.tree["timings"][A]
     return {
         "file": str(res.path),
+        "stage": res.stage,
         "name": res.attrs.get("name"),
         "model": res.attrs.get("model"),
         "status": status.state,
@@ -859,6 +860,7 @@ def compare(runs: list[Results]) -> dict:
     fixed or the base value); for runs of different models only those every model
     declares, and ``models_differ`` says so. ``differences`` holds the settings of the
     resolved configurations (dotted keys) and the package versions that differ.
+    ``stages`` gives the pipeline stage of each run (None: a run's own file).
     """
     if len(runs) < 2:
         given = f": only {runs[0].path}" if runs else ""
@@ -871,6 +873,7 @@ def compare(runs: list[Results]) -> dict:
     shared = [n for n in free if all(n in d for d in declared)]
     doc = {
         "files": [str(r.path) for r in runs],
+        "stages": [r.stage for r in runs],
         "models": models,
         "models_differ": len(set(models)) > 1,
         "params": shared,
@@ -914,9 +917,12 @@ def _value_text(value) -> str:
 def format_compare(doc: dict) -> str:
     """The human-readable ``evo-door compare``: one column per run."""
     runs = doc["runs"]
+    stages = doc.get("stages") or [None] * len(runs)
     names = [Path(f).name for f in doc["files"]]
-    if len(set(names)) < len(names):  # same file name in several folders: the paths
+    if len(set(zip(names, stages))) < len(names):  # one name in several folders: the paths
         names = list(doc["files"])
+    # a pipeline's stage as runs lists it: FILE [stage]
+    names = [name + (f" [{stage}]" if stage else "") for name, stage in zip(names, stages)]
     rows: list[list[str]] = []
 
     def row(label, cells):
