@@ -10,6 +10,7 @@ from numba import njit
 from evo_door.data import read_trials, rig, write_trials
 from evo_door.data.preprocess import find_force_peak
 from evo_door.data.sensors import CLOSED, DEG, GYROSCOPE, INCLINOMETER, LOAD_CELL, Sensor
+from evo_door.errors import UserError
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
 from evo_door.sim import simulate
@@ -179,8 +180,20 @@ def test_chunked_closed_loop_equals_one_simulation():
 def test_trials_from_spec_for_experiments():
     trials = rig.trials_from_spec({"model": TOY, "trials": 1, "seed": 2, "kinds": "lock"})
     assert trials[0].kind == "lock" and trials[0].truth["model"] == "toy_door"
-    with pytest.raises(Exception, match="unknown key 'user'.*did you mean 'users'"):
+    with pytest.raises(UserError, match="user: unknown key .did you mean 'users'"):
         rig.trials_from_spec({"model": TOY, "user": 2})
+    # every entry checked before a trial is made: one line naming the key, no traceback
+    for spec, message in [
+        ({"users": "abc"}, "users: expected a whole number, got 'abc'"),
+        ({"trials": 2.5}, "trials: expected a whole number, got 2.5"),
+        ({"seed": -1}, "seed: must be at least 0, got -1"),
+        ({"rate": 0}, "rate: must be positive"),
+        ({"kinds": 5}, "kinds: expected a list of trial kinds"),
+        ({"set": 3}, "set: expected a mapping"),
+        ({"params": 3}, "params: expected a preset name"),
+    ]:
+        with pytest.raises(rig.SpecError, match=message):
+            rig.trials_from_spec({"model": TOY, **spec})
 
 
 def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
