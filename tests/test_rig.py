@@ -3,6 +3,7 @@
 import math
 from dataclasses import replace
 
+import h5py
 import numpy as np
 import pytest
 from numba import njit
@@ -221,6 +222,13 @@ def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     )
     stdout = capsys.readouterr().out
     assert "T03" in stdout and "peak [N]" in stdout
+    # what --set changed is said, not "(defaults)"
+    assert "generated from model toy_door (defaults, changed: friction=6)" in stdout
+    with h5py.File(out) as f:
+        assert f.attrs["description"] == (
+            "virtual rig: model toy_door, params defaults, changed: friction=6, 3 users, "
+            "3 trials, seed 4"
+        )
     trials = read_trials(out)
     assert len(trials) == 3 and trials[0].truth["params"]["friction"] == 6.0
     png = tmp_path / "rig.png"

@@ -602,30 +602,43 @@ def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> Non
 
 
 def params_source(model, params) -> str:
-    """Where a parameter set came from, as trial files record it.
+    """Where a parameter set came from, and what was set on top, as trial files record it.
 
     A preset by its name (``"default"``), not by the path of its file on this machine:
-    the same command then writes the same file anywhere. ``"default, changed: M"`` when
-    values were set on top of the preset; a file of the user's by the path given.
+    the same command then writes the same file anywhere; the declared defaults as
+    ``"defaults"``; a file of the user's by the path given. Values set on top (``--set``,
+    a specification's ``set``) follow: ``"defaults, changed: M=1.5"``.
     """
+    source = getattr(params, "source", "") or ""
+    label, base = _named_source(model, source)
+    if base is None:
+        return label
+    changed = [
+        f"{name}={params[name]:g}"
+        for name, value in base.as_dict().items()
+        if params[name] != value
+    ]
+    return label + (f", changed: {', '.join(changed)}" if changed else "")
+
+
+def _named_source(model, source: str):
+    """(the name a trial file records for ``source``, the set it names or None)."""
     from evo_door.params.sets import preset_path
 
-    source = getattr(params, "source", "") or ""
+    if source == "defaults":
+        return source, model.load_params(None)
     path = Path(source)
     if path.suffix not in (".yaml", ".yml") or not path.is_file():
-        return source
+        return source, None
     try:
         preset = preset_path(model.name, path.stem, model.preset_dirs)
     except UserError:
-        return source
-    if preset.resolve() != path.resolve():
-        return source
-    changed = [
-        name
-        for name, value in model.load_params(path.stem).as_dict().items()
-        if params[name] != value
-    ]
-    return path.stem + (f", changed: {', '.join(changed)}" if changed else "")
+        preset = None
+    name = path.stem if preset is not None and preset.resolve() == path.resolve() else source
+    try:
+        return name, model.load_params(str(path))
+    except UserError:  # the file changed under us: its name alone
+        return name, None
 
 
 def _truth(model, params, method, substeps, truth=None) -> dict:
