@@ -253,3 +253,39 @@ def test_a_door_that_will_not_open_is_flagged():
     with pytest.warns(UserWarning, match="did not unlock"):
         tr = rig.generate_trial(TOY_DOOR, params, "unlock", user, np.random.default_rng(1))
     assert tr.meta["rig"]["events"]["gave_up"] and np.min(tr.force) >= -100.5
+
+
+# -- who makes which kind -------------------------------------------------------------
+@pytest.mark.parametrize("users", range(1, 9))
+def test_every_user_makes_every_kind_once_per_users_times_kinds_trials(users):
+    """With 4 users and the 4-kind cycle each user made one kind only (users and kinds
+    in lockstep); now each makes every position of the cycle once in users x 4 trials,
+    and where taking turns already did that (users and cycle coprime) nothing changed."""
+    import math
+
+    for cycle in range(1, 7):
+        made = [(rig.trial_user(k, users, cycle), k % cycle) for k in range(users * cycle)]
+        # each (user, position) once: every user every kind, and as many trials each
+        assert sorted(made) == [(u, p) for u in range(users) for p in range(cycle)]
+        if math.gcd(users, cycle) == 1:
+            assert [u for u, _ in made] == [k % users for k in range(users * cycle)]
+
+
+def test_two_users_both_make_every_kind(campaign):
+    params, _ = campaign
+    trials = rig.generate_trials(TOY_DOOR, params, users=2, trials=8, seed=3, progress=False)
+    assert [t.kind for t in trials] == ["impulse", "unlock", "impulse", "lock"] * 2
+    kinds = {u: {t.kind for t in trials if t.user_id == u} for u in ("U1", "U2")}
+    assert kinds == {"U1": {"impulse", "unlock", "lock"}, "U2": {"impulse", "unlock", "lock"}}
+
+
+def test_the_bundled_data_keeps_its_users_and_kinds():
+    """3 users x 10 trials (experiments/data): the same user makes the same kind of trial
+    as when the file was made (its arrays are then the same: tests/test_rig_truth.py)."""
+    from pathlib import Path
+
+    bundled = read_trials(Path(__file__).resolve().parents[1] / "experiments/data/default.h5")
+    assert [t.trial_id for t in bundled] == [f"T{k + 1:02d}" for k in range(10)]
+    for k, t in enumerate(bundled):
+        assert t.user_id == f"U{rig.trial_user(k, 3, 4) + 1}"
+        assert t.kind == rig.DEFAULT_KINDS[k % 4]

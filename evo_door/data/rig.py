@@ -721,8 +721,10 @@ def generate_trials(
 ) -> list[Trial]:
     """A measurement campaign: ``trials`` trials by ``users`` virtual users.
 
-    Trial k (ids ``T01``...) is done by user ``k % users`` (ids ``U1``...) and is of
-    kind ``kinds[k % len(kinds)]``. Same ``seed``, same trials, value for value.
+    Trial k (ids ``T01``...) is of kind ``kinds[k % len(kinds)]`` and is done by the user
+    :func:`trial_user` gives (ids ``U1``...): the users take turns, and every user makes
+    every kind of the cycle once in ``users * len(kinds)`` trials. Same ``seed``, same
+    trials, value for value.
 
     Parameters
     ----------
@@ -767,7 +769,7 @@ def generate_trials(
     )
     for k, child in zip(bar, trial_root.spawn(trials)):
         rng = np.random.default_rng(child)
-        user = people[k % users].jittered(rng)
+        user = people[trial_user(k, users, len(kinds))].jittered(rng)
         trial = generate_trial(
             model,
             params,
@@ -786,6 +788,29 @@ def generate_trials(
         )
         out.append(trial)
     return out
+
+
+def trial_user(k: int, users: int, cycle: int) -> int:
+    """The user (0-based) of trial ``k`` when ``cycle`` kinds are cycled over the trials.
+
+    Users take turns: trial k is user ``k % users``'s, as long as that spreads every
+    kind over every user, i.e. when ``users`` and ``cycle`` have no common factor (the
+    bundled data: 3 users, 4 kinds). Otherwise taking turns runs in lockstep with the
+    kinds (4 users, 4 kinds: user i would make kind i only; 2 users: user 1 only
+    impulses): each new cycle of kinds then starts ``shift`` users further on, the
+    smallest shift that breaks the lockstep. Either way every user makes every position
+    of the cycle exactly once in ``users * cycle`` trials.
+
+    >>> [trial_user(k, 3, 4) for k in range(8)]  # as ever: k % 3
+    [0, 1, 2, 0, 1, 2, 0, 1]
+    >>> [trial_user(k, 4, 4) for k in range(8)]  # the second cycle starts with user 1
+    [0, 1, 2, 3, 1, 2, 3, 0]
+    """
+    # trial k = q * cycle + p is user (p + q * (cycle + shift)) % users: for each
+    # position p of the cycle, q = 0 .. users - 1 visits every user once when
+    # cycle + shift and users have no common factor
+    shift = next(c for c in range(users + 1) if math.gcd(cycle + c, users) == 1)
+    return (k + shift * (k // cycle)) % users
 
 
 def default_kinds(model) -> tuple[str, ...]:
