@@ -24,6 +24,21 @@ from tests.test_optim import make_trial
 
 PNG = b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 4
 
+#: an experiment fitted to another model driven by the rig's trials, written inline
+RIG_EXPERIMENT = """\
+name: rig
+model: tests.conftest:OSCILLATOR_MODEL
+target:
+  model: tests.conftest:OSCILLATOR_MODEL
+  inputs:
+    model: tests.conftest:OSCILLATOR_MODEL
+    users: 2
+    trials: 2
+    seed: 1
+free: {k: [20, 500]}
+algorithm: {population: 4, generations: 1}
+"""
+
 
 def _readonly_folder(tmp: Path) -> Path:
     """A folder nobody may write in: chmod 555, or, for root (who ignores modes), /sys."""
@@ -54,6 +69,8 @@ def ws(tmp_path_factory):
     trials = [make_trial(s, 0.75, tid=f"t{s}") for s in (1, 2, 3)] + [make_trial(4, 0.75, tid="v1")]
     write_trials(w / "trials.h5", trials)
     (w / "exp.yaml").write_text(EXPERIMENT)
+    (w / "rig.yaml").write_text(RIG_EXPERIMENT)
+    (w / "rig-bad.yaml").write_text(RIG_EXPERIMENT.replace("users: 2", "users: abc"))
     exp = load_experiment(w / "exp.yaml", ["algorithm.generations=2", "algorithm.polish=none"])
     run_experiment(exp, out=w / "run.h5")
     t = np.arange(64) / 1024
@@ -198,6 +215,47 @@ CASES = {
         "run {w}/exp.yaml --set algorithm.population=1e9 --out {w}/r.h5",
         "algorithm.population",
     ),
+    # run: an inline rig specification (target.inputs), each entry as rig generate's flags
+    "run: rig users not a number": (
+        "run {w}/rig-bad.yaml --out {w}/r.h5",
+        "rig-bad.yaml:7: target.inputs.users: expected a whole number, got 'abc'",
+    ),
+    "run: rig no users": ("run {w}/rig.yaml --set target.inputs.users=0", "inputs.users: must be"),
+    "run: rig trials not whole": (
+        "run {w}/rig.yaml --set target.inputs.trials=2.5",
+        "target.inputs.trials: expected a whole number, got 2.5",
+    ),
+    "run: rig negative seed": ("run {w}/rig.yaml --set target.inputs.seed=-1", "inputs.seed"),
+    "run: rig seed not a number": (
+        "run {w}/rig.yaml --set target.inputs.seed=x",
+        "target.inputs.seed: expected a whole number",
+    ),
+    "run: rig rate 0": ("run {w}/rig.yaml --set target.inputs.rate=0", "inputs.rate: must be"),
+    "run: rig rate not a number": ("run {w}/rig.yaml --set target.inputs.rate=abc", "inputs.rate"),
+    "run: rig unknown kind": (
+        "run {w}/rig.yaml --set target.inputs.kinds=[imuplse]",
+        "target.inputs.kinds: unknown trial kind 'imuplse' (did you mean 'impulse'?)",
+    ),
+    "run: rig kind the model cannot make": (
+        "run {w}/rig.yaml --set target.inputs.kinds=lock",
+        "cannot make lock trials",
+    ),
+    "run: rig all_sensors not a boolean": (
+        "run {w}/rig.yaml --set target.inputs.all_sensors=3",
+        "target.inputs.all_sensors: expected true or false",
+    ),
+    "run: rig set not a mapping": ("run {w}/rig.yaml --set target.inputs.set=3", "inputs.set"),
+    "run: rig set of an unknown parameter": (
+        "run {w}/rig.yaml --set target.inputs.set.kk=3",
+        "no parameter 'kk' (did you mean 'k'?)",
+    ),
+    "run: rig unknown key": (
+        "run {w}/rig.yaml --set target.inputs.usres=3",
+        "target.inputs.usres: unknown key (did you mean 'users'",
+    ),
+    "run: rig unknown model": ("run {w}/rig.yaml --set target.inputs.model=nope", "'nope'"),
+    "run: rig unknown preset": ("run {w}/rig.yaml --set target.inputs.params=nope", "'nope'"),
+    "rig: negative seed": ("rig generate --model door --seed -1 --out {w}/t.h5", "--seed"),
     # compare-objectives
     "compare-objectives: missing experiment": (
         "compare-objectives {w}/missing.yaml --out {w}/cmp",
@@ -260,6 +318,8 @@ CASES = {
     "compare: a missing run": ("compare {w}/run.h5 {w}/missing.h5", "missing.h5"),
     "compare: trials, not a run": ("compare {w}/run.h5 {w}/trials.h5", "trials.h5"),
     "compare: a picture": ("compare {w}/run.h5 {w}/picture.png", "picture.png"),
+    "compare: --stage, no pipeline": ("compare {w}/run.h5 {w}/run.h5 --stage latch", "--stage"),
+    "compare: a stage of a run": ("compare {w}/run.h5 {w}/run.h5:latch", "run.h5: holds one run"),
     "runs: missing folder": ("runs {w}/nowhere", "nowhere"),
     "runs: a file": ("runs {w}/afile", "afile"),
     "resume: missing": ("resume {w}/missing.h5", "missing.h5"),

@@ -138,8 +138,11 @@ def test_rig_records_a_preset_by_name():
     door = get_model("door")
     assert params_source(door, door.load_params("default")) == "default"
     changed = door.load_params("default", {"M": 1.5})
-    assert params_source(door, changed) == "default, changed: M"
+    assert params_source(door, changed) == "default, changed: M=1.5"
     assert params_source(door, door.load_params(None)) == "defaults"
+    # --set on the declared defaults says what was set (it said "defaults")
+    both = door.load_params(None, {"M": 1.2, "K": 450.0})
+    assert params_source(door, both) == "defaults, changed: K=450, M=1.2"
 
 
 def test_rig_records_a_users_file_by_its_path(tmp_path):
@@ -150,6 +153,7 @@ def test_rig_records_a_users_file_by_its_path(tmp_path):
     mine = tmp_path / "default.yaml"  # a preset's name, but the user's own file
     mine.write_text(door.load_params("default").to_yaml())
     assert params_source(door, door.load_params(str(mine))) == str(mine)
+    assert params_source(door, door.load_params(str(mine), {"M": 2.0})) == f"{mine}, changed: M=2"
 
 
 def test_bundled_data_names_its_preset():

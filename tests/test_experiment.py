@@ -510,10 +510,11 @@ target:
   inputs: {{model: {OSC}, trials: 1, user: 2}}
 free: {{k: [10, 400]}}
 """)
+    # refused as the file is read, before any trial is made, as config's other keys are
     with pytest.raises(UserError) as info:
-        ExperimentRun.create(load_experiment(tmp_path / "r.yaml"), tmp_path / "r.h5")
+        load_experiment(tmp_path / "r.yaml")
     msg = str(info.value)
     assert "\n" not in msg
     assert msg.startswith(
-        f"{tmp_path / 'r.yaml'}:4: target.inputs: rig specification: unknown key 'user'"
+        f"{tmp_path / 'r.yaml'}:4: target.inputs.user: unknown key (did you mean 'users'"
     ), msg

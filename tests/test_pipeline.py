@@ -11,6 +11,7 @@ from evo_door.errors import UserError
 from evo_door.experiment import Interrupted, Results
 from evo_door.experiment.pipeline import (
     PipelineRun,
+    format_pipeline,
     is_pipeline,
     load_pipeline,
     pipeline_summary,
@@ -76,6 +77,37 @@ def test_a_stage_starts_from_the_earlier_stages_answer(folder):
     assert pipeline_summary(run.path)["status"] == "complete"
 
 
+def test_the_results_file_records_which_stage_each_stage_started_from(folder, capsys):
+    """Provenance survives the run: the stage's experiment is filled in a copy, so the
+    file still says second took its values and its target from first (it said [])."""
+    out = run_pipeline(folder).path
+    with h5py.File(out) as f:
+        stages = json.loads(f["pipeline/resolved"][()])["stages"]
+    assert stages["first"]["uses"] == [] and stages["first"]["from"] == {}
+    assert stages["second"]["uses"] == ["first"]
+    assert stages["second"]["from"] == {"params": "first", "target.params": "first"}
+    shown = cli(capsys, "show", out)
+    assert shown.returncode == 0, shown.stderr
+    head = shown.stdout.split("\n\n")[0].splitlines()
+    # a finished pipeline's time is its total, not a count "so far"
+    assert head[0].startswith("pipeline two: complete, ") and "so far" not in head[0]
+    assert head[1] == "  stage 1 first: complete"
+    assert head[2] == (
+        "  stage 2 second: complete (params from stage first, target.params from stage first)"
+    )
+    doc = json.loads(cli(capsys, "show", out, "--json").stdout)
+    assert [s["from"] for s in doc["stages"]] == [
+        {},
+        {"params": "first", "target.params": "first"},
+    ]
+    assert doc["stages"][1]["uses"] == ["first"]
+    assert doc["stage_results"]["second"]["from"] == {"params": "first", "target.params": "first"}
+    one = cli(capsys, "show", out, "--stage", "second")
+    assert "  stage second: params from stage first, target.params from stage first" in (one.stdout)
+    doc = json.loads(cli(capsys, "show", out, "--stage", "first", "--json").stdout)
+    assert doc["stage"] == "first" and doc["from"] == {}
+
+
 @pytest.mark.parametrize("stage, generation", [("first", 2), ("second", 1)])
 def test_a_killed_pipeline_resumes_at_its_stage_and_generation_to_the_same_numbers(
     folder, stage, generation
@@ -90,6 +122,7 @@ def test_a_killed_pipeline_resumes_at_its_stage_and_generation_to_the_same_numbe
         run_pipeline(folder, "cut.h5", kill)
     summary = pipeline_summary(folder / "cut.h5")
     assert summary["status"] == "interrupted" and stage in summary["status_text"]
+    assert " s so far, created " in format_pipeline(summary).splitlines()[0]
     assert f"generation {generation}" in summary["status_text"]
     resumed = resume_pipeline(folder / "cut.h5")
     assert resumed.status == "complete"
@@ -170,6 +203,53 @@ def test_the_commands_take_a_pipeline(folder, capsys):
     assert code == 2 and "holds a complete pipeline" in err
 
 
+def test_compare_takes_a_stage_of_each_pipeline_or_one_file_s_stage(folder, capsys):
+    """compare --stage S: stage S of every pipeline given; P.h5:S one file's stage, beside a
+    run's own file or another stage of the same pipeline. Refusals: one line, exit 2, the
+    folder untouched."""
+    import shutil
+
+    from evo_door.experiment import load_experiment, run_experiment
+    from tests.test_bad_input import snapshot
+    from tests.test_experiment import EXPERIMENT
+
+    a, b = run_pipeline(folder, "a.h5").path, folder / "b.h5"
+    shutil.copy(a, b)  # a second pipeline's file, as far as compare can tell
+    (folder / "exp.yaml").write_text(EXPERIMENT)
+    single = run_experiment(load_experiment(folder / "exp.yaml"), folder / "single.h5").path
+    res = cli(capsys, "compare", a, b, "--stage", "second", "--json")
+    assert res.returncode == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["stages"] == ["second", "second"] and doc["runs"][0]["stage"] == "second"
+    assert doc["runs"][0]["params"]["k"]["value"] == Results(a, "second").best()["k"]
+    # a run's own file beside a stage: by --stage (it applies to the pipeline) or FILE:STAGE
+    for args in ([single, b, "--stage", "first"], [single, f"{b}:first"]):
+        res = cli(capsys, "compare", *args)
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.splitlines()[0].split() == ["single.h5", "b.h5", "[first]"]
+    res = cli(capsys, "compare", f"{a}:first", f"{a}:second", "--json")
+    assert json.loads(res.stdout)["differences"]["name"] == ["first", "second"]
+    before = snapshot(folder)
+    for args, message in [
+        ([single, b], f"{b}: a pipeline of stages first, second: name the stage to compare "
+                      f"with --stage NAME, or {b}:NAME"),
+        ([a, b, "--stage", "thrid"], "stage 'thrid' is not a stage of it; stages with "
+                                     "results: first, second"),
+        ([single, f"{b}:third"], "stage 'third' is not a stage of it; stages with results: "
+                                 "first, second"),
+        ([single, f"{b}:"], "name the stage after the colon"),
+        ([single, f"{single}:first"], "single.h5: holds one run, not a pipeline"),
+        ([single, single, "--stage", "first"], "--stage first: none of the files given is a "
+                                               "pipeline's"),
+        ([single, f"{folder}/missing.h5:first"], "missing.h5: results file not found"),
+    ]:  # fmt: skip
+        res = cli(capsys, "compare", *args)
+        lines = res.stderr.splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and res.stdout == "", res.stderr
+        assert lines[0].startswith("evo-door: error: ") and message in lines[0], lines[0]
+    assert snapshot(folder) == before
+
+
 def test_compare_objectives_runs_on_a_stage_that_starts_from_earlier_ones(folder, capsys):
     out = run_pipeline(folder).path
     args = ["compare-objectives", folder / "pipe.yaml", "--stage", "second", "--kinds", "ise"]
@@ -188,5 +268,6 @@ def test_the_progress_display_names_the_stage(folder, capsys):
     PipelineRun.create(pipe, folder / "progress.h5").run(progress=True)
     err = capsys.readouterr().err
     assert "stage 1/2 first: model" in err and "stage 2/2 second: model" in err
+    assert "free: k, from first\n" in err  # the stage's sources, kept while it runs
     # the GA's own lines carry the stage too
     assert "stage 2/2 second: best fitness" in err

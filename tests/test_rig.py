@@ -3,6 +3,7 @@
 import math
 from dataclasses import replace
 
+import h5py
 import numpy as np
 import pytest
 from numba import njit
@@ -10,6 +11,7 @@ from numba import njit
 from evo_door.data import read_trials, rig, write_trials
 from evo_door.data.preprocess import find_force_peak
 from evo_door.data.sensors import CLOSED, DEG, GYROSCOPE, INCLINOMETER, LOAD_CELL, Sensor
+from evo_door.errors import UserError
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
 from evo_door.sim import simulate
@@ -179,8 +181,20 @@ def test_chunked_closed_loop_equals_one_simulation():
 def test_trials_from_spec_for_experiments():
     trials = rig.trials_from_spec({"model": TOY, "trials": 1, "seed": 2, "kinds": "lock"})
     assert trials[0].kind == "lock" and trials[0].truth["model"] == "toy_door"
-    with pytest.raises(Exception, match="unknown key 'user'.*did you mean 'users'"):
+    with pytest.raises(UserError, match="user: unknown key .did you mean 'users'"):
         rig.trials_from_spec({"model": TOY, "user": 2})
+    # every entry checked before a trial is made: one line naming the key, no traceback
+    for spec, message in [
+        ({"users": "abc"}, "users: expected a whole number, got 'abc'"),
+        ({"trials": 2.5}, "trials: expected a whole number, got 2.5"),
+        ({"seed": -1}, "seed: must be at least 0, got -1"),
+        ({"rate": 0}, "rate: must be positive"),
+        ({"kinds": 5}, "kinds: expected a list of trial kinds"),
+        ({"set": 3}, "set: expected a mapping"),
+        ({"params": 3}, "params: expected a preset name"),
+    ]:
+        with pytest.raises(rig.SpecError, match=message):
+            rig.trials_from_spec({"model": TOY, **spec})
 
 
 def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
@@ -208,6 +222,13 @@ def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     )
     stdout = capsys.readouterr().out
     assert "T03" in stdout and "peak [N]" in stdout
+    # what --set changed is said, not "(defaults)"
+    assert "generated from model toy_door (defaults, changed: friction=6)" in stdout
+    with h5py.File(out) as f:
+        assert f.attrs["description"] == (
+            "virtual rig: model toy_door, params defaults, changed: friction=6, 3 users, "
+            "3 trials, seed 4"
+        )
     trials = read_trials(out)
     assert len(trials) == 3 and trials[0].truth["params"]["friction"] == 6.0
     png = tmp_path / "rig.png"
@@ -232,3 +253,39 @@ def test_a_door_that_will_not_open_is_flagged():
     with pytest.warns(UserWarning, match="did not unlock"):
         tr = rig.generate_trial(TOY_DOOR, params, "unlock", user, np.random.default_rng(1))
     assert tr.meta["rig"]["events"]["gave_up"] and np.min(tr.force) >= -100.5
+
+
+# -- who makes which kind -------------------------------------------------------------
+@pytest.mark.parametrize("users", range(1, 9))
+def test_every_user_makes_every_kind_once_per_users_times_kinds_trials(users):
+    """With 4 users and the 4-kind cycle each user made one kind only (users and kinds
+    in lockstep); now each makes every position of the cycle once in users x 4 trials,
+    and where taking turns already did that (users and cycle coprime) nothing changed."""
+    import math
+
+    for cycle in range(1, 7):
+        made = [(rig.trial_user(k, users, cycle), k % cycle) for k in range(users * cycle)]
+        # each (user, position) once: every user every kind, and as many trials each
+        assert sorted(made) == [(u, p) for u in range(users) for p in range(cycle)]
+        if math.gcd(users, cycle) == 1:
+            assert [u for u, _ in made] == [k % users for k in range(users * cycle)]
+
+
+def test_two_users_both_make_every_kind(campaign):
+    params, _ = campaign
+    trials = rig.generate_trials(TOY_DOOR, params, users=2, trials=8, seed=3, progress=False)
+    assert [t.kind for t in trials] == ["impulse", "unlock", "impulse", "lock"] * 2
+    kinds = {u: {t.kind for t in trials if t.user_id == u} for u in ("U1", "U2")}
+    assert kinds == {"U1": {"impulse", "unlock", "lock"}, "U2": {"impulse", "unlock", "lock"}}
+
+
+def test_the_bundled_data_keeps_its_users_and_kinds():
+    """3 users x 10 trials (experiments/data): the same user makes the same kind of trial
+    as when the file was made (its arrays are then the same: tests/test_rig_truth.py)."""
+    from pathlib import Path
+
+    bundled = read_trials(Path(__file__).resolve().parents[1] / "experiments/data/default.h5")
+    assert [t.trial_id for t in bundled] == [f"T{k + 1:02d}" for k in range(10)]
+    for k, t in enumerate(bundled):
+        assert t.user_id == f"U{rig.trial_user(k, 3, 4) + 1}"
+        assert t.kind == rig.DEFAULT_KINDS[k % 4]

@@ -156,6 +156,44 @@ def test_interrupted_says_where_the_run_stopped(ws, tmp_path, per_trial, generat
     assert Results(tmp_path / "r.h5").status().text == text
 
 
+def test_show_and_runs_agree_on_the_fits_of_a_killed_and_resumed_per_trial_run(
+    ws, tmp_path, capsys
+):
+    """A per_trial run (three fits and the pooled one) killed in its second fit, then
+    resumed: show and runs say the same (status, fits done, answer) at every step, and
+    the resumed run ends as the uninterrupted one."""
+    from evo_door.experiment import resume_run
+
+    exp = load_experiment(
+        ws / "exp.yaml", ["per_trial=true", "pooled=true", "algorithm.generations=3"]
+    )
+    whole = run_experiment(exp, tmp_path / "whole.h5")
+
+    def kill(run, job):
+        if job.name == "t2" and job.ga is not None and job.ga.generation == 1:
+            raise Interrupted()
+
+    with pytest.raises(Interrupted):
+        run_experiment(exp, tmp_path / "cut.h5", on_checkpoint=kill)
+
+    def both():
+        shown = json.loads(cli(capsys, "show", tmp_path / "cut.h5", "--json").stdout)
+        rows = json.loads(cli(capsys, "runs", tmp_path, "--json").stdout)
+        row = next(r for r in rows if r["file"] == "cut.h5")
+        for key in ("status", "status_text", "progress", "fitness"):
+            assert shown[key] == row[key], key
+        assert shown["best"] == row["values"]
+        return shown
+
+    cut = both()
+    assert cut["progress"] == "1/4 fits x 3 gen"
+    assert cut["status_text"] == "interrupted in fit 2/4, at generation 1/3"
+    resume_run(tmp_path / "cut.h5")
+    done = both()
+    assert done["progress"] == "4/4 fits x 3 gen" and len(done["per_trial_fits"]) == 3
+    assert done["best"] == Results(whole.path).best()
+
+
 # -- runs: parameters, objective, status, cheaply ---------------------------------------
 def test_runs_shows_parameters_with_units_objective_and_status_without_reading_arrays(
     ws, capsys, monkeypatch

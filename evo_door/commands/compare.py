@@ -1,8 +1,14 @@
-"""``evo-door compare RUN1.h5 RUN2.h5 ...``: runs side by side."""
+"""``evo-door compare RUN1.h5 RUN2.h5 ...``: runs side by side.
+
+A pipeline's results file holds one run per stage: ``--stage S`` takes stage S of every
+pipeline given (a run's own file is compared as it is), and ``FILE:STAGE`` takes one
+stage of one file, so a run can face a stage, or two stages of one pipeline each other.
+"""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from evo_door.errors import UserError
 
@@ -15,7 +21,18 @@ def register(sub) -> None:
         help="runs side by side: status, objective, fitness, parameters, errors, timings "
         "and the settings that differ",
     )
-    p.add_argument("results", metavar="RUN.h5", nargs="+", help="two results files or more")
+    p.add_argument(
+        "results",
+        metavar="RUN.h5",
+        nargs="+",
+        help="two results files or more; PIPELINE.h5:STAGE is one stage of a pipeline's file",
+    )
+    p.add_argument(
+        "--stage",
+        metavar="NAME",
+        help="the stage to compare of every pipeline's file given without its own :STAGE "
+        "(a run's own file is compared as it is)",
+    )
     p.add_argument(
         "--json",
         action="store_true",
@@ -25,12 +42,54 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def split_stage(arg: str) -> tuple[str, str | None]:
+    """``P.h5:STAGE`` -> (``P.h5``, ``STAGE``); a name that is a file stays whole.
+
+    >>> split_stage("results/case.h5:latch")
+    ('results/case.h5', 'latch')
+    >>> split_stage("results/run.h5")
+    ('results/run.h5', None)
+    """
+    if Path(arg).exists() or ":" not in arg:
+        return arg, None
+    path, stage = arg.rsplit(":", 1)
+    if not stage.strip():
+        raise UserError(f"{arg}: name the stage after the colon (FILE.h5:STAGE)")
+    return path, stage.strip()
+
+
+def chosen_runs(args) -> list[tuple[str, str | None]]:
+    """(file, stage) for each RUN.h5 given: its own :STAGE, else --stage for a pipeline."""
+    from evo_door.experiment import store
+
+    chosen = []
+    any_pipeline = False
+    for arg in args.results:
+        path, stage = split_stage(arg)
+        pipeline = store.pipeline_attrs(path)  # a missing or foreign file: one line here
+        any_pipeline |= pipeline is not None
+        if pipeline is not None and stage is None:
+            stage = args.stage
+            if stage is None:
+                names = ", ".join(pipeline["stages"])
+                raise UserError(
+                    f"{path}: a pipeline of stages {names}: name the stage to compare with "
+                    f"--stage NAME, or {path}:NAME for this file alone"
+                )
+        chosen.append((path, stage))
+    if args.stage is not None and not any_pipeline:
+        raise UserError(
+            f"--stage {args.stage}: none of the files given is a pipeline's; each holds one run"
+        )
+    return chosen
+
+
 def run(args) -> int:
     from evo_door.experiment import Results
     from evo_door.experiment.results import compare, format_compare
 
     if len(args.results) < 2:
         raise UserError(f"compare needs two results files or more, got only {args.results[0]}")
-    doc = compare([Results(path) for path in args.results])
+    doc = compare([Results(path, stage) for path, stage in chosen_runs(args)])
     print(json.dumps(doc, indent=2) if args.json else format_compare(doc))
     return 0

@@ -74,6 +74,8 @@ def run_generate(args) -> int:
         raise UserError("--users and --trials must be at least 1")
     if args.rate <= 0:
         raise UserError("--rate must be positive")
+    if args.seed < 0:
+        raise UserError("--seed must be a whole number >= 0")
     model, params = model_and_params(args)
     claim = claim_outputs([Output(args.out, kind=TRIALS)], [params.source], force=args.force)
     truth = make_truth(

@@ -602,30 +602,43 @@ def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> Non
 
 
 def params_source(model, params) -> str:
-    """Where a parameter set came from, as trial files record it.
+    """Where a parameter set came from, and what was set on top, as trial files record it.
 
     A preset by its name (``"default"``), not by the path of its file on this machine:
-    the same command then writes the same file anywhere. ``"default, changed: M"`` when
-    values were set on top of the preset; a file of the user's by the path given.
+    the same command then writes the same file anywhere; the declared defaults as
+    ``"defaults"``; a file of the user's by the path given. Values set on top (``--set``,
+    a specification's ``set``) follow: ``"defaults, changed: M=1.5"``.
     """
+    source = getattr(params, "source", "") or ""
+    label, base = _named_source(model, source)
+    if base is None:
+        return label
+    changed = [
+        f"{name}={params[name]:g}"
+        for name, value in base.as_dict().items()
+        if params[name] != value
+    ]
+    return label + (f", changed: {', '.join(changed)}" if changed else "")
+
+
+def _named_source(model, source: str):
+    """(the name a trial file records for ``source``, the set it names or None)."""
     from evo_door.params.sets import preset_path
 
-    source = getattr(params, "source", "") or ""
+    if source == "defaults":
+        return source, model.load_params(None)
     path = Path(source)
     if path.suffix not in (".yaml", ".yml") or not path.is_file():
-        return source
+        return source, None
     try:
         preset = preset_path(model.name, path.stem, model.preset_dirs)
     except UserError:
-        return source
-    if preset.resolve() != path.resolve():
-        return source
-    changed = [
-        name
-        for name, value in model.load_params(path.stem).as_dict().items()
-        if params[name] != value
-    ]
-    return path.stem + (f", changed: {', '.join(changed)}" if changed else "")
+        preset = None
+    name = path.stem if preset is not None and preset.resolve() == path.resolve() else source
+    try:
+        return name, model.load_params(str(path))
+    except UserError:  # the file changed under us: its name alone
+        return name, None
 
 
 def _truth(model, params, method, substeps, truth=None) -> dict:
@@ -708,8 +721,10 @@ def generate_trials(
 ) -> list[Trial]:
     """A measurement campaign: ``trials`` trials by ``users`` virtual users.
 
-    Trial k (ids ``T01``...) is done by user ``k % users`` (ids ``U1``...) and is of
-    kind ``kinds[k % len(kinds)]``. Same ``seed``, same trials, value for value.
+    Trial k (ids ``T01``...) is of kind ``kinds[k % len(kinds)]`` and is done by the user
+    :func:`trial_user` gives (ids ``U1``...): the users take turns, and every user makes
+    every kind of the cycle once in ``users * len(kinds)`` trials. Same ``seed``, same
+    trials, value for value.
 
     Parameters
     ----------
@@ -736,6 +751,10 @@ def generate_trials(
 
     if trials < 1:
         raise UserError("the rig needs at least one trial")
+    if not isinstance(seed, np.random.SeedSequence) and not (
+        isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0
+    ):
+        raise UserError(f"the rig's seed must be a whole number >= 0, got {seed!r}")
     kinds = default_kinds(model) if kinds is None else tuple(kinds)
     if not kinds:
         raise UserError("the rig needs at least one trial kind")
@@ -750,7 +769,7 @@ def generate_trials(
     )
     for k, child in zip(bar, trial_root.spawn(trials)):
         rng = np.random.default_rng(child)
-        user = people[k % users].jittered(rng)
+        user = people[trial_user(k, users, len(kinds))].jittered(rng)
         trial = generate_trial(
             model,
             params,
@@ -769,6 +788,29 @@ def generate_trials(
         )
         out.append(trial)
     return out
+
+
+def trial_user(k: int, users: int, cycle: int) -> int:
+    """The user (0-based) of trial ``k`` when ``cycle`` kinds are cycled over the trials.
+
+    Users take turns: trial k is user ``k % users``'s, as long as that spreads every
+    kind over every user, i.e. when ``users`` and ``cycle`` have no common factor (the
+    bundled data: 3 users, 4 kinds). Otherwise taking turns runs in lockstep with the
+    kinds (4 users, 4 kinds: user i would make kind i only; 2 users: user 1 only
+    impulses): each new cycle of kinds then starts ``shift`` users further on, the
+    smallest shift that breaks the lockstep. Either way every user makes every position
+    of the cycle exactly once in ``users * cycle`` trials.
+
+    >>> [trial_user(k, 3, 4) for k in range(8)]  # as ever: k % 3
+    [0, 1, 2, 0, 1, 2, 0, 1]
+    >>> [trial_user(k, 4, 4) for k in range(8)]  # the second cycle starts with user 1
+    [0, 1, 2, 3, 1, 2, 3, 0]
+    """
+    # trial k = q * cycle + p is user (p + q * (cycle + shift)) % users: for each
+    # position p of the cycle, q = 0 .. users - 1 visits every user once when
+    # cycle + shift and users have no common factor
+    shift = next(c for c in range(users + 1) if math.gcd(cycle + c, users) == 1)
+    return (k + shift * (k // cycle)) % users
 
 
 def default_kinds(model) -> tuple[str, ...]:
@@ -792,35 +834,178 @@ SPEC_DEFAULTS = {
 }
 
 
+class SpecError(UserError):
+    """A bad entry of a rig specification: ``key`` names it (None: the whole mapping),
+    ``reason`` says what is wrong. An experiment file puts its own file and line in front
+    (:mod:`evo_door.experiment.config`); on its own it reads ``rig specification: KEY: ...``.
+    """
+
+    def __init__(self, key: str | None, reason: str):
+        super().__init__("rig specification: " + (f"{key}: " if key else "") + reason)
+        self.key = key
+        self.reason = reason
+
+
+def _shown(value) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return repr(value)
+
+
+def _whole(spec: dict, key: str, lowest: int) -> int:
+    """``spec[key]`` as a whole number >= ``lowest`` (3.0 is 3; 2.5, "3" and true are not),
+    the same rule as ``rig generate``'s flags."""
+    v = spec[key]
+    if isinstance(v, float) and v.is_integer():
+        v = int(v)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise SpecError(key, f"expected a whole number, got {_shown(v)}")
+    if v < lowest:
+        raise SpecError(key, f"must be at least {lowest}, got {v}")
+    return v
+
+
+def _spec_kinds(model, value) -> list[str] | None:
+    """``kinds`` as a list (a comma-separated text is split), each known and supported."""
+    from evo_door.params.declaration import suggest
+
+    if value is None:
+        return None
+    if isinstance(value, str):
+        value = value.split(",")
+    if not isinstance(value, list) or not all(isinstance(k, str) for k in value):
+        raise SpecError(
+            "kinds", f"expected a list of trial kinds (e.g. [impulse]), got {_shown(value)}"
+        )
+    kinds = [k.strip() for k in value if k.strip()]
+    if not kinds:
+        raise SpecError("kinds", f"no trial kind given; kinds: {', '.join(KINDS)}")
+    supported = tuple(getattr(model, "rig_kinds", KINDS))
+    for kind in kinds:
+        if kind not in KINDS:
+            raise SpecError(
+                "kinds",
+                f"unknown trial kind {kind!r}"
+                + suggest(kind, KINDS)
+                + f"; kinds: {', '.join(KINDS)}",
+            )
+        if kind not in supported:
+            raise SpecError(
+                "kinds",
+                f"model {model.name!r} cannot make {kind} trials; it supports {', '.join(supported)}",
+            )
+    return kinds
+
+
+def check_spec(spec) -> dict:
+    """A rig specification checked entry by entry, completed with :data:`SPEC_DEFAULTS`.
+
+    The rules of ``evo-door rig generate``'s flags: ``users`` and ``trials`` whole numbers
+    >= 1, ``seed`` a whole number >= 0, ``rate`` a number > 0 (Hz), ``kinds`` known to the
+    rig and made by the model, ``model`` a model, ``params`` a preset, a parameter file or
+    a mapping of numbers, ``set`` a mapping of the model's parameters to numbers,
+    ``all_sensors`` true or false; an unknown key is refused with a suggestion. The first
+    bad entry raises :class:`SpecError` naming its key.
+
+    >>> check_spec({"model": "door", "trials": 2})["users"]
+    3
+    >>> check_spec({"model": "door", "users": "abc"})
+    Traceback (most recent call last):
+    ...
+    evo_door.data.rig.SpecError: rig specification: users: expected a whole number, got 'abc'
+    """
+    from evo_door.models import get_model
+    from evo_door.params.declaration import suggest
+
+    if not isinstance(spec, dict):
+        raise SpecError(
+            None, f"expected a mapping of keys ({', '.join(SPEC_DEFAULTS)}), got {_shown(spec)}"
+        )
+    for key in spec:
+        if key not in SPEC_DEFAULTS:
+            raise SpecError(
+                str(key),
+                "unknown key"
+                + suggest(str(key), SPEC_DEFAULTS)
+                + f"; keys: {', '.join(SPEC_DEFAULTS)}",
+            )
+    s = {**SPEC_DEFAULTS, **spec}
+    if not isinstance(s["model"], str) or not s["model"].strip():
+        raise SpecError("model", f"expected a model's name, got {_shown(s['model'])}")
+    try:
+        model = get_model(s["model"])
+    except UserError as exc:
+        raise SpecError("model", str(exc)) from None
+    params = s["params"]
+    if isinstance(params, dict) and "from" in params:
+        raise SpecError(
+            "params", "{from: STAGE} is for params and target.params, not the rig's inputs"
+        )
+    if params is not None and not isinstance(params, (str, dict)):
+        raise SpecError(
+            "params", f"expected a preset name, a parameter file or a mapping, got {_shown(params)}"
+        )
+    if s["set"] is None:
+        s["set"] = {}
+    if not isinstance(s["set"], dict):
+        raise SpecError(
+            "set", f"expected a mapping of parameter names to numbers, got {_shown(s['set'])}"
+        )
+    try:
+        base = model.load_params(params)
+    except UserError as exc:
+        raise SpecError("params", str(exc)) from None
+    for name, value in s["set"].items():
+        if name not in model.params:
+            raise SpecError(
+                "set",
+                f"model {model.name!r} has no parameter {name!r}"
+                + suggest(str(name), model.params.names),
+            )
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SpecError(f"set.{name}", f"expected a number, got {_shown(value)}")
+    try:
+        base.replace({str(k): float(v) for k, v in s["set"].items()})
+    except UserError as exc:
+        raise SpecError("set", str(exc)) from None
+    rate = s["rate"]
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate):
+        raise SpecError("rate", f"expected a number of samples per second (Hz), got {_shown(rate)}")
+    if rate <= 0:
+        raise SpecError("rate", f"must be positive (Hz), got {rate:g}")
+    if not isinstance(s["all_sensors"], bool):
+        raise SpecError("all_sensors", f"expected true or false, got {_shown(s['all_sensors'])}")
+    s.update(
+        users=_whole(s, "users", 1),
+        trials=_whole(s, "trials", 1),
+        seed=_whole(s, "seed", 0),
+        kinds=_spec_kinds(model, s["kinds"]),
+        rate=float(rate),
+    )
+    return s
+
+
 def trials_from_spec(spec: dict) -> list[Trial]:
     """Rig trials from a mapping, e.g. an experiment's ``inputs:``::
 
         inputs: {model: door, params: default, users: 3, trials: 10, seed: 1}
 
     Keys and defaults: :data:`SPEC_DEFAULTS` (``set`` overrides parameters by name;
-    ``kinds`` a list or a comma-separated string).
+    ``kinds`` a list or a comma-separated string), checked by :func:`check_spec`.
     """
     from evo_door.models import get_model
-    from evo_door.params.declaration import suggest
 
-    unknown = set(spec) - set(SPEC_DEFAULTS)
-    if unknown:
-        key = sorted(unknown)[0]
-        raise UserError(
-            f"rig specification: unknown key {key!r}"
-            + suggest(key, SPEC_DEFAULTS)
-            + f"; keys: {', '.join(SPEC_DEFAULTS)}"
-        )
-    s = {**SPEC_DEFAULTS, **spec}
-    model = get_model(str(s["model"]))
-    params = model.load_params(s["params"], dict(s["set"] or {}))
-    kinds = s["kinds"].split(",") if isinstance(s["kinds"], str) else s["kinds"]
+    s = check_spec(spec)
+    model = get_model(s["model"])
+    params = model.load_params(s["params"], {str(k): float(v) for k, v in s["set"].items()})
     return generate_trials(
         model,
         params,
-        users=int(s["users"]),
-        trials=int(s["trials"]),
-        seed=int(s["seed"]),
-        kinds=None if kinds is None else [str(k).strip() for k in kinds],
-        settings=RigSettings(rate=float(s["rate"]), all_sensors=bool(s["all_sensors"])),
+        users=s["users"],
+        trials=s["trials"],
+        seed=s["seed"],
+        kinds=s["kinds"],
+        settings=RigSettings(rate=s["rate"], all_sensors=s["all_sensors"]),
     )

@@ -188,6 +188,13 @@ class Experiment:
                 out[spec["where"]] = spec["from"]
         return out
 
+    def sources(self) -> dict[str, str]:
+        """The ``{from: STAGE}`` parameter sets by key: ``params`` / ``target.params`` -> stage."""
+        keys = (("params", self.params), ("target.params", self.target.params))
+        return {
+            key: spec["from"] for key, spec in keys if isinstance(spec, dict) and "from" in spec
+        }
+
     def resolved(self) -> dict:
         """The configuration with every default filled in, as plain JSON-able data."""
         out = {
@@ -458,7 +465,7 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
         if isinstance(inputs, str):
             inputs = _resolve_path(inputs, base_dir, t.node.where("inputs"), "target.inputs")
         elif isinstance(inputs, LinedMap):
-            inputs = json.loads(json.dumps(inputs))
+            inputs = _rig_spec(t, inputs, base_dir)
         else:
             raise t.fail(
                 "inputs",
@@ -490,6 +497,29 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
         both = [x for x in spec.validate if x in spec.trials]
         if both:
             raise t.fail("validate", f"trial {both[0]!r} is both fitted and validated")
+    return spec
+
+
+def _rig_spec(t: _Reader, node: LinedMap, base_dir: Path) -> dict:
+    """``target.inputs`` written as a rig specification, checked by the rig's own rules
+    (:func:`evo_door.data.rig.check_spec`, those of ``rig generate``'s flags); a bad entry
+    is refused with the file and line of its key. Returned as written (JSON), with a
+    parameter file's path resolved next to the experiment."""
+    from evo_door.data.rig import SpecError, check_spec
+
+    spec = json.loads(json.dumps(node))
+    params = spec.get("params")
+    if isinstance(params, str) and (params.endswith((".yaml", ".yml")) or "/" in params):
+        spec["params"] = _resolve_path(
+            params, base_dir, node.where("params"), "target.inputs.params"
+        )
+    try:
+        check_spec(spec)
+    except SpecError as exc:
+        key = (exc.key or "").split(".")[0]
+        where = node.where(key) if key in node else t.node.where("inputs")
+        name = "target.inputs" + (f".{exc.key}" if exc.key else "")
+        raise UserError(f"{where}: {name}: {exc.reason}") from None
     return spec
 
 

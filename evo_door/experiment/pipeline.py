@@ -33,7 +33,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from evo_door.errors import UserError
@@ -65,9 +65,19 @@ class Stage:
     experiment: Experiment
     where: str  # file:line of the stage in the pipeline file
 
+    def sources(self) -> dict[str, str]:
+        """Which earlier stage each ``{from: STAGE}`` names: ``params`` (the values the
+        stage starts from) and ``target.params`` (what it is fitted to) -> stage name.
+
+        The provenance a results file records (:meth:`Pipeline.resolved`); the stage's
+        experiment is never filled in place (:func:`fill` makes a copy), so this holds
+        before, during and after a run.
+        """
+        return self.experiment.sources()
+
     def uses(self) -> list[str]:
         """The earlier stages this one takes parameters from."""
-        return sorted(set(self.experiment.uses().values()))
+        return sorted(set(self.sources().values()))
 
 
 @dataclass
@@ -95,7 +105,10 @@ class Pipeline:
             "description": self.description,
             "output": self.output,
             "report": self.report,
-            "stages": {s.name: {"uses": s.uses(), "where": s.where} for s in self.stages},
+            "stages": {
+                s.name: {"uses": s.uses(), "from": s.sources(), "where": s.where}
+                for s in self.stages
+            },
         }
 
 
@@ -214,12 +227,17 @@ def _check_uses(pipe: Pipeline) -> None:
 
 
 def fill(exp: Experiment, values: dict[str, dict]) -> Experiment:
-    """``exp`` with each ``{from: S}`` replaced by ``values[S]`` (name -> value)."""
-    if isinstance(exp.params, dict) and "from" in exp.params:
-        exp.params = dict(values[exp.params["from"]])
-    if isinstance(exp.target.params, dict) and "from" in exp.target.params:
-        exp.target.params = dict(values[exp.target.params["from"]])
-    return exp
+    """A copy of ``exp`` with each ``{from: S}`` replaced by ``values[S]`` (name -> value).
+
+    ``exp`` itself keeps its ``{from: S}``: the pipeline records from it which stages
+    each stage started from (a stage filled in place would forget it).
+    """
+    params, target = exp.params, exp.target
+    if isinstance(params, dict) and "from" in params:
+        params = dict(values[params["from"]])
+    if isinstance(target.params, dict) and "from" in target.params:
+        target = replace(target, params=dict(values[target.params["from"]]))
+    return replace(exp, params=params, target=target)
 
 
 def stage_loader(path, stage: str, results=None):
@@ -482,13 +500,17 @@ def pipeline_summary(path) -> dict | None:
     attrs = store.pipeline_attrs(path)
     if attrs is None:
         return None
+    sources = store.stage_sources(path)
     stages = []
     for name in attrs["stages"]:
         if name in attrs["started"]:
             status = Results(path, name).status()
-            stages.append({"name": name, "status": status.state, "text": status.text})
+            entry = {"name": name, "status": status.state, "text": status.text}
         else:
-            stages.append({"name": name, "status": "not started", "text": "not started"})
+            entry = {"name": name, "status": "not started", "text": "not started"}
+        entry["from"] = sources.get(name, {})
+        entry["uses"] = sorted(set(entry["from"].values()))
+        stages.append(entry)
     state = attrs.get("status", "unknown")
     hint = ""
     if state != "complete":
@@ -515,13 +537,18 @@ def pipeline_summary(path) -> dict | None:
 
 
 def format_pipeline(summary: dict) -> str:
-    """The pipeline's header for ``show``: status and each stage's state."""
+    """The pipeline's header for ``show``: status and each stage's state and sources."""
+    from evo_door.experiment.results import format_sources
+
+    # the time is a total for a finished pipeline, a running count for any other
+    spent = f"{summary['total_s']:.0f} s" + ("" if summary["status"] == "complete" else " so far")
     lines = [
-        f"pipeline {summary['name']}: {summary['status_text']}, "
-        f"{summary['total_s']:.0f} s so far, created {summary['created']}"
+        f"pipeline {summary['name']}: {summary['status_text']}, {spent}, "
+        f"created {summary['created']}"
     ]
     if summary["resume"]:
         lines.append(f"  {summary['resume']} continues it")
     for k, s in enumerate(summary["stages"], 1):
-        lines.append(f"  stage {k} {s['name']}: {s['text']}")
+        sources = format_sources(s.get("from") or {})
+        lines.append(f"  stage {k} {s['name']}: {s['text']}" + (f" ({sources})" if sources else ""))
     return "\n".join(lines)

@@ -293,6 +293,13 @@ class Results:
     def progress(self) -> str:
         return _progress(self.attrs, self.config)
 
+    def sources(self) -> dict[str, str]:
+        """A pipeline stage's ``{from: STAGE}``: ``params`` / ``target.params`` -> the
+        earlier stage it took them from ({} for a run's own file, or a stage of its own)."""
+        if self.stage is None:
+            return {}
+        return store.stage_sources(self.path).get(self.stage, {})
+
     def summary(self) -> dict:
         """Everything ``show --json`` prints (JSON-able)."""
         cfg = self.config
@@ -300,6 +307,8 @@ class Results:
         status = self.status()
         out = {
             "file": str(self.path),
+            "stage": self.stage,
+            "from": self.sources(),
             "name": self.attrs.get("name"),
             "model": self.attrs.get("model"),
             "status": status.state,
@@ -489,6 +498,8 @@ def format_show(res: Results) -> str:
     ]
     if s["status"] == "interrupted":
         lines.append(f"  {s['status_text']}; {s['resume']} continues it")
+    if s["from"]:  # a pipeline's stage that started from earlier ones
+        lines.append(f"  stage {s['stage']}: {format_sources(s['from'])}")
     lines += [
         f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
         f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
@@ -559,6 +570,15 @@ def format_show(res: Results) -> str:
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
     return "\n".join(lines)
+
+
+def format_sources(sources: dict[str, str]) -> str:
+    """Where a pipeline stage's ``{from: STAGE}`` came from, for a person.
+
+    >>> format_sources({"params": "physical", "target.params": "latch"})
+    'params from stage physical, target.params from stage latch'
+    """
+    return ", ".join(f"{key} from stage {stage}" for key, stage in sources.items())
 
 
 def format_channel_errors(errors: dict) -> list[str]:
@@ -809,6 +829,7 @@ def _run_entry(res: Results, params: list[str]) -> dict:
     t = res.tree["timings"][A]
     return {
         "file": str(res.path),
+        "stage": res.stage,
         "name": res.attrs.get("name"),
         "model": res.attrs.get("model"),
         "status": status.state,
@@ -839,6 +860,7 @@ def compare(runs: list[Results]) -> dict:
     fixed or the base value); for runs of different models only those every model
     declares, and ``models_differ`` says so. ``differences`` holds the settings of the
     resolved configurations (dotted keys) and the package versions that differ.
+    ``stages`` gives the pipeline stage of each run (None: a run's own file).
     """
     if len(runs) < 2:
         given = f": only {runs[0].path}" if runs else ""
@@ -851,6 +873,7 @@ def compare(runs: list[Results]) -> dict:
     shared = [n for n in free if all(n in d for d in declared)]
     doc = {
         "files": [str(r.path) for r in runs],
+        "stages": [r.stage for r in runs],
         "models": models,
         "models_differ": len(set(models)) > 1,
         "params": shared,
@@ -894,9 +917,12 @@ def _value_text(value) -> str:
 def format_compare(doc: dict) -> str:
     """The human-readable ``evo-door compare``: one column per run."""
     runs = doc["runs"]
+    stages = doc.get("stages") or [None] * len(runs)
     names = [Path(f).name for f in doc["files"]]
-    if len(set(names)) < len(names):  # same file name in several folders: the paths
+    if len(set(zip(names, stages))) < len(names):  # one name in several folders: the paths
         names = list(doc["files"])
+    # a pipeline's stage as runs lists it: FILE [stage]
+    names = [name + (f" [{stage}]" if stage else "") for name, stage in zip(names, stages)]
     rows: list[list[str]] = []
 
     def row(label, cells):

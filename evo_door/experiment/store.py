@@ -98,6 +98,18 @@ def pipeline_attrs(path) -> dict | None:
         return attrs
 
 
+def stage_sources(path) -> dict[str, dict[str, str]]:
+    """Stage -> which earlier stage each of its ``{from: STAGE}`` took, as a pipeline's
+    results file records them (``pipeline/resolved``): ``params`` (the values the stage
+    started from) and ``target.params`` (what it was fitted to). {} for a run's file, and
+    for a stage of its own."""
+    with _open(path) as f:
+        if "pipeline/resolved" not in f:
+            return {}
+        stages = json.loads(f["pipeline/resolved"][()]).get("stages") or {}
+    return {name: dict(entry.get("from") or {}) for name, entry in stages.items()}
+
+
 def peek(path, stage: str | None = None) -> dict:
     """Root attributes, the resolved configuration and each job's GA attributes, cheaply."""
     try:
