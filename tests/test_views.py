@@ -136,7 +136,7 @@ def test_a_run_whose_lock_another_process_holds_shows_running(ws, capsys):
     "per_trial, generation, text",
     [
         (False, "last", "interrupted after the last fit, before the results were written"),
-        (True, 1, "interrupted in fit 2/3, at generation 1/3"),
+        (True, 1, "interrupted in fit 2/3 (1/3 fits done), at generation 1/3"),
     ],
 )
 def test_interrupted_says_where_the_run_stopped(ws, tmp_path, per_trial, generation, text):
@@ -186,11 +186,12 @@ def test_show_and_runs_agree_on_the_fits_of_a_killed_and_resumed_per_trial_run(
         return shown
 
     cut = both()
-    assert cut["progress"] == "1/4 fits x 3 gen"
-    assert cut["status_text"] == "interrupted in fit 2/4, at generation 1/3"
+    # one count of fits in both places: those done (the fit in progress is named apart)
+    assert cut["progress"] == "1/4 fits done x 3 gen"
+    assert cut["status_text"] == "interrupted in fit 2/4 (1/4 fits done), at generation 1/3"
     resume_run(tmp_path / "cut.h5")
     done = both()
-    assert done["progress"] == "4/4 fits x 3 gen" and len(done["per_trial_fits"]) == 3
+    assert done["progress"] == "4/4 fits done x 3 gen" and len(done["per_trial_fits"]) == 3
     assert done["best"] == Results(whole.path).best()
 
 

@@ -104,26 +104,34 @@ def _where_stopped(attrs: dict, config: dict) -> str:
     """``interrupted at generation 7/20`` and the like: the last work the file holds."""
     done = list(attrs.get("generations_done") or [])
     total = attrs.get("generations", 0)
-    jobs = int(attrs.get("jobs") or max(len(done), 1))
-    jobs_done = int(attrs.get("jobs_done") or 0)
+    jobs_done, jobs = _jobs(attrs)
     if jobs_done >= jobs:
         return "interrupted after the last fit, before the results were written"
     if config["algorithm"]["kind"] != "ga":
-        return f"interrupted after {jobs_done}/{jobs} fits"
+        return f"interrupted after {jobs_done}/{jobs} fits done"
     # jobs run one after the other: the first one not done is the one stopped
     gen = done[jobs_done] if jobs_done < len(done) else -1
     at = "before the first generation" if gen < 0 else f"at generation {gen}/{total}"
-    return f"interrupted in fit {jobs_done + 1}/{jobs}, {at}" if jobs > 1 else f"interrupted {at}"
+    if jobs == 1:
+        return f"interrupted {at}"
+    return f"interrupted in fit {jobs_done + 1}/{jobs} ({jobs_done}/{jobs} fits done), {at}"
+
+
+def _jobs(attrs: dict) -> tuple[int, int]:
+    """``(fits done, fits in all)``, counted alike by ``show`` and ``runs``."""
+    done = list(attrs.get("generations_done") or [])
+    return int(attrs.get("jobs_done") or 0), int(attrs.get("jobs") or max(len(done), 1))
 
 
 def _progress(attrs: dict, config: dict) -> str:
     done = attrs.get("generations_done") or []
     total = attrs.get("generations", 0)
+    jobs_done, jobs = _jobs(attrs)
     if config["algorithm"]["kind"] != "ga":
-        return f"{attrs.get('jobs_done', 0)}/{attrs.get('jobs', 1)} fits"
-    if len(done) == 1:
-        return f"{max(done[0], 0)}/{total} gen"
-    return f"{attrs.get('jobs_done', 0)}/{len(done)} fits x {total} gen"
+        return f"{jobs_done}/{jobs} fits done"
+    if jobs == 1 and len(done) <= 1:
+        return f"{max(done[0], 0) if done else 0}/{total} gen"
+    return f"{jobs_done}/{jobs} fits done x {total} gen"
 
 
 @functools.cache
