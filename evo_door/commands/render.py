@@ -207,6 +207,8 @@ def run(args) -> int:
     )
     if args.log:  # crash safety: the rows so far go to LOG.h5.partial as they come
         loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
+    else:  # nothing will read the early rows: a day's session stays in a few MB
+        loop.log.keep_recent()
     stop = threading.Event()
     try:
         with _stop_on_ctrl_c(stop, loop):
@@ -323,12 +325,11 @@ def _report(loop, args, stats: dict, name: str, claim) -> int:
         if loop.log.spill_path is not None:
             loop.log.spill_path.unlink(missing_ok=True)
         return 0
-    a = loop.log.array()
-    theta = a[:, 12]
+    first, last = loop.log.first()[12], loop.log.last()[12]  # theta (rad)
     status = STOPPED if stopped else stats["status"]
     print(
         f"rendered {stats['cycles']} cycles at {args.rate:g} Hz on {name} ({status}); "
-        f"door {theta[0] * 57.29577951308232:.1f} -> {theta[-1] * 57.29577951308232:.1f} deg"
+        f"door {first * 57.29577951308232:.1f} -> {last * 57.29577951308232:.1f} deg"
     )
     print(_timing_line(stats))
     if "round_trip_mean_s" in stats:
