@@ -47,6 +47,30 @@ def sim_run(params, seconds: float, friction: str) -> dict:
     return loop.statistics
 
 
+def log_growth(params, seconds: float, folder: Path) -> dict:
+    """How fast a render's log grows: a render of ``seconds`` of simulated time (user
+    "swing", 2500 Hz, the 1 kHz log; unpaced: the sizes depend on the rows, not the
+    clock) with its side file, as ``render --log`` writes it. Returns bytes per hour of
+    session of the side file while rendering (``partial``) and of the final log
+    (``final``), and the bytes of rows the log holds in memory at the end (``held``)."""
+    from evo_door.render.log import partial_path
+
+    out = Path(folder) / "growth.h5"
+    for path in (out, partial_path(out)):
+        path.unlink(missing_ok=True)
+    loop = ServoLoop(SimDevice("swing", seed=1), params, RATE)
+    loop.log.spill_to(out, loop_rate=loop.rate, device="sim")
+    loop.run(seconds)
+    loop.log.close()
+    partial = partial_path(out).stat().st_size
+    held = sum(b.nbytes for b in loop.log._blocks if b is not None)
+    loop.write_log(out)
+    final = out.stat().st_size
+    out.unlink()
+    per_hour = 3600.0 / seconds
+    return {"partial": partial * per_hour, "final": final * per_hour, "held": held}
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

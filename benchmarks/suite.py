@@ -695,10 +695,50 @@ def section_device(suite: Suite) -> None:
         "device.servo.compute_p99", "device", "servo loop: p99 cycle work", s["compute_p99_s"], "s"
     )
     suite.add("device.servo.missed", "device", "servo loop: missed cycles", s["missed_cycles"], "1")
+    _log_growth(suite, params)
     suite.tables["device"] = (
         f"Haptic model `seed_trial`. Servo loop paced on the wall clock with the simulated "
-        f"device (user `open`, implicit friction) for {seconds:g} s (`bench_render.py`).\n\n"
+        f"device (user `open`, implicit friction) for {seconds:g} s (`bench_render.py`). "
+        "The render log's growth: a `swing` render on the simulated device, 2500 Hz, "
+        "1 kHz log, extrapolated to an hour of session.\n\n"
         + _generic_table([m for m in suite.metrics if m.section == "device"])
+    )
+
+
+#: the render log of an hour of session must fit a day of sessions on a laptop's disk
+LOG_PER_HOUR_TARGET = 200e6
+
+
+def _log_growth(suite: Suite, params) -> None:
+    """The render log's growth per hour of session (``bench_render.log_growth``)."""
+    from benchmarks.bench_render import log_growth
+
+    seconds = 5.0 if suite.quick else 60.0
+    with tempfile.TemporaryDirectory() as folder:
+        g = log_growth(params, seconds, Path(folder))
+    suite.add(
+        "device.log.final_per_hour",
+        "device",
+        f"render log (.h5) per hour of session (from {seconds:g} s)",
+        g["final"] / 1e6,
+        "MB/h",
+        target=LOG_PER_HOUR_TARGET / 1e6,
+        target_text="< 200 MB/h",
+        met=g["final"] < LOG_PER_HOUR_TARGET,
+    )
+    suite.add(
+        "device.log.partial_per_hour",
+        "device",
+        "its side file (.partial) per hour while rendering (removed at the end)",
+        g["partial"] / 1e6,
+        "MB/h",
+    )
+    suite.add(
+        "device.log.held",
+        "device",
+        "rows the log holds in memory at the end (any length of session)",
+        g["held"] / 1e6,
+        "MB",
     )
 
 

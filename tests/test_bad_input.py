@@ -98,7 +98,24 @@ def ws(tmp_path_factory):
     shutil.copy(w / "p.yaml", w / "p.csv")
     get_model("haptic").load_params("seed_trial").to_yaml(w / "hp.yaml")
     (w / "side.partial").write_bytes(b"a render's side file\n")
+    # NaN in a parameter file and in a render log taken as parameters
+    (w / "nan.yaml").write_text("model: haptic\nvalues:\n  open_force: .nan\n")
+    _nan_render_log(w / "nanlog.h5")
     return w
+
+
+def _nan_render_log(path: Path) -> None:
+    """A render log whose parameter set holds a NaN (as a damaged file could)."""
+    from evo_door.models.haptic import PARAMS
+    from evo_door.render.log import N_COLUMNS, RenderLog
+
+    log = RenderLog(1000.0, PARAMS)
+    vector = PARAMS.defaults.copy()
+    vector[PARAMS.index("open_force")] = np.nan
+    log.params(0.0, vector)
+    for k in range(10):
+        log.add(k * 0.001, np.zeros(N_COLUMNS))
+    log.write(path, loop_rate=2500.0, device="sim", statistics={})
 
 
 def snapshot(folder: Path) -> dict:
@@ -112,6 +129,9 @@ def snapshot(folder: Path) -> dict:
 
 #: what the error says when an output is one of the command's inputs
 IN = "is also an input of this command"
+
+#: a headless render on the simulated device with a log (a bad flag leaves no side file)
+_RENDER = "render --params seed_trial --user hold --log {w}/new.h5 "
 
 #: (command line, what the error must name). {w}: the workspace; {ro}: a read-only folder.
 CASES = {
@@ -337,6 +357,59 @@ CASES = {
     "batch: bad --set": ("batch {w}/exp.yaml --set =3 --out {w}/b", "--set"),
     "batch: unknown executor": ("batch {w}/exp.yaml --executor gpu --out {w}/b", "'gpu'"),
     "bench: unknown section": ("bench --only nope --out {w}/bench", "nope"),
+    # every numeric flag of render, push, console and emulate has a declared range
+    # (evo_door.commands._common.Range); a render's --log is refused before a side file
+    "render: duration 0": (_RENDER + "--duration 0", "--duration"),
+    "render: duration inf": (_RENDER + "--duration inf", "--duration inf: must be finite"),
+    "render: duration beyond a day": (_RENDER + "--duration 1e6", "--duration"),
+    "render: rate nan": (_RENDER + "--duration 1 --rate nan", "--rate nan"),
+    "render: rate beyond the loop": (_RENDER + "--duration 1 --rate 1e6", "--rate"),
+    "render: rate not a number": (_RENDER + "--duration 1 --rate fast", "--rate 'fast'"),
+    "render: log rate above the loop rate": (
+        _RENDER + "--duration 1 --log-rate 1e8",
+        "--log-rate 100000000: must be in 1..2500 Hz (up to --rate)",
+    ),
+    "render: log rate 0": (_RENDER + "--duration 1 --log-rate 0", "--log-rate"),
+    "render: device damping inf": (_RENDER + "--duration 1 --device-damping inf", "N s/m"),
+    "render: device damping negative": (_RENDER + "--duration 1 --device-damping -1", "N s/m"),
+    "render: device damping absurd": (_RENDER + "--duration 1 --device-damping 1e300", "N s/m"),
+    "render: watchdog misses 0": (_RENDER + "--duration 1 --watchdog-misses 0", "--watchdog"),
+    "render: watchdog misses a fraction": (
+        _RENDER + "--duration 1 --watchdog-misses 1.5",
+        "--watchdog-misses",
+    ),
+    "render: console port beyond 65535": (
+        _RENDER + "--duration 1 --console-port 70000",
+        "--console-port",
+    ),
+    "render: seed negative": (_RENDER + "--duration 1 --seed -1", "--seed"),
+    "render: token too long": (
+        _RENDER + "--duration 1 --control 0 --token " + "t" * 300,
+        "--token",
+    ),
+    "render: NaN in a parameter file": (
+        "render --params {w}/nan.yaml --user hold --duration 1 --log {w}/new.h5",
+        "nan.yaml: parameter 'open_force' is nan",
+    ),
+    "render: NaN in a log as parameters": (
+        "render --params {w}/nanlog.h5 --user hold --duration 1 --log {w}/new.h5",
+        "'open_force' is nan",
+    ),
+    "push: NaN in a parameter file": ("push {w}/nan.yaml --to 1", "nan.yaml"),
+    "push: NaN in --set": ("push --set open_force=nan --to 1", "'open_force' is nan"),
+    "push: timeout inf": ("push --set open_force=3 --to 1 --timeout inf", "--timeout"),
+    "push: timeout 0": ("push --set open_force=3 --to 1 --timeout 0", "--timeout"),
+    "push: token too long": ("push --set open_force=3 --to 1 --token " + "t" * 300, "--token"),
+    "console: port beyond 65535": ("console --control 1 --port 70000", "--port"),
+    "console: port not a number": ("console --control 1 --port http", "--port"),
+    "console: token too long": ("console --control 1 --token " + "t" * 300, "--token"),
+    "emulate: port beyond 65535": ("emulate hapticmaster --port 70000", "--port"),
+    "emulate: no mass": ("emulate hapticmaster --inertia 0", "--inertia"),
+    "emulate: damping inf": ("emulate hapticmaster --damping inf", "--damping"),
+    "emulate: friction beyond the force": ("emulate hapticmaster --coulomb 1e9", "--coulomb"),
+    "emulate: noise nan": ("emulate hapticmaster --noise nan", "--noise"),
+    "emulate: seconds inf": ("emulate hapticmaster --seconds inf", "--seconds"),
+    "emulate: seconds 0": ("emulate hapticmaster --seconds 0", "--seconds"),
     # a trial file is replaced only with --force (data import: or extended, --append)
     "data import: trial file at --out": (
         "data import {w}/force.csv --out {w}/trials.h5",

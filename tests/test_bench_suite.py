@@ -36,6 +36,7 @@ REQUIRED = (
     "device.force_python",
     "device.force_compiled",
     "device.servo.on_time",
+    "device.log.final_per_hour",
     "startup.help",
     "startup.params_haptic",
     "casestudy.wall",
@@ -231,3 +232,15 @@ def test_evo_door_bench_help_names_every_section():
     )
     assert done.returncode == 0, done.stderr
     assert ", ".join(SECTIONS) in " ".join(done.stdout.split())
+
+
+def test_the_render_log_growth_is_measured_and_the_log_is_compressed(tmp_path, seed_trial):
+    """The figure the README gives for the log's growth per hour comes from here."""
+    from benchmarks.bench_render import log_growth
+    from evo_door.render.log import N_COLUMNS
+
+    g = log_growth(seed_trial, 2.0, tmp_path)
+    # the side file: float64 rows, 1000 an s, plus its header
+    assert 3600 * 1000 * N_COLUMNS * 8 <= g["partial"] < 1.1 * 3600 * 1000 * N_COLUMNS * 8
+    assert g["final"] < 0.5 * g["partial"]  # float32, shuffled, compressed
+    assert 0 < g["held"] < 10e6 and list(tmp_path.iterdir()) == []

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -21,8 +22,11 @@ from evo_door.models.haptic import PARAMS
 from evo_door.render.device import SimDevice
 from evo_door.render.log import (
     BLOCK_ROWS,
+    CHUNK_ROWS,
     N_COLUMNS,
+    RETAIN_BLOCKS,
     SPILL_ROWS,
+    STORED,
     RenderLog,
     partial_path,
     read_partial,
@@ -146,17 +150,17 @@ def test_the_side_file_grows_and_recovers_the_rows_exactly(tmp_path):
     n_spilled = 3 * BLOCK_ROWS
     # not closed: as a crash leaves it
     _, rows, events, times, sets = read_partial(side)
-    np.testing.assert_array_equal(rows, log.array()[:n_spilled])
+    a = log.array()[:n_spilled]  # read back from the side file where memory freed it
+    np.testing.assert_array_equal(rows, a)
     assert [e["kind"] for e in events] == ["friction"] and times[0] == 0.0
     recovered = tmp_path / "r.h5"
     assert recover(side, recovered) == recovered
     assert not side.exists()
     (tr,) = read_trials(recovered)
-    a = log.array()[:n_spilled]
     assert tr.n == n_spilled and tr.rate == pytest.approx(1000.0)
-    np.testing.assert_array_equal(tr.theta, a[:, 12])
+    np.testing.assert_array_equal(tr.theta, a[:, 12].astype(np.float32))
     with open_h5(recovered) as f:
-        np.testing.assert_array_equal(f["render/command"][()], a[:, 9:12])
+        np.testing.assert_array_equal(f["render/command"][()], a[:, 9:12].astype(np.float32))
         attrs = read_attrs(f["render"])
         assert attrs["statistics"] == {"recovered": True}
         assert attrs["rate"] == 2500.0 and attrs["device"] == "sim"
@@ -331,3 +335,110 @@ def test_recover_refuses_what_is_not_a_side_file(tmp_path, capsys):
     assert main(["render", "--recover", str(garbage)]) == 2
     err = capsys.readouterr().err.splitlines()
     assert "no such file" in err[0] and "not the side file" in err[1]
+
+
+def _rows_of(n: int, seed: int = 3) -> np.ndarray:
+    return np.random.default_rng(seed).normal(size=(n, N_COLUMNS)) * [1.0] * N_COLUMNS
+
+
+def test_a_spilled_log_frees_its_rows_and_is_written_from_the_side_file(tmp_path):
+    """The log held every row in memory (430 MB an hour at 1 kHz): once the side file
+    holds a block, the block is freed but the last RETAIN_BLOCKS, and the final log is
+    written from the side file. Small blocks stand for a long session."""
+    out = tmp_path / "l.h5"
+    log = RenderLog(1000.0, PARAMS, block_rows=64)
+    log.params(0.0, np.ones(len(PARAMS)))
+    side = log.spill_to(out)
+    inputs = _rows_of(5000)
+    ref = RenderLog(1000.0)  # the same rows, all kept in memory
+    held = []
+    for k, row in enumerate(inputs):
+        log.add(k / 1000.0, row)
+        ref.add(k / 1000.0, row)
+        if k % 500 == 499:
+            _wait_for_written(log, log.n - SPILL_ROWS)
+        held.append(sum(b is not None for b in log._blocks))
+    # at most the retained blocks, the current one, and what the writer has not synced
+    assert max(held) <= RETAIN_BLOCKS + 1 + -(-2 * SPILL_ROWS // 64)
+    assert log.held_from > 3000 and log.rows(0, 10).shape == (0, N_COLUMNS)
+    rows = ref.array()
+    np.testing.assert_array_equal(log.array(), rows)  # read back from the side file
+    np.testing.assert_array_equal(log.first(), rows[0])
+    np.testing.assert_array_equal(log.last(), rows[-1])
+    log.write(out, loop_rate=2500.0, device="sim", statistics={})
+    assert not side.exists()
+    _check_stored(out, rows)
+
+
+def _wait_for_written(log, n, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while log._spill.written < n:
+        assert time.monotonic() < deadline, (log._spill.written, n)
+        time.sleep(0.005)
+
+
+def _check_stored(path, rows) -> None:
+    """The final log's layout: time float64, every other channel float32 (the rows to
+    float32's rounding), chunked, shuffled, gzip-compressed; /render/t is the trial's t."""
+    with open_h5(path) as f:
+        t = f["trials/render/t"]
+        assert t.dtype == np.float64 and f["render/t"] == t  # one dataset, two names
+        np.testing.assert_array_equal(t[()], np.arange(len(rows)) / 1000.0)
+        for name, j in (("force", 14), ("theta", 12), ("dtheta", 13)):
+            ds = f[f"trials/render/{name}"]
+            assert ds.dtype == STORED
+            np.testing.assert_array_equal(ds[()], rows[:, j].astype(STORED))
+        for name, j in (("position", 0), ("velocity", 3), ("user_force", 6), ("command", 9)):
+            ds = f[f"render/{name}"]
+            assert ds.dtype == STORED and ds.shape == (len(rows), 3)
+            np.testing.assert_array_equal(ds[()], rows[:, j : j + 3].astype(STORED))
+        for ds in (t, f["trials/render/theta"], f["render/command"]):
+            assert ds.compression == "gzip" and ds.shuffle
+            assert ds.chunks[0] == min(len(rows), CHUNK_ROWS)
+    (tr,) = read_trials(path)
+    assert tr.theta.dtype == np.float64 and tr.n == len(rows)
+
+
+def test_a_log_without_a_side_file_writes_the_same_layout(tmp_path):
+    log = RenderLog(1000.0, PARAMS, block_rows=100)
+    log.params(0.0, np.ones(len(PARAMS)))
+    for k, row in enumerate(_rows_of(3000)):
+        log.add(k / 1000.0, row)
+    assert log.held_from == 0  # no side file: every row kept (the API's default)
+    log.write(tmp_path / "l.h5", loop_rate=2500.0, device="sim", statistics={})
+    _check_stored(tmp_path / "l.h5", log.array())
+
+
+def test_keep_recent_holds_a_few_blocks_and_the_control_port_starts_there(seed_trial):
+    """A render without --log keeps only recent rows; the control port's rows answer
+    starts at the first one held, on its 100 Hz grid."""
+    from evo_door.render.control import ControlServer
+
+    loop = ServoLoop(SimDevice("swing", radius=seed_trial["radius"]), seed_trial, 2500.0)
+    loop.log.block_rows = 256  # a long session in a short test
+    loop.log._blocks = [np.empty((256, N_COLUMNS))]
+    loop.log._block = loop.log._blocks[0]
+    loop.log.keep_recent()
+    loop.run(4.0)
+    log = loop.log
+    assert log.n == 4000 and sum(b is not None for b in log._blocks) <= RETAIN_BLOCKS + 1
+    start = loop.device.script.theta_start
+    assert log.first()[12] == pytest.approx(start, abs=1e-3)  # kept: the summary's
+    server = ControlServer(loop)
+    try:
+        answer = server.answer(b'{"get": "rows", "since": 0}')
+    finally:
+        server.close()
+    first = -(-log.held_from // 10) * 10
+    assert answer["ok"] and answer["rows"][0][0] == pytest.approx(first / 1000.0)
+    with pytest.raises(UserError, match="early rows were not kept"):
+        log.write("never.h5", loop_rate=2500.0, device="sim", statistics={})
+
+
+def test_a_render_without_a_log_still_summarises_the_door_from_first_to_last(capsys):
+    """Without --log the render keeps only recent rows (keep_recent); its summary read
+    the door's first angle from the whole array, now from the row kept for it."""
+    assert main(["render", "--params", "seed_trial", "--user", "open", "--duration", "3"]) == 0
+    out = capsys.readouterr().out
+    first, last = map(float, re.search(r"door (\S+) -> (\S+) deg", out).groups())
+    assert first > 85.0 and 15.0 < last < 25.0, out  # opened from shut to 20 deg

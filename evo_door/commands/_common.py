@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 
 #: Help text of every MODEL argument.
 MODEL_HELP = "model: a name (haptic, door), package.module:MODEL or path/to/file.py:MODEL"
@@ -50,3 +51,104 @@ def model_and_params(args):
     model = get_model(args.model)
     params = model.load_params(args.params, parse_assignments(args.assignments))
     return model, params
+
+
+# -- numeric flags: one declared range each ---------------------------------------------
+@dataclass(frozen=True)
+class Range:
+    """The values a flag takes: ``lower``..``upper`` in ``unit``, both included unless
+    ``above`` (then ``> lower``). ``upper`` may name another flag (``"--rate"``) whose
+    value is the bound. ``integer``: whole numbers only. ``length``: the flag is a
+    text and the range is its length in characters."""
+
+    lower: float
+    upper: float | str
+    unit: str = ""
+    integer: bool = False
+    above: bool = False
+    length: bool = False
+
+
+#: a TCP port; 0 asks the system for any free one
+PORT = Range(0, 65535, integer=True)
+#: a device's own viscous damping (N s/m): above 1000 N s/m a hand moving at 0.2 m/s
+#: would feel the device's whole 200 N, so no device that is meant to be moved has it
+DEVICE_DAMPING = Range(0, 1000, "N s/m")
+#: a secret shared with a control port: at least a character (an empty one would mean
+#: none), at most what fits comfortably in a request line
+TOKEN = Range(1, 256, "characters", length=True)
+#: a session's duration (s): up to a day
+DAY = 86400.0
+
+
+def declare_ranges(parser, ranges: dict[str, Range]) -> None:
+    """Make the flags of ``ranges`` keep their text (no argparse ``type``): parsing and
+    range happen in :func:`check_ranges`, which refuses a bad value in one line (an
+    argparse type error prints the usage too)."""
+    actions = {opt: a for a in parser._actions for opt in a.option_strings}
+    for flag in ranges:
+        actions[flag].type = None
+    parser.set_defaults(_ranges=ranges)
+
+
+def check_ranges(args) -> None:
+    """Parse and check every flag that :func:`declare_ranges` declared (before any
+    work); sets each to its number. A UserError names the flag, the value and the
+    range, with the unit."""
+    from evo_door.errors import UserError
+
+    ranges = getattr(args, "_ranges", {})
+    for flag, r in ranges.items():  # the numbers first: a bound may name another flag
+        if not r.length:
+            _set_number(args, flag, r, UserError)
+    for flag, r in ranges.items():
+        value = getattr(args, _dest(flag))
+        if value is None:
+            continue
+        size = len(value) if r.length else value
+        upper = getattr(args, _dest(r.upper)) if isinstance(r.upper, str) else r.upper
+        low_ok = size > r.lower if r.above else size >= r.lower
+        if not (low_ok and size <= upper):
+            shown = f"{len(value)} characters" if r.length else _num(value)
+            raise UserError(f"{flag} {shown}: must be {_range_text(r, upper)}")
+
+
+def _dest(flag: str) -> str:
+    return flag.lstrip("-").replace("-", "_")
+
+
+def _set_number(args, flag: str, r: Range, error) -> None:
+    import math
+
+    dest = _dest(flag)
+    text = getattr(args, dest)
+    if text is None or isinstance(text, (int, float)) and not isinstance(text, bool):
+        value = text  # the default, or a caller's number
+    else:
+        try:
+            value = int(text) if r.integer else float(text)
+        except ValueError:
+            kind = "a whole number" if r.integer else "a number"
+            raise error(f"{flag} {text!r}: expected {kind}") from None
+    if value is not None and not math.isfinite(value):
+        raise error(f"{flag} {value}: must be finite, {_range_text(r, r.upper)}")
+    if value is not None and r.integer and value != int(value):
+        raise error(f"{flag} {_num(value)}: expected a whole number")
+    setattr(args, dest, value)
+
+
+def _range_text(r: Range, upper) -> str:
+    """``in 0..1000 N s/m``, ``> 0 and <= 600 s``; a bound from a flag says which."""
+    unit = f" {r.unit}" if r.unit else ""
+    bound = r.upper if isinstance(upper, str) else _num(upper)
+    whose = f" (up to {r.upper})" if isinstance(r.upper, str) else ""
+    if r.above:
+        return f"> {_num(r.lower)} and <= {bound}{unit}{whose}"
+    return f"in {_num(r.lower)}..{bound}{unit}{whose}"
+
+
+def _num(x) -> str:
+    """A number as people write it: whole ones in full (4294967295, not 4.29497e+09)."""
+    if float(x).is_integer() and abs(x) < 1e15:
+        return str(int(x))
+    return f"{x:g}"

@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import os
 
+from evo_door.commands._common import PORT, TOKEN, check_ranges, declare_ranges
 from evo_door.errors import UserError
 
 ORDER = 62
+
+#: the numeric flags' ranges (and the token's length), checked before any work
+RANGES = {"--port": PORT, "--token": TOKEN}
 
 #: where the token is read from when --token is not given (``render --console`` passes
 #: it this way: the command line of a process is visible to every local user)
@@ -48,6 +52,7 @@ def register(sub) -> None:
     p.add_argument("--open", action="store_true", help="open the page in the web browser")
     # render --console: end with the renderer even if it cannot say so (killed)
     p.add_argument("--with-parent", action="store_true", help=argparse.SUPPRESS)
+    declare_ranges(p, RANGES)
     p.set_defaults(func=run)
 
 
@@ -58,6 +63,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from evo_door.render.control import parse_control
+
+    check_ranges(args)
 
     try:
         from evo_door.render.console.server import ConsoleServer
@@ -70,8 +77,6 @@ def run(args) -> int:
         raise UserError(f"--control {args.control}: give the renderer's port")
     if host in ("0.0.0.0", "::"):
         host = "127.0.0.1"
-    if not 0 <= args.port <= 65535:
-        raise UserError(f"--port {args.port}: must be in 0..65535")
     save_dir = Path(args.save_dir)
     if not save_dir.is_dir():
         raise UserError(f"--save-dir {args.save_dir}: no such folder")

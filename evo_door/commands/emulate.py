@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
-import math
 import sys
 
-from evo_door.errors import UserError
+from evo_door.commands._common import DAY, DEVICE_DAMPING, PORT, Range, check_ranges, declare_ranges
 
 ORDER = 92
+
+#: the numeric flags' ranges, checked before any work
+RANGES = {
+    "--port": PORT,
+    # a HapticMaster moves about 2-4 kg; the renderer sets its own (set inertia)
+    "--inertia": Range(0, 1000, "kg", above=True),
+    "--damping": DEVICE_DAMPING,
+    # no more than the device's force (200 N): else it could never move
+    "--coulomb": Range(0, 200, "N"),
+    "--noise": Range(0, 50, "N"),
+    "--seconds": Range(0, DAY, "s", above=True),
+}
 
 
 def register(sub) -> None:
@@ -38,9 +49,9 @@ def register(sub) -> None:
     p.add_argument(
         "--seconds",
         type=float,
-        default=math.inf,
         help="stop after this many seconds (default: until Ctrl-C)",
     )
+    declare_ranges(p, RANGES)
     p.set_defaults(func=run)
 
 
@@ -67,14 +78,11 @@ def _hand(script_name: str):
 
 
 def run(args) -> int:
+    import math
+
     from evo_door.render.emulator import HapticMasterEmulator
 
-    if not 0 <= args.port < 65536:
-        raise UserError(f"--port {args.port}: expected 0..65535")
-    for name in ("inertia", "damping", "coulomb", "noise"):
-        value = getattr(args, name)
-        if not (math.isfinite(value) and value >= 0) or (name == "inertia" and value == 0):
-            raise UserError(f"--{name} {value!r}: expected a finite, non-negative number")
+    check_ranges(args)
     user, start = (None, (0.0, 0.0, 0.0)) if not args.user else _hand(args.user)
     emulator = HapticMasterEmulator(
         args.port,
@@ -93,7 +101,7 @@ def run(args) -> int:
         flush=True,
     )
     try:
-        emulator.serve_forever(args.seconds)
+        emulator.serve_forever(math.inf if args.seconds is None else args.seconds)
     except KeyboardInterrupt:
         print("emulator stopped", file=sys.stderr)
     finally:

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from evo_door.commands._common import TOKEN, Range, check_ranges, declare_ranges
 from evo_door.errors import UserError
 
 ORDER = 61
+
+#: the numeric flags' ranges (and the token's length), checked before any work
+RANGES = {"--timeout": Range(0, 600, "s", above=True), "--token": TOKEN}
 
 
 def register(sub) -> None:
@@ -31,6 +35,7 @@ def register(sub) -> None:
     p.add_argument(
         "--timeout", type=float, default=5.0, metavar="S", help="answer timeout (s, default 5)"
     )
+    declare_ranges(p, RANGES)
     p.set_defaults(func=run)
 
 
@@ -46,10 +51,9 @@ def run(args) -> int:
     from evo_door.params import parse_assignments
     from evo_door.render.control import parse_control, request
 
+    check_ranges(args)
     if args.file is None and not args.assignments:
         raise UserError("push: give a parameter file and/or --set NAME=VALUE")
-    if not args.timeout > 0:
-        raise UserError(f"--timeout {args.timeout:g}: must be > 0 s")
     host, port = parse_control(args.to)
     overrides = parse_assignments(args.assignments)
     model = get_model("haptic")

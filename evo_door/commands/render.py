@@ -8,7 +8,16 @@ import sys
 import threading
 import time
 
-from evo_door.commands._common import add_params_arguments
+from evo_door.commands._common import (
+    DAY,
+    DEVICE_DAMPING,
+    PORT,
+    TOKEN,
+    Range,
+    add_params_arguments,
+    check_ranges,
+    declare_ranges,
+)
 from evo_door.errors import UserError
 
 ORDER = 60
@@ -16,6 +25,22 @@ ORDER = 60
 #: niceness added to the console's process (spawned before the servo loop starts, so it
 #: keeps normal scheduling while the loop's thread runs real-time or at niceness -20)
 CONSOLE_NICENESS = 10
+
+#: every numeric flag's range (and the token's length), checked before any work
+RANGES = {
+    "--duration": Range(0, DAY, "s", above=True),
+    # a cycle's work is about 0.1 ms at its 99th percentile (benchmarks/render.md):
+    # 5 kHz leaves it half the period
+    "--rate": Range(10, 5000, "Hz"),
+    # a row per loop cycle at most: more is interpolation, and disk (--log-rate 1e8
+    # wrote 12 GB in a minute)
+    "--log-rate": Range(1, "--rate", "Hz"),
+    "--device-damping": DEVICE_DAMPING,
+    "--console-port": PORT,
+    "--watchdog-misses": Range(1, 1000, "cycles", integer=True),
+    "--seed": Range(0, 2**32 - 1, integer=True),  # numpy's seeds
+    "--token": TOKEN,
+}
 
 
 def register(sub) -> None:
@@ -123,6 +148,7 @@ def register(sub) -> None:
         metavar="N",
         help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
     )
+    declare_ranges(p, RANGES)
     p.set_defaults(func=run)
 
 
@@ -144,6 +170,7 @@ def make_device(spec: str, user: str | None, radius: float, seed: int, damping=N
 
 
 def run(args) -> int:
+    check_ranges(args)
     if args.recover:
         return _recover(args)
     from evo_door.models import get_model
@@ -160,16 +187,10 @@ def run(args) -> int:
             "run, --control PORT or --console to run until interrupted, or run on a "
             "terminal to step the sensations with the keys"
         )
-    if not 0 <= args.console_port <= 65535:
-        raise UserError(f"--console-port {args.console_port}: must be in 0..65535")
     if args.duration is not None and args.user is None and args.device == "sim":
         raise UserError("a headless run on the simulated device needs --user SCRIPT")
     params = get_model("haptic").load_params(args.params, parse_assignments(args.assignments))
     claim = _claim_log(args, args.log, [params.source])
-    if not 1 <= args.watchdog_misses <= 1000:
-        raise UserError(f"--watchdog-misses {args.watchdog_misses}: must be in 1..1000 cycles")
-    if args.device_damping is not None and not args.device_damping >= 0:
-        raise UserError(f"--device-damping {args.device_damping:g}: must be >= 0 N s/m")
     device, name = make_device(
         args.device, args.user, params["radius"], args.seed, args.device_damping
     )
@@ -186,6 +207,8 @@ def run(args) -> int:
     )
     if args.log:  # crash safety: the rows so far go to LOG.h5.partial as they come
         loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
+    else:  # nothing will read the early rows: a day's session stays in a few MB
+        loop.log.keep_recent()
     stop = threading.Event()
     try:
         with _stop_on_ctrl_c(stop, loop):
@@ -302,12 +325,11 @@ def _report(loop, args, stats: dict, name: str, claim) -> int:
         if loop.log.spill_path is not None:
             loop.log.spill_path.unlink(missing_ok=True)
         return 0
-    a = loop.log.array()
-    theta = a[:, 12]
+    first, last = loop.log.first()[12], loop.log.last()[12]  # theta (rad)
     status = STOPPED if stopped else stats["status"]
     print(
         f"rendered {stats['cycles']} cycles at {args.rate:g} Hz on {name} ({status}); "
-        f"door {theta[0] * 57.29577951308232:.1f} -> {theta[-1] * 57.29577951308232:.1f} deg"
+        f"door {first * 57.29577951308232:.1f} -> {last * 57.29577951308232:.1f} deg"
     )
     print(_timing_line(stats))
     if "round_trip_mean_s" in stats:

@@ -22,6 +22,7 @@ file is accepted, a preset name (``seed_trial``) is accepted too; a preset
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.metadata
 import importlib.util
 import json
@@ -237,7 +238,12 @@ def load_params(
         ps = ParamSet.from_mapping(table, spec, "inline values", "inline values")
     else:
         ps = _load_file(table, spec, preset_dirs)
-    return ps.replace(overrides, source=ps.source) if overrides else ps
+    if not overrides:
+        return ps
+    # a bad override names the set as the user gave it (a preset by its name), never the
+    # file's path in the installation; the set keeps its source (an input of the command)
+    shown = str(spec) if isinstance(spec, (str, Path)) else ps.source
+    return dataclasses.replace(ps.replace(overrides, source=shown), source=ps.source)
 
 
 def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
@@ -247,19 +253,24 @@ def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
 
         if is_render_log(path):
             return _load_render_log(table, path)
+    shown = str(spec)  # what errors name: the file as given, a preset by its name
     if not path.is_file():
         if path.suffix or "/" in str(spec):
             raise UserError(f"{spec}: parameter file not found")
         path = preset_path(table.model, str(spec), preset_dirs)
+        shown = f"preset {spec}"
     try:
         doc = load_yaml(read_text(path, "parameter file"))
+    except UserError as exc:  # unreadable, binary...: named as given
+        raise UserError(str(exc).replace(str(path), shown)) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" line {mark.line + 1}" if mark else ""
         raise UserError(
-            f"{path}:{line} is not valid YAML ({getattr(exc, 'problem', exc)})"
+            f"{shown}:{line} is not valid YAML ({getattr(exc, 'problem', exc)})"
         ) from None
-    return params_from_document(table, doc, str(path))
+    ps = params_from_document(table, doc, shown)
+    return dataclasses.replace(ps, source=str(path))
 
 
 def _load_render_log(table: ParamTable, path: Path) -> ParamSet:

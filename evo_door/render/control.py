@@ -264,7 +264,7 @@ class ControlServer:
             raise UserError('"since" must be a row index >= 0')
         log = self.loop.log
         n = log.n
-        start = min(since, n)
+        start = min(max(since, log.held_from), n)  # older rows: in the side file only
         start += (-start) % ROWS_EVERY  # on the 100 Hz grid: rows 0, 10, 20 ...
         if start >= n:
             return {"ok": True, "rows": [], "next": start}

@@ -22,7 +22,16 @@ trial file: ``evo-door data show LOG.h5`` reads it and an experiment takes it as
 
 Rows live in preallocated float64 blocks of :data:`BLOCK_ROWS` rows; a cycle writes
 its rows in place (:func:`_resample`, compiled), so :meth:`RenderLog.add` allocates
-nothing in the steady state.
+nothing in the steady state. Once the side file holds a block (below), the block is
+freed but the last :data:`RETAIN_BLOCKS` (the control port's window): a session of a
+day holds a few megabytes, not 430 MB an hour.
+
+Storage: the final log is written from the side file (and the rows still in memory),
+a chunk at a time, never the whole session in memory; its datasets are chunked
+(:data:`CHUNK_ROWS`) and gzip-compressed after a byte shuffle. Time is float64 (at a
+day, float32 would step by 8 ms); every other channel float32, whose 24-bit mantissa
+keeps 0.1 urad of theta, 0.06 um of position and 10 uN at 100 N, far below any
+sensor's noise. ``benchmarks/suite.py`` (section device) measures the growth per hour.
 
 Crash safety: :meth:`RenderLog.spill_to` starts a background thread that appends the
 finished rows (every :data:`SPILL_ROWS`, about a second at 1 kHz), the events and the
@@ -40,6 +49,7 @@ little-endian) and its payload; a record cut short by a kill is ignored::
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import queue
@@ -53,7 +63,7 @@ from numba import njit
 from evo_door import __version__
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
-from evo_door.files import ATTRS, Dataset, check_folder, to_json, write_h5
+from evo_door.files import ATTRS, Dataset, check_folder, to_json
 
 #: columns of a log row
 COLUMNS = (
@@ -78,6 +88,13 @@ N_COLUMNS = len(COLUMNS)
 BLOCK_ROWS = 8192
 #: finished rows that go to the side file at a time (1.02 s at 1 kHz)
 SPILL_ROWS = 1024
+#: blocks kept in memory once the side file holds them (16 s at 1 kHz: what the
+#: control port hands a console that catches up)
+RETAIN_BLOCKS = 2
+#: rows of an HDF5 chunk of the final log (16 s at 1 kHz)
+CHUNK_ROWS = 16384
+#: the final log's channel type but time's (see the module docstring)
+STORED = np.float32
 #: suffix of the side file of a log being written
 PARTIAL_SUFFIX = ".partial"
 _MAGIC = b"EVO-DOOR RENDER LOG PARTIAL 1\n"
@@ -120,12 +137,16 @@ class RenderLog:
     """
 
     def __init__(self, rate: float = 1000.0, table=None, block_rows: int = BLOCK_ROWS):
-        if not rate > 0:
-            raise UserError(f"--log-rate {rate}: must be > 0 Hz")
+        if not (rate > 0 and np.isfinite(rate)):
+            raise UserError(f"--log-rate {rate}: must be finite and > 0 Hz")
         self.rate = float(rate)
         self.table = table
         self.block_rows = int(block_rows)
-        self._blocks: list[np.ndarray] = []
+        self._spill: _Spill | None = None
+        self._freed = 0  # leading blocks freed (their rows are in the side file only)
+        self._recent_only = False  # keep_recent(): free old blocks without a side file
+        self._first: np.ndarray | None = None  # the first row, kept for summaries
+        self._blocks: list[np.ndarray | None] = []
         self._block = self._new_block()
         self._fill = 0  # rows written in the current block
         self._prev_t: float | None = None
@@ -137,14 +158,37 @@ class RenderLog:
         self.events: list[dict] = []
         self._names = list(table.names) if table is not None else []
         self._units = [p.unit for p in table] if table is not None else []
-        self._spill: _Spill | None = None
         # load the kernel now (numba's cache: milliseconds), not in a servo cycle
         _resample(0.0, self._prev, -1.0, self._prev.copy(), 0, 1.0, np.empty((0, N_COLUMNS)), 0)
 
     def _new_block(self) -> np.ndarray:
         block = np.empty((self.block_rows, N_COLUMNS), dtype=_ROW_DTYPE)
         self._blocks.append(block)
+        self._free_old()
         return block
+
+    def _free_old(self) -> None:
+        """Free the blocks the side file holds (synced to the disk), all but the last
+        :data:`RETAIN_BLOCKS`; with :meth:`keep_recent`, those without a side file."""
+        if self._spill is not None:
+            safe = self._spill.written
+        elif self._recent_only:
+            safe = self._k
+        else:
+            return
+        b = self.block_rows
+        while self._freed < len(self._blocks) - RETAIN_BLOCKS and (self._freed + 1) * b <= safe:
+            self._blocks[self._freed] = None
+            self._freed += 1
+
+    def keep_recent(self) -> None:
+        """Keep only the recent rows (a render without a log: nothing reads the rest)."""
+        self._recent_only = True
+
+    @property
+    def held_from(self) -> int:
+        """The first row still in memory (earlier ones are in the side file only)."""
+        return self._freed * self.block_rows
 
     def add(self, t: float, row: np.ndarray) -> None:
         """One cycle at time ``t`` (s) with its ``row`` (see :data:`COLUMNS`)."""
@@ -155,6 +199,7 @@ class RenderLog:
         if self._prev_t is None:  # the first cycle: its row is the first tick's
             if t >= self._k / self.rate:
                 self._block[self._fill] = row
+                self._first = row.copy()
                 self._advance(1)
             self._prev[:] = row
         else:
@@ -191,6 +236,10 @@ class RenderLog:
     def n(self) -> int:
         return self._k
 
+    def first(self) -> np.ndarray | None:
+        """A copy of the first row, or None."""
+        return None if self._first is None else self._first.copy()
+
     def last(self) -> np.ndarray | None:
         """A copy of the last finished row, or None; safe from another thread."""
         n = self._k
@@ -200,23 +249,40 @@ class RenderLog:
         return self._blocks[i // self.block_rows][i % self.block_rows].copy()
 
     def rows(self, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Rows ``start:stop`` (a copy when they span blocks, else a view)."""
+        """Rows ``start:stop`` held in memory (a copy when they span blocks, else a
+        view); rows before :attr:`held_from` are left out. Safe from another thread."""
         stop = self._k if stop is None else min(stop, self._k)
-        if start >= stop:
-            return np.zeros((0, N_COLUMNS))
         b = self.block_rows
-        first, last = start // b, (stop - 1) // b
+        while True:  # a block freed meanwhile (the loop's thread): start after it
+            begin = max(start, self.held_from)
+            if begin >= stop:
+                return np.zeros((0, N_COLUMNS))
+            first, last = begin // b, (stop - 1) // b
+            blocks = self._blocks[first : last + 1]
+            if all(block is not None for block in blocks):
+                break
         if first == last:
-            return self._blocks[first][start - first * b : stop - first * b]
-        parts = [self._blocks[first][start - first * b :]]
-        parts.extend(self._blocks[first + 1 : last])
-        parts.append(self._blocks[last][: stop - last * b])
+            return blocks[0][begin - first * b : stop - first * b]
+        parts = [blocks[0][begin - first * b :], *blocks[1:-1], blocks[-1][: stop - last * b]]
         return np.concatenate(parts)
 
+    def chunks(self):
+        """Every row in order, as arrays of rows: the side file's for the blocks freed,
+        then memory's (the final log is written from these, a chunk at a time)."""
+        held = self.held_from
+        if held:
+            yield from _side_rows(self._spill.path, held)
+        b = self.block_rows
+        for start in range(held, self._k, b):
+            yield self.rows(start, min(start + b, self._k))
+
     def array(self) -> np.ndarray:
-        """All the rows, n x :data:`N_COLUMNS` (a new array)."""
-        a = self.rows(0)
-        return a.copy() if a.base is not None else a
+        """All the rows, n x :data:`N_COLUMNS` (a new array; read back from the side
+        file where memory no longer holds them)."""
+        parts = list(self.chunks())
+        if not parts:
+            return np.zeros((0, N_COLUMNS))
+        return np.concatenate(parts) if len(parts) > 1 else parts[0].copy()
 
     def trial(self, device: str = "") -> Trial:
         """The log as a trial (tangential user force, theta, dtheta)."""
@@ -293,15 +359,26 @@ class RenderLog:
     def write(self, path, *, loop_rate: float, device: str, statistics: dict) -> None:
         """Write the log to ``path`` (HDF5, atomically); then remove the side file."""
         self.close()
-        self._write(path, self.array(), loop_rate, device, statistics)
+        if self._recent_only and self._freed:
+            raise UserError("render log: its early rows were not kept (keep_recent)")
+        self._write(path, self.chunks(), self._k, loop_rate, device, statistics)
         if self._spill is not None:
             self._spill.path.unlink(missing_ok=True)
 
-    def _write(self, path, a, loop_rate, device, statistics) -> None:
+    def _write(self, path, chunks, n: int, loop_rate, device, statistics) -> None:
+        """The log from ``chunks`` (arrays of rows, ``n`` rows in all), a chunk at a time."""
         from evo_door.data.h5io import FORMAT, FORMAT_VERSION, _trial_tree
+        from evo_door.files import atomic_write, h5py, write_group
 
-        tr = self._trial(a, device)
-        col = COLUMNS.index
+        chunks = iter(chunks)
+        lead: list[np.ndarray] = []  # the chunks up to the second row
+        while sum(c.shape[0] for c in lead) < 2 and (c := next(chunks, None)) is not None:
+            lead.append(c)
+        two = np.concatenate(lead)[:2] if lead else np.zeros((0, N_COLUMNS))
+        tr = self._trial(two, device)  # the trial's attributes (and the two-row minimum)
+        trial = _trial_tree(tr)
+        trial[ATTRS]["n_samples"] = n
+        channels = {name: trial.pop(name).attrs for name in ("t", "force", "theta", "dtheta")}
         render = {
             ATTRS: {
                 "rate": float(loop_rate),
@@ -310,11 +387,6 @@ class RenderLog:
                 "statistics": statistics,
                 "events": self.events,
             },
-            "t": Dataset(tr.t, {"unit": "s"}),
-            "position": Dataset(a[:, col("x") : col("x") + 3], {"unit": "m"}),
-            "velocity": Dataset(a[:, col("vx") : col("vx") + 3], {"unit": "m/s"}),
-            "user_force": Dataset(a[:, col("fx") : col("fx") + 3], {"unit": "N"}),
-            "command": Dataset(a[:, col("cx") : col("cx") + 3], {"unit": "N"}),
             "params": {
                 ATTRS: {"names": list(self._names), "units": list(self._units)},
                 "t": Dataset(np.array(self.param_times), {"unit": "s"}),
@@ -328,13 +400,69 @@ class RenderLog:
                 "software": f"evo-door {__version__}",
                 "description": f"haptic render log ({device})",
             },
-            "trials": {"render": _trial_tree(tr)},
+            "trials": {"render": trial},
             "render": render,
         }
         session = session_tree(self.events, self._names, self._units)
         if session is not None:
             tree["session"] = session
-        write_h5(path, tree, compression=4, compress_above=1)
+        with atomic_write(path) as tmp, h5py().File(tmp, "w", track_order=True) as f:
+            write_group(f, tree, compression=4, compress_above=1)
+            sinks = _row_datasets(f, n, channels)
+            k = 0
+            for rows in itertools.chain(lead, chunks):
+                m = rows.shape[0]
+                for ds, cols in sinks:  # rows k..k+m; time: exact multiples of the period
+                    ds[k : k + m] = (
+                        np.arange(k, k + m) / self.rate if cols is None else rows[:, cols]
+                    )
+                k += m
+            if k != n:
+                raise UserError(f"render log: {k} rows to write, expected {n}")
+            f["render/t"] = f["trials/render/t"]  # the same times: one dataset, two names
+
+
+def _row_datasets(f, n: int, channels: dict) -> list:
+    """The final log's row datasets in ``f`` (chunked, shuffled, gzip), each with the
+    columns of a row it takes (None: the time): [(dataset, columns)]. ``channels``:
+    the attributes of the trial's datasets."""
+    from evo_door.files import write_attrs
+
+    col = COLUMNS.index
+
+    def dataset(group, name, dtype, attrs, width=0):
+        shape = (n, width) if width else (n,)
+        chunks = (min(n, CHUNK_ROWS), width) if width else (min(n, CHUNK_ROWS),)
+        ds = group.create_dataset(
+            name,
+            shape,
+            dtype,
+            chunks=chunks,
+            compression="gzip",
+            compression_opts=4,
+            shuffle=True,
+            track_times=False,
+        )
+        write_attrs(ds, attrs)
+        return ds
+
+    trial = f["trials/render"]
+    sinks = [(dataset(trial, "t", np.float64, channels["t"]), None)]
+    for name in ("force", "theta", "dtheta"):
+        sinks.append((dataset(trial, name, STORED, channels[name]), col(name)))
+    for name, first, unit in _VECTORS:
+        ds = dataset(f["render"], name, STORED, {"unit": unit}, width=3)
+        sinks.append((ds, slice(col(first), col(first) + 3)))
+    return sinks
+
+
+#: the final log's 3-vector datasets of /render: (name, first column, unit)
+_VECTORS = (
+    ("position", "x", "m"),
+    ("velocity", "vx", "m/s"),
+    ("user_force", "fx", "N"),
+    ("command", "cx", "N"),
+)
 
 
 # -- the session record (the web console's participant sessions, issue 15) ----------
@@ -502,6 +630,7 @@ class _Spill:
     def __init__(self, path: Path, header: dict):
         self.path = path
         self.rows = 0  # rows sent
+        self.written = 0  # rows written and synced to the disk (the writer's count)
         self._events = 0  # events sent
         self._params = 0  # parameter sets sent
         self.error: str | None = None
@@ -572,6 +701,7 @@ class _Spill:
                     self._file.flush()
                     if tag == b"ROWS":
                         os.fsync(self._file.fileno())
+                        self.written += len(payload)  # the loop may free these rows now
                 except OSError as exc:
                     self.error = f"{self.path}: cannot write ({exc.strerror or exc})"
         finally:
@@ -584,50 +714,92 @@ def read_partial(path) -> tuple[dict, np.ndarray, list[dict], list[float], list[
 
     Records cut short (a kill while writing) and anything after them are ignored.
     """
+    header, n, events, times, sets = _scan_partial(path)
+    parts = list(_side_rows(path, n))
+    a = np.concatenate(parts) if parts else np.zeros((0, N_COLUMNS))
+    return header, a, events, times, sets
+
+
+def _records(fh):
+    """The whole records of an open side file after its magic: (tag, offset of the
+    payload, size), up to the first one cut short or damaged."""
+    fh.seek(0, os.SEEK_END)
+    end = fh.tell()
+    pos = len(_MAGIC)
+    while pos + _RECORD.size <= end:
+        fh.seek(pos)
+        tag, size = _RECORD.unpack(fh.read(_RECORD.size))
+        body = pos + _RECORD.size
+        if body + size > end or tag not in (b"HEAD", b"ROWS", b"EVTS", b"PARS"):
+            return  # cut short by the crash, or not a record
+        yield tag, body, size
+        pos = body + size
+
+
+def _open_partial(path):
     path = Path(path)
     try:
-        data = path.read_bytes()
+        fh = open(path, "rb")  # noqa: SIM115 (the callers close it)
     except FileNotFoundError:
         raise UserError(f"{path}: render log side file not found") from None
     except OSError as exc:
         raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if not data.startswith(_MAGIC):
+    if fh.read(len(_MAGIC)) != _MAGIC:
+        fh.close()
         raise UserError(f"{path}: not the side file of a render log")
-    pos = len(_MAGIC)
-    view = memoryview(data)  # slices without copies
+    return fh
+
+
+_ROW_BYTES = N_COLUMNS * _ROW_DTYPE.itemsize
+
+
+def _scan_partial(path) -> tuple[dict, int, list[dict], list[float], list[list[float]]]:
+    """A side file's header, number of whole rows, events, parameter times and sets,
+    read without its rows."""
     header = None
-    rows: list[np.ndarray] = []
+    n = 0
     events: list[dict] = []
     times: list[float] = []
     sets: list[list[float]] = []
-    row_bytes = N_COLUMNS * _ROW_DTYPE.itemsize
-    while pos + _RECORD.size <= len(data):
-        tag, size = _RECORD.unpack_from(data, pos)
-        body = view[pos + _RECORD.size : pos + _RECORD.size + size]
-        if len(body) < size:
-            break  # cut short by the crash
-        pos += _RECORD.size + size
-        try:
+    with _open_partial(path) as fh:
+        for tag, offset, size in _records(fh):
             if tag == b"ROWS":
-                if size % row_bytes:
+                if size % _ROW_BYTES:
                     break
-                rows.append(np.frombuffer(body, dtype=_ROW_DTYPE).reshape(-1, N_COLUMNS))
-            elif tag == b"HEAD":
-                header = json.loads(bytes(body))
-            elif tag == b"EVTS":
-                events.extend(json.loads(bytes(body)))
-            elif tag == b"PARS":
-                item = json.loads(bytes(body))
-                times.extend(item["t"])
-                sets.extend(item["values"])
-            else:
-                break  # not a record: damaged
-        except (ValueError, KeyError, TypeError):
-            break
+                n += size // _ROW_BYTES
+                continue
+            fh.seek(offset)
+            try:
+                item = json.loads(fh.read(size))
+                if tag == b"HEAD":
+                    header = item
+                elif tag == b"EVTS":
+                    events.extend(item)
+                else:
+                    times.extend(item["t"])
+                    sets.extend(item["values"])
+            except (ValueError, KeyError, TypeError):
+                break
     if header is None:
         raise UserError(f"{path}: render log side file without its header")
-    a = np.concatenate(rows) if rows else np.zeros((0, N_COLUMNS))
-    return header, a.astype(np.float64, copy=False), events, times, sets
+    return header, n, events, times, sets
+
+
+def _side_rows(path, limit: int):
+    """The side file's first ``limit`` rows, a record (about a second) at a time."""
+    left = limit
+    with _open_partial(path) as fh:
+        for tag, offset, size in _records(fh):
+            if left <= 0:
+                return
+            if tag != b"ROWS":
+                continue
+            fh.seek(offset)
+            rows = np.frombuffer(fh.read(size), dtype=_ROW_DTYPE).reshape(-1, N_COLUMNS)
+            yield rows[:left].astype(np.float64, copy=False)
+            left -= rows.shape[0]
+    if left > 0:
+        raise UserError(f"{path}: {left} rows of the render log missing from its side file")
 
 
 def recover(partial_path, out_path=None) -> Path:
@@ -644,16 +816,16 @@ def recover(partial_path, out_path=None) -> Path:
             raise UserError(f"{side}: give the log to write (the name lacks {PARTIAL_SUFFIX})")
         out_path = side.with_name(side.name[: -len(PARTIAL_SUFFIX)])
     out_path = Path(out_path)
-    header, a, events, times, sets = read_partial(side)
+    header, n, events, times, sets = _scan_partial(side)
     log = RenderLog(float(header["rate"]))
     log._names = list(header.get("names", []))
     log._units = list(header.get("units", []))
     log.events = events
     log.param_times = [float(t) for t in times]
     log.param_sets = [np.array(v, dtype=np.float64) for v in sets]
-    if a.shape[0] < 2:
+    if n < 2:
         raise UserError(f"{side}: fewer than two rows of the render were saved; nothing to recover")
-    end = (a.shape[0] - 1) / log.rate
+    end = (n - 1) / log.rate
     log.event(
         end,
         "recovered",
@@ -662,7 +834,8 @@ def recover(partial_path, out_path=None) -> Path:
     loop_rate = header.get("loop_rate")
     log._write(
         out_path,
-        a,
+        _side_rows(side, n),
+        n,
         float("nan") if loop_rate is None else loop_rate,
         str(header.get("device", "")),
         {"recovered": True},

@@ -164,7 +164,9 @@ def compute_command_implicit(pos, vel, user, p, p_free, mass, period, damping, l
     admittance device does (the loop passes the measured period as T).
     """
     finite = _finite_state(pos, vel, user)
-    if finite:
+    # a mass, period or damping that is not finite would spread NaN through the step;
+    # the loop checks them (ServoLoop), this keeps the kernel safe on its own
+    if finite and math.isfinite(mass) and math.isfinite(period) and math.isfinite(damping):
         device_force(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], p_free, out)
         ym = pos[1] + DEVICE_OFFSET_Y
         zm = pos[2] + DEVICE_OFFSET_Z
@@ -317,6 +319,31 @@ class LoopTiming:
 _LOG_GROWTH = math.log(LoopTiming.GROWTH)
 
 
+#: what a refusal of a change names as its source: the values the client sent, never
+#: the file the running set came from (a preset's path on the server's installation)
+CHANGE = "change"
+
+
+def renderable(params):
+    """``params`` if the loop may render it: every value finite and within its declared
+    range, else a UserError naming the parameter. The loaders check this; a ParamSet
+    built by hand (``ParamSet(table, vector)``) does not, and a NaN there reached the
+    compiled force (a NaN radius, a simulated mass of NaN; a 0 a division by zero)."""
+    for q, value in zip(PARAMS, param_vector(params, PARAMS), strict=True):
+        q.check(value, "the set to render")
+    return params
+
+
+def _device_number(device, name: str, default: float, unit: str, positive=False) -> float:
+    """A device's ``name`` (max_force, damping, mass): finite, >= 0 (> 0 if ``positive``),
+    else a UserError: the kernel's passivity and force limit rest on it."""
+    value = float(getattr(device, name, default))
+    if not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+        sign = ">" if positive else ">="
+        raise UserError(f"the device's {name} is {value:g} {unit}: must be finite and {sign} 0")
+    return value
+
+
 class ServoLoop:
     """Renders a haptic parameter set on ``device``.
 
@@ -360,6 +387,10 @@ class ServoLoop:
             raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
         if getattr(params, "model", None) != "haptic":
             raise UserError("the renderer takes a parameter set of the 'haptic' model")
+        if not (math.isfinite(log_rate) and 1.0 <= log_rate <= rate):
+            raise UserError(
+                f"--log-rate {log_rate:g}: give a log rate in 1..{rate:g} Hz (the loop's)"
+            )
         if not 0.0 < ramp_time <= 0.01:
             raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
         if friction not in FRICTION_LAWS:
@@ -371,8 +402,8 @@ class ServoLoop:
         self.period = 1.0 / self.rate
         self._realtime_sched = False  # the loop thread runs under SCHED_FIFO (run)
         self.clamp = bool(clamp)
-        self.limit = float(getattr(device, "max_force", 200.0))
-        self.damping = float(getattr(device, "damping", 0.0))
+        self.limit = _device_number(device, "max_force", 200.0, "N", positive=True)
+        self.damping = _device_number(device, "damping", 0.0, "N s/m")
         self.simulated = bool(getattr(device, "simulated", False))
         self.realtime = (not self.simulated) if realtime is None else bool(realtime)
         self.log = RenderLog(log_rate, PARAMS)
@@ -386,7 +417,7 @@ class ServoLoop:
         self.exclude = IMPLICIT if friction == "implicit" else frozenset()
         self._native: tuple[str, ...] = ()
         self.timing = LoopTiming(self.period)
-        self.params, changes = self._passive(params)
+        self.params, changes = self._passive(renderable(params))
         self._clamp_note = changes
         self._set_vectors()
         self._mass = self.params["inertia"] / self.params["radius"]
@@ -412,8 +443,8 @@ class ServoLoop:
                 base = self._pending[0] if self._pending is not None else self.params
                 before = dict(self._pending[1]) if self._pending is not None else {}
             try:
-                new = base.replace(dict(values))
-                new, changes = self._passive(new)
+                new = base.replace(dict(values), source=CHANGE)
+                new, changes = self._passive(renderable(new))
             except UserError as exc:
                 self.log.event(self._now, "refused", str(exc), values=dict(values))
                 raise
@@ -519,7 +550,7 @@ class ServoLoop:
             set_mass(virtual)
             self._mass = virtual
         else:
-            self._mass = float(getattr(self.device, "mass", virtual))
+            self._mass = _device_number(self.device, "mass", virtual, "kg", positive=True)
 
     # -- the loop --------------------------------------------------------------------
     def run(self, duration: float | None = None, stop: threading.Event | None = None) -> dict:
