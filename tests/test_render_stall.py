@@ -65,6 +65,17 @@ class Probe:
         self.sock.close()
 
 
+def _device_priority() -> None:
+    """The emulator stands in for a device, which answers within its own real-time
+    loop: at normal priority on a loaded test machine it was starved for tens of ms,
+    the renderer waited on it and its supervisor rightly took the force off. Real time
+    where permitted (its threads inherit it), else as it comes."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(5))
+    except (OSError, AttributeError):
+        pass
+
+
 @pytest.fixture
 def emulator():
     """``evo-door emulate hapticmaster`` in a process of its own (a hand holding at 46
@@ -75,6 +86,7 @@ def emulator():
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
+        preexec_fn=_device_priority,
     )
     try:
         line = proc.stdout.readline()
@@ -89,7 +101,9 @@ def emulator():
 def _render(port: int, *extra: str, duration: float = 30.0) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial", *STRONG]
     cmd += ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
-    cmd += ["--rate", "1000", "--watchdog-misses", "50", "--duration", str(duration), *extra]
+    # the loop's own stall budget 101 ms (a loaded test machine holds a loop up for tens
+    # of ms now and then); the supervisor's is its default, 20 ms
+    cmd += ["--rate", "1000", "--watchdog-misses", "100", "--duration", str(duration), *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -337,25 +351,29 @@ class _StallsOnce(SimDevice):
 
 
 def test_a_stall_longer_than_the_budget_ends_the_loop():
-    """A 50 ms stall at 2500 Hz (budget 10 cycles, 4 ms): the loop skipped the slots
-    and went on; now it ramps to zero and stops, with the reason."""
+    """A 0.5 s stall at 2500 Hz (budget 250 cycles, 100 ms: a loaded test machine
+    stalls a loop for tens of ms now and then): the loop skipped the slots and went
+    on; now it ramps to zero and stops, with the reason, logged once (the passivity
+    recheck at cycle 250, during the ramp, took the stall for the period and logged
+    the reason again)."""
     seed_trial = get_model("haptic").load_params("seed_trial")
-    device = _StallsOnce(at=200, stall=0.05)
-    loop = ServoLoop(device, seed_trial, realtime=True, watchdog_misses=10)
+    device = _StallsOnce(at=240, stall=0.5)
+    loop = ServoLoop(device, seed_trial, realtime=True, watchdog_misses=250)
     stats = loop.run(2.0)
     assert stats["status"] == "watchdog"
     match = re.fullmatch(r"stalled (\d+) ms", stats["watchdog"])
-    assert match and 50 <= int(match.group(1)) < 1000, stats["watchdog"]
+    assert match and 500 <= int(match.group(1)) < 2000, stats["watchdog"]
     watchdog = [e for e in loop.log.events if e["kind"] == "watchdog"]
     assert [e["message"] for e in watchdog] == [stats["watchdog"]]
-    # the ramp (8 ms, 20 cycles) and no more: it did not resume
-    assert device.commands_after <= 25 and stats["cycles_run"] < 300
+    # the ramp (8 ms, 20 cycles; it started after the stall, not before it, when its
+    # time was up already) and no more: it did not resume
+    assert 15 <= device.commands_after <= 25 and stats["cycles_run"] < 300
 
 
 def test_a_stall_within_the_budget_is_not_one():
     seed_trial = get_model("haptic").load_params("seed_trial")
     device = _StallsOnce(at=200, stall=0.05)
-    loop = ServoLoop(device, seed_trial, realtime=True, watchdog_misses=500)  # 200 ms
+    loop = ServoLoop(device, seed_trial, realtime=True, watchdog_misses=1000)  # 400 ms
     stats = loop.run(0.3)
     assert stats["status"] == "done" and stats["watchdog"] == ""
 
@@ -364,6 +382,7 @@ def test_a_stall_within_the_budget_is_not_one():
 def test_a_frozen_render_on_the_simulated_device_does_not_resume(tmp_path):
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     cmd += ["--device", "sim", "--user", "hold", "--duration", "60", "--realtime"]
+    cmd += ["--watchdog-misses", "250"]  # 100 ms: only the stall below ends it
     log = tmp_path / "sim.h5"
     proc = subprocess.Popen(
         [*cmd, "--log", str(log)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True

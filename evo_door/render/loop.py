@@ -612,7 +612,9 @@ class ServoLoop:
                     self.watchdog.trip(now, f"device read failed: {exc}")
                     self.log.event(t, "fault", f"device read failed: {exc}")
                 if self.realtime and not self.watchdog.tripped:
-                    sent = self._check_stall(now, sent, stall_limit)
+                    sent = self._check_stall(sent, stall_limit)
+                    if self.watchdog.tripped:  # the ramp starts after the stall, not before
+                        now = sent - t0
                 if self.watchdog.tripped:
                     factor = self.watchdog.factor(now)
                     cmd[:] = last * factor
@@ -665,7 +667,8 @@ class ServoLoop:
                     self.log.event(t, "watchdog", self.watchdog.reason)
                 k += 1
                 self._k = k
-                if self.realtime and timing.starts == _RECHECK_AFTER:  # cycles run, not slots
+                # cycles run, not slots; not once tripped (a stall's gap is no period)
+                if self.realtime and timing.starts == _RECHECK_AFTER and not self.watchdog.tripped:
                     self._recheck(timing.period_mean(), t)
         except BaseException:
             self.status = "failed"
@@ -689,22 +692,24 @@ class ServoLoop:
                 self.statistics = self._stats(k)
         return self.statistics
 
-    def _check_stall(self, now: float, sent: float, limit: float) -> float:
+    def _check_stall(self, sent: float, limit: float) -> float:
         """Trip the watchdog when the loop stalled (paced loops, before each command).
 
         A paced loop that was kept from running (SIGSTOP, a blocked read, the machine
         busy) skips the slots it missed, so a stall of seconds counted as one late
         cycle and the loop went on from a stale state. Now a gap since the last
         command longer than ``limit`` (the watchdog's misses plus one periods) ends
-        the render, as does the supervisor having taken the force off. Returns the
-        time of this command, the next call's ``sent``.
+        the render, as does the supervisor having taken the force off. It trips at
+        the time of the check (s after ``t0``): a stall inside the cycle (a read held
+        up) must not use up the ramp. Returns the time of this command
+        (perf_counter), the next call's ``sent``.
         """
         tic = time.perf_counter()
         gap = tic - sent
         if gap > limit:
-            self.watchdog.trip(now, f"stalled {gap * 1e3:.0f} ms")
+            self.watchdog.trip(tic - self.t0, f"stalled {gap * 1e3:.0f} ms")
         elif self.supervisor is not None and self.supervisor.latched:
-            self.watchdog.trip(now, "stalled: the supervisor took the force off")
+            self.watchdog.trip(tic - self.t0, "stalled: the supervisor took the force off")
         return tic
 
     def _disarm_supervisor(self) -> None:
