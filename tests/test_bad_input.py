@@ -419,6 +419,24 @@ CASES = {
         "rig generate --model door --trials 1 --out {w}/trials.h5",
         "--force to replace it",
     ),
+    # the supervisor's flags go with a real device, and not together
+    "render: --no-supervisor on the simulated device": (
+        "render --params seed_trial --user hold --duration 0.1 --no-supervisor",
+        "--no-supervisor goes with a hapticmaster:// device",
+    ),
+    "render: --supervisor-budget out of range": (
+        "render --device hapticmaster://127.0.0.1:1 --duration 0.1 --supervisor-budget 1",
+        "--supervisor-budget 1: must be in 5..1000 ms",
+    ),
+    "render: --supervisor-budget nan": (
+        "render --device hapticmaster://127.0.0.1:1 --duration 0.1 --supervisor-budget nan",
+        "--supervisor-budget nan",
+    ),
+    "render: --supervisor-budget with --no-supervisor": (
+        "render --device hapticmaster://127.0.0.1:1 --duration 0.1 --supervisor-budget 30 "
+        "--no-supervisor",
+        "--supervisor-budget goes without --no-supervisor",
+    ),
     "render: trial file at --log": (
         "render --params seed_trial --user hold --duration 0.1 --log {w}/trials.h5",
         "--force to replace it",

@@ -90,7 +90,9 @@ def test_without_permission_the_loop_says_so_and_runs_at_a_raised_niceness(seed_
         raise PermissionError("Operation not permitted")
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
-    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True)
+    # a normal-priority thread on a busy machine stalls for 4-8 ms, past the default
+    # stall budget (10 cycles, 4 ms), which ends a render: 100 ms here
+    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True, watchdog_misses=250)
     waits = []
     real_sleep = time.sleep
     monkeypatch.setattr(loop_module.time, "sleep", lambda s: (waits.append(s), real_sleep(s)))

@@ -75,6 +75,7 @@ def test_a_log_over_the_emulated_hapticmaster_fits_back_to_the_rendered_set(tmp_
         device = ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
         args = ["render", "--params", "seed_trial", *device, "--rate", "1000"]
         args += ["--watchdog-misses", "50"]  # a loaded test machine may stall 10 ms
+        args += ["--supervisor-budget", "200"]  # and the emulator's answers tens of ms
         assert main([*args, "--duration", str(SWING), "--log", str(log)]) == 0
     finally:
         emulator.terminate()

@@ -19,6 +19,7 @@ from evo_door.commands._common import (
     declare_ranges,
 )
 from evo_door.errors import UserError
+from evo_door.render.supervisor import BUDGET, BUDGET_RANGE
 
 ORDER = 60
 
@@ -148,6 +149,20 @@ def register(sub) -> None:
         metavar="N",
         help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
     )
+    p.add_argument(
+        "--supervisor-budget",
+        type=float,
+        metavar="MS",
+        help="a HapticMaster's supervisor takes the force off when the loop has not beaten "
+        f"for this long (ms; default {BUDGET * 1e3:g}; "
+        f"{BUDGET_RANGE[0] * 1e3:g}..{BUDGET_RANGE[1] * 1e3:g})",
+    )
+    p.add_argument(
+        "--no-supervisor",
+        action="store_true",
+        help="render on a HapticMaster without the supervisor process (not recommended: "
+        "a frozen or killed renderer then leaves its last force on the handle)",
+    )
     declare_ranges(p, RANGES)
     p.set_defaults(func=run)
 
@@ -191,6 +206,7 @@ def run(args) -> int:
         raise UserError("a headless run on the simulated device needs --user SCRIPT")
     params = get_model("haptic").load_params(args.params, parse_assignments(args.assignments))
     claim = _claim_log(args, args.log, [params.source])
+    _check_supervisor_options(args)
     device, name = make_device(
         args.device, args.user, params["radius"], args.seed, args.device_damping
     )
@@ -205,6 +221,16 @@ def run(args) -> int:
         friction=args.friction,
         watchdog_misses=args.watchdog_misses,
     )
+    loop.supervisor = _start_supervisor(args, device, loop)
+    try:
+        return _render(loop, args, interactive, name, claim)
+    finally:
+        if loop.supervisor is not None:
+            loop.supervisor.close()
+
+
+def _render(loop, args, interactive: bool, name: str, claim) -> int:
+    """Run the loop (the log's side file, Ctrl-C, the report)."""
     if args.log:  # crash safety: the rows so far go to LOG.h5.partial as they come
         loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
     else:  # nothing will read the early rows: a day's session stays in a few MB
@@ -223,6 +249,55 @@ def run(args) -> int:
         loop.log.close()
         if loop.log.spill_error:
             print(f"evo-door: warning: {loop.log.spill_error}", file=sys.stderr)
+
+
+def _check_supervisor_options(args) -> None:
+    """``--no-supervisor`` and ``--supervisor-budget``: for a real device, not both."""
+    real = args.device.startswith("hapticmaster://")
+    budget = args.supervisor_budget
+    if not real and (args.no_supervisor or budget is not None):
+        flag = "--no-supervisor" if args.no_supervisor else "--supervisor-budget"
+        raise UserError(f"{flag} goes with a hapticmaster:// device (the simulated one has none)")
+    if budget is not None:
+        if args.no_supervisor:
+            raise UserError("--supervisor-budget goes without --no-supervisor")
+        low, high = (b * 1e3 for b in BUDGET_RANGE)
+        if not low <= budget <= high:
+            raise UserError(f"--supervisor-budget {budget:g}: must be in {low:g}..{high:g} ms")
+
+
+def _start_supervisor(args, device, loop):
+    """A real device's supervisor (:mod:`evo_door.render.supervisor`), started, or None.
+
+    The renderer connects first (the device's first connection is the renderer's
+    own), then the supervisor opens its own; a device that refuses it is refused
+    with one line unless ``--no-supervisor``.
+    """
+    if not args.device.startswith("hapticmaster://"):
+        return None  # in-process: nothing could act while the process is frozen
+    if args.no_supervisor:
+        print(
+            "evo-door: warning: --no-supervisor: if this renderer freezes or dies, "
+            "the device keeps its last force on the handle",
+            file=sys.stderr,
+        )
+        loop.log.event(0.0, "supervisor", "none (--no-supervisor)")
+        return None
+    from evo_door.render.supervisor import Supervisor
+
+    budget = BUDGET if args.supervisor_budget is None else args.supervisor_budget / 1e3
+    device.connect()
+    try:
+        supervisor = Supervisor(device.host, device.port, budget).start()
+    except BaseException:
+        device.close()
+        raise
+    loop.log.event(
+        0.0,
+        "supervisor",
+        f"takes the force off after {budget * 1e3:g} ms without a heartbeat; {supervisor.priority}",
+    )
+    return supervisor
 
 
 def _paced(args) -> bool | None:

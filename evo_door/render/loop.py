@@ -367,6 +367,10 @@ class ServoLoop:
         Time (s) the tripped watchdog takes to ramp the force to zero (<= 10 ms).
     friction : str
         Dry-friction law: ``"implicit"`` (default) or the model's ``"tanh"``.
+    supervisor : Supervisor or None
+        The process that takes the force off a real device when the loop stops
+        beating (:class:`~evo_door.render.supervisor.Supervisor`): armed before the
+        first cycle, beaten every cycle, disarmed before the device is stopped.
     """
 
     def __init__(
@@ -382,6 +386,7 @@ class ServoLoop:
         ramp_time: float = 0.008,
         device_name: str = "",
         friction: str = "implicit",
+        supervisor=None,
     ):
         if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
             raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
@@ -408,6 +413,7 @@ class ServoLoop:
         self.realtime = (not self.simulated) if realtime is None else bool(realtime)
         self.log = RenderLog(log_rate, PARAMS)
         self.watchdog = Watchdog(watchdog_misses, ramp_time)
+        self.supervisor = supervisor
         self._lock = threading.Lock()  # guards _pending between the loop and the rest
         self._changing = threading.RLock()  # one change validated at a time
         self._pending = None
@@ -604,6 +610,11 @@ class ServoLoop:
             self._set_vectors()
             self._set_mass()
             t0 = self.t0 = time.perf_counter()
+            sent = t0  # when the last command went (perf_counter, s)
+            stall_limit = (self.watchdog.misses + 1) * T  # a gap this long is a stall
+            sup = self.supervisor
+            if sup is not None:
+                sup.arm()
             while k < n_cycles and not (stop is not None and stop.is_set()):
                 t = k * T
                 if self.realtime:
@@ -631,6 +642,10 @@ class ServoLoop:
                 except Exception as exc:  # a dropped connection, a device error
                     self.watchdog.trip(now, f"device read failed: {exc}")
                     self.log.event(t, "fault", f"device read failed: {exc}")
+                if self.realtime and not self.watchdog.tripped:
+                    sent = self._check_stall(sent, stall_limit)
+                    if self.watchdog.tripped:  # the ramp starts after the stall, not before
+                        now = sent - t0
                 if self.watchdog.tripped:
                     factor = self.watchdog.factor(now)
                     cmd[:] = last * factor
@@ -640,6 +655,8 @@ class ServoLoop:
                     except Exception:  # the connection is gone: nothing more to send
                         factor = 0.0
                     if factor == 0.0:
+                        if self.watchdog.tripped_at == now:  # tripped and ended at once
+                            self.log.event(t, "watchdog", self.watchdog.reason)
                         self.log.add(t, row)
                         break
                 else:
@@ -671,6 +688,8 @@ class ServoLoop:
                     except Exception as exc:  # the connection dropped while sending
                         self.watchdog.trip(now, f"device command failed: {exc}")
                         self.log.event(t, "fault", f"device command failed: {exc}")
+                if sup is not None:
+                    sup.beat()
                 dev.step(T)
                 self.log.add(t, row)
                 timing.worked_for(time.perf_counter() - tic)
@@ -679,7 +698,8 @@ class ServoLoop:
                     self.log.event(t, "watchdog", self.watchdog.reason)
                 k += 1
                 self._k = k
-                if self.realtime and timing.starts == _RECHECK_AFTER:  # cycles run, not slots
+                # cycles run, not slots; not once tripped (a stall's gap is no period)
+                if self.realtime and timing.starts == _RECHECK_AFTER and not self.watchdog.tripped:
                     self._recheck(timing.period_mean(), t)
         except BaseException:
             self.status = "failed"
@@ -691,6 +711,8 @@ class ServoLoop:
             if niceness is not None:
                 self._restore_priority(niceness)
             self.t_end = time.perf_counter()
+            if self.supervisor is not None:  # first: a normal end is no stall
+                self._disarm_supervisor()
             try:
                 dev.stop()
             finally:
@@ -700,6 +722,33 @@ class ServoLoop:
                 # also when the loop raised: an interrupted log keeps its statistics
                 self.statistics = self._stats(k)
         return self.statistics
+
+    def _check_stall(self, sent: float, limit: float) -> float:
+        """Trip the watchdog when the loop stalled (paced loops, before each command).
+
+        A paced loop that was kept from running (SIGSTOP, a blocked read, the machine
+        busy) skips the slots it missed, so a stall of seconds counted as one late
+        cycle and the loop went on from a stale state. Now a gap since the last
+        command longer than ``limit`` (the watchdog's misses plus one periods) ends
+        the render, as does the supervisor having taken the force off. It trips at
+        the time of the check (s after ``t0``): a stall inside the cycle (a read held
+        up) must not use up the ramp. Returns the time of this command
+        (perf_counter), the next call's ``sent``.
+        """
+        tic = time.perf_counter()
+        gap = tic - sent
+        if gap > limit:
+            self.watchdog.trip(tic - self.t0, f"stalled {gap * 1e3:.0f} ms")
+        elif self.supervisor is not None and self.supervisor.latched:
+            self.watchdog.trip(tic - self.t0, "stalled: the supervisor took the force off")
+        return tic
+
+    def _disarm_supervisor(self) -> None:
+        """The loop ends: disarm the supervisor; log what it did, if it did anything."""
+        self.supervisor.disarm()
+        note = self.supervisor.report()
+        if note:
+            self.log.event(self._now, "supervisor", note)
 
     def _end_status(self, stopped: bool) -> str:
         """How a loop that did not raise ended: ``watchdog`` (tripped), ``stopped``
