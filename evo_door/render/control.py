@@ -62,6 +62,8 @@ it little and bounded time and memory. Every refusal below is an answer
 * per connection, :data:`REQUESTS_PER_S` requests a second (bursts of
   :data:`REQUESTS_BURST`) and :data:`EVENTS_PER_S` events of each kind (bursts of
   :data:`EVENTS_BURST`); past that the connection is also read more slowly;
+* all connections together, :data:`SERVER_REQUESTS_PER_S` requests and
+  :data:`BYTES_PER_S` bytes a second: past that a request waits for its turn;
 * at most :data:`MAX_CLIENTS` connections at once: one more is answered with the
   reason and closed; a connection idle for :data:`IDLE_TIMEOUT` s is closed;
 * the log keeps the session events and refused changes up to a cap
@@ -143,9 +145,19 @@ REQUESTS_BURST = 200
 #: session events of one kind a second per connection on average, and at once
 EVENTS_PER_S = 20.0
 EVENTS_BURST = 40
-#: bytes a second a connection is read at most (and at once); past that the server
-#: stops reading it for a while, and TCP slows the sender down
-BYTES_PER_S = 16 * 2**20
+#: requests a second of all connections together, and at once: past that a request
+#: waits for its turn (the connection is read no sooner). Each answer costs the loop's
+#: process little, but every one is a few hand-overs of the interpreter lock, and a
+#: flood of them (1,500 a second from 16 clients) cost a loaded machine's loop 12 % of
+#: its cycles; the console asks about 45 a second
+SERVER_REQUESTS_PER_S = 400.0
+SERVER_REQUESTS_BURST = 100
+#: bytes a second read from all connections together on average, and at once; past
+#: that a connection is not read for a while, and TCP slows its sender down (every
+#: read is a hand-over of the interpreter lock: 90 MB/s of long lines from 16 clients
+#: cost a loaded machine's loop 1.2 % of its cycles)
+BYTES_PER_S = 8 * 2**20
+BYTES_BURST = 16 * 2**20
 #: connections served at once; one more is told why and closed
 MAX_CLIENTS = 16
 #: a connection that sends nothing for this long is closed (s)
@@ -224,12 +236,21 @@ def parse_message(data: bytes | str) -> dict:
 
 
 class RateLimit:
-    """At most ``rate`` a second on average and ``burst`` at once (a token bucket)."""
+    """At most ``rate`` a second on average and ``burst`` at once (a token bucket).
+
+    Not thread-safe: one per client, or a lock around a shared one (:meth:`turn`).
+    """
 
     def __init__(self, rate: float, burst: float, clock=time.monotonic):
         self.rate, self.burst, self._clock = float(rate), float(burst), clock
         self._tokens = self.burst
         self._at = clock()
+        self._lock = threading.Lock()
+
+    def turn(self, amount: float = 1.0) -> float:
+        """:meth:`spend` from any thread: how long (s) to wait for its turn."""
+        with self._lock:
+            return self.spend(amount)
 
     def _refill(self) -> None:
         now = self._clock()
@@ -311,11 +332,12 @@ def _pause(seconds: float) -> None:
 
 class _Handler(socketserver.StreamRequestHandler):
     timeout = IDLE_TIMEOUT
+    rbufsize = 65536  # a long line in few reads, each a hand-over of the interpreter lock
 
     def handle(self) -> None:
         server: ControlServer = self.server.control  # type: ignore[attr-defined]
         limits = ClientLimits(EVENT_KINDS)
-        reading = RateLimit(BYTES_PER_S, BYTES_PER_S)
+        reading = server.reading
         while True:
             try:
                 line = self.rfile.readline(MAX_LINE + 1)
@@ -323,7 +345,8 @@ class _Handler(socketserver.StreamRequestHandler):
                 return
             if not line:
                 return
-            _pause(reading.spend(len(line)))
+            _pause(reading.turn(len(line)))
+            _pause(server.budget.turn())  # all connections together: wait for its turn
             if len(line) > MAX_LINE and not line.endswith(b"\n"):
                 self._send({"ok": False, "error": f"a line takes at most {MAX_LINE} bytes"})
                 if not self._skip_line(reading):
@@ -348,7 +371,7 @@ class _Handler(socketserver.StreamRequestHandler):
                 return False
             if not chunk:
                 return False
-            _pause(reading.spend(len(chunk)))
+            _pause(reading.turn(len(chunk)))
             if chunk.endswith(b"\n"):
                 return True
 
@@ -430,6 +453,8 @@ class ControlServer:
         self._change_lock = threading.Lock()
         self._clients_lock = threading.Lock()
         self.clients = 0  # connections being served
+        self.budget = RateLimit(SERVER_REQUESTS_PER_S, SERVER_REQUESTS_BURST)
+        self.reading = RateLimit(BYTES_PER_S, BYTES_BURST)  # bytes
         cls = _TCPServer
         if ":" in host:
             cls = type("_TCPServer6", (_TCPServer,), {"address_family": socket.AF_INET6})

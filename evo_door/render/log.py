@@ -610,8 +610,11 @@ class _Spill:
                         times, sets = payload
                         text = to_json({"t": times, "values": [list(v) for v in sets]})
                         self._record(tag, text.encode())
-                    else:
-                        self._record(tag, to_json(payload).encode())
+                    else:  # events one by one: one json.dumps of a list of many
+                        # session events (16 kB each) held the interpreter lock, which
+                        # the servo loop waits for, for milliseconds
+                        text = "[" + ",".join(to_json(e) for e in payload) + "]"
+                        self._record(tag, text.encode())
                     self._file.flush()
                     if tag == b"ROWS":
                         os.fsync(self._file.fileno())
