@@ -292,7 +292,7 @@ def main(argv=None) -> int:
         "deep, a 200 kB line, binary garbage) as fast as the answers come, and connecting "
         "again a second after a refusal or a drop. Answers are counted by kind: served, "
         "refused for a rate, for the cap of connections, for the log's cap of session "
-        "events, for the input itself. Events kept / dropped are the log's (all of its "
+        "events, for the input itself. Events kept / dropped are the log's (its session "
         "events; dropped: its `dropped` event's count). The memory is the renderer's "
         "resident set, its peak minus the figure when its port first answered.",
         "",

@@ -388,7 +388,10 @@ def test_absurd_input_is_answered_and_the_connection_goes_on(running, line, reas
     and binary garbage each ended in a traceback (the integer's float() overflowed, the
     nesting a RecursionError) or a closed connection (the long line): each is now one
     answer with ok false and the reason, and the same connection then answers."""
+    from evo_door.render.control import RateLimit
+
     loop, server = running
+    server.reading = RateLimit(1e9, 1e9)  # the 10 MB line at once, past the byte budget
     before = loop.params.as_dict()
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(line + b"\n" + PARAMS_REQUEST)
@@ -467,9 +470,10 @@ def test_a_connection_over_the_cap_is_told_why_and_closed(running):
 
 
 def test_requests_past_the_rate_are_refused_and_the_connection_slowed(running):
-    from evo_door.render.control import REQUESTS_BURST, REQUESTS_PER_S
+    from evo_door.render.control import REQUESTS_BURST, REQUESTS_PER_S, RateLimit
 
     loop, server = running
+    server.budget = RateLimit(1e6, 1e6)  # the connection's own limit, not all of them
     n = REQUESTS_BURST + 150
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b'{"token": "s3cret", "get": "health"}\n' * n)
@@ -491,9 +495,10 @@ def _note(i) -> bytes:
 
 
 def test_events_past_the_rate_of_their_kind_are_refused_and_not_logged(running):
-    from evo_door.render.control import EVENTS_BURST, EVENTS_PER_S
+    from evo_door.render.control import EVENTS_BURST, EVENTS_PER_S, RateLimit
 
     loop, server = running
+    server.budget = RateLimit(1e6, 1e6)  # the kind's own limit, not all connections'
     n = EVENTS_BURST + 30
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b"\n".join(_note(i) for i in range(n)) + b"\n")

@@ -153,11 +153,11 @@ EVENTS_BURST = 40
 SERVER_REQUESTS_PER_S = 400.0
 SERVER_REQUESTS_BURST = 100
 #: bytes a second read from all connections together on average, and at once; past
-#: that a connection is not read for a while, and TCP slows its sender down (every
-#: read is a hand-over of the interpreter lock: 90 MB/s of long lines from 16 clients
-#: cost a loaded machine's loop 1.2 % of its cycles)
-BYTES_PER_S = 8 * 2**20
-BYTES_BURST = 16 * 2**20
+#: that a connection is not read for a while, and TCP slows its sender down. Reading,
+#: scanning and parsing cost in proportion (90 MB/s of long lines from 16 clients cost
+#: a loaded machine's loop 1.2 % of its cycles); a console sends a few kB a second
+BYTES_PER_S = 2 * 2**20
+BYTES_BURST = 4 * 2**20
 #: connections served at once; one more is told why and closed
 MAX_CLIENTS = 16
 #: a connection that sends nothing for this long is closed (s)
@@ -393,6 +393,8 @@ class _TCPServer(socketserver.ThreadingTCPServer):
         """Serve the connection in its own thread, or refuse it (at the cap) here: a
         line with the reason and closed, without a thread."""
         if not self.control._admit():
+            # a refusal costs as much as an answer: it waits its turn in the budget
+            _pause(self.control.budget.turn())
             _refuse_connection(request)
             self.shutdown_request(request)
             return
