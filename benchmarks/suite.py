@@ -35,6 +35,9 @@ Sections (``--only``):
     against the virtual door's truth where the trials carry it, the perceptual check
     (``bench_casestudy.py``); a measured run (not ``--quick``) also replaces
     ``benchmarks/casestudy.md``, the figures README and ``docs/case-study.md`` quote.
+``control``
+    the servo loop's cycles on time with 200 clients flooding the control port, the
+    renderer's memory growth and its log's session events (``bench_control.py``).
 
 A ratio is the plain (or reference) way's value divided by the workbench's: how many
 times faster the workbench is. ``--compare OLD.json [NEW.json]`` prints new / old per
@@ -64,7 +67,7 @@ if str(ROOT) not in sys.path:
 
 from evo_door.errors import UserError  # noqa: E402
 
-SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy")
+SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy", "control")
 DEFAULT_OUT = HERE / "results"
 
 #: targets (issue 16): one 5 s door trial on one thread; commands that do not simulate
@@ -851,6 +854,71 @@ def section_casestudy(suite: Suite) -> None:
     )
 
 
+# -- section: control port under a flood -----------------------------------------------
+def section_control(suite: Suite) -> None:
+    """The servo loop with 200 clients flooding its control port (issue 24)."""
+    import tempfile
+
+    from benchmarks.bench_control import CLIENTS, RSS_TARGET_MIB, flood_run
+    from evo_door.render.log import MAX_CLIENT_EVENTS
+
+    seconds = 4.0 if suite.quick else 20.0
+    with tempfile.TemporaryDirectory() as tmp:
+        alone = flood_run(seconds, 0, Path(tmp))
+        s = flood_run(seconds, CLIENTS, Path(tmp))
+    suite.add(
+        "control.alone.on_time",
+        "control",
+        f"servo loop, {seconds:g} s, no client: cycles on time",
+        alone["on_time_fraction"] * 100,
+        "%",
+    )
+    suite.add(
+        "control.flood.on_time",
+        "control",
+        f"servo loop, {seconds:g} s, {CLIENTS} clients flooding the control port: cycles on time",
+        s["on_time_fraction"] * 100,
+        "%",
+        target_text=">= 99.9 %",
+        met=s["on_time_fraction"] >= ON_TIME_TARGET,
+    )
+    suite.add(
+        "control.flood.memory_growth",
+        "control",
+        "flood: the renderer's resident memory growth",
+        s["rss_growth_mib"],
+        "MiB",
+        target_text=f"<= {RSS_TARGET_MIB:g} MiB",
+        met=s["rss_growth_mib"] <= RSS_TARGET_MIB,
+    )
+    suite.add(
+        "control.flood.events_kept",
+        "control",
+        "flood: session events the log kept",
+        s["events_kept"],
+        "1",
+        target_text=f"<= {MAX_CLIENT_EVENTS}",
+        met=s["events_kept"] <= MAX_CLIENT_EVENTS,
+    )
+    suite.add(
+        "control.flood.events_dropped",
+        "control",
+        "flood: events dropped, counted",
+        s["events_dropped"],
+        "1",
+    )
+    suite.add("control.flood.log_size", "control", "flood: the log's size", s["log_mib"], "MiB")
+    for kind in ("ok", "refused_rate", "refused_client_cap", "refused_log_cap", "refused_input"):
+        suite.add(f"control.flood.{kind}", "control", f"flood: answers {kind}", s[kind], "1")
+    suite.tables["control"] = (
+        f"`evo-door render --params seed_trial --device sim --user swing --realtime` for "
+        f"{seconds:g} s in its own process with `--control`, alone and with {CLIENTS} "
+        "clients flooding the port (session events of 16 kB, absurd lines; "
+        "`bench_control.py`).\n\n"
+        + _generic_table([m for m in suite.metrics if m.section == "control"])
+    )
+
+
 RUNNERS = {
     "trial": section_trial,
     "ga": section_ga,
@@ -859,6 +927,7 @@ RUNNERS = {
     "device": section_device,
     "startup": section_startup,
     "casestudy": section_casestudy,
+    "control": section_control,
 }
 
 

@@ -45,6 +45,9 @@ REQUIRED = (
     "casestudy.latch.unlock_force.error",
     "casestudy.redesign.fitness",
     "casestudy.perceptual.opening",
+    "control.flood.on_time",
+    "control.flood.memory_growth",
+    "control.flood.events_kept",
 )
 
 
@@ -96,13 +99,43 @@ def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
     # the compiled door trial agrees with Radau (the quick reference is loose)
     assert metrics["trial.door.workbench.error_theta"]["value"] < 1e-3
     # every section announced its progress, the table was printed
-    for section in ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy"):
+    for section in (
+        "trial",
+        "ga",
+        "scaling",
+        "executors",
+        "device",
+        "startup",
+        "casestudy",
+        "control",
+    ):
         assert f"{section} done in" in done.stderr
     assert "## Targets" in done.stdout
     # and a run compares with it
     again = bench("--compare", str(js), str(js))
     assert again.returncode == 0, again.stderr
     assert "trial.door.workbench" in again.stdout and "1.000" in again.stdout
+
+
+@pytest.mark.slow
+def test_control_section_floods_a_render_and_reads_its_log(tmp_path):
+    """The control section's code path: a render in its own process, 200 clients, the
+    figures from its log; each limit was met by the flood (it refused something of
+    each kind) and the log kept its session events within the cap."""
+    done = bench("--quick", "--only", "control", "--out", str(tmp_path), timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (js,) = tmp_path.glob("suite-*.json")
+    metrics = {m["name"]: m for m in json.loads(js.read_text())["metrics"]}
+    flood = metrics["control.flood.on_time"]
+    assert flood["target"] is None and flood["target_text"] == ">= 99.9 %"
+    assert isinstance(flood["met"], bool) and 0 < flood["value"] <= 100
+    assert 0 < metrics["control.alone.on_time"]["value"] <= 100
+    for kind in ("ok", "refused_client_cap", "refused_log_cap", "refused_input"):
+        assert metrics[f"control.flood.{kind}"]["value"] > 0, kind
+    assert 0 < metrics["control.flood.events_kept"]["value"] <= 10_000
+    assert metrics["control.flood.events_kept"]["met"] is True
+    assert metrics["control.flood.events_dropped"]["value"] > 0
+    assert "## control" in done.stdout and "control done in" in done.stderr
 
 
 def test_compare_prints_new_over_old_per_metric(tmp_path):

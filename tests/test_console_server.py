@@ -267,7 +267,7 @@ def test_ticks_carry_the_log_rows_at_100_hz(console, renderer):
     "values, reason",
     [
         ({"friction_closing": 500.0}, "outside its declared range"),
-        ({"friction_closing": float("nan")}, "outside its declared range"),
+        ({"friction_closing": None}, "not a number"),
         ({"friction_closing": True}, "not a number"),
         ({"k_radial": 10.0}, "not a sensation parameter"),
         ({"no_such_thing": 1.0}, "not a sensation parameter"),
@@ -282,8 +282,7 @@ def test_refused_values_change_nothing_and_say_why(console, renderer, values, re
 
     async def scenario(session):
         async with _page(console, session) as ws:
-            text = json.dumps({"type": "set", "values": values})  # NaN as JavaScript can't
-            await ws.send_str(text)
+            await ws.send_str(json.dumps({"type": "set", "values": values}))
             return await _next(ws, "refused")
 
     refused = _session(scenario)
@@ -521,3 +520,135 @@ def test_render_console_spawns_the_console_and_stops_it(tmp_path):
         proc.kill()
     with pytest.raises(OSError):
         urllib.request.urlopen(f"{base}api/declaration?{query}", timeout=2)
+
+
+# -- bounded input (the control port's rules on the WebSocket) ----------------------------
+async def _answer_then_usable(ws, send):
+    """Send something absurd, take its error, then check the same socket still works."""
+    await _next(ws, "hello")
+    await send(ws)
+    error = await _next(ws, "error", timeout=30.0)
+    await ws.send_json({"type": "participant", "id": "P42"})
+    return error, await _next(ws, "participant", timeout=30.0)
+
+
+ABSURD = {
+    "int400": ('{"type": "set", "values": {"open_force": ' + "7" * 400 + "}}", "400 digits"),
+    "1e400": ('{"type": "set", "values": {"open_force": 1e400}}', "beyond a 64-bit float"),
+    "nan": ('{"type": "set", "values": {"open_force": NaN}}', "NaN is not a number"),
+    "inf": ('{"type": "set", "values": {"open_force": Infinity}}', "Infinity is not"),
+    "deep": ("[" * 30_000 + "]" * 30_000, "arrays and objects"),
+    "values": ('{"type": "x", "v": [' + "0," * 5000 + "0]}", "at most 256 values"),
+    "10MB": ('{"type": "note", "text": "' + "x" * 10 * 2**20 + '"}', "at most 65536 bytes"),
+    "binary": (bytes(range(256)) * 4, "binary WebSocket messages are not read"),
+    "not-json": ("{'type': 'set'}", "not a JSON object"),
+}
+
+
+@pytest.mark.parametrize("name", list(ABSURD))
+def test_absurd_page_messages_are_answered_and_the_socket_goes_on(console, renderer, name):
+    """The console parses a page's messages with the control port's function and
+    bounds (a 400-digit integer ended in an OverflowError, 30,000 deep in a
+    RecursionError, 64 KiB in a socket closed by aiohttp): each is an error with ok
+    false and the reason, and the same socket then does what a page asks."""
+    loop, _ = renderer
+    before = loop.params.as_dict()
+    data, reason = ABSURD[name]
+
+    async def send(ws):
+        if isinstance(data, bytes):
+            await ws.send_bytes(data)
+        else:
+            await ws.send_str(data)
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            return await _answer_then_usable(ws, send)
+
+    error, participant = _session(scenario)
+    assert error["ok"] is False and reason in error["error"], error
+    assert participant["id"] == "P42"
+    assert loop.params.as_dict() == before
+
+
+def test_pages_over_the_cap_are_told_why_and_closed(console):
+    cap = console_server.MAX_PAGES
+
+    async def scenario(session):
+        pages = []
+        try:
+            for _ in range(cap):
+                ws = await _page(console, session)
+                pages.append(ws)
+                await _next(ws, "hello")
+            extra = await _page(console, session)
+            error = await extra.receive_json(timeout=10)
+            closed = await extra.receive(timeout=10)
+            await extra.close()
+            await pages.pop().close()  # one leaves: a new page is served
+            await asyncio.sleep(0.2)
+            async with _page(console, session) as again:
+                hello = await _next(again, "hello")
+            return error, closed, extra.close_code, hello
+        finally:
+            for ws in pages:
+                await ws.close()
+
+    error, closed, code, hello = _session(scenario)
+    assert error == {
+        "type": "error",
+        "ok": False,
+        "error": f"the console serves at most {cap} pages at once: close one, then reload",
+    }
+    assert closed.type == aiohttp.WSMsgType.CLOSE and code == 1013  # try again later
+    assert hello["type"] == "hello"
+
+
+def test_page_messages_past_their_rate_are_refused(console, renderer):
+    """A page that floods one message type gets refusals with the reason, other types
+    still go through, and a flood of sets reaches the renderer only within the rate."""
+    loop, _ = renderer
+    burst = console_server.PAGE_KIND_BURST
+    n = burst + 20
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            await _next(ws, "hello")
+            for i in range(n):  # no renderer request: only the console's limits
+                await ws.send_json({"type": "ab_blind", "blind": bool(i % 2)})
+            replies = []
+            while len(replies) < n:
+                msg = await ws.receive_json(timeout=10)
+                if msg["type"] in ("ab", "error"):
+                    replies.append(msg)
+            await ws.send_json({"type": "participant", "id": "P9"})
+            return replies, await _next(ws, "participant")
+
+    replies, participant = _session(scenario)
+    errors = [r for r in replies if r["type"] == "error"]
+    assert errors and len(replies) - len(errors) >= burst
+    assert errors[0] == {
+        "type": "error",
+        "ok": False,
+        "error": f"more than {console_server.PAGE_KIND_PER_S:g} messages of type 'ab_blind' "
+        f"a second (bursts of {burst}): slow down",
+    }
+    assert participant["id"] == "P9"
+
+
+def test_a_set_refused_for_its_rate_is_a_refused_message(console, renderer):
+    """The page resets its sliders on ``refused``: a set over the rate must say so as
+    one, with the values it asked for."""
+    loop, _ = renderer
+    n = console_server.PAGE_KIND_BURST + 10
+
+    async def scenario(session):
+        async with _page(console, session) as ws:
+            await _next(ws, "hello")
+            for i in range(n):
+                await ws.send_json({"type": "set", "values": {"open_force": 20.0 + i % 2}})
+            return await _next(ws, "refused", timeout=30.0)
+
+    refused = _session(scenario)
+    assert refused["ok"] is False and "messages of type 'set'" in refused["error"]
+    assert refused["values"]["open_force"] in (20.0, 21.0)

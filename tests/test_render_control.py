@@ -344,3 +344,242 @@ def test_a_paced_loop_leaves_the_control_port_served(seed_trial):
     # (loaded machines: tens of ms)
     assert waits[len(waits) // 2] < 0.1  # s: the median answer
     assert waits[-3] < 0.5  # s: all but the two slowest
+
+
+# -- bounded input (the control port's limits) ------------------------------------------
+def _lines(sock, n, timeout=30.0):
+    """The next ``n`` answer lines on ``sock`` (JSON objects)."""
+    sock.settimeout(timeout)
+    data = b""
+    while data.count(b"\n") < n:
+        chunk = sock.recv(65536)
+        if not chunk:
+            break
+        data += chunk
+    return [json.loads(x) for x in data.splitlines()]
+
+
+PARAMS_REQUEST = b'{"token": "s3cret", "get": "params"}\n'
+
+
+def _garbage() -> bytes:
+    """Binary garbage on one line: every byte but the newline, invalid UTF-8 included."""
+    return bytes(b for b in range(256) if b != 10) * 3
+
+
+@pytest.mark.parametrize(
+    "line, reason",
+    [
+        (b'{"token": "s3cret", "get": "rows", "since": ' + b"7" * 400 + b"}", "400 digits"),
+        (b'{"token": "s3cret", "set": {"open_force": ' + b"7" * 400 + b"}}", "400 digits"),
+        (b'{"token": "s3cret", "set": {"friction_closing": 1e400}}', "beyond a 64-bit float"),
+        (b'{"token": "s3cret", "set": {"friction_closing": NaN}}', "NaN is not a number"),
+        (b'{"token": "s3cret", "set": {"friction_closing": Infinity}}', "Infinity is not"),
+        (b'{"token": "s3cret", "set": {"friction_closing": -Infinity}}', "Infinity is not"),
+        (b"[" * 30_000 + b"]" * 30_000, "arrays and objects"),
+        (b'{"token": "s3cret", "get": [' + b"0," * 5000 + b"0]}", "at most 256 values"),
+        (b'{"token": "s3cret", "note": "' + b"x" * 10 * 2**20 + b'"}', "at most 65536 bytes"),
+        (_garbage(), ""),
+    ],
+    ids=["int400", "int400-set", "1e400", "nan", "inf", "-inf", "deep", "values", "10MB", "binary"],
+)
+def test_absurd_input_is_answered_and_the_connection_goes_on(running, line, reason):
+    """A 400-digit integer, 1e400, NaN and Infinity, nesting 30,000 deep, a 10 MB line
+    and binary garbage each ended in a traceback (the integer's float() overflowed, the
+    nesting a RecursionError) or a closed connection (the long line): each is now one
+    answer with ok false and the reason, and the same connection then answers."""
+    from evo_door.render.control import RateLimit
+
+    loop, server = running
+    server.reading = RateLimit(1e9, 1e9)  # the 10 MB line at once, past the byte budget
+    before = loop.params.as_dict()
+    with socket.create_connection(server.address, timeout=30) as sock:
+        sock.sendall(line + b"\n" + PARAMS_REQUEST)
+        refused, answered = _lines(sock, 2)
+    assert refused["ok"] is False and reason in refused["error"], refused
+    assert "\n" not in refused["error"] and len(refused["error"]) < 200
+    assert answered["ok"] and answered["params"] == before
+    assert loop.params.as_dict() == before and loop.status == "running"
+
+
+def test_a_long_line_is_answered_at_once_and_the_stream_resynchronised(running):
+    """The refusal of a line too long comes as soon as it is seen (the client may wait
+    for it before it sends the newline); what follows the newline is served."""
+    loop, server = running
+    with socket.create_connection(server.address, timeout=30) as sock:
+        sock.sendall(b"{" + b" " * 200_000)
+        (refused,) = _lines(sock, 1)
+        assert not refused["ok"] and "at most 65536 bytes" in refused["error"]
+        sock.sendall(b'"still": "the same line"}\n' + PARAMS_REQUEST)  # the newline
+        (answered,) = _lines(sock, 1)
+    assert answered["ok"] and "friction_closing" in answered["params"]
+
+
+def test_parse_message_takes_what_the_protocol_needs():
+    from evo_door.render.control import BadMessage, parse_message
+
+    whole = {"event": {"kind": "chosen", "params": {p.name: p.default for p in PARAMS}}}
+    assert parse_message(json.dumps(whole).encode()) == whole
+    assert parse_message('{"since": -12345678901234567890, "x": 1.5e300}') == {
+        "since": -12345678901234567890,
+        "x": 1.5e300,
+    }
+    with pytest.raises(BadMessage, match="21 digits"):
+        parse_message('{"since": 123456789012345678901}')
+    with pytest.raises(BadMessage, match="not a JSON object"):
+        parse_message("[1, 2]")
+
+
+def test_a_connection_over_the_cap_is_told_why_and_closed(running):
+    from evo_door.render.control import MAX_CLIENTS
+
+    loop, server = running
+    held = []
+    try:
+        for _ in range(MAX_CLIENTS):
+            sock = socket.create_connection(server.address, timeout=30)
+            held.append(sock)
+            sock.sendall(PARAMS_REQUEST)
+            assert _lines(sock, 1)[0]["ok"]  # served: counted
+        with socket.create_connection(server.address, timeout=30) as extra:
+            extra.sendall(PARAMS_REQUEST)  # sent before the refusal: still told why
+            answers = _lines(extra, 2)
+            assert extra.recv(1) == b""  # then closed
+        (refused,) = answers
+        assert refused == {
+            "ok": False,
+            "error": f"the control port serves at most {MAX_CLIENTS} connections at once: "
+            "try again when one has closed",
+        }
+        held[0].sendall(PARAMS_REQUEST)  # the ones served go on
+        assert _lines(held[0], 1)[0]["ok"]
+        held.pop().close()  # one leaves: a new one is served
+        deadline = time.monotonic() + 10.0
+        while True:
+            with socket.create_connection(server.address, timeout=30) as again:
+                again.sendall(PARAMS_REQUEST)
+                answer = _lines(again, 1)[0]
+            if answer["ok"] or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        assert answer["ok"], answer
+    finally:
+        for sock in held:
+            sock.close()
+    assert server.clients <= MAX_CLIENTS
+
+
+def test_requests_past_the_rate_are_refused_and_the_connection_slowed(running):
+    from evo_door.render.control import REQUESTS_BURST, REQUESTS_PER_S, RateLimit
+
+    loop, server = running
+    server.budget = RateLimit(1e6, 1e6)  # the connection's own limit, not all of them
+    n = REQUESTS_BURST + 150
+    with socket.create_connection(server.address, timeout=30) as sock:
+        sock.sendall(b'{"token": "s3cret", "get": "health"}\n' * n)
+        answers = _lines(sock, n)
+        refused = [a for a in answers if not a["ok"]]
+        assert len(answers) == n and all(a["ok"] for a in answers[:REQUESTS_BURST])
+        assert refused, "a burst of 350 requests at once was all served"
+        assert refused[0]["error"] == (
+            f"more than {REQUESTS_PER_S:g} requests a second on this connection "
+            f"(bursts of {REQUESTS_BURST}): slow down"
+        )
+        time.sleep(0.5)
+        sock.sendall(PARAMS_REQUEST)
+        assert _lines(sock, 1)[0]["ok"]  # the same connection, later
+
+
+def _note(i) -> bytes:
+    return json.dumps({"token": "s3cret", "event": {"kind": "note", "text": f"n{i}"}}).encode()
+
+
+def test_events_past_the_rate_of_their_kind_are_refused_and_not_logged(running):
+    from evo_door.render.control import EVENTS_BURST, EVENTS_PER_S, RateLimit
+
+    loop, server = running
+    server.budget = RateLimit(1e6, 1e6)  # the kind's own limit, not all connections'
+    n = EVENTS_BURST + 30
+    with socket.create_connection(server.address, timeout=30) as sock:
+        sock.sendall(b"\n".join(_note(i) for i in range(n)) + b"\n")
+        answers = _lines(sock, n)
+        # another kind has its own budget
+        other = {"token": "s3cret", "event": {"kind": "participant", "id": "P1"}}
+        sock.sendall(json.dumps(other).encode() + b"\n")
+        (participant,) = _lines(sock, 1)
+    ok = [a for a in answers if a["ok"]]
+    refused = [a for a in answers if not a["ok"]]
+    assert EVENTS_BURST <= len(ok) < n and refused
+    assert refused[0]["error"] == (
+        f"more than {EVENTS_PER_S:g} events of kind 'note' a second "
+        f"(bursts of {EVENTS_BURST}): slow down"
+    )
+    notes = [e["text"] for e in loop.log.events if e["kind"] == "note"]
+    assert len(notes) == len(ok)  # what was refused is not in the log
+    assert participant["ok"]
+
+
+def test_the_log_keeps_client_events_up_to_its_cap_and_counts_the_rest(running, monkeypatch):
+    """5,000 session events of 16 kB grew the renderer by 118 MB and its log to 164 MB:
+    past the cap an event is answered ok false, the connection goes on, and the log
+    says once how many it dropped."""
+    from evo_door.render import log as render_log
+
+    loop, server = running
+    monkeypatch.setattr(render_log, "MAX_CLIENT_EVENTS", 5)
+    with socket.create_connection(server.address, timeout=30) as sock:
+        sock.sendall(b"\n".join(_note(i) for i in range(8)) + b"\n" + PARAMS_REQUEST)
+        answers = _lines(sock, 9)
+    assert [a["ok"] for a in answers] == [True] * 5 + [False] * 3 + [True]
+    assert "cap of session events (5 events or 4 MiB)" in answers[5]["error"]
+    assert [e["text"] for e in loop.log.events if e["kind"] == "note"] == [
+        f"n{i}" for i in range(5)
+    ]
+    (dropped,) = [e for e in loop.log.events if e["kind"] == "dropped"]
+    assert dropped["count"] == 3 and "not kept" in dropped["message"]
+    # refused changes are client events too
+    with pytest.raises(UserError):
+        loop.request_change({"friction_closing": 1e9})
+    assert dropped["count"] == 4 and not any(e["kind"] == "refused" for e in loop.log.events)
+
+
+def test_a_flood_of_large_events_leaves_memory_and_the_log_bounded(seed_trial, tmp_path):
+    """The tester's flood, 5,000 events of 16 kB, against the log itself: what is kept
+    stays within the cap in count and bytes, and so does the written log."""
+    from evo_door.render.log import MAX_CLIENT_BYTES, MAX_CLIENT_EVENTS
+
+    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial)
+    loop.run(0.05)
+    text = "x" * 16_000
+    kept = sum(loop.log.client_event(0.01, "note", "session: note", text=text) for _ in range(5000))
+    assert kept * 16_000 <= MAX_CLIENT_BYTES < (kept + 1) * 16_100 and kept < MAX_CLIENT_EVENTS
+    assert loop.log.client_bytes <= MAX_CLIENT_BYTES and loop.log.dropped == 5000 - kept
+    assert len(loop.log.events) < kept + 10  # the loop's own few, one "dropped"
+    path = tmp_path / "flood.h5"
+    loop.write_log(path)
+    # the events are stored twice (/render and /session): the log stays near twice the cap
+    assert path.stat().st_size < 2 * MAX_CLIENT_BYTES + 2**20
+    assert len(read_session(path)["events"]) == kept
+
+
+def test_all_connections_together_wait_their_turn(running):
+    """A flood of cheap requests from 16 clients (1,500 answers a second) cost a loaded
+    machine's loop 12 % of its cycles: past the server-wide budget a request waits (the
+    connection is not read meanwhile), whoever sends it. A small budget here: 120
+    requests from three connections at 50 a second, 10 at once, take over 2 s."""
+    from evo_door.render.control import RateLimit
+
+    loop, server = running
+    server.budget = RateLimit(50.0, 10)
+    socks = [socket.create_connection(server.address, timeout=30) for _ in range(3)]
+    try:
+        tic = time.monotonic()
+        for sock in socks:
+            sock.sendall(b'{"token": "s3cret", "get": "health"}\n' * 40)
+        answers = [a for sock in socks for a in _lines(sock, 40)]
+        elapsed = time.monotonic() - tic
+    finally:
+        for sock in socks:
+            sock.close()
+    assert len(answers) == 120 and all(a["ok"] for a in answers)  # waited, not refused
+    assert elapsed > (120 - 10) / 50.0 * 0.95

@@ -7,8 +7,9 @@ Binding. The server binds to 127.0.0.1 unless told otherwise (``--control HOST:P
 any address that is not a loopback one requires a token (``--token T``), else the
 server refuses to start. With a token, every request must carry it.
 
-Protocol. A TCP stream of lines, UTF-8, one JSON object per line (at most 64 KiB), one
-answer line per request, in order; a connection may send any number of requests.
+Protocol. A TCP stream of lines, UTF-8, one JSON object per line, one answer line per
+request, in order; a connection may send any number of requests, within the limits
+below (:func:`parse_message`, :class:`ClientLimits`).
 
 Requests::
 
@@ -48,10 +49,31 @@ force whole between two cycles, or is refused and the set in force stays as it w
 to 0.5 s; a loop that is not running yet applies it at its first cycle). The log
 records every set with its time. ``applied`` holds the values after any clamp
 (``--clamp``). Changes are serialised: two clients never interleave one.
+
+Limits. The renderer's process runs the servo loop; whatever a client sends must cost
+it little and bounded time and memory. Every refusal below is an answer
+``{"ok": false, "error": ...}`` with the reason, and the connection goes on:
+
+* a line of at most :data:`MAX_LINE` bytes (a longer one is answered once and skipped
+  to its newline), at most :data:`MAX_ITEMS` values and :data:`MAX_CONTAINERS` arrays
+  or objects, integers of at most :data:`MAX_DIGITS` digits, finite numbers (no NaN,
+  Infinity or 1e400): :func:`parse_message`, which the web console uses for its
+  WebSocket too;
+* per connection, :data:`REQUESTS_PER_S` requests a second (bursts of
+  :data:`REQUESTS_BURST`) and :data:`EVENTS_PER_S` events of each kind (bursts of
+  :data:`EVENTS_BURST`); past that the connection is also read more slowly;
+* all connections together, :data:`SERVER_REQUESTS_PER_S` requests and
+  :data:`BYTES_PER_S` bytes a second: past that a request waits for its turn;
+* at most :data:`MAX_CLIENTS` connections at once: one more is answered with the
+  reason and closed; a connection idle for :data:`IDLE_TIMEOUT` s is closed;
+* the log keeps the session events and refused changes up to a cap
+  (:data:`~evo_door.render.log.MAX_CLIENT_EVENTS`, :data:`~evo_door.render.log.MAX_CLIENT_BYTES`);
+  one past it is answered ``ok: false`` and counted in the log's ``dropped`` event.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hmac
 import ipaddress
 import json
@@ -67,8 +89,6 @@ from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
 from evo_door.render.log import COLUMNS
 
-#: the longest request line (bytes)
-MAX_LINE = 65536
 #: how long a change request waits to see the loop apply it (s)
 APPLY_WAIT = 0.5
 
@@ -104,25 +124,256 @@ def _finite(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
+# -- bounded input: the control port's rules, which the console's WebSocket shares --------
+#: the longest message: a request line, a page's WebSocket message (bytes)
+MAX_LINE = 65536
+#: values in one message at most (its commas and colons). json.loads builds them all in
+#: one C call that holds the interpreter lock while the servo loop waits for it (16 KiB
+#: of small numbers took 0.44 ms on a loaded 2-core machine, more than a 2500 Hz
+#: period); the largest request (a whole parameter set) has about 80
+MAX_ITEMS = 256
+#: arrays and objects in one message at most, nested or not (a request has 2 or 3): it
+#: bounds the nesting before json.loads recurses (30,000 deep raised RecursionError)
+MAX_CONTAINERS = 32
+#: digits of an integer at most (int() of a long digit string takes quadratic time, and
+#: float() of a 400-digit one overflows)
+MAX_DIGITS = 20
+#: requests a second per connection on average, and at once; a console asks about 45
+#: a second, plus two or three per operator action
+REQUESTS_PER_S = 200.0
+REQUESTS_BURST = 200
+#: session events of one kind a second per connection on average, and at once
+EVENTS_PER_S = 20.0
+EVENTS_BURST = 40
+#: requests a second of all connections together, and at once: past that a request
+#: waits for its turn (the connection is read no sooner). Each answer costs the loop's
+#: process little, but every one is a few hand-overs of the interpreter lock, and a
+#: flood of them (1,500 a second from 16 clients) cost a loaded machine's loop 12 % of
+#: its cycles; the console asks about 45 a second
+SERVER_REQUESTS_PER_S = 400.0
+SERVER_REQUESTS_BURST = 100
+#: bytes a second read from all connections together on average, and at once; past
+#: that a connection is not read for a while, and TCP slows its sender down. Reading,
+#: scanning and parsing cost in proportion (90 MB/s of long lines from 16 clients cost
+#: a loaded machine's loop 1.2 % of its cycles); a console sends a few kB a second
+BYTES_PER_S = 2 * 2**20
+BYTES_BURST = 4 * 2**20
+#: connections served at once; one more is told why and closed
+MAX_CLIENTS = 16
+#: a connection that sends nothing for this long is closed (s)
+IDLE_TIMEOUT = 60.0
+
+
+class BadMessage(ValueError):
+    """A message refused unread or half read; the reason on one line."""
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text) - text.startswith("-")
+    if digits > MAX_DIGITS:
+        raise BadMessage(f"an integer of {digits} digits: at most {MAX_DIGITS}")
+    return int(text)
+
+
+def _finite_float(text: str) -> float:
+    x = float(text)
+    if not math.isfinite(x):
+        shown = text if len(text) <= 24 else text[:20] + "..."
+        raise BadMessage(f"the number {shown} is beyond a 64-bit float")
+    return x
+
+
+def _no_constant(name: str):
+    raise BadMessage(f"{name} is not a number: give a finite one")
+
+
+_DECODER = json.JSONDecoder(
+    parse_int=_bounded_int, parse_float=_finite_float, parse_constant=_no_constant
+)
+
+
+def parse_message(data: bytes | str) -> dict:
+    """One client message (a control-port line, a console page's WebSocket text) as a
+    JSON object, read within bounds; a :class:`BadMessage` with the reason otherwise.
+
+    The size, the count of values and of arrays and objects are checked on the raw text
+    (``bytes.count``, microseconds) before anything is built, so a message costs the
+    process at most tens of microseconds of the interpreter lock; the numbers are read
+    with bounds as they are parsed (:data:`MAX_DIGITS`, finite floats, no NaN or
+    Infinity). Commas, colons and brackets inside strings count too: a text with more
+    than a few hundred of them is refused, which no request of the protocol needs.
+    """
+    if isinstance(data, str):  # a WebSocket's text: at least one byte per character
+        if len(data) > MAX_LINE:
+            raise BadMessage(f"a message takes at most {MAX_LINE} bytes, this one more")
+        data = data.encode("utf-8", "surrogatepass")
+    if len(data) > MAX_LINE:
+        raise BadMessage(f"a message takes at most {MAX_LINE} bytes, this one {len(data)}")
+    items = data.count(b",") + data.count(b":")
+    if items > MAX_ITEMS:
+        raise BadMessage(f"a message holds at most {MAX_ITEMS} values, this one {items}")
+    containers = data.count(b"{") + data.count(b"[")
+    if containers > MAX_CONTAINERS:
+        raise BadMessage(
+            f"a message holds at most {MAX_CONTAINERS} arrays and objects, nested or not; "
+            f"this one {containers}"
+        )
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise BadMessage("not UTF-8 text: send one JSON object per line") from None
+    try:
+        message = _DECODER.decode(text)
+    except json.JSONDecodeError as exc:
+        raise BadMessage(
+            f"not a JSON object on one line ({exc.msg}, character {exc.pos})"
+        ) from None
+    except RecursionError:  # unreachable within MAX_CONTAINERS; kept as a last guard
+        raise BadMessage("nested too deep") from None
+    if not isinstance(message, dict):
+        raise BadMessage("not a JSON object on one line")
+    return message
+
+
+class RateLimit:
+    """At most ``rate`` a second on average and ``burst`` at once (a token bucket).
+
+    Not thread-safe: one per client, or a lock around a shared one (:meth:`turn`).
+    """
+
+    def __init__(self, rate: float, burst: float, clock=time.monotonic):
+        self.rate, self.burst, self._clock = float(rate), float(burst), clock
+        self._tokens = self.burst
+        self._at = clock()
+        self._lock = threading.Lock()
+
+    def turn(self, amount: float = 1.0) -> float:
+        """:meth:`spend` from any thread: how long (s) to wait for its turn."""
+        with self._lock:
+            return self.spend(amount)
+
+    def _refill(self) -> None:
+        now = self._clock()
+        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.rate)
+        self._at = now
+
+    def take(self, amount: float = 1.0) -> bool:
+        """Take ``amount`` if there is as much; whether it was there."""
+        self._refill()
+        if self._tokens < amount:
+            return False
+        self._tokens -= amount
+        return True
+
+    def spend(self, amount: float) -> float:
+        """Take ``amount`` even into debt; how long (s) until the debt is paid off."""
+        self._refill()
+        self._tokens -= amount
+        return max(0.0, -self._tokens / self.rate)
+
+    def wait(self) -> float:
+        """How long (s) until one more is allowed."""
+        self._refill()
+        return max(0.0, (1.0 - self._tokens) / self.rate)
+
+
+class ClientLimits:
+    """The rate limits of one client (a connection, a console page): all its requests,
+    and its requests of each kind (session events, page actions).
+
+    ``kinds`` lists the kinds limited on their own; any other counts only in the total
+    (a client cannot grow the table with made-up kinds). ``what`` and ``kind_what`` name
+    them in the reasons: "requests", "events of kind".
+    """
+
+    def __init__(
+        self,
+        kinds=(),
+        rate: float = REQUESTS_PER_S,
+        burst: float = REQUESTS_BURST,
+        kind_rate: float = EVENTS_PER_S,
+        kind_burst: float = EVENTS_BURST,
+        what: str = "requests",
+        kind_what: str = "events of kind",
+    ):
+        self.what, self.kind_what = what, kind_what
+        self.total = RateLimit(rate, burst)
+        self.kinds = {k: RateLimit(kind_rate, kind_burst) for k in kinds}
+
+    def check_total(self) -> str | None:
+        """Count one request; the reason to refuse it, or None."""
+        if self.total.take():
+            return None
+        return (
+            f"more than {self.total.rate:g} {self.what} a second on this connection "
+            f"(bursts of {self.total.burst:g}): slow down"
+        )
+
+    def check(self, kind: str) -> str | None:
+        """Count one request of ``kind``; the reason to refuse it, or None."""
+        limit = self.kinds.get(kind)
+        if limit is None or limit.take():
+            return None
+        return (
+            f"more than {limit.rate:g} {self.kind_what} {kind!r} a second "
+            f"(bursts of {limit.burst:g}): slow down"
+        )
+
+    def backoff(self) -> float:
+        """How long (s, at most 0.1) a client refused for its rate is not read: until
+        it may send one more, so that refusals cost no more than answers."""
+        return min(0.1, self.total.wait())
+
+
+def _pause(seconds: float) -> None:
+    if seconds > 0:  # no system call at all when there is nothing to wait for
+        time.sleep(seconds)
+
+
 class _Handler(socketserver.StreamRequestHandler):
-    timeout = 600.0
+    timeout = IDLE_TIMEOUT
+    rbufsize = 65536  # a long line in few reads, each a hand-over of the interpreter lock
 
     def handle(self) -> None:
         server: ControlServer = self.server.control  # type: ignore[attr-defined]
+        limits = ClientLimits(EVENT_KINDS)
+        reading = server.reading
         while True:
             try:
                 line = self.rfile.readline(MAX_LINE + 1)
-            except (OSError, ValueError):
+            except (OSError, ValueError):  # idle too long, reset, closed
                 return
             if not line:
                 return
-            if len(line) > MAX_LINE:
-                answer = {"ok": False, "error": f"request longer than {MAX_LINE} bytes"}
-                self._send(answer)
-                return
+            _pause(reading.turn(len(line)))
+            _pause(server.budget.turn())  # all connections together: wait for its turn
+            if len(line) > MAX_LINE and not line.endswith(b"\n"):
+                self._send({"ok": False, "error": f"a line takes at most {MAX_LINE} bytes"})
+                if not self._skip_line(reading):
+                    return
+                continue
             if not line.strip():
                 continue
-            self._send(server.answer(line))
+            reason = limits.check_total()
+            if reason is not None:
+                self._send({"ok": False, "error": reason})
+                _pause(limits.backoff())
+                continue
+            self._send(server.answer(line, limits))
+
+    def _skip_line(self, reading: RateLimit) -> bool:
+        """Read up to the end of a line too long to serve (resynchronise on the next
+        newline); False when the connection ended first."""
+        while True:
+            try:
+                chunk = self.rfile.readline(MAX_LINE)
+            except (OSError, ValueError):
+                return False
+            if not chunk:
+                return False
+            _pause(reading.turn(len(chunk)))
+            if chunk.endswith(b"\n"):
+                return True
 
     def _send(self, answer: dict) -> None:
         try:
@@ -135,6 +386,49 @@ class _Handler(socketserver.StreamRequestHandler):
 class _TCPServer(socketserver.ThreadingTCPServer):
     daemon_threads = True
     allow_reuse_address = True
+    request_queue_size = 64  # a burst of connections waits to be told, not to time out
+    control: ControlServer
+
+    def process_request(self, request, client_address) -> None:
+        """Serve the connection in its own thread, or refuse it (at the cap) here: a
+        line with the reason and closed, without a thread."""
+        if not self.control._admit():
+            # a refusal costs as much as an answer: it waits its turn in the budget
+            _pause(self.control.budget.turn())
+            _refuse_connection(request)
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self.control._leave()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.control._leave()
+
+
+def _refuse_connection(sock: socket.socket) -> None:
+    """Tell a connection over the cap why it is closed. What it already sent is read
+    first (without waiting): closing on unread data resets the connection, and the
+    client would lose the answer."""
+    answer = {
+        "ok": False,
+        "error": f"the control port serves at most {MAX_CLIENTS} connections at once: "
+        "try again when one has closed",
+    }
+    try:
+        sock.setblocking(False)
+        with contextlib.suppress(BlockingIOError):
+            while sock.recv(65536):
+                pass
+        sock.settimeout(0.5)
+        sock.sendall((json.dumps(answer) + "\n").encode())
+    except OSError:
+        pass
 
 
 class ControlServer:
@@ -159,6 +453,10 @@ class ControlServer:
         self.loop = loop
         self.token = token or None
         self._change_lock = threading.Lock()
+        self._clients_lock = threading.Lock()
+        self.clients = 0  # connections being served
+        self.budget = RateLimit(SERVER_REQUESTS_PER_S, SERVER_REQUESTS_BURST)
+        self.reading = RateLimit(BYTES_PER_S, BYTES_BURST)  # bytes
         cls = _TCPServer
         if ":" in host:
             cls = type("_TCPServer6", (_TCPServer,), {"address_family": socket.AF_INET6})
@@ -197,15 +495,26 @@ class ControlServer:
     def __exit__(self, *exc):
         self.close()
 
+    def _admit(self) -> bool:
+        """Count one more connection, unless :data:`MAX_CLIENTS` are served."""
+        with self._clients_lock:
+            if self.clients >= MAX_CLIENTS:
+                return False
+            self.clients += 1
+            return True
+
+    def _leave(self) -> None:
+        with self._clients_lock:
+            self.clients -= 1
+
     # -- requests ------------------------------------------------------------------
-    def answer(self, line: bytes | str) -> dict:
-        """The answer to one request line (never raises)."""
+    def answer(self, line: bytes | str, limits: ClientLimits | None = None) -> dict:
+        """The answer to one request line (never raises); ``limits``: the client's, for
+        its events."""
         try:
-            request = json.loads(line)
-        except (ValueError, UnicodeDecodeError):
-            return {"ok": False, "error": "not a JSON object on one line"}
-        if not isinstance(request, dict):
-            return {"ok": False, "error": "not a JSON object on one line"}
+            request = parse_message(line)
+        except BadMessage as exc:
+            return {"ok": False, "error": str(exc)}
         if self.token is not None:
             given = request.get("token")
             if not isinstance(given, str) or not hmac.compare_digest(
@@ -216,7 +525,7 @@ class ControlServer:
             if "set" in request:
                 return self._set(request["set"])
             if "event" in request:
-                return self._event(request["event"])
+                return self._event(request["event"], limits)
             what = request.get("get")
             if what == "health":
                 return {"ok": True, "t": self.loop.snapshot()["t"], **self.loop.health()}
@@ -276,11 +585,14 @@ class ControlServer:
         out[~np.isfinite(out)] = 0.0
         return {"ok": True, "rows": out.tolist(), "next": start + ROWS_EVERY * len(rows)}
 
-    def _event(self, event) -> dict:
+    def _event(self, event, limits: ClientLimits | None = None) -> dict:
         if not isinstance(event, dict) or event.get("kind") not in EVENT_KINDS:
             raise UserError(f"an event is an object with a kind among {', '.join(EVENT_KINDS)}")
         event = dict(event)
         kind = event.pop("kind")
+        reason = limits.check(kind) if limits is not None else None
+        if reason is not None:
+            raise UserError(reason)
         if "params" in event:
             event["params"] = checked_values(event["params"])
         if kind == "chosen":  # the whole set: what is not given is the set in force
@@ -289,7 +601,11 @@ class ControlServer:
         if len(text) > 16_384:
             raise UserError("an event takes at most 16 KiB")
         t = self.loop.snapshot()["t"]
-        self.loop.log.event(t, kind, f"session: {kind}", **event)
+        if not self.loop.log.client_event(t, kind, f"session: {kind}", len(text), **event):
+            raise UserError(
+                f"the log holds its cap of session events ({self.loop.log.client_cap()}): "
+                "this one is not recorded"
+            )
         return {"ok": True, "t": t}
 
     def _params(self) -> dict:

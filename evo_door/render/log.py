@@ -97,6 +97,11 @@ CHUNK_ROWS = 16384
 STORED = np.float32
 #: suffix of the side file of a log being written
 PARTIAL_SUFFIX = ".partial"
+#: events a client causes (session events, refused changes) that a log keeps at most,
+#: and their JSON text at most (bytes): a client flooding them must not grow the
+#: renderer's memory and its log without bound (a participant's session is hundreds)
+MAX_CLIENT_EVENTS = 10_000
+MAX_CLIENT_BYTES = 4 * 2**20
 _MAGIC = b"EVO-DOOR RENDER LOG PARTIAL 1\n"
 _RECORD = struct.Struct("<4sQ")
 _ROW_DTYPE = np.dtype("<f8")
@@ -156,6 +161,10 @@ class RenderLog:
         self.param_times: list[float] = []
         self.param_sets: list[np.ndarray] = []
         self.events: list[dict] = []
+        self.client_events = 0  # kept (client_event)
+        self.client_bytes = 0
+        self.dropped = 0  # past the cap
+        self._dropped_event: dict | None = None
         self._names = list(table.names) if table is not None else []
         self._units = [p.unit for p in table] if table is not None else []
         # load the kernel now (numba's cache: milliseconds), not in a servo cycle
@@ -231,6 +240,40 @@ class RenderLog:
 
     def event(self, t: float, kind: str, message: str, **extra) -> None:
         self.events.append({"t": float(t), "kind": kind, "message": message, **extra})
+
+    def client_event(self, t: float, kind: str, message: str, size=None, **extra) -> bool:
+        """An event a client caused (a session event, a refused change), kept while the
+        log holds fewer than :data:`MAX_CLIENT_EVENTS` of them and
+        :data:`MAX_CLIENT_BYTES` of their JSON (``size``, bytes; measured when not
+        given). Past the cap it is dropped and counted: the first drop adds one event
+        ``dropped`` that says so, whose ``count`` follows. Returns whether it was kept.
+        """
+        if size is None:
+            size = len(to_json(extra)) + len(message)
+        if self.client_events >= MAX_CLIENT_EVENTS or self.client_bytes + size > MAX_CLIENT_BYTES:
+            self._drop(t)
+            return False
+        self.client_events += 1
+        self.client_bytes += size
+        self.event(t, kind, message, **extra)
+        return True
+
+    def client_cap(self) -> str:
+        """The cap of :meth:`client_event`, for people."""
+        return f"{MAX_CLIENT_EVENTS} events or {MAX_CLIENT_BYTES / 2**20:g} MiB"
+
+    def _drop(self, t: float) -> None:
+        self.dropped += 1
+        if self._dropped_event is None:  # said once; the count follows in place
+            self._dropped_event = {
+                "t": float(t),
+                "kind": "dropped",
+                "message": f"session events and refused changes past {self.client_cap()} "
+                "are not kept; count: how many were dropped",
+                "count": 0,
+            }
+            self.events.append(self._dropped_event)
+        self._dropped_event["count"] = self.dropped
 
     @property
     def n(self) -> int:
@@ -696,8 +739,11 @@ class _Spill:
                         times, sets = payload
                         text = to_json({"t": times, "values": [list(v) for v in sets]})
                         self._record(tag, text.encode())
-                    else:
-                        self._record(tag, to_json(payload).encode())
+                    else:  # events one by one: one json.dumps of a list of many
+                        # session events (16 kB each) held the interpreter lock, which
+                        # the servo loop waits for, for milliseconds
+                        text = "[" + ",".join(to_json(e) for e in payload) + "]"
+                        self._record(tag, text.encode())
                     self._file.flush()
                     if tag == b"ROWS":
                         os.fsync(self._file.fileno())

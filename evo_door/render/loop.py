@@ -452,7 +452,7 @@ class ServoLoop:
                 new = base.replace(dict(values), source=CHANGE)
                 new, changes = self._passive(renderable(new))
             except UserError as exc:
-                self.log.event(self._now, "refused", str(exc), values=dict(values))
+                self.log.client_event(self._now, "refused", str(exc), values=dict(values))
                 raise
             with self._lock:
                 self._pending = (new, {**before, **values}, changes)

@@ -39,6 +39,15 @@ The HTTP and WebSocket API (every number in SI units)::
         page -> server: set {values, source}, undo, reset, save {name},
                         participant {id}, ab_store / ab_switch / ab_choice {slot},
                         ab_blind {blind}, choose
+
+Limits: a page's messages are read by the control port's rules
+(:func:`~evo_door.render.control.parse_message`: size, values, nesting, bounded
+numbers) and rate-limited per page and per message type, and all pages' actions
+together (:data:`ACTIONS_PER_S`); a refusal is an ``error`` (a ``refused`` for a
+``set``) with ``"ok": false`` and the reason, and the socket goes on. At most
+:data:`MAX_PAGES` pages at once: one more is told why and closed (1013, try again
+later). A frame over :data:`MAX_FRAME` bytes is not read at all: the socket is closed
+(1009, message too big).
 """
 
 from __future__ import annotations
@@ -53,11 +62,19 @@ import os
 import re
 from pathlib import Path
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.render.control import checked_values, is_loopback
+from evo_door.render.control import (
+    MAX_LINE,
+    BadMessage,
+    ClientLimits,
+    RateLimit,
+    checked_values,
+    is_loopback,
+    parse_message,
+)
 from evo_door.render.keys import GROUP, key_map, nice_step
 
 #: the page's files (index.html, console.js, console.css)
@@ -78,8 +95,36 @@ UNDO_DEPTH = 1000
 HISTORY_S = 10.0
 #: log rows per second the control port counts in (its ``since``)
 LOG_ROWS_HZ = 1000.0
-#: the largest message a page may send (bytes)
-MAX_PAGE_MESSAGE = 65536
+#: the largest message a page may send (bytes): the control port's line
+MAX_PAGE_MESSAGE = MAX_LINE
+#: the largest WebSocket frame read at all (bytes); up to it, a message over
+#: MAX_PAGE_MESSAGE is answered and the socket goes on; past it aiohttp closes the socket
+MAX_FRAME = 16 * 2**20
+#: pages served at once
+MAX_PAGES = 8
+#: messages a second one page may send on average, and at once (a held key sends 10)
+PAGE_PER_S = 30.0
+PAGE_BURST = 60
+#: messages of one type a second one page may send on average, and at once
+PAGE_KIND_PER_S = 15.0
+PAGE_KIND_BURST = 30
+#: actions a second of all pages together, and at once: each is one to three requests
+#: to the control port, which takes 200 a second from the console (it polls about 45)
+ACTIONS_PER_S = 30.0
+ACTIONS_BURST = 60
+#: the message types a page sends (each rate-limited on its own)
+PAGE_KINDS = (
+    "set",
+    "undo",
+    "reset",
+    "save",
+    "participant",
+    "ab_store",
+    "ab_switch",
+    "ab_blind",
+    "ab_choice",
+    "choose",
+)
 #: messages waiting for a slow page before ticks are dropped for it
 TICK_BACKLOG = 8
 #: longest participant id and file stem (characters)
@@ -108,6 +153,21 @@ def _clean(value):
 
 def _dumps(message: dict) -> str:
     return json.dumps(_clean(message), separators=(",", ":"))
+
+
+def _error(text) -> dict:
+    """An ``error`` message to a page: the reason on one line."""
+    return {"type": "error", "ok": False, "error": _one_line(text)}
+
+
+def _refused(text, values) -> dict:
+    """A ``refused`` message to a page: the change it asked for did not happen."""
+    return {
+        "type": "refused",
+        "ok": False,
+        "error": _one_line(text),
+        "values": values if isinstance(values, dict) else {},
+    }
 
 
 def sensation_names() -> list[str]:
@@ -316,6 +376,8 @@ class Console:
         self._health: dict = {}
         self._state: dict = {}
         self._actions = asyncio.Lock()
+        self.actions_rate = RateLimit(ACTIONS_PER_S, ACTIONS_BURST)
+        self.open_pages = 0  # sockets open (pages counts those that had their hello)
         self._curves: collections.OrderedDict = collections.OrderedDict()
         self._tasks: list[asyncio.Task] = []
 
@@ -411,7 +473,7 @@ class Console:
         text = f"lost the renderer: {_one_line(exc)}"
         if self.lost != text:
             self.lost = text
-            self.broadcast({"type": "error", "error": text})
+            self.broadcast(_error(text))
 
     # -- background polling ---------------------------------------------------------
     async def _tick_loop(self) -> None:
@@ -496,13 +558,7 @@ class Console:
             return True
         (answer,) = await self.client.ask({"set": values})
         if not answer.get("ok"):
-            page.post(
-                {
-                    "type": "refused",
-                    "error": _one_line(answer.get("error", "no reason given")),
-                    "values": values,
-                }
-            )
+            page.post(_refused(answer.get("error", "no reason given"), values))
             return False
         if undoable:
             self._push_undo(self.params)
@@ -525,29 +581,38 @@ class Console:
         (answer,) = await self.client.ask({"event": {"kind": kind, **fields}})
         if not answer.get("ok"):
             self.broadcast(
-                {
-                    "type": "error",
-                    "error": f"the renderer did not record the {kind} event: "
-                    f"{_one_line(answer.get('error', 'no reason given'))}",
-                }
+                _error(
+                    f"the renderer did not record the {kind} event: "
+                    f"{answer.get('error', 'no reason given')}"
+                )
             )
 
     # -- page messages ----------------------------------------------------------------
-    async def handle(self, page: _Page, message) -> None:
-        """Do what one page message asks; errors go back to that page on one line."""
+    async def handle(self, page: _Page, message, limits: ClientLimits | None = None) -> None:
+        """Do what one page message asks; errors go back to that page on one line.
+        ``limits``: the page's, for its rate per message type."""
         kind = message.get("type") if isinstance(message, dict) else None
-        action = getattr(self, f"_on_{kind}", None) if isinstance(kind, str) else None
+        action = getattr(self, f"_on_{kind}", None) if kind in PAGE_KINDS else None
         if action is None:
-            page.post({"type": "error", "error": f"unknown message type {kind!r}"})
+            shown = kind if isinstance(kind, str) and len(kind) <= MAX_ID else "?"
+            page.post(_error(f"unknown message type {shown!r}"))
+            return
+        reason = limits.check(kind) if limits is not None else None
+        if reason is None and not self.actions_rate.take():
+            reason = (
+                f"more than {ACTIONS_PER_S:g} actions a second from all pages together: slow down"
+            )
+        if reason is not None:
+            page.post(_refused(reason, message.get("values")) if kind == "set" else _error(reason))
             return
         try:
             async with self._actions:
                 await action(page, message)
         except UserError as exc:
-            page.post({"type": "error", "error": _one_line(exc)})
+            page.post(_error(exc))
         except OSError as exc:  # the file system said no (save)
             where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-            page.post({"type": "error", "error": f"{where}{exc.strerror or exc}"})
+            page.post(_error(f"{where}{exc.strerror or exc}"))
 
     async def _on_set(self, page, message) -> None:
         source = message.get("source", "slider")
@@ -556,20 +621,13 @@ class Console:
         try:
             values = check_values(message.get("values"))
         except UserError as exc:
-            raw = message.get("values")
-            page.post(
-                {
-                    "type": "refused",
-                    "error": _one_line(exc),
-                    "values": raw if isinstance(raw, dict) else {},
-                }
-            )
+            page.post(_refused(exc, message.get("values")))
             return
         await self._apply(values, source, page)
 
     async def _on_undo(self, page, message) -> None:
         if not self.undo:
-            page.post({"type": "error", "error": "nothing to undo"})
+            page.post(_error("nothing to undo"))
             return
         if await self._apply_set(self.undo[-1], "undo", page, undoable=False):
             self.undo.pop()
@@ -760,26 +818,55 @@ async def _curve(request: web.Request) -> web.Response:
 
 async def _ws(request: web.Request) -> web.WebSocketResponse:
     console = request.app[CONSOLE]
-    ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=MAX_PAGE_MESSAGE)
+    ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=MAX_FRAME)
     await ws.prepare(request)
+    if console.open_pages >= MAX_PAGES:
+        why = f"the console serves at most {MAX_PAGES} pages at once: close one, then reload"
+        await ws.send_str(_dumps(_error(why)))
+        await ws.close(code=WSCloseCode.TRY_AGAIN_LATER, message=b"too many pages")
+        return ws
+    console.open_pages += 1  # counted before any await: two pages never both pass
     page = _Page(ws)
-    await console.read_health()
-    page.post(console.hello())
-    console.pages.add(page)
     try:
-        async for msg in ws:
-            if msg.type != WSMsgType.TEXT:
-                continue
-            try:
-                message = json.loads(msg.data)
-            except ValueError:
-                page.post({"type": "error", "error": "not a JSON message"})
-                continue
-            await console.handle(page, message)
+        await console.read_health()
+        page.post(console.hello())
+        console.pages.add(page)
+        await _read_page(console, page)
     finally:
+        console.open_pages -= 1
         console.pages.discard(page)
         page.task.cancel()
     return ws
+
+
+async def _read_page(console: Console, page: _Page) -> None:
+    """Read a page's messages within the limits and do what they ask."""
+    limits = ClientLimits(
+        PAGE_KINDS,
+        PAGE_PER_S,
+        PAGE_BURST,
+        PAGE_KIND_PER_S,
+        PAGE_KIND_BURST,
+        what="messages",
+        kind_what="messages of type",
+    )
+    async for msg in page.ws:
+        if msg.type == WSMsgType.BINARY:
+            page.post(_error("binary WebSocket messages are not read: send JSON text"))
+            continue
+        if msg.type != WSMsgType.TEXT:
+            continue
+        reason = limits.check_total()
+        if reason is not None:
+            page.post(_error(reason))
+            await asyncio.sleep(limits.backoff())  # and read this page no sooner
+            continue
+        try:
+            message = parse_message(msg.data)
+        except BadMessage as exc:
+            page.post(_error(exc))
+            continue
+        await console.handle(page, message, limits)
 
 
 def make_app(console: Console, host: str, port: int, token: str | None) -> web.Application:
