@@ -541,6 +541,12 @@ def test_the_log_keeps_client_events_up_to_its_cap_and_counts_the_rest(running, 
     with pytest.raises(UserError):
         loop.request_change({"friction_closing": 1e9})
     assert dropped["count"] == 4 and not any(e["kind"] == "refused" for e in loop.log.events)
+    # the participant's choice is what the session is for: the flood does not cost it
+    with socket.create_connection(server.address, timeout=30) as sock:
+        sock.sendall(json.dumps({"token": "s3cret", "event": {"kind": "chosen"}}).encode() + b"\n")
+        (answer,) = _lines(sock, 1)
+    assert answer["ok"], answer
+    assert [e["kind"] for e in loop.log.events].count("chosen") == 1
 
 
 def test_a_flood_of_large_events_leaves_memory_and_the_log_bounded(seed_trial, tmp_path):

@@ -102,6 +102,11 @@ PARTIAL_SUFFIX = ".partial"
 #: renderer's memory and its log without bound (a participant's session is hundreds)
 MAX_CLIENT_EVENTS = 10_000
 MAX_CLIENT_BYTES = 4 * 2**20
+#: what a session is for, the participant and the set they chose: kept past the cap of
+#: the other client events (a flood must not cost the choice), up to an allowance of
+#: its own (each event is at most 16 KiB: 1.6 MiB)
+RECORD_KINDS = ("participant", "chosen")
+RECORD_RESERVE = 100
 _MAGIC = b"EVO-DOOR RENDER LOG PARTIAL 1\n"
 _RECORD = struct.Struct("<4sQ")
 _ROW_DTYPE = np.dtype("<f8")
@@ -162,6 +167,7 @@ class RenderLog:
         self.param_sets: list[np.ndarray] = []
         self.events: list[dict] = []
         self.client_events = 0  # kept (client_event)
+        self.record_events = 0  # participants and choices kept (RECORD_KINDS)
         self.client_bytes = 0
         self.dropped = 0  # past the cap
         self._dropped_event: dict | None = None
@@ -246,10 +252,17 @@ class RenderLog:
         log holds fewer than :data:`MAX_CLIENT_EVENTS` of them and
         :data:`MAX_CLIENT_BYTES` of their JSON (``size``, bytes; measured when not
         given). Past the cap it is dropped and counted: the first drop adds one event
-        ``dropped`` that says so, whose ``count`` follows. Returns whether it was kept.
+        ``dropped`` that says so, whose ``count`` follows. The session's record
+        (:data:`RECORD_KINDS`) has an allowance of its own, :data:`RECORD_RESERVE`
+        events, so that a flood cannot cost the participant's choice. Returns whether
+        it was kept.
         """
         if size is None:
             size = len(to_json(extra)) + len(message)
+        if kind in RECORD_KINDS and self.record_events < RECORD_RESERVE:
+            self.record_events += 1
+            self.event(t, kind, message, **extra)
+            return True
         if self.client_events >= MAX_CLIENT_EVENTS or self.client_bytes + size > MAX_CLIENT_BYTES:
             self._drop(t)
             return False
