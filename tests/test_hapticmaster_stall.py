@@ -288,3 +288,17 @@ def test_stall_timeout_has_a_floor_and_can_be_fixed():
     for bad in (0.0, -1.0, math.inf, math.nan):
         with pytest.raises(Exception, match="stall timeout"):
             HapticMasterDevice("127.0.0.1", 1, stall_timeout=bad)
+
+
+def test_close_takes_the_force_off_too(emulator):
+    """close() is stop(): no way to close the connection without the fail-safe first."""
+    from tests.conftest import started
+
+    device = started(emulator)
+    device.command([0.0, 30.0, 0.0])
+    device.read()
+    assert emulator.bias_force().tolist() == [0.0, 30.0, 0.0]
+    device.close()
+    assert emulator.frames[-1] == ";".join(failsafe_commands())
+    assert device.failsafe == "acknowledged" and not device.connected
+    assert emulator.state == "stop" and not emulator.effects

@@ -204,13 +204,14 @@ def run(args) -> int:
                 raise
             code = _report(loop, args, stats, name, claim)
             # the device may still hold a force: not a success, whatever else went well
-            return max(code, 1) if getattr(device, "failsafe_warning", "") else code
+            return max(code, 1) if getattr(loop.device, "failsafe_warning", "") else code
     finally:
         loop.log.close()
         if loop.log.spill_error:
             print(f"evo-door: warning: {loop.log.spill_error}", file=sys.stderr)
-        if getattr(device, "failsafe_warning", ""):  # on every way out, once
-            print(f"evo-door: warning: {device.failsafe_warning}", file=sys.stderr)
+        warning = getattr(loop.device, "failsafe_warning", "")
+        if warning:  # on every way out, once
+            print(f"evo-door: warning: {warning}", file=sys.stderr)
 
 
 def _paced(args) -> bool | None:

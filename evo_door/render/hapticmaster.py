@@ -363,6 +363,10 @@ class HapticMasterDevice:
         self._reset()
         self.failsafe = self.failsafe_warning = ""
 
+    def close(self) -> None:
+        """:meth:`stop`: the connection never closes without the fail-safe first."""
+        self.stop()
+
     def _close(self) -> None:
         """Close the socket: only :meth:`stop` does, after the fail-safe."""
         sock, self._sock = self._sock, None
