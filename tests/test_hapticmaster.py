@@ -25,6 +25,7 @@ from evo_door.render.hapticmaster import (
     HapticMasterDevice,
     HapticMasterError,
     encode,
+    failsafe_commands,
     parse_address,
     parse_vector,
     split_answers,
@@ -183,11 +184,15 @@ def test_start_up_and_shut_down_sequences(emulator):
     assert emulator.bias_force().tolist() == [0.0, 3.0, 0.0]
     n = len(emulator.received)
     device.stop()
-    assert emulator.received[n:] == ["remove all", "set state stop"]
+    # one frame: the bias force to zero, every effect removed, the device stopped
+    assert emulator.received[n:] == failsafe_commands()
+    assert emulator.frames[-1] == ";".join(failsafe_commands())
+    assert device.failsafe == "acknowledged" and device.failsafe_warning == ""
     assert emulator.state == "stop" and emulator.bias_force().tolist() == [0.0, 0.0, 0.0]
+    assert not emulator.effects
     assert not device.connected
     device.stop()  # idempotent
-    assert len(emulator.received) == n + 2
+    assert len(emulator.received) == n + 3
 
 
 def test_start_refuses_uncalibrated_device_and_leaves_it_stopped():
@@ -241,11 +246,8 @@ def test_command_guards_non_finite_and_excessive_forces(emulator):
     assert emulator.bias_force() == pytest.approx([30.0, 40.0, 0.0], rel=1e-8)
     device.command([5.0, 0.0, 0.0])  # its acknowledgement still due when stop() comes
     device.stop()
-    assert emulator.received[-3:] == [
-        f"set {BIAS_NAME} force [5,0,0]",
-        "remove all",
-        "set state stop",
-    ]
+    assert emulator.received[-4:] == [f"set {BIAS_NAME} force [5,0,0]", *failsafe_commands()]
+    assert device.failsafe == "acknowledged"
     assert emulator.state == "stop" and emulator.bias_force().tolist() == [0.0, 0.0, 0.0]
 
 
@@ -271,7 +273,10 @@ def test_dropped_connection_raises_clearly_and_stop_still_works(emulator):
             device.read()
     assert isinstance(info.value, ConnectionError) and "\n" not in str(info.value)
     assert not device.connected
-    device.stop()  # safe after the error
+    device.stop()  # safe after the error: says the force may still be on
+    assert device.failsafe == "undelivered"
+    assert "may still hold a force" in device.failsafe_warning
+    assert "\n" not in device.failsafe_warning
 
 
 def test_silent_device_times_out():
@@ -282,9 +287,12 @@ def test_silent_device_times_out():
     try:
         device = HapticMasterDevice("127.0.0.1", server.getsockname()[1], timeout=0.2)
         t0 = time.perf_counter()
-        with pytest.raises(HapticMasterConnectionLost, match="no answer within 0.2 s"):
+        with pytest.raises(HapticMasterConnectionLost, match="no answer within 200 ms"):
             device.start()
         assert time.perf_counter() - t0 < 1.5  # the timeout, and stop()'s own
+        # the fail-safe went out but nobody answered: it waits in the connection
+        assert device.failsafe == "unacknowledged"
+        assert "may still hold a force" in device.failsafe_warning
     finally:
         thread.join(1.0)
         for conn, _ in accepted:

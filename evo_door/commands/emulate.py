@@ -93,11 +93,12 @@ def run(args) -> int:
         user_force=user,
         sensor_noise=args.noise,
         position=start,
+        realtime=True,  # as the device's controller: answers within milliseconds
     )
     print(
         f"emulating a HapticMaster at {emulator.address} "
         f"(inertia {args.inertia:g} kg, damping {args.damping:g} N s/m, "
-        f"Coulomb friction {args.coulomb:g} N); Ctrl-C stops",
+        f"Coulomb friction {args.coulomb:g} N; {emulator.scheduling}); Ctrl-C stops",
         flush=True,
     )
     try:
@@ -106,5 +107,5 @@ def run(args) -> int:
         print("emulator stopped", file=sys.stderr)
     finally:
         emulator.close()
-    print(f"served {len(emulator.received)} commands")
+    print(f"served {emulator.commands} commands")
     return 0

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import gc
 import signal
 import sys
 import threading
@@ -236,6 +238,11 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
     else:  # nothing will read the early rows: a day's session stays in a few MB
         loop.log.keep_recent()
     stop = threading.Event()
+    # the interpreter's last collection of what numba and h5py loaded takes a second on
+    # a busy machine: a render that ended (a stalled device's within half a second)
+    # would leave its process behind that long; frozen objects are not collected
+    atexit.unregister(gc.freeze)  # once, however often run in one process
+    atexit.register(gc.freeze)
     try:
         with _stop_on_ctrl_c(stop, loop):
             try:
@@ -244,11 +251,16 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
                 if args.log:
                     _write_interrupted(loop, args.log, exc)
                 raise
-            return _report(loop, args, stats, name, claim)
+            code = _report(loop, args, stats, name, claim)
+            # the device may still hold a force: not a success, whatever else went well
+            return max(code, 1) if getattr(loop.device, "failsafe_warning", "") else code
     finally:
         loop.log.close()
         if loop.log.spill_error:
             print(f"evo-door: warning: {loop.log.spill_error}", file=sys.stderr)
+        warning = getattr(loop.device, "failsafe_warning", "")
+        if warning:  # on every way out, once
+            print(f"evo-door: warning: {warning}", file=sys.stderr)
 
 
 def _check_supervisor_options(args) -> None:
@@ -317,7 +329,9 @@ def _stop_on_ctrl_c(stop: threading.Event, loop):
     """Ctrl-C (SIGINT) sets ``stop``: the loop ends between two cycles and the render
     ends as one that ran its course, its log whole (status ``stopped``, exit 0), with
     or without ``--duration``. Another Ctrl-C while the loop still runs interrupts at
-    once (a device that hangs); while the log is written it is ignored."""
+    once (a device that hangs); while the log is written it is ignored. SIGTERM does
+    the same (its default would end the process before the device's force is taken
+    off)."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signals go to the main thread only: an embedding caller's own
         return
@@ -331,10 +345,12 @@ def _stop_on_ctrl_c(stop: threading.Event, loop):
             print("evo-door: writing the log, one moment", file=sys.stderr, flush=True)
 
     previous = signal.signal(signal.SIGINT, on_sigint)
+    previous_term = signal.signal(signal.SIGTERM, on_sigint)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGTERM, previous_term)
 
 
 def _recover(args) -> int:

@@ -6,8 +6,16 @@ command: device states (``init``, ``force``, ``stop`` ...), effects created by n
 (``biasforce``; ``spring`` with ``stiffness``, ``dampfactor``, ``pos``, ``direction``,
 ``deadband``, ``maxforce``; ``damper`` with ``dampcoef``, alias ``dampcoeff``) with
 their settings, the model's position, velocity and acceleration, the measured force,
-and ``--- ERROR`` answers for anything else, as the device does. It records every
-command it received (:attr:`received`).
+and ``--- ERROR`` answers for anything else, as the device does. A setting outside a
+physical range (:data:`LIMITS`: not finite, a negative mass, a stiffness of 1e24 N/m)
+is refused likewise. Its memory is bounded however long it runs: it counts the
+commands and frames it answered and keeps only the last :data:`RECENT` of each
+(:attr:`received`, :attr:`frames`, cut short), at most :data:`MAX_EFFECTS` effects and
+:data:`MAX_CLIENTS` connections. Every connection shares one device: a second one (a
+probe) reads the state and effects the first set (``get state``, ``get NAME force``,
+``get NAME enabled``), and effects outlive the connection that made them, as on the
+HapticMaster. ``evo-door emulate hapticmaster --port 0`` runs it as a process of its
+own (its first line names the port), which a test can stop with SIGSTOP.
 
 Its physics is the device's own admittance model: a point mass (``inertia``, kg) with
 viscous damping, Coulomb friction and the enabled springs (isotropic or along a
@@ -15,7 +23,8 @@ direction, with a deadband and a force cap) and dampers (per axis), moved by the
 of the enabled bias forces and a scripted user force. It runs in its own simulated time
 at 2.5 kHz, stepped with a compiled kernel whose velocity update is implicit in the
 damping and in the friction (a stick-or-slip projection) and which substeps stiff
-springs, so it is stable at any setting. Simulated time advances, before each frame is
+springs (at most :data:`MAX_SUBSTEPS` per step, which the limits keep it under), so it
+is stable at any setting it accepts. Simulated time advances, before each frame is
 answered, either by the wall time elapsed since the last frame (``clock="wall"``, the
 default: the device does not wait for the host) or by ``steps_per_query`` steps
 (``clock="query"``: reproducible, for tests). The user force is evaluated once per
@@ -26,9 +35,11 @@ it is held where it is.
 from __future__ import annotations
 
 import math
+import os
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 
 import numpy as np
@@ -53,6 +64,38 @@ _STATES = ("init", "off", "force", "position", "home", "stop")
 _EFFECTS = ("biasforce", "spring", "damper")
 #: Other spellings of effect settings: ``dampcoeff`` for the device's ``dampcoef``.
 _ALIASES = {"dampcoeff": "dampcoef"}
+
+#: Physical ranges (SI) of what the protocol sets: ``(low, high)``, both included,
+#: per number (per component for a vector); anything outside, or NaN, is refused
+#: with an error answer. Wide around a HapticMaster (a few kg of rendered mass, about
+#: 250 N, springs to some 5e4 N/m, a workspace of some 0.4 m) so that every haptic set
+#: evo-door renders fits (a virtual mass I / R of 0.05 to 400 kg, springs to 1e5 N/m).
+LIMITS = {
+    "inertia": (0.01, 1000.0),  # kg
+    "coulombfriction": (0.0, 1000.0),  # N
+    "force": (-1000.0, 1000.0),  # N, a bias force's components
+    "stiffness": (0.0, 1e6),  # N/m
+    "dampfactor": (0.0, 1e5),  # N s/m
+    "dampcoef": (0.0, 1e5),  # N s/m per axis: a negative one would feed energy in
+    "deadband": (0.0, 10.0),  # m
+    "pos": (-10.0, 10.0),  # m
+    "direction": (-1e6, 1e6),  # any scale: it is made a unit vector
+    "maxforce": (1e-9, math.inf),  # N; inf: no cap
+}
+#: At most this many effects at a time (the renderer uses three).
+MAX_EFFECTS = 32
+#: Longest effect name (characters).
+MAX_NAME = 64
+#: At most this many open connections; more are closed at once.
+MAX_CLIENTS = 8
+#: How many of the last commands and frames are kept (:attr:`received`,
+#: :attr:`frames`), each cut to :data:`KEPT_CHARS` characters: at most about 1.3 MB.
+RECENT = 4096
+RECENT_FRAMES = 256
+KEPT_CHARS = 256
+#: Most substeps per device step (:func:`advance_effects`). Within :data:`LIMITS` the
+#: stiffest case, :data:`MAX_EFFECTS` springs of 1e6 N/m on 0.01 kg, needs 114.
+MAX_SUBSTEPS = 256
 
 
 #: Largest angle (rad) the springs together turn through per kernel step: beyond it
@@ -114,7 +157,8 @@ def advance_effects(
     free velocity, so the friction never reverses the motion or chatters. Each step
     is cut into substeps when the springs together would turn more than
     :data:`MAX_SPRING_PHASE` rad per step, so the explicit springs stay stable at any
-    stiffness and mass. Returns the last acceleration.
+    stiffness and mass up to :data:`MAX_SUBSTEPS` substeps (the most it takes: the
+    time an advance takes stays bounded). Returns the last acceleration.
     """
     acc = np.zeros(3)
     f = np.zeros(3)
@@ -126,7 +170,9 @@ def advance_effects(
         k_sum += spring_k[s]
     sub = 1
     if k_sum > 0.0:
-        sub = max(1, int(math.ceil(dt * math.sqrt(k_sum / mass) / MAX_SPRING_PHASE)))
+        turns = dt * math.sqrt(k_sum / mass) / MAX_SPRING_PHASE
+        # bounded whatever the settings (a NaN or inf too): an advance never hangs
+        sub = MAX_SUBSTEPS if not turns < MAX_SUBSTEPS else max(1, int(math.ceil(turns)))
     h = dt / sub
     for _ in range(n * sub):
         for a in range(3):
@@ -215,6 +261,25 @@ def advance_effects(
     return acc
 
 
+#: The real-time priority (SCHED_FIFO) of a ``realtime`` emulator's threads: below the
+#: render loop's (10), so that on one machine the loop comes first.
+RT_PRIORITY = 5
+
+
+def _real_time() -> str:
+    """Raise this thread's scheduling as far as permitted; what it got."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+        return f"real-time priority {RT_PRIORITY}"
+    except (OSError, AttributeError):
+        pass
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), -10)
+        return "niceness -10"
+    except (OSError, AttributeError):
+        return "normal priority"
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     """``v`` scaled to unit length; the zero vector stays zero (an isotropic spring)."""
     norm = math.sqrt(float(v @ v))
@@ -223,6 +288,36 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _zero_user(t: float, position: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.zeros(3)
+
+
+#: The unit of each setting in :data:`LIMITS`, for the error answers.
+_UNITS = {
+    "force": "N",
+    "pos": "m",
+    "dampcoef": "N s/m",
+    "direction": "",
+    "stiffness": "N/m",
+    "dampfactor": "N s/m",
+    "deadband": "m",
+    "maxforce": "N",
+}
+
+
+def in_range(name: str, value: float) -> bool:
+    """``value`` lies within :data:`LIMITS` of the setting ``name`` (NaN never does)."""
+    low, high = LIMITS[name]
+    return low <= value <= high
+
+
+def _out_of_range(what: str, value, unit: str) -> str:
+    low, high = LIMITS[what.lower().replace(" ", "")]
+    span = f"{low:g} to {high:g} {unit}".rstrip()
+    return f"{ERROR_PREFIX}: {what} {_shown(str(value))!r} is outside {span}"
+
+
+def _shown(text: str, most: int = 80) -> str:
+    """``text`` cut to ``most`` characters for an error answer (a frame may be 64 kB)."""
+    return text if len(text) <= most else text[: most - 3] + "..."
 
 
 class HapticMasterEmulator:
@@ -244,6 +339,15 @@ class HapticMasterEmulator:
         How simulated time advances (module docstring).
     calibrated
         What the calibration queries answer.
+    realtime
+        Serve under real-time scheduling (SCHED_FIFO, priority :data:`RT_PRIORITY`)
+        where permitted, else at niceness -10 where permitted
+        (:attr:`scheduling` says what it got): the HapticMaster's controller is a
+        real-time system, and an emulator at normal priority on a loaded machine
+        waits for a core for tens of milliseconds, at times seconds, which a renderer
+        rightly takes for a stalled device. Its threads only answer frames, each in
+        well under a millisecond, and the kernel keeps 5 % of each second from
+        real-time threads. For ``evo-door emulate``, a process of its own.
     """
 
     def __init__(
@@ -261,11 +365,18 @@ class HapticMasterEmulator:
         calibrated: bool = True,
         position: tuple[float, float, float] = (0.0, 0.0, 0.0),
         seed: int = 0,
+        realtime: bool = False,
     ) -> None:
         if clock not in ("wall", "query"):
             raise UserError(f"clock {clock!r}: expected 'wall' or 'query'")
-        if not inertia > 0:
-            raise UserError(f"inertia {inertia!r} kg: must be positive")
+        for name, value, unit in (
+            ("inertia", inertia, "kg"),
+            ("coulombfriction", coulomb_friction, "N"),
+            ("dampcoef", damping, "N s/m"),
+        ):
+            if not in_range(name, value):
+                low, high = LIMITS[name]
+                raise UserError(f"{name} {value!r} {unit}: expected {low:g} to {high:g} {unit}")
         self.host = host
         self.inertia = float(inertia)
         self.damping = np.full(3, float(damping))
@@ -276,7 +387,15 @@ class HapticMasterEmulator:
         self.steps_per_query = int(steps_per_query)
         self.calibrated = bool(calibrated)
         self.dt = 1.0 / DEVICE_RATE
-        self.received: list[str] = []
+        #: the last :data:`RECENT` commands and frames received, oldest first
+        self._recent: deque[str] = deque(maxlen=RECENT)
+        self.frames: deque[str] = deque(maxlen=RECENT_FRAMES)
+        #: how many commands (``;``-separated) and frames it answered, and refused
+        self.commands = 0
+        self.frames_answered = 0
+        self.refused = 0
+        #: simulated steps whose result was not finite, undone (none within LIMITS)
+        self.faults = 0
         self.state = "off"
         self.initialised = False
         self.effects: dict[str, dict] = {}
@@ -290,8 +409,9 @@ class HapticMasterEmulator:
         self._lock = threading.Lock()
         self._wall: float | None = None
         self._steps = 0
-        self._clients: list[socket.socket] = []
-        self._threads: list[threading.Thread] = []
+        self._clients: set[socket.socket] = set()  # open connections only
+        self._threads: set[threading.Thread] = set()
+        self._clients_lock = threading.Lock()
         self._closed = threading.Event()
         # compile (or load from cache) before any client waits on an answer
         advance_effects(
@@ -316,10 +436,17 @@ class HapticMasterEmulator:
             raise UserError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         self._server.settimeout(0.05)
         self.port = self._server.getsockname()[1]
+        #: the scheduling of the threads that answer (``realtime``)
+        self.scheduling = "normal priority"
+        scheduled = threading.Event()
         self._accept_thread = threading.Thread(
-            target=self._accept, name="hapticmaster-emulator", daemon=True
+            target=self._accept,
+            args=(realtime, scheduled),
+            name="hapticmaster-emulator",
+            daemon=True,
         )
         self._accept_thread.start()
+        scheduled.wait(5.0)
 
     # -- server ---------------------------------------------------------------------
 
@@ -327,7 +454,16 @@ class HapticMasterEmulator:
     def address(self) -> str:
         return f"hapticmaster://{self.host}:{self.port}"
 
-    def _accept(self) -> None:
+    @property
+    def received(self) -> list[str]:
+        """The last :data:`RECENT` commands received, oldest first (:attr:`commands`
+        counts them all)."""
+        return list(self._recent)
+
+    def _accept(self, realtime: bool, scheduled: threading.Event) -> None:
+        if realtime:  # the connections' threads inherit it from this one
+            self.scheduling = _real_time()
+        scheduled.set()
         while not self._closed.is_set():
             try:
                 conn, _ = self._server.accept()
@@ -335,33 +471,50 @@ class HapticMasterEmulator:
                 continue  # a poll, so that close() is seen
             except OSError:
                 return
-            conn.settimeout(None)
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._clients.append(conn)
-            thread = threading.Thread(target=self._serve, args=(conn,), daemon=True)
-            self._threads.append(thread)
+            with self._clients_lock:
+                if len(self._clients) >= MAX_CLIENTS:  # bounded: refuse, do not queue
+                    conn.close()
+                    continue
+                conn.settimeout(None)
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                thread = threading.Thread(target=self._serve, args=(conn,), daemon=True)
+                self._clients.add(conn)
+                self._threads.add(thread)
             thread.start()
 
     def _serve(self, conn: socket.socket) -> None:
+        try:
+            with conn:
+                self._serve_frames(conn)
+        finally:  # forget the connection: none is kept after it ends
+            with self._clients_lock:
+                self._clients.discard(conn)
+                self._threads.discard(threading.current_thread())
+
+    def _serve_frames(self, conn: socket.socket) -> None:
+        """Answer each frame, in order, until the host closes. When the host can no
+        longer take answers (it closed or reset), the frames it sent before still
+        count: the device processes what it received, in order, answered or not (the
+        client's fail-safe frame arrives last, after a host's stall)."""
         reader = FrameReader()
-        with conn:
-            while not self._closed.is_set():
+        answering = True
+        while not self._closed.is_set():
+            try:
+                data = conn.recv(65536)
+            except OSError:
+                return
+            if not data:
+                return
+            try:
+                texts = reader.feed(data)
+            except HapticMasterError:
+                return  # a corrupt stream: the device drops the connection
+            replies = [encode(self._safe_answer(text)) for text in texts]
+            if replies and answering:
                 try:
-                    data = conn.recv(65536)
+                    conn.sendall(b"".join(replies))
                 except OSError:
-                    return
-                if not data:
-                    return
-                try:
-                    texts = reader.feed(data)
-                except HapticMasterError:
-                    return  # a corrupt stream: the device drops the connection
-                replies = [encode(self._safe_answer(text)) for text in texts]
-                if replies:
-                    try:
-                        conn.sendall(b"".join(replies))
-                    except OSError:
-                        return
+                    answering = False
 
     def _safe_answer(self, text: str) -> str:
         try:
@@ -371,13 +524,14 @@ class HapticMasterEmulator:
 
     def drop_clients(self) -> None:
         """Cut every open connection (what a pulled cable looks like to the host)."""
-        for conn in list(self._clients):
+        with self._clients_lock:
+            clients = list(self._clients)
+        for conn in clients:
             try:
                 conn.shutdown(socket.SHUT_RDWR)
                 conn.close()
             except OSError:
                 pass
-        self._clients.clear()
 
     def close(self) -> None:
         self._closed.set()
@@ -387,7 +541,9 @@ class HapticMasterEmulator:
             pass
         self.drop_clients()
         self._accept_thread.join(timeout=1.0)
-        for thread in self._threads:
+        with self._clients_lock:
+            threads = list(self._threads)
+        for thread in threads:
             thread.join(timeout=1.0)
 
     def __enter__(self) -> HapticMasterEmulator:
@@ -434,6 +590,7 @@ class HapticMasterEmulator:
         if self._layout is None:  # the springs and dampers changed since the last frame
             self._layout = self._effects_layout()
         k, at, b, direction, deadband, maxforce, damping = self._layout
+        before = self.position.copy(), self.velocity.copy()
         self.acceleration = advance_effects(
             self.position,
             self.velocity,
@@ -450,6 +607,12 @@ class HapticMasterEmulator:
             deadband,
             maxforce,
         )
+        if not (np.all(np.isfinite(self.position)) and np.all(np.isfinite(self.velocity))):
+            # never within LIMITS; should it happen, the mass stops where it was
+            # rather than answer NaN positions for ever
+            self.position[:], self.velocity[:] = before[0], 0.0
+            self.acceleration[:] = 0.0
+            self.faults += 1
         self.time += n * self.dt
 
     def _effects_layout(self) -> tuple:
@@ -486,14 +649,20 @@ class HapticMasterEmulator:
             commands = [c.strip() for c in text.split(";")]
             if len(commands) > 1 and commands[-1] == "":
                 commands.pop()  # a trailing ';' as some clients send
-            self.received.extend(commands)
-            return ";".join(self._answer(c) for c in commands)
+            # counted, and only the last kept: memory bounded over millions of commands
+            self.frames.append(_shown(text, 4 * KEPT_CHARS))
+            self._recent.extend(_shown(c, KEPT_CHARS) for c in commands)
+            self.frames_answered += 1
+            self.commands += len(commands)
+            answers = [self._answer(c) for c in commands]
+            self.refused += sum(a.startswith(ERROR_PREFIX) for a in answers)
+            return ";".join(answers)
 
     def _answer(self, command: str) -> str:
         try:
             return self._dispatch(command.split())
         except (ValueError, IndexError, HapticMasterError):
-            return f"{ERROR_PREFIX}: cannot execute {command!r}"
+            return f"{ERROR_PREFIX}: cannot execute {_shown(command)!r}"
 
     def _dispatch(self, words: list[str]) -> str:
         if not words:
@@ -509,6 +678,11 @@ class HapticMasterEmulator:
             kind, name = args[0].lower(), args[1]
             if name in self.effects or name.lower() in ("state", "inertia", "all"):
                 return f"{ERROR_PREFIX}: name {name!r} is already in use"
+            if len(self.effects) >= MAX_EFFECTS or len(name) > MAX_NAME:
+                return (
+                    f"{ERROR_PREFIX}: at most {MAX_EFFECTS} effects of names up to "
+                    f"{MAX_NAME} characters"
+                )
             self.effects[name] = {
                 "type": kind,
                 "enabled": False,
@@ -529,7 +703,7 @@ class HapticMasterEmulator:
             if self.effects.pop(args[0], None) is None:
                 return f"{ERROR_PREFIX}: no effect named {args[0]!r}"
             return f"Effect {args[0]} removed"
-        return f"{ERROR_PREFIX}: unknown command {' '.join(words)!r}"
+        return f"{ERROR_PREFIX}: unknown command {_shown(' '.join(words))!r}"
 
     def _get(self, args: list[str]) -> str:
         what, rest = args[0], args[1:]
@@ -555,7 +729,7 @@ class HapticMasterEmulator:
             if isinstance(value, np.ndarray):
                 return format_vector(value)
             return str(value).lower()
-        return f"{ERROR_PREFIX}: cannot get {' '.join([what, *rest])!r}"
+        return f"{ERROR_PREFIX}: cannot get {_shown(' '.join([what, *rest]))!r}"
 
     def _set(self, name: str, rest: list[str]) -> str:
         value = " ".join(rest)
@@ -572,14 +746,14 @@ class HapticMasterEmulator:
             return f"state set to '{state}'"
         if name == "inertia":
             inertia = float(value)
-            if not inertia > 0:
-                return f"{ERROR_PREFIX}: inertia must be positive"
+            if not in_range("inertia", inertia):
+                return _out_of_range("inertia", value, "kg")
             self.inertia = inertia
             return "Inertia set"
         if name == "coulombfriction":
             friction = float(value)
-            if not friction >= 0:
-                return f"{ERROR_PREFIX}: Coulomb friction must not be negative"
+            if not in_range("coulombfriction", friction):
+                return _out_of_range("Coulomb friction", value, "N")
             self.coulomb_friction = friction
             return "Coulomb friction set"
         effect = self.effects.get(name)
@@ -595,20 +769,14 @@ class HapticMasterEmulator:
             return f"Effect {name} {'enabled' if effect['enabled'] else 'disabled'}"
         if field in ("force", "pos", "dampcoef", "direction"):
             vector = parse_vector(arg, field)
-            if not np.all(np.isfinite(vector)):
-                return f"{ERROR_PREFIX}: {field} {arg!r} is not finite"
+            if not all(in_range(field, float(c)) for c in vector):
+                return _out_of_range(field, arg, _UNITS[field])
             effect[field] = vector
             return f"Effect {name} {field} set"
-        if field in ("stiffness", "dampfactor", "deadband"):
+        if field in ("stiffness", "dampfactor", "deadband", "maxforce"):
             number = float(arg)
-            if not (math.isfinite(number) and number >= 0):
-                return f"{ERROR_PREFIX}: {field} {arg!r} must be finite and >= 0"
-            effect[field] = number
-            return f"Effect {name} {field} set"
-        if field == "maxforce":
-            number = float(arg)
-            if not number > 0:  # inf: no cap
-                return f"{ERROR_PREFIX}: maxforce {arg!r} must be > 0"
+            if not in_range(field, number):  # maxforce inf: no cap
+                return _out_of_range(field, arg, _UNITS[field])
             effect[field] = number
             return f"Effect {name} {field} set"
         return f"{ERROR_PREFIX}: effect {name!r} has no setting {field!r}"

@@ -15,8 +15,11 @@ client nor the emulator (:mod:`evo_door.render.emulator`) ever parses a partial 
 
 :class:`HapticMasterDevice` implements the render Device interface (``start``,
 ``read``, ``command``, ``step``, ``stop``). The force the host adds goes to the device
-as a *bias force* it renders until told otherwise, which is why :meth:`stop` removes
-every effect whatever went wrong before. The ``set`` of the force is pipelined: sent at
+as a *bias force* it renders until told otherwise, even after the connection closes,
+and the device has no timeout of its own: :meth:`~HapticMasterDevice.stop` sends the
+commands that take the force off (one frame) before the socket closes, whatever went
+wrong before, and a device that stops answering counts as stalled after milliseconds
+(``stall_timeout``), not a socket timeout. The ``set`` of the force is pipelined: sent at
 once, its acknowledgement read together with the next query's answer, so a cycle costs
 one network round trip, which :attr:`HapticMasterDevice.round_trips` records (the
 servo loop's passivity check needs the measured period, not the device's 0.4 ms).
@@ -26,9 +29,11 @@ from __future__ import annotations
 
 import math
 import re
+import select
 import socket
 import string
 import time
+from collections import deque
 
 import numpy as np
 
@@ -145,6 +150,8 @@ def parse_vector(answer: str, what: str = "answer") -> np.ndarray:
 def split_answers(text: str, commands: list[str]) -> list[str]:
     """The answers of a batched frame, one per command; device errors raised."""
     answers = [a.strip() for a in text.split(";")]
+    if len(answers) == len(commands) + 1 and answers[-1] == "":
+        answers.pop()  # the older API ends its answers with ';'
     if len(answers) != len(commands):
         raise HapticMasterError(
             f"{len(commands)} commands ({'; '.join(commands)}) got {len(answers)} answers: {text!r}"
@@ -208,6 +215,31 @@ def native_commands(params, max_force: float | None = None) -> list[str]:
 
 # -- the device ---------------------------------------------------------------------
 
+#: The shortest stall timeout (s). The loop's own budget (watchdog misses x period,
+#: 4 ms at the defaults) is below what a busy machine's scheduler can delay an answer
+#: by (a normal process waits tens of ms for a core under load), and a false stall
+#: ends a participant's session.
+STALL_FLOOR = 0.05
+#: How long the fail-safe frame may take to be sent and acknowledged (s).
+FAILSAFE_WAIT = 0.1
+#: How long, after ``shutdown(SHUT_WR)``, the client reads what the device still sends
+#: before it closes (s): a close with unread data would reset the connection.
+FAILSAFE_DRAIN = 0.02
+
+
+def failsafe_commands(bias: bool = True) -> list[str]:
+    """The commands that take the force off the handle, sent in one frame.
+
+    The bias force to zero first (``bias``: it exists), so that the force is gone even
+    if the device stopped at the next command; then every effect removed and the
+    device stopped: the HapticMaster keeps rendering its effects after a connection
+    closes, and has no timeout of its own (docs/renderer.md, "Stalls").
+
+    >>> failsafe_commands()
+    ['set evoDoorForce force [0,0,0]', 'remove all', 'set state stop']
+    """
+    return ([f"set {BIAS_NAME} force [0,0,0]"] if bias else []) + ["remove all", "set state stop"]
+
 
 class HapticMasterDevice:
     """A MOOG HapticMaster at ``host:port`` as a render Device.
@@ -219,7 +251,11 @@ class HapticMasterDevice:
     max_force
         Saturation of the force the host commands (N); the client clips to it too.
     timeout
-        Seconds to wait for any answer before the connection counts as lost.
+        Seconds to connect and to wait for each answer of the start-up sequence.
+    stall_timeout
+        Seconds an answer may take once rendering before the device counts as
+        stalled. Default: what the servo loop gives (:meth:`watch_stalls`, its
+        watchdog's budget), at least :data:`STALL_FLOOR`.
     init_wait
         Seconds between ``set state init`` and ``set state force`` (a real device
         homes in between; several seconds).
@@ -230,6 +266,14 @@ class HapticMasterDevice:
         Commands sent after start-up to configure what the device renders itself at
         2.5 kHz (``set inertia 2.0``, ``set coulombfriction 1.5``, springs, dampers),
         so the host loop only adds what the device cannot express.
+
+    The socket is non-blocking: every wait is a ``poll`` with a deadline, so a device
+    that stops answering is noticed within ``stall_timeout``, not a socket timeout.
+    Whatever ends the connection (a stall, the device closing, an error, an
+    exception, the end of the render), :meth:`stop` sends :func:`failsafe_commands`
+    before the socket closes; :attr:`failsafe` says what came of them and
+    :attr:`failsafe_warning` is the one line to show when the device may still hold
+    a force.
     """
 
     def __init__(
@@ -240,29 +284,58 @@ class HapticMasterDevice:
         max_force: float = 200.0,
         damping: float = 0.0,
         timeout: float = 1.0,
+        stall_timeout: float | None = None,
         init_wait: float = 2.0,
         native: list[str] | tuple[str, ...] = (),
         history: int = 1 << 16,
     ) -> None:
+        if stall_timeout is not None and not (0 < stall_timeout < math.inf):
+            raise UserError(f"stall timeout {stall_timeout!r} s: must be > 0 and finite")
         self.host = host
         self.port = int(port)
         self.max_force = float(max_force)
         self.damping = float(damping)
         self.timeout = float(timeout)
+        self.stall_timeout = STALL_FLOOR if stall_timeout is None else float(stall_timeout)
+        self._stall_fixed = stall_timeout is not None
         self.init_wait = float(init_wait)
         self.native = list(native)
         self._sock: socket.socket | None = None
-        self._reader = FrameReader()
-        self._inbox: list[str] = []
-        self._unacked: list[str] = []  # pipelined commands whose answer is still due
         self._rtt = np.zeros(int(history))
         self._n_rtt = 0
         self._force = np.zeros(3)
         self._cmd_prefix = f"set {BIAS_NAME} force "
+        #: what the fail-safe of the last :meth:`stop` came to: "" (nothing was
+        #: connected), "acknowledged", "unacknowledged" (sent, no answer: it waits
+        #: in the connection), "undelivered" or "refused"
+        self.failsafe = ""
+        #: one line when the device may still hold a force after :meth:`stop`, else ""
+        self.failsafe_warning = ""
+        self._reset()
+
+    def _reset(self) -> None:
+        """The state of one connection, fresh."""
+        self._reader = FrameReader()
+        self._inbox: deque[str] = deque()
+        self._unacked: deque[str] = deque()  # pipelined commands whose answer is due
+        self._out = bytearray()  # bytes of whole frames not yet taken by the kernel
+        self._sent = 0  # frames queued to the device
+        self._got = 0  # answer frames received
+        self._since = 0.0  # monotonic time of the last answer, or of a request to an idle device
+        self._broken: str | None = None  # why the connection can no longer be used
+        self._running = False  # through start(): answers must come within stall_timeout
+        self._bias_created = False
         self._native_created = False  # the plane's effects exist on the device
 
     #: real time: the loop paces itself on the wall clock
     simulated = False
+
+    def watch_stalls(self, budget: float) -> float:
+        """The servo loop's budget for a missing answer (s): the stall timeout, at least
+        :data:`STALL_FLOOR`, unless one was given. Returns the timeout in use."""
+        if not self._stall_fixed:
+            self.stall_timeout = max(STALL_FLOOR, float(budget))
+        return self.stall_timeout
 
     # -- connection ---------------------------------------------------------------
 
@@ -272,7 +345,8 @@ class HapticMasterDevice:
 
     @property
     def connected(self) -> bool:
-        return self._sock is not None
+        """Connected and usable (a lost connection stays open for :meth:`stop` only)."""
+        return self._sock is not None and self._broken is None
 
     def connect(self) -> None:
         if self._sock is not None:
@@ -284,14 +358,17 @@ class HapticMasterDevice:
                 f"cannot connect to {self.address}: {exc.strerror or exc}"
             ) from None
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(self.timeout)
+        sock.setblocking(False)  # every wait is a poll with a deadline (_ready)
         self._sock = sock
-        self._reader = FrameReader()
-        self._inbox.clear()
-        self._unacked.clear()
-        self._native_created = False
+        self._reset()
+        self.failsafe = self.failsafe_warning = ""
 
     def close(self) -> None:
+        """:meth:`stop`: the connection never closes without the fail-safe first."""
+        self.stop()
+
+    def _close(self) -> None:
+        """Close the socket: only :meth:`stop` does, after the fail-safe."""
         sock, self._sock = self._sock, None
         if sock is not None:
             try:
@@ -300,37 +377,97 @@ class HapticMasterDevice:
                 pass
 
     def _lost(self, why: str) -> HapticMasterConnectionLost:
-        self.close()
+        """Mark the connection unusable; the socket stays open, so that :meth:`stop`
+        can still send the fail-safe on it (a device that resumes reads it)."""
+        if self._broken is None:
+            self._broken = why
         return HapticMasterConnectionLost(f"connection to {self.address} lost: {why}")
 
-    def _send(self, text: str) -> None:
+    def _usable(self) -> None:
         if self._sock is None:
             raise HapticMasterConnectionLost(f"not connected to {self.address}")
-        try:
-            self._sock.sendall(encode(text))
-        except OSError as exc:
-            raise self._lost(exc.strerror or str(exc) or type(exc).__name__) from None
+        if self._broken is not None:
+            raise HapticMasterConnectionLost(f"connection to {self.address} lost: {self._broken}")
 
-    def _receive(self) -> str:
-        """The text of the next whole frame, waiting at most ``timeout`` per piece."""
-        while not self._inbox:
-            if self._sock is None:
-                raise HapticMasterConnectionLost(f"not connected to {self.address}")
+    def _ready(self, events: int, deadline: float) -> bool:
+        """Wait until the socket is ready for ``events`` or ``deadline`` (monotonic s)."""
+        poller = select.poll()
+        poller.register(self._sock, events)
+        left = max(deadline - time.monotonic(), 0.0)
+        return bool(poller.poll(left * 1e3))
+
+    def _wait_for_answer(self) -> float:
+        """Seconds an answer may take: the start-up's ``timeout``, then ``stall_timeout``."""
+        return self.stall_timeout if self._running else self.timeout
+
+    def _flush(self, deadline: float) -> None:
+        """Hand the queued bytes to the kernel by ``deadline``; a full send buffer
+        that long means the device reads nothing: lost."""
+        while self._out:
             try:
-                data = self._sock.recv(65536)
-            except TimeoutError:
-                raise self._lost(f"no answer within {self.timeout:g} s") from None
+                n = self._sock.send(self._out)
+            except BlockingIOError:
+                n = 0
             except OSError as exc:
                 raise self._lost(exc.strerror or str(exc) or type(exc).__name__) from None
+            del self._out[:n]
+            if self._out and not self._ready(select.POLLOUT, deadline):
+                raise self._lost("the device takes no more data (stalled?)")
+
+    def _send(self, text: str) -> None:
+        self._usable()
+        frame = encode(text)
+        now = time.monotonic()
+        if self._sent == self._got:  # nothing was due: the wait for an answer starts now
+            self._since = now
+        self._out += frame
+        self._sent += 1
+        self._flush(now + self._wait_for_answer())
+
+    def _recv(self, deadline: float) -> bytes | None:
+        """What the socket has by ``deadline`` (None: nothing; b"": closed); may raise
+        OSError."""
+        while self._ready(select.POLLIN, deadline):
+            try:
+                return self._sock.recv(65536)
+            except BlockingIOError:  # a spurious wake-up
+                continue
+        return None
+
+    def _take(self, data: bytes) -> None:
+        texts = self._reader.feed(data)
+        if texts:
+            self._got += len(texts)
+            self._since = time.monotonic()
+            self._inbox.extend(texts)
+
+    def _receive(self) -> str:
+        """The text of the next whole frame. The device counts as stalled when no
+        answer came for the wait (:meth:`_wait_for_answer`) since the last answer, or
+        since a request to a device that owed none: elapsed time, not the pause of a
+        host that did not ask."""
+        while not self._inbox:
+            self._usable()
+            wait = self._wait_for_answer()
+            try:
+                data = self._recv(self._since + wait)
+            except OSError as exc:
+                raise self._lost(exc.strerror or str(exc) or type(exc).__name__) from None
+            if data is None:
+                raise self._lost(f"no answer within {wait * 1e3:.0f} ms (stalled?)")
             if not data:
                 raise self._lost("closed by the device")
-            self._inbox.extend(self._reader.feed(data))
-        return self._inbox.pop(0)
+            try:
+                self._take(data)
+            except HapticMasterError as exc:  # a corrupt stream cannot be read on
+                self._lost(str(exc))
+                raise
+        return self._inbox.popleft()
 
     def _drain(self) -> None:
         """Read the answers of pipelined commands; a refusal is raised."""
         while self._unacked:
-            command = self._unacked.pop(0)
+            command = self._unacked.popleft()
             split_answers(self._receive(), [command])
 
     def request(self, *commands: str) -> list[str]:
@@ -346,6 +483,7 @@ class HapticMasterDevice:
 
         ``remove all``, the calibration check, ``set state init``, a wait, ``set state
         force``, then the bias force (created at zero, enabled) and the native effects.
+        Each answer may take ``timeout``; from then on ``stall_timeout``.
         """
         self.connect()
         try:
@@ -361,6 +499,7 @@ class HapticMasterDevice:
             time.sleep(self.init_wait)
             self.request("set state force")
             self.request(f"create biasforce {BIAS_NAME}")
+            self._bias_created = True
             self.request(f"set {BIAS_NAME} force [0,0,0]", f"set {BIAS_NAME} enable")
             for command in self.native:
                 self.request(command)
@@ -368,6 +507,7 @@ class HapticMasterDevice:
             self.stop()
             raise
         self._force[:] = 0.0
+        self._running = True
 
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Position (m), velocity (m/s), measured user force (N) in one round trip."""
@@ -433,27 +573,88 @@ class HapticMasterDevice:
         """The real device runs its own physics: nothing to do."""
 
     def stop(self) -> None:
-        """``remove all`` (the bias force persists otherwise) and ``set state stop``.
+        """Take the force off the handle, then close: the end of every exit path.
 
-        Idempotent and safe after errors: a dead connection is closed without raising.
+        :func:`failsafe_commands` go in one frame before the socket closes, whatever
+        state the connection is in (a stall, the device closing, an error): a device
+        that stalled reads them from the connection when it resumes, in order after
+        what it had not read yet. The frame has :data:`FAILSAFE_WAIT` to be sent and
+        answered; then ``shutdown(SHUT_WR)``, :data:`FAILSAFE_DRAIN` of reading what
+        is left (a close with unread data would reset the connection and could make
+        the device drop the frame), and the close. :attr:`failsafe` and
+        :attr:`failsafe_warning` say how it went. Idempotent; never raises.
         """
         if self._sock is None:
             return
         try:
-            self._unacked.clear()
-            self._inbox.clear()
-            # answers still due from pipelined commands come first; send and read on
-            self._send("remove all")
-            self._send("set state stop")
-            deadline = time.perf_counter() + self.timeout
-            while time.perf_counter() < deadline:
-                if self._receive().startswith(("state set", ERROR_PREFIX)):
-                    break
-        except (HapticMasterError, OSError):
-            pass
+            self.failsafe, self.failsafe_warning = self._fail_safe()
+        except Exception as exc:  # never let the way out raise: say it instead
+            self.failsafe = "undelivered"
+            self.failsafe_warning = self._undelivered(f"{type(exc).__name__}: {exc}")
         finally:
-            self.close()
+            try:
+                self._sock.shutdown(socket.SHUT_WR)
+                self._discard(time.monotonic() + FAILSAFE_DRAIN)
+            except OSError:
+                pass
+            self._close()
+            self._running = False
             self._force[:] = 0.0
+
+    def _fail_safe(self) -> tuple[str, str]:
+        """Send the fail-safe frame and wait for its answer; (outcome, warning)."""
+        deadline = time.monotonic() + FAILSAFE_WAIT
+        frame = encode(";".join(failsafe_commands(self._bias_created)))
+        # after whole frames only: a frame cut by a full buffer is completed first,
+        # else the device would read the fail-safe as the rest of it
+        self._out += frame
+        self._sent += 1
+        target = self._sent  # the answer to this frame is the target-th received
+        try:
+            self._flush(deadline)
+        except HapticMasterConnectionLost:
+            return "undelivered", self._undelivered(self._broken)
+        answer = None
+        while answer is None:
+            try:
+                data = self._recv(deadline)
+            except OSError as exc:
+                return "undelivered", self._undelivered(exc.strerror or str(exc))
+            if data is None:
+                return "unacknowledged", (
+                    f"{self.address} did not answer the commands that take its force off "
+                    f"within {FAILSAFE_WAIT * 1e3:.0f} ms: they wait in the connection and "
+                    "take effect if it resumes; until then it may still hold a force (its "
+                    "emergency stop clears it)"
+                )
+            if not data:
+                return "undelivered", self._undelivered("closed by the device")
+            try:
+                self._take(data)
+            except HapticMasterError as exc:
+                return "undelivered", self._undelivered(str(exc))
+            if self._got >= target:
+                answer = self._inbox[len(self._inbox) - 1 - (self._got - target)]
+        if ERROR_PREFIX in answer:
+            return "refused", (
+                f"{self.address} refused the commands that take its force off ({answer}): "
+                "it may still hold a force; clear it with its emergency stop"
+            )
+        return "acknowledged", ""
+
+    def _undelivered(self, why: str | None) -> str:
+        return (
+            f"{self.address}: the commands that take its force off could not be delivered "
+            f"({why or 'connection lost'}): the device may still hold a force; clear it "
+            "with its emergency stop"
+        )
+
+    def _discard(self, deadline: float) -> None:
+        """Read and drop what the device sends until it closes or ``deadline``."""
+        while True:
+            data = self._recv(deadline)
+            if not data:
+                return
 
     # -- measurements ---------------------------------------------------------------
 

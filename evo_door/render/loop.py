@@ -605,6 +605,12 @@ class ServoLoop:
                 pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
             )
             cmd[:] = 0.0
+            # a device over a link counts as stalled after the watchdog's budget without
+            # an answer (the device applies its own floor): its read then fails, which
+            # trips the watchdog, and the loop ends at the next command
+            watch_stalls = getattr(dev, "watch_stalls", None)
+            if watch_stalls is not None:
+                watch_stalls(self.watchdog.misses * T)
             dev.start()
             self._set_native()
             self._set_vectors()

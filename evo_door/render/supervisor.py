@@ -56,8 +56,10 @@ KEEPALIVE = 0.1
 KEEPALIVE_LOST = 1.0
 #: time to connect and get a first answer, at start-up (s)
 CONNECT_TIMEOUT = 2.0
-#: how long the supervisor waits for the device's answer to its removal (s)
-ANSWER_WAIT = 0.5
+#: how long the supervisor waits for the device's answer to its removal (s): the frame
+#: is sent at once; a device that stalled answers when it resumes, and the renderer
+#: waits for this process on its way out (a stalled device must end a render in 0.5 s)
+ANSWER_WAIT = 0.1
 #: what it sends: the state change first (surely global on the device, even if the
 #: effects turned out to belong to the connection that made them), then every effect
 REMOVAL = "set state stop;remove all"
