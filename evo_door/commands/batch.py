@@ -269,11 +269,10 @@ def _bar(total: int, show: bool):
 
 
 def _one_line(error) -> str:
-    from evo_door.cli import error_line
-    from evo_door.errors import UserError
+    from evo_door.errors import PREFIX, UserError, error_line
 
     text = str(error) if isinstance(error, UserError) else f"{type(error).__name__}: {error}"
-    return error_line(text)[len("evo-door: error: ") :]
+    return error_line(text)[len(PREFIX) :]
 
 
 def format_summary(tasks: list[dict], rows: dict) -> str:
