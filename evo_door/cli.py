@@ -17,6 +17,7 @@ import importlib
 import pkgutil
 import sys
 
+import evo_door.plugins  # noqa: F401 (fills the lower layers' registries: render logs as parameter files)
 from evo_door import __version__
 from evo_door.errors import UserError, error_line
 
