@@ -142,7 +142,7 @@ def _plugin_preset_roots() -> list[Path]:
     A broken registration (a package that is gone) is skipped with a warning: it must
     not stop the bundled presets from loading.
     """
-    roots = []
+    roots: list[Path] = []
     for ep in importlib.metadata.entry_points(group=PRESET_GROUP):
         module = ep.value.partition(":")[0].strip()
         try:
