@@ -383,6 +383,7 @@ algorithm: {{population: 12, generations: 2, polish: slsqp}}
 
 
 # -- the commands, run in-process (tests.test_cli.cli) -----------------------------------
+@pytest.mark.slow
 def test_cli_run_show_runs_resume_and_errors(folder, capsys):
     out = folder / "results" / "a.h5"
     res = cli(

@@ -83,6 +83,7 @@ def test_haptic_round_trip_ga_then_polish(noise, tol, identifiable):
     assert all(rel[name] < tol for name in identifiable), rel
 
 
+@pytest.mark.slow
 def test_door_round_trip_on_max_square_ga_then_polish():
     """The seed's objective (max-square on angular speed) on the physical door, noise-free.
 
