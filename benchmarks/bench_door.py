@@ -1,6 +1,6 @@
 """Door model speed: one trial, and a population in one batched call, against scipy.
 
-Targets (issue 4): a 5 s trial at 1024 Hz in at most 10 ms on one core; a population
+Targets: a 5 s trial at 1024 Hz in at most 10 ms on one core; a population
 of 100 in one batched call scales with the cores available. The plain way is scipy's
 ``solve_ivp`` with a Python right-hand side calling the same door equations (the
 kernels' pure-Python twins, ``py_func``), timed in the same run.

@@ -1,6 +1,6 @@
 """Start-up of the command line: commands that do not simulate, against importing numba.
 
-Target (issue 16): ``evo-door --help`` and ``evo-door params haptic`` under 0.3 s. Each
+Target: ``evo-door --help`` and ``evo-door params haptic`` under 0.3 s. Each
 command runs in a fresh interpreter (a subprocess, as a user types it), timed from
 start to exit; ``python -c "import numba"`` is the cost the parser no longer pays, and
 ``python -c pass`` the interpreter's own floor.

@@ -20,7 +20,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: scipy settings of the plain way (the benchmarks' since issue 3)
+#: scipy settings of the plain way (the same in every benchmark)
 RTOL, ATOL = 1e-6, 1e-9
 #: settings of the reference solution (the test suite's)
 REF_RTOL, REF_ATOL = 1e-10, 1e-12

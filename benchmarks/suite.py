@@ -70,7 +70,7 @@ from evo_door.errors import UserError  # noqa: E402
 SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy", "control")
 DEFAULT_OUT = HERE / "results"
 
-#: targets (issue 16): one 5 s door trial on one thread; commands that do not simulate
+#: targets: one 5 s door trial on one thread; commands that do not simulate
 DOOR_TRIAL_TARGET = 3e-3
 HAPTIC_TRIAL_TARGET = 2e-3
 STARTUP_TARGET = 0.3

@@ -5,4 +5,4 @@ genetic-algorithm parameter estimation from measured trials and translation of a
 chosen haptic feel back into technical specifications.
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0.dev0"

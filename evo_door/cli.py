@@ -17,8 +17,9 @@ import importlib
 import pkgutil
 import sys
 
+import evo_door.plugins  # noqa: F401 (fills the lower layers' registries: render logs as parameter files)
 from evo_door import __version__
-from evo_door.errors import UserError
+from evo_door.errors import UserError, error_line
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,18 +41,6 @@ def build_parser() -> argparse.ArgumentParser:
     for module in sorted(modules, key=lambda m: (getattr(m, "ORDER", 50), m.__name__)):
         module.register(sub)
     return parser
-
-
-#: the longest error line printed (a message quoting a file must not flood the terminal)
-MAX_ERROR = 400
-
-
-def error_line(message: str) -> str:
-    """``evo-door: error: MESSAGE`` on one line, at most :data:`MAX_ERROR` characters."""
-    text = " ".join(str(message).split())
-    if len(text) > MAX_ERROR:
-        text = text[: MAX_ERROR - 5] + " ..."
-    return f"evo-door: error: {text}"
 
 
 def main(argv: list[str] | None = None) -> int:

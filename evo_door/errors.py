@@ -1,4 +1,9 @@
-"""Errors a user can cause and fix: the CLI prints them on one line and exits 2."""
+"""Errors a user can cause and fix: the CLI prints them on one line and exits 2.
+
+The one-line form (:func:`error_line`) lives here, at the bottom of the layers, so that
+any layer that reports a user error in its own output (a batch's summary table) writes
+it exactly as the command line does, without importing the command line.
+"""
 
 
 class UserError(Exception):
@@ -11,3 +16,24 @@ class UserError(Exception):
 
 class ParameterError(UserError, ValueError):
     """A parameter name or value that does not fit its declaration."""
+
+
+#: the longest error line printed (a message quoting a file must not flood the terminal)
+MAX_ERROR = 400
+
+#: what every error line starts with
+PREFIX = "evo-door: error: "
+
+
+def error_line(message) -> str:
+    """``evo-door: error: MESSAGE`` on one line, at most :data:`MAX_ERROR` characters.
+
+    >>> error_line("a.yaml:3: unknown key 'modle'\\n  (did you mean 'model'?)")
+    "evo-door: error: a.yaml:3: unknown key 'modle' (did you mean 'model'?)"
+    >>> len(error_line("x" * 1000)) <= len(PREFIX) + MAX_ERROR
+    True
+    """
+    text = " ".join(str(message).split())
+    if len(text) > MAX_ERROR:
+        text = text[: MAX_ERROR - 5] + " ..."
+    return f"{PREFIX}{text}"

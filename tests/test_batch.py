@@ -1,15 +1,17 @@
 """``evo-door batch``: sweeps, per-user experiments, a failure that stops nothing,
-interrupt and continue."""
+interrupt and continue; what a worker runs."""
 
+import pickle
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from evo_door.cli import main
-from evo_door.commands import batch
-from evo_door.commands.batch import expand_sweeps, plan, split_values
 from evo_door.errors import UserError
-from evo_door.experiment import Results, load_experiment, store
+from evo_door.experiment import Results, batch, load_experiment, store
+from evo_door.experiment.batch import expand_sweeps, plan, split_values
 from evo_door.experiment.runner import ExperimentRun
 from evo_door.files import ATTRS
 
@@ -141,6 +143,39 @@ def test_an_interrupted_batch_says_what_did_not_finish_and_continues(tmp_path, c
     monkeypatch.setattr(batch, "run_task", real)
     assert main(["batch", *map(str, exps), "--out", str(out)]) == 0
     assert _status(out / "two.h5") == "complete"
+
+
+def test_what_a_worker_runs_imports_no_command_line(tmp_path, monkeypatch):
+    """The function the batch ships to its workers, unpickled in a fresh interpreter as
+    a worker does, imports the experiment layer and below, never the command line
+    (which imports every command)."""
+    from evo_door.optim import executors
+
+    shipped, real_open = [], executors.open_executor
+
+    def spy(spec):
+        executor = real_open(spec)
+        real_imap = executor.imap
+
+        def imap(fn, items):
+            shipped.append(pickle.dumps(fn))
+            return real_imap(fn, items)
+
+        executor.imap = imap
+        return executor
+
+    monkeypatch.setattr(executors, "open_executor", spy)
+    exp = _tiny(tmp_path, "one", "U1")
+    assert main(["batch", str(exp), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    probe = (
+        "import pickle, sys\n"
+        f"fn = pickle.loads({shipped[0]!r})\n"
+        "print(fn.__module__, sorted(m for m in sys.modules if m.split('.')[:2] in "
+        "(['evo_door', 'commands'], ['evo_door', 'cli'])))"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split(" ", 1) == ["evo_door.experiment.batch", "[]\n"]
 
 
 @pytest.mark.slow

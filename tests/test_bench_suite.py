@@ -10,7 +10,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: metrics every run of the whole suite has (the issue's list of ratios and targets)
+#: metrics every run of the whole suite has (the ratios and targets the suite states)
 REQUIRED = (
     "trial.door.workbench",
     "trial.door.rk45_compiled",

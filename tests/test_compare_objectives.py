@@ -228,6 +228,7 @@ def test_runs_already_there_are_refused_kept_or_continued(made, tmp_path):
     assert Results(part.path(v)).best() == whole["values"]
 
 
+@pytest.mark.slow
 def test_cli_prints_the_table_and_writes_the_files(tmp_path, capsys):
     folder = experiment_folder(tmp_path)
     out = folder / "cli"

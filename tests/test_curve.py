@@ -33,7 +33,7 @@ LATCH = {"haptic": ("open_force", "close_force"), "door": ("unlock_force", "lock
 
 # Parameter sets whose latch bands range from 3e-5 rad to 0.015 rad wide.
 PEAK_CASES = [
-    # the issue's command: 721 uniform points stepped over the 0.0065 rad lock band
+    # a plain command: 721 uniform points stepped over the 0.0065 rad lock band
     (
         "haptic",
         {"open_force": 27.0, "close_force": 13.0, "friction_closing": 0.0, "friction_opening": 0.0},
@@ -216,7 +216,7 @@ def test_door_coulomb_curve_is_the_limit_of_steep_tanh_laws():
         quasi_static_force(door, steep, theta, w) - quasi_static_force(door, steep, theta, -w)
     ) / 2
     np.testing.assert_allclose(coulomb, limit, rtol=1e-6)
-    # the default tanh laws at 0.02 rad/s fall well short of it (the issue: 63-92 %)
+    # the default tanh laws at 0.02 rad/s fall well short of it (63-92 % of it)
     slow = (quasi_static_force(door, ps, theta, w) - quasi_static_force(door, ps, theta, -w)) / 2
     ratio = slow / coulomb
     assert 0.5 < ratio.min() and ratio.max() < 0.95

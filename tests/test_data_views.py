@@ -1,5 +1,5 @@
 """What people see of trials: import reports, the trial figure, the curve figure, the
-bundled data set and how it is reproduced (issue 12)."""
+bundled data set and how it is reproduced."""
 
 import os
 from pathlib import Path

@@ -383,6 +383,7 @@ algorithm: {{population: 12, generations: 2, polish: slsqp}}
 
 
 # -- the commands, run in-process (tests.test_cli.cli) -----------------------------------
+@pytest.mark.slow
 def test_cli_run_show_runs_resume_and_errors(folder, capsys):
     out = folder / "results" / "a.h5"
     res = cli(
@@ -452,7 +453,7 @@ def test_cli_run_show_runs_resume_and_errors(folder, capsys):
     listed = cli(capsys, "runs", str(folder / "results"))
     assert listed.returncode == 0, listed.stderr
     rows = {line.split()[0]: line for line in listed.stdout.split("\n\n")[0].splitlines()[2:]}
-    # killed in-process, no process holds the file: interrupted (issue 12), not "running"
+    # killed in-process, no process holds the file: interrupted, not "running"
     assert (
         "complete" in rows["a.h5"]
         and "interrupted" in rows["cut.h5"]

@@ -1,4 +1,4 @@
-"""Input files as people write them, and the numbers people type (issue 12).
+"""Input files as people write them, and the numbers people type.
 
 ``evo-door simulate --input`` reads a force record with the reader, mapping and units
 of ``data import``; rounded time stamps become an exact uniform grid, real gaps are

@@ -31,10 +31,10 @@ pytestmark = pytest.mark.numerics
 DT = 1.0 / 1024.0
 CLOSED = 0.5 * math.pi
 DEG = math.pi / 180.0
-#: The issue's brisk pull: a half-sine of 0.3 s.
+#: A brisk pull, as a hand gives it: a half-sine of 0.3 s.
 WIDTH = 0.3
-#: The issue's sub-threshold pulls: 14 N on the door, 15 N on the haptic model.
-ISSUE_PULL = {"door": 14.0, "haptic": 15.0}
+#: Brisk pulls below the unlock force: 14 N on the door, 15 N on the haptic model.
+BRISK_PULL = {"door": 14.0, "haptic": 15.0}
 
 
 class Latch:
@@ -134,7 +134,7 @@ def test_closed_door_rests_on_its_catch(latch):
 
 
 # -- unlocking -------------------------------------------------------------------------
-@pytest.mark.parametrize("share", ["issue", 0.5, 0.75, 0.9])
+@pytest.mark.parametrize("share", ["brisk", 0.5, 0.75, 0.9])
 def test_brisk_pull_below_the_unlock_force_leaves_the_door_latched(latch, share):
     """A 0.3 s half-sine pull below the threshold: the door does not go past its play.
 
@@ -144,7 +144,7 @@ def test_brisk_pull_below_the_unlock_force_leaves_the_door_latched(latch, share)
     slowly compared with the catch's period (20 ms on the door, 0.15 s haptic), as a
     hand's 0.3 s pull does. 0.4 + 0.057 deg on the door: under the seed's 0.5 deg.
     """
-    amplitude = ISSUE_PULL[latch.name] if share == "issue" else share * latch.pull
+    amplitude = BRISK_PULL[latch.name] if share == "brisk" else share * latch.pull
     assert amplitude < 0.91 * latch.pull
     start = latch.closed()
     r = latch.run(half_sine(-amplitude), start)
@@ -267,7 +267,7 @@ def test_door_catch_asks_more_than_any_pull_below_90_percent_can_give(kind):
 
 
 def test_a_pull_gets_no_run_up_and_delivers_less_than_the_barrier(latch):
-    """The issue's numbers: the energy a brisk pull can put into the door before the
+    """The energy a brisk pull can put into the door before the
     catch engages, against the catch's barrier, with the seal seating the door and
     without it (the latch as it was: the door resting at the far end of its play)."""
     g = latch.ps.as_dict()
@@ -291,14 +291,14 @@ def test_a_pull_gets_no_run_up_and_delivers_less_than_the_barrier(latch):
     rest = latch.closed()
     run_up = amplitude * max(rest[0] - latch.theta_0, 0.0) * latch.lever
     assert run_up < 0.02 * barrier
-    # and the issue's brisk pull does less work than the barrier before it turns back
-    r = latch.run(half_sine(-ISSUE_PULL[latch.name]), rest)
+    # and the brisk pull does less work than the barrier before it turns back
+    r = latch.run(half_sine(-BRISK_PULL[latch.name]), rest)
     assert pull_work(r.force, r.theta, latch.lever).max() < barrier
     # the latch as it was: the door pushed shut, the whole free play as a run-up,
-    # worth more than the barrier, and the issue's pull unlocks it
+    # worth more than the barrier, and the brisk pull unlocks it
     was = Latch(latch.name, old)
     start = (CLOSED, 0.0)
-    pull = ISSUE_PULL[latch.name]
+    pull = BRISK_PULL[latch.name]
     assert pull * (CLOSED - was.theta_0) * was.lever > old_barrier
     width = WIDTH if latch.name == "door" else 0.2  # the haptic door gives to 0.15-0.25 s
     r = was.run(half_sine(-pull, width=width), start)

@@ -64,7 +64,7 @@ def test_no_truth_for_measured_data(folder):  # noqa: F811
 
 @pytest.mark.slow
 def test_main_job_recovers_the_rig_door_within_3_percent(tmp_path):
-    """The issue's accuracy target with rig noise: GA (AMESim's settings) then SLSQP.
+    """The accuracy target with rig noise: GA (AMESim's settings) then SLSQP.
 
     The bundled trials carry load-cell noise, gyroscope noise and a gyroscope bias per
     trial; the experiment removes the bias (target.preprocess) and fits the ISE.

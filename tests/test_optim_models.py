@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from evo_door.data.trial import Trial
-from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.optim import GASettings, GeneticAlgorithm, Objective, Problem, slsqp
 from evo_door.sim import simulate
@@ -21,13 +20,6 @@ from evo_door.sim import simulate
 pytestmark = pytest.mark.numerics
 
 DT = 1.0 / 1024.0
-
-
-def model_or_skip(name):
-    try:
-        return get_model(name)
-    except (UserError, AttributeError, ImportError) as exc:
-        pytest.skip(f"model {name!r} not available: {exc}")
 
 
 def push_pull_trial(model, params, seed, noise):
@@ -71,7 +63,7 @@ def push_pull_trial(model, params, seed, noise):
     ],
 )
 def test_haptic_round_trip_ga_then_polish(noise, tol, identifiable):
-    model = model_or_skip("haptic")
+    model = get_model("haptic")  # bundled: one that fails to load fails here
     truth = model.params.defaults
     trials = [push_pull_trial(model, truth, seed, noise) for seed in (2, 3, 4)]
     free = ["inertia", "friction_closing", "friction_opening", "viscous_damping"]
@@ -91,13 +83,14 @@ def test_haptic_round_trip_ga_then_polish(noise, tol, identifiable):
     assert all(rel[name] < tol for name in identifiable), rel
 
 
+@pytest.mark.slow
 def test_door_round_trip_on_max_square_ga_then_polish():
     """The seed's objective (max-square on angular speed) on the physical door, noise-free.
 
     SLSQP alone on the max over samples stalls from the GA's best (F_atD left ~40 %
     off); the polish's smooth ISE stage gets every parameter within 1 %.
     """
-    model = model_or_skip("door")
+    model = get_model("door")  # bundled, never skipped
     from evo_door.data.rig import trials_from_spec
     from evo_door.optim import LocalSettings, polish
 

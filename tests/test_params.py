@@ -94,3 +94,52 @@ def test_parameter_files_take_numbers_as_engineers_write_them(tmp_path):
     import yaml
 
     assert yaml.safe_load(text)["values"]["c"] == 1e-3  # any YAML 1.1 reader too
+
+
+# -- parameter files of an upper layer's format (docs/architecture.md) ---------------------
+def test_a_registered_reader_reads_its_hdf5_files_and_passes_the_others(tmp_path, monkeypatch):
+    import h5py
+
+    from evo_door.params import sets
+
+    ours, other = tmp_path / "ours.h5", tmp_path / "other.h5"
+    for path in (ours, other):
+        with h5py.File(path, "w") as f:
+            f.attrs["kind"] = path.stem
+    seen = []
+
+    def reader(table, path):
+        seen.append(path.name)
+        if path.name != "ours.h5":
+            return None  # not its format: the next reader, then the YAML reader
+        return sets.ParamSet.from_mapping(table, {"c": 3.0}, "from ours", str(path))
+
+    monkeypatch.setattr(sets, "FILE_READERS", [])
+    sets.register_file_reader(reader)
+    sets.register_file_reader(reader)  # once per reader
+    assert sets.FILE_READERS == [reader]
+    ps = load_params(T, str(ours), {"k": 50.0})
+    assert ps["c"] == 3.0 and ps["k"] == 50.0 and ps.description == "from ours"
+    with pytest.raises(UserError, match="other.h5"):  # then read as YAML: refused
+        load_params(T, str(other))
+    assert seen == ["ours.h5", "other.h5"]
+
+
+@pytest.mark.parametrize("way_in", ["evo_door.cli", "evo_door.experiment.batch"])
+def test_every_way_in_reads_a_render_log_as_a_parameter_file(way_in):
+    """The command line, and the experiment layer (as a batch's worker imports it),
+    register the render-log reader; the parameter layer alone imports no renderer."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys\n"
+        "import evo_door.params\n"
+        "assert 'evo_door.render' not in sys.modules\n"
+        f"import {way_in}\n"
+        "from evo_door.params.sets import FILE_READERS\n"
+        "print([f'{r.__module__}.{r.__name__}' for r in FILE_READERS])\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "['evo_door.plugins.render_log_params']"

@@ -203,6 +203,7 @@ def test_the_commands_take_a_pipeline(folder, capsys):
     assert code == 2 and "holds a complete pipeline" in err
 
 
+@pytest.mark.slow
 def test_compare_takes_a_stage_of_each_pipeline_or_one_file_s_stage(folder, capsys):
     """compare --stage S: stage S of every pipeline given; P.h5:S one file's stage, beside a
     run's own file or another stage of the same pipeline. Refusals: one line, exit 2, the
@@ -250,6 +251,7 @@ def test_compare_takes_a_stage_of_each_pipeline_or_one_file_s_stage(folder, caps
     assert snapshot(folder) == before
 
 
+@pytest.mark.slow
 def test_compare_objectives_runs_on_a_stage_that_starts_from_earlier_ones(folder, capsys):
     out = run_pipeline(folder).path
     args = ["compare-objectives", folder / "pipe.yaml", "--stage", "second", "--kinds", "ise"]

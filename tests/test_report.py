@@ -19,6 +19,7 @@ def pipeline_file(folder):  # noqa: F811
     return PipelineRun.create(pipe, folder / "p.h5").run().path
 
 
+@pytest.mark.slow
 def test_the_page_needs_nothing_but_itself(pipeline_file, tmp_path, capsys):
     res = cli(capsys, "report", pipeline_file, "--out", tmp_path / "rep")
     assert res.returncode == 0, res.stderr

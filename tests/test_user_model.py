@@ -71,6 +71,7 @@ def _forget_loaded_models(monkeypatch):
 
 
 # -- the worked example, end to end ----------------------------------------------------
+@pytest.mark.slow
 def test_drawer_example_round_trip(tmp_path, monkeypatch):
     """Rig impulse trials with known values -> the example's GA + SLSQP -> the values back.
 

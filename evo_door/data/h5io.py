@@ -233,11 +233,13 @@ def write_h5_trials(path, trials, description: str = "") -> None:
     }
     if description:
         root["description"] = description
-    tree = {ATTRS: root, "trials": {tr.trial_id: _trial_tree(tr) for tr in trials}}
+    tree = {ATTRS: root, "trials": {tr.trial_id: trial_tree(tr) for tr in trials}}
     write_h5(path, tree, compression=_COMPRESSION, compress_above=1)
 
 
-def _trial_tree(tr: Trial) -> dict:
+def trial_tree(tr: Trial) -> dict:
+    """One trial as the tree :func:`evo_door.files.write_h5` writes (attributes and
+    channel datasets): a trial file's ``/trials/<id>`` group, also a render log's."""
     attrs = {
         "trial_id": tr.trial_id,
         "user_id": tr.user_id,
@@ -259,3 +261,8 @@ def _trial_tree(tr: Trial) -> dict:
     if tr.truth:
         node["truth"] = attrs_tree(jsonable(tr.truth))
     return node
+
+
+# The renderer's log (evo_door/render/log.py) imports the old private name; it goes
+# when that module imports trial_tree (after the renderer work lands).
+_trial_tree = trial_tree

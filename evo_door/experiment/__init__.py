@@ -11,6 +11,7 @@ The library entry points::
 
 from __future__ import annotations
 
+import evo_door.plugins  # noqa: F401 (render logs as parameter files, also in a worker)
 from evo_door.experiment.config import Experiment, load_experiment
 from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun, Interrupted

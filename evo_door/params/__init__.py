@@ -9,6 +9,7 @@ from evo_door.params.sets import (
     params_from_document,
     parse_assignments,
     preset_path,
+    register_file_reader,
 )
 
 __all__ = [
@@ -22,4 +23,5 @@ __all__ = [
     "params_from_document",
     "parse_assignments",
     "preset_path",
+    "register_file_reader",
 ]

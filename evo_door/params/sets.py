@@ -18,6 +18,10 @@ file is accepted, a preset name (``seed_trial``) is accepted too; a preset
 3. the folders other installed packages register in the entry-point group
    ``evo_door.presets`` (value: a package or module whose folder holds
    ``<model>/<name>.yaml``), as PyBaMM's ``pybamm_parameter_sets`` does.
+
+An HDF5 file of a format an upper layer owns (a render log is the renderer's) is read
+as a set by a reader that layer registers (:func:`register_file_reader`): this layer
+knows none of those formats and imports no upper layer (``docs/architecture.md``).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import importlib.metadata
 import importlib.util
 import json
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -46,6 +50,17 @@ from evo_door.yaml_numbers import load as load_yaml
 PRESET_DIR = Path(__file__).parent / "presets"
 #: Entry-point group through which other packages add preset folders.
 PRESET_GROUP = "evo_door.presets"
+
+#: Readers of HDF5 parameter files in another layer's format, tried in order:
+#: ``reader(table, path)`` gives the file's :class:`ParamSet`, or None when the file is
+#: not of its format. Filled by :mod:`evo_door.plugins` (a render log).
+FILE_READERS: list[Callable[[ParamTable, Path], ParamSet | None]] = []
+
+
+def register_file_reader(reader: Callable[[ParamTable, Path], ParamSet | None]) -> None:
+    """Have :func:`load_params` read the HDF5 files ``reader`` knows (once per reader)."""
+    if reader not in FILE_READERS:
+        FILE_READERS.append(reader)
 
 
 @dataclass(frozen=True)
@@ -128,7 +143,7 @@ def _plugin_preset_roots() -> list[Path]:
     A broken registration (a package that is gone) is skipped with a warning: it must
     not stop the bundled presets from loading.
     """
-    roots = []
+    roots: list[Path] = []
     for ep in importlib.metadata.entry_points(group=PRESET_GROUP):
         module = ep.value.partition(":")[0].strip()
         try:
@@ -249,10 +264,10 @@ def load_params(
 def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
     path = Path(spec)
     if path.suffix.lower() in (".h5", ".hdf5") and path.is_file():
-        from evo_door.render.log import is_render_log
-
-        if is_render_log(path):
-            return _load_render_log(table, path)
+        for reader in FILE_READERS:  # another layer's format (a render log)?
+            ps = reader(table, path)
+            if ps is not None:
+                return ps
     shown = str(spec)  # what errors name: the file as given, a preset by its name
     if not path.is_file():
         if path.suffix or "/" in str(spec):
@@ -271,18 +286,6 @@ def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
         ) from None
     ps = params_from_document(table, doc, shown)
     return dataclasses.replace(ps, source=str(path))
-
-
-def _load_render_log(table: ParamTable, path: Path) -> ParamSet:
-    """A render log (the web console's session record) as a parameter set: the
-    participant's chosen set, else the last set in force (haptic model only)."""
-    from evo_door.render.log import session_params
-
-    values, what = session_params(path)
-    unknown = [name for name in values if name not in table.names]
-    if unknown or set(values) != set(table.names):
-        raise UserError(f"{path}: a render log holds a haptic set, not one of {table.model!r}")
-    return ParamSet.from_mapping(table, values, what, str(path))
 
 
 def params_from_document(table: ParamTable, doc, source: str) -> ParamSet:

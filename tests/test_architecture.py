@@ -1,0 +1,346 @@
+"""The layers of docs/architecture.md hold: every import of every module of evo_door
+(those inside functions and under ``TYPE_CHECKING`` included, read with ``ast``, the
+code is not run) goes down the layers or stays in its own package; no two packages
+import each other, directly or round a circle; no private name (``_x``, or a name in a
+private module) is imported from another package.
+
+A failure names the module and line of each offending import.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "evo_door"
+
+#: The layers, bottom first: a unit (a package of evo_door, or a module at its top) may
+#: import its own unit and the units of lower layers, never a higher layer's nor another
+#: unit of its own layer. ``evo_door`` is the package's own ``__init__`` (the version).
+#: docs/architecture.md gives the same table, with each unit's purpose and place.
+LAYERS: list[set[str]] = [
+    {"evo_door", "errors", "channels", "yaml_numbers"},
+    {"files"},
+    {"params"},
+    {"sim"},
+    {"models"},
+    {"data"},
+    {"optim", "render"},
+    {"plugins"},
+    {"experiment"},
+    {"commands"},
+    {"cli"},
+    {"__main__"},
+]
+
+#: The renderer's files, changed by other work while this test was written: an
+#: offender there is allowed below until that work lands, then fixed and removed.
+RENDERER_AREA = (
+    "evo_door.render",
+    "evo_door.commands.render",
+    "evo_door.commands.push",
+    "evo_door.commands.console",
+    "evo_door.commands.emulate",
+)
+
+#: Known offenders in the renderer's files: (importing module, imported module.name).
+#: This list only shrinks: an entry whose import is gone fails the test until removed.
+ALLOWED = {
+    # render/log.py writes its trial with data.h5io's trial_tree under the old private
+    # name (data/h5io.py keeps the alias); fixed after the renderer work lands
+    ("evo_door.render.log", "evo_door.data.h5io._trial_tree"),
+}
+
+
+@dataclass(frozen=True)
+class Import:
+    module: str  # the importing module, dotted
+    path: str  # its file, relative to the repository
+    line: int
+    target: str  # the imported module, dotted
+    name: str  # the name imported from it ("" for ``import target``)
+
+    def where(self) -> str:
+        what = f"{self.target}.{self.name}" if self.name else self.target
+        return f"{self.path}:{self.line}: {self.module} imports {what}"
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def is_package(module: str) -> bool:
+    return (ROOT / Path(*module.split(".")) / "__init__.py").is_file()
+
+
+def resolve(module: str, node: ast.ImportFrom) -> str:
+    """The absolute module of ``from ... import`` (relative imports resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = module.split(".") if is_package(module) else module.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def imports_of(path: Path) -> list[Import]:
+    """Every import of evo_door in a file, wherever it stands in the file."""
+    module, rel = module_name(path), str(path.relative_to(ROOT))
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [Import(module, rel, node.lineno, a.name, "") for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            target = resolve(module, node)
+            for a in node.names:
+                # ``from evo_door.x import y`` where y is a module imports the module
+                sub = f"{target}.{a.name}"
+                if (ROOT / Path(*sub.split("."))).with_suffix(".py").is_file() or is_package(sub):
+                    out.append(Import(module, rel, node.lineno, sub, ""))
+                else:
+                    out.append(Import(module, rel, node.lineno, target, a.name))
+    return [i for i in out if i.target.split(".")[0] == "evo_door"]
+
+
+def all_imports() -> list[Import]:
+    return [i for path in sorted(PACKAGE.rglob("*.py")) for i in imports_of(path)]
+
+
+def unit(module: str) -> str:
+    """The unit of the layer map a module belongs to."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "evo_door"
+
+
+def owner(module: str) -> str:
+    """The package that owns a module's private names: its innermost package; a module
+    at the top of evo_door owns its own."""
+    if is_package(module):
+        return module
+    parent = module.rsplit(".", 1)[0]
+    return module if parent == "evo_door" else parent
+
+
+def is_private(word: str) -> bool:
+    return word.startswith("_") and not word.startswith("__")
+
+
+def rank() -> dict[str, int]:
+    return {u: k for k, layer in enumerate(LAYERS) for u in layer}
+
+
+def in_renderer_area(module: str) -> bool:
+    return any(module == m or module.startswith(m + ".") for m in RENDERER_AREA)
+
+
+# -- the checks, each a function of the imports (tested below on made-up imports too) --
+def unplaced(imports: list[Import]) -> list[str]:
+    ranks = rank()
+    units = {unit(module_name(p)) for p in PACKAGE.rglob("*.py")}
+    units |= {unit(i.target) for i in imports}
+    return sorted(u for u in units if u not in ranks)
+
+
+def upward(imports: list[Import]) -> list[Import]:
+    """Imports of a higher layer's unit, or of another unit of the same layer."""
+    ranks = rank()
+    bad = []
+    for i in imports:
+        a, b = unit(i.module), unit(i.target)
+        if a != b and ranks.get(b, -1) >= ranks.get(a, -1):
+            bad.append(i)
+    return bad
+
+
+def cycles(imports: list[Import]) -> list[list[Import]]:
+    """The circles of imports between units: for each group of units that reach one
+    another (a strongly connected component), one shortest circle through its first
+    unit, as the import that makes each step."""
+    edges: dict[str, dict[str, Import]] = defaultdict(dict)
+    for i in imports:
+        a, b = unit(i.module), unit(i.target)
+        if a != b:
+            edges[a].setdefault(b, i)
+    return [shortest_circle(sorted(g)[0], g, edges) for g in components(edges)]
+
+
+def components(edges: dict[str, dict[str, Import]]) -> list[set[str]]:
+    """The groups of more than one unit that reach one another (Tarjan's algorithm;
+    a few dozen units, so recursion is fine)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    groups: list[set[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(edges.get(v, {})):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = set()
+            while True:
+                w = stack.pop()
+                group.add(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(group)
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return groups
+
+
+def shortest_circle(start: str, group: set[str], edges) -> list[Import]:
+    """The imports of a shortest circle from ``start`` back to it within ``group``."""
+    came: dict[str, tuple[str, Import]] = {}
+    frontier = [start]
+    while frontier:  # breadth first: the first way back is a shortest one
+        nxt = []
+        for v in frontier:
+            for w, imp in sorted(edges.get(v, {}).items()):
+                if w not in group or w in came:
+                    continue
+                came[w] = (v, imp)
+                if w == start:
+                    path, at = [], start
+                    while True:
+                        prev, step = came[at]
+                        path.append(step)
+                        at = prev
+                        if at == start:
+                            return path[::-1]
+                nxt.append(w)
+        frontier = nxt
+    raise AssertionError(f"{start} is in a component without a circle")  # cannot happen
+
+
+def private_crossings(imports: list[Import]) -> list[Import]:
+    """A private name, or a name from a private module, imported from another package."""
+    bad = []
+    for i in imports:
+        private = (i.name and is_private(i.name)) or any(is_private(p) for p in i.target.split("."))
+        if private and owner(i.module) != owner(i.target):
+            bad.append(i)
+    return bad
+
+
+def offenders(found: list[Import]) -> list[str]:
+    """Offending imports not on the allow-list, as ``file:line: ...`` lines."""
+    return [i.where() for i in found if (i.module, f"{i.target}.{i.name}") not in ALLOWED]
+
+
+# -- the package as it is ------------------------------------------------------------
+def test_every_unit_has_its_place_in_the_layers():
+    missing = unplaced(all_imports())
+    assert not missing, (
+        f"not in the layer map: {', '.join(missing)}; give each its layer in "
+        "tests/test_architecture.py (LAYERS) and docs/architecture.md"
+    )
+
+
+def test_no_import_goes_up_or_sideways():
+    bad = offenders(upward(all_imports()))
+    assert not bad, (
+        "imports of a higher layer (or of another unit of the same layer; "
+        "docs/architecture.md):\n" + "\n".join(bad)
+    )
+
+
+def test_no_circle_of_imports_between_packages():
+    found = cycles(all_imports())
+    text = "\n\n".join("\n".join(i.where() for i in circle) for circle in found)
+    assert not found, f"packages that import each other round a circle:\n{text}"
+
+
+def test_no_private_name_crosses_a_package():
+    bad = offenders(private_crossings(all_imports()))
+    assert not bad, (
+        "private names imported from another package (make them public, or move the "
+        "code):\n" + "\n".join(bad)
+    )
+
+
+def test_the_allow_list_only_shrinks_and_only_holds_the_renderers_files():
+    found = upward(all_imports()) + private_crossings(all_imports())
+    seen = {(i.module, f"{i.target}.{i.name}") for i in found}
+    stale = sorted(ALLOWED - seen)
+    assert not stale, f"fixed, so remove from ALLOWED in tests/test_architecture.py: {stale}"
+    outside = sorted(m for m, _ in ALLOWED if not in_renderer_area(m))
+    assert not outside, f"ALLOWED is for the renderer's files only: {outside}"
+
+
+def test_the_documented_layers_are_the_tested_ones():
+    """docs/architecture.md's table of layers lists the units of LAYERS, bottom first."""
+    doc = (ROOT / "docs" / "architecture.md").read_text()
+    rows = re.findall(r"^\| (\d+) \| ([^|]+) \|", doc, re.M)
+    documented = [set(re.findall(r"`([\w.]+)`", units)) for _, units in rows]
+    assert [int(k) for k, _ in rows] == list(range(len(rows)))
+    assert documented == LAYERS
+
+
+def test_the_scan_sees_lazy_imports_and_the_offenders_it_should():
+    """The reader finds imports inside functions and resolves relative ones (the test
+    above would pass vacuously if it did not)."""
+    found = {(i.module, i.target, i.name) for i in all_imports()}
+    # commands/batch.py imports the experiment layer inside a function
+    assert ("evo_door.commands.batch", "evo_door.experiment.batch", "plan") in found
+    assert ("evo_door.render.log", "evo_door.data.h5io", "_trial_tree") in found
+    assert ("evo_door.cli", "evo_door.commands", "") in found
+
+
+# -- the checks on made-up imports (each would catch what it is for) -------------------
+def _imp(module: str, target: str, name: str = "x", line: int = 7) -> Import:
+    return Import(module, module.replace(".", "/") + ".py", line, target, name)
+
+
+def test_an_upward_and_a_sideways_import_are_caught_with_their_line():
+    made = [
+        _imp("evo_door.params.sets", "evo_door.render.log", "session_params", 268),
+        _imp("evo_door.optim.executors", "evo_door.render.loop", "ServoLoop"),
+        _imp("evo_door.commands.batch", "evo_door.experiment.batch", "plan"),  # fine
+        _imp("evo_door.render.log", "evo_door.render.keys", "shown"),  # its own package
+    ]
+    got = [i.where() for i in upward(made)]
+    assert got == [
+        "evo_door/params/sets.py:268: evo_door.params.sets imports "
+        "evo_door.render.log.session_params",
+        "evo_door/optim/executors.py:7: evo_door.optim.executors imports "
+        "evo_door.render.loop.ServoLoop",
+    ]
+
+
+def test_a_circle_between_packages_is_caught_with_each_import():
+    made = [
+        _imp("evo_door.params.sets", "evo_door.render.log", "session_params", 268),
+        _imp("evo_door.render.keys", "evo_door.models.haptic", "PARAMS", 23),
+        _imp("evo_door.models.haptic", "evo_door.params", "param_vector", 40),
+        _imp("evo_door.data.io", "evo_door.files", "read_text"),  # not in the circle
+    ]
+    (circle,) = cycles(made)  # from the first unit, models: models -> params -> render
+    assert [i.line for i in circle] == [40, 268, 23]
+
+
+def test_a_private_name_from_another_package_is_caught():
+    made = [
+        _imp("evo_door.render.log", "evo_door.data.h5io", "_trial_tree", 301),
+        _imp("evo_door.cli", "evo_door.commands._common", "add_progress_arguments"),
+        _imp("evo_door.experiment.batch", "evo_door.experiment.results", "_table"),  # fine
+        _imp("evo_door.commands.batch", "evo_door.commands._common", "show_progress"),  # fine
+        _imp("evo_door.cli", "evo_door", "__version__"),  # a dunder is not private
+    ]
+    got = [i.where() for i in private_crossings(made)]
+    assert got == [
+        "evo_door/render/log.py:301: evo_door.render.log imports evo_door.data.h5io._trial_tree",
+        "evo_door/cli.py:7: evo_door.cli imports evo_door.commands._common.add_progress_arguments",
+    ]
