@@ -11,3 +11,11 @@ class UserError(Exception):
 
 class ParameterError(UserError, ValueError):
     """A parameter name or value that does not fit its declaration."""
+
+
+class NotResultsFileError(UserError):
+    """An HDF5 file that is not an evo-door results file (trials, a render log...).
+
+    A folder listing (``evo-door runs``) skips such files by this type, where a damaged
+    results file gets a row that says so.
+    """
