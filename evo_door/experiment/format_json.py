@@ -43,7 +43,9 @@ def list_runs(folder) -> list[dict]:
         except UserError as exc:
             rows.append(_unreadable(path, exc))
             continue
-        runs = record.runs.values() if isinstance(record, PipelineRecord) else [record]
+        pipeline = isinstance(record, PipelineRecord)
+        # a pipeline's stages as its file lists them (the sort below keeps ties so)
+        runs = [record.runs[name] for name in record.started] if pipeline else [record]
         rows += [_run_row(run) for run in runs]
     rows.sort(key=lambda r: r["created"], reverse=True)
     return rows

@@ -65,8 +65,28 @@ _MARK = {"lower": "<- lower bound", "upper": "<- upper bound"}
 
 
 def format_show(res: Results) -> str:
-    """The human-readable ``evo-door show``."""
+    """The human-readable ``evo-door show``: head, per-trial table, answer, errors."""
     s = res.summary()
+    lines = _show_head(res, s) + _show_per_trial(res, s) + _show_best(res, s)
+    funit = s["fitness_unit"]
+    if s.get("fit_errors"):
+        lines.append(
+            f"fit error per trial in {funit}: "
+            + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["fit_errors"].items())
+        )
+    if s.get("validation_errors"):
+        lines.append(
+            f"validation error in {funit}:    "
+            + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["validation_errors"].items())
+        )
+    lines += format_channel_errors(s.get("channel_errors") or {})
+    if s.get("identifiability_text"):
+        lines += ["", s["identifiability_text"]]
+    return "\n".join(lines)
+
+
+def _show_head(res: Results, s: dict) -> list[str]:
+    """``show``'s first lines: the run, its status, where a stage started, its settings."""
     cfg = res.config
     alg = cfg["algorithm"]
     obj = cfg["objective"]
@@ -81,7 +101,7 @@ def format_show(res: Results) -> str:
         lines.append(f"  {s['status_text']}; {s['resume']} continues it")
     if s["from"]:  # a pipeline's stage that started from earlier ones
         lines.append(f"  stage {s['stage']}: {format_sources(s['from'])}")
-    lines += [
+    return lines + [
         f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
         f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
         (
@@ -97,23 +117,35 @@ def format_show(res: Results) -> str:
         ),
         f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, {(s['seconds'] or 0):.1f} s",
     ]
+
+
+def _show_per_trial(res: Results, s: dict) -> list[str]:
+    """A per_trial run's min / max / mean table (seed table 5.3), else nothing."""
+    if "table" not in s:
+        return []
     units = s["units"]
-    if "table" in s:
-        lines.append(f"\nper-trial fits ({len(s['per_trial_fits'])} trials), as seed table 5.3:")
-        w = max(len(n) for n in res.free)
-        lines.append(f"  {'parameter':<{w}}  {'min':>12}  {'max':>12}  {'mean':>12}  unit")
-        for n, row in s["table"].items():
-            # which per-trial fits the bounds decided
-            on = [f"{t} {hits[n]}" for t, hits in s["per_trial_at_bound"].items() if n in hits]
-            note = f"  on a bound: {', '.join(on)}" if on else ""
-            lines.append(
-                f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
-                f"{row['mean']:>12.6g}  {units.get(n, '')}{note}".rstrip()
-            )
-    funit = s["fitness_unit"]
-    lines.append(
-        f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness {fmt_number(s['fitness'])} {funit}"
-    )
+    lines = [f"\nper-trial fits ({len(s['per_trial_fits'])} trials), as seed table 5.3:"]
+    w = max(len(n) for n in res.free)
+    lines.append(f"  {'parameter':<{w}}  {'min':>12}  {'max':>12}  {'mean':>12}  unit")
+    for n, row in s["table"].items():
+        # which per-trial fits the bounds decided
+        on = [f"{t} {hits[n]}" for t, hits in s["per_trial_at_bound"].items() if n in hits]
+        note = f"  on a bound: {', '.join(on)}" if on else ""
+        lines.append(
+            f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
+            f"{row['mean']:>12.6g}  {units.get(n, '')}{note}".rstrip()
+        )
+    return lines
+
+
+def _show_best(res: Results, s: dict) -> list[str]:
+    """The answer: each value with its unit, range, truth and bound, then the fixed ones."""
+    cfg = res.config
+    units = s["units"]
+    lines = [
+        f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness "
+        f"{fmt_number(s['fitness'])} {s['fitness_unit']}"
+    ]
     at_bound = s["at_bound"]
     if s["best"]:
         w = max(len(n) for n in s["best"])
@@ -137,20 +169,7 @@ def format_show(res: Results) -> str:
             "fixed: "
             + ", ".join(f"{k} = {v:g} {units.get(k, '')}".rstrip() for k, v in s["fixed"].items())
         )
-    if s.get("fit_errors"):
-        lines.append(
-            f"fit error per trial in {funit}: "
-            + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["fit_errors"].items())
-        )
-    if s.get("validation_errors"):
-        lines.append(
-            f"validation error in {funit}:    "
-            + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["validation_errors"].items())
-        )
-    lines += format_channel_errors(s.get("channel_errors") or {})
-    if s.get("identifiability_text"):
-        lines += ["", s["identifiability_text"]]
-    return "\n".join(lines)
+    return lines
 
 
 def format_sources(sources: dict[str, str]) -> str:
@@ -288,6 +307,8 @@ def _value_text(value) -> str:
 
 def format_compare(doc: dict) -> str:
     """The human-readable ``evo-door compare``: one column per run."""
+    # one long function on purpose: the rows are written in the order the table shows
+    # them, each a line or two, and splitting would scatter that order over helpers
     runs = doc["runs"]
     stages = doc.get("stages") or [None] * len(runs)
     names = [Path(f).name for f in doc["files"]]

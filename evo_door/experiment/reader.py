@@ -172,7 +172,8 @@ class RunRecord:
 class PipelineRecord:
     """A pipeline's file: its root attributes, each declared stage, the started stages' runs.
 
-    ``stages`` lists every declared stage in order; ``runs`` holds the started ones;
+    ``stages`` lists every declared stage in order; ``runs`` holds the started ones, in
+    that order (``started``: as the file lists them, which its messages name);
     ``sources`` maps a stage to its ``{from: STAGE}`` sources, ``report`` the pipeline
     file's settings of ``evo-door report``.
     """
@@ -180,13 +181,10 @@ class PipelineRecord:
     path: str | Path  # as given: the pipeline's status and resume line name it so
     attrs: dict
     stages: list[str]
+    started: list[str]
     runs: dict[str, RunRecord]
     sources: dict[str, dict[str, str]]
     report: dict
-
-    @property
-    def started(self) -> list[str]:
-        return list(self.runs)
 
 
 def read_results(path, *, arrays: bool = True) -> RunRecord | PipelineRecord:
@@ -235,14 +233,19 @@ def _pipeline(f, path, arrays: bool) -> PipelineRecord:
     started = list(f["stages"]) if "stages" in f else []
     resolved = json.loads(f["pipeline/resolved"][()]) if "pipeline/resolved" in f else {}
     sources = _sources(f)
+    declared = list(attrs.get("stages") or [])
+    # the stages in the pipeline's order (a file may list a later stage's group first)
+    order = [name for name in declared if name in started]
+    order += [name for name in started if name not in order]
     runs = {
         name: _run(f["stages"][name], Path(path), name, sources.get(name, {}), arrays)
-        for name in started
+        for name in order
     }
     return PipelineRecord(
         path=path,
         attrs=attrs,
-        stages=list(attrs.get("stages") or []),
+        stages=declared,
+        started=started,
         runs=runs,
         sources=sources,
         report=resolved.get("report") or {},
