@@ -37,3 +37,11 @@ def error_line(message) -> str:
     if len(text) > MAX_ERROR:
         text = text[: MAX_ERROR - 5] + " ..."
     return f"{PREFIX}{text}"
+
+
+class NotResultsFileError(UserError):
+    """An HDF5 file that is not an evo-door results file (trials, a render log...).
+
+    A folder listing (``evo-door runs``) skips such files by this type, where a damaged
+    results file gets a row that says so.
+    """

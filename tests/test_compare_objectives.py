@@ -9,6 +9,7 @@ import pytest
 from evo_door.data.io import write_trials
 from evo_door.errors import UserError
 from evo_door.experiment import ExperimentRun, Interrupted, Results
+from evo_door.experiment.format_json import compare
 from evo_door.experiment.objectives import (
     parse_derivatives,
     parse_kinds,
@@ -19,7 +20,6 @@ from evo_door.experiment.objectives import (
     summarise,
     write_outputs,
 )
-from evo_door.experiment.results import compare
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
 from tests.test_cli import cli

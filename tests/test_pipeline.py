@@ -9,9 +9,9 @@ import pytest
 from evo_door.data.io import write_trials
 from evo_door.errors import UserError
 from evo_door.experiment import Interrupted, Results
+from evo_door.experiment.format_text import format_pipeline
 from evo_door.experiment.pipeline import (
     PipelineRun,
-    format_pipeline,
     is_pipeline,
     load_pipeline,
     pipeline_summary,

@@ -16,10 +16,18 @@ from numba import njit
 
 from evo_door.data.io import write_trials
 from evo_door.errors import UserError
-from evo_door.experiment import Interrupted, Results, load_experiment, run_experiment
-from evo_door.experiment import results as views
-from evo_door.experiment.results import bound_advice, bound_hits
+from evo_door.experiment import (
+    Interrupted,
+    Results,
+    format_json,
+    load_experiment,
+    reader,
+    run_experiment,
+)
+from evo_door.experiment import figures as figure_views
+from evo_door.experiment.format_text import bound_advice
 from evo_door.models.base import Model
+from evo_door.optim.bounds import bound_hits
 from evo_door.params import Param, ParamTable
 from tests.conftest import OSCILLATOR_PARAMS, oscillator_accel
 from tests.test_cli import cli
@@ -123,7 +131,7 @@ def test_a_run_whose_lock_another_process_holds_shows_running(ws, capsys):
         assert "interrupted" not in shown.stdout
         doc = json.loads(cli(capsys, "show", path, "--json").stdout)
         assert doc["status"] == "running" and doc["pid"] == holder.pid and doc["resume"] == ""
-        rows = {r["file"]: r for r in views.list_runs(ws / "results")}
+        rows = {r["file"]: r for r in format_json.list_runs(ws / "results")}
         assert rows["cut.h5"]["status"] == "running"
     finally:
         holder.kill()
@@ -199,10 +207,10 @@ def test_show_and_runs_agree_on_the_fits_of_a_killed_and_resumed_per_trial_run(
 def test_runs_shows_parameters_with_units_objective_and_status_without_reading_arrays(
     ws, capsys, monkeypatch
 ):
-    def no_arrays(path):
-        raise AssertionError(f"runs read the whole of {path}")
+    def no_arrays(group):
+        raise AssertionError(f"runs read the whole of {group.name}")
 
-    monkeypatch.setattr(views.store, "read_tree", no_arrays)
+    monkeypatch.setattr(reader, "read_group", no_arrays)
     listed = cli(capsys, "runs", ws / "results")
     assert listed.returncode == 0, listed.stderr
     header, _, *lines = listed.stdout.split("\n\n")[0].splitlines()
@@ -399,7 +407,7 @@ def test_compare_refuses_bad_input_in_one_line(ws, capsys, args, message):
     assert res.returncode == 2 and res.stdout == ""
     assert res.stderr.count("\n") == 1 and message in res.stderr, res.stderr
     with pytest.raises(UserError, match="compare needs two results files or more: only"):
-        views.compare([Results(a)])
+        format_json.compare([Results(a)])
 
 
 # -- figures ---------------------------------------------------------------------------------
@@ -407,13 +415,15 @@ def test_compare_refuses_bad_input_in_one_line(ws, capsys, args, message):
 def figures(monkeypatch):
     """The figures the views would write, kept instead (name -> Figure)."""
     kept = {}
-    monkeypatch.setattr(views, "save_figure", lambda fig, path, dpi=110: kept.update({path: fig}))
+    monkeypatch.setattr(
+        figure_views, "save_figure", lambda fig, path, dpi=110: kept.update({path: fig})
+    )
     return kept
 
 
 def test_convergence_plot_is_best_and_mean_per_generation_on_a_log_scale(ws, tmp_path, figures):
     res = Results(_file(ws, "a.h5"))
-    views.plot_convergence(res, "conv.png")
+    figure_views.plot_convergence(res, "conv.png")
     ax = figures["conv.png"].axes[0]
     log = res.jobs()[0]["ga"]["logbook"]
     lines = {line.get_label(): line for line in ax.get_lines()}
@@ -431,7 +441,7 @@ def test_convergence_plot_is_best_and_mean_per_generation_on_a_log_scale(ws, tmp
 
 
 def test_convergence_of_an_interrupted_run_and_of_per_trial_fits(ws, tmp_path, figures):
-    views.plot_convergence(Results(_file(ws, "cut.h5")), "cut.png")
+    figure_views.plot_convergence(Results(_file(ws, "cut.h5")), "cut.png")
     fig = figures["cut.png"]
     assert "interrupted at generation 3/6" in fig.get_suptitle()
     best = next(line for line in fig.axes[0].get_lines() if line.get_label() == "best")
@@ -440,7 +450,7 @@ def test_convergence_of_an_interrupted_run_and_of_per_trial_fits(ws, tmp_path, f
         ws / "exp.yaml", ["per_trial=true", "algorithm.generations=2", "algorithm.polish=none"]
     )
     run_experiment(exp, tmp_path / "p.h5")
-    views.plot_convergence(Results(tmp_path / "p.h5"), "p.png")
+    figure_views.plot_convergence(Results(tmp_path / "p.h5"), "p.png")
     labels = [line.get_label() for line in figures["p.png"].axes[0].get_lines()]
     assert labels == ["t1: best", "t1: mean", "t2: best", "t2: mean", "t3: best", "t3: mean"]
 
@@ -466,7 +476,7 @@ def test_convergence_command_writes_a_png_and_refuses_a_run_without_ga(ws, tmp_p
 
 
 def test_fit_plot_shows_target_under_a_dashed_model_errors_with_units_and_the_force(ws, figures):
-    views.plot_fit(Results(_file(ws, "a.h5")), "fit.png")
+    figure_views.plot_fit(Results(_file(ws, "a.h5")), "fit.png")
     fig = figures["fit.png"]
     host = fig.axes[0]
     twin = next(ax for ax in fig.axes if ax is not host and ax.bbox.bounds == host.bbox.bounds)
@@ -491,14 +501,14 @@ def test_each_trials_error_is_given_in_the_channels_unit_consistent_with_the_ise
     assert set(errors) == {"t1", "t2", "t3", "v1"} and errors["v1"]["role"] == "validate"
     fit = res.summary()["fit_errors"]
     for r in res.responses():
-        e = errors[r["trial_id"]]
-        diff = r["model"] - r["target"]
+        e = errors[r.trial_id]
+        diff = r.model - r.target
         assert e["unit"] == "rad/s" and e["max"] == pytest.approx(np.max(np.abs(diff)))
         assert e["max_deg"] == pytest.approx(np.degrees(e["max"]))
-        if r["role"] == "fit":
+        if r.role == "fit":
             # the ISE (trapezoid rule) is the mean square times the duration, near enough
-            duration = r["t"][-1] - r["t"][0]
-            assert fit[r["trial_id"]] == pytest.approx(e["rms"] ** 2 * duration, rel=0.05)
+            duration = r.t[-1] - r.t[0]
+            assert fit[r.trial_id] == pytest.approx(e["rms"] ** 2 * duration, rel=0.05)
     shown = cli(capsys, "show", _file(ws, "a.h5")).stdout
     t1 = errors["t1"]
     assert f"t1       {t1['rms']:.3g} / {t1['max']:.3g} rad/s ({t1['rms_deg']:.3g} /" in shown

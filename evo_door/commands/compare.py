@@ -58,38 +58,45 @@ def split_stage(arg: str) -> tuple[str, str | None]:
     return path, stage.strip()
 
 
-def chosen_runs(args) -> list[tuple[str, str | None]]:
-    """(file, stage) for each RUN.h5 given: its own :STAGE, else --stage for a pipeline."""
-    from evo_door.experiment import store
+def chosen_runs(args) -> list:
+    """The run (a :class:`~evo_door.experiment.reader.RunRecord`) for each RUN.h5 given:
+    its own :STAGE, else --stage for a pipeline. Each file is read once, however many
+    of its stages are compared."""
+    from evo_door.experiment.reader import PipelineRecord, pick, read_results
 
+    records = {}
     chosen = []
     any_pipeline = False
     for arg in args.results:
         path, stage = split_stage(arg)
-        pipeline = store.pipeline_attrs(path)  # a missing or foreign file: one line here
-        any_pipeline |= pipeline is not None
-        if pipeline is not None and stage is None:
+        if path not in records:  # a missing or foreign file: one line here
+            records[path] = read_results(path)
+        record = records[path]
+        pipeline = isinstance(record, PipelineRecord)
+        any_pipeline |= pipeline
+        if pipeline and stage is None:
             stage = args.stage
             if stage is None:
-                names = ", ".join(pipeline["stages"])
+                names = ", ".join(record.stages)
                 raise UserError(
                     f"{path}: a pipeline of stages {names}: name the stage to compare with "
                     f"--stage NAME, or {path}:NAME for this file alone"
                 )
-        chosen.append((path, stage))
+        chosen.append((path, stage, record))
     if args.stage is not None and not any_pipeline:
         raise UserError(
             f"--stage {args.stage}: none of the files given is a pipeline's; each holds one run"
         )
-    return chosen
+    return [(path, stage, pick(record, stage)) for path, stage, record in chosen]
 
 
 def run(args) -> int:
     from evo_door.experiment import Results
-    from evo_door.experiment.results import compare, format_compare
+    from evo_door.experiment.format_json import compare
+    from evo_door.experiment.format_text import format_compare
 
     if len(args.results) < 2:
         raise UserError(f"compare needs two results files or more, got only {args.results[0]}")
-    doc = compare([Results(path, stage) for path, stage in chosen_runs(args)])
+    doc = compare([Results(path, stage, run) for path, stage, run in chosen_runs(args)])
     print(json.dumps(doc, indent=2) if args.json else format_compare(doc))
     return 0

@@ -37,7 +37,7 @@ def run(args) -> int:
     if args.format not in FORMATS:
         raise UserError(f"--format {args.format!r}: choose one of {', '.join(FORMATS)}")
     claim = claim_outputs([Output(args.out)], [args.results])
-    text = export(Results(args.results, args.stage), args.format, args.out)
+    text = export(Results(args.results, args.stage), args.format, args.out)  # one open
     if args.out:
         print(f"wrote {args.out}")
         claim.note()

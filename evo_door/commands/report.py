@@ -43,6 +43,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.reader import read_results
     from evo_door.experiment.report import default_folder, pipeline_settings, write_report
     from evo_door.files import Output, claim_outputs
 
@@ -54,10 +55,9 @@ def run(args) -> int:
     # says so); the folder is made if need be, never where the results file is
     folder = Path(args.out) if args.out else default_folder(args.results)
     claim = claim_outputs([Output(folder / "report.html", makes_folder=True)], [args.results])
-    settings = pipeline_settings(
-        args.results, pipeline_summary(args.results), args.jnd, args.force_floor
-    )
-    page = write_report(args.results, args.out, settings, log)
+    record = read_results(args.results)  # the one open of the file
+    settings = pipeline_settings(record, pipeline_summary(record), args.jnd, args.force_floor)
+    page = write_report(record, args.out, settings, log)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
     claim.note()
     return 0

@@ -26,7 +26,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from evo_door.experiment import Results, store
-    from evo_door.experiment.results import format_show
+    from evo_door.experiment.format_text import format_show
     from evo_door.experiment.runner import ExperimentRun
 
     if args.executor is not None:

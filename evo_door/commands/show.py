@@ -38,43 +38,68 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from evo_door.experiment import Results
-    from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
-    from evo_door.experiment.results import format_show, plot_convergence, plot_fit
-    from evo_door.files import Output, check_image_path, claim_outputs
+    from evo_door.errors import NotResultsFileError
+    from evo_door.experiment.reader import PipelineRecord, pick, read_results
     from evo_door.render.log import format_session, is_render_log, read_session
 
-    if is_render_log(args.results):  # a renderer's log: the participant's session
-        if args.stage or args.plot or args.convergence:
-            raise UserError(
-                f"{args.results}: a render log: --stage, --plot and --convergence are for "
-                "results files (evo-door data show --plot draws a log)"
-            )
-        session = read_session(args.results)
-        print(json.dumps(session) if args.json else format_session(session, args.results))
-        return 0
-    pipeline = pipeline_summary(args.results) if args.stage is None else None
-    if pipeline is not None:
-        if args.plot or args.convergence:
-            names = ", ".join(s["name"] for s in pipeline["stages"])
-            raise UserError(
-                f"{args.results}: a pipeline: name the stage to draw with --stage ({names})"
-            )
-        started = [s["name"] for s in pipeline["stages"] if s["status"] != "not started"]
-        stages = {name: Results(args.results, name) for name in started}
-        if args.json:
-            doc = {**pipeline, "stage_results": {n: r.summary() for n, r in stages.items()}}
-            print(json.dumps(doc, indent=2))
-        else:
-            print(format_pipeline(pipeline))
-            for name, res in stages.items():
-                print(f"\n== stage {name} ==")
-                print(format_show(res))
-        return 0
+    try:
+        record = read_results(args.results)  # the one open of a results file
+    except NotResultsFileError:
+        if not is_render_log(args.results):
+            raise
+        return _show_session(args, format_session, read_session)
+    if isinstance(record, PipelineRecord) and args.stage is None:
+        return _show_pipeline(args, record)
+    return _show_run(args, pick(record, args.stage))
+
+
+def _show_session(args, format_session, read_session) -> int:
+    """A renderer's log: the participant's session."""
+    if args.stage or args.plot or args.convergence:
+        raise UserError(
+            f"{args.results}: a render log: --stage, --plot and --convergence are for "
+            "results files (evo-door data show --plot draws a log)"
+        )
+    session = read_session(args.results)
+    print(json.dumps(session) if args.json else format_session(session, args.results))
+    return 0
+
+
+def _show_pipeline(args, record) -> int:
+    """Every started stage of a pipeline's file, after the pipeline's status."""
+    from evo_door.experiment import Results
+    from evo_door.experiment.format_text import format_pipeline, format_show
+    from evo_door.experiment.pipeline import pipeline_summary
+
+    pipeline = pipeline_summary(record)
+    if args.plot or args.convergence:
+        names = ", ".join(s["name"] for s in pipeline["stages"])
+        raise UserError(
+            f"{args.results}: a pipeline: name the stage to draw with --stage ({names})"
+        )
+    stages = {name: Results.of(run) for name, run in record.runs.items()}
+    if args.json:
+        doc = {**pipeline, "stage_results": {n: r.summary() for n, r in stages.items()}}
+        print(json.dumps(doc, indent=2))
+    else:
+        print(format_pipeline(pipeline))
+        for name, res in stages.items():
+            print(f"\n== stage {name} ==")
+            print(format_show(res))
+    return 0
+
+
+def _show_run(args, run) -> int:
+    """One run, or one stage of a pipeline's file, and its figures."""
+    from evo_door.experiment import Results
+    from evo_door.experiment.figures import plot_convergence, plot_fit
+    from evo_door.experiment.format_text import format_show
+    from evo_door.files import Output, check_image_path, claim_outputs
+
     claim = claim_outputs(
         [Output(args.plot, "--plot"), Output(args.convergence, "--convergence")], [args.results]
     )
-    res = Results(args.results, args.stage)
+    res = Results(args.results, args.stage, run)
     # both image names checked before either figure is written: a bad second one must
     # not leave the first behind
     for target in (args.plot, args.convergence):

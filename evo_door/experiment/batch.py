@@ -145,7 +145,7 @@ def _summary(run) -> dict:
 def format_summary(tasks: list[dict], rows: dict) -> str:
     """The summary table: experiment, status, best fitness, parameters, time, file
     (a failed experiment's error under its row)."""
-    from evo_door.experiment.results import _table
+    from evo_door.experiment.format_text import text_table
 
     body, errors = [], []
     for task in tasks:
@@ -164,7 +164,7 @@ def format_summary(tasks: list[dict], rows: dict) -> str:
         if r.get("error"):
             errors.append(f"  {task['name']}: {r['error']}")
     header = ["experiment", "status", "best fitness", "best parameters", "time (s)", "file"]
-    lines = _table(header, body)
+    lines = text_table(header, body)
     if errors:
         lines += ["failed:", *errors]
     return "\n".join(lines)

@@ -44,7 +44,8 @@ from evo_door.channels import RESPONSE_CHANNELS, unit
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.config import Experiment, load_experiment
-from evo_door.experiment.results import Results, flatten
+from evo_door.experiment.format_json import flatten
+from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun
 from evo_door.files import check_image_path, save_figure, write_text
 from evo_door.optim.kernels import KINDS as _KINDS

@@ -491,24 +491,28 @@ def resume_pipeline(path, progress=False, on_checkpoint=None) -> PipelineRun:
 def pipeline_summary(path) -> dict | None:
     """Where a pipeline's file stands (None for a single run's file), JSON-able.
 
-    ``status`` is complete, running (a process holds the file) or interrupted, as for a
-    run; ``stages`` gives each declared stage's state (``complete``, ``running``,
-    ``interrupted``, ``not started``) and its progress text.
+    ``path`` is a results file or a record :func:`~.reader.read_results` read (a command
+    that goes on to show the stages reads the file once). ``status`` is complete,
+    running (a process holds the file) or interrupted, as for a run; ``stages`` gives
+    each declared stage's state (``complete``, ``running``, ``interrupted``, ``not
+    started``) and its progress text.
     """
-    from evo_door.experiment.results import Results
+    from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
+    from evo_door.experiment.results import run_status
 
-    attrs = store.pipeline_attrs(path)
-    if attrs is None:
+    record = path if isinstance(path, (PipelineRecord, RunRecord)) else read_results(path)
+    if not isinstance(record, PipelineRecord):
         return None
-    sources = store.stage_sources(path)
+    path, attrs = record.path, record.attrs
     stages = []
-    for name in attrs["stages"]:
-        if name in attrs["started"]:
-            status = Results(path, name).status()
+    for name in record.stages:
+        run = record.runs.get(name)
+        if run is not None:
+            status = run_status(path, run.attrs, run.config)
             entry = {"name": name, "status": status.state, "text": status.text}
         else:
             entry = {"name": name, "status": "not started", "text": "not started"}
-        entry["from"] = sources.get(name, {})
+        entry["from"] = record.sources.get(name, {})
         entry["uses"] = sorted(set(entry["from"].values()))
         stages.append(entry)
     state = attrs.get("status", "unknown")
@@ -534,21 +538,3 @@ def pipeline_summary(path) -> dict | None:
         "created": attrs.get("created", ""),
         "total_s": float(attrs.get("total_s", 0.0)),
     }
-
-
-def format_pipeline(summary: dict) -> str:
-    """The pipeline's header for ``show``: status and each stage's state and sources."""
-    from evo_door.experiment.results import format_sources
-
-    # the time is a total for a finished pipeline, a running count for any other
-    spent = f"{summary['total_s']:.0f} s" + ("" if summary["status"] == "complete" else " so far")
-    lines = [
-        f"pipeline {summary['name']}: {summary['status_text']}, {spent}, "
-        f"created {summary['created']}"
-    ]
-    if summary["resume"]:
-        lines.append(f"  {summary['resume']} continues it")
-    for k, s in enumerate(summary["stages"], 1):
-        sources = format_sources(s.get("from") or {})
-        lines.append(f"  stage {k} {s['name']}: {s['text']}" + (f" ({sources})" if sources else ""))
-    return "\n".join(lines)

@@ -37,8 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.experiment import store
-from evo_door.experiment.results import Results, plot_convergence, plot_fit
+from evo_door.experiment.figures import plot_convergence, plot_fit
+from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
+from evo_door.experiment.results import Results
 from evo_door.experiment.spec import spec_table, table_html
 from evo_door.files import save_figure, write_text
 
@@ -119,15 +120,11 @@ _STYLE = (
 
 def pipeline_settings(path, pipeline=None, jnd=None, force_floor=None) -> Settings:
     """The report's settings: the command line's, else the pipeline file's ``report:``,
-    else the defaults."""
-    import json
-
+    else the defaults. ``path`` is the results file or its record (read once)."""
     stored = {}
     if pipeline is not None:
-        from evo_door.files import open_h5
-
-        with open_h5(path, "results file") as f:
-            stored = json.loads(f["pipeline/resolved"][()]).get("report") or {}
+        record = path if isinstance(path, PipelineRecord) else read_results(path)
+        stored = record.report
     return Settings(
         jnd if jnd is not None else stored.get("jnd", DEFAULT_JND),
         force_floor if force_floor is not None else stored.get("force_floor", FORCE_FLOOR),
@@ -140,18 +137,21 @@ def default_folder(path) -> Path:
 
 
 def write_report(path, out=None, settings: Settings | None = None, log=None) -> Path:
-    """Write the report of the results file ``path`` into the folder ``out``
-    (default ``<RUN>-report/`` next to it); returns the HTML file."""
-    from evo_door.experiment.pipeline import format_pipeline, pipeline_summary
+    """Write the report of the results file ``path`` (or its record, read once by
+    :func:`~.reader.read_results`) into the folder ``out`` (default ``<RUN>-report/``
+    next to it); returns the HTML file."""
+    from evo_door.experiment.format_text import format_pipeline
+    from evo_door.experiment.pipeline import pipeline_summary
 
     t0 = time.perf_counter()
-    pipeline = pipeline_summary(path)
-    settings = (settings or pipeline_settings(path, pipeline)).check()
+    record = path if isinstance(path, (PipelineRecord, RunRecord)) else read_results(path)
+    path = record.path
+    pipeline = pipeline_summary(record)
+    settings = (settings or pipeline_settings(record, pipeline)).check()
     if pipeline is None:
-        results = [Results(path)]
+        results = [Results.of(record)]
     else:
-        started = [s["name"] for s in pipeline["stages"] if s["status"] != "not started"]
-        results = [Results(path, name) for name in started]
+        results = [Results.of(run) for run in record.runs.values()]
     if not any(r.complete for r in results):
         raise UserError(f"{path}: nothing finished to report on yet ({results[0].status().text})")
     folder = Path(out) if out else default_folder(path)
@@ -178,7 +178,7 @@ def write_report(path, out=None, settings: Settings | None = None, log=None) -> 
         _run_section(page, res)
     if pipeline:
         _case_study(page, results, settings)
-    v = results[0].tree["versions"]["@attrs"]
+    v = results[0].record.provenance.versions
     page.p(
         "made by evo-door "
         + str(v.get("evo_door", ""))
@@ -319,14 +319,15 @@ def _case_study(page: _Page, results: list[Results], settings: Settings) -> None
         _constant_vs_variable(page, chosen_res, redesign[-1])
 
 
-def _trial_response(res: Results, node: dict, values: dict):
-    """The model's response to a stored trial with ``values`` (name -> value)."""
+def _trial_response(res: Results, node, values: dict):
+    """The model's response to a stored trial (a :class:`~.reader.StoredTrial`) with
+    ``values`` (name -> value)."""
     from evo_door.sim import simulate
 
     model = res.model
-    tr = store.trial_from_tree(node)
+    tr = node.trial()
     theta0, dtheta0 = tr.initial_state(default_theta0=model.theta0)
-    setup = res.tree["setup"]["@attrs"]
+    setup = res.record.settings
     known = {n: v for n, v in values.items() if n in model.params}
     r = simulate(
         model,
@@ -336,8 +337,8 @@ def _trial_response(res: Results, node: dict, values: dict):
         theta0=theta0,
         dtheta0=dtheta0,
         t0=float(tr.t[0]),
-        method=setup["method"],
-        substeps=int(setup["substeps"]),
+        method=setup.method,
+        substeps=int(setup.substeps),
     )
     return tr, r
 
@@ -354,9 +355,7 @@ def _figure_5_2(page: _Page, res: Results) -> None:
     low = dict(base, **{n: s["table"][n]["min"] for n in res.free})
     high = dict(base, **{n: s["table"][n]["max"] for n in res.free})
     fits = s["per_trial_fits"]
-    nodes = {
-        g["@attrs"]["trial_id"]: g for k, g in res.tree["trials"].items() if k.startswith("fit_")
-    }
+    nodes = {stored.trial_id: stored for stored in res.record.trials if stored.role == "fit"}
     trials = [t for t in fits if t in nodes][:4]
 
     def draw(path):
@@ -365,7 +364,7 @@ def _figure_5_2(page: _Page, res: Results) -> None:
         scale = math.degrees(1.0)
         for ax, trial in zip(axes.flat, trials):
             node = nodes[trial]
-            tr = store.trial_from_tree(node)
+            tr = node.trial()
             target = getattr(tr, name)
             ax.plot(tr.t, target * scale, color="0.55", lw=3, alpha=0.6, label="trial")
             for values, style, lab in (
@@ -621,8 +620,8 @@ def _constant_vs_variable(page: _Page, spec: Results, redesign: Results) -> None
         f"RMS error against the chosen behaviour: stage {spec.stage} (constant "
         f"F_atD) and stage {redesign.stage} (F_atD A(theta))",
     )
-    r0 = {r["trial_id"]: r for r in spec.responses()}
-    r1 = {r["trial_id"]: r for r in redesign.responses()}
+    r0 = {r.trial_id: r for r in spec.responses()}
+    r1 = {r.trial_id: r for r in redesign.responses()}
     shown = [t for t in common if t in r0 and t in r1][:4]
 
     def draw(path):
@@ -630,12 +629,12 @@ def _constant_vs_variable(page: _Page, spec: Results, redesign: Results) -> None
         axes = fig.subplots(math.ceil(len(shown) / 2), 2, squeeze=False)
         for ax, t in zip(axes.flat, shown):
             a, b = r0[t], r1[t]
-            ax.plot(b["t"], b["target"], color="0.55", lw=3, alpha=0.6, label="chosen (target)")
-            ax.plot(a["t"], a["model"], color="tab:blue", lw=1, ls=":", label="constant friction")
-            ax.plot(b["t"], b["model"], color="tab:red", lw=1.1, ls="--", label="variable friction")
+            ax.plot(b.t, b.target, color="0.55", lw=3, alpha=0.6, label="chosen (target)")
+            ax.plot(a.t, a.model, color="tab:blue", lw=1, ls=":", label="constant friction")
+            ax.plot(b.t, b.model, color="tab:red", lw=1.1, ls="--", label="variable friction")
             ax.set_title(f"{t}: RMS {e0[t]['rms']:.3g} -> {e1[t]['rms']:.3g} {unit_}", fontsize=9)
             ax.set_xlabel("t [s]")
-            ax.set_ylabel(f"{b['channel']} [{unit_}]")
+            ax.set_ylabel(f"{b.channel} [{unit_}]")
             ax.grid(alpha=0.3)
         for ax in list(axes.flat)[len(shown) :]:
             ax.axis("off")

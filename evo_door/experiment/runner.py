@@ -36,9 +36,9 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.config import AlgorithmSpec
-from evo_door.experiment.results import bound_hits
 from evo_door.experiment.setup import Setup
 from evo_door.files import ATTRS, FileLock, remove_stale_temporaries, write_h5
+from evo_door.optim.bounds import bound_hits
 from evo_door.optim.executors import DEFAULT as DEFAULT_EXECUTOR
 from evo_door.optim.executors import Executor, check_executor, open_executor
 from evo_door.optim.ga import GeneticAlgorithm

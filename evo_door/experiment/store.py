@@ -33,8 +33,9 @@ import numpy as np
 
 from evo_door.channels import RESPONSE_CHANNELS
 from evo_door.data.trial import Trial
-from evo_door.errors import UserError
+from evo_door.errors import NotResultsFileError, UserError
 from evo_door.files import ATTRS, Keep, decode_attr, open_h5, read_attrs, read_group
+from evo_door.optim.bounds import bound_hits
 from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
 from evo_door.optim.local import LocalResult
 from evo_door.optim.problem import Objective
@@ -56,18 +57,29 @@ def _open(path):
     found = decode_attr(f.attrs.get("format"))
     if found not in (FORMAT, PIPELINE_FORMAT):
         f.close()
-        raise UserError(f"{path}: not an evo-door results file (format {found!r})")
+        raise NotResultsFileError(f"{path}: not an evo-door results file (format {found!r})")
     return f
 
 
 def _run_group(f, path, stage):
     """The group holding one run: the root of a run's file, a stage's group of a pipeline's."""
     if decode_attr(f.attrs.get("format")) != PIPELINE_FORMAT:
-        if stage is not None:
-            raise UserError(f"{path}: holds one run, not a pipeline: there is no stage {stage!r}")
+        check_stage(path, stage)
         return f
     declared = list(decode_attr(f.attrs.get("stages")) or [])
     started = list(f["stages"]) if "stages" in f else []
+    check_stage(path, stage, declared, started)
+    return f["stages"][stage]
+
+
+def check_stage(path, stage, declared=None, started=None) -> None:
+    """Refuse ``stage`` where it names no run: any stage of a run's file (``declared``
+    None), none or one not started of a pipeline's (its ``declared`` and ``started``
+    stages)."""
+    if declared is None:
+        if stage is not None:
+            raise UserError(f"{path}: holds one run, not a pipeline: there is no stage {stage!r}")
+        return
     if stage is None:
         raise UserError(
             f"{path}: a pipeline of stages {', '.join(declared)}: name one with --stage"
@@ -78,7 +90,6 @@ def _run_group(f, path, stage):
             f"{path}: stage {stage!r} {why}; stages with results: {', '.join(started) or 'none'}"
             + (suggest(stage, declared) if stage not in declared else "")
         )
-    return f["stages"][stage]
 
 
 def read_tree(path, stage: str | None = None) -> dict:
@@ -416,11 +427,8 @@ def best_tree(run) -> dict:
     """``/best``: the run's answer, its errors, and the estimates a bound decided.
 
     ``at_bound`` maps each free parameter within 0.1 % of its search range from a bound
-    to ``"lower"`` or ``"upper"`` (:func:`evo_door.experiment.results.bound_hits`).
+    to ``"lower"`` or ``"upper"`` (:func:`evo_door.optim.bounds.bound_hits`).
     """
-    # imported here: results reads files through this module, so it imports store first
-    from evo_door.experiment.results import bound_hits
-
     res = run.result
     fit_ids = [t.trial_id for t in run.setup.fit]
     val_ids = [t.trial_id for t in run.setup.validation]

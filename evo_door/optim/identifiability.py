@@ -79,6 +79,7 @@ import numpy as np
 from evo_door.channels import RESPONSE_CHANNELS, unit
 from evo_door.errors import UserError
 from evo_door.files import ATTRS
+from evo_door.optim.bounds import BOUND_TOLERANCE
 from evo_door.sim.simulate import simulate_batch
 
 IDENTIFIABLE = "identifiable"
@@ -95,8 +96,6 @@ MAX_RELATIVE_CI = 0.10
 MAX_CONDITION = 1e10
 MIN_SENSITIVITY = 1e-6
 CONFIDENCE = 0.95
-#: An estimate this close to a bound (fraction of the range) is noted as on it.
-BOUND_TOLERANCE = 1e-3
 
 _ARRAYS = (
     "x",

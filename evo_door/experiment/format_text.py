@@ -1,0 +1,405 @@
+"""What a person reads: the text of ``show``, ``runs``, ``compare`` and a pipeline's
+header, each built from the JSON-able documents the views make (:meth:`Results.summary`,
+:func:`~.format_json.list_runs`, :func:`~.format_json.compare`,
+:func:`~.pipeline.pipeline_summary`), so that ``--json`` and the text cannot disagree.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from evo_door.experiment.results import (
+    Results,
+    declared_params,
+    fmt_number,
+    objective_text,
+)
+
+
+def _preprocess_text(pre: dict) -> str:
+    """What was done to the target trials, as a tail for the objective line (or "")."""
+    steps = []
+    if pre.get("rate_bias", "none") != "none":
+        steps.append(f"gyroscope bias removed ({pre['rate_bias']})")
+    if pre.get("lowpass") is not None:
+        steps.append(f"low-pass {pre['lowpass']:g} Hz")
+    if pre.get("trim"):
+        steps.append("trimmed to the motion")
+    return f"; target preprocessed: {', '.join(steps)}" if steps else ""
+
+
+def bound_advice(name: str, side: str, lo: float, hi: float, declared=None) -> str:
+    """One line on an estimate stopped by a bound: which bound, and what to do.
+
+    ``declared`` is the parameter's declaration (:class:`~evo_door.params.Param`), which
+    says how far the range may be widened; None when the model cannot be loaded.
+
+    >>> for part in bound_advice("k", "upper", 20.0, 90.0).split("; "):
+    ...     print(part)
+    k is on the upper bound of its search range, 90: the bound, not the data, decided it
+    widen the range in free: (e.g. k: [20, 160])
+    """
+    bound = hi if side == "upper" else lo
+    unit = f" {declared.unit}" if declared is not None and declared.unit != "1" else ""
+    head = f"{name} is on the {side} bound of its search range, {bound:g}{unit}"
+    limit = None if declared is None else (declared.upper if side == "upper" else declared.lower)
+    if limit is not None and bound == limit:
+        # nowhere to widen to: the model's own limit (a friction of 0, say) is the answer
+        return (
+            f"{head}, the model's declared limit: the data push {name} beyond what the "
+            "model allows (a term the model lacks, or one the trials cannot see)"
+        )
+    # one more range's width on that side, inside what the model declares
+    width = hi - lo
+    new_lo, new_hi = (lo, hi + width) if side == "upper" else (lo - width, hi)
+    if declared is not None:
+        new_lo, new_hi = max(new_lo, declared.lower), min(new_hi, declared.upper)
+    return (
+        f"{head}: the bound, not the data, decided it; widen the range in free: "
+        f"(e.g. {name}: [{new_lo:g}, {new_hi:g}])"
+    )
+
+
+#: the marker after an estimate on a bound
+_MARK = {"lower": "<- lower bound", "upper": "<- upper bound"}
+
+
+def format_show(res: Results) -> str:
+    """The human-readable ``evo-door show``: head, per-trial table, answer, errors."""
+    s = res.summary()
+    lines = _show_head(res, s) + _show_per_trial(res, s) + _show_best(res, s)
+    funit = s["fitness_unit"]
+    if s.get("fit_errors"):
+        lines.append(
+            f"fit error per trial in {funit}: "
+            + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["fit_errors"].items())
+        )
+    if s.get("validation_errors"):
+        lines.append(
+            f"validation error in {funit}:    "
+            + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["validation_errors"].items())
+        )
+    lines += format_channel_errors(s.get("channel_errors") or {})
+    if s.get("identifiability_text"):
+        lines += ["", s["identifiability_text"]]
+    return "\n".join(lines)
+
+
+def _show_head(res: Results, s: dict) -> list[str]:
+    """``show``'s first lines: the run, its status, where a stage started, its settings."""
+    cfg = res.config
+    alg = cfg["algorithm"]
+    obj = cfg["objective"]
+    status = f"{s['status']} ({s['progress']})"
+    if s["status"] == "running" and s["pid"]:
+        status = f"running ({s['progress']}, process {s['pid']})"
+    lines = [
+        f"{s['name']}  ({res.path})",
+        f"  model {s['model']}, status {status}, seed {s['seed']}, created {s['created']}",
+    ]
+    if s["status"] == "interrupted":
+        lines.append(f"  {s['status_text']}; {s['resume']} continues it")
+    if s["from"]:  # a pipeline's stage that started from earlier ones
+        lines.append(f"  stage {s['stage']}: {format_sources(s['from'])}")
+    return lines + [
+        f"  objective {obj['kind']} on derivative {obj['derivative']}, {obj['combine']} "
+        f"over trials" + _preprocess_text(cfg["target"].get("preprocess") or {}),
+        (
+            "  algorithm "
+            + (
+                f"GA population {alg['population']} x {alg['generations']} "
+                f"generations, reproduction {alg['reproduction_ratio']:g}, "
+                f"mutation p {alg['mutation_probability']:g} amplitude "
+                f"{alg['mutation_amplitude']:g}, polish {alg['polish']}"
+                if alg["kind"] == "ga"
+                else f"nlpql (SLSQP), max {alg['max_iterations']} iterations"
+            )
+        ),
+        f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, {(s['seconds'] or 0):.1f} s",
+    ]
+
+
+def _show_per_trial(res: Results, s: dict) -> list[str]:
+    """A per_trial run's min / max / mean table (seed table 5.3), else nothing."""
+    if "table" not in s:
+        return []
+    units = s["units"]
+    lines = [f"\nper-trial fits ({len(s['per_trial_fits'])} trials), as seed table 5.3:"]
+    w = max(len(n) for n in res.free)
+    lines.append(f"  {'parameter':<{w}}  {'min':>12}  {'max':>12}  {'mean':>12}  unit")
+    for n, row in s["table"].items():
+        # which per-trial fits the bounds decided
+        on = [f"{t} {hits[n]}" for t, hits in s["per_trial_at_bound"].items() if n in hits]
+        note = f"  on a bound: {', '.join(on)}" if on else ""
+        lines.append(
+            f"  {n:<{w}}  {row['min']:>12.6g}  {row['max']:>12.6g}  "
+            f"{row['mean']:>12.6g}  {units.get(n, '')}{note}".rstrip()
+        )
+    return lines
+
+
+def _show_best(res: Results, s: dict) -> list[str]:
+    """The answer: each value with its unit, range, truth and bound, then the fixed ones."""
+    cfg = res.config
+    units = s["units"]
+    lines = [
+        f"\nbest ({s.get('best_meaning') or 'best so far'}): fitness "
+        f"{fmt_number(s['fitness'])} {s['fitness_unit']}"
+    ]
+    at_bound = s["at_bound"]
+    if s["best"]:
+        w = max(len(n) for n in s["best"])
+        truth = s["truth"]
+        for n, v in s["best"].items():
+            lo, hi = cfg["free"][n]
+            line = f"  {n:<{w}}  {v:>14.8g} {units.get(n, ''):<8} in [{lo:g}, {hi:g}]"
+            if n in truth:
+                true = truth[n]
+                rel = f" ({100 * (v - true) / true:+.2f} %)" if true != 0 else ""
+                line = f"{line:<{w + 48}} true {true:.8g}{rel}"
+            if n in at_bound:
+                line = f"{line:<{w + 48}} {_MARK[at_bound[n]]}"
+            lines.append(line.rstrip())
+        declared = declared_params(s["model"])
+        for n, side in at_bound.items():
+            lo, hi = cfg["free"][n]
+            lines.append("! " + bound_advice(n, side, lo, hi, declared.get(n)))
+    if s["fixed"]:
+        lines.append(
+            "fixed: "
+            + ", ".join(f"{k} = {v:g} {units.get(k, '')}".rstrip() for k, v in s["fixed"].items())
+        )
+    return lines
+
+
+def format_sources(sources: dict[str, str]) -> str:
+    """Where a pipeline stage's ``{from: STAGE}`` came from, for a person.
+
+    >>> format_sources({"params": "physical", "target.params": "latch"})
+    'params from stage physical, target.params from stage latch'
+    """
+    return ", ".join(f"{key} from stage {stage}" for key, stage in sources.items())
+
+
+def format_channel_errors(errors: dict) -> list[str]:
+    """``show``'s lines of each trial's RMS and largest error in the channel's unit."""
+    if not errors:
+        return []
+    first = next(iter(errors.values()))
+    deg = "rms_deg" in first
+    dunit = first["unit"].replace("rad", "deg")
+    lines = [f"error of {first['channel']} per trial, model - target (RMS / largest, at t):"]
+    for trial, e in errors.items():
+        text = f"{e['rms']:.3g} / {e['max']:.3g} {e['unit']}"
+        if deg:
+            text += f" ({e['rms_deg']:.3g} / {e['max_deg']:.3g} {dunit})"
+        role = "" if e["role"] == "fit" else "  (validation)"
+        lines.append(f"  {trial:<8} {text}, largest at {e['at']:.3f} s{role}")
+    return lines
+
+
+def format_pipeline(summary: dict) -> str:
+    """The pipeline's header for ``show``: status and each stage's state and sources."""
+    # the time is a total for a finished pipeline, a running count for any other
+    spent = f"{summary['total_s']:.0f} s" + ("" if summary["status"] == "complete" else " so far")
+    lines = [
+        f"pipeline {summary['name']}: {summary['status_text']}, {spent}, "
+        f"created {summary['created']}"
+    ]
+    if summary["resume"]:
+        lines.append(f"  {summary['resume']} continues it")
+    for k, s in enumerate(summary["stages"], 1):
+        sources = format_sources(s.get("from") or {})
+        lines.append(f"  stage {k} {s['name']}: {s['text']}" + (f" ({sources})" if sources else ""))
+    return "\n".join(lines)
+
+
+# -- a folder of runs ----------------------------------------------------------------
+def _compact_values(row: dict) -> str:
+    """``k=100 N/rad, c=2 N s/rad``; an estimate on a bound says so."""
+    parts = []
+    for n, v in row["values"].items():
+        unit = row["units"].get(n, "")
+        text = f"{n}={v:.4g}" + (f" {unit}" if unit and unit != "1" else "")
+        if n in row["at_bound"]:
+            text += f" ({row['at_bound'][n]} bound)"
+        parts.append(text)
+    return ", ".join(parts)
+
+
+def text_table(header: list[str], rows: list[list[str]]) -> list[str]:
+    widths = [
+        max(len(h), *(len(row[i]) for row in rows)) if rows else len(h)
+        for i, h in enumerate(header)
+    ]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    out = [fmt.format(*header).rstrip(), fmt.format(*("-" * w for w in widths)).rstrip()]
+    return out + [fmt.format(*row).rstrip() for row in rows]
+
+
+def format_runs(rows: list[dict]) -> str:
+    header = [
+        "file",
+        "name",
+        "model",
+        "status",
+        "progress",
+        "objective",
+        "best fitness",
+        "parameters",
+        "seed",
+        "created",
+    ]
+    table = [
+        [
+            r["file"],
+            r["name"],
+            r["model"],
+            r["status"],
+            r["progress"],
+            "" if r["objective"] is None else objective_text(r["objective"]),
+            "" if r["fitness"] is None else f"{r['fitness']:.4g} {r['fitness_unit']}",
+            _compact_values(r),
+            str(r["seed"]),
+            r["created"],
+        ]
+        for r in rows
+    ]
+    out = text_table(header, table)
+    stopped = [r["file"] for r in rows if r["status"] == "interrupted"]
+    if stopped:
+        out.append(
+            f"\ninterrupted: {', '.join(stopped)}; `evo-door resume FILE` continues a run "
+            "where it stopped"
+        )
+    if any(r["at_bound"] for r in rows):
+        out.append("(lower / upper bound): an estimate on a bound of its search range; see show")
+    return "\n".join(out)
+
+
+# -- several runs side by side ---------------------------------------------------------
+#: the widest cell of ``compare``'s table (a long description must not push the
+#: other runs off the screen; --json has every value whole)
+MAX_CELL = 40
+
+
+def _cell(value, width: int = MAX_CELL) -> str:
+    """A configuration value as text: ``ise``, ``0.6``, ``[20, 500]``, ``-`` for none."""
+    text = _value_text(value)
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
+def _value_text(value) -> str:
+    if value is None:
+        return "-"
+    if value == "":
+        return '""'
+    if isinstance(value, bool):
+        return str(value).lower()  # as the experiment file writes it
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_value_text(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_value_text(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def format_compare(doc: dict) -> str:
+    """The human-readable ``evo-door compare``: one column per run."""
+    # one long function on purpose: the rows are written in the order the table shows
+    # them, each a line or two, and splitting would scatter that order over helpers
+    runs = doc["runs"]
+    stages = doc.get("stages") or [None] * len(runs)
+    names = [Path(f).name for f in doc["files"]]
+    if len(set(zip(names, stages))) < len(names):  # one name in several folders: the paths
+        names = list(doc["files"])
+    # a pipeline's stage as runs lists it: FILE [stage]
+    names = [name + (f" [{stage}]" if stage else "") for name, stage in zip(names, stages)]
+    rows: list[list[str]] = []
+
+    def row(label, cells):
+        rows.append([label, *cells])
+
+    def section(title):
+        rows.append([title] + [""] * len(runs))
+
+    row("name", [r["name"] or "" for r in runs])
+    row("model", [r["model"] or "" for r in runs])
+    row("status", [f"{r['status']} ({r['progress']})" for r in runs])
+    row(
+        "objective",
+        [f"{objective_text(r['objective'])}, {r['objective']['combine']}" for r in runs],
+    )
+    units = {r["fitness_unit"] for r in runs}
+    if len(units) == 1:
+        row(f"fitness [{next(iter(units))}]", [fmt_number(r["fitness"]) for r in runs])
+    else:
+        row("fitness", [f"{fmt_number(r['fitness'])} {r['fitness_unit']}" for r in runs])
+    row("answer", [r["best_meaning"] for r in runs])
+    if doc["params"]:
+        section("parameters")
+    truth = any(r["params"][n]["true"] is not None for r in runs for n in doc["params"])
+    for n in doc["params"]:
+        unit = next((r["params"][n]["unit"] for r in runs if r["params"][n]["unit"]), "")
+        cells = []
+        for r in runs:
+            p = r["params"][n]
+            text = "-" if p["value"] is None else f"{p['value']:.8g}"
+            if p["role"] != "free":
+                text = f"{p['role']} {text}"
+            elif p["at_bound"]:
+                text += f" ({p['at_bound']} bound)"
+            cells.append(text)
+        row(f"  {n}" + (f" [{unit}]" if unit and unit != "1" else ""), cells)
+        if truth:
+            row("    true", [_cell(r["params"][n]["true"]) for r in runs])
+            row(
+                "    error",
+                [
+                    "-"
+                    if r["params"][n]["error_percent"] is None
+                    else f"{r['params'][n]['error_percent']:+.3f} %"
+                    for r in runs
+                ],
+            )
+    for key, title in (("fit_errors", "fit error"), ("validation_errors", "validation error")):
+        trials = []
+        for r in runs:
+            trials += [t for t in r[key] if t not in trials]
+        if trials:
+            section(title + (f" [{next(iter(units))}]" if len(units) == 1 else ""))
+            if len(units) > 1:
+                row("  unit", [r["fitness_unit"] for r in runs])
+            for t in trials:
+                row(f"  {t}", [fmt_number(r[key][t]) if t in r[key] else "-" for r in runs])
+    section("timings")
+    row("  wall time [s]", [_cell(_round(r["timings"]["total_s"], 2)) for r in runs])
+    row("  evaluations", [str(r["timings"]["evaluations"]) for r in runs])
+    row("  GA evaluations/s", [f"{(r['timings']['evaluations_per_s'] or 0):,.0f}" for r in runs])
+    row("  SLSQP [s]", [_cell(_round(r["timings"]["local_s"], 2)) for r in runs])
+    if doc["differences"]:
+        section("settings that differ")
+        for key, values in doc["differences"].items():
+            row(f"  {key}", [_cell(v) for v in values])
+    else:
+        section("settings: the same")
+    out = text_table(["", *names], rows)
+    notes = []
+    if doc["models_differ"]:
+        shared = ", ".join(doc["params"]) or "none"
+        notes.append(
+            f"runs of different models ({', '.join(dict.fromkeys(doc['models']))}): compared on "
+            f"what they share; parameters declared by every model: {shared}"
+            + (f"; not shared: {', '.join(doc['not_shared'])}" if doc["not_shared"] else "")
+        )
+    if doc["objectives_differ"]:
+        notes.append("the objectives differ: fitness and errors are not on one scale across runs")
+    for name, r in zip(names, runs):
+        if r["status"] == "interrupted":
+            notes.append(f"{name}: {r['status_text']}; {r['resume']} continues it")
+    return "\n".join(out + ([""] + notes if notes else []))
+
+
+def _round(v, digits):
+    return None if v is None else round(float(v), digits)

@@ -1,0 +1,403 @@
+"""One results file, opened once, read into typed records.
+
+Every command that looks at results (``show``, ``runs``, ``compare``, ``report``,
+``export-spec``) reads its file here, in one open: :func:`read_results` gives a
+:class:`RunRecord` for a run's file or a :class:`PipelineRecord` (its stages' runs) for a
+pipeline's, :func:`read_run` one run or one stage. The records are plain data with
+attributes (like scipy's ``OdeResult``); what a run *means* (its best values, errors,
+status) is :class:`evo_door.experiment.results.Results`, built on a record.
+
+``arrays=False`` reads what a folder listing needs (attributes, the configuration, the
+halls of fame), never the populations, trials or responses: ``runs`` stays cheap on a
+folder of large files. The layout read is :mod:`.store`'s.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.experiment import store
+from evo_door.files import ATTRS, read_attrs, read_group
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """``setup/``: how the run was set up (model, free parameters and their ranges)."""
+
+    model: str
+    free: list[str]
+    param_names: list[str]
+    objective: dict
+    method: str
+    substeps: int
+    fit_ids: list[str]
+    validation_ids: list[str]
+    base: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @property
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        """Free parameter name -> its search range (lower, upper)."""
+        return {n: (float(lo), float(hi)) for n, lo, hi in zip(self.free, self.lower, self.upper)}
+
+
+@dataclass(frozen=True)
+class GAState:
+    """``jobs/<k>/ga``: where a job's genetic algorithm stands (logbook: full reads only)."""
+
+    generation: int
+    evaluations: int
+    blowups: int
+    best_fitness: float
+    hof_x: np.ndarray
+    hof_fitness: np.ndarray
+    logbook: dict | None  # column -> array; None when read with arrays=False
+
+
+@dataclass(frozen=True)
+class Job:
+    """``jobs/<k>``: one fit of a run (a trial's, all trials', or the run's only one)."""
+
+    name: str
+    done: bool
+    ga_stop: str
+    ga: GAState | None
+    local_fitness: float | None  # after the SLSQP polish, where there was one
+
+
+@dataclass(frozen=True)
+class Best:
+    """``best/``: a complete run's answer, its errors, and the estimates on a bound."""
+
+    fitness: float
+    values: dict[str, float]
+    fit_errors: dict[str, float]
+    validation_errors: dict[str, float]
+    meaning: str | None  # None: written before the attribute existed
+    at_bound: dict[str, str] | None  # None: written before the attribute existed
+    identifiability: dict | None  # the stored tree (optim.identifiability reads it)
+
+
+@dataclass(frozen=True)
+class PerTrialFits:
+    """``summary/``: one fit per trial (``per_trial`` runs), as seed table 5.3."""
+
+    trials: list[str]
+    x: np.ndarray  # trial x free parameter
+    min: np.ndarray
+    max: np.ndarray
+    mean: np.ndarray
+
+
+@dataclass(frozen=True)
+class Response:
+    """``response/<k>``: the best parameters' response to one trial, with its target."""
+
+    trial_id: str
+    role: str  # fit or validate
+    channel: str
+    error: float
+    t: np.ndarray
+    force: np.ndarray
+    target: np.ndarray
+    model: np.ndarray
+
+
+@dataclass(frozen=True)
+class StoredTrial:
+    """``trials/<role>_<k>``: a trial the run fitted or validated on."""
+
+    key: str
+    trial_id: str
+    truth: dict
+    node: dict  # the stored group, for :meth:`trial`
+
+    @property
+    def role(self) -> str:
+        return self.key.rsplit("_", 1)[0]
+
+    def trial(self):
+        """The :class:`~evo_door.data.trial.Trial` itself (its arrays, its sensors)."""
+        return store.trial_from_tree(self.node)
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """What made the run: the experiment as given and the package versions."""
+
+    source: str
+    overrides: list[str]
+    text: str
+    versions: dict
+
+
+@dataclass
+class RunRecord:
+    """One run (a run's file, or one stage of a pipeline's file) as read.
+
+    ``attrs`` are the root attributes as stored (status, jobs done, generations...),
+    ``config`` the resolved experiment; ``sources`` says which earlier stage a pipeline
+    stage's ``{from: STAGE}`` took (``params``, ``target.params``). ``tree`` is the raw
+    layout, kept for code that rebuilds a run's setup from it
+    (:func:`store.setup_from_tree`); None when read with ``arrays=False``.
+    """
+
+    path: Path
+    stage: str | None
+    attrs: dict
+    config: dict
+    settings: RunSettings
+    jobs: list[Job]
+    best: Best | None
+    per_trial: PerTrialFits | None
+    timings: dict
+    provenance: Provenance
+    sources: dict[str, str] = field(default_factory=dict)
+    responses: list[Response] = field(default_factory=list)
+    trials: list[StoredTrial] = field(default_factory=list)
+    tree: dict | None = None
+
+    @property
+    def complete(self) -> bool:
+        return self.attrs.get("status") == "complete"
+
+
+@dataclass
+class PipelineRecord:
+    """A pipeline's file: its root attributes, each declared stage, the started stages' runs.
+
+    ``stages`` lists every declared stage in order; ``runs`` holds the started ones, in
+    that order (``started``: as the file lists them, which its messages name);
+    ``sources`` maps a stage to its ``{from: STAGE}`` sources, ``report`` the pipeline
+    file's settings of ``evo-door report``.
+    """
+
+    path: str | Path  # as given: the pipeline's status and resume line name it so
+    attrs: dict
+    stages: list[str]
+    started: list[str]
+    runs: dict[str, RunRecord]
+    sources: dict[str, dict[str, str]]
+    report: dict
+
+
+def read_results(path, *, arrays: bool = True) -> RunRecord | PipelineRecord:
+    """The results file ``path``, in one open: a run's record, or a pipeline's with every
+    started stage. ``arrays=False`` leaves out populations, trials and responses."""
+    with store._open(path) as f:  # the one open of the file
+        try:
+            if read_attrs(f).get("format") != store.PIPELINE_FORMAT:
+                return _run(f, Path(path), None, {}, arrays)
+            return _pipeline(f, path, arrays)
+        except (OSError, KeyError) as exc:  # a damaged file, read as peek says it
+            raise UserError(f"{path}: not a readable results file ({exc})") from None
+
+
+def read_run(path, stage: str | None = None) -> RunRecord:
+    """One run, whole: a run's file, or the stage ``stage`` of a pipeline's (one open;
+    a missing or unknown stage is a one-line error naming the stages there are)."""
+    path = Path(path)
+    with store._open(path) as f:  # the one open of the file
+        group = store._run_group(f, path, stage)
+        sources = _sources(f).get(stage, {}) if stage is not None else {}
+        return _run(group, path, stage, sources, True)
+
+
+def pick(record: RunRecord | PipelineRecord, stage: str | None) -> RunRecord:
+    """The run ``stage`` names in a record read by :func:`read_results`, with the errors
+    :func:`read_run` gives (no stage of a run's file; a pipeline needs one)."""
+    if isinstance(record, RunRecord):
+        store.check_stage(record.path, stage)
+        return record
+    store.check_stage(Path(record.path), stage, record.stages, record.started)
+    return record.runs[stage]
+
+
+# -- reading the groups ----------------------------------------------------------------
+def _sources(f) -> dict[str, dict[str, str]]:
+    """Stage -> its ``{from: STAGE}`` sources, from ``pipeline/resolved`` ({} if none)."""
+    if "pipeline/resolved" not in f:
+        return {}
+    stages = json.loads(f["pipeline/resolved"][()]).get("stages") or {}
+    return {name: dict(entry.get("from") or {}) for name, entry in stages.items()}
+
+
+def _pipeline(f, path, arrays: bool) -> PipelineRecord:
+    attrs = read_attrs(f)
+    started = list(f["stages"]) if "stages" in f else []
+    resolved = json.loads(f["pipeline/resolved"][()]) if "pipeline/resolved" in f else {}
+    sources = _sources(f)
+    declared = list(attrs.get("stages") or [])
+    # the stages in the pipeline's order (a file may list a later stage's group first)
+    order = [name for name in declared if name in started]
+    order += [name for name in started if name not in order]
+    runs = {
+        name: _run(f["stages"][name], Path(path), name, sources.get(name, {}), arrays)
+        for name in order
+    }
+    return PipelineRecord(
+        path=path,
+        attrs=attrs,
+        stages=declared,
+        started=started,
+        runs=runs,
+        sources=sources,
+        report=resolved.get("report") or {},
+    )
+
+
+def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
+    """A run's group: everything with ``arrays``, else attributes and small arrays only."""
+    tree = read_group(g) if arrays else None
+    node = tree if arrays else _Light(g)
+    experiment = node["experiment"]
+    return RunRecord(
+        path=path,
+        stage=stage,
+        attrs=node[ATTRS],
+        config=json.loads(_text(experiment["resolved"])),
+        settings=_settings(node["setup"]),
+        jobs=[_job(node["jobs"][k], arrays) for k in _keys(node["jobs"])],
+        best=_best(node["best"], arrays) if "best" in node else None,
+        per_trial=_per_trial(node["summary"]) if arrays and "summary" in node else None,
+        timings=node["timings"][ATTRS],
+        provenance=Provenance(
+            source=experiment[ATTRS].get("source", ""),
+            overrides=list(experiment[ATTRS].get("overrides") or []),
+            text=_text(experiment["text"]) if arrays else "",
+            versions=node["versions"][ATTRS],
+        ),
+        sources=sources,
+        responses=_responses(tree) if arrays else [],
+        trials=_trials(tree) if arrays else [],
+        tree=tree,
+    )
+
+
+class _Light:
+    """An open group read on demand, as :func:`read_group` would give it: attributes of
+    every group, datasets read only when asked for (``arrays=False`` reads)."""
+
+    def __init__(self, group):
+        self._g = group
+
+    def __contains__(self, key) -> bool:
+        return key in self._g
+
+    def __iter__(self):
+        return iter(self._g)
+
+    def __getitem__(self, key):
+        if key == ATTRS:
+            return read_attrs(self._g)
+        item = self._g[key]
+        return item[()] if hasattr(item, "dtype") else _Light(item)
+
+
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _keys(jobs) -> list[str]:
+    return sorted((k for k in jobs if k != ATTRS), key=int)
+
+
+def _settings(s) -> RunSettings:
+    a = s[ATTRS]
+    return RunSettings(
+        model=a["model"],
+        free=list(a["free"]),
+        param_names=list(a["param_names"]),
+        objective=dict(a["objective"]),
+        method=a.get("method", ""),
+        substeps=int(a.get("substeps", 1)),
+        fit_ids=list(a.get("fit_ids") or []),
+        validation_ids=list(a.get("validation_ids") or []),
+        base=np.asarray(s["base"]),
+        lower=np.asarray(s["lower"]),
+        upper=np.asarray(s["upper"]),
+    )
+
+
+def _job(j, arrays: bool) -> Job:
+    a = j[ATTRS]
+    ga = None
+    if "ga" in j:
+        g = j["ga"]
+        ga_attrs = g[ATTRS]
+        ga = GAState(
+            generation=int(ga_attrs["generation"]),
+            evaluations=int(ga_attrs["evaluations"]),
+            blowups=int(ga_attrs["blowups"]),
+            best_fitness=float(ga_attrs["best_fitness"]),
+            hof_x=np.asarray(g["hof_x"]) if "hof_x" in g else np.zeros((0, 0)),
+            hof_fitness=np.asarray(g["hof_fitness"]) if "hof_fitness" in g else np.zeros(0),
+            logbook={k: v for k, v in g["logbook"].items() if k != ATTRS} if arrays else None,
+        )
+    local = None
+    if "local" in j:
+        local = float(j["local"][ATTRS]["fitness"])
+    return Job(
+        name=a.get("name", ""),
+        done=bool(a.get("done")),
+        ga_stop=a.get("ga_stop") or "",
+        ga=ga,
+        local_fitness=local,
+    )
+
+
+def _best(b, arrays: bool) -> Best:
+    a = b[ATTRS]
+    return Best(
+        fitness=float(a["fitness"]),
+        values=dict(a.get("values") or {}),
+        fit_errors=dict(a.get("fit_errors") or {}),
+        validation_errors=dict(a.get("validation_errors") or {}),
+        meaning=a.get("meaning"),
+        at_bound=dict(a["at_bound"]) if "at_bound" in a else None,
+        identifiability=b["identifiability"] if arrays and "identifiability" in b else None,
+    )
+
+
+def _per_trial(s: dict) -> PerTrialFits:
+    return PerTrialFits(
+        trials=list(s[ATTRS]["trials"]), x=s["x"], min=s["min"], max=s["max"], mean=s["mean"]
+    )
+
+
+def _responses(tree: dict) -> list[Response]:
+    groups = tree.get("response", {})
+    out = []
+    for k in _keys(groups):
+        r = groups[k]
+        a = r[ATTRS]
+        out.append(
+            Response(
+                trial_id=a["trial_id"],
+                role=a["role"],
+                channel=a["channel"],
+                error=a["error"],
+                t=r["t"],
+                force=r["force"],
+                target=r["target"],
+                model=r["model"],
+            )
+        )
+    return out
+
+
+def _trials(tree: dict) -> list[StoredTrial]:
+    """The stored trials in the file's order (fitted ones, then validation ones)."""
+    out = []
+    for key, node in tree.get("trials", {}).items():
+        if key == ATTRS or not isinstance(node, dict):
+            continue
+        a = node[ATTRS]
+        out.append(StoredTrial(key, a["trial_id"], a.get("truth") or {}, node))
+    return out
