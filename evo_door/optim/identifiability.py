@@ -204,6 +204,143 @@ def _range(values) -> str:
     return f"{lo:.3g}" if np.isclose(lo, hi) else f"{lo:.3g}..{hi:.3g}"
 
 
+# -- the steps ----------------------------------------------------------------------------
+def _check_settings(step: float, confidence: float) -> None:
+    """The finite-difference step and the confidence level are usable, else one line."""
+    if not (0.0 < step < 0.25):
+        raise UserError(f"finite-difference step {step!r} must be in (0, 0.25) of the range")
+    if not (0.0 < confidence < 1.0):
+        raise UserError(f"confidence {confidence!r} must be between 0 and 1")
+
+
+def _effective_samples(r, pack, effective: bool) -> tuple[np.ndarray, float]:
+    """Each trial's residual correlation time (samples) and the effective sample count.
+
+    ``r`` stacks the trials' counted samples in order; ``N_eff = sum n / tau``
+    (:mod:`evo_door.optim.covariance`). Without ``effective`` every ``tau`` is 1: each
+    sample counts as independent.
+    """
+    counted = [int(pack.mask[a:b].sum()) for a, b in zip(pack.offsets[:-1], pack.offsets[1:])]
+    bounds = np.cumsum([0, *counted])
+    tau = np.array(
+        [
+            autocorrelation_time(r[a:b]) if effective else 1.0
+            for a, b in zip(bounds[:-1], bounds[1:])
+        ]
+    )
+    n_eff = float(sum(c / t for c, t in zip(counted, tau)))
+    return tau, n_eff
+
+
+def _confidence_intervals(cov, x, confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """Half-widths of the ``confidence`` intervals (Student's t on the fit's degrees of
+    freedom) in the parameters' units, and relative to ``|x|`` (inf where x is 0 or the
+    error is not determined)."""
+    from scipy.special import stdtrit  # Student's t quantile (lighter than scipy.stats)
+
+    dof = cov.dof
+    quantile = float(stdtrit(dof, 0.5 + confidence / 2.0)) if dof > 0 else math.inf
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        ci_half = quantile * cov.se
+        ci_rel = np.where(x != 0.0, ci_half / np.abs(x), math.inf)
+    ci_rel = np.where(np.isnan(ci_rel), math.inf, ci_rel)
+    return ci_half, ci_rel
+
+
+def _sensitivity_columns(J, J2) -> tuple[np.ndarray, np.ndarray, float]:
+    """The Jacobian's column norms, the cosines between its columns, and how much the
+    columns change from step ``h`` (``J``) to ``2 h`` (``J2``): the largest relative
+    change (``step_agreement``). A column that blew up counts as zero."""
+    finite = np.all(np.isfinite(J), axis=0)
+    Jf = np.where(finite, J, 0.0)
+    norms = np.linalg.norm(Jf, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = (Jf.T @ Jf) / np.outer(norms, norms)
+        change = np.linalg.norm(np.where(finite, J - J2, 0.0), axis=0) / norms
+    cosine[~np.isfinite(cosine)] = math.nan
+    agreement = float(np.max(change[np.isfinite(change)], initial=0.0))
+    return norms, cosine, agreement
+
+
+def _partners(correlation, names) -> tuple[list[str], np.ndarray]:
+    """Each parameter's most correlated other one (``""`` if none) and that correlation."""
+    p = len(names)
+    partners, partner_r = [], np.full(p, math.nan)
+    for i in range(p):
+        row = np.abs(np.where(np.arange(p) == i, math.nan, correlation[i]))
+        k = int(np.nanargmax(row)) if np.any(np.isfinite(row)) else -1
+        partners.append(names[k] if k >= 0 else "")
+        partner_r[i] = correlation[i, k] if k >= 0 else math.nan
+    return partners, partner_r
+
+
+def _verdict(
+    undetermined: str | None,
+    ci_rel: float,
+    partner: str,
+    r: float,
+    max_relative_ci: float,
+    max_correlation: float,
+    confidence: float,
+) -> tuple[str, str]:
+    """One parameter's verdict and its reason (module docstring, "Verdicts").
+
+    ``undetermined`` is why the covariance could not determine it (None if it could);
+    ``partner`` its most correlated other parameter and ``r`` their correlation.
+    """
+    correlated = bool(partner) and abs(r) > max_correlation
+    if undetermined is not None:
+        return NOT_IDENTIFIABLE, undetermined
+    if ci_rel > max_relative_ci:
+        why = f"{100 * confidence:g} % CI +-{100 * ci_rel:.3g} % > {100 * max_relative_ci:g} %"
+        if correlated:
+            why += f", correlation {r:+.3f} with {partner}"
+        return NOT_IDENTIFIABLE, why
+    if correlated:
+        return CORRELATED, f"correlation {r:+.3f} with {partner} (|r| > {max_correlation:g})"
+    return IDENTIFIABLE, f"{100 * confidence:g} % CI +-{100 * ci_rel:.3g} %"
+
+
+def _bound_note(x: float, lower: float, upper: float) -> str:
+    """What a reason adds for an estimate on a bound of its search range (else ``""``):
+    the local theory assumes an interior optimum."""
+    slack = BOUND_TOLERANCE * (upper - lower)
+    if x - lower <= slack or upper - x <= slack:
+        side = "lower" if x - lower <= slack else "upper"
+        return f"; on the {side} bound of its search range: the local theory does not hold"
+    return ""
+
+
+def _note(objective, r) -> str:
+    """What the result should say about itself: an objective that is not a sum of
+    squares, a zero residual (a noise-free target)."""
+    note = ""
+    if objective.kind != "ise" or objective.combine == "max":
+        note = (
+            f"the objective ({objective.kind}, combine {objective.combine}) is not a sum of "
+            "squares: computed on the ISE of the same channel at this estimate, which it "
+            "need not minimise"
+        )
+    if not float(r @ r) > 0.0:
+        note = "; ".join(
+            filter(
+                None,
+                [
+                    note,
+                    "the residual is zero (a noise-free target): every standard error is 0, "
+                    "only a correlation or a singularity can flag a parameter",
+                ],
+            )
+        )
+    return note
+
+
+def _rms(r, pack) -> float:
+    """The RMS error on the channel: ``sqrt(SSR / counted time)``, in the channel's unit."""
+    counted_time = float(sum(np.sum(w**2) for w in sample_weights(pack)))
+    return math.sqrt(float(r @ r) / counted_time) if counted_time > 0 else math.nan
+
+
 # -- the entry point ----------------------------------------------------------------------
 def identifiability(
     problem,
@@ -233,103 +370,36 @@ def identifiability(
         Count effective samples from the residual's autocorrelation (default); False
         treats every sample as independent (white residual).
     """
-    from scipy.special import stdtrit  # Student's t quantile (lighter than scipy.stats)
-
     t0 = time.perf_counter()
-    if not (0.0 < step < 0.25):
-        raise UserError(f"finite-difference step {step!r} must be in (0, 0.25) of the range")
-    if not (0.0 < confidence < 1.0):
-        raise UserError(f"confidence {confidence!r} must be between 0 and 1")
+    _check_settings(step, confidence)
     x = check_estimate(problem, x)
     names = list(problem.free)
-    p = len(names)
     width = problem.upper - problem.lower
-    r, (J, J2), blown = jacobians(problem, x, (step, 2.0 * step))
-
-    pack = problem.fit
-    counted = [int(pack.mask[a:b].sum()) for a, b in zip(pack.offsets[:-1], pack.offsets[1:])]
-    bounds = np.cumsum([0, *counted])
-    tau = np.array(
-        [
-            autocorrelation_time(r[a:b]) if effective else 1.0
-            for a, b in zip(bounds[:-1], bounds[1:])
-        ]
-    )
-    n = int(r.size)
-    n_eff = float(sum(c / t for c, t in zip(counted, tau)))
-
+    r, (J, J2), _ = jacobians(problem, x, (step, 2.0 * step))
+    tau, n_eff = _effective_samples(r, problem.fit, effective)
     cov = covariance(J, r, n_eff, width, max_condition, min_sensitivity, names)
-    dof = cov.dof
-    quantile = float(stdtrit(dof, 0.5 + confidence / 2.0)) if dof > 0 else math.inf
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        ci_half = quantile * cov.se
-        ci_rel = np.where(x != 0.0, ci_half / np.abs(x), math.inf)
-    ci_rel = np.where(np.isnan(ci_rel), math.inf, ci_rel)
-
-    finite = np.all(np.isfinite(J), axis=0)
-    Jf = np.where(finite, J, 0.0)
-    norms = np.linalg.norm(Jf, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cosine = (Jf.T @ Jf) / np.outer(norms, norms)
-        change = np.linalg.norm(np.where(finite, J - J2, 0.0), axis=0) / norms
-    cosine[~np.isfinite(cosine)] = math.nan
-    agreement = float(np.max(change[np.isfinite(change)], initial=0.0))
-
-    partners, partner_r = [], np.full(p, math.nan)
+    ci_half, ci_rel = _confidence_intervals(cov, x, confidence)
+    norms, cosine, agreement = _sensitivity_columns(J, J2)
+    partners, partner_r = _partners(cov.correlation, names)
     verdicts, reasons = [], []
-    for i in range(p):
-        row = np.abs(np.where(np.arange(p) == i, math.nan, cov.correlation[i]))
-        k = int(np.nanargmax(row)) if np.any(np.isfinite(row)) else -1
-        partners.append(names[k] if k >= 0 else "")
-        partner_r[i] = cov.correlation[i, k] if k >= 0 else math.nan
-        if i in cov.reasons:
-            verdict, why = NOT_IDENTIFIABLE, cov.reasons[i]
-        elif ci_rel[i] > max_relative_ci:
-            verdict = NOT_IDENTIFIABLE
-            why = (
-                f"{100 * confidence:g} % CI +-{100 * ci_rel[i]:.3g} % > {100 * max_relative_ci:g} %"
-            )
-            if k >= 0 and abs(partner_r[i]) > max_correlation:
-                why += f", correlation {partner_r[i]:+.3f} with {names[k]}"
-        elif k >= 0 and abs(partner_r[i]) > max_correlation:
-            verdict = CORRELATED
-            why = f"correlation {partner_r[i]:+.3f} with {names[k]} (|r| > {max_correlation:g})"
-        else:
-            verdict = IDENTIFIABLE
-            why = f"{100 * confidence:g} % CI +-{100 * ci_rel[i]:.3g} %"
-        slack = BOUND_TOLERANCE * width[i]
-        if x[i] - problem.lower[i] <= slack or problem.upper[i] - x[i] <= slack:
-            side = "lower" if x[i] - problem.lower[i] <= slack else "upper"
-            why += f"; on the {side} bound of its search range: the local theory does not hold"
+    for i in range(len(names)):
+        verdict, why = _verdict(
+            cov.reasons.get(i),
+            ci_rel[i],
+            partners[i],
+            partner_r[i],
+            max_relative_ci,
+            max_correlation,
+            confidence,
+        )
         verdicts.append(verdict)
-        reasons.append(why)
-
+        reasons.append(why + _bound_note(x[i], problem.lower[i], problem.upper[i]))
     objective = problem.objective
-    note = ""
-    if objective.kind != "ise" or objective.combine == "max":
-        note = (
-            f"the objective ({objective.kind}, combine {objective.combine}) is not a sum of "
-            "squares: computed on the ISE of the same channel at this estimate, which it "
-            "need not minimise"
-        )
-    if not float(r @ r) > 0.0:
-        note = "; ".join(
-            filter(
-                None,
-                [
-                    note,
-                    "the residual is zero (a noise-free target): every standard error is 0, "
-                    "only a correlation or a singularity can flag a parameter",
-                ],
-            )
-        )
-    counted_time = float(sum(np.sum(w**2) for w in sample_weights(pack)))
     channel = RESPONSE_CHANNELS[objective.derivative]
-    theta_unit = getattr(problem.model, "theta_unit", "rad")
-    params = problem.model.params
+    # the result's fields, one a line: what makes this function long
     return Identifiability(
         names=names,
-        units=[params[n].unit for n in names],
+        units=[problem.model.params[n].unit for n in names],
         x=x.copy(),
         lower=problem.lower.copy(),
         upper=problem.upper.copy(),
@@ -344,19 +414,19 @@ def identifiability(
         reasons=reasons,
         partners=partners,
         partner_r=partner_r,
-        trial_ids=list(pack.ids),
+        trial_ids=list(problem.fit.ids),
         tau=tau,
-        n_samples=n,
+        n_samples=int(r.size),
         n_effective=n_eff,
         ssr=float(r @ r),
-        rms=math.sqrt(float(r @ r) / counted_time) if counted_time > 0 else math.nan,
+        rms=_rms(r, problem.fit),
         sigma2=cov.sigma2,
-        dof=dof,
+        dof=cov.dof,
         condition=cov.condition,
         step=float(step),
         step_agreement=agreement,
         channel=channel,
-        channel_unit=unit(channel, theta_unit),
+        channel_unit=unit(channel, getattr(problem.model, "theta_unit", "rad")),
         objective={
             "kind": objective.kind,
             "derivative": objective.derivative,
@@ -370,6 +440,6 @@ def identifiability(
             "confidence": confidence,
             "effective": effective,
         },
-        note=note,
+        note=_note(objective, r),
         seconds=time.perf_counter() - t0,
     )
