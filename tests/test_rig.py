@@ -166,7 +166,7 @@ def test_chunked_closed_loop_equals_one_simulation():
     params = TOY_DOOR.load_params()
     force = 30.0 * np.sin(np.linspace(0, 3 * np.pi, 700)) ** 2
 
-    class Replay(rig._Policy):
+    class Replay(rig.Policy):
         def plan(self, ts, tk, theta_k, dtheta_k):
             return force[np.rint(ts * 1024).astype(int)]
 
