@@ -55,7 +55,13 @@ rig specification in an experiment file is checked (:mod:`.spec`). The names bel
 the rig's library interface.
 """
 
-from evo_door.data.rig.campaign import DEFAULT_KINDS, default_kinds, generate_trials, trial_user
+from evo_door.data.rig.campaign import (
+    DEFAULT_KINDS,
+    Campaign,
+    default_kinds,
+    generate_trials,
+    trial_user,
+)
 from evo_door.data.rig.loop import run_closed_loop
 from evo_door.data.rig.one_trial import (
     KIND_CHANNELS,
@@ -71,6 +77,7 @@ from evo_door.data.rig.users import USER_RANGES, VirtualUser, make_users
 
 __all__ = [
     "DEFAULT_KINDS",
+    "Campaign",
     "HandPolicy",
     "ImpulsePolicy",
     "KINDS",

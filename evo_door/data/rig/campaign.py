@@ -5,6 +5,8 @@ from which random numbers (same seed, same trials, value for value).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,7 +19,6 @@ from evo_door.data.rig.one_trial import (
 )
 from evo_door.data.rig.truth import make_truth
 from evo_door.data.rig.users import make_users
-from evo_door.data.sensors import Sensor
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 
@@ -25,90 +26,97 @@ from evo_door.errors import UserError
 DEFAULT_KINDS = ("impulse", "unlock", "impulse", "lock")
 
 
+@dataclass(frozen=True)
+class Campaign:
+    """What is asked of the rig: ``trials`` trials by ``users`` virtual users, from ``seed``
+    (an int >= 0 or a ``numpy.random.SeedSequence``; same campaign, same trials, value for
+    value).
+
+    ``kinds`` (a sequence of "unlock", "lock", "impulse") are cycled over the trials;
+    None: :data:`DEFAULT_KINDS` without the kinds the model does not support
+    (``Model.rig_kinds``). An unsupported kind asked for is refused.
+    """
+
+    users: int = 3
+    trials: int = 10
+    seed: int | np.random.SeedSequence = 1
+    kinds: Sequence[str] | None = None
+
+
+#: The campaign when none is given: the bundled data's (3 users, 10 trials, seed 1).
+DEFAULT_CAMPAIGN = Campaign()
+
+
 def generate_trials(
     model,
     params,
-    users: int = 3,
-    trials: int = 10,
-    seed=1,
-    kinds=None,
+    campaign: Campaign = DEFAULT_CAMPAIGN,
     settings: RigSettings = DEFAULT_SETTINGS,
-    sensors: dict[str, Sensor] | None = None,
-    method=None,
-    substeps=None,
-    progress: bool | None = None,
     truth=None,
-    truth_params=None,
+    progress: bool | None = None,
 ) -> list[Trial]:
-    """A measurement campaign: ``trials`` trials by ``users`` virtual users.
+    """A measurement campaign: ``campaign.trials`` trials by ``campaign.users`` users.
 
     Trial k (ids ``T01``...) is of kind ``kinds[k % len(kinds)]`` and is done by the user
     :func:`trial_user` gives (ids ``U1``...): the users take turns, and every user makes
-    every kind of the cycle once in ``users * len(kinds)`` trials. Same ``seed``, same
-    trials, value for value.
+    every kind of the cycle once in ``users * len(kinds)`` trials.
 
     Parameters
     ----------
     model : Model
     params : ParamSet
         The true parameters, stored with every trial (``trial.truth``).
-    seed : int or numpy.random.SeedSequence
-    kinds : sequence of "unlock", "lock", "impulse", optional
-        Kinds cycled over the trials; default :data:`DEFAULT_KINDS` without the kinds
-        the model does not support (``Model.rig_kinds``). An unsupported kind asked for
-        is refused.
+    campaign : Campaign
+        Users, trials, seed and kinds.
     settings : RigSettings
-    sensors : dict, optional
-        Sensor models replacing the seed's (:data:`~evo_door.data.sensors.SEED_SENSORS`).
+        The rig: its sampling, hand, sensors and integrator.
+    truth : None, "model", "rich" or a truth
+        What is simulated (:func:`~evo_door.data.rig.truth.make_truth`, which also sets
+        the rich truth's parameters): the model itself (default), or the physical door's
+        richer truth (:mod:`evo_door.models.door.truth`).
     progress : bool or None
         tqdm bar (None: only on a terminal).
-    truth : None, "model" or "rich"
-        What is simulated (:func:`make_truth`): the model itself (default), or the
-        physical door's richer truth (:mod:`evo_door.models.door.truth`).
-    truth_params : mapping, YAML path or ParamSet, optional
-        The rich truth's parameters on top of its declared defaults.
     """
     from tqdm.auto import tqdm
 
-    if trials < 1:
-        raise UserError("the rig needs at least one trial")
-    if not isinstance(seed, np.random.SeedSequence) and not (
-        isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0
-    ):
-        raise UserError(f"the rig's seed must be a whole number >= 0, got {seed!r}")
-    kinds = default_kinds(model) if kinds is None else tuple(kinds)
-    if not kinds:
-        raise UserError("the rig needs at least one trial kind")
-    check_kinds(model, kinds)
-    truth = make_truth(model, params, truth, truth_params, method, substeps)
+    kinds = _checked_kinds(model, campaign)
+    truth = make_truth(model, params, truth, None, settings.method, settings.substeps)
+    seed = campaign.seed
     root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
     user_seq, trial_root = root.spawn(2)
-    people = make_users(users, np.random.default_rng(user_seq))
+    people = make_users(campaign.users, np.random.default_rng(user_seq))
     out = []
+    n = campaign.trials
     bar = tqdm(
-        range(trials), desc="rig", unit="trial", disable=None if progress is None else not progress
+        range(n), desc="rig", unit="trial", disable=None if progress is None else not progress
     )
-    for k, child in zip(bar, trial_root.spawn(trials)):
+    for k, child in zip(bar, trial_root.spawn(n)):
         rng = np.random.default_rng(child)
-        user = people[trial_user(k, users, len(kinds))].jittered(rng)
-        trial = generate_trial(
-            model,
-            params,
-            kinds[k % len(kinds)],
-            user,
-            rng,
-            f"T{k + 1:02d}",
-            settings,
-            sensors,
-            method,
-            substeps,
-            truth,
-        )
+        user = people[trial_user(k, campaign.users, len(kinds))].jittered(rng)
+        kind, trial_id = kinds[k % len(kinds)], f"T{k + 1:02d}"
+        trial = generate_trial(model, params, kind, user, rng, trial_id, settings, truth)
         trial.meta["rig"].update(
             seed=int(root.entropy) if isinstance(root.entropy, int) else None, trial_index=k
         )
         out.append(trial)
     return out
+
+
+def _checked_kinds(model, campaign: Campaign) -> tuple[str, ...]:
+    """The campaign's kinds (the model's default ones if it names none), after checking
+    the number of trials, the seed and each kind; one line for the first wrong."""
+    seed = campaign.seed
+    if campaign.trials < 1:
+        raise UserError("the rig needs at least one trial")
+    if not isinstance(seed, np.random.SeedSequence) and not (
+        isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed >= 0
+    ):
+        raise UserError(f"the rig's seed must be a whole number >= 0, got {seed!r}")
+    kinds = default_kinds(model) if campaign.kinds is None else tuple(campaign.kinds)
+    if not kinds:
+        raise UserError("the rig needs at least one trial kind")
+    check_kinds(model, kinds)
+    return kinds
 
 
 def trial_user(k: int, users: int, cycle: int) -> int:

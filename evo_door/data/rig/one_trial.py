@@ -4,7 +4,7 @@ response measured by the sensors, the trial refused when the sensors saw nothing
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
@@ -46,6 +46,19 @@ class RigSettings:
     settle: float = 0.4  # s of stillness that ends an impulse trial
     t_max: float = 8.0  # s, longest trial
     all_sensors: bool = False  # record every sensor in every trial
+    # the settings below are recorded apart, in each trial's sensors and truth
+    #: sensor models replacing the seed's (channel -> Sensor; evo_door.data.sensors)
+    sensors: dict[str, Sensor] | None = None
+    method: str | None = None  # integrator (default: the model's)
+    substeps: int | None = None  # integrator sub-steps per sample (default: the model's)
+
+    def record(self) -> dict:
+        """What a trial records of the rig's settings (``meta["rig"]["settings"]``)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _APART}
+
+
+#: RigSettings recorded in another place of a trial than ``meta["rig"]["settings"]``.
+_APART = ("sensors", "method", "substeps")
 
 
 #: The rig's settings when none are given.
@@ -60,9 +73,6 @@ def generate_trial(
     rng: np.random.Generator,
     trial_id: str = "T01",
     settings: RigSettings = DEFAULT_SETTINGS,
-    sensors: dict[str, Sensor] | None = None,
-    method=None,
-    substeps=None,
     truth=None,
 ) -> Trial:
     """One rig trial of ``kind`` by ``user`` (already jittered) on ``model`` with ``params``.
@@ -73,52 +83,10 @@ def generate_trial(
     in the model's place, and measured by sensors with its dynamics.
     """
     check_kinds(model, [kind])
-    sensors = dict(SEED_SENSORS, **(sensors or {}))
     dt = 1.0 / settings.rate
     tremor = make_tremor(user, rng)
-    opts = {"method": method, "substeps": substeps}
-    state0 = None
-
-    def settle(theta):
-        nonlocal state0
-        if truth is None:
-            return settle_model(model, params, theta, dt, **opts)
-        state0 = settle_truth(truth, theta, dt)
-        return float(state0[0]), float(state0[1])
-
-    if truth is not None:
-        sensors = with_dynamics(sensors, truth.sensor_dynamics())
-    if kind == "unlock":
-        theta0, dtheta0 = settle(CLOSED)
-        policy = HandPolicy(
-            user,
-            -1,
-            settings.handle_radius,
-            tremor,
-            dt,
-            theta0,
-            settings.unlock_detect,
-            settings.tail,
-            settings.t_max,
-        )
-    elif kind == "lock":
-        # a door that pulls itself shut over its last degrees comes to rest on the lock
-        # ramp before the hand arrives: the push starts from where it rests
-        theta0, dtheta0 = settle(CLOSED - user.lock_start)
-        policy = HandPolicy(
-            user,
-            +1,
-            settings.handle_radius,
-            tremor,
-            dt,
-            theta0,
-            settings.lock_detect,
-            settings.tail,
-            settings.t_max,
-        )
-    else:
-        theta0, dtheta0 = settle(0.0)
-        policy = ImpulsePolicy(user, tremor, settings.settle, settings.t_max)
+    theta0, dtheta0, state0 = _start(model, params, kind, user, dt, settings, truth)
+    policy = _policy(kind, user, tremor, dt, theta0, settings)
     clean = run_closed_loop(
         model,
         params,
@@ -128,21 +96,19 @@ def generate_trial(
         dtheta0,
         settings.t_max,
         settings.chunk,
-        **opts,
+        method=settings.method,
+        substeps=settings.substeps,
         truth=truth,
         state0=state0,
     )
-
     _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean)
+    sensors = dict(SEED_SENSORS, **(settings.sensors or {}))
+    if truth is not None:
+        sensors = with_dynamics(sensors, truth.sensor_dynamics())
     channels = ("force", "theta", "dtheta") if settings.all_sensors else KIND_CHANNELS[kind]
     # the sensing element's dynamics (none for the seed's sensors), then noise, bias,
     # quantisation and range
     measured = {ch: sensors[ch].measure(sensors[ch].respond(clean[ch], dt), rng) for ch in channels}
-    events = {"t_start": policy.t_start}
-    if isinstance(policy, HandPolicy):
-        events.update(t_event=policy.t_event, t_release=policy.t_release, gave_up=policy.gave_up)
-    else:
-        events.update(t_cut=policy.t_cut, t_push_end=policy.t_end)
     trial = Trial(
         t=clean["t"],
         force=measured["force"],
@@ -154,20 +120,69 @@ def generate_trial(
         theta0=theta0,
         dtheta0=dtheta0,
         sensors={ch: sensors[ch].info() for ch in channels},
-        truth=truth_record(model, params, method, substeps, truth),
+        truth=truth_record(model, params, settings.method, settings.substeps, truth),
         source=f"rig:{trial_id}",
-        meta={
-            "rig": {
-                "evo_door": __version__,
-                "settings": asdict(settings),
-                "user": asdict(user),
-                "events": events,
-                "peak_force_true": float(clean["force"][np.argmax(np.abs(clean["force"]))]),
-            }
-        },
+        meta={"rig": _rig_record(settings, user, policy, clean)},
     )
     _refuse_if_saturated(model, trial, policy)
     return trial
+
+
+def _start(model, params, kind, user, dt, settings, truth):
+    """Where the trial starts: ``(theta0, dtheta0, the truth's state or None)``, the door
+    settled with no force from where the kind begins (closed, a few degrees from closed,
+    fully open)."""
+    if kind == "unlock":
+        theta = CLOSED
+    elif kind == "lock":
+        # a door that pulls itself shut over its last degrees comes to rest on the lock
+        # ramp before the hand arrives: the push starts from where it rests
+        theta = CLOSED - user.lock_start
+    else:
+        theta = 0.0
+    if truth is None:
+        theta0, dtheta0 = settle_model(
+            model, params, theta, dt, method=settings.method, substeps=settings.substeps
+        )
+        return theta0, dtheta0, None
+    state0 = settle_truth(truth, theta, dt)
+    return float(state0[0]), float(state0[1]), state0
+
+
+def _policy(kind, user, tremor, dt, theta0, settings):
+    """What the user does in a trial of ``kind``: pull to unlock or push to lock with a
+    compliant hand, or give the open door a short push (impulse)."""
+    if kind not in ("unlock", "lock"):
+        return ImpulsePolicy(user, tremor, settings.settle, settings.t_max)
+    unlock = kind == "unlock"
+    return HandPolicy(
+        user,
+        -1 if unlock else +1,
+        settings.handle_radius,
+        tremor,
+        dt,
+        theta0,
+        settings.unlock_detect if unlock else settings.lock_detect,
+        settings.tail,
+        settings.t_max,
+    )
+
+
+def _rig_record(settings, user, policy, clean) -> dict:
+    """What a trial records of the rig (``meta["rig"]``): the settings, the user, the
+    policy's event times and the true peak force."""
+    events = {"t_start": policy.t_start}
+    if isinstance(policy, HandPolicy):
+        events.update(t_event=policy.t_event, t_release=policy.t_release, gave_up=policy.gave_up)
+    else:
+        events.update(t_cut=policy.t_cut, t_push_end=policy.t_end)
+    return {
+        "evo_door": __version__,
+        "settings": settings.record(),
+        "user": asdict(user),
+        "events": events,
+        "peak_force_true": float(clean["force"][np.argmax(np.abs(clean["force"]))]),
+    }
 
 
 def check_kinds(model, kinds) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from evo_door.data.rig.campaign import generate_trials
+from evo_door.data.rig.campaign import Campaign, generate_trials
 from evo_door.data.rig.one_trial import KINDS, RigSettings
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
@@ -193,9 +193,6 @@ def trials_from_spec(spec: dict) -> list[Trial]:
     return generate_trials(
         model,
         params,
-        users=s["users"],
-        trials=s["trials"],
-        seed=s["seed"],
-        kinds=s["kinds"],
-        settings=RigSettings(rate=s["rate"], all_sensors=s["all_sensors"]),
+        Campaign(users=s["users"], trials=s["trials"], seed=s["seed"], kinds=s["kinds"]),
+        RigSettings(rate=s["rate"], all_sensors=s["all_sensors"]),
     )
