@@ -109,7 +109,7 @@ def perceptual(path: Path, stages: list[str]) -> dict | None:
     """The report's perceptual check (default JND) of the last mechanism stage fitted to
     a chosen feel (the redesign's door, else the specification's), or None."""
     from evo_door.experiment import Results
-    from evo_door.experiment.report import Settings, _target_model, perceptual_check
+    from evo_door.experiment.report_case_study import Settings, _target_model, perceptual_check
     from evo_door.sim.simulate import force_angle_curve
 
     fitted = [Results(path, s) for s in stages]

@@ -9,17 +9,16 @@ import pytest
 from evo_door.data.io import write_trials
 from evo_door.errors import UserError
 from evo_door.experiment import ExperimentRun, Interrupted, Results
-from evo_door.experiment.format_json import compare
-from evo_door.experiment.objectives import (
+from evo_door.experiment.comparison import (
     parse_derivatives,
     parse_kinds,
     parse_seeds,
     plan_comparison,
     run_comparison,
-    run_records,
-    summarise,
-    write_outputs,
 )
+from evo_door.experiment.comparison_outputs import write_outputs
+from evo_door.experiment.comparison_summary import run_records, summarise
+from evo_door.experiment.format_json import compare
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
 from tests.test_cli import cli

@@ -331,7 +331,9 @@ def test_rig_trials_of_the_default_door_look_like_the_seed(door, default):
     from evo_door.data import rig
     from evo_door.data.preprocess import find_force_peak
 
-    trials = rig.generate_trials(door, default, users=2, trials=4, seed=3, progress=False)
+    trials = rig.generate_trials(
+        door, default, rig.Campaign(users=2, trials=4, seed=3), progress=False
+    )
     kinds = {t.kind: t for t in trials}
     assert set(kinds) == {"impulse", "unlock", "lock"}
     unlock, lock, impulse = kinds["unlock"], kinds["lock"], kinds["impulse"]

@@ -20,17 +20,15 @@ from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.optim import Objective, Problem, slsqp
+from evo_door.optim.covariance import autocorrelation_time, covariance
 from evo_door.optim.identifiability import (
     CORRELATED,
     IDENTIFIABLE,
     NOT_IDENTIFIABLE,
     Identifiability,
-    autocorrelation_time,
-    covariance,
     identifiability,
-    jacobians,
-    residuals,
 )
+from evo_door.optim.sensitivity import jacobians, residuals
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL as OSC
 from tests.test_optim import TRUE, make_trial

@@ -114,11 +114,13 @@ def test_simulate_reads_hand_written_force_files(case, tmp_path, capsys):
 
 def test_simulate_reads_the_rigs_csv_and_starts_where_the_trial_did(tmp_path, capsys):
     """The rig's CSV (a 3 kB metadata line, then t, force, dtheta) is an input as it stands."""
-    from evo_door.data.rig import generate_trials
+    from evo_door.data.rig import Campaign, generate_trials
     from evo_door.models import get_model
 
     door = get_model("door")
-    (trial,) = generate_trials(door, door.load_params("default"), users=1, trials=1, seed=3)
+    (trial,) = generate_trials(
+        door, door.load_params("default"), Campaign(users=1, trials=1, seed=3)
+    )
     src = tmp_path / "rig.csv"
     write_trials(src, trial)
     assert len(src.read_text().splitlines()[0]) > 2000  # the metadata line

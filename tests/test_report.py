@@ -8,7 +8,8 @@ import pytest
 
 from evo_door.errors import UserError
 from evo_door.experiment.pipeline import PipelineRun, load_pipeline
-from evo_door.experiment.report import Settings, perceptual_check, write_report
+from evo_door.experiment.report import Settings, write_report
+from evo_door.experiment.report_case_study import perceptual_check
 from tests.test_cli import cli
 from tests.test_pipeline import PIPELINE, folder  # noqa: F401  (the fixture)
 

@@ -72,12 +72,16 @@ TOY = "tests.test_rig:TOY_DOOR"
 @pytest.fixture(scope="module")
 def campaign():
     params = TOY_DOOR.load_params()
-    return params, rig.generate_trials(TOY_DOOR, params, users=3, trials=4, seed=7, progress=False)
+    return params, rig.generate_trials(
+        TOY_DOOR, params, rig.Campaign(users=3, trials=4, seed=7), progress=False
+    )
 
 
 def test_same_seed_same_bytes_other_seed_other_trials(tmp_path, campaign):
     params, trials = campaign
-    again = rig.generate_trials(TOY_DOOR, params, users=3, trials=4, seed=7, progress=False)
+    again = rig.generate_trials(
+        TOY_DOOR, params, rig.Campaign(users=3, trials=4, seed=7), progress=False
+    )
     for a, b in zip(trials, again):
         for ch in ("t", "force", "theta", "dtheta"):
             x, y = getattr(a, ch), getattr(b, ch)
@@ -85,10 +89,14 @@ def test_same_seed_same_bytes_other_seed_other_trials(tmp_path, campaign):
     write_trials(tmp_path / "a.h5", trials)
     write_trials(tmp_path / "b.h5", again)
     assert (tmp_path / "a.h5").read_bytes() == (tmp_path / "b.h5").read_bytes()
-    other = rig.generate_trials(TOY_DOOR, params, users=3, trials=1, seed=8, progress=False)
+    other = rig.generate_trials(
+        TOY_DOOR, params, rig.Campaign(users=3, trials=1, seed=8), progress=False
+    )
     assert not np.array_equal(other[0].force[:500], trials[0].force[:500])
     # trial k does not depend on how many trials follow it
-    short = rig.generate_trials(TOY_DOOR, params, users=3, trials=2, seed=7, progress=False)
+    short = rig.generate_trials(
+        TOY_DOOR, params, rig.Campaign(users=3, trials=2, seed=7), progress=False
+    )
     assert np.array_equal(short[1].force, trials[1].force)
 
 
@@ -107,6 +115,37 @@ def test_campaign_layout_and_truth(campaign, tmp_path):
     back = read_trials(tmp_path / "c.h5")
     assert back[2].truth == trials[2].truth
     assert back[3].meta["rig"]["user"] == trials[3].meta["rig"]["user"]
+
+
+def test_rig_settings_reach_the_trial_and_are_recorded_where_they_were(campaign):
+    """The sensors, integrator and sub-steps of RigSettings act on the trial and are recorded
+    in its sensors and truth; meta rig.settings keeps the fields it always had (the bundled
+    data's), so a trial file does not change with where the settings are grouped."""
+    params, trials = campaign
+    recorded = list(trials[0].meta["rig"]["settings"])
+    assert recorded == [
+        "rate", "handle_radius", "chunk", "unlock_detect", "lock_detect", "tail", "settle",
+        "t_max", "all_sensors",
+    ]  # fmt: skip
+    first = rig.Campaign(users=3, trials=1, seed=7)  # the campaign's first trial
+
+    def trial(**settings):
+        (tr,) = rig.generate_trials(
+            TOY_DOOR, params, first, rig.RigSettings(**settings), progress=False
+        )
+        assert list(tr.meta["rig"]["settings"]) == recorded
+        return tr
+
+    assert trials[0].truth["method"] == "semi_implicit" and trials[0].truth["substeps"] == 4
+    for changed in ({"method": "rk4"}, {"substeps": 3}):
+        integrated = trial(**changed)
+        assert {k: integrated.truth[k] for k in changed} == changed
+        assert not np.array_equal(integrated.dtheta, trials[0].dtheta)  # the trial changed
+    coarse = trial(sensors={"dtheta": replace(GYROSCOPE, resolution=0.01, noise_std=0.0)})
+    assert coarse.sensors["dtheta"]["resolution"] == 0.01
+    inside = coarse.dtheta[coarse.unsaturated("dtheta")]
+    assert np.allclose(inside, np.round(inside / 0.01) * 0.01)  # quantised by the sensor given
+    np.testing.assert_array_equal(trial().dtheta, trials[0].dtheta)
 
 
 def test_users_differ(campaign):
@@ -166,7 +205,7 @@ def test_chunked_closed_loop_equals_one_simulation():
     params = TOY_DOOR.load_params()
     force = 30.0 * np.sin(np.linspace(0, 3 * np.pi, 700)) ** 2
 
-    class Replay(rig._Policy):
+    class Replay(rig.Policy):
         def plan(self, ts, tk, theta_k, dtheta_k):
             return force[np.rint(ts * 1024).astype(int)]
 
@@ -273,7 +312,9 @@ def test_every_user_makes_every_kind_once_per_users_times_kinds_trials(users):
 
 def test_two_users_both_make_every_kind(campaign):
     params, _ = campaign
-    trials = rig.generate_trials(TOY_DOOR, params, users=2, trials=8, seed=3, progress=False)
+    trials = rig.generate_trials(
+        TOY_DOOR, params, rig.Campaign(users=2, trials=8, seed=3), progress=False
+    )
     assert [t.kind for t in trials] == ["impulse", "unlock", "impulse", "lock"] * 2
     kinds = {u: {t.kind for t in trials if t.user_id == u} for u in ("U1", "U2")}
     assert kinds == {"U1": {"impulse", "unlock", "lock"}, "U2": {"impulse", "unlock", "lock"}}

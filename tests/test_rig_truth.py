@@ -84,9 +84,10 @@ def test_default_rig_run_never_touches_the_truth(tmp_path, capsys, monkeypatch):
 
 def test_switched_off_truth_gives_the_model_trials_bit_for_bit(door, default):
     """Stribeck ratio 1, no handle, ideal sensors: the door's own trials, all kinds."""
-    kw = dict(users=3, trials=4, seed=2, progress=False)
-    plain = rig.generate_trials(door, default, **kw)
-    off = rig.generate_trials(door, default, truth="rich", truth_params=OFF, **kw)
+    campaign = rig.Campaign(users=3, trials=4, seed=2)
+    plain = rig.generate_trials(door, default, campaign, progress=False)
+    off_truth = rig.make_truth(door, default, "rich", OFF)
+    off = rig.generate_trials(door, default, campaign, truth=off_truth, progress=False)
     assert [t.kind for t in off] == ["impulse", "unlock", "impulse", "lock"]
     for a, b in zip(plain, off):
         for ch in ("t", "force", "theta", "dtheta"):
@@ -101,9 +102,11 @@ def test_switched_off_truth_gives_the_model_trials_bit_for_bit(door, default):
 
 
 def test_rich_truth_differs_and_records_its_sensors(door, default):
-    (plain,) = rig.generate_trials(door, default, users=1, trials=1, seed=5, progress=False)
+    (plain,) = rig.generate_trials(
+        door, default, rig.Campaign(users=1, trials=1, seed=5), progress=False
+    )
     (rich,) = rig.generate_trials(
-        door, default, users=1, trials=1, seed=5, progress=False, truth="rich"
+        door, default, rig.Campaign(users=1, trials=1, seed=5), truth="rich", progress=False
     )
     assert rich.kind == "impulse"
     assert rich.sensors["dtheta"]["bandwidth"] == 40.0 and rich.sensors["dtheta"]["order"] == 1

@@ -287,7 +287,10 @@ def test_rig_says_which_kinds_a_model_can_make(tmp_path, monkeypatch, capsys):
     ):
         with pytest.warns(UserWarning):
             rig.generate_trials(
-                spring, spring.load_params(), users=1, trials=1, kinds=["lock"], progress=False
+                spring,
+                spring.load_params(),
+                rig.Campaign(users=1, trials=1, kinds=["lock"]),
+                progress=False,
             )
 
 

@@ -78,18 +78,16 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from evo_door.errors import UserError
-    from evo_door.experiment.objectives import (
-        format_summary,
+    from evo_door.experiment.comparison import (
         make_folder,
         parse_derivatives,
         parse_kinds,
         parse_seeds,
         plan_comparison,
         run_comparison,
-        run_records,
-        summarise,
-        write_outputs,
     )
+    from evo_door.experiment.comparison_outputs import format_summary, write_outputs
+    from evo_door.experiment.comparison_summary import run_records, summarise
 
     kinds = parse_kinds(args.kinds)
     derivatives = None if args.derivatives is None else parse_derivatives(args.derivatives)

@@ -64,7 +64,13 @@ def register(sub) -> None:
 
 def run_generate(args) -> int:
     from evo_door.data.io import file_format, write_trials
-    from evo_door.data.rig import RigSettings, generate_trials, make_truth, params_source
+    from evo_door.data.rig import (
+        Campaign,
+        RigSettings,
+        generate_trials,
+        make_truth,
+        params_source,
+    )
     from evo_door.data.show import format_summary
     from evo_door.files import TRIALS, Output, claim_outputs
     from evo_door.params import parse_assignments
@@ -85,12 +91,9 @@ def run_generate(args) -> int:
     trials = generate_trials(
         model,
         params,
-        users=args.users,
-        trials=args.trials,
-        seed=args.seed,
-        kinds=kinds,
-        settings=RigSettings(rate=args.rate, all_sensors=args.all_sensors),
-        truth=truth,
+        Campaign(users=args.users, trials=args.trials, seed=args.seed, kinds=kinds),
+        RigSettings(rate=args.rate, all_sensors=args.all_sensors),
+        truth,
     )
     rich = "" if truth is None else f", truth {truth.name} ({truth.values.source})"
     write_trials(
