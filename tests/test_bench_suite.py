@@ -130,11 +130,14 @@ def test_control_section_floods_a_render_and_reads_its_log(tmp_path):
     assert flood["target"] is None and flood["target_text"] == ">= 99.9 %"
     assert isinstance(flood["met"], bool) and 0 < flood["value"] <= 100
     assert 0 < metrics["control.alone.on_time"]["value"] <= 100
-    for kind in ("ok", "refused_client_cap", "refused_log_cap", "refused_input"):
+    for kind in ("ok", "refused_client_cap", "refused_input"):
         assert metrics[f"control.flood.{kind}"]["value"] > 0, kind
+    # whether a 4 s flood fills the log's cap depends on how busy the machine is (the
+    # cap itself: test_render_control.py); what the log kept is within it either way
     assert 0 < metrics["control.flood.events_kept"]["value"] <= 10_000
     assert metrics["control.flood.events_kept"]["met"] is True
-    assert metrics["control.flood.events_dropped"]["value"] > 0
+    dropped = metrics["control.flood.events_dropped"]["value"]
+    assert (dropped > 0) == (metrics["control.flood.refused_log_cap"]["value"] > 0)
     assert "## control" in done.stdout and "control done in" in done.stderr
 
 

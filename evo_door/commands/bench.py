@@ -27,7 +27,8 @@ def register(sub) -> None:
     p.add_argument(
         "--only",
         metavar="SECTION[,SECTION]",
-        help="only these sections: trial, ga, scaling, executors, device, startup, casestudy",
+        help="only these sections: trial, ga, scaling, executors, device, startup, casestudy, "
+        "control",
     )
     p.add_argument(
         "--out", metavar="DIR", help="folder of the results (default benchmarks/results/)"
