@@ -41,7 +41,7 @@ The HTTP and WebSocket API (every number in SI units)::
                         ab_blind {blind}, choose
 
 Limits: a page's messages are read by the control port's rules
-(:func:`~evo_door.render.control.parse_message`: size, values, nesting, bounded
+(:func:`~evo_door.render.messages.parse_message`: size, values, nesting, bounded
 numbers) and rate-limited per page and per message type, and all pages' actions
 together (:data:`ACTIONS_PER_S`); a refusal is an ``error`` (a ``refused`` for a
 ``set``) with ``"ok": false`` and the reason, and the socket goes on. At most
@@ -66,16 +66,16 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.render.control import (
+from evo_door.render.control import is_loopback
+from evo_door.render.keys import GROUP, key_map, nice_step
+from evo_door.render.messages import (
     MAX_LINE,
     BadMessage,
     ClientLimits,
     RateLimit,
     checked_values,
-    is_loopback,
     parse_message,
 )
-from evo_door.render.keys import GROUP, key_map, nice_step
 
 #: the page's files (index.html, console.js, console.css)
 STATIC = Path(__file__).parent / "static"
