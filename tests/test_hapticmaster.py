@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from evo_door.errors import UserError
-from evo_door.render.emulator import HapticMasterEmulator, advance
+from evo_door.render.emulator import HapticMasterEmulator
+from evo_door.render.emulator_physics import advance
 from evo_door.render.hapticmaster import (
     BIAS_NAME,
     CYCLE_QUERY,
