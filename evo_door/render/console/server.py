@@ -62,6 +62,7 @@ The console's modules, each answering one question:
 ``saving``     Save: the set in force as a parameter file
 ``sensations`` what may a page change? the declaration, a change checked, the curve
 ``client``     how does it reach the renderer? one control-port connection
+``process``    how does ``render --console`` start and end it? (no aiohttp needed)
 =============  ======================================================================
 """
 
