@@ -19,7 +19,8 @@ from evo_door.render.emulator import (
     HapticMasterEmulator,
 )
 from evo_door.render.emulator_physics import MAX_SUBSTEPS, advance_effects
-from evo_door.render.hapticmaster import HapticMasterDevice, HapticMasterError, encode
+from evo_door.render.hapticmaster import HapticMasterDevice
+from evo_door.render.hm_protocol import HapticMasterError, encode
 
 EFFECTS = "create spring sp;create biasforce bf;create damper dm"
 

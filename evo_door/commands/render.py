@@ -175,7 +175,8 @@ def make_device(spec: str, user: str | None, radius: float, seed: int, damping=N
         extra = {} if damping is None else {"damping": damping}
         return SimDevice(user or "hold", radius=radius, seed=seed, **extra), "sim"
     if spec.startswith("hapticmaster://"):
-        from evo_door.render.hapticmaster import HapticMasterDevice, parse_address
+        from evo_door.render.hapticmaster import HapticMasterDevice
+        from evo_door.render.hm_protocol import parse_address
 
         if user:
             raise UserError("--user drives the simulated device only")

@@ -1,7 +1,7 @@
 """An emulated MOOG HapticMaster: its TCP string protocol backed by a simulated device.
 
 The emulator listens on 127.0.0.1 (by default), takes frames in the framing of
-:mod:`evo_door.render.hapticmaster` in any pieces and batches, and answers every
+:mod:`evo_door.render.hm_protocol` in any pieces and batches, and answers every
 command: device states (``init``, ``force``, ``stop`` ...), effects created by name
 (``biasforce``; ``spring`` with ``stiffness``, ``dampfactor``, ``pos``, ``direction``,
 ``deadband``, ``maxforce``; ``damper`` with ``dampcoef``, alias ``dampcoeff``) with
@@ -40,7 +40,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.render.emulator_physics import DEVICE_RATE, advance_effects, compile_kernel
-from evo_door.render.hapticmaster import (
+from evo_door.render.hm_protocol import (
     ERROR_PREFIX,
     FrameReader,
     HapticMasterError,
