@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterable
 
 from evo_door.errors import UserError
 
@@ -29,7 +30,8 @@ CONSOLE_START = 30.0
 def start_console(address, token, console_host: str, console_port: int):
     """Spawn ``evo-door console`` for the control port at ``address``; print its URL."""
     child = _spawn(_command(address, console_host, console_port), _environment(token))
-    first, errors = _relay(child)
+    # spawned with pipes: stdout and stderr are never None (the `or` is for the types)
+    first, errors = _relay(child.stdout or (), child.stderr or ())
     if not first.startswith("console "):
         stop_console(child)
         time.sleep(0.1)  # its last words
@@ -85,17 +87,17 @@ def _spawn(command: list[str], env: dict[str, str]) -> subprocess.Popen:
     )
 
 
-def _relay(child: subprocess.Popen) -> tuple[str, list[str]]:
-    """Relay the console's output from threads of their own: its first line (the URL,
-    waited for up to :data:`CONSOLE_START` s; "" if none) and its error lines kept
-    until it runs, which it then writes through. Returns the first line and the
-    errors kept."""
+def _relay(out: Iterable[str], err: Iterable[str]) -> tuple[str, list[str]]:
+    """Relay the console's output (``out``, ``err``) from threads of their own: its
+    first line (the URL, waited for up to :data:`CONSOLE_START` s; "" if none) and its
+    error lines kept until it runs, which it then writes through. Returns the first
+    line and the errors kept (the list goes on filling)."""
     url: list[str] = []
     errors: list[str] = []
     started = threading.Event()
 
     def relay_out() -> None:
-        for line in child.stdout:
+        for line in out:
             if not started.is_set():
                 url.append(line.strip())
                 started.set()
@@ -104,7 +106,7 @@ def _relay(child: subprocess.Popen) -> tuple[str, list[str]]:
         started.set()  # closed: the console ended
 
     def relay_err() -> None:  # its errors: kept until it runs, then shown
-        for line in child.stderr:
+        for line in err:
             if started.is_set() and url and url[0].startswith("console "):
                 sys.stderr.write(line)
             else:
