@@ -28,8 +28,10 @@ from evo_door.cli import build_parser, main  # noqa: E402
 from evo_door.errors import UserError  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.haptic import PARAMS  # noqa: E402
+from evo_door.render.console import app as console_app  # noqa: E402
 from evo_door.render.console import server as console_server  # noqa: E402
-from evo_door.render.console.server import ConsoleServer, safe_stem  # noqa: E402
+from evo_door.render.console.saving import safe_stem  # noqa: E402
+from evo_door.render.console.server import ConsoleServer  # noqa: E402
 from evo_door.render.control import ControlServer, request  # noqa: E402
 from evo_door.render.keys import key_map  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
@@ -189,7 +191,7 @@ def test_every_health_field_the_page_reads_comes_in_its_hello_and_each_tick(cons
     carried no health, so a page that came back (a new renderer on the same port) kept
     the last one's status and tick time until a tick came; and the page read fields
     the server never sends. The hello now carries the health read as the page opens."""
-    script = (console_server.STATIC / "console.js").read_text()
+    script = (console_app.STATIC / "console.js").read_text()
     read = set(re.findall(r"\bhl\.([a-z_0-9]+)", script))
     assert {"status", "on_time_fraction", "missed_cycles", "watchdog"} <= read, read
 
@@ -572,7 +574,7 @@ def test_absurd_page_messages_are_answered_and_the_socket_goes_on(console, rende
 
 
 def test_pages_over_the_cap_are_told_why_and_closed(console):
-    cap = console_server.MAX_PAGES
+    cap = console_app.MAX_PAGES
 
     async def scenario(session):
         pages = []
@@ -608,7 +610,7 @@ def test_page_messages_past_their_rate_are_refused(console, renderer):
     """A page that floods one message type gets refusals with the reason, other types
     still go through, and a flood of sets reaches the renderer only within the rate."""
     loop, _ = renderer
-    burst = console_server.PAGE_KIND_BURST
+    burst = console_app.PAGE_KIND_BURST
     n = burst + 20
 
     async def scenario(session):
@@ -630,7 +632,7 @@ def test_page_messages_past_their_rate_are_refused(console, renderer):
     assert errors[0] == {
         "type": "error",
         "ok": False,
-        "error": f"more than {console_server.PAGE_KIND_PER_S:g} messages of type 'ab_blind' "
+        "error": f"more than {console_app.PAGE_KIND_PER_S:g} messages of type 'ab_blind' "
         f"a second (bursts of {burst}): slow down",
     }
     assert participant["id"] == "P9"
@@ -640,7 +642,7 @@ def test_a_set_refused_for_its_rate_is_a_refused_message(console, renderer):
     """The page resets its sliders on ``refused``: a set over the rate must say so as
     one, with the values it asked for."""
     loop, _ = renderer
-    n = console_server.PAGE_KIND_BURST + 10
+    n = console_app.PAGE_KIND_BURST + 10
 
     async def scenario(session):
         async with _page(console, session) as ws:

@@ -16,13 +16,14 @@ import numpy as np
 import pytest
 
 from evo_door.errors import UserError
-from evo_door.render.emulator import HapticMasterEmulator, advance
-from evo_door.render.hapticmaster import (
+from evo_door.render.emulator import HapticMasterEmulator
+from evo_door.render.emulator_physics import advance
+from evo_door.render.hapticmaster import HapticMasterDevice
+from evo_door.render.hm_protocol import (
     BIAS_NAME,
     CYCLE_QUERY,
     FrameReader,
     HapticMasterConnectionLost,
-    HapticMasterDevice,
     HapticMasterError,
     encode,
     failsafe_commands,

@@ -14,13 +14,13 @@ from evo_door.render.emulator import (
     LIMITS,
     MAX_CLIENTS,
     MAX_EFFECTS,
-    MAX_SUBSTEPS,
     RECENT,
     RECENT_FRAMES,
     HapticMasterEmulator,
-    advance_effects,
 )
-from evo_door.render.hapticmaster import HapticMasterDevice, HapticMasterError, encode
+from evo_door.render.emulator_physics import MAX_SUBSTEPS, advance_effects
+from evo_door.render.hapticmaster import HapticMasterDevice
+from evo_door.render.hm_protocol import HapticMasterError, encode
 
 EFFECTS = "create spring sp;create biasforce bf;create damper dm"
 

@@ -24,13 +24,11 @@ import pytest
 
 from evo_door.cli import main
 from evo_door.models.haptic import on_path
-from evo_door.render.hapticmaster import (
+from evo_door.render.hapticmaster import FAILSAFE_WAIT, STALL_FLOOR, HapticMasterDevice
+from evo_door.render.hm_protocol import (
     BIAS_NAME,
-    FAILSAFE_WAIT,
-    STALL_FLOOR,
     FrameReader,
     HapticMasterConnectionLost,
-    HapticMasterDevice,
     encode,
     failsafe_commands,
 )
@@ -276,7 +274,7 @@ def test_render_says_in_one_line_when_the_device_may_still_hold_a_force(capsys):
 
 
 def test_answers_ending_with_a_semicolon_are_read():
-    from evo_door.render.hapticmaster import split_answers
+    from evo_door.render.hm_protocol import split_answers
 
     assert split_answers("stop;", ["get state"]) == ["stop"]
     assert split_answers("true;false;", ["a", "b"]) == ["true", "false"]

@@ -388,7 +388,7 @@ def test_absurd_input_is_answered_and_the_connection_goes_on(running, line, reas
     and binary garbage each ended in a traceback (the integer's float() overflowed, the
     nesting a RecursionError) or a closed connection (the long line): each is now one
     answer with ok false and the reason, and the same connection then answers."""
-    from evo_door.render.control import RateLimit
+    from evo_door.render.messages import RateLimit
 
     loop, server = running
     server.reading = RateLimit(1e9, 1e9)  # the 10 MB line at once, past the byte budget
@@ -416,7 +416,7 @@ def test_a_long_line_is_answered_at_once_and_the_stream_resynchronised(running):
 
 
 def test_parse_message_takes_what_the_protocol_needs():
-    from evo_door.render.control import BadMessage, parse_message
+    from evo_door.render.messages import BadMessage, parse_message
 
     whole = {"event": {"kind": "chosen", "params": {p.name: p.default for p in PARAMS}}}
     assert parse_message(json.dumps(whole).encode()) == whole
@@ -470,7 +470,7 @@ def test_a_connection_over_the_cap_is_told_why_and_closed(running):
 
 
 def test_requests_past_the_rate_are_refused_and_the_connection_slowed(running):
-    from evo_door.render.control import REQUESTS_BURST, REQUESTS_PER_S, RateLimit
+    from evo_door.render.messages import REQUESTS_BURST, REQUESTS_PER_S, RateLimit
 
     loop, server = running
     server.budget = RateLimit(1e6, 1e6)  # the connection's own limit, not all of them
@@ -495,7 +495,7 @@ def _note(i) -> bytes:
 
 
 def test_events_past_the_rate_of_their_kind_are_refused_and_not_logged(running):
-    from evo_door.render.control import EVENTS_BURST, EVENTS_PER_S, RateLimit
+    from evo_door.render.messages import EVENTS_BURST, EVENTS_PER_S, RateLimit
 
     loop, server = running
     server.budget = RateLimit(1e6, 1e6)  # the kind's own limit, not all connections'
@@ -573,7 +573,7 @@ def test_all_connections_together_wait_their_turn(running):
     machine's loop 12 % of its cycles: past the server-wide budget a request waits (the
     connection is not read meanwhile), whoever sends it. A small budget here: 120
     requests from three connections at 50 a second, 10 at once, take over 2 s."""
-    from evo_door.render.control import RateLimit
+    from evo_door.render.messages import RateLimit
 
     loop, server = running
     server.budget = RateLimit(50.0, 10)

@@ -15,8 +15,8 @@ import pytest
 from evo_door.models.haptic import MODEL, PARAMS, device_force
 from evo_door.params import param_vector
 from evo_door.render.device import ForceScript, SimDevice
-from evo_door.render.emulator import advance_effects
-from evo_door.render.hapticmaster import (
+from evo_door.render.emulator_physics import advance_effects
+from evo_door.render.hm_protocol import (
     NATIVE_PARAMS,
     PLANE_DAMPER,
     PLANE_SPRING,

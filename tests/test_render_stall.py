@@ -29,7 +29,7 @@ from evo_door.files import open_h5, read_attrs
 from evo_door.models import get_model
 from evo_door.render import supervisor as sup
 from evo_door.render.device import SimDevice
-from evo_door.render.hapticmaster import BIAS_NAME, FrameReader, encode
+from evo_door.render.hm_protocol import BIAS_NAME, FrameReader, encode
 from evo_door.render.loop import ServoLoop
 
 #: the probe's question: the device's state, and the host's bias force and whether it is on

@@ -7,15 +7,12 @@ import os
 
 from evo_door.commands._common import PORT, TOKEN, check_ranges, declare_ranges
 from evo_door.errors import UserError
+from evo_door.render.console.process import TOKEN_ENV
 
 ORDER = 62
 
 #: the numeric flags' ranges (and the token's length), checked before any work
 RANGES = {"--port": PORT, "--token": TOKEN}
-
-#: where the token is read from when --token is not given (``render --console`` passes
-#: it this way: the command line of a process is visible to every local user)
-TOKEN_ENV = "EVO_DOOR_CONSOLE_TOKEN"
 
 
 def register(sub) -> None:

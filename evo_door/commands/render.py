@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import atexit
-import contextlib
 import gc
-import signal
 import sys
 import threading
-import time
 
 from evo_door.commands._common import (
     DAY,
@@ -21,13 +18,12 @@ from evo_door.commands._common import (
     declare_ranges,
 )
 from evo_door.errors import UserError
+from evo_door.render.console.process import start_console, stop_console
+from evo_door.render.stopping import STOPPED, stop_on_ctrl_c, write_interrupted
+from evo_door.render.summary import summary_lines
 from evo_door.render.supervisor import BUDGET, BUDGET_RANGE
 
 ORDER = 60
-
-#: niceness added to the console's process (spawned before the servo loop starts, so it
-#: keeps normal scheduling while the loop's thread runs real-time or at niceness -20)
-CONSOLE_NICENESS = 10
 
 #: every numeric flag's range (and the token's length), checked before any work
 RANGES = {
@@ -47,6 +43,8 @@ RANGES = {
 
 
 def register(sub) -> None:
+    # one long function on purpose: the flags in the order --help lists them, a few lines
+    # each and no logic; cut in parts, a newcomer would look in several for one flag
     p = sub.add_parser(
         "render",
         help="render the haptic model on a force-feedback device (servo loop, log)",
@@ -177,7 +175,8 @@ def make_device(spec: str, user: str | None, radius: float, seed: int, damping=N
         extra = {} if damping is None else {"damping": damping}
         return SimDevice(user or "hold", radius=radius, seed=seed, **extra), "sim"
     if spec.startswith("hapticmaster://"):
-        from evo_door.render.hapticmaster import HapticMasterDevice, parse_address
+        from evo_door.render.hapticmaster import HapticMasterDevice
+        from evo_door.render.hm_protocol import parse_address
 
         if user:
             raise UserError("--user drives the simulated device only")
@@ -244,12 +243,12 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
     atexit.unregister(gc.freeze)  # once, however often run in one process
     atexit.register(gc.freeze)
     try:
-        with _stop_on_ctrl_c(stop, loop):
+        with stop_on_ctrl_c(stop, loop):
             try:
                 stats = _run_loop(loop, args, interactive, stop)
             except BaseException as exc:  # a second Ctrl-C too: keep the log, then raise
                 if args.log:
-                    _write_interrupted(loop, args.log, exc)
+                    write_interrupted(loop, args.log, exc)
                 raise
             code = _report(loop, args, stats, name, claim)
             # the device may still hold a force: not a success, whatever else went well
@@ -279,37 +278,15 @@ def _check_supervisor_options(args) -> None:
 
 
 def _start_supervisor(args, device, loop):
-    """A real device's supervisor (:mod:`evo_door.render.supervisor`), started, or None.
-
-    The renderer connects first (the device's first connection is the renderer's
-    own), then the supervisor opens its own; a device that refuses it is refused
-    with one line unless ``--no-supervisor``.
-    """
+    """A real device's supervisor (:func:`~evo_door.render.supervised.start_supervisor`)
+    as the options ask, or None for the simulated device (in-process: nothing could
+    act while the process is frozen)."""
     if not args.device.startswith("hapticmaster://"):
-        return None  # in-process: nothing could act while the process is frozen
-    if args.no_supervisor:
-        print(
-            "evo-door: warning: --no-supervisor: if this renderer freezes or dies, "
-            "the device keeps its last force on the handle",
-            file=sys.stderr,
-        )
-        loop.log.event(0.0, "supervisor", "none (--no-supervisor)")
         return None
-    from evo_door.render.supervisor import Supervisor
+    from evo_door.render.supervised import start_supervisor
 
-    budget = BUDGET if args.supervisor_budget is None else args.supervisor_budget / 1e3
-    device.connect()
-    try:
-        supervisor = Supervisor(device.host, device.port, budget).start()
-    except BaseException:
-        device.close()
-        raise
-    loop.log.event(
-        0.0,
-        "supervisor",
-        f"takes the force off after {budget * 1e3:g} ms without a heartbeat; {supervisor.priority}",
-    )
-    return supervisor
+    budget = None if args.supervisor_budget is None else args.supervisor_budget / 1e3
+    return start_supervisor(device, loop, budget, enabled=not args.no_supervisor)
 
 
 def _paced(args) -> bool | None:
@@ -318,39 +295,6 @@ def _paced(args) -> bool | None:
     always (None: the loop's default). A simulated device with only ``--duration``
     runs in simulated time, as fast as the machine allows."""
     return True if (args.realtime or args.console or args.duration is None) else None
-
-
-#: what the log and the summary say of a render ended by Ctrl-C (or the key UI's q)
-STOPPED = "stopped by the operator"
-
-
-@contextlib.contextmanager
-def _stop_on_ctrl_c(stop: threading.Event, loop):
-    """Ctrl-C (SIGINT) sets ``stop``: the loop ends between two cycles and the render
-    ends as one that ran its course, its log whole (status ``stopped``, exit 0), with
-    or without ``--duration``. Another Ctrl-C while the loop still runs interrupts at
-    once (a device that hangs); while the log is written it is ignored. SIGTERM does
-    the same (its default would end the process before the device's force is taken
-    off)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # signals go to the main thread only: an embedding caller's own
-        return
-
-    def on_sigint(signum, frame) -> None:
-        if not stop.is_set():
-            stop.set()
-        elif loop.status in ("new", "running"):
-            raise KeyboardInterrupt
-        else:
-            print("evo-door: writing the log, one moment", file=sys.stderr, flush=True)
-
-    previous = signal.signal(signal.SIGINT, on_sigint)
-    previous_term = signal.signal(signal.SIGTERM, on_sigint)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        signal.signal(signal.SIGTERM, previous_term)
 
 
 def _recover(args) -> int:
@@ -381,30 +325,6 @@ def _claim_log(args, log, inputs):
     return claim_outputs([Output(log, "--log", TRIALS)], inputs, force=args.force)
 
 
-def _write_interrupted(loop, path, exc: BaseException) -> None:
-    """Write the log of a render that ``exc`` ended (stderr says so); the side file
-    stays if even that fails."""
-    log = loop.log
-    if log.n < 2:  # ended before it rendered (a bad option, a device that failed to start)
-        log.close()
-        if log.spill_path is not None:
-            log.spill_path.unlink(missing_ok=True)
-        return
-    what = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-    log.event((log.n - 1) / log.rate, "interrupted", f"the render ended on {what}")
-    stats = {**loop.statistics, "interrupted": what}
-    try:
-        log.write(path, loop_rate=loop.rate, device=loop.device_name, statistics=stats)
-    except Exception as err:  # the first error is the one to raise
-        print(
-            f"evo-door: the log of the interrupted render was not written ({err}); "
-            f"its rows so far are in {log.spill_path}",
-            file=sys.stderr,
-        )
-    else:
-        print(f"evo-door: render interrupted ({what}); wrote {path}", file=sys.stderr)
-
-
 def _report(loop, args, stats: dict, name: str, claim) -> int:
     """The render's summary lines; the log (``claim``: what writing it replaces)."""
     stopped = stats["status"] == "stopped"
@@ -416,45 +336,13 @@ def _report(loop, args, stats: dict, name: str, claim) -> int:
         if loop.log.spill_path is not None:
             loop.log.spill_path.unlink(missing_ok=True)
         return 0
-    first, last = loop.log.first()[12], loop.log.last()[12]  # theta (rad)
-    status = STOPPED if stopped else stats["status"]
-    print(
-        f"rendered {stats['cycles']} cycles at {args.rate:g} Hz on {name} ({status}); "
-        f"door {first * 57.29577951308232:.1f} -> {last * 57.29577951308232:.1f} deg"
-    )
-    print(_timing_line(stats))
-    if "round_trip_mean_s" in stats:
-        print(
-            f"round trip mean {stats['round_trip_mean_s'] * 1e3:.3g} ms, "
-            f"p99 {stats['round_trip_p99_s'] * 1e3:.3g} ms"
-        )
-    if stats["watchdog"]:
-        print(f"watchdog: {stats['watchdog']}")
-    for ev in loop.log.events:
-        if ev["kind"] == "clamp":
-            print(f"clamped at {ev['t']:.3f} s: {ev['changes']}")
+    for line in summary_lines(loop, stats, args.rate, name):
+        print(line)
     if args.log:
         loop.write_log(args.log)
         print(f"wrote {args.log}")
         claim.note()
     return 1 if loop.watchdog.tripped else 0
-
-
-def _timing_line(stats: dict) -> str:
-    """How the loop kept time. An unpaced loop (simulated time) kept no period: it
-    says so, with the wall-clock time it took, rather than the nominal period."""
-    compute = f"compute p99 {stats['compute_p99_s'] * 1e6:.3g} us/cycle, faults {stats['faults']}"
-    if not stats["realtime"]:
-        simulated = stats["cycles"] / stats["rate_hz"]
-        return (
-            f"unpaced: {simulated:.4g} s of simulated time in {stats['wall_s']:.3g} s "
-            f"(not kept on the wall clock; --realtime paces it), {compute}"
-        )
-    return (
-        f"period mean {stats['period_mean_s'] * 1e3:.4g} ms, p99 lateness "
-        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles, "
-        + compute
-    )
 
 
 def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
@@ -480,7 +368,7 @@ def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
         raise UserError("--token goes with --control")
     try:
         if server is not None and args.console:
-            console = _start_console(args, server.address, token)
+            console = start_console(server.address, token, args.console_host, args.console_port)
         if not interactive:
             return loop.run(args.duration, stop=stop)
         from evo_door.render.keys import run_terminal
@@ -504,98 +392,7 @@ def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
     finally:
         try:
             if console is not None:
-                _stop_console(console)
+                stop_console(console)
         finally:
             if server is not None:
                 server.close()
-
-
-#: how long ``render --console`` waits for the console to print its URL (s)
-CONSOLE_START = 30.0
-
-
-def _start_console(args, address, token):
-    """Spawn ``evo-door console`` for the control port at ``address``; print its URL."""
-    import os
-    import subprocess
-
-    from evo_door.commands.console import TOKEN_ENV
-
-    host, port = address
-    if host in ("0.0.0.0", "::"):
-        host = "127.0.0.1"
-    command = [
-        sys.executable,
-        "-m",
-        "evo_door",
-        "console",
-        "--control",
-        f"[{host}]:{port}" if ":" in host else f"{host}:{port}",
-        "--host",
-        args.console_host,
-        "--port",
-        str(args.console_port),
-        "--with-parent",
-    ]
-    env = dict(os.environ)
-    env.pop(TOKEN_ENV, None)
-    if token:
-        env[TOKEN_ENV] = token  # not on the command line, which every local user can read
-    # its own session: Ctrl-C reaches the renderer, which then stops the console
-    child = subprocess.Popen(
-        command,
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        env=env,
-        text=True,
-        start_new_session=True,
-        # below the servo loop: the page's curves and messages can wait, its cycles not
-        preexec_fn=(lambda: os.nice(CONSOLE_NICENESS)) if hasattr(os, "nice") else None,
-    )
-    url: list[str] = []
-    errors: list[str] = []
-    started = threading.Event()
-
-    def relay_out() -> None:
-        for line in child.stdout:
-            if not started.is_set():
-                url.append(line.strip())
-                started.set()
-            else:
-                sys.stdout.write(line)
-        started.set()  # closed: the console ended
-
-    def relay_err() -> None:  # its errors: kept until it runs, then shown
-        for line in child.stderr:
-            if started.is_set() and url and url[0].startswith("console "):
-                sys.stderr.write(line)
-            else:
-                errors.append(line.strip())
-
-    for target in (relay_out, relay_err):
-        threading.Thread(target=target, name="evo-door-console-io", daemon=True).start()
-    started.wait(CONSOLE_START)
-    first = url[0] if url else ""
-    if not first.startswith("console "):
-        _stop_console(child)
-        time.sleep(0.1)  # its last words
-        why = next((e for e in reversed(errors) if e), "") or "it printed no URL"
-        raise UserError(
-            f"--console: the console did not start: {why.removeprefix('evo-door: error: ')}"
-        )
-    print(first, flush=True)
-    return child
-
-
-def _stop_console(child) -> None:
-    """End the console process and wait for it."""
-    import subprocess
-
-    if child.poll() is None:
-        child.terminate()
-        try:
-            child.wait(5.0)
-        except subprocess.TimeoutExpired:
-            child.kill()
-            child.wait()

@@ -1,0 +1,47 @@
+"""What a render says when it ends: its summary lines (cycles, the door's travel, how
+the loop kept time, the device's round trips, the watchdog, the clamps)."""
+
+from __future__ import annotations
+
+from evo_door.render.stopping import STOPPED
+
+
+def summary_lines(loop, stats: dict, rate: float, name: str) -> list[str]:
+    """The summary of a render that ran (its log has rows): ``stats`` are the loop's
+    statistics, ``rate`` its rate (Hz), ``name`` the device's."""
+    stopped = stats["status"] == "stopped"
+    first, last = loop.log.first()[12], loop.log.last()[12]  # theta (rad)
+    status = STOPPED if stopped else stats["status"]
+    lines = [
+        f"rendered {stats['cycles']} cycles at {rate:g} Hz on {name} ({status}); "
+        f"door {first * 57.29577951308232:.1f} -> {last * 57.29577951308232:.1f} deg",
+        timing_line(stats),
+    ]
+    if "round_trip_mean_s" in stats:
+        lines.append(
+            f"round trip mean {stats['round_trip_mean_s'] * 1e3:.3g} ms, "
+            f"p99 {stats['round_trip_p99_s'] * 1e3:.3g} ms"
+        )
+    if stats["watchdog"]:
+        lines.append(f"watchdog: {stats['watchdog']}")
+    for ev in loop.log.events:
+        if ev["kind"] == "clamp":
+            lines.append(f"clamped at {ev['t']:.3f} s: {ev['changes']}")
+    return lines
+
+
+def timing_line(stats: dict) -> str:
+    """How the loop kept time. An unpaced loop (simulated time) kept no period: it
+    says so, with the wall-clock time it took, rather than the nominal period."""
+    compute = f"compute p99 {stats['compute_p99_s'] * 1e6:.3g} us/cycle, faults {stats['faults']}"
+    if not stats["realtime"]:
+        simulated = stats["cycles"] / stats["rate_hz"]
+        return (
+            f"unpaced: {simulated:.4g} s of simulated time in {stats['wall_s']:.3g} s "
+            f"(not kept on the wall clock; --realtime paces it), {compute}"
+        )
+    return (
+        f"period mean {stats['period_mean_s'] * 1e3:.4g} ms, p99 lateness "
+        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles, "
+        + compute
+    )
