@@ -19,7 +19,7 @@ TRIALS = "trials"
 #: again makes it again, so it is replaced, and the command says so on stderr.
 DERIVED = "derived"
 #: Results files (``run``) follow the same idea with more to say (complete or
-#: interrupted, resume): :func:`evo_door.experiment.runner.claim_output`.
+#: interrupted, resume): :func:`evo_door.experiment.run_preflight.claim_output`.
 
 
 @dataclass(frozen=True)
