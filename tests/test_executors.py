@@ -395,3 +395,22 @@ def test_interrupt_passes_ctrl_c_to_the_pools_workers(tmp_path):
     assert (tmp_path / "interrupted").exists()
     assert answers == [(0, "interrupted", None)]
     assert not any(w.is_alive() for w in workers)
+
+
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        ("dusk", "'dusk' is unknown (did you mean 'dask'?)"),
+        ("processes:0", "'processes:0': the number of workers after ':' must be a whole"),
+        ('""', "expected a name, got ''"),
+    ],
+)
+def test_the_experiment_key_says_the_reason_once(value, reason):
+    """The key's error is built from the error's fields, not by cutting its text: a
+    name that is not a name at all said "executor: executor: ..." when it was."""
+    msg = _message(lambda: load_experiment(text=SMALL + f"executor: {value}\n", source="s.yaml"))
+    assert msg.startswith(f"s.yaml:9: executor: {reason}")
+    assert msg.count("executor") == 1
+    with pytest.raises(executors.ExecutorNameError) as err:
+        ExecutorSpec.parse(value.strip('"'))
+    assert err.value.reason.startswith(reason)

@@ -178,7 +178,7 @@ def _id_list(reader: _Reader, key, allow_all: bool):
 
 def executor_setting(reader: _Reader) -> str:
     """The ``executor`` key of an experiment or a pipeline (default ``local``), checked."""
-    from evo_door.optim.executors import DEFAULT, check_executor
+    from evo_door.optim.executors import DEFAULT, ExecutorNameError, check_executor
 
     value = reader.get("executor", DEFAULT)
     if not isinstance(value, str):
@@ -187,5 +187,5 @@ def executor_setting(reader: _Reader) -> str:
         )
     try:
         return check_executor(value)
-    except UserError as exc:
-        raise reader.fail("executor", str(exc).removeprefix("executor ")) from None
+    except ExecutorNameError as exc:
+        raise reader.fail("executor", exc.reason) from None

@@ -78,6 +78,20 @@ def cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+class ExecutorNameError(UserError):
+    """A string that names no executor.
+
+    ``given`` is the string (None when it is not a name at all) and ``reason`` what is
+    wrong with it, beginning with the string as given. The message is ``executor
+    REASON``; an experiment's key says ``FILE:LINE: executor: REASON`` from the fields.
+    """
+
+    def __init__(self, given: str | None, reason: str):
+        self.given = given
+        self.reason = reason
+        super().__init__(f"executor {reason}" if given is not None else f"executor: {reason}")
+
+
 class ExecutorSpec:
     """A checked executor string: ``kind`` (local, processes, dask, scheduler),
     ``workers`` (None: one per core) and, for a scheduler, ``address``.
@@ -103,7 +117,7 @@ class ExecutorSpec:
         if isinstance(text, ExecutorSpec):
             return text
         if not isinstance(text, str) or not text.strip():
-            raise UserError(f"executor: expected a name, got {text!r}; {_CHOICES}")
+            raise ExecutorNameError(None, f"expected a name, got {text!r}; {_CHOICES}")
         s = text.strip()
         if s in KINDS:
             return cls(s, s)
@@ -111,22 +125,24 @@ class ExecutorSpec:
         if m:
             n = m.group("n")
             if not n.isdigit() or int(n) < 1:
-                raise UserError(
-                    f"executor {s!r}: the number of workers after ':' must be a whole "
-                    f"number >= 1 (e.g. {m.group('kind')}:2)"
+                raise ExecutorNameError(
+                    s,
+                    f"{s!r}: the number of workers after ':' must be a whole "
+                    f"number >= 1 (e.g. {m.group('kind')}:2)",
                 )
             return cls(s, m.group("kind"), int(n))
         if s.startswith("tcp://"):
             m = _ADDRESS.match(s)
             if not m or not 0 < int(m.group("port")) < 65536:
-                raise UserError(
-                    f"executor {s!r}: a Dask scheduler's address is tcp://HOST:PORT "
-                    "(e.g. tcp://127.0.0.1:8786)"
+                raise ExecutorNameError(
+                    s,
+                    f"{s!r}: a Dask scheduler's address is tcp://HOST:PORT "
+                    "(e.g. tcp://127.0.0.1:8786)",
                 )
             return cls(s, "scheduler", address=s)
         from evo_door.params.declaration import suggest
 
-        raise UserError(f"executor {s!r} is unknown" + suggest(s, list(KINDS)) + f"; {_CHOICES}")
+        raise ExecutorNameError(s, f"{s!r} is unknown" + suggest(s, list(KINDS)) + f"; {_CHOICES}")
 
 
 _CHOICES = "use local, processes[:N], dask[:N] or tcp://HOST:PORT (a Dask scheduler)"
