@@ -45,3 +45,18 @@ class NotResultsFileError(UserError):
     A folder listing (``evo-door runs``) skips such files by this type, where a damaged
     results file gets a row that says so.
     """
+
+
+class MissingChannelError(UserError):
+    """A trial lacks the channel that the objective's derivative compares.
+
+    ``where`` is the objective's place (``FILE:LINE``) and ``reason`` which trial lacks
+    which channel, and where it comes from; the message is ``WHERE:
+    objective.derivative: REASON``. Comparing objectives reads the fields to say which
+    derivatives the trials serve without the file's line.
+    """
+
+    def __init__(self, where: str, reason: str):
+        self.where = where
+        self.reason = reason
+        super().__init__(f"{where}: objective.derivative: {reason}")

@@ -7,10 +7,10 @@ import h5py
 import numpy as np
 import pytest
 
-from evo_door import files
 from evo_door.cli import main
 from evo_door.data import Trial, read_trial, read_trials, write_trials
 from evo_door.errors import UserError
+from evo_door.files import h5tree
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
 
@@ -317,8 +317,9 @@ def test_crash_while_writing_leaves_old_file(tmp_path, monkeypatch):
     def boom(*args, **kwargs):
         raise RuntimeError("disk full")
 
-    # the HDF5 content fails half-way, after the temporary file was created
-    monkeypatch.setattr(files, "write_group", boom)
+    # the HDF5 content fails half-way, after the temporary file was created (write_h5
+    # writes the tree with its module's write_group)
+    monkeypatch.setattr(h5tree, "write_group", boom)
     with pytest.raises(RuntimeError):
         write_trials(path, [make_trial("NEW")])
     assert path.read_bytes() == before

@@ -359,3 +359,58 @@ def test_a_pipeline_shares_one_executor_across_stages(tmp_path, pool):
     again = PipelineRun.create(pipe, tmp_path / "again.h5")
     again.release()
     assert again.executor == "processes:2"
+
+
+def _wait_for_ctrl_c(folder):
+    """A batch's task that waits for Ctrl-C: it says it started, and what stopped it."""
+    Path(folder, "started").touch()
+    try:
+        time.sleep(60)
+    except KeyboardInterrupt:
+        Path(folder, "interrupted").touch()
+        return "interrupted"
+    return "slept"
+
+
+@pytest.mark.slow  # a spawned worker imports the package
+def test_interrupt_passes_ctrl_c_to_the_pools_workers(tmp_path):
+    """``interrupt`` reaches the workers the pool started (a batch's Ctrl-C lets their
+    runs stop at a checkpoint) and leaves no worker behind."""
+    import threading
+
+    with open_executor("processes:1") as ex:
+        answers = []
+        feeder = threading.Thread(
+            target=lambda: answers.extend(ex.imap(_wait_for_ctrl_c, [tmp_path]))
+        )
+        feeder.start()
+        deadline = time.monotonic() + 60
+        while not (tmp_path / "started").exists():
+            assert time.monotonic() < deadline, "the worker never started the task"
+            time.sleep(0.05)
+        workers = ex.workers()
+        assert len(workers) == 1
+        ex.interrupt()
+        feeder.join(timeout=30)
+    assert (tmp_path / "interrupted").exists()
+    assert answers == [(0, "interrupted", None)]
+    assert not any(w.is_alive() for w in workers)
+
+
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        ("dusk", "'dusk' is unknown (did you mean 'dask'?)"),
+        ("processes:0", "'processes:0': the number of workers after ':' must be a whole"),
+        ('""', "expected a name, got ''"),
+    ],
+)
+def test_the_experiment_key_says_the_reason_once(value, reason):
+    """The key's error is built from the error's fields, not by cutting its text: a
+    name that is not a name at all said "executor: executor: ..." when it was."""
+    msg = _message(lambda: load_experiment(text=SMALL + f"executor: {value}\n", source="s.yaml"))
+    assert msg.startswith(f"s.yaml:9: executor: {reason}")
+    assert msg.count("executor") == 1
+    with pytest.raises(executors.ExecutorNameError) as err:
+        ExecutorSpec.parse(value.strip('"'))
+    assert err.value.reason.startswith(reason)

@@ -10,6 +10,7 @@ ORDER = 45
 
 
 def register(sub) -> None:
+    # long: the command's options, one call each, in the order --help lists them
     p = sub.add_parser(
         "compare-objectives",
         help="the same estimation under max-square and ISE on derivatives 0, 1, 2 and "
@@ -77,6 +78,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    # long: the command's steps in the order they run: read the options, plan,
+    # say what runs, run (Ctrl-C: how to continue), write, print
     from evo_door.errors import UserError
     from evo_door.experiment.comparison import (
         make_folder,

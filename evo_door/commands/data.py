@@ -130,6 +130,8 @@ def _read(path, args, **fields):
 
 
 def run_import(args) -> int:
+    # long: the import's steps in the order they run: claim the output, check
+    # the options, read every input, preprocess, write, each refusal before any writing
     from evo_door.data import preprocess
     from evo_door.data.io import file_format, read_trials, write_trials
     from evo_door.data.trial import check_theta0

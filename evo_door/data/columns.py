@@ -130,6 +130,9 @@ def trial_from_columns(
     become that grid (the Trial notes it in ``meta["time_axis"]``); beyond it the file
     is refused, naming the row (and line).
     """
+    # long: the checks of one file's columns in the order they apply (pick the
+    # columns, their lengths, the time axis, the units), each raising the first problem
+    # with its column and line
     mapping = dict(mapping or {})
     fields = dict(fields or {})
     picked: dict[str, tuple[Column, UnitExpr]] = {}

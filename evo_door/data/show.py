@@ -141,6 +141,8 @@ def trials_figure(trials: list[Trial], title: str = ""):
     range limit; triangles mark the unlock / lock force peaks. The legend names each
     trial and its user.
     """
+    # long: one figure's layout, a column per kind and its three panels top to
+    # bottom, with the key of what was drawn; helpers per panel would hide that order
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 

@@ -37,7 +37,7 @@ from datetime import datetime
 from pathlib import Path
 
 from evo_door.channels import RESPONSE_CHANNELS
-from evo_door.errors import UserError
+from evo_door.errors import MissingChannelError, UserError
 from evo_door.experiment.config import Experiment, load_experiment
 from evo_door.experiment.format_json import flatten
 from evo_door.experiment.objectives import DERIVATIVES, KINDS
@@ -251,20 +251,7 @@ def plan_comparison(
             return load_experiment(experiment, assignments)
 
     overrides = list(overrides)
-    kinds = list(kinds)
-    for kind in kinds:
-        if kind not in KINDS:
-            raise UserError(
-                f"objective kind {kind!r} is not one of {', '.join(KINDS)}" + suggest(kind, KINDS)
-            )
-    if derivatives is not None:
-        derivatives = list(derivatives)
-        if not derivatives or any(d not in DERIVATIVES for d in derivatives):
-            raise UserError(f"derivatives {derivatives}: each is 0, 1 or 2")
-    if not kinds:
-        raise UserError("no objective kind to compare")
-    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
-        raise UserError(f"seeds {seeds!r}: at least 1")
+    kinds, derivatives = _checked_choices(kinds, derivatives, seeds)
     base = loader(overrides)
     seed0 = base.algorithm.ga.seed
     folder = Path(out) if out is not None else default_folder(base)
@@ -284,20 +271,59 @@ def plan_comparison(
     def variant_experiment(v: Variant) -> Experiment:
         return loader(overrides + v.overrides)
 
-    # which derivatives the trials serve: read and check the data once per derivative,
-    # as a run would (nothing is written). Only the channel check depends on the
-    # derivative, so one that fails while another passes lacks its channel.
+    comp.derivatives, comp.skipped = _served_derivatives(
+        variant_experiment, Variant(kinds[0], 0, seed0), folder, derivatives
+    )
+    for v in comp.variants:
+        comp.experiments[v] = variant_experiment(v)
+    _check_runs_there(comp)
+    return comp
+
+
+def _checked_choices(kinds, derivatives, seeds) -> tuple[list, list | None]:
+    """The objective kinds and derivatives asked for as lists, each checked, and the
+    number of seeds checked."""
+    kinds = list(kinds)
+    for kind in kinds:
+        if kind not in KINDS:
+            raise UserError(
+                f"objective kind {kind!r} is not one of {', '.join(KINDS)}" + suggest(kind, KINDS)
+            )
+    if derivatives is not None:
+        derivatives = list(derivatives)
+        if not derivatives or any(d not in DERIVATIVES for d in derivatives):
+            raise UserError(f"derivatives {derivatives}: each is 0, 1 or 2")
+    if not kinds:
+        raise UserError("no objective kind to compare")
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise UserError(f"seeds {seeds!r}: at least 1")
+    return kinds, derivatives
+
+
+def _served_derivatives(
+    variant_experiment, first: Variant, folder: Path, derivatives
+) -> tuple[list, dict]:
+    """The derivatives compared, and those left out with the reason (the channel the
+    trials lack); ``derivatives`` None: every one the trials serve.
+
+    The data are read and checked once per derivative as a run would (nothing is
+    written), with ``first``'s kind and seed. Only the channel check depends on the
+    derivative, so one that fails while another passes lacks its channel.
+    """
     failed: dict[int, UserError] = {}
     why: dict[int, str] = {}
     for d in DERIVATIVES:
-        exp = variant_experiment(Variant(kinds[0], d, seed0))
+        exp = variant_experiment(Variant(first.kind, d, first.seed))
         try:
             ExperimentRun.new(exp, folder / "x.h5")
-        except UserError as exc:
+        except MissingChannelError as exc:
             failed[d] = exc
             # the channel is missing: said without the file's objective line, which
             # the comparison overrides
-            why[d] = str(exc).removeprefix(f"{exp.locs['objective']}: objective.derivative: ")
+            why[d] = exc.reason
+        except UserError as exc:
+            failed[d] = exc
+            why[d] = str(exc)
     wanted = list(DERIVATIVES) if derivatives is None else derivatives
     available = [d for d in DERIVATIVES if d not in failed]
     if not available:  # not a matter of channels: the experiment cannot run at all
@@ -309,26 +335,25 @@ def plan_comparison(
             f"--derivatives {d}: {why[d]}; these trials allow --derivatives "
             + ",".join(map(str, available))
         )
-    served = [d for d in wanted if d not in failed]
-    comp.derivatives = served
-    comp.skipped = why
-    for v in comp.variants:
-        comp.experiments[v] = variant_experiment(v)
-    # runs already in the folder: replaced (force), kept or continued (resume), or refused
+    return [d for d in wanted if d not in failed], why
+
+
+def _check_runs_there(comp: Comparison) -> None:
+    """Runs already in the folder: replaced (force), kept or continued (resume), or
+    refused; with resume, the complete ones made from the same settings are kept."""
     there = [v for v in comp.variants if comp.path(v).exists()]
-    if there and not (force or resume):
+    if there and not (comp.force or comp.resume):
         first = comp.path(there[0])
         more = f" and {len(there) - 1} more run(s) of this comparison" if len(there) > 1 else ""
         raise UserError(
-            f"{folder}: already holds {first.name}{more}; give another --out, --force to "
+            f"{comp.folder}: already holds {first.name}{more}; give another --out, --force to "
             "replace them, or --resume to keep the complete ones and run the rest"
         )
-    if resume and not force:
+    if comp.resume and not comp.force:
         for v in there:
             _same_settings(comp.path(v), comp.experiments[v])
             if Results(comp.path(v)).complete:
                 comp.kept.add(v)
-    return comp
 
 
 # -- running ---------------------------------------------------------------------------

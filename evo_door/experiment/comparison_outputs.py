@@ -101,42 +101,10 @@ def markdown(comp: Comparison | None, rows: list[dict]) -> str:
     truth = any(p["true"] is not None for r in rows for p in r["params"].values())
     factor, human = _human_rms(rows[0])
     rms_units = human + (f"; {rows[0]['rms_unit']} in compare.csv" if factor != 1.0 else "")
-    head = ["objective", "seeds"]
-    for n in names:
-        u = rows[0]["params"][n]["unit"]
-        head.append(f"{n}" + (f" [{u}]" if u and u != "1" else ""))
-        if truth:
-            head.append(f"{n} error [%]")
-    head += [
-        "fitness",
-        "validation error",
-        f"RMS {rows[0]['rms_channel']} error, fit [{human}]",
-        f"RMS {rows[0]['rms_channel']} error, validation [{human}]",
-        f"max abs {rows[0]['rms_channel']} error, validation [{human}]",
-        "evaluations",
-        "time per run [s]",
-    ]
+    head = _markdown_head(rows[0], names, truth, human)
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [_objective_label(r), str(len(r["seeds"]))]
-        for n in names:
-            p = r["params"][n]
-            cells.append(_with_range(p["value"], lambda v: _g(v, 5)))
-            if truth:
-                cells.append("-" if p["error"] is None else _with_range(p["error"], _pct))
-        cells.append(_with_range(r["fitness"], _g, f" {r['fitness_unit']}"))
-        cells.append(
-            "-"
-            if r["validation_error"] is None
-            else _with_range(r["validation_error"], _g, f" {r['fitness_unit']}")
-        )
-        cells.append(_with_range(_scaled(r["rms_fit"], factor), lambda v: _g(v, 3)))
-        for key in ("rms_validation", "max_validation"):
-            rv = _scaled(r[key], factor)
-            cells.append("-" if rv is None else _with_range(rv, lambda v: _g(v, 3)))
-        cells.append(_with_range(r["evaluations"], lambda v: f"{v:.0f}"))
-        cells.append(_with_range(r["seconds"], lambda v: f"{v:.1f}"))
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append("| " + " | ".join(_markdown_cells(r, names, truth, factor)) + " |")
     out = [
         f"# Objectives compared: {comp.name if comp else ''}".rstrip(),
         "",
@@ -161,6 +129,49 @@ def markdown(comp: Comparison | None, rows: list[dict]) -> str:
         out += [f"- {note}" for note in comp.notes()]
         out += ["", "Made with:", "", "```", command_line(comp), "```"]
     return "\n".join(out) + "\n"
+
+
+def _markdown_head(first: dict, names: list, truth: bool, human: str) -> list[str]:
+    """The table's header: objective, seeds, each parameter (and its error), the
+    measures with their units."""
+    head = ["objective", "seeds"]
+    for n in names:
+        u = first["params"][n]["unit"]
+        head.append(f"{n}" + (f" [{u}]" if u and u != "1" else ""))
+        if truth:
+            head.append(f"{n} error [%]")
+    return head + [
+        "fitness",
+        "validation error",
+        f"RMS {first['rms_channel']} error, fit [{human}]",
+        f"RMS {first['rms_channel']} error, validation [{human}]",
+        f"max abs {first['rms_channel']} error, validation [{human}]",
+        "evaluations",
+        "time per run [s]",
+    ]
+
+
+def _markdown_cells(r: dict, names: list, truth: bool, factor: float) -> list[str]:
+    """One objective's cells, in the header's order."""
+    cells = [_objective_label(r), str(len(r["seeds"]))]
+    for n in names:
+        p = r["params"][n]
+        cells.append(_with_range(p["value"], lambda v: _g(v, 5)))
+        if truth:
+            cells.append("-" if p["error"] is None else _with_range(p["error"], _pct))
+    cells.append(_with_range(r["fitness"], _g, f" {r['fitness_unit']}"))
+    cells.append(
+        "-"
+        if r["validation_error"] is None
+        else _with_range(r["validation_error"], _g, f" {r['fitness_unit']}")
+    )
+    cells.append(_with_range(_scaled(r["rms_fit"], factor), lambda v: _g(v, 3)))
+    for key in ("rms_validation", "max_validation"):
+        rv = _scaled(r[key], factor)
+        cells.append("-" if rv is None else _with_range(rv, lambda v: _g(v, 3)))
+    cells.append(_with_range(r["evaluations"], lambda v: f"{v:.0f}"))
+    cells.append(_with_range(r["seconds"], lambda v: f"{v:.1f}"))
+    return cells
 
 
 def _truth_text(rows: list[dict]) -> str:
@@ -329,55 +340,15 @@ def figure(rows: list[dict], records: list[dict], title: str = ""):
         figsize=(max(3.3, 0.6 * len(rows) + 0.9) * ncols, 3.6 * nrows + 0.9), layout="constrained"
     )
     axes = list(fig.subplots(nrows, ncols, squeeze=False).flat)
-    short = {"max_square": "max-sq", "ise": "ISE"}
-    labels = [f"{short.get(r['kind'], r['kind'])}\n{r['channel']}" for r in rows]
-    colors = {k: f"C{i}" for i, k in enumerate(KINDS)}
-    x = np.arange(len(rows))
-
-    def draw(ax, per_row, spreads, ylabel, zero_line):
-        for i, (r, values, s) in enumerate(zip(rows, per_row, spreads)):
-            color = colors.get(r["kind"], "0.3")
-            finite = [v for v in values if v is not None and math.isfinite(v)]
-            ax.plot([i] * len(finite), finite, "o", color=color, ms=3.5, alpha=0.45)
-            if s is not None and math.isfinite(s["mean"]):
-                lo = s["mean"] - s["min"] if math.isfinite(s["min"]) else 0.0
-                hi = s["max"] - s["mean"] if math.isfinite(s["max"]) else 0.0
-                ax.errorbar(
-                    [i],
-                    [s["mean"]],
-                    yerr=[[lo], [hi]],
-                    fmt="_",
-                    color=color,
-                    ms=14,
-                    mew=2,
-                    capsize=4,
-                    lw=1.2,
-                )
-        if zero_line:
-            ax.axhline(0.0, color="0.4", lw=0.8)
-        ax.set_xticks(x, labels, fontsize=7.5)
-        ax.set_xlim(-0.6, len(rows) - 0.4)
-        ax.set_ylabel(ylabel, fontsize=9)
-        ax.grid(alpha=0.3, axis="y")
-
     for ax, n in zip(axes, names):
-        p0 = rows[0]["params"][n]
-        if p0["true"] is not None:
-            per_row = [[rec["errors"][n] for rec in _group(records, r)] for r in rows]
-            spreads = [r["params"][n]["error"] for r in rows]
-            draw(ax, per_row, spreads, f"error of {n} against the truth [%]", True)
-            ax.set_title(f"{n} (true {p0['true']:.5g} {p0['unit']})", fontsize=9)
-        else:
-            per_row = [[rec["values"][n] for rec in _group(records, r)] for r in rows]
-            spreads = [r["params"][n]["value"] for r in rows]
-            draw(ax, per_row, spreads, f"{n} [{p0['unit']}]", False)
-            ax.set_title(f"{n} (no true value in the trials)", fontsize=9)
+        _parameter_panel(ax, rows, records, n)
     role = "validation" if rows[0]["rms_validation"] is not None else "fit"
     for ax, (measure, what) in zip(axes[len(names) :], (("rms", "RMS"), ("max", "largest"))):
         key = f"{role}_max" if measure == "max" else role
         per_row = [[rec["yardstick"][key] * factor for rec in _group(records, r)] for r in rows]
         spreads = [_scaled(r[f"{measure}_{role}"], factor) for r in rows]
-        draw(ax, per_row, spreads, f"{what} {rows[0]['rms_channel']} error [{human}]", False)
+        ylabel = f"{what} {rows[0]['rms_channel']} error [{human}]"
+        _draw_seeds(ax, rows, per_row, spreads, ylabel, False)
         ax.set_ylim(bottom=0)
         ax.set_title(f"common yardstick: {what}, {role} trials", fontsize=9)
     for ax in axes[panels:]:
@@ -389,6 +360,54 @@ def figure(rows: list[dict], records: list[dict], title: str = ""):
         fontsize=10,
     )
     return fig
+
+
+def _parameter_panel(ax, rows: list[dict], records: list[dict], n: str) -> None:
+    """One free parameter: its error against the truth per objective, or its estimate
+    where the trials carry no true value."""
+    p0 = rows[0]["params"][n]
+    if p0["true"] is not None:
+        per_row = [[rec["errors"][n] for rec in _group(records, r)] for r in rows]
+        spreads = [r["params"][n]["error"] for r in rows]
+        _draw_seeds(ax, rows, per_row, spreads, f"error of {n} against the truth [%]", True)
+        ax.set_title(f"{n} (true {p0['true']:.5g} {p0['unit']})", fontsize=9)
+    else:
+        per_row = [[rec["values"][n] for rec in _group(records, r)] for r in rows]
+        spreads = [r["params"][n]["value"] for r in rows]
+        _draw_seeds(ax, rows, per_row, spreads, f"{n} [{p0['unit']}]", False)
+        ax.set_title(f"{n} (no true value in the trials)", fontsize=9)
+
+
+def _draw_seeds(ax, rows, per_row, spreads, ylabel: str, zero_line: bool) -> None:
+    """One panel: per objective (a column), the seeds' values as dots and their mean
+    with a min..max bar, in the objective kind's colour."""
+    short = {"max_square": "max-sq", "ise": "ISE"}
+    labels = [f"{short.get(r['kind'], r['kind'])}\n{r['channel']}" for r in rows]
+    colors = {k: f"C{i}" for i, k in enumerate(KINDS)}
+    for i, (r, values, s) in enumerate(zip(rows, per_row, spreads)):
+        color = colors.get(r["kind"], "0.3")
+        finite = [v for v in values if v is not None and math.isfinite(v)]
+        ax.plot([i] * len(finite), finite, "o", color=color, ms=3.5, alpha=0.45)
+        if s is not None and math.isfinite(s["mean"]):
+            lo = s["mean"] - s["min"] if math.isfinite(s["min"]) else 0.0
+            hi = s["max"] - s["mean"] if math.isfinite(s["max"]) else 0.0
+            ax.errorbar(
+                [i],
+                [s["mean"]],
+                yerr=[[lo], [hi]],
+                fmt="_",
+                color=color,
+                ms=14,
+                mew=2,
+                capsize=4,
+                lw=1.2,
+            )
+    if zero_line:
+        ax.axhline(0.0, color="0.4", lw=0.8)
+    ax.set_xticks(np.arange(len(rows)), labels, fontsize=7.5)
+    ax.set_xlim(-0.6, len(rows) - 0.4)
+    ax.set_ylabel(ylabel, fontsize=9)
+    ax.grid(alpha=0.3, axis="y")
 
 
 def _group(records: list[dict], row: dict) -> list[dict]:

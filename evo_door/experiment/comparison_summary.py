@@ -108,62 +108,61 @@ def summarise(records: list[dict]) -> list[dict]:
     rows = []
     for key in dict.fromkeys((r["kind"], r["derivative"]) for r in records):
         group = [r for r in records if (r["kind"], r["derivative"]) == key]
-        first = group[0]
-        params = {}
-        for n in first["free"]:
-            errors = [r["errors"][n] for r in group]
-            params[n] = {
-                "unit": first["units"].get(n, ""),
-                "value": _spread([r["values"][n] for r in group]),
-                "true": first["truth"].get(n),
-                "error": _spread(errors) if all(e is not None for e in errors) else None,
-                "abs_error": (
-                    float(np.mean([abs(e) for e in errors]))
-                    if all(e is not None for e in errors)
-                    else None
-                ),
-            }
-        ys = first["yardstick"]
-        rows.append(
-            {
-                "kind": key[0],
-                "derivative": key[1],
-                "channel": first["channel"],
-                "seeds": [r["seed"] for r in group],
-                "params": params,
-                "fitness": _spread([r["fitness"] for r in group]),
-                "fitness_unit": first["fitness_unit"],
-                "validation_error": (
-                    _spread([r["validation_error"] for r in group])
-                    if first["validation_error"] is not None
-                    else None
-                ),
-                "rms_channel": ys["channel"],
-                "rms_unit": ys["unit"],
-                "rms_fit": _spread([r["yardstick"]["fit"] for r in group]),
-                "rms_validation": (
-                    _spread([r["yardstick"]["validation"] for r in group])
-                    if ys["validation"] is not None
-                    else None
-                ),
-                "max_fit": _spread([r["yardstick"]["fit_max"] for r in group]),
-                "max_validation": (
-                    _spread([r["yardstick"]["validation_max"] for r in group])
-                    if ys["validation"] is not None
-                    else None
-                ),
-                "theta_unit": first["theta_unit"],
-                "evaluations": _spread([r["evaluations"] for r in group]),
-                "seconds": _spread([r["seconds"] for r in group]),
-                "seconds_total": float(sum(r["seconds"] for r in group)),
-                "at_bound": [
-                    f"seed {r['seed']}: {n} {side}"
-                    for r in group
-                    for n, side in r["at_bound"].items()
-                ],
-            }
-        )
+        rows.append(_row(key, group))
     return rows
+
+
+def _row(key: tuple, group: list[dict]) -> dict:
+    """The row of one (kind, derivative) from its seeds' records (see :func:`summarise`)."""
+    first = group[0]
+    ys = first["yardstick"]
+
+    def spread(field: str, present: bool = True):
+        """The seeds' spread of ``field`` (None where the run has none)."""
+        return _spread([r[field] for r in group]) if present else None
+
+    def yardstick(field: str, present: bool = True):
+        return _spread([r["yardstick"][field] for r in group]) if present else None
+
+    validated = ys["validation"] is not None
+    return {
+        "kind": key[0],
+        "derivative": key[1],
+        "channel": first["channel"],
+        "seeds": [r["seed"] for r in group],
+        "params": {n: _param_row(n, group) for n in first["free"]},
+        "fitness": spread("fitness"),
+        "fitness_unit": first["fitness_unit"],
+        "validation_error": spread("validation_error", first["validation_error"] is not None),
+        "rms_channel": ys["channel"],
+        "rms_unit": ys["unit"],
+        "rms_fit": yardstick("fit"),
+        "rms_validation": yardstick("validation", validated),
+        "max_fit": yardstick("fit_max"),
+        "max_validation": yardstick("validation_max", validated),
+        "theta_unit": first["theta_unit"],
+        "evaluations": spread("evaluations"),
+        "seconds": spread("seconds"),
+        "seconds_total": float(sum(r["seconds"] for r in group)),
+        "at_bound": [
+            f"seed {r['seed']}: {n} {side}" for r in group for n, side in r["at_bound"].items()
+        ],
+    }
+
+
+def _param_row(name: str, group: list[dict]) -> dict:
+    """One free parameter over the seeds: unit, value spread, truth, error spread and
+    mean absolute error (None without a truth)."""
+    first = group[0]
+    errors = [r["errors"][name] for r in group]
+    known = all(e is not None for e in errors)
+    return {
+        "unit": first["units"].get(name, ""),
+        "value": _spread([r["values"][name] for r in group]),
+        "true": first["truth"].get(name),
+        "error": _spread(errors) if known else None,
+        "abs_error": float(np.mean([abs(e) for e in errors])) if known else None,
+    }
 
 
 def best_rows(rows: list[dict]) -> dict:

@@ -21,7 +21,7 @@ def plot_fit(res: Results, path, max_trials: int = 12) -> None:
     The target is drawn wide and light underneath, the model dashed on top, so that a
     perfect fit shows both; the applied force is a faint trace on its own axis.
     """
-    # 61 lines: one figure's layout, top to bottom (a helper per panel would hide it)
+    # long: one figure's layout, top to bottom (a helper per panel would hide it)
     from matplotlib.figure import Figure
 
     from evo_door.channels import title, unit

@@ -307,8 +307,8 @@ def _value_text(value) -> str:
 
 def format_compare(doc: dict) -> str:
     """The human-readable ``evo-door compare``: one column per run."""
-    # one long function on purpose: the rows are written in the order the table shows
-    # them, each a line or two, and splitting would scatter that order over helpers
+    # long: the rows are written in the order the table shows them, each a line
+    # or two, and splitting would scatter that order over helpers
     runs = doc["runs"]
     stages = doc.get("stages") or [None] * len(runs)
     names = [Path(f).name for f in doc["files"]]

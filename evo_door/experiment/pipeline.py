@@ -38,15 +38,10 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
-from evo_door.experiment.config import (
-    Experiment,
-    _Reader,
-    _resolve_path,
-    _safe_name,
-    executor_setting,
-    experiment_from_tree,
-)
-from evo_door.experiment.runner import _LOCKED, ExperimentRun, claim_output, default_output
+from evo_door.experiment.config import Experiment, _safe_name, experiment_from_tree
+from evo_door.experiment.config_reader import _Reader, _resolve_path, executor_setting
+from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
+from evo_door.experiment.runner import ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
 from evo_door.params.declaration import suggest

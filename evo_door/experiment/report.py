@@ -57,7 +57,6 @@ def write_report(path, out=None, settings: Settings | None = None, log=None) -> 
     """Write the report of the results file ``path`` (or its record, read once by
     :func:`~.reader.read_results`) into the folder ``out`` (default ``<RUN>-report/``
     next to it); returns the HTML file."""
-    from evo_door.experiment.format_text import format_pipeline
     from evo_door.experiment.pipeline import pipeline_summary
 
     t0 = time.perf_counter()
@@ -71,12 +70,37 @@ def write_report(path, out=None, settings: Settings | None = None, log=None) -> 
         results = [Results.of(run) for run in record.runs.values()]
     if not any(r.complete for r in results):
         raise UserError(f"{path}: nothing finished to report on yet ({results[0].status().text})")
+    folder = _report_folder(path, out)
+    page = _Page(folder)
+    name = pipeline["name"] if pipeline else results[0].attrs.get("name", "run")
+    _head(page, name, path, pipeline, results)
+    for res in results:
+        if log:
+            log(f"report: {res.stage or name}")
+        _run_section(page, res)
+    if pipeline:
+        _case_study(page, results, settings)
+    page.p(_made_by(results[0].record.provenance.versions, time.perf_counter() - t0), "small")
+    text = page.document(f"{name}: evo-door report")
+    target = folder / "report.html"
+    write_text(target, text)
+    return target
+
+
+def _report_folder(path, out) -> Path:
+    """The report's folder (default ``<RUN>-report/``), made if need be."""
     folder = Path(out) if out else default_folder(path)
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder}: exists and is not a folder")
     folder.mkdir(parents=True, exist_ok=True)
-    page = _Page(folder)
-    name = pipeline["name"] if pipeline else results[0].attrs.get("name", "run")
+    return folder
+
+
+def _head(page: _Page, name: str, path, pipeline, results: list) -> None:
+    """The page's title, its results file, and for a pipeline its summary and the links
+    to its stages."""
+    from evo_door.experiment.format_text import format_pipeline
+
     page.h(1, f"evo-door report: {name}")
     page.p(f"results file {Path(path).resolve()}")
     if pipeline:
@@ -89,26 +113,18 @@ def write_report(path, out=None, settings: Settings | None = None, log=None) -> 
             )
             + '<a href="#case-study">case study</a></nav>'
         )
-    for res in results:
-        if log:
-            log(f"report: {res.stage or name}")
-        _run_section(page, res)
-    if pipeline:
-        _case_study(page, results, settings)
-    v = results[0].record.provenance.versions
-    page.p(
+
+
+def _made_by(v: dict, seconds: float) -> str:
+    """The page's last line: the version that made it, in how long, with which libraries."""
+    return (
         "made by evo-door "
         + str(v.get("evo_door", ""))
-        + f" in {time.perf_counter() - t0:.1f} s; versions: "
+        + f" in {seconds:.1f} s; versions: "
         + ", ".join(
             f"{k} {v[k]}" for k in ("python", "numpy", "scipy", "numba", "deap", "h5py") if k in v
-        ),
-        "small",
+        )
     )
-    text = page.document(f"{name}: evo-door report")
-    target = folder / "report.html"
-    write_text(target, text)
-    return target
 
 
 # -- one run -----------------------------------------------------------------------------

@@ -216,8 +216,50 @@ def _bands(theta, fails) -> list[tuple[float, float]]:
 
 
 def _perceptual_check(page: _Page, spec: Results, final: Results, settings: Settings) -> None:
-    from matplotlib.figure import Figure
+    target_model, curves, constant = _perceptual_curves(spec, final)
+    check = perceptual_check(curves["mechanism"], curves["chosen"], settings)
+    page.h(3, "Perceptual check: the specified mechanism against the chosen feel")
+    page.p(
+        f"Force-angle curves (Coulomb level, latch peaks resolved) of the mechanism of stage "
+        f"{final.stage} and of the chosen behaviour ({target_model.name} model, the target of "
+        f"stage {spec.stage}). A difference is noticeable where it exceeds {100 * settings.jnd:g} % "
+        f"of the chosen force, or of {settings.force_floor:g} N where that force is smaller."
+    )
+    page.table(
+        [
+            "direction",
+            "verdict",
+            "stroke beyond the JND",
+            "largest difference",
+            "angles beyond the JND [deg]",
+        ],
+        _perceptual_rows(check),
+        "perceptual check",
+    )
+    failing = any(c["fails"].any() for c in check.values())
+    page.p(
+        "The mechanism's force differs noticeably from the chosen feel at the angles above."
+        if failing
+        else "The mechanism's force stays within the JND of the chosen feel over the stroke.",
+        "fail" if failing else "pass",
+    )
 
+    def draw(path):
+        _perceptual_figure(path, check, settings, target_model.name, final, spec, constant)
+
+    page.figure(
+        "perceptual-check",
+        draw,
+        "force to move the door slowly, opening and closing, against angle; crosses "
+        "mark where the mechanism leaves the JND band of the chosen feel",
+    )
+
+
+def _perceptual_curves(spec: Results, final: Results):
+    """``(target model, {"mechanism", "chosen"} curves, constant)``: the force-angle
+    curves of the final stage's mechanism and of the chosen feel, and of the
+    specification stage's mechanism (constant friction) when the final stage is another
+    one (else None)."""
     from evo_door.sim.simulate import force_angle_curve
 
     target_model, chosen = _target_model(spec)
@@ -231,14 +273,12 @@ def _perceptual_check(page: _Page, spec: Results, final: Results, settings: Sett
     if final is not spec:
         p0 = model.load_params({n: v for n, v in spec.values().items() if n in model.params})
         constant = force_angle_curve(model, p0)
-    check = perceptual_check(curves["mechanism"], curves["chosen"], settings)
-    page.h(3, "Perceptual check: the specified mechanism against the chosen feel")
-    page.p(
-        f"Force-angle curves (Coulomb level, latch peaks resolved) of the mechanism of stage "
-        f"{final.stage} and of the chosen behaviour ({target_model.name} model, the target of "
-        f"stage {spec.stage}). A difference is noticeable where it exceeds {100 * settings.jnd:g} % "
-        f"of the chosen force, or of {settings.force_floor:g} N where that force is smaller."
-    )
+    return target_model, curves, constant
+
+
+def _perceptual_rows(check: dict) -> list[list]:
+    """One row per direction: verdict, share of the stroke and largest difference
+    beyond the JND, the angle bands where it is exceeded (the first 8)."""
     rows = []
     for d, c in check.items():
         angle, diff, thr = c["worst"]
@@ -255,76 +295,55 @@ def _perceptual_check(page: _Page, spec: Results, final: Results, settings: Sett
                 (bands + more) or "-",
             ]
         )
-    page.table(
-        [
-            "direction",
-            "verdict",
-            "stroke beyond the JND",
-            "largest difference",
-            "angles beyond the JND [deg]",
-        ],
-        rows,
-        "perceptual check",
-    )
-    failing = any(c["fails"].any() for c in check.values())
-    page.p(
-        "The mechanism's force differs noticeably from the chosen feel at the angles above."
-        if failing
-        else "The mechanism's force stays within the JND of the chosen feel over the stroke.",
-        "fail" if failing else "pass",
-    )
+    return rows
 
-    def draw(path):
-        fig = Figure(figsize=(11, 6.5), layout="constrained")
-        axes = fig.subplots(2, 1, sharex=True)
-        for ax, d in zip(axes, ("opening", "closing")):
-            c = check[d]
-            deg = np.degrees(c["theta"])
-            ax.fill_between(
-                deg,
-                c["chosen"] - c["threshold"],
-                c["chosen"] + c["threshold"],
-                color="0.85",
-                label=f"chosen +- JND ({100 * settings.jnd:g} %)",
-            )
-            ax.plot(deg, c["chosen"], color="k", lw=1.2, label=f"chosen ({target_model.name})")
-            ax.plot(
-                deg,
-                c["mechanism"],
-                color="tab:red",
-                lw=1.1,
-                ls="--",
-                label=f"mechanism (stage {final.stage})",
-            )
-            if constant is not None:
-                ax.plot(
-                    np.degrees(constant["theta"]),
-                    constant[d],
-                    color="tab:blue",
-                    lw=0.9,
-                    ls=":",
-                    label=f"constant friction (stage {spec.stage})",
-                )
-            bad = c["fails"]
-            ax.plot(
-                deg[bad], c["mechanism"][bad], "x", color="tab:red", ms=3, label="beyond the JND"
-            )
-            ax.set_ylabel(f"{d} force [N]\n(+ toward closing)")
-            ax.grid(alpha=0.3)
-        axes[0].legend(fontsize=8, ncol=2)
-        axes[1].set_xlabel("theta [deg] (0 open, 90 closed)")
-        fig.suptitle(
-            "force-angle curves: specified mechanism against the chosen haptic behaviour",
-            fontsize=10,
+
+def _perceptual_figure(path, check, settings, target_name, final, spec, constant) -> None:
+    """The two panels (opening, closing): the chosen force with its JND band, the
+    mechanism's (crosses beyond the band), and the constant-friction one if any."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 6.5), layout="constrained")
+    axes = fig.subplots(2, 1, sharex=True)
+    for ax, d in zip(axes, ("opening", "closing")):
+        c = check[d]
+        deg = np.degrees(c["theta"])
+        ax.fill_between(
+            deg,
+            c["chosen"] - c["threshold"],
+            c["chosen"] + c["threshold"],
+            color="0.85",
+            label=f"chosen +- JND ({100 * settings.jnd:g} %)",
         )
-        save_figure(fig, path, dpi=110)
-
-    page.figure(
-        "perceptual-check",
-        draw,
-        "force to move the door slowly, opening and closing, against angle; crosses "
-        "mark where the mechanism leaves the JND band of the chosen feel",
+        ax.plot(deg, c["chosen"], color="k", lw=1.2, label=f"chosen ({target_name})")
+        ax.plot(
+            deg,
+            c["mechanism"],
+            color="tab:red",
+            lw=1.1,
+            ls="--",
+            label=f"mechanism (stage {final.stage})",
+        )
+        if constant is not None:
+            ax.plot(
+                np.degrees(constant["theta"]),
+                constant[d],
+                color="tab:blue",
+                lw=0.9,
+                ls=":",
+                label=f"constant friction (stage {spec.stage})",
+            )
+        bad = c["fails"]
+        ax.plot(deg[bad], c["mechanism"][bad], "x", color="tab:red", ms=3, label="beyond the JND")
+        ax.set_ylabel(f"{d} force [N]\n(+ toward closing)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, ncol=2)
+    axes[1].set_xlabel("theta [deg] (0 open, 90 closed)")
+    fig.suptitle(
+        "force-angle curves: specified mechanism against the chosen haptic behaviour",
+        fontsize=10,
     )
+    save_figure(fig, path, dpi=110)
 
 
 def _a_of_theta(page: _Page, res: Results) -> None:

@@ -106,11 +106,13 @@ def progress_text(attrs: dict, config: dict) -> str:
 
 
 # -- a run's model: units and names ------------------------------------------------
-@functools.cache
+@functools.lru_cache(maxsize=64)
 def model_of(model_name: str):
     """A run's model, or None where it cannot be loaded (a user model file moved away).
 
-    Cached: ``runs`` lists many files of few models, and a model is loaded once.
+    Cached, for the few models of many files: ``runs`` lists a folder, and a model that
+    cannot be loaded is tried once, not once a file. Bounded (64 names): a long-lived
+    process that reads many runs keeps only the models it reads now.
     """
     from evo_door.models import get_model
 

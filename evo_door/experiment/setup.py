@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from evo_door.data.trial import Trial
-from evo_door.errors import UserError
+from evo_door.errors import MissingChannelError, UserError
 from evo_door.optim.problem import Objective, Problem
 from evo_door.params.declaration import suggest
 
@@ -231,9 +231,7 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         try:
             tr.require(exp.objective.derivative)
         except UserError as exc:
-            raise UserError(
-                f"{exp.locs['objective']}: objective.derivative: {exc} in {source}"
-            ) from None
+            raise MissingChannelError(exp.locs["objective"], f"{exc} in {source}") from None
         try:
             tr.initial_state()
         except UserError as exc:

@@ -147,10 +147,13 @@ DECLARATIONS: dict[str, str] = {
     "haptic": "evo_door.models.haptic_params:DECLARATION",
 }
 
-#: Models already loaded, by the key :func:`get_model` resolves a name to.
+#: Models already loaded, by the key :func:`get_model` resolves a name to. Module-level
+#: on purpose: a model is one compiled object per process (its numba functions are
+#: compiled or loaded once, and a pickled problem finds it again by name); it holds one
+#: entry per model a process names, never evicted.
 _MODELS: dict[str, Model] = {}
 #: User files already executed, by absolute path: a file is run once per process, so
-#: its numba functions are compiled (or loaded from cache) once.
+#: its numba functions are compiled (or loaded from cache) once; one entry per file.
 _FILE_MODULES: dict[Path, object] = {}
 
 

@@ -177,6 +177,9 @@ def tangential_force(theta, dtheta, p):
     open_force and close_force (both zero: no latch at all), open_hold, close_hold,
     seat_force, gasket_stiffness, transition_damping, stop_stiffness.
     """
+    # long: the sum of the seed's phases (section 4.3.3) in the order the text gives
+    # them, each a few lines under its equation; one compiled function the kernels call
+    # at every step, read best as the one sum it is
     f = 0.0
 
     # 1. Dry friction, asymmetric (eqs. 3.1, 4.44-4.48, corrected):

@@ -115,8 +115,22 @@ def covariance(
     relative = scale is not None
     scale = np.ones(p) if scale is None else np.asarray(scale, dtype=np.float64)
     n_eff = float(n if n_effective is None else n_effective)
-    reasons: dict[int, str] = {}
+    reasons, norms = _without_sensitivity(J, scale, relative, min_sensitivity)
+    keep = [j for j in range(p) if j not in reasons]
+    condition, _ = _condition(J, norms, keep)
+    _drop_singular(J, norms, keep, names, max_condition, reasons)
+    ssr = float(r @ r)
+    dof = n_eff - len(keep)
+    sigma2 = ssr / dof if dof > 0 else math.inf
+    se, corr = _errors(J, norms, keep, sigma2, n_eff, reasons)
+    return Covariance(se, corr, sigma2, dof, condition, reasons)
 
+
+def _without_sensitivity(J, scale, relative: bool, min_sensitivity: float):
+    """``(reasons, norms)``: why each column that cannot be determined cannot (a blown
+    simulation, no sensitivity), and the columns' norms (0 where blown up)."""
+    p = J.shape[1]
+    reasons: dict[int, str] = {}
     bad = ~np.all(np.isfinite(J), axis=0)
     for j in np.flatnonzero(bad):
         reasons[int(j)] = "the simulation blew up in its finite differences"
@@ -126,21 +140,24 @@ def covariance(
     for j in range(p):
         if j not in reasons and not ranged[j] > min_sensitivity * top:
             reasons[j] = "no sensitivity: the residual does not change with it"
+    return reasons, norms
 
-    def unit_columns(cols):
-        return J[:, cols] / norms[cols]
 
-    def cond(cols) -> tuple[float, np.ndarray]:
-        if not cols:
-            return 1.0, np.zeros((0, 0))
-        _, s, vt = np.linalg.svd(unit_columns(cols), full_matrices=False)
-        c = math.inf if s[-1] == 0.0 else float((s[0] / s[-1]) ** 2)
-        return c, vt
+def _condition(J, norms, cols) -> tuple[float, np.ndarray]:
+    """cond(J^T J) of the unit-length columns ``cols``, and their right singular vectors."""
+    if not cols:
+        return 1.0, np.zeros((0, 0))
+    _, s, vt = np.linalg.svd(J[:, cols] / norms[cols], full_matrices=False)
+    c = math.inf if s[-1] == 0.0 else float((s[0] / s[-1]) ** 2)
+    return c, vt
 
-    keep = [j for j in range(p) if j not in reasons]
-    condition, _ = cond(keep)
+
+def _drop_singular(J, norms, keep: list, names, max_condition: float, reasons: dict) -> None:
+    """Take out of ``keep``, one at a time, the parameter that weighs most in the
+    weakest direction, until cond(J^T J) is at most ``max_condition``; each gets its
+    reason, naming those it trades with."""
     while True:
-        c, vt = cond(keep)
+        c, vt = _condition(J, norms, keep)
         if c <= max_condition:
             break
         v = np.abs(vt[-1])
@@ -151,24 +168,27 @@ def covariance(
         )
         keep.remove(worst)
 
+
+def _errors(J, norms, keep: list, sigma2: float, n_eff: float, reasons: dict):
+    """``(standard errors, correlation)`` of the parameters in ``keep`` (inf and NaN for
+    the others; also for ``keep`` when too few effective samples leave sigma2 infinite,
+    with that reason)."""
+    p = J.shape[1]
     se = np.full(p, math.inf)
     corr = np.full((p, p), math.nan)
-    ssr = float(r @ r)
-    dof = n_eff - len(keep)
-    sigma2 = ssr / dof if dof > 0 else math.inf
-    if keep:
-        A = unit_columns(keep)
-        _, s, vt = np.linalg.svd(A, full_matrices=False)
-        inv = (vt.T / s**2) @ vt  # (A^T A)^-1, A = J D with D = diag(1 / norms)
-        d = 1.0 / norms[keep]
-        cov = sigma2 * inv * np.outer(d, d) if math.isfinite(sigma2) else None
-        if cov is None:
-            for j in keep:
-                reasons[j] = f"{n_eff:.3g} effective samples for {len(keep)} parameters"
-        else:
-            sd = np.sqrt(np.diag(cov))
-            se[keep] = sd
-            with np.errstate(invalid="ignore", divide="ignore"):
-                c = inv / np.sqrt(np.outer(np.diag(inv), np.diag(inv)))
-            corr[np.ix_(keep, keep)] = np.clip(c, -1.0, 1.0)
-    return Covariance(se, corr, sigma2, dof, condition, reasons)
+    if not keep:
+        return se, corr
+    A = J[:, keep] / norms[keep]
+    _, s, vt = np.linalg.svd(A, full_matrices=False)
+    inv = (vt.T / s**2) @ vt  # (A^T A)^-1, A = J D with D = diag(1 / norms)
+    d = 1.0 / norms[keep]
+    if not math.isfinite(sigma2):
+        for j in keep:
+            reasons[j] = f"{n_eff:.3g} effective samples for {len(keep)} parameters"
+        return se, corr
+    cov = sigma2 * inv * np.outer(d, d)
+    se[keep] = np.sqrt(np.diag(cov))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = inv / np.sqrt(np.outer(np.diag(inv), np.diag(inv)))
+    corr[np.ix_(keep, keep)] = np.clip(c, -1.0, 1.0)
+    return se, corr

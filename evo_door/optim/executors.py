@@ -40,17 +40,16 @@ share of the cores as numba threads; a scheduler's workers get one numba thread 
 worker thread (start them with ``--nthreads`` = their cores, or ``--nworkers`` = cores
 and ``--nthreads 1``).
 
-This module imports nothing heavy: numpy, numba and Dask are imported when used.
+This module holds the names, their checks and the base class (with ``local``); the
+process pool is in :mod:`evo_door.optim.executor_pool`, Dask in
+:mod:`evo_door.optim.executor_dask`. None imports anything heavy: numpy, numba and
+Dask are imported when used.
 """
 
 from __future__ import annotations
 
 import os
-import pickle
 import re
-import shutil
-import tempfile
-import uuid
 
 from evo_door.errors import UserError
 
@@ -79,6 +78,20 @@ def cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+class ExecutorNameError(UserError):
+    """A string that names no executor.
+
+    ``given`` is the string (None when it is not a name at all) and ``reason`` what is
+    wrong with it, beginning with the string as given. The message is ``executor
+    REASON``; an experiment's key says ``FILE:LINE: executor: REASON`` from the fields.
+    """
+
+    def __init__(self, given: str | None, reason: str):
+        self.given = given
+        self.reason = reason
+        super().__init__(f"executor {reason}" if given is not None else f"executor: {reason}")
+
+
 class ExecutorSpec:
     """A checked executor string: ``kind`` (local, processes, dask, scheduler),
     ``workers`` (None: one per core) and, for a scheduler, ``address``.
@@ -104,7 +117,7 @@ class ExecutorSpec:
         if isinstance(text, ExecutorSpec):
             return text
         if not isinstance(text, str) or not text.strip():
-            raise UserError(f"executor: expected a name, got {text!r}; {_CHOICES}")
+            raise ExecutorNameError(None, f"expected a name, got {text!r}; {_CHOICES}")
         s = text.strip()
         if s in KINDS:
             return cls(s, s)
@@ -112,22 +125,24 @@ class ExecutorSpec:
         if m:
             n = m.group("n")
             if not n.isdigit() or int(n) < 1:
-                raise UserError(
-                    f"executor {s!r}: the number of workers after ':' must be a whole "
-                    f"number >= 1 (e.g. {m.group('kind')}:2)"
+                raise ExecutorNameError(
+                    s,
+                    f"{s!r}: the number of workers after ':' must be a whole "
+                    f"number >= 1 (e.g. {m.group('kind')}:2)",
                 )
             return cls(s, m.group("kind"), int(n))
         if s.startswith("tcp://"):
             m = _ADDRESS.match(s)
             if not m or not 0 < int(m.group("port")) < 65536:
-                raise UserError(
-                    f"executor {s!r}: a Dask scheduler's address is tcp://HOST:PORT "
-                    "(e.g. tcp://127.0.0.1:8786)"
+                raise ExecutorNameError(
+                    s,
+                    f"{s!r}: a Dask scheduler's address is tcp://HOST:PORT "
+                    "(e.g. tcp://127.0.0.1:8786)",
                 )
             return cls(s, "scheduler", address=s)
         from evo_door.params.declaration import suggest
 
-        raise UserError(f"executor {s!r} is unknown" + suggest(s, list(KINDS)) + f"; {_CHOICES}")
+        raise ExecutorNameError(s, f"{s!r} is unknown" + suggest(s, list(KINDS)) + f"; {_CHOICES}")
 
 
 _CHOICES = "use local, processes[:N], dask[:N] or tcp://HOST:PORT (a Dask scheduler)"
@@ -185,42 +200,21 @@ def open_executor(text) -> Executor:
     if spec.kind == "local":
         return LocalExecutor(spec)
     if spec.kind == "processes":
+        from evo_door.optim.executor_pool import ProcessExecutor
+
         return ProcessExecutor(spec)
+    from evo_door.optim.executor_dask import DaskExecutor
+
     return DaskExecutor(spec)
 
 
 # -- what runs in a worker ------------------------------------------------------------
-#: a pool worker's problems by token (read once from the file the parent wrote)
-_SHIPPED: dict = {}
-
-
 def _set_threads(threads: int | None) -> None:
     """Numba's threads for this worker thread (numba keeps the setting per thread)."""
     if threads:
         import numba
 
         numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-
-
-def _evaluate_chunk(problem, X, threads):
-    """``problem.evaluate(X)`` in a worker (the task of a Dask executor)."""
-    _set_threads(threads)
-    return problem.evaluate(X)
-
-
-def _load_shipped(token: str, path: str):
-    problem = _SHIPPED.get(token)
-    if problem is None:
-        with open(path, "rb") as fh:
-            problem = pickle.load(fh)
-        _SHIPPED.clear()  # one problem at a time: a run's jobs follow one another
-        _SHIPPED[token] = problem
-    return problem
-
-
-def _evaluate_shipped(token: str, path: str, X):
-    """``evaluate(X)`` of the problem a pool's parent shipped in ``path`` (pool task)."""
-    return _load_shipped(token, path).evaluate(X)
 
 
 def _call(fn, item, threads):
@@ -267,11 +261,10 @@ class Executor:
     evaluates a bound problem's candidates (:meth:`bind`) and runs a batch's tasks
     (:meth:`imap`)."""
 
-    #: numba threads per task in a worker (None: leave numba as it is)
-    threads: int | None = None
-
     def __init__(self, spec: ExecutorSpec):
         self.spec = spec
+        #: numba threads per task in a worker (None: leave numba as it is)
+        self.threads: int | None = None
         self.name = spec.text
         self.slots = 1
         self.started = False
@@ -344,289 +337,3 @@ class LocalExecutor(Executor):
     def __init__(self, spec: ExecutorSpec):
         super().__init__(spec)
         self.slots = 1
-
-
-class ProcessExecutor(Executor):
-    """A pool of local worker processes (``processes[:N]``), started by :meth:`start`.
-
-    Workers are spawned (not forked: numba's OpenMP threads do not survive a fork) and
-    import the package; the problem goes through a file in a private temporary folder,
-    read once per worker. A pool broken by a dead worker is replaced and what had not
-    finished is submitted again.
-    """
-
-    def __init__(self, spec: ExecutorSpec):
-        super().__init__(spec)
-        self.slots = spec.workers or cores()
-        self.threads = max(1, cores() // self.slots)
-        self.pool = None
-        self.restarts = 0
-        self._dir = None
-
-    def describe(self) -> str:
-        return f"{self.name} ({self.slots} worker processes)"
-
-    def start(self) -> None:
-        self._dir = tempfile.mkdtemp(prefix="evo-door-executor-")
-        self.pool = self._new_pool()
-
-    def _new_pool(self):
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        return ProcessPoolExecutor(
-            max_workers=self.slots,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_set_threads,
-            initargs=(self.threads,),
-        )
-
-    def _restart(self) -> None:
-        self.restarts += 1
-        if self.pool is not None:
-            self.pool.shutdown(wait=False, cancel_futures=True)
-        self.pool = self._new_pool()
-
-    def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-            self.pool = None
-        if self._dir is not None:
-            shutil.rmtree(self._dir, ignore_errors=True)
-            self._dir = None
-        super().close()
-
-    def interrupt(self) -> None:
-        """Pass Ctrl-C on to the workers (their runs stop at a checkpoint) and stop."""
-        import signal
-
-        pool, self.pool = self.pool, None
-        if pool is None:
-            return
-        for proc in list(getattr(pool, "_processes", {}).values()):
-            try:
-                os.kill(proc.pid, signal.SIGINT)
-            except (OSError, AttributeError):
-                pass
-        pool.shutdown(wait=True, cancel_futures=True)
-
-    def bind(self, problem) -> BoundProblem:
-        if self.pool is None:
-            raise RuntimeError("start the executor first (use it as a context manager)")
-        token = uuid.uuid4().hex
-        path = os.path.join(self._dir, f"{token}.pickle")
-        with open(path, "wb") as fh:
-            pickle.dump(problem, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        return BoundProblem(self, problem, (token, path))
-
-    def release(self, bound: BoundProblem) -> None:
-        try:
-            os.remove(bound.handle[1])
-        except OSError:
-            pass
-
-    def evaluate(self, bound: BoundProblem, X):
-        chunks = self._split(X)
-        token, path = bound.handle
-        parts = [None] * len(chunks)
-        for i, part, error in self._run(_evaluate_shipped, [(token, path, c) for c in chunks]):
-            if error is not None:
-                raise error
-            parts[i] = part
-        return self._join(parts, len(X))
-
-    def imap(self, fn, items):
-        return self._run(_call, [(fn, item, self.threads) for item in items])
-
-    def _run(self, fn, arglists):
-        """Yield ``(index, result, error)`` of ``fn(*args)`` per argument list as they
-        end; a broken pool is replaced and its unfinished tasks submitted again."""
-        from concurrent.futures import FIRST_COMPLETED, wait
-        from concurrent.futures.process import BrokenProcessPool
-
-        pending = set(range(len(arglists)))
-        broken_in_a_row = 0
-        while pending:
-            futures = {}
-            try:
-                for i in sorted(pending):
-                    futures[self.pool.submit(fn, *arglists[i])] = i
-            except BrokenProcessPool:
-                pass
-            broken = len(futures) < len(pending)
-            waiting = set(futures)
-            while waiting:
-                done, waiting = wait(waiting, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i = futures[fut]
-                    try:
-                        result = fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        continue
-                    except Exception as exc:
-                        pending.discard(i)
-                        broken_in_a_row = 0
-                        yield i, None, exc
-                        continue
-                    pending.discard(i)
-                    broken_in_a_row = 0
-                    yield i, result, None
-            if broken and pending:
-                broken_in_a_row += 1
-                if broken_in_a_row > MAX_RESTARTS:
-                    raise UserError(
-                        f"executor {self.name}: a worker process died {broken_in_a_row} "
-                        "times in a row on the same tasks (out of memory?); run with "
-                        "--executor local to see the error"
-                    )
-                self._restart()
-
-
-class DaskExecutor(Executor):
-    """Dask distributed: a local cluster started for the run (``dask[:N]``) or the
-    scheduler at ``tcp://HOST:PORT`` (connected to, never closed)."""
-
-    def __init__(self, spec: ExecutorSpec):
-        super().__init__(spec)
-        self.client = None
-        self.cluster = None
-        self.threads = 1
-
-    def describe(self) -> str:
-        where = "a local Dask cluster" if self.cluster is not None else "Dask"
-        return f"{self.name} ({where}, {self.slots} worker threads)"
-
-    def start(self) -> None:
-        try:
-            import distributed
-        except ImportError:
-            raise UserError(
-                f"executor {self.name} needs Dask distributed, which is not installed: {DASK_HINT}"
-            ) from None
-        if self.spec.kind == "dask":
-            import logging
-
-            n = self.spec.workers or cores()
-            self.threads = max(1, cores() // n)  # fewer workers than cores: their share
-            self.cluster = distributed.LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                scheduler_port=0,
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            )
-            try:
-                self.client = distributed.Client(self.cluster, set_as_default=False)
-            except BaseException:
-                self.cluster.close()
-                self.cluster = None
-                raise
-        else:
-            try:
-                self.client = distributed.Client(
-                    self.spec.address, timeout=CONNECT_TIMEOUT, set_as_default=False
-                )
-            except (OSError, TimeoutError) as exc:
-                raise _no_scheduler(self.name, exc) from None
-            try:
-                self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT)
-            except (OSError, TimeoutError):
-                self.client.close()
-                self.client = None
-                raise UserError(
-                    f"executor {self.name}: the scheduler has no worker; start some "
-                    f"(dask worker {self.spec.address})"
-                ) from None
-        self.slots = max(1, sum(self.client.nthreads().values()))
-
-    def close(self) -> None:
-        client, cluster = self.client, self.cluster
-        self.client = self.cluster = None
-        try:
-            if client is not None:
-                client.close()
-        finally:
-            if cluster is not None:  # ours: started for the run
-                cluster.close()
-        super().close()
-
-    def interrupt(self) -> None:
-        self.close()
-
-    def bind(self, problem) -> BoundProblem:
-        if self.client is None:
-            raise RuntimeError("start the executor first (use it as a context manager)")
-        future = self.client.scatter(problem, broadcast=True, hash=False)
-        return BoundProblem(self, problem, future)
-
-    def release(self, bound: BoundProblem) -> None:
-        try:
-            bound.handle.release()
-        except Exception:  # pragma: no cover - the client is gone already
-            pass
-
-    def evaluate(self, bound: BoundProblem, X):
-        chunks = self._split(X)
-        if not chunks:
-            return self._join([], 0)
-        # workers may have come and gone since the last generation
-        self.slots = max(1, sum(self.client.nthreads().values()))
-        for attempt in range(2):
-            futures = [
-                self.client.submit(_evaluate_chunk, bound.handle, c, self.threads, pure=False)
-                for c in chunks
-            ]
-            try:
-                parts = self.client.gather(futures)
-                return self._join(parts, len(X))
-            except Exception as exc:
-                if _killed_worker(exc):
-                    raise UserError(
-                        f"executor {self.name}: a chunk of candidates killed "
-                        f"{_allowed_failures()} workers in a row; run with --executor "
-                        "local to see why"
-                    ) from None
-                if attempt or not _lost(exc):
-                    raise
-                # every copy of the problem went with its workers: ship it again
-                bound.handle = self.client.scatter(bound.problem, broadcast=True, hash=False)
-        raise AssertionError("unreachable")  # pragma: no cover
-
-    def imap(self, fn, items):
-        import distributed
-
-        futures = [self.client.submit(_call, fn, item, self.threads, pure=False) for item in items]
-        index = {f.key: i for i, f in enumerate(futures)}
-        try:
-            for fut in distributed.as_completed(futures, loop=self.client.loop):
-                i = index[fut.key]
-                try:
-                    result = fut.result()
-                except Exception as exc:
-                    if _killed_worker(exc):
-                        exc = RuntimeError(
-                            f"killed {_allowed_failures()} Dask workers in a row (out of memory?)"
-                        )
-                    yield i, None, exc
-                    continue
-                yield i, result, None
-        finally:
-            for fut in futures:
-                fut.release()
-
-
-def _killed_worker(exc) -> bool:
-    return type(exc).__name__ == "KilledWorker"
-
-
-def _lost(exc) -> bool:
-    return "Cancelled" in type(exc).__name__ or "lost" in str(exc).lower()
-
-
-def _allowed_failures() -> int:
-    import dask
-
-    return int(dask.config.get("distributed.scheduler.allowed-failures", 3)) + 1

@@ -59,6 +59,8 @@ class LocalResult:
 
 def slsqp(problem, x0, settings: LocalSettings | None = None) -> LocalResult:
     """Refine ``x0`` (free-parameter vector inside the bounds) with bounded SLSQP."""
+    # long: the objective on the unit cube, its cached finite-difference
+    # gradient and the call share one problem's bounds and counts as closures
     from scipy.optimize import minimize  # imported here: a tenth of a second at start-up
 
     settings = settings or LocalSettings()

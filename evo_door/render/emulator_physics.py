@@ -95,6 +95,7 @@ def advance_effects(
     stiffness and mass up to :data:`MAX_SUBSTEPS` substeps (the most it takes: the
     time an advance takes stays bounded). Returns the last acceleration.
     """
+    # long: one compiled loop over the steps on purpose (the docstring says why)
     acc = np.zeros(3)
     f = np.zeros(3)
     v_free = np.zeros(3)

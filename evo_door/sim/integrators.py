@@ -104,7 +104,12 @@ class Prepared:
         return q
 
 
-#: model accel -> its :class:`Prepared` form
+#: model accel -> its :class:`Prepared` form: a registry, not a cache. A model's module
+#: fills it once, when imported (:func:`register_prepared`; the door does), and nothing
+#: changes it afterwards, so it holds one entry per model with a fast form. It is
+#: module-level because this layer sits below the models and may not name them: the
+#: kernels find a right-hand side's fast form by the function itself (the layers'
+#: registries, docs/architecture.md).
 _PREPARED: dict[object, Prepared] = {}
 
 

@@ -336,6 +336,8 @@ def force_angle_curve(
     >>> f"{c['closing'].max():.2f} N", f"{-c['opening'].min():.2f} N", c["speed"]
     ('13.00 N', '27.00 N', 0.0)
     """
+    # long: four steps of one grid, marked below (the checks, the dense scan,
+    # the refinement, the extremes); they share the scan's arrays and tolerance
     lo = float(model.theta_range[0] if lo is None else lo)
     hi = float(model.theta_range[1] if hi is None else hi)
     n = int(n)

@@ -49,21 +49,9 @@ def run_closed_loop(
     while k < n_max - 1 and not policy.finished:
         k1 = min(k + chunk, n_max - 1)
         force[k + 1 : k1 + 1] = policy.plan(t[k + 1 : k1 + 1], t[k], theta[k], dtheta[k])
-        r = simulate(
-            model,
-            params,
-            force[k : k1 + 1],
-            dt,
-            theta0=theta[k],
-            dtheta0=dtheta[k],
-            method=method,
-            substeps=substeps,
+        r = _simulate_chunk(
+            model, params, force[k : k1 + 1], dt, t[k], theta[k], dtheta[k], method, substeps
         )
-        if not r.ok:
-            raise UserError(
-                f"rig: the simulation of model {model.name!r} blew up at "
-                f"t = {t[k]:.3f} s; check the parameters or the integration settings"
-            )
         theta[k : k1 + 1], dtheta[k : k1 + 1], ddtheta[k : k1 + 1] = r.theta, r.dtheta, r.ddtheta
         policy.observe(t[k : k1 + 1], r.theta, r.dtheta)
         k = k1
@@ -75,6 +63,27 @@ def run_closed_loop(
         "dtheta": dtheta[:n],
         "ddtheta": ddtheta[:n],
     }
+
+
+def _simulate_chunk(model, params, force, dt, t0, theta0, dtheta0, method, substeps):
+    """One chunk of the loop from its first sample's state (a one-line error if the
+    simulation blows up, naming the time ``t0`` it started at)."""
+    r = simulate(
+        model,
+        params,
+        force,
+        dt,
+        theta0=theta0,
+        dtheta0=dtheta0,
+        method=method,
+        substeps=substeps,
+    )
+    if not r.ok:
+        raise UserError(
+            f"rig: the simulation of model {model.name!r} blew up at "
+            f"t = {t0:.3f} s; check the parameters or the integration settings"
+        )
+    return r
 
 
 def _run_truth_loop(truth, policy: Policy, dt, state0, t_max, chunk) -> dict:

@@ -107,6 +107,35 @@ def check_spec(spec) -> dict:
     evo_door.data.rig.spec.SpecError: rig specification: users: expected a whole number, got 'abc'
     """
     from evo_door.models import get_model
+
+    _check_keys(spec)
+    s = {**SPEC_DEFAULTS, **spec}
+    if not isinstance(s["model"], str) or not s["model"].strip():
+        raise SpecError("model", f"expected a model's name, got {_shown(s['model'])}")
+    try:
+        model = get_model(s["model"])
+    except UserError as exc:
+        raise SpecError("model", str(exc)) from None
+    _check_params(model, s)
+    rate = s["rate"]
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate):
+        raise SpecError("rate", f"expected a number of samples per second (Hz), got {_shown(rate)}")
+    if rate <= 0:
+        raise SpecError("rate", f"must be positive (Hz), got {rate:g}")
+    if not isinstance(s["all_sensors"], bool):
+        raise SpecError("all_sensors", f"expected true or false, got {_shown(s['all_sensors'])}")
+    s.update(
+        users=_whole(s, "users", 1),
+        trials=_whole(s, "trials", 1),
+        seed=_whole(s, "seed", 0),
+        kinds=_spec_kinds(model, s["kinds"]),
+        rate=float(rate),
+    )
+    return s
+
+
+def _check_keys(spec) -> None:
+    """A mapping whose every key is one of :data:`SPEC_DEFAULTS`."""
     from evo_door.params.declaration import suggest
 
     if not isinstance(spec, dict):
@@ -121,13 +150,14 @@ def check_spec(spec) -> dict:
                 + suggest(str(key), SPEC_DEFAULTS)
                 + f"; keys: {', '.join(SPEC_DEFAULTS)}",
             )
-    s = {**SPEC_DEFAULTS, **spec}
-    if not isinstance(s["model"], str) or not s["model"].strip():
-        raise SpecError("model", f"expected a model's name, got {_shown(s['model'])}")
-    try:
-        model = get_model(s["model"])
-    except UserError as exc:
-        raise SpecError("model", str(exc)) from None
+
+
+def _check_params(model, s: dict) -> None:
+    """``params`` and ``set`` of the specification ``s``: a set the model loads, each
+    ``set`` entry one of its parameters with a number it accepts (``set`` None becomes
+    an empty mapping in ``s``)."""
+    from evo_door.params.declaration import suggest
+
     params = s["params"]
     if isinstance(params, dict) and "from" in params:
         raise SpecError(
@@ -160,21 +190,6 @@ def check_spec(spec) -> dict:
         base.replace({str(k): float(v) for k, v in s["set"].items()})
     except UserError as exc:
         raise SpecError("set", str(exc)) from None
-    rate = s["rate"]
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate):
-        raise SpecError("rate", f"expected a number of samples per second (Hz), got {_shown(rate)}")
-    if rate <= 0:
-        raise SpecError("rate", f"must be positive (Hz), got {rate:g}")
-    if not isinstance(s["all_sensors"], bool):
-        raise SpecError("all_sensors", f"expected true or false, got {_shown(s['all_sensors'])}")
-    s.update(
-        users=_whole(s, "users", 1),
-        trials=_whole(s, "trials", 1),
-        seed=_whole(s, "seed", 0),
-        kinds=_spec_kinds(model, s["kinds"]),
-        rate=float(rate),
-    )
-    return s
 
 
 def trials_from_spec(spec: dict) -> list[Trial]:

@@ -26,6 +26,8 @@ def draw_mechanism(params, angles_deg=(0.0, 45.0, 90.0), path=None, title=None):
     of the ``door`` model. Returns the matplotlib figure; saves it when ``path`` is
     given.
     """
+    # long: one figure: the common limits, then per angle the parts of the
+    # linkage drawn in the order they are built; a helper per part would hide that order
     from matplotlib.figure import Figure
 
     angles = [float(a) for a in angles_deg]

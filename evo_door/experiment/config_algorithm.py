@@ -1,0 +1,130 @@
+"""The ``objective`` and ``algorithm`` sections of an experiment: how the fit searches.
+
+The objective (max-square or ISE, on which derivative, how trials combine) and the
+algorithm: the GA's settings, the local method (SLSQP) as polish or alone (``nlpql``),
+and a start point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+from evo_door.experiment.config_reader import _Reader
+from evo_door.optim.ga import GASettings
+from evo_door.optim.kernels import KINDS
+from evo_door.optim.local import LocalSettings
+from evo_door.optim.problem import COMBINE, Objective
+from evo_door.params.declaration import suggest
+
+OBJECTIVE_KEYS = ("kind", "derivative", "combine")
+GA_KEYS = tuple(f.name for f in fields(GASettings))
+#: the SLSQP settings an experiment may set (the finite-difference step stays internal)
+LOCAL_KEYS = ("max_iterations", "ftol")
+ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, "start")
+ALGORITHM_KINDS = ("ga", "nlpql")
+POLISH = ("none", "slsqp")
+
+
+@dataclass
+class AlgorithmSpec:
+    """The ``algorithm`` section: GA settings, local method, polish and start point."""
+
+    kind: str = "ga"
+    ga: GASettings = field(default_factory=GASettings)
+    polish: str = "none"
+    local: LocalSettings = field(default_factory=LocalSettings)
+    start: dict = field(default_factory=dict)
+
+    def resolved(self) -> dict:
+        """The section as plain data, every default filled in (as results files store it)."""
+        return {
+            "kind": self.kind,
+            **asdict(self.ga),
+            "polish": self.polish,
+            **asdict(self.local),
+            "start": dict(self.start),
+        }
+
+    @classmethod
+    def from_resolved(cls, data: dict) -> AlgorithmSpec:
+        """The inverse of :meth:`resolved` (keys added since a file was written take
+        their defaults)."""
+        return cls(
+            kind=data["kind"],
+            ga=GASettings(**{k: data[k] for k in GA_KEYS if k in data}),
+            polish=data["polish"],
+            local=LocalSettings(
+                **{f.name: data[f.name] for f in fields(LocalSettings) if f.name in data}
+            ),
+            start=dict(data.get("start") or {}),
+        )
+
+
+def _objective(reader: _Reader) -> Objective:
+    o = _Reader(reader.get("objective"), "objective", reader.node.where("objective"))
+    o.check_keys(OBJECTIVE_KEYS)
+    return Objective(
+        kind=o.choice("kind", "max_square", tuple(KINDS)),
+        derivative=o.choice("derivative", 1, (0, 1, 2)),
+        combine=o.choice("combine", "sum", COMBINE),
+    )
+
+
+def _algorithm(reader: _Reader) -> AlgorithmSpec:
+    a = _Reader(reader.get("algorithm"), "algorithm", reader.node.where("algorithm"))
+    a.check_keys(ALGORITHM_KEYS)
+    ga = _ga_settings(a)
+    ld = LocalSettings()
+    local = LocalSettings(
+        max_iterations=a.integer("max_iterations", ld.max_iterations, lo=1),
+        ftol=a.number("ftol", ld.ftol, 0.0, open_lo=True),
+    )
+    kind = a.choice("kind", "ga", ALGORITHM_KINDS)
+    polish = _polish(a, kind)
+    start = a.get("start") or {}
+    if not isinstance(start, dict):
+        raise a.fail("start", "expected a mapping of free parameter names to start values")
+    return AlgorithmSpec(
+        kind=kind, ga=ga, polish=polish, local=local, start={str(k): v for k, v in start.items()}
+    )
+
+
+def _ga_settings(a: _Reader) -> GASettings:
+    """The GA's settings of the section, each checked (defaults: :class:`GASettings`)."""
+    d = GASettings()
+    for key in ("reproduction_ratio", "mutation_probability"):
+        v = a.get(key)
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and 1 < v <= 100:
+            raise a.fail(key, f"is a fraction in [0, 1]: AMESim's {v:g} % is {v / 100:g}")
+    population = a.integer("population", d.population, lo=2)
+    return GASettings(
+        population=population,
+        generations=a.integer("generations", d.generations, lo=0),
+        reproduction_ratio=a.number("reproduction_ratio", d.reproduction_ratio, 0.0, 1.0),
+        mutation_probability=a.number("mutation_probability", d.mutation_probability, 0.0, 1.0),
+        mutation_amplitude=a.number("mutation_amplitude", d.mutation_amplitude, 0.0, open_lo=True),
+        seed=a.integer("seed", d.seed, lo=0),
+        elite=a.integer("elite", d.elite, lo=0, hi=population - 1),
+        # the default tournament (3) shrinks to a smaller population; a given one must fit
+        tournament=a.integer("tournament", min(d.tournament, population), lo=1, hi=population),
+        crossover_eta=a.number("crossover_eta", d.crossover_eta, 0.0, open_lo=True),
+        hall_of_fame=a.integer("hall_of_fame", d.hall_of_fame, lo=1),
+        target_fitness=a.number("target_fitness", None, lo=0.0, allow_none=True),
+        patience=(None if a.get("patience") is None else a.integer("patience", None, lo=1)),
+    )
+
+
+def _polish(a: _Reader, kind: str) -> str:
+    """The local method run after the GA: none (also written false or left empty) or slsqp."""
+    polish = a.get("polish", "none")
+    if polish is None or polish is False:
+        polish = "none"
+    if polish not in POLISH:
+        raise a.fail(
+            "polish",
+            f"{polish!r} is not one of {', '.join(POLISH)}"
+            + (suggest(polish, POLISH) if isinstance(polish, str) else ""),
+        )
+    if kind == "nlpql" and polish != "none":
+        raise a.fail("polish", "kind nlpql is already the local method; leave polish out")
+    return polish

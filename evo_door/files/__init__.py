@@ -1,0 +1,97 @@
+"""Writing files safely, and the one way metadata is stored in HDF5.
+
+Every file evo-door writes (trials, results files, parameter sets, CSV tables,
+figures) goes through :func:`atomic_write`: the content is written under a temporary
+name in the target's folder, flushed to the disk (``fsync``) and renamed over the
+target (``os.replace``, atomic on POSIX and Windows). A crash at any moment leaves
+either the previous file or the new one, never half of one; HDF5 in particular is not
+crash-safe while a file is open for writing.
+
+:class:`FileLock` is an advisory lock on a file that one process owns while it works on
+it (a run writing its results file), so that two processes never write one file.
+
+:func:`claim_outputs` is the one rule of what a command may write over, which every
+command that writes a file calls before it starts its work (see its docstring).
+
+HDF5 files are written from a nested dict, the *tree* (:func:`write_h5`)::
+
+    {"@attrs": {"format": "evo-door run", "seed": 1, "free": ["mass", "F_load"]},
+     "best": {"@attrs": {...}, "x": np.array([...])},
+     "trials": Keep(build)}          # copied unchanged from the file being replaced
+
+A dict is a group and its ``"@attrs"`` entry the group's attributes; an array (or a
+list of numbers) is a dataset, a :class:`Dataset` a dataset with attributes, a str a
+scalar text dataset. Attributes hold str, int, float and bool as they are; anything
+else (dict, list, None) is stored as JSON text behind the prefix ``json:``
+(:func:`encode_attr`), and so is a str that itself starts with ``json:``, so that
+reading is never ambiguous (:func:`decode_attr`). Files written by evo-door 0.1 with
+the older encoding (a ``NAME.__json__`` flag beside the attribute) still read.
+
+One module per question, all imported here (``from evo_door.files import ...``):
+
+- :mod:`~evo_door.files.atomic`: how is a file written so that a crash leaves no half
+  of it? (atomic writes, text, figures, the temporaries a killed writer left)
+- :mod:`~evo_door.files.claims`: may this command write over that file?
+- :mod:`~evo_door.files.locks`: who owns this file while a run writes it?
+- :mod:`~evo_door.files.metadata`: how is metadata (attributes) stored in HDF5?
+- :mod:`~evo_door.files.h5tree`: how is a nested dict written to and read from HDF5?
+"""
+
+from evo_door.files.atomic import (
+    atomic_write,
+    check_folder,
+    check_image_path,
+    read_text,
+    remove_stale_temporaries,
+    save_figure,
+    write_text,
+)
+from evo_door.files.claims import DERIVED, TRIALS, Claim, Output, claim_outputs, same_file
+from evo_door.files.h5tree import Dataset, Keep, h5py, open_h5, read_group, write_group, write_h5
+from evo_door.files.locks import FileLock
+from evo_door.files.metadata import (
+    ATTRS,
+    JSON_PREFIX,
+    attrs_tree,
+    decode_attr,
+    encode_attr,
+    jsonable,
+    read_attrs,
+    to_json,
+    tree_attrs,
+    write_attrs,
+)
+
+__all__ = [
+    "ATTRS",
+    "DERIVED",
+    "JSON_PREFIX",
+    "TRIALS",
+    "Claim",
+    "Dataset",
+    "FileLock",
+    "Keep",
+    "Output",
+    "atomic_write",
+    "attrs_tree",
+    "check_folder",
+    "check_image_path",
+    "claim_outputs",
+    "decode_attr",
+    "encode_attr",
+    "h5py",
+    "jsonable",
+    "open_h5",
+    "read_attrs",
+    "read_group",
+    "read_text",
+    "remove_stale_temporaries",
+    "same_file",
+    "save_figure",
+    "to_json",
+    "tree_attrs",
+    "write_attrs",
+    "write_group",
+    "write_h5",
+    "write_text",
+]
