@@ -423,7 +423,7 @@ class RenderLog:
 
     def _write(self, path, chunks, n: int, loop_rate, device, statistics) -> None:
         """The log from ``chunks`` (arrays of rows, ``n`` rows in all), a chunk at a time."""
-        from evo_door.data.h5io import FORMAT, FORMAT_VERSION, _trial_tree
+        from evo_door.data.h5io import FORMAT, FORMAT_VERSION, trial_tree
         from evo_door.files import atomic_write, h5py, write_group
 
         chunks = iter(chunks)
@@ -432,7 +432,7 @@ class RenderLog:
             lead.append(c)
         two = np.concatenate(lead)[:2] if lead else np.zeros((0, N_COLUMNS))
         tr = self._trial(two, device)  # the trial's attributes (and the two-row minimum)
-        trial = _trial_tree(tr)
+        trial = trial_tree(tr)
         trial[ATTRS]["n_samples"] = n
         channels = {name: trial.pop(name).attrs for name in ("t", "force", "theta", "dtheta")}
         render = {
