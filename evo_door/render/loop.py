@@ -23,10 +23,7 @@ statistics (mean period, p99 lateness, missed cycles) say how well it kept time.
 
 from __future__ import annotations
 
-import gc
 import math
-import os
-import sys
 import threading
 import time
 
@@ -50,6 +47,7 @@ from evo_door.models.haptic import (
 from evo_door.params import param_vector
 from evo_door.render.friction import implicit_coulomb
 from evo_door.render.log import N_COLUMNS, RenderLog
+from evo_door.render.priority import Pacing
 from evo_door.render.safety import IMPLICIT, NON_FINITE, Watchdog, check_passive, limit_force
 
 #: dry-friction laws of the loop: the implicit (set-valued) Coulomb law, the default,
@@ -59,48 +57,6 @@ FRICTION_LAWS = ("implicit", "tanh")
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
-#: the niceness of a paced loop's thread (-20 highest, 0 normal), where real-time
-#: scheduling is not permitted but this is
-_NICENESS = -20
-#: the real-time priority (SCHED_FIFO, 1-99) of a paced loop's thread, where permitted:
-#: above every normal thread on its core, below the kernel's own real-time threads
-_RT_PRIORITY = 10
-#: ... and of the process's other threads meanwhile (the control port, the log's spill):
-#: they share the loop's interpreter lock, and a normal thread that the scheduler
-#: preempts while holding it stalls the loop for milliseconds (a priority inversion)
-_RT_PRIORITY_OTHERS = 5
-#: a real-time loop sleeps until this long (s) before its slot, then spins: it wakes
-#: within tens of microseconds, and while it sleeps the core and the interpreter are free
-_RT_SPIN = 1.5e-4
-#: the interpreter's thread switch interval while a paced loop runs (s; default 5 ms)
-_SWITCH_INTERVAL = 1e-4
-
-
-def _set_other_threads(own: int, policy: int, priority: int, only=None) -> int:
-    """Set the scheduling of this process's threads but ``own`` (Linux); how many took it.
-
-    ``only``: change only the real-time threads at that priority (to undo). Threads
-    started later inherit their creator's scheduling: the control port's handlers do.
-    """
-    try:
-        tids = [int(name) for name in os.listdir("/proc/self/task")]
-    except OSError:
-        return 0
-    done = 0
-    for t in tids:
-        if t == own:
-            continue
-        try:
-            if only is not None and (
-                os.sched_getscheduler(t) != os.SCHED_FIFO
-                or os.sched_getparam(t).sched_priority != only
-            ):
-                continue
-            os.sched_setscheduler(t, policy, os.sched_param(priority))
-            done += 1
-        except OSError:  # gone meanwhile, or not permitted
-            pass
-    return done
 
 
 @njit(cache=True)
@@ -405,13 +361,13 @@ class ServoLoop:
         self.device_name = device_name or type(device).__name__
         self.rate = float(rate)
         self.period = 1.0 / self.rate
-        self._realtime_sched = False  # the loop thread runs under SCHED_FIFO (run)
         self.clamp = bool(clamp)
         self.limit = _device_number(device, "max_force", 200.0, "N", positive=True)
         self.damping = _device_number(device, "damping", 0.0, "N s/m")
         self.simulated = bool(getattr(device, "simulated", False))
         self.realtime = (not self.simulated) if realtime is None else bool(realtime)
         self.log = RenderLog(log_rate, PARAMS)
+        self.pacing = Pacing(self.log)  # a paced loop's priority and wait for its slot
         self.watchdog = Watchdog(watchdog_misses, ramp_time)
         self.supervisor = supervisor
         self._lock = threading.Lock()  # guards _pending between the loop and the rest
@@ -588,16 +544,7 @@ class ServoLoop:
         self.status = "running"
         self.t0 = self.t_end = 0.0
         k = 0
-        # a paced loop must not stop for a cyclic garbage collection (tens of ms);
-        # reference counting still frees the per-cycle arrays
-        gc_was_enabled = gc.isenabled()
-        switch_interval = sys.getswitchinterval()
-        niceness = None
-        if self.realtime:
-            gc.disable()
-            # another thread holding the GIL gives it back after 0.1 ms, not 5 ms
-            sys.setswitchinterval(_SWITCH_INTERVAL)
-            niceness = self._raise_priority()
+        self.pacing.begin(self.realtime)
         try:
             # load both kernels now (numba's cache: milliseconds), not in the first slot
             compute_command(pos, vel, user, self._p, self.limit, cmd, row)
@@ -624,7 +571,7 @@ class ServoLoop:
             while k < n_cycles and not (stop is not None and stop.is_set()):
                 t = k * T
                 if self.realtime:
-                    now = self._wait_until(t0, t)
+                    now = self.pacing.wait_until(t0, t)
                     late = now - t
                     if late > T:  # missed its slot: count, skip ahead, keep the schedule
                         skip = min(int(late / T), n_cycles - k)  # none past the end
@@ -711,11 +658,7 @@ class ServoLoop:
             self.status = "failed"
             raise
         finally:
-            if gc_was_enabled:
-                gc.enable()
-            sys.setswitchinterval(switch_interval)
-            if niceness is not None:
-                self._restore_priority(niceness)
+            self.pacing.end()
             self.t_end = time.perf_counter()
             if self.supervisor is not None:  # first: a normal end is no stall
                 self._disarm_supervisor()
@@ -762,101 +705,6 @@ class ServoLoop:
         if self.watchdog.tripped:
             return "watchdog"
         return "stopped" if stopped else "done"
-
-    def _raise_priority(self):
-        """Give this thread (the loop's) precedence over the machine's other work.
-
-        A paced loop holds its core; anything else the scheduler runs there (a browser
-        drawing the console, the console's process, a test suite) costs it whole
-        periods. In order of preference, where permitted (Linux: per thread):
-
-        * real-time scheduling (SCHED_FIFO, priority ``_RT_PRIORITY``): no normal
-          thread runs on the loop's core while it wants it, and it can sleep between
-          cycles (``_wait_until``) because it wakes on time;
-        * niceness ``_NICENESS``: a larger share of the core, but a sleep would wake
-          late, so the loop spins;
-        * neither: normal priority, said in the log.
-
-        The kernel keeps 5 % of every second from real-time threads by default
-        (``sched_rt_runtime_us``), so a loop that never sleeps (its cycle longer than
-        its period) cannot lock the core up; it misses cycles and the watchdog trips.
-        Returns what ``_restore_priority`` needs.
-        """
-        tid = threading.get_native_id()
-        cpus = None
-        try:  # one core of its own when there are several: no migrations
-            cpus = os.sched_getaffinity(0)
-            if len(cpus) > 1:
-                os.sched_setaffinity(0, {max(cpus)})
-        except (OSError, AttributeError):
-            cpus = None
-        self._realtime_sched = False
-        try:
-            policy = os.sched_getscheduler(0)
-            param = os.sched_getparam(0)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(_RT_PRIORITY))
-        except (OSError, AttributeError) as exc:
-            rt_refused = exc
-        else:
-            self._realtime_sched = True
-            others = _set_other_threads(tid, os.SCHED_FIFO, _RT_PRIORITY_OTHERS)
-            self.log.event(
-                0.0,
-                "priority",
-                f"loop thread real-time (SCHED_FIFO, priority {_RT_PRIORITY}); "
-                f"{others} other thread(s) of the process at priority {_RT_PRIORITY_OTHERS}",
-            )
-            return tid, None, cpus, (policy, param)
-        try:
-            before = os.getpriority(os.PRIO_PROCESS, tid)
-            os.setpriority(os.PRIO_PROCESS, tid, _NICENESS)
-        except (OSError, AttributeError) as exc:  # not permitted, or not this OS
-            self.log.event(0.0, "priority", f"normal priority ({rt_refused}; {exc})")
-            return (tid, None, cpus, None)
-        self.log.event(
-            0.0,
-            "priority",
-            f"loop thread at niceness {_NICENESS} (was {before}); real-time refused: {rt_refused}",
-        )
-        return tid, before, cpus, None
-
-    def _restore_priority(self, saved) -> None:
-        tid, before, cpus, sched = saved
-        self._realtime_sched = False
-        try:
-            if sched is not None:
-                os.sched_setscheduler(0, *sched)
-                _set_other_threads(tid, os.SCHED_OTHER, 0, only=_RT_PRIORITY_OTHERS)
-            if before is not None:
-                os.setpriority(os.PRIO_PROCESS, tid, before)
-            if cpus is not None:
-                os.sched_setaffinity(0, cpus)
-        except OSError:  # lowering a priority back may need no permission; never fatal
-            pass
-
-    def _wait_until(self, t0: float, t: float) -> float:
-        """Wait for the slot at ``t`` (s after ``t0``): sleep while it is far, then spin.
-
-        A real-time loop (``_raise_priority``) sleeps until ``_RT_SPIN`` before the
-        slot: it wakes within tens of microseconds, and the sleep leaves the
-        interpreter to the process's other threads (the control port) and the core to
-        the rest of the machine. Otherwise the loop spins from 1.5 ms before: a normal
-        thread's sleep wakes 50-100 us late, more on a busy core. The spin holds the
-        interpreter; the other threads get it at the switch interval, 0.1 ms while a
-        paced loop runs (``run``). A ``time.sleep(0)`` per turn served them sooner
-        but, being a system call, let the scheduler take the core from the loop: 2-3 %
-        more cycles late with a browser drawing the console (``benchmarks/console.md``)."""
-        if self._realtime_sched:
-            far, early = _RT_SPIN, _RT_SPIN
-        else:
-            far, early = 0.002, 0.0015
-        while True:
-            now = time.perf_counter() - t0
-            left = t - now
-            if left <= 0:
-                return now
-            if left > far:
-                time.sleep(left - early)
 
     def _recheck(self, measured: float, t: float) -> None:
         """Passivity again with the measured period (over TCP, the round trip)."""
