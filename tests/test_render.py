@@ -17,8 +17,9 @@ from evo_door.files import open_h5, read_attrs
 from evo_door.models.haptic import PARAMS, device_force, on_path
 from evo_door.params import param_vector
 from evo_door.render.device import SimDevice, UserScript
+from evo_door.render.kernels import compute_command
 from evo_door.render.log import N_COLUMNS, RenderLog
-from evo_door.render.loop import ServoLoop, compute_command
+from evo_door.render.loop import ServoLoop
 from evo_door.render.safety import (
     IMPLICIT,
     NON_FINITE,
