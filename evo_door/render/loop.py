@@ -1,24 +1,27 @@
 """The servo loop: read the device, evaluate the haptic model, command the force.
 
-Each cycle (:meth:`ServoLoop.run`):
+Each cycle (:meth:`ServoLoop._cycle`; :meth:`ServoLoop.run` paces and repeats it):
 
 1. a pending parameter change (:meth:`ServoLoop.request_change`, validated when asked)
    comes into force, whole: changes happen only between two cycles;
 2. ``device.read()``: position, velocity, measured user force;
-3. :func:`compute_command_implicit` (compiled, the default): the haptic model's
-   device-space force (:func:`~evo_door.models.haptic.device_force`) without its
-   dry friction, plus that friction rendered by the implicit Coulomb law for the
-   device's mass and the loop period (stable at any level, holds still below it);
-   or, with ``friction="tanh"``, :func:`compute_command`: the model's force as it
-   is, tanh friction included (rings above 2 m v_s / T). Either made safe
-   (:func:`~evo_door.render.safety.limit_force`: finite, within the device limit),
-   and the door's state for the log (theta, dtheta, tangential user force);
+3. :func:`~evo_door.render.kernels.compute_command_implicit` (compiled, the default):
+   the haptic model's device-space force (:func:`~evo_door.models.haptic.device_force`)
+   without its dry friction, plus that friction rendered by the implicit Coulomb law
+   for the device's mass and the loop period (stable at any level, holds still below
+   it); or, with ``friction="tanh"``, :func:`~evo_door.render.kernels.compute_command`:
+   the model's force as it is, tanh friction included (rings above 2 m v_s / T).
+   Either made safe (:func:`~evo_door.render.safety.limit_force`: finite, within the
+   device limit), and the door's state for the log (theta, dtheta, tangential user
+   force);
 4. ``device.command(force)``, ``device.step(T)`` (simulated devices only move here);
 5. the log row, the watchdog.
 
 A simulated device runs in simulated time, as fast as the machine allows, unless
-``realtime``; a real device paces the loop on ``time.perf_counter`` and the period
-statistics (mean period, p99 lateness, missed cycles) say how well it kept time.
+``realtime``; a real device paces the loop on ``time.perf_counter``
+(:mod:`evo_door.render.priority`: its thread's priority and the wait for each slot)
+and the period statistics (:mod:`evo_door.render.timing`: mean period, p99 lateness,
+missed cycles) say how well it kept time.
 """
 
 from __future__ import annotations
@@ -71,6 +74,20 @@ def _device_number(device, name: str, default: float, unit: str, positive=False)
     return value
 
 
+def _check_settings(rate, params, log_rate, ramp_time, friction) -> None:
+    """A UserError for a loop setting out of its range (ServoLoop's arguments)."""
+    if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
+        raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
+    if getattr(params, "model", None) != "haptic":
+        raise UserError("the renderer takes a parameter set of the 'haptic' model")
+    if not (math.isfinite(log_rate) and 1.0 <= log_rate <= rate):
+        raise UserError(f"--log-rate {log_rate:g}: give a log rate in 1..{rate:g} Hz (the loop's)")
+    if not 0.0 < ramp_time <= 0.01:
+        raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
+    if friction not in FRICTION_LAWS:
+        raise UserError(f"--friction {friction!r}: choose one of {', '.join(FRICTION_LAWS)}")
+
+
 class ServoLoop:
     """Renders a haptic parameter set on ``device``.
 
@@ -115,18 +132,7 @@ class ServoLoop:
         friction: str = "implicit",
         supervisor=None,
     ):
-        if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
-            raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
-        if getattr(params, "model", None) != "haptic":
-            raise UserError("the renderer takes a parameter set of the 'haptic' model")
-        if not (math.isfinite(log_rate) and 1.0 <= log_rate <= rate):
-            raise UserError(
-                f"--log-rate {log_rate:g}: give a log rate in 1..{rate:g} Hz (the loop's)"
-            )
-        if not 0.0 < ramp_time <= 0.01:
-            raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
-        if friction not in FRICTION_LAWS:
-            raise UserError(f"--friction {friction!r}: choose one of {', '.join(FRICTION_LAWS)}")
+        _check_settings(rate, params, log_rate, ramp_time, friction)
         self.friction = friction
         self.device = device
         self.device_name = device_name or type(device).__name__
@@ -161,6 +167,11 @@ class ServoLoop:
         #: perf_counter at the first cycle and when the loop ended (s; 0 until then)
         self.t0 = 0.0
         self.t_end = 0.0
+        self._now = 0.0  # the loop time of the current cycle (s)
+        self._k = 0  # cycles run
+        self._sent = 0.0  # when the last command went (perf_counter, s; paced loops)
+        self._stall_limit = 0.0  # a gap between two commands this long is a stall (s)
+        self._new_buffers()
 
     # -- parameter changes ---------------------------------------------------------
     def request_change(self, values: dict):
@@ -184,8 +195,6 @@ class ServoLoop:
             with self._lock:
                 self._pending = (new, {**before, **values}, changes)
         return new
-
-    _now = 0.0
 
     @property
     def pending(self) -> bool:
@@ -229,8 +238,6 @@ class ServoLoop:
         """The loop's timing so far, for a display (any thread): the statistics of
         :meth:`run`'s end, computed now."""
         return self._stats(self._k)
-
-    _k = 0
 
     def _passive(self, params):
         """Colgate-Schenkel at the period in force, without what is not sampled explicitly."""
@@ -293,155 +300,231 @@ class ServoLoop:
         ``status`` is ``done``, ``stopped`` (by ``stop``), ``watchdog`` or ``failed``
         (the loop raised). The device is stopped on the way out, whatever happened.
         """
+        n_cycles = self._cycles(duration, stop)
+        self._set_up()
+        self.pacing.begin(self.realtime)
+        k = 0
+        try:
+            self._start()
+            while k < n_cycles and not (stop is not None and stop.is_set()):
+                k, now, late = self._pace(k, n_cycles)
+                if k >= n_cycles:
+                    break  # the slots it missed reached the end
+                if not self._cycle(k * self.period, now, late):
+                    break  # the tripped watchdog's ramp reached zero force
+                k += 1
+                self._k = k
+        except BaseException:
+            self.status = "failed"
+            raise
+        finally:
+            self._end(k, n_cycles, stop)
+        return self.statistics
+
+    def _cycles(self, duration: float | None, stop: threading.Event | None) -> float:
+        """How many cycles ``run`` runs (inf: until ``stop``); a UserError for neither."""
         if duration is None and stop is None:
             raise UserError("give a duration or a stop event")
         if duration is not None and not (math.isfinite(duration) and duration > 0):
             raise UserError(f"--duration {duration:g}: must be > 0 s")
-        n_cycles = math.inf if duration is None else int(round(duration * self.rate))
-        T = self.period
-        dev = self.device
-        implicit = self.friction == "implicit"
-        cmd = np.zeros(3)
-        last = np.zeros(3)
-        row = np.zeros(N_COLUMNS)
-        pos = np.zeros(3)
-        vel = np.zeros(3)
-        user = np.zeros(3)
-        timing = self.timing = LoopTiming(T)
+        return math.inf if duration is None else int(round(duration * self.rate))
+
+    def _new_buffers(self) -> None:
+        """The arrays a cycle reads into and writes to (the kernels allocate nothing)."""
+        self._pos = np.zeros(3)  # m, device frame
+        self._vel = np.zeros(3)  # m/s
+        self._user = np.zeros(3)  # N, the measured user force
+        self._cmd = np.zeros(3)  # N, the force to command
+        self._last = np.zeros(3)  # N, the last force the device took (the ramp's start)
+        self._row = np.zeros(N_COLUMNS)  # the cycle's log row
+
+    def _set_up(self) -> None:
+        """Before a run: fresh buffers and timing; the set in force and the friction law
+        (and a clamp at start) logged at time 0."""
+        self._new_buffers()
+        self.timing = LoopTiming(self.period)
         self.log.params(0.0, self._set_vector())
         self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
         self.status = "running"
         self.t0 = self.t_end = 0.0
-        k = 0
-        self.pacing.begin(self.realtime)
+
+    def _start(self) -> None:
+        """Just before the first cycle: the kernels loaded, the device started and told
+        what it renders, the clock's origin ``t0`` taken, the supervisor armed."""
+        T = self.period
+        pos, vel, user, cmd, row = self._pos, self._vel, self._user, self._cmd, self._row
+        # load both kernels now (numba's cache: milliseconds), not in the first slot
+        compute_command(pos, vel, user, self._p, self.limit, cmd, row)
+        compute_command_implicit(
+            pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
+        )
+        cmd[:] = 0.0
+        # a device over a link counts as stalled after the watchdog's budget without
+        # an answer (the device applies its own floor): its read then fails, which
+        # trips the watchdog, and the loop ends at the next command
+        watch_stalls = getattr(self.device, "watch_stalls", None)
+        if watch_stalls is not None:
+            watch_stalls(self.watchdog.misses * T)
+        self.device.start()
+        self._set_native()
+        self._set_vectors()
+        self._set_mass()
+        self.t0 = self._sent = time.perf_counter()
+        self._stall_limit = (self.watchdog.misses + 1) * T
+        if self.supervisor is not None:
+            self.supervisor.arm()
+
+    def _pace(self, k: int, n_cycles: float) -> tuple[int, float, float]:
+        """Wait for cycle ``k``'s slot (paced loops); returns ``(k, now, late)``.
+
+        ``now`` is the time (s after ``t0``) the cycle starts, ``late`` (s) how long
+        after its slot. A paced loop that missed its slot counts the slots missed and
+        skips ahead, keeping its schedule (``k`` grows; to ``n_cycles`` at most); a
+        loop in simulated time starts each cycle at its slot, on time.
+        """
+        T = self.period
+        t = k * T
+        if not self.realtime:
+            return k, t, 0.0
+        now = self.pacing.wait_until(self.t0, t)
+        late = now - t
+        if late > T:  # missed its slot: count, skip ahead, keep the schedule
+            skip = min(int(late / T), n_cycles - k)  # none past the end
+            self.timing.missed += skip
+            k += skip
+            if k >= n_cycles:
+                return k, now, late
+        self.timing.start(now, late)
+        return k, now, late
+
+    def _cycle(self, t: float, now: float, late: float) -> bool:
+        """One servo cycle at loop time ``t`` (s), started at ``now`` (s after ``t0``),
+        ``late`` (s) after its slot.
+
+        1. a waiting parameter change comes into force, whole;
+        2. the device is read (a failed read trips the watchdog);
+        3. the stall rule (paced loops): too long since the last command trips the
+           watchdog (:meth:`_check_stall`);
+        4. the force: while the watchdog is tripped, the last force ramped down
+           (:meth:`_ramp_down`); else the kernel's, commanded (:meth:`_command`);
+        5. the supervisor's heartbeat, the device's step (a simulated device moves),
+           the log row, the cycle's work timed, the watchdog fed;
+        6. once, after :data:`_RECHECK_AFTER` paced cycles: passivity with the period
+           measured (:meth:`_recheck`).
+
+        Returns False when the loop ends here: the ramp reached zero force.
+        """
+        tic = time.perf_counter()
+        watchdog = self.watchdog
+        self._now = t
+        self._apply_pending(t)
+        self._read(t, now)
+        if self.realtime and not watchdog.tripped:
+            self._sent = self._check_stall(self._sent, self._stall_limit)
+            if watchdog.tripped:  # the ramp starts after the stall, not before
+                now = self._sent - self.t0
+        if watchdog.tripped:
+            if not self._ramp_down(t, now):
+                return False
+        else:
+            self._command(t, now)
+        if self.supervisor is not None:
+            self.supervisor.beat()
+        self.device.step(self.period)
+        self.log.add(t, self._row)
+        self.timing.worked_for(time.perf_counter() - tic)
+        watchdog.cycle(now, late > self.period)
+        if watchdog.tripped and watchdog.tripped_at == now:
+            self.log.event(t, "watchdog", watchdog.reason)
+        # paced cycles run (not slots); not once tripped (a stall's gap is no period)
+        if self.realtime and self.timing.starts == _RECHECK_AFTER and not watchdog.tripped:
+            self._recheck(self.timing.period_mean(), t)
+        return True
+
+    def _read(self, t: float, now: float) -> None:
+        """The device's position, velocity and measured force into the cycle's arrays;
+        a read that fails (a dropped connection, a device error) trips the watchdog."""
         try:
-            # load both kernels now (numba's cache: milliseconds), not in the first slot
-            compute_command(pos, vel, user, self._p, self.limit, cmd, row)
-            compute_command_implicit(
-                pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
+            p_, v_, f_ = self.device.read()
+            self._pos[:] = p_
+            self._vel[:] = v_
+            self._user[:] = f_
+        except Exception as exc:
+            self.watchdog.trip(now, f"device read failed: {exc}")
+            self.log.event(t, "fault", f"device read failed: {exc}")
+
+    def _command(self, t: float, now: float) -> None:
+        """The kernel's force and log row for the state read, counted when it was not
+        finite or was limited, then commanded; a command that fails trips the watchdog."""
+        cmd = self._cmd
+        if self.friction == "implicit":
+            code = compute_command_implicit(
+                self._pos,
+                self._vel,
+                self._user,
+                self._p,
+                self._p_free,
+                self._mass,
+                self._check_period,
+                self.damping,
+                self.limit,
+                cmd,
+                self._row,
             )
-            cmd[:] = 0.0
-            # a device over a link counts as stalled after the watchdog's budget without
-            # an answer (the device applies its own floor): its read then fails, which
-            # trips the watchdog, and the loop ends at the next command
-            watch_stalls = getattr(dev, "watch_stalls", None)
-            if watch_stalls is not None:
-                watch_stalls(self.watchdog.misses * T)
-            dev.start()
-            self._set_native()
-            self._set_vectors()
-            self._set_mass()
-            t0 = self.t0 = time.perf_counter()
-            sent = t0  # when the last command went (perf_counter, s)
-            stall_limit = (self.watchdog.misses + 1) * T  # a gap this long is a stall
-            sup = self.supervisor
-            if sup is not None:
-                sup.arm()
-            while k < n_cycles and not (stop is not None and stop.is_set()):
-                t = k * T
-                if self.realtime:
-                    now = self.pacing.wait_until(t0, t)
-                    late = now - t
-                    if late > T:  # missed its slot: count, skip ahead, keep the schedule
-                        skip = min(int(late / T), n_cycles - k)  # none past the end
-                        timing.missed += skip
-                        k += skip
-                        if k >= n_cycles:
-                            break
-                        t = k * T
-                    timing.start(now, late)
-                else:
-                    now = t
-                    late = 0.0
-                tic = time.perf_counter()
-                self._now = t
-                self._apply_pending(t)
-                try:
-                    p_, v_, f_ = dev.read()
-                    pos[:] = p_
-                    vel[:] = v_
-                    user[:] = f_
-                except Exception as exc:  # a dropped connection, a device error
-                    self.watchdog.trip(now, f"device read failed: {exc}")
-                    self.log.event(t, "fault", f"device read failed: {exc}")
-                if self.realtime and not self.watchdog.tripped:
-                    sent = self._check_stall(sent, stall_limit)
-                    if self.watchdog.tripped:  # the ramp starts after the stall, not before
-                        now = sent - t0
-                if self.watchdog.tripped:
-                    factor = self.watchdog.factor(now)
-                    cmd[:] = last * factor
-                    row[9:12] = cmd
-                    try:
-                        dev.command(cmd)
-                    except Exception:  # the connection is gone: nothing more to send
-                        factor = 0.0
-                    if factor == 0.0:
-                        if self.watchdog.tripped_at == now:  # tripped and ended at once
-                            self.log.event(t, "watchdog", self.watchdog.reason)
-                        self.log.add(t, row)
-                        break
-                else:
-                    if implicit:
-                        code = compute_command_implicit(
-                            pos,
-                            vel,
-                            user,
-                            self._p,
-                            self._p_free,
-                            self._mass,
-                            self._check_period,
-                            self.damping,
-                            self.limit,
-                            cmd,
-                            row,
-                        )
-                    else:
-                        code = compute_command(pos, vel, user, self._p, self.limit, cmd, row)
-                    if code == NON_FINITE:
-                        self.faults += 1
-                        if self.faults <= 100:
-                            self.log.event(t, "fault", "non-finite state or force: zero force")
-                    elif code:
-                        self.saturated += 1
-                    try:
-                        dev.command(cmd)
-                        last[:] = cmd
-                    except Exception as exc:  # the connection dropped while sending
-                        self.watchdog.trip(now, f"device command failed: {exc}")
-                        self.log.event(t, "fault", f"device command failed: {exc}")
-                if sup is not None:
-                    sup.beat()
-                dev.step(T)
-                self.log.add(t, row)
-                timing.worked_for(time.perf_counter() - tic)
-                self.watchdog.cycle(now, late > T)
-                if self.watchdog.tripped and self.watchdog.tripped_at == now:
-                    self.log.event(t, "watchdog", self.watchdog.reason)
-                k += 1
-                self._k = k
-                # cycles run, not slots; not once tripped (a stall's gap is no period)
-                if self.realtime and timing.starts == _RECHECK_AFTER and not self.watchdog.tripped:
-                    self._recheck(timing.period_mean(), t)
-        except BaseException:
-            self.status = "failed"
-            raise
+        else:
+            code = compute_command(
+                self._pos, self._vel, self._user, self._p, self.limit, cmd, self._row
+            )
+        if code == NON_FINITE:
+            self.faults += 1
+            if self.faults <= 100:
+                self.log.event(t, "fault", "non-finite state or force: zero force")
+        elif code:
+            self.saturated += 1
+        try:
+            self.device.command(cmd)
+            self._last[:] = cmd
+        except Exception as exc:  # the connection dropped while sending
+            self.watchdog.trip(now, f"device command failed: {exc}")
+            self.log.event(t, "fault", f"device command failed: {exc}")
+
+    def _ramp_down(self, t: float, now: float) -> bool:
+        """The tripped watchdog's cycle: the last force the device took, scaled down by
+        the ramp, commanded. At zero (or when the command fails: the connection is
+        gone) the cycle's row is logged and False returned: the loop ends."""
+        factor = self.watchdog.factor(now)
+        cmd = self._cmd
+        cmd[:] = self._last * factor
+        self._row[9:12] = cmd
+        try:
+            self.device.command(cmd)
+        except Exception:  # the connection is gone: nothing more to send
+            factor = 0.0
+        if factor == 0.0:
+            if self.watchdog.tripped_at == now:  # tripped and ended at once
+                self.log.event(t, "watchdog", self.watchdog.reason)
+            self.log.add(t, self._row)
+            return False
+        return True
+
+    def _end(self, k: int, n_cycles: float, stop: threading.Event | None) -> None:
+        """After the last cycle (``k`` run), also when the loop raised: the thread's
+        scheduling put back, the supervisor disarmed, the device stopped, the status
+        and the statistics."""
+        self.pacing.end()
+        self.t_end = time.perf_counter()
+        if self.supervisor is not None:  # first: a normal end is no stall
+            self._disarm_supervisor()
+        try:
+            self.device.stop()
         finally:
-            self.pacing.end()
-            self.t_end = time.perf_counter()
-            if self.supervisor is not None:  # first: a normal end is no stall
-                self._disarm_supervisor()
-            try:
-                dev.stop()
-            finally:
-                if self.status != "failed":
-                    stopped = stop is not None and stop.is_set() and k < n_cycles
-                    self.status = self._end_status(stopped)
-                # also when the loop raised: an interrupted log keeps its statistics
-                self.statistics = self._stats(k)
-        return self.statistics
+            if self.status != "failed":
+                stopped = stop is not None and stop.is_set() and k < n_cycles
+                self.status = self._end_status(stopped)
+            # also when the loop raised: an interrupted log keeps its statistics
+            self.statistics = self._stats(k)
 
     def _check_stall(self, sent: float, limit: float) -> float:
         """Trip the watchdog when the loop stalled (paced loops, before each command).
