@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._util import machine_line, publish  # noqa: E402
-from evo_door.render.log import read_session  # noqa: E402
+from evo_door.render.session import read_session  # noqa: E402
 
 RATE = 2500.0
 ON_TIME = 0.999

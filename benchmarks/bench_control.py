@@ -177,7 +177,7 @@ def flood_run(seconds: float, clients: int, folder: Path) -> dict:
     renderer's memory growth (MiB), the log's size (MiB) and the events it kept.
     """
     from evo_door.files import open_h5, read_attrs
-    from evo_door.render.log import SESSION_KINDS, read_session
+    from evo_door.render.session import SESSION_KINDS, read_session
 
     log = folder / f"flood-{time.monotonic_ns()}.h5"
     port = _free_port()

@@ -53,7 +53,7 @@ def log_growth(params, seconds: float, folder: Path) -> dict:
     clock) with its side file, as ``render --log`` writes it. Returns bytes per hour of
     session of the side file while rendering (``partial``) and of the final log
     (``final``), and the bytes of rows the log holds in memory at the end (``held``)."""
-    from evo_door.render.log import partial_path
+    from evo_door.render.spill import partial_path
 
     out = Path(folder) / "growth.h5"
     for path in (out, partial_path(out)):

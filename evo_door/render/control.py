@@ -40,7 +40,7 @@ display), at most :data:`MAX_ROWS` per answer; ask again with ``since`` = ``next
 Session events (the web console's) are one of :data:`EVENT_KINDS`; those that carry
 a parameter set (``params``) must give declared names with finite values within their
 bounds. They go into the log's events and, through them, its session record
-(:mod:`evo_door.render.log`).
+(:mod:`evo_door.render.session`).
 
 A change goes through :meth:`ServoLoop.request_change`: it is checked against the
 declaration and the passivity condition at the measured loop period, and comes into
@@ -87,7 +87,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.render.log import COLUMNS
+from evo_door.render.columns import COLUMNS
 
 #: how long a change request waits to see the loop apply it (s)
 APPLY_WAIT = 0.5

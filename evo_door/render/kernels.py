@@ -3,7 +3,7 @@
 :func:`compute_command_implicit` (the default) and :func:`compute_command` (the
 model's own tanh friction) take the device's state and measured force and write the
 force to command (N, device frame) and the cycle's log row (the columns of
-:data:`~evo_door.render.log.COLUMNS`). They are compiled with numba and allocate
+:data:`~evo_door.render.columns.COLUMNS`). They are compiled with numba and allocate
 nothing: :class:`~evo_door.render.loop.ServoLoop` calls one of them every cycle.
 """
 
