@@ -271,7 +271,7 @@ def main(argv=None) -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
-        "Target (issue 15): >= 99.9 % of cycles on time at 2500 Hz with the console open "
+        "Target: >= 99.9 % of cycles on time at 2500 Hz with the console open "
         "and a browser connected. A cycle is late when it starts more than one period after "
         "its slot; missed cycles are slots skipped; the lateness p99 is over all cycles run. "
         "The load average (1 min, mean of the run's start and end) shows whether other "

@@ -1,4 +1,4 @@
-"""The operator's web console in a real browser (issue 15).
+"""The operator's web console in a real browser.
 
 ``evo-door render --params seed_trial --device sim --user swing --console`` runs as a
 user starts it, in its own process; headless Chromium (Debian's ``chromium`` and

@@ -1,7 +1,8 @@
 """The renderer's control port: change the parameters of a running renderer over TCP.
 
 ``evo-door render ... --control PORT`` starts a :class:`ControlServer` next to the
-servo loop; ``evo-door push`` (and, later, the web console of issue 15) is its client.
+servo loop; ``evo-door push`` and the operator's web console (``evo-door console``) are
+its clients.
 
 Binding. The server binds to 127.0.0.1 unless told otherwise (``--control HOST:PORT``);
 any address that is not a loopback one requires a token (``--token T``), else the
@@ -637,7 +638,7 @@ ROWS_EVERY = 10
 #: starts 10 s back catches up in well under a second at its 30 requests a second
 MAX_ROWS = 50
 
-#: the session events of the web console (issue 15) the log records
+#: the session events of the operator's web console that the log records
 EVENT_KINDS = (
     "participant",
     "ab_store",
