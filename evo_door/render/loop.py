@@ -391,7 +391,7 @@ class ServoLoop:
         now = self.pacing.wait_until(self.t0, t)
         late = now - t
         if late > T:  # missed its slot: count, skip ahead, keep the schedule
-            skip = min(int(late / T), n_cycles - k)  # none past the end
+            skip = int(min(late / T, n_cycles - k))  # none past the end
             self.timing.missed += skip
             k += skip
             if k >= n_cycles:
