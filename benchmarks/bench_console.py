@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._util import machine_line, publish  # noqa: E402
-from evo_door.render.log import read_session  # noqa: E402
+from evo_door.render.session import read_session  # noqa: E402
 
 RATE = 2500.0
 ON_TIME = 0.999
@@ -271,7 +271,7 @@ def main(argv=None) -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
-        "Target (issue 15): >= 99.9 % of cycles on time at 2500 Hz with the console open "
+        "Target: >= 99.9 % of cycles on time at 2500 Hz with the console open "
         "and a browser connected. A cycle is late when it starts more than one period after "
         "its slot; missed cycles are slots skipped; the lateness p99 is over all cycles run. "
         "The load average (1 min, mean of the run's start and end) shows whether other "

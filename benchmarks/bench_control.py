@@ -177,7 +177,7 @@ def flood_run(seconds: float, clients: int, folder: Path) -> dict:
     renderer's memory growth (MiB), the log's size (MiB) and the events it kept.
     """
     from evo_door.files import open_h5, read_attrs
-    from evo_door.render.log import SESSION_KINDS, read_session
+    from evo_door.render.session import SESSION_KINDS, read_session
 
     log = folder / f"flood-{time.monotonic_ns()}.h5"
     port = _free_port()
@@ -302,7 +302,7 @@ def main(argv=None) -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
-        "Targets (issue 24): >= 99.9 % of cycles on time at 2500 Hz with the clients "
+        "Targets: >= 99.9 % of cycles on time at 2500 Hz with the clients "
         f"flooding, the renderer's memory growing by at most {RSS_TARGET_MIB:g} MiB and "
         "the log's session events within their cap (10,000 events, 4 MiB). A cycle is "
         "late when it starts more than one period after its slot; missed cycles are slots "

@@ -1,6 +1,6 @@
 """Renderer speed: the servo loop in real time, on the simulated device and over TCP.
 
-Targets (issue 14): with the simulated device the loop holds 2500 Hz for 60 s with at
+Targets: with the simulated device the loop holds 2500 Hz for 60 s with at
 least 99.9 % of its cycles on time; over the HapticMaster emulator on loopback, state
 the achievable rate and the round trip. The emulator runs in its own process
 (``evo-door emulate hapticmaster``), as a real device would be another machine.
@@ -53,7 +53,7 @@ def log_growth(params, seconds: float, folder: Path) -> dict:
     clock) with its side file, as ``render --log`` writes it. Returns bytes per hour of
     session of the side file while rendering (``partial``) and of the final log
     (``final``), and the bytes of rows the log holds in memory at the end (``held``)."""
-    from evo_door.render.log import partial_path
+    from evo_door.render.spill import partial_path
 
     out = Path(folder) / "growth.h5"
     for path in (out, partial_path(out)):
@@ -168,7 +168,7 @@ def main(argv=None) -> int:
         f">= 99.9 % of cycles on time: "
         + (f"**{achievable:g} Hz**." if achievable else "none of them."),
         "",
-        "Target (issue 14): sim device at 2500 Hz for 60 s with >= 99.9 % of cycles on "
+        "Target: sim device at 2500 Hz for 60 s with >= 99.9 % of cycles on "
         "time. A cycle is late when it starts more than one period after its slot; the "
         "lateness p99 is over all cycles run. The round trip is the batched query's, "
         "send to complete answer; the cycle work (read, model, command, log) includes it.",

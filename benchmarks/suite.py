@@ -856,7 +856,7 @@ def section_casestudy(suite: Suite) -> None:
 
 # -- section: control port under a flood -----------------------------------------------
 def section_control(suite: Suite) -> None:
-    """The servo loop with 200 clients flooding its control port (issue 24)."""
+    """The servo loop with 200 clients flooding its control port."""
     import tempfile
 
     from benchmarks.bench_control import CLIENTS, RSS_TARGET_MIB, flood_run

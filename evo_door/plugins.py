@@ -24,7 +24,7 @@ def render_log_params(table, path: Path) -> ParamSet | None:
     """A render log as a parameter set of ``table`` (the haptic model's), or None when
     ``path`` is not a render log."""
     # imported here: the renderer is heavy, and most parameter files are YAML
-    from evo_door.render.log import is_render_log, session_params
+    from evo_door.render.session import is_render_log, session_params
 
     if not is_render_log(path):
         return None

@@ -1,4 +1,4 @@
-"""The operator's web console in a real browser (issue 15).
+"""The operator's web console in a real browser.
 
 ``evo-door render --params seed_trial --device sim --user swing --console`` runs as a
 user starts it, in its own process; headless Chromium (Debian's ``chromium`` and
@@ -72,7 +72,7 @@ from evo_door.cli import main  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.haptic import PARAMS  # noqa: E402
 from evo_door.render.keys import GROUP, key_map  # noqa: E402
-from evo_door.render.log import read_session  # noqa: E402
+from evo_door.render.session import read_session  # noqa: E402
 
 RATE = 2500.0  # Hz, the loop rate (render's default)
 PERIOD = 1.0 / RATE  # s

@@ -1,4 +1,4 @@
-"""The web console's server (issue 15) against a real renderer: API, WebSocket, security.
+"""The web console's server against a real renderer: API, WebSocket, security.
 
 No browser: HTTP with urllib, the WebSocket with aiohttp's client. The renderer is a
 ServoLoop on the simulated device in a thread with its control port, as in

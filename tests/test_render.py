@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import ast
 import math
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numba import njit
 
+import evo_door.render
 from evo_door.cli import main
 from evo_door.data.io import read_trials
 from evo_door.errors import UserError
@@ -17,8 +20,9 @@ from evo_door.files import open_h5, read_attrs
 from evo_door.models.haptic import PARAMS, device_force, on_path
 from evo_door.params import param_vector
 from evo_door.render.device import SimDevice, UserScript
+from evo_door.render.kernels import compute_command
 from evo_door.render.log import N_COLUMNS, RenderLog
-from evo_door.render.loop import ServoLoop, compute_command
+from evo_door.render.loop import ServoLoop
 from evo_door.render.safety import (
     IMPLICIT,
     NON_FINITE,
@@ -518,3 +522,42 @@ def test_render_over_the_emulator_then_a_pulled_cable(seed_trial):
         timer.join()
         assert time.perf_counter() - t0 < 1.0
         assert loop.status == "watchdog" and "device read failed" in loop.statistics["watchdog"]
+
+
+def _class_attributes_assigned_through_self(source: str) -> list[str]:
+    """``Class.name`` for each name a class assigns in its body and its methods assign
+    through ``self``: a class attribute standing in for state the object owns."""
+    found = []
+    for cls in ast.walk(ast.parse(source)):
+        if not isinstance(cls, ast.ClassDef):
+            continue
+        in_body = {
+            target.id
+            for node in cls.body
+            if isinstance(node, ast.Assign)
+            for target in node.targets
+            if isinstance(target, ast.Name)
+        }
+        through_self = {
+            node.attr
+            for node in ast.walk(cls)
+            if isinstance(node, ast.Attribute)
+            and isinstance(node.ctx, ast.Store)
+            and isinstance(node.value, ast.Name)
+            and node.value.id == "self"
+        }
+        found += [f"{cls.name}.{name}" for name in sorted(in_body & through_self)]
+    return found
+
+
+def test_no_renderer_class_keeps_instance_state_in_class_attributes():
+    """ServoLoop's ``_now`` and ``_k`` were class attributes that ``run`` then set on
+    the instance: the loop's state hid outside its ``__init__``."""
+    made = "class Loop:\n    _k = 0\n    LIMIT = 1\n    def run(self):\n        self._k = 1\n"
+    assert _class_attributes_assigned_through_self(made) == ["Loop._k"]
+    package = Path(evo_door.render.__file__).parent
+    found = {
+        str(path.relative_to(package)): _class_attributes_assigned_through_self(path.read_text())
+        for path in sorted(package.rglob("*.py"))
+    }
+    assert not {path: names for path, names in found.items() if names}

@@ -15,8 +15,8 @@ from evo_door.models.haptic import PARAMS
 from evo_door.render.control import ControlServer, parse_control, request
 from evo_door.render.device import SimDevice
 from evo_door.render.keys import LETTERS, key_change, key_map, nice_step
-from evo_door.render.log import format_session, read_session, session_params
 from evo_door.render.loop import ServoLoop
+from evo_door.render.session import format_session, read_session, session_params
 from tests.conftest import yielding_sim
 
 

@@ -19,22 +19,13 @@ from evo_door.errors import UserError
 from evo_door.files import open_h5, read_attrs
 from evo_door.models import get_model
 from evo_door.models.haptic import PARAMS
+from evo_door.render.columns import N_COLUMNS
 from evo_door.render.device import SimDevice
-from evo_door.render.log import (
-    BLOCK_ROWS,
-    CHUNK_ROWS,
-    N_COLUMNS,
-    RETAIN_BLOCKS,
-    SPILL_ROWS,
-    STORED,
-    RenderLog,
-    partial_path,
-    read_partial,
-    read_session,
-    recover,
-    session_params,
-)
+from evo_door.render.log import BLOCK_ROWS, RETAIN_BLOCKS, RenderLog, recover
+from evo_door.render.log_file import CHUNK_ROWS, STORED
 from evo_door.render.loop import ServoLoop
+from evo_door.render.session import read_session, session_params
+from evo_door.render.spill import SPILL_ROWS, partial_path, read_partial
 
 
 def _cycles(n: int, seed: int = 0):

@@ -1,4 +1,4 @@
-"""What the device renders itself (issue 14): the plane constraint as the HapticMaster's
+"""What the device renders itself: the plane constraint as the HapticMaster's
 own directional spring and damper, the emulator's spring settings, and the SimDevice's
 native plane against the host-rendered one.
 

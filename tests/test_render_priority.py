@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-import evo_door.render.loop as loop_module
+import evo_door.render.priority as priority
 from evo_door.render.device import SimDevice
 from evo_door.render.loop import ServoLoop
 
@@ -78,8 +78,8 @@ def test_the_loop_and_its_interpreter_mates_run_real_time_and_are_put_back(seed_
     t.join(10.0)
     assert any("SCHED_FIFO" in m for m in _priority_events(loop))
     assert seen["loop_during"] == os.SCHED_FIFO
-    assert seen["during"] == (os.SCHED_FIFO, loop_module._RT_PRIORITY_OTHERS)
-    assert loop_module._RT_PRIORITY_OTHERS < loop_module._RT_PRIORITY
+    assert seen["during"] == (os.SCHED_FIFO, priority.RT_PRIORITY_OTHERS)
+    assert priority.RT_PRIORITY_OTHERS < priority.RT_PRIORITY
     # put back once the loop ends: nothing of the process stays real-time
     assert seen["loop_after"] == os.SCHED_OTHER and seen["after"] == os.SCHED_OTHER
     assert loop.statistics["on_time_fraction"] > 0.9
@@ -95,11 +95,11 @@ def test_without_permission_the_loop_says_so_and_runs_at_a_raised_niceness(seed_
     loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True, watchdog_misses=250)
     waits = []
     real_sleep = time.sleep
-    monkeypatch.setattr(loop_module.time, "sleep", lambda s: (waits.append(s), real_sleep(s)))
+    monkeypatch.setattr(priority.time, "sleep", lambda s: (waits.append(s), real_sleep(s)))
     stats = loop.run(0.3)
     (message,) = _priority_events(loop)
     assert "real-time refused: Operation not permitted" in message or "normal priority" in message
-    assert not loop._realtime_sched
+    assert not loop.pacing.realtime_sched
     # a normal thread wakes late: it spins the last 1.5 ms rather than sleep into a slot
     assert stats["status"] == "done" and stats["cycles"] == 750  # no slot past the end
     assert all(w >= 0.0005 for w in waits)
@@ -110,13 +110,13 @@ def test_the_sleep_between_cycles_is_short_and_ends_before_the_slot(seed_trial, 
     loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True)
     waits = []
     real_sleep = time.sleep
-    monkeypatch.setattr(loop_module.time, "sleep", lambda s: (waits.append(s), real_sleep(s)))
+    monkeypatch.setattr(priority.time, "sleep", lambda s: (waits.append(s), real_sleep(s)))
     loop.run(0.3)
-    assert loop._realtime_sched is False  # put back
+    assert loop.pacing.realtime_sched is False  # put back
     # a real-time loop sleeps in most cycles (the core and the interpreter are free
     # then), never past the slot minus the spin margin
     assert len(waits) > 0.5 * 750
-    assert max(waits) <= loop.period - loop_module._RT_SPIN + 1e-9
+    assert max(waits) <= loop.period - priority.RT_SPIN + 1e-9
 
 
 @needs_realtime

@@ -15,8 +15,8 @@ from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.render.control import ControlServer, request
 from evo_door.render.device import SimDevice
-from evo_door.render.log import read_session, session_params
 from evo_door.render.loop import ServoLoop
+from evo_door.render.session import read_session, session_params
 from tests.conftest import yielding_sim
 
 

@@ -18,7 +18,8 @@ from evo_door.files import open_h5, read_attrs
 from evo_door.models import get_model
 from evo_door.render import friction as fr
 from evo_door.render.device import ForceScript, SimDevice
-from evo_door.render.loop import ServoLoop, compute_command_implicit
+from evo_door.render.kernels import compute_command_implicit
+from evo_door.render.loop import ServoLoop
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)
 pytestmark = pytest.mark.numerics
@@ -144,7 +145,7 @@ def _rebound(params, implicit, device_damping=0.0):
     loop's kernels: a 20 N push for 50 ms from 1.53 rad, then nothing."""
     from evo_door.models.haptic import PARAMS
     from evo_door.params import param_vector
-    from evo_door.render.loop import compute_command
+    from evo_door.render.kernels import compute_command
 
     m = params["inertia"] / params["radius"]
     dev = SimDevice(

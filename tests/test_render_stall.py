@@ -1,4 +1,4 @@
-"""A stalled or killed renderer leaves no force on the device (issue: the renderer fails safe).
+"""A stalled or killed renderer leaves no force on the device: the renderer fails safe.
 
 Real processes over real TCP on 127.0.0.1: an emulated HapticMaster in a process of
 its own, ``evo-door render`` in another, and a probe connection of the test's own

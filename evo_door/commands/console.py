@@ -1,4 +1,4 @@
-"""``evo-door console``: the operator's web page for a running renderer (issue 15)."""
+"""``evo-door console``: the operator's web page for a running renderer."""
 
 from __future__ import annotations
 

@@ -43,7 +43,7 @@ RANGES = {
 
 
 def register(sub) -> None:
-    # one long function on purpose: the flags in the order --help lists them, a few lines
+    # long: one function on purpose: the flags in the order --help lists them, a few lines
     # each and no logic; cut in parts, a newcomer would look in several for one flag
     p = sub.add_parser(
         "render",

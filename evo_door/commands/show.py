@@ -40,7 +40,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from evo_door.errors import NotResultsFileError
     from evo_door.experiment.reader import PipelineRecord, pick, read_results
-    from evo_door.render.log import format_session, is_render_log, read_session
+    from evo_door.render.session import format_session, is_render_log, read_session
 
     try:
         record = read_results(args.results)  # the one open of a results file

@@ -261,8 +261,3 @@ def trial_tree(tr: Trial) -> dict:
     if tr.truth:
         node["truth"] = attrs_tree(jsonable(tr.truth))
     return node
-
-
-# The renderer's log (evo_door/render/log.py) imports the old private name; it goes
-# when that module imports trial_tree (after the renderer work lands).
-_trial_tree = trial_tree

@@ -1,7 +1,8 @@
 """The renderer's control port: change the parameters of a running renderer over TCP.
 
 ``evo-door render ... --control PORT`` starts a :class:`ControlServer` next to the
-servo loop; ``evo-door push`` (and, later, the web console of issue 15) is its client.
+servo loop; ``evo-door push`` and the operator's web console (``evo-door console``) are
+its clients.
 
 Binding. The server binds to 127.0.0.1 unless told otherwise (``--control HOST:PORT``);
 any address that is not a loopback one requires a token (``--token T``), else the
@@ -40,7 +41,7 @@ display), at most :data:`MAX_ROWS` per answer; ask again with ``since`` = ``next
 Session events (the web console's) are one of :data:`EVENT_KINDS`; those that carry
 a parameter set (``params``) must give declared names with finite values within their
 bounds. They go into the log's events and, through them, its session record
-(:mod:`evo_door.render.log`).
+(:mod:`evo_door.render.session`).
 
 A change goes through :meth:`ServoLoop.request_change`: it is checked against the
 declaration and the passivity condition at the measured loop period, and comes into
@@ -88,7 +89,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.render.log import COLUMNS
+from evo_door.render.columns import COLUMNS
 from evo_door.render.messages import (
     MAX_LINE,
     BadMessage,
@@ -465,7 +466,7 @@ ROWS_EVERY = 10
 #: starts 10 s back catches up in well under a second at its 30 requests a second
 MAX_ROWS = 50
 
-#: the session events of the web console (issue 15) the log records
+#: the session events of the operator's web console that the log records
 EVENT_KINDS = (
     "participant",
     "ab_store",

@@ -24,6 +24,10 @@ the default: the device does not wait for the host) or by ``steps_per_query`` st
 (``clock="query"``: reproducible, for tests). The user force is evaluated once per
 advance and held over its steps. The mass only moves in the ``force`` state; otherwise
 it is held where it is.
+
+Size: a little over 600 lines: the protocol's commands (states, effects and their
+settings, queries) are one table of small handlers; the physics and the framing are
+modules of their own.
 """
 
 from __future__ import annotations

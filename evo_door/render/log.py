@@ -1,60 +1,24 @@
-"""The renderer's log: device channels at a fixed rate (1 kHz default), in HDF5.
+"""The renderer's log in memory: device channels at a fixed rate (1 kHz default).
 
 The servo loop runs at its own rate (2500 Hz) with a jittering clock on a real
 device; :class:`RenderLog` resamples its cycles onto an exact uniform grid at the log
 rate by linear interpolation between the two cycles around each tick, so a log is a
-trial file: ``evo-door data show LOG.h5`` reads it and an experiment takes it as
-``target: {data: LOG.h5}``. Layout::
-
-    /                      format = "evo-door trials" (a trial file), render = json
-    /trials/render/        the trial: t (s), force (N, the measured user force on the
-                           door's tangent, + toward closing), theta (rad), dtheta (rad/s)
-    /render/
-        t                  s, the log's time
-        position           m, device frame, n x 3
-        velocity           m/s, n x 3
-        user_force         N, measured by the device's sensor, n x 3
-        command            N, the force the host commanded, n x 3
-        params/            names, units, t (s, when each set came into force),
-                           values (n_sets x n_params, SI)
-        events             json attribute: faults, clamps, watchdog, refused changes
-    attributes of /render: rate, log_rate, device, statistics (loop period)
+trial file (:mod:`evo_door.render.log_file` writes it). Besides the rows (the columns
+of :data:`~evo_door.render.columns.COLUMNS`) it keeps the events (faults, clamps,
+the watchdog, changes, the console's session: :mod:`evo_door.render.session`) and the
+parameter sets in force.
 
 Rows live in preallocated float64 blocks of :data:`BLOCK_ROWS` rows; a cycle writes
 its rows in place (:func:`_resample`, compiled), so :meth:`RenderLog.add` allocates
-nothing in the steady state. Once the side file holds a block (below), the block is
-freed but the last :data:`RETAIN_BLOCKS` (the control port's window): a session of a
-day holds a few megabytes, not 430 MB an hour.
-
-Storage: the final log is written from the side file (and the rows still in memory),
-a chunk at a time, never the whole session in memory; its datasets are chunked
-(:data:`CHUNK_ROWS`) and gzip-compressed after a byte shuffle. Time is float64 (at a
-day, float32 would step by 8 ms); every other channel float32, whose 24-bit mantissa
-keeps 0.1 urad of theta, 0.06 um of position and 10 uN at 100 N, far below any
-sensor's noise. ``benchmarks/suite.py`` (section device) measures the growth per hour.
-
-Crash safety: :meth:`RenderLog.spill_to` starts a background thread that appends the
-finished rows (every :data:`SPILL_ROWS`, about a second at 1 kHz), the events and the
-parameter sets to the side file ``LOG.h5.partial``; :meth:`RenderLog.write` removes it
-once the log is written, and :func:`recover` turns one left by a crash into a log.
-The side file is a sequence of records, each a 4-byte tag, its length (uint64,
-little-endian) and its payload; a record cut short by a kill is ignored::
-
-    magic    b"EVO-DOOR RENDER LOG PARTIAL 1\n"
-    HEAD     JSON: columns, rate (log, Hz), loop_rate (Hz), device, names, units
-    ROWS     float64 little-endian, m x N_COLUMNS, the next m rows of the log
-    EVTS     JSON: a list of further events
-    PARS     JSON: {"t": [...], "values": [[...], ...]}, further parameter sets
+nothing in the steady state. Once the side file (:mod:`evo_door.render.spill`,
+:meth:`RenderLog.spill_to`) holds a block, the block is freed but the last
+:data:`RETAIN_BLOCKS` (the control port's window): a session of a day holds a few
+megabytes, not 430 MB an hour. :func:`recover` turns a side file left by a crash into
+a log.
 """
 
 from __future__ import annotations
 
-import itertools
-import json
-import os
-import queue
-import struct
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -63,40 +27,23 @@ from numba import njit
 from evo_door import __version__
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
-from evo_door.files import ATTRS, Dataset, check_folder, to_json
-
-#: columns of a log row
-COLUMNS = (
-    "x",
-    "y",
-    "z",
-    "vx",
-    "vy",
-    "vz",
-    "fx",
-    "fy",
-    "fz",
-    "cx",
-    "cy",
-    "cz",
-    "theta",
-    "dtheta",
-    "force",
+from evo_door.files import check_folder, to_json
+from evo_door.render.columns import COLUMNS, N_COLUMNS, ROW_DTYPE
+from evo_door.render.log_file import trial_of, write_log
+from evo_door.render.spill import (
+    PARTIAL_SUFFIX,
+    SPILL_ROWS,
+    Spill,
+    partial_path,
+    scan_partial,
+    side_rows,
 )
-N_COLUMNS = len(COLUMNS)
+
 #: rows of one preallocated block (8192 x 15 float64: 0.98 MB, 8.2 s at 1 kHz)
 BLOCK_ROWS = 8192
-#: finished rows that go to the side file at a time (1.02 s at 1 kHz)
-SPILL_ROWS = 1024
 #: blocks kept in memory once the side file holds them (16 s at 1 kHz: what the
 #: control port hands a console that catches up)
 RETAIN_BLOCKS = 2
-#: rows of an HDF5 chunk of the final log (16 s at 1 kHz)
-CHUNK_ROWS = 16384
-#: the final log's channel type but time's (see the module docstring)
-STORED = np.float32
-#: suffix of the side file of a log being written
-PARTIAL_SUFFIX = ".partial"
 #: events a client causes (session events, refused changes) that a log keeps at most,
 #: and their JSON text at most (bytes): a client flooding them must not grow the
 #: renderer's memory and its log without bound (a participant's session is hundreds)
@@ -107,9 +54,6 @@ MAX_CLIENT_BYTES = 4 * 2**20
 #: its own (each event is at most 16 KiB: 1.6 MiB)
 RECORD_KINDS = ("participant", "chosen")
 RECORD_RESERVE = 100
-_MAGIC = b"EVO-DOOR RENDER LOG PARTIAL 1\n"
-_RECORD = struct.Struct("<4sQ")
-_ROW_DTYPE = np.dtype("<f8")
 
 
 @njit(cache=True)
@@ -134,11 +78,6 @@ def _resample(t, row, prev_t, prev, k, rate, block, fill):
     return m
 
 
-def partial_path(path) -> Path:
-    """The side file of the log ``path``: ``path`` + ``.partial``."""
-    return Path(str(path) + PARTIAL_SUFFIX)
-
-
 class RenderLog:
     """Rows at ``rate`` (Hz) interpolated from the loop's cycles, plus events.
 
@@ -152,7 +91,7 @@ class RenderLog:
         self.rate = float(rate)
         self.table = table
         self.block_rows = int(block_rows)
-        self._spill: _Spill | None = None
+        self._spill: Spill | None = None
         self._freed = 0  # leading blocks freed (their rows are in the side file only)
         self._recent_only = False  # keep_recent(): free old blocks without a side file
         self._first: np.ndarray | None = None  # the first row, kept for summaries
@@ -177,7 +116,7 @@ class RenderLog:
         _resample(0.0, self._prev, -1.0, self._prev.copy(), 0, 1.0, np.empty((0, N_COLUMNS)), 0)
 
     def _new_block(self) -> np.ndarray:
-        block = np.empty((self.block_rows, N_COLUMNS), dtype=_ROW_DTYPE)
+        block = np.empty((self.block_rows, N_COLUMNS), dtype=ROW_DTYPE)
         self._blocks.append(block)
         self._free_old()
         return block
@@ -327,7 +266,7 @@ class RenderLog:
         then memory's (the final log is written from these, a chunk at a time)."""
         held = self.held_from
         if held:
-            yield from _side_rows(self._spill.path, held)
+            yield from side_rows(self._spill.path, held)
         b = self.block_rows
         for start in range(held, self._k, b):
             yield self.rows(start, min(start + b, self._k))
@@ -346,21 +285,7 @@ class RenderLog:
         return self._trial(a, device)
 
     def _trial(self, a: np.ndarray, device: str) -> Trial:
-        if a.shape[0] < 2:
-            raise UserError("render log: fewer than two samples, nothing to write")
-        t = np.arange(a.shape[0]) / self.rate
-        col = COLUMNS.index
-        return Trial(
-            t=t,
-            force=a[:, col("force")],
-            theta=a[:, col("theta")],
-            dtheta=a[:, col("dtheta")],
-            trial_id="render",
-            kind="free",
-            source=f"render on {device}" if device else "render",
-            sensors={"force": {"model": "device force sensor, on the door's tangent"}},
-            meta={"device": device, "log_rate": self.rate},
-        )
+        return trial_of(a, self.rate, device)
 
     # -- crash safety ------------------------------------------------------------------
     def spill_to(self, path, *, loop_rate: float | None = None, device: str = "") -> Path:
@@ -391,7 +316,7 @@ class RenderLog:
             "units": self._units,
             "log": str(path),
         }
-        self._spill = _Spill(side, header)
+        self._spill = Spill(side, header)
         self._spill.send_rows(self)
         return side
 
@@ -423,444 +348,23 @@ class RenderLog:
 
     def _write(self, path, chunks, n: int, loop_rate, device, statistics) -> None:
         """The log from ``chunks`` (arrays of rows, ``n`` rows in all), a chunk at a time."""
-        from evo_door.data.h5io import FORMAT, FORMAT_VERSION, _trial_tree
-        from evo_door.files import atomic_write, h5py, write_group
-
-        chunks = iter(chunks)
-        lead: list[np.ndarray] = []  # the chunks up to the second row
-        while sum(c.shape[0] for c in lead) < 2 and (c := next(chunks, None)) is not None:
-            lead.append(c)
-        two = np.concatenate(lead)[:2] if lead else np.zeros((0, N_COLUMNS))
-        tr = self._trial(two, device)  # the trial's attributes (and the two-row minimum)
-        trial = _trial_tree(tr)
-        trial[ATTRS]["n_samples"] = n
-        channels = {name: trial.pop(name).attrs for name in ("t", "force", "theta", "dtheta")}
-        render = {
-            ATTRS: {
-                "rate": float(loop_rate),
-                "log_rate": self.rate,
-                "device": device,
-                "statistics": statistics,
-                "events": self.events,
-            },
-            "params": {
-                ATTRS: {"names": list(self._names), "units": list(self._units)},
-                "t": Dataset(np.array(self.param_times), {"unit": "s"}),
-                "values": np.array(self.param_sets).reshape(len(self.param_times), -1),
-            },
-        }
-        tree = {
-            ATTRS: {
-                "format": FORMAT,
-                "format_version": FORMAT_VERSION,
-                "software": f"evo-door {__version__}",
-                "description": f"haptic render log ({device})",
-            },
-            "trials": {"render": trial},
-            "render": render,
-        }
-        session = session_tree(self.events, self._names, self._units)
-        if session is not None:
-            tree["session"] = session
-        with atomic_write(path) as tmp, h5py().File(tmp, "w", track_order=True) as f:
-            write_group(f, tree, compression=4, compress_above=1)
-            sinks = _row_datasets(f, n, channels)
-            k = 0
-            for rows in itertools.chain(lead, chunks):
-                m = rows.shape[0]
-                for ds, cols in sinks:  # rows k..k+m; time: exact multiples of the period
-                    ds[k : k + m] = (
-                        np.arange(k, k + m) / self.rate if cols is None else rows[:, cols]
-                    )
-                k += m
-            if k != n:
-                raise UserError(f"render log: {k} rows to write, expected {n}")
-            f["render/t"] = f["trials/render/t"]  # the same times: one dataset, two names
-
-
-def _row_datasets(f, n: int, channels: dict) -> list:
-    """The final log's row datasets in ``f`` (chunked, shuffled, gzip), each with the
-    columns of a row it takes (None: the time): [(dataset, columns)]. ``channels``:
-    the attributes of the trial's datasets."""
-    from evo_door.files import write_attrs
-
-    col = COLUMNS.index
-
-    def dataset(group, name, dtype, attrs, width=0):
-        shape = (n, width) if width else (n,)
-        chunks = (min(n, CHUNK_ROWS), width) if width else (min(n, CHUNK_ROWS),)
-        ds = group.create_dataset(
-            name,
-            shape,
-            dtype,
-            chunks=chunks,
-            compression="gzip",
-            compression_opts=4,
-            shuffle=True,
-            track_times=False,
+        write_log(
+            path,
+            chunks,
+            n,
+            rate=self.rate,
+            names=self._names,
+            units=self._units,
+            events=self.events,
+            param_times=self.param_times,
+            param_sets=self.param_sets,
+            loop_rate=loop_rate,
+            device=device,
+            statistics=statistics,
         )
-        write_attrs(ds, attrs)
-        return ds
-
-    trial = f["trials/render"]
-    sinks = [(dataset(trial, "t", np.float64, channels["t"]), None)]
-    for name in ("force", "theta", "dtheta"):
-        sinks.append((dataset(trial, name, STORED, channels[name]), col(name)))
-    for name, first, unit in _VECTORS:
-        ds = dataset(f["render"], name, STORED, {"unit": unit}, width=3)
-        sinks.append((ds, slice(col(first), col(first) + 3)))
-    return sinks
-
-
-#: the final log's 3-vector datasets of /render: (name, first column, unit)
-_VECTORS = (
-    ("position", "x", "m"),
-    ("velocity", "vx", "m/s"),
-    ("user_force", "fx", "N"),
-    ("command", "cx", "N"),
-)
-
-
-# -- the session record (the web console's participant sessions, issue 15) ----------
-#: the event kinds that belong to a participant's session
-SESSION_KINDS = ("participant", "ab_store", "ab_switch", "ab_choice", "undo", "reset", "save")
-SESSION_KINDS += ("chosen", "note")
-
-
-def session_tree(events, names, units) -> dict | None:
-    """The ``/session`` group of a log from its events; None without session events.
-
-    Layout::
-
-        /session               participant (str, the last one given), events (json:
-                               every session event, time-stamped), choices (json: the
-                               A/B preferences), chosen_t (s, -1 without a choice)
-            chosen             the participant's final set (SI, in ``names`` order),
-                               attributes names, units; absent without a choice
-    """
-    mine = [e for e in events if e.get("kind") in SESSION_KINDS]
-    if not mine:
-        return None
-    participant = ""
-    for e in mine:
-        if e["kind"] == "participant":
-            participant = str(e.get("id", ""))
-    chosen = [e for e in mine if e["kind"] == "chosen"]
-    tree = {
-        ATTRS: {
-            "participant": participant,
-            "events": mine,
-            "choices": [e for e in mine if e["kind"] == "ab_choice"],
-            "chosen_t": chosen[-1]["t"] if chosen else -1.0,
-        }
-    }
-    values = chosen[-1].get("params", {}) if chosen else {}
-    if chosen and all(n in values for n in names):  # the control port completes it
-        vector = np.array([values[n] for n in names], dtype=np.float64)
-        tree["chosen"] = Dataset(vector, {"names": list(names), "units": list(units)})
-    return tree
-
-
-def read_session(path) -> dict:
-    """A render log's session: participant, duration, parameter sets, the choice.
-
-    Returns ``{"participant", "duration_s", "device", "sets": [(t, {name: value})],
-    "changes", "choices", "chosen": {name: value} or None, "chosen_t", "events",
-    "statistics", "stopped"}`` (``stopped``: who ended the render, as its ``stopped``
-    event says, e.g. "stopped by the operator"; else ""); a log without a session
-    record has an empty participant, no choice and the session events list empty. A file that is not a render log is a
-    UserError.
-    """
-    from evo_door.files import open_h5, read_attrs
-
-    with open_h5(path) as f:
-        if "render" not in f:
-            raise UserError(f"{path}: not a render log (no /render group)")
-        render = read_attrs(f["render"])
-        names = list(read_attrs(f["render/params"])["names"])
-        times = f["render/params/t"][()]
-        values = f["render/params/values"][()]
-        duration = float(f["render/t"][-1]) if f["render/t"].shape[0] else 0.0
-        session = read_attrs(f["session"]) if "session" in f else {}
-        chosen = None
-        if "session/chosen" in f:
-            ds = f["session/chosen"]
-            chosen = dict(zip(read_attrs(ds)["names"], ds[()].tolist(), strict=True))
-    events = render.get("events", [])
-    ended = [e.get("message", "") for e in events if e.get("kind") == "stopped"]
-    return {
-        "participant": session.get("participant", ""),
-        "duration_s": duration,
-        "device": render.get("device", ""),
-        "sets": [
-            (float(t), dict(zip(names, v.tolist(), strict=True)))
-            for t, v in zip(times, values, strict=True)
-        ],
-        "changes": [e for e in events if e.get("kind") == "change"],
-        "choices": session.get("choices", []),
-        "chosen": chosen,
-        "chosen_t": session.get("chosen_t", -1.0),
-        "events": session.get("events", []),
-        "statistics": render.get("statistics", {}),
-        "stopped": ended[-1] if ended else "",
-    }
-
-
-def is_render_log(path) -> bool:
-    """Whether ``path`` is an HDF5 file holding a render log (never raises)."""
-    from evo_door.files import open_h5
-
-    try:
-        with open_h5(path) as f:
-            return "render" in f and "render/params" in f
-    except (UserError, OSError):  # not a file, not HDF5: the caller's own reader says why
-        return False
-
-
-def format_session(s: dict, path="") -> str:
-    """:func:`read_session`'s summary for people (angles in degrees, units)."""
-    from evo_door.models.haptic import PARAMS
-    from evo_door.render.keys import shown as shown_unit
-
-    def shown(name, value):
-        return shown_unit(value, PARAMS[name].unit).strip()
-
-    stats = s["statistics"]
-    lines = [f"render log {path}".rstrip()]
-    who = s["participant"] or "(no participant id)"
-    lines.append(
-        f"  participant {who}, {s['duration_s']:.1f} s on {s['device'] or '?'}, "
-        f"{len(s['changes'])} parameter changes, {len(s['choices'])} A/B choices"
-    )
-    status = s.get("stopped") or stats.get("status", "?")
-    if stats.get("realtime") is False:  # simulated time: it kept no clock to be on time for
-        lines.append(
-            f"  loop {stats.get('rate_hz', 0):g} Hz unpaced (simulated time), "
-            f"{stats.get('faults', 0)} faults, status {status}"
-        )
-    elif "on_time_fraction" in stats:
-        lines.append(
-            f"  loop {stats.get('rate_hz', 0):g} Hz, {100 * stats['on_time_fraction']:.3f} % of "
-            f"cycles on time, {stats.get('faults', 0)} faults, status {status}"
-        )
-    for e in s["choices"]:
-        lines.append(f"  at {e['t']:7.1f} s: prefers {e.get('slot', '?')}")
-    start = s["sets"][0][1] if s["sets"] else {}
-    final = s["chosen"] if s["chosen"] is not None else (s["sets"][-1][1] if s["sets"] else {})
-    title = f"chosen at {s['chosen_t']:.1f} s" if s["chosen"] is not None else "last set in force"
-    differs = [n for n in final if final[n] != start.get(n)]
-    lines.append(f"  {title} (differs from the starting set in {len(differs)} parameters):")
-    for name in differs:
-        lines.append(
-            f"    {name:24s} {shown(name, start[name]):>14s} -> {shown(name, final[name])}"
-        )
-    if s["chosen"] is None:
-        lines.append("  no final choice recorded: --params LOG.h5 takes the last set in force")
-    return "\n".join(lines)
-
-
-def session_params(path) -> tuple[dict, str]:
-    """The parameter set a render log stands for, and what it is.
-
-    The participant's chosen set when the session has one, else the last set in
-    force. Returns ``({name: value}, description)``.
-    """
-    s = read_session(path)
-    if s["chosen"] is not None:
-        who = f" of participant {s['participant']}" if s["participant"] else ""
-        return s["chosen"], f"{path}: the set chosen{who} at {s['chosen_t']:.1f} s"
-    if not s["sets"]:
-        raise UserError(f"{path}: the log holds no parameter set")
-    t, values = s["sets"][-1]
-    return values, f"{path}: the last set in force (from {t:.1f} s; no choice recorded)"
-
-
-class _Spill:
-    """The side file of a log and the thread that appends to it.
-
-    The loop's thread only puts views of finished rows (never written again) and
-    slices of the event and parameter lists (append-only) on a queue; this thread
-    encodes and writes them, flushes, and syncs the rows to the disk.
-    """
-
-    def __init__(self, path: Path, header: dict):
-        self.path = path
-        self.rows = 0  # rows sent
-        self.written = 0  # rows written and synced to the disk (the writer's count)
-        self._events = 0  # events sent
-        self._params = 0  # parameter sets sent
-        self.error: str | None = None
-        self._closed = False
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        try:
-            self._file = open(path, "xb")  # noqa: SIM115 (the writer thread closes it)
-            self._file.write(_MAGIC)
-            self._record(b"HEAD", json.dumps(header).encode())
-            self._file.flush()
-        except OSError as exc:
-            raise UserError(f"{path}: cannot write ({exc.strerror or exc})") from None
-        self._thread = threading.Thread(target=self._work, name="evo-door-log-spill", daemon=True)
-        self._thread.start()
-
-    def send_rows(self, log: RenderLog) -> None:
-        """Queue what the side file lacks: finished rows, events, parameter sets."""
-        if self._closed:
-            return
-        n_ev, n_par = len(log.events), len(log.param_times)
-        if n_ev > self._events:
-            self._queue.put((b"EVTS", log.events[self._events : n_ev]))
-            self._events = n_ev
-        if n_par > self._params:
-            sets = (log.param_times[self._params : n_par], log.param_sets[self._params : n_par])
-            self._queue.put((b"PARS", sets))
-            self._params = n_par
-        b = log.block_rows
-        while self.rows < log.n:  # one view per block touched
-            start = self.rows
-            stop = min(log.n, (start // b + 1) * b)
-            self._queue.put(
-                (b"ROWS", log._blocks[start // b][start % b : start % b + stop - start])
-            )
-            self.rows = stop
-
-    def close(self, log: RenderLog) -> None:
-        if self._closed:
-            return
-        self.send_rows(log)
-        self._closed = True
-        self._queue.put(None)
-        self._thread.join()
-
-    def _record(self, tag: bytes, payload) -> None:
-        data = memoryview(payload).cast("B")
-        self._file.write(_RECORD.pack(tag, data.nbytes))
-        self._file.write(data)
-
-    def _work(self) -> None:
-        try:
-            while True:
-                item = self._queue.get()
-                if item is None:
-                    return
-                if self.error is not None:
-                    continue  # drain: the file is unusable
-                tag, payload = item
-                try:
-                    if tag == b"ROWS":
-                        self._record(tag, np.ascontiguousarray(payload, dtype=_ROW_DTYPE))
-                    elif tag == b"PARS":
-                        times, sets = payload
-                        text = to_json({"t": times, "values": [list(v) for v in sets]})
-                        self._record(tag, text.encode())
-                    else:  # events one by one: one json.dumps of a list of many
-                        # session events (16 kB each) held the interpreter lock, which
-                        # the servo loop waits for, for milliseconds
-                        text = "[" + ",".join(to_json(e) for e in payload) + "]"
-                        self._record(tag, text.encode())
-                    self._file.flush()
-                    if tag == b"ROWS":
-                        os.fsync(self._file.fileno())
-                        self.written += len(payload)  # the loop may free these rows now
-                except OSError as exc:
-                    self.error = f"{self.path}: cannot write ({exc.strerror or exc})"
-        finally:
-            self._file.close()
 
 
 # -- recovery --------------------------------------------------------------------------
-def read_partial(path) -> tuple[dict, np.ndarray, list[dict], list[float], list[list[float]]]:
-    """The header, rows, events, parameter times and sets of a side file.
-
-    Records cut short (a kill while writing) and anything after them are ignored.
-    """
-    header, n, events, times, sets = _scan_partial(path)
-    parts = list(_side_rows(path, n))
-    a = np.concatenate(parts) if parts else np.zeros((0, N_COLUMNS))
-    return header, a, events, times, sets
-
-
-def _records(fh):
-    """The whole records of an open side file after its magic: (tag, offset of the
-    payload, size), up to the first one cut short or damaged."""
-    fh.seek(0, os.SEEK_END)
-    end = fh.tell()
-    pos = len(_MAGIC)
-    while pos + _RECORD.size <= end:
-        fh.seek(pos)
-        tag, size = _RECORD.unpack(fh.read(_RECORD.size))
-        body = pos + _RECORD.size
-        if body + size > end or tag not in (b"HEAD", b"ROWS", b"EVTS", b"PARS"):
-            return  # cut short by the crash, or not a record
-        yield tag, body, size
-        pos = body + size
-
-
-def _open_partial(path):
-    path = Path(path)
-    try:
-        fh = open(path, "rb")  # noqa: SIM115 (the callers close it)
-    except FileNotFoundError:
-        raise UserError(f"{path}: render log side file not found") from None
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if fh.read(len(_MAGIC)) != _MAGIC:
-        fh.close()
-        raise UserError(f"{path}: not the side file of a render log")
-    return fh
-
-
-_ROW_BYTES = N_COLUMNS * _ROW_DTYPE.itemsize
-
-
-def _scan_partial(path) -> tuple[dict, int, list[dict], list[float], list[list[float]]]:
-    """A side file's header, number of whole rows, events, parameter times and sets,
-    read without its rows."""
-    header = None
-    n = 0
-    events: list[dict] = []
-    times: list[float] = []
-    sets: list[list[float]] = []
-    with _open_partial(path) as fh:
-        for tag, offset, size in _records(fh):
-            if tag == b"ROWS":
-                if size % _ROW_BYTES:
-                    break
-                n += size // _ROW_BYTES
-                continue
-            fh.seek(offset)
-            try:
-                item = json.loads(fh.read(size))
-                if tag == b"HEAD":
-                    header = item
-                elif tag == b"EVTS":
-                    events.extend(item)
-                else:
-                    times.extend(item["t"])
-                    sets.extend(item["values"])
-            except (ValueError, KeyError, TypeError):
-                break
-    if header is None:
-        raise UserError(f"{path}: render log side file without its header")
-    return header, n, events, times, sets
-
-
-def _side_rows(path, limit: int):
-    """The side file's first ``limit`` rows, a record (about a second) at a time."""
-    left = limit
-    with _open_partial(path) as fh:
-        for tag, offset, size in _records(fh):
-            if left <= 0:
-                return
-            if tag != b"ROWS":
-                continue
-            fh.seek(offset)
-            rows = np.frombuffer(fh.read(size), dtype=_ROW_DTYPE).reshape(-1, N_COLUMNS)
-            yield rows[:left].astype(np.float64, copy=False)
-            left -= rows.shape[0]
-    if left > 0:
-        raise UserError(f"{path}: {left} rows of the render log missing from its side file")
-
-
 def recover(partial_path, out_path=None) -> Path:
     """Turn the side file of a render that ended without a clean stop into a log.
 
@@ -875,7 +379,7 @@ def recover(partial_path, out_path=None) -> Path:
             raise UserError(f"{side}: give the log to write (the name lacks {PARTIAL_SUFFIX})")
         out_path = side.with_name(side.name[: -len(PARTIAL_SUFFIX)])
     out_path = Path(out_path)
-    header, n, events, times, sets = _scan_partial(side)
+    header, n, events, times, sets = scan_partial(side)
     log = RenderLog(float(header["rate"]))
     log._names = list(header.get("names", []))
     log._units = list(header.get("units", []))
@@ -893,7 +397,7 @@ def recover(partial_path, out_path=None) -> Path:
     loop_rate = header.get("loop_rate")
     log._write(
         out_path,
-        _side_rows(side, n),
+        side_rows(side, n),
         n,
         float("nan") if loop_rate is None else loop_rate,
         str(header.get("device", "")),

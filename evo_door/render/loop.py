@@ -1,56 +1,49 @@
 """The servo loop: read the device, evaluate the haptic model, command the force.
 
-Each cycle (:meth:`ServoLoop.run`):
+Each cycle (:meth:`ServoLoop._cycle`; :meth:`ServoLoop.run` paces and repeats it):
 
 1. a pending parameter change (:meth:`ServoLoop.request_change`, validated when asked)
    comes into force, whole: changes happen only between two cycles;
 2. ``device.read()``: position, velocity, measured user force;
-3. :func:`compute_command_implicit` (compiled, the default): the haptic model's
-   device-space force (:func:`~evo_door.models.haptic.device_force`) without its
-   dry friction, plus that friction rendered by the implicit Coulomb law for the
-   device's mass and the loop period (stable at any level, holds still below it);
-   or, with ``friction="tanh"``, :func:`compute_command`: the model's force as it
-   is, tanh friction included (rings above 2 m v_s / T). Either made safe
-   (:func:`~evo_door.render.safety.limit_force`: finite, within the device limit),
-   and the door's state for the log (theta, dtheta, tangential user force);
+3. :func:`~evo_door.render.kernels.compute_command_implicit` (compiled, the default):
+   the haptic model's device-space force (:func:`~evo_door.models.haptic.device_force`)
+   without its dry friction, plus that friction rendered by the implicit Coulomb law
+   for the device's mass and the loop period (stable at any level, holds still below
+   it); or, with ``friction="tanh"``, :func:`~evo_door.render.kernels.compute_command`:
+   the model's force as it is, tanh friction included (rings above 2 m v_s / T).
+   Either made safe (:func:`~evo_door.render.safety.limit_force`: finite, within the
+   device limit), and the door's state for the log (theta, dtheta, tangential user
+   force);
 4. ``device.command(force)``, ``device.step(T)`` (simulated devices only move here);
 5. the log row, the watchdog.
 
 A simulated device runs in simulated time, as fast as the machine allows, unless
-``realtime``; a real device paces the loop on ``time.perf_counter`` and the period
-statistics (mean period, p99 lateness, missed cycles) say how well it kept time.
+``realtime``; a real device paces the loop on ``time.perf_counter``
+(:mod:`evo_door.render.priority`: its thread's priority and the wait for each slot)
+and the period statistics (:mod:`evo_door.render.timing`: mean period, p99 lateness,
+missed cycles) say how well it kept time.
+
+Size: a little over 600 lines, one class: its parameter changes, its statistics and
+the cycle belong together (the cycle reads the set in force and feeds the statistics);
+the kernels, pacing, timing and log are already modules of their own.
 """
 
 from __future__ import annotations
 
-import gc
 import math
-import os
-import sys
 import threading
 import time
 
 import numpy as np
-from numba import njit
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import (
-    C_ENERGY,
-    DEVICE_OFFSET_Y,
-    DEVICE_OFFSET_Z,
-    FRICTION_CLOSING,
-    FRICTION_OPENING,
-    FRICTION_SPEED_THRESHOLD,
-    PARAMS,
-    RADIUS,
-    device_force,
-    section_scale,
-    tangential_force,
-)
+from evo_door.models.haptic import FRICTION_CLOSING, FRICTION_OPENING, PARAMS
 from evo_door.params import param_vector
-from evo_door.render.friction import implicit_coulomb
+from evo_door.render.kernels import compute_command, compute_command_implicit
 from evo_door.render.log import N_COLUMNS, RenderLog
-from evo_door.render.safety import IMPLICIT, NON_FINITE, Watchdog, check_passive, limit_force
+from evo_door.render.priority import Pacing
+from evo_door.render.safety import IMPLICIT, NON_FINITE, Watchdog, check_passive
+from evo_door.render.timing import LoopTiming
 
 #: dry-friction laws of the loop: the implicit (set-valued) Coulomb law, the default,
 #: or the haptic model's own explicit tanh (for comparison: rings above
@@ -59,265 +52,6 @@ FRICTION_LAWS = ("implicit", "tanh")
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
-#: the niceness of a paced loop's thread (-20 highest, 0 normal), where real-time
-#: scheduling is not permitted but this is
-_NICENESS = -20
-#: the real-time priority (SCHED_FIFO, 1-99) of a paced loop's thread, where permitted:
-#: above every normal thread on its core, below the kernel's own real-time threads
-_RT_PRIORITY = 10
-#: ... and of the process's other threads meanwhile (the control port, the log's spill):
-#: they share the loop's interpreter lock, and a normal thread that the scheduler
-#: preempts while holding it stalls the loop for milliseconds (a priority inversion)
-_RT_PRIORITY_OTHERS = 5
-#: a real-time loop sleeps until this long (s) before its slot, then spins: it wakes
-#: within tens of microseconds, and while it sleeps the core and the interpreter are free
-_RT_SPIN = 1.5e-4
-#: the interpreter's thread switch interval while a paced loop runs (s; default 5 ms)
-_SWITCH_INTERVAL = 1e-4
-
-
-def _set_other_threads(own: int, policy: int, priority: int, only=None) -> int:
-    """Set the scheduling of this process's threads but ``own`` (Linux); how many took it.
-
-    ``only``: change only the real-time threads at that priority (to undo). Threads
-    started later inherit their creator's scheduling: the control port's handlers do.
-    """
-    try:
-        tids = [int(name) for name in os.listdir("/proc/self/task")]
-    except OSError:
-        return 0
-    done = 0
-    for t in tids:
-        if t == own:
-            continue
-        try:
-            if only is not None and (
-                os.sched_getscheduler(t) != os.SCHED_FIFO
-                or os.sched_getparam(t).sched_priority != only
-            ):
-                continue
-            os.sched_setscheduler(t, policy, os.sched_param(priority))
-            done += 1
-        except OSError:  # gone meanwhile, or not permitted
-            pass
-    return done
-
-
-@njit(cache=True)
-def compute_command(pos, vel, user, p, limit, out, row):
-    """The force to command (N, device frame) into ``out``; the log row into ``row``.
-
-    The haptic model's force as it is, dry friction included (its explicit tanh).
-
-    Returns the fault code of :func:`~evo_door.render.safety.limit_force`; any
-    non-finite input (state, measured force, parameters) gives a zero force and
-    :data:`~evo_door.render.safety.NON_FINITE`.
-    """
-    finite = _finite_state(pos, vel, user)
-    if finite:
-        device_force(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], p, out)
-        code = limit_force(out, limit)
-    else:
-        code = _no_force(out)
-    _fill_row(pos, vel, user, out, finite, row)
-    return code
-
-
-#: Finite-difference steps of the local stiffness and damping along the tangent:
-#: angle (rad) and angular speed (rad/s), well inside the latch's release edge
-#: (band / latch_sharpness, about 5e-4 rad) and its speed gate (1 / latch_gate_slope).
-_DTHETA_STEP = 1e-7
-_OMEGA_STEP = 1e-6
-
-
-@njit(cache=True)
-def compute_command_implicit(pos, vel, user, p, p_free, mass, period, damping, limit, out, row):
-    """:func:`compute_command` with the door's own law rendered implicitly.
-
-    ``p`` is the parameter vector in force and ``p_free`` the same with both dry
-    friction levels at zero: the model's force without its tanh friction. Along the
-    door's tangent at the handle, ``e_t = (0, cos th, -sin th)`` (toward closing), the
-    device's moving ``mass`` m (kg) takes one step of the loop ``period`` T (s) under
-    the measured user force, its own ``damping`` (N s/m), the model's tangential force
-    and the dry friction. Two things are solved over that step rather than taken
-    from the state at its start:
-
-    * **stiff springs and dampers** (latch bands, end stops, seal, snap zone): the
-      model's tangential force is linearised about the state,
-      ``f(x + T v', v') ~ f0 - K T v' - C (v' - v)`` with the local stiffness
-      ``K = -df/dx`` (N/m, only its stiffening part) and damping ``C = -df/dv``
-      (N s/m) by finite differences, and the new speed solves
-      ``(m + T C + T^2 K) v' = (m + T C) v + T (F + f_fric)``: a backward-Euler step
-      of the door, stable and dissipative at any stiffness, where the force of the
-      state at the start of the step (explicit) is passive only while the device's
-      damping exceeds ``K T / 2`` (Colgate-Schenkel);
-    * **dry friction**, :func:`~evo_door.render.friction.implicit_coulomb` on that
-      effective mass: the levels are ``A(theta) friction_closing`` against a step
-      toward closing faster than ``friction_speed_threshold`` and
-      ``A(theta) friction_opening`` otherwise, as the model selects them. It sticks
-      (the handle stops this step) whenever the other forces stay below the level
-      and never drives the handle through zero speed, whatever the level.
-
-    The command along ``e_t`` is the model's force at the end of the step plus the
-    friction; across it (the circle and the plane constraints) the model's force as
-    it is. It assumes the device moves its mass m over T under the command, as an
-    admittance device does (the loop passes the measured period as T).
-    """
-    finite = _finite_state(pos, vel, user)
-    # a mass, period or damping that is not finite would spread NaN through the step;
-    # the loop checks them (ServoLoop), this keeps the kernel safe on its own
-    if finite and math.isfinite(mass) and math.isfinite(period) and math.isfinite(damping):
-        device_force(pos[0], pos[1], pos[2], vel[0], vel[1], vel[2], p_free, out)
-        ym = pos[1] + DEVICE_OFFSET_Y
-        zm = pos[2] + DEVICE_OFFSET_Z
-        r = math.sqrt(ym * ym + zm * zm)
-        if r > 1e-9 and mass > 0.0 and period > 0.0:
-            s = ym / r
-            c = zm / r
-            theta = math.atan2(ym, zm)
-            v_t = vel[1] * c - vel[2] * s
-            omega = v_t / r
-            # local stiffness and damping of the tangential law (N/m, N s/m)
-            f0 = _tangential(theta, omega, p_free)
-            k = -(_tangential(theta + _DTHETA_STEP, omega, p_free) - f0) / _DTHETA_STEP / r
-            cd = -(_tangential(theta, omega + _OMEGA_STEP, p_free) - f0) / _OMEGA_STEP / r
-            k = max(k, 0.0)
-            cd = max(cd, -0.5 * mass / period)  # keeps m + T C >= m / 2
-            m_damped = mass + period * cd
-            m_eff = m_damped + period * period * k
-            v_start = m_damped * v_t / m_eff
-            f_t = (user[1] + out[1]) * c - (user[2] + out[2]) * s - damping * v_t
-            v_free = v_start + period * f_t / m_eff
-            scale = section_scale(theta, p)
-            opening = scale * p[FRICTION_OPENING]
-            forward = opening
-            if v_free > p[FRICTION_SPEED_THRESHOLD] * r:
-                forward = scale * p[FRICTION_CLOSING]
-            f = implicit_coulomb(v_start, f_t, m_eff, period, forward, opening)
-            v_new = v_start + period * (f_t + f) / m_eff
-            f += -k * period * v_new - cd * (v_new - v_t)
-            out[1] += f * c
-            out[2] -= f * s
-        code = limit_force(out, limit)
-    else:
-        code = _no_force(out)
-    _fill_row(pos, vel, user, out, finite, row)
-    return code
-
-
-@njit(cache=True)
-def _tangential(theta, omega, p):
-    """The model's force along e_theta (N): its tangential law and c_energy's push."""
-    return tangential_force(theta, omega, p) + p[C_ENERGY] * p[RADIUS] * omega
-
-
-@njit(cache=True)
-def _no_force(out):
-    """Zero force for a non-finite input; the fault code that says so."""
-    out[0] = 0.0
-    out[1] = 0.0
-    out[2] = 0.0
-    return NON_FINITE
-
-
-@njit(cache=True)
-def _finite_state(pos, vel, user):
-    for i in range(3):
-        if not (math.isfinite(pos[i]) and math.isfinite(vel[i]) and math.isfinite(user[i])):
-            return False
-    return True
-
-
-@njit(cache=True)
-def _fill_row(pos, vel, user, out, finite, row):
-    """The log row of a cycle: state, measured and commanded force, door state."""
-    for i in range(3):
-        row[i] = pos[i]
-        row[3 + i] = vel[i]
-        row[6 + i] = user[i]
-        row[9 + i] = out[i]
-    ym = pos[1] + DEVICE_OFFSET_Y
-    zm = pos[2] + DEVICE_OFFSET_Z
-    r2 = ym * ym + zm * zm
-    if r2 > 1e-18 and finite:
-        theta = math.atan2(ym, zm)
-        row[12] = theta
-        row[13] = (vel[1] * zm - vel[2] * ym) / r2
-        # e_theta = (cos, -sin) in (y, z): toward closing
-        row[14] = user[1] * math.cos(theta) - user[2] * math.sin(theta)
-    else:
-        row[12] = math.nan if not finite else 0.0
-        row[13] = math.nan if not finite else 0.0
-        row[14] = math.nan if not finite else 0.0
-
-
-class LoopTiming:
-    """The loop's timing in constant memory: counts and histograms.
-
-    A session of an hour at 2500 Hz is 9 million cycles: keeping every start time
-    would grow without bound, so the lateness and the work of each cycle go into
-    histograms with bins growing by :data:`GROWTH` (5 %) from :data:`FIRST` (1 us;
-    below it, bin 0) to 1 s (the last bin takes everything longer), small enough to
-    read a percentile from another thread at display rate. Percentiles are the upper
-    edge of their bin: within 5 % above the true value.
-    """
-
-    FIRST = 1e-6  # s, upper edge of bin 0
-    GROWTH = 1.05
-    BINS = 2 + int(math.log(1.0 / FIRST) / math.log(GROWTH))
-
-    def __init__(self, period: float):
-        self.period = float(period)
-        self.late = [0] * self.BINS  # lists: a cheaper += per cycle than an array's
-        self.work = [0] * self.BINS
-        self.starts = 0
-        self.first = 0.0
-        self.last = 0.0
-        self.missed = 0  # slots skipped by a paced loop
-        self.over = 0  # cycles whose work took longer than the period
-        self.work_sum = 0.0
-        self.worked = 0
-
-    def _bin(self, seconds: float) -> int:
-        if seconds <= self.FIRST:
-            return 0
-        return min(1 + int(math.log(seconds / self.FIRST) / _LOG_GROWTH), self.BINS - 1)
-
-    def start(self, now: float, late: float) -> None:
-        """A paced cycle started at ``now`` (s), ``late`` (s) after its slot."""
-        if self.starts == 0:
-            self.first = now
-        self.last = now
-        self.starts += 1
-        self.late[self._bin(late)] += 1
-
-    def worked_for(self, seconds: float) -> None:
-        """A cycle's work (read, model, command, log) took ``seconds``."""
-        self.work[self._bin(seconds)] += 1
-        self.work_sum += seconds
-        self.worked += 1
-        if seconds > self.period:
-            self.over += 1
-
-    def period_mean(self) -> float:
-        """Mean time between the starts of paced cycles (s); the period if unpaced."""
-        if self.starts < 2:
-            return self.period
-        return (self.last - self.first) / (self.starts - 1)
-
-    def percentile(self, which: str, q: float) -> float:
-        """The ``q`` percentile (0-100) of ``"late"`` or ``"work"`` (s): its bin's
-        upper edge (0 when nothing was counted)."""
-        hist = self.late if which == "late" else self.work
-        counts = np.cumsum(hist)
-        if counts[-1] == 0:
-            return 0.0
-        k = int(np.searchsorted(counts, q / 100.0 * counts[-1]))
-        return self.FIRST * self.GROWTH**k
-
-
-_LOG_GROWTH = math.log(LoopTiming.GROWTH)
-
 
 #: what a refusal of a change names as its source: the values the client sent, never
 #: the file the running set came from (a preset's path on the server's installation)
@@ -342,6 +76,20 @@ def _device_number(device, name: str, default: float, unit: str, positive=False)
         sign = ">" if positive else ">="
         raise UserError(f"the device's {name} is {value:g} {unit}: must be finite and {sign} 0")
     return value
+
+
+def _check_settings(rate, params, log_rate, ramp_time, friction) -> None:
+    """A UserError for a loop setting out of its range (ServoLoop's arguments)."""
+    if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
+        raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
+    if getattr(params, "model", None) != "haptic":
+        raise UserError("the renderer takes a parameter set of the 'haptic' model")
+    if not (math.isfinite(log_rate) and 1.0 <= log_rate <= rate):
+        raise UserError(f"--log-rate {log_rate:g}: give a log rate in 1..{rate:g} Hz (the loop's)")
+    if not 0.0 < ramp_time <= 0.01:
+        raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
+    if friction not in FRICTION_LAWS:
+        raise UserError(f"--friction {friction!r}: choose one of {', '.join(FRICTION_LAWS)}")
 
 
 class ServoLoop:
@@ -388,30 +136,19 @@ class ServoLoop:
         friction: str = "implicit",
         supervisor=None,
     ):
-        if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
-            raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
-        if getattr(params, "model", None) != "haptic":
-            raise UserError("the renderer takes a parameter set of the 'haptic' model")
-        if not (math.isfinite(log_rate) and 1.0 <= log_rate <= rate):
-            raise UserError(
-                f"--log-rate {log_rate:g}: give a log rate in 1..{rate:g} Hz (the loop's)"
-            )
-        if not 0.0 < ramp_time <= 0.01:
-            raise UserError(f"ramp time {ramp_time:g} s: must be in (0, 0.01] s")
-        if friction not in FRICTION_LAWS:
-            raise UserError(f"--friction {friction!r}: choose one of {', '.join(FRICTION_LAWS)}")
+        _check_settings(rate, params, log_rate, ramp_time, friction)
         self.friction = friction
         self.device = device
         self.device_name = device_name or type(device).__name__
         self.rate = float(rate)
         self.period = 1.0 / self.rate
-        self._realtime_sched = False  # the loop thread runs under SCHED_FIFO (run)
         self.clamp = bool(clamp)
         self.limit = _device_number(device, "max_force", 200.0, "N", positive=True)
         self.damping = _device_number(device, "damping", 0.0, "N s/m")
         self.simulated = bool(getattr(device, "simulated", False))
         self.realtime = (not self.simulated) if realtime is None else bool(realtime)
         self.log = RenderLog(log_rate, PARAMS)
+        self.pacing = Pacing(self.log)  # a paced loop's priority and wait for its slot
         self.watchdog = Watchdog(watchdog_misses, ramp_time)
         self.supervisor = supervisor
         self._lock = threading.Lock()  # guards _pending between the loop and the rest
@@ -434,6 +171,11 @@ class ServoLoop:
         #: perf_counter at the first cycle and when the loop ended (s; 0 until then)
         self.t0 = 0.0
         self.t_end = 0.0
+        self._now = 0.0  # the loop time of the current cycle (s)
+        self._k = 0  # cycles run
+        self._sent = 0.0  # when the last command went (perf_counter, s; paced loops)
+        self._stall_limit = 0.0  # a gap between two commands this long is a stall (s)
+        self._new_buffers()
 
     # -- parameter changes ---------------------------------------------------------
     def request_change(self, values: dict):
@@ -457,8 +199,6 @@ class ServoLoop:
             with self._lock:
                 self._pending = (new, {**before, **values}, changes)
         return new
-
-    _now = 0.0
 
     @property
     def pending(self) -> bool:
@@ -502,8 +242,6 @@ class ServoLoop:
         """The loop's timing so far, for a display (any thread): the statistics of
         :meth:`run`'s end, computed now."""
         return self._stats(self._k)
-
-    _k = 0
 
     def _passive(self, params):
         """Colgate-Schenkel at the period in force, without what is not sampled explicitly."""
@@ -566,168 +304,231 @@ class ServoLoop:
         ``status`` is ``done``, ``stopped`` (by ``stop``), ``watchdog`` or ``failed``
         (the loop raised). The device is stopped on the way out, whatever happened.
         """
+        n_cycles = self._cycles(duration, stop)
+        self._set_up()
+        self.pacing.begin(self.realtime)
+        k = 0
+        try:
+            self._start()
+            while k < n_cycles and not (stop is not None and stop.is_set()):
+                k, now, late = self._pace(k, n_cycles)
+                if k >= n_cycles:
+                    break  # the slots it missed reached the end
+                if not self._cycle(k * self.period, now, late):
+                    break  # the tripped watchdog's ramp reached zero force
+                k += 1
+                self._k = k
+        except BaseException:
+            self.status = "failed"
+            raise
+        finally:
+            self._end(k, n_cycles, stop)
+        return self.statistics
+
+    def _cycles(self, duration: float | None, stop: threading.Event | None) -> float:
+        """How many cycles ``run`` runs (inf: until ``stop``); a UserError for neither."""
         if duration is None and stop is None:
             raise UserError("give a duration or a stop event")
         if duration is not None and not (math.isfinite(duration) and duration > 0):
             raise UserError(f"--duration {duration:g}: must be > 0 s")
-        n_cycles = math.inf if duration is None else int(round(duration * self.rate))
-        T = self.period
-        dev = self.device
-        implicit = self.friction == "implicit"
-        cmd = np.zeros(3)
-        last = np.zeros(3)
-        row = np.zeros(N_COLUMNS)
-        pos = np.zeros(3)
-        vel = np.zeros(3)
-        user = np.zeros(3)
-        timing = self.timing = LoopTiming(T)
+        return math.inf if duration is None else int(round(duration * self.rate))
+
+    def _new_buffers(self) -> None:
+        """The arrays a cycle reads into and writes to (the kernels allocate nothing)."""
+        self._pos = np.zeros(3)  # m, device frame
+        self._vel = np.zeros(3)  # m/s
+        self._user = np.zeros(3)  # N, the measured user force
+        self._cmd = np.zeros(3)  # N, the force to command
+        self._last = np.zeros(3)  # N, the last force the device took (the ramp's start)
+        self._row = np.zeros(N_COLUMNS)  # the cycle's log row
+
+    def _set_up(self) -> None:
+        """Before a run: fresh buffers and timing; the set in force and the friction law
+        (and a clamp at start) logged at time 0."""
+        self._new_buffers()
+        self.timing = LoopTiming(self.period)
         self.log.params(0.0, self._set_vector())
         self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
         self.status = "running"
         self.t0 = self.t_end = 0.0
-        k = 0
-        # a paced loop must not stop for a cyclic garbage collection (tens of ms);
-        # reference counting still frees the per-cycle arrays
-        gc_was_enabled = gc.isenabled()
-        switch_interval = sys.getswitchinterval()
-        niceness = None
-        if self.realtime:
-            gc.disable()
-            # another thread holding the GIL gives it back after 0.1 ms, not 5 ms
-            sys.setswitchinterval(_SWITCH_INTERVAL)
-            niceness = self._raise_priority()
+
+    def _start(self) -> None:
+        """Just before the first cycle: the kernels loaded, the device started and told
+        what it renders, the clock's origin ``t0`` taken, the supervisor armed."""
+        T = self.period
+        pos, vel, user, cmd, row = self._pos, self._vel, self._user, self._cmd, self._row
+        # load both kernels now (numba's cache: milliseconds), not in the first slot
+        compute_command(pos, vel, user, self._p, self.limit, cmd, row)
+        compute_command_implicit(
+            pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
+        )
+        cmd[:] = 0.0
+        # a device over a link counts as stalled after the watchdog's budget without
+        # an answer (the device applies its own floor): its read then fails, which
+        # trips the watchdog, and the loop ends at the next command
+        watch_stalls = getattr(self.device, "watch_stalls", None)
+        if watch_stalls is not None:
+            watch_stalls(self.watchdog.misses * T)
+        self.device.start()
+        self._set_native()
+        self._set_vectors()
+        self._set_mass()
+        self.t0 = self._sent = time.perf_counter()
+        self._stall_limit = (self.watchdog.misses + 1) * T
+        if self.supervisor is not None:
+            self.supervisor.arm()
+
+    def _pace(self, k: int, n_cycles: float) -> tuple[int, float, float]:
+        """Wait for cycle ``k``'s slot (paced loops); returns ``(k, now, late)``.
+
+        ``now`` is the time (s after ``t0``) the cycle starts, ``late`` (s) how long
+        after its slot. A paced loop that missed its slot counts the slots missed and
+        skips ahead, keeping its schedule (``k`` grows; to ``n_cycles`` at most); a
+        loop in simulated time starts each cycle at its slot, on time.
+        """
+        T = self.period
+        t = k * T
+        if not self.realtime:
+            return k, t, 0.0
+        now = self.pacing.wait_until(self.t0, t)
+        late = now - t
+        if late > T:  # missed its slot: count, skip ahead, keep the schedule
+            skip = int(min(late / T, n_cycles - k))  # none past the end
+            self.timing.missed += skip
+            k += skip
+            if k >= n_cycles:
+                return k, now, late
+        self.timing.start(now, late)
+        return k, now, late
+
+    def _cycle(self, t: float, now: float, late: float) -> bool:
+        """One servo cycle at loop time ``t`` (s), started at ``now`` (s after ``t0``),
+        ``late`` (s) after its slot.
+
+        1. a waiting parameter change comes into force, whole;
+        2. the device is read (a failed read trips the watchdog);
+        3. the stall rule (paced loops): too long since the last command trips the
+           watchdog (:meth:`_check_stall`);
+        4. the force: while the watchdog is tripped, the last force ramped down
+           (:meth:`_ramp_down`); else the kernel's, commanded (:meth:`_command`);
+        5. the supervisor's heartbeat, the device's step (a simulated device moves),
+           the log row, the cycle's work timed, the watchdog fed;
+        6. once, after :data:`_RECHECK_AFTER` paced cycles: passivity with the period
+           measured (:meth:`_recheck`).
+
+        Returns False when the loop ends here: the ramp reached zero force.
+        """
+        tic = time.perf_counter()
+        watchdog = self.watchdog
+        self._now = t
+        self._apply_pending(t)
+        self._read(t, now)
+        if self.realtime and not watchdog.tripped:
+            self._sent = self._check_stall(self._sent, self._stall_limit)
+            if watchdog.tripped:  # the ramp starts after the stall, not before
+                now = self._sent - self.t0
+        if watchdog.tripped:
+            if not self._ramp_down(t, now):
+                return False
+        else:
+            self._command(t, now)
+        if self.supervisor is not None:
+            self.supervisor.beat()
+        self.device.step(self.period)
+        self.log.add(t, self._row)
+        self.timing.worked_for(time.perf_counter() - tic)
+        watchdog.cycle(now, late > self.period)
+        if watchdog.tripped and watchdog.tripped_at == now:
+            self.log.event(t, "watchdog", watchdog.reason)
+        # paced cycles run (not slots); not once tripped (a stall's gap is no period)
+        if self.realtime and self.timing.starts == _RECHECK_AFTER and not watchdog.tripped:
+            self._recheck(self.timing.period_mean(), t)
+        return True
+
+    def _read(self, t: float, now: float) -> None:
+        """The device's position, velocity and measured force into the cycle's arrays;
+        a read that fails (a dropped connection, a device error) trips the watchdog."""
         try:
-            # load both kernels now (numba's cache: milliseconds), not in the first slot
-            compute_command(pos, vel, user, self._p, self.limit, cmd, row)
-            compute_command_implicit(
-                pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
+            p_, v_, f_ = self.device.read()
+            self._pos[:] = p_
+            self._vel[:] = v_
+            self._user[:] = f_
+        except Exception as exc:
+            self.watchdog.trip(now, f"device read failed: {exc}")
+            self.log.event(t, "fault", f"device read failed: {exc}")
+
+    def _command(self, t: float, now: float) -> None:
+        """The kernel's force and log row for the state read, counted when it was not
+        finite or was limited, then commanded; a command that fails trips the watchdog."""
+        cmd = self._cmd
+        if self.friction == "implicit":
+            code = compute_command_implicit(
+                self._pos,
+                self._vel,
+                self._user,
+                self._p,
+                self._p_free,
+                self._mass,
+                self._check_period,
+                self.damping,
+                self.limit,
+                cmd,
+                self._row,
             )
-            cmd[:] = 0.0
-            # a device over a link counts as stalled after the watchdog's budget without
-            # an answer (the device applies its own floor): its read then fails, which
-            # trips the watchdog, and the loop ends at the next command
-            watch_stalls = getattr(dev, "watch_stalls", None)
-            if watch_stalls is not None:
-                watch_stalls(self.watchdog.misses * T)
-            dev.start()
-            self._set_native()
-            self._set_vectors()
-            self._set_mass()
-            t0 = self.t0 = time.perf_counter()
-            sent = t0  # when the last command went (perf_counter, s)
-            stall_limit = (self.watchdog.misses + 1) * T  # a gap this long is a stall
-            sup = self.supervisor
-            if sup is not None:
-                sup.arm()
-            while k < n_cycles and not (stop is not None and stop.is_set()):
-                t = k * T
-                if self.realtime:
-                    now = self._wait_until(t0, t)
-                    late = now - t
-                    if late > T:  # missed its slot: count, skip ahead, keep the schedule
-                        skip = min(int(late / T), n_cycles - k)  # none past the end
-                        timing.missed += skip
-                        k += skip
-                        if k >= n_cycles:
-                            break
-                        t = k * T
-                    timing.start(now, late)
-                else:
-                    now = t
-                    late = 0.0
-                tic = time.perf_counter()
-                self._now = t
-                self._apply_pending(t)
-                try:
-                    p_, v_, f_ = dev.read()
-                    pos[:] = p_
-                    vel[:] = v_
-                    user[:] = f_
-                except Exception as exc:  # a dropped connection, a device error
-                    self.watchdog.trip(now, f"device read failed: {exc}")
-                    self.log.event(t, "fault", f"device read failed: {exc}")
-                if self.realtime and not self.watchdog.tripped:
-                    sent = self._check_stall(sent, stall_limit)
-                    if self.watchdog.tripped:  # the ramp starts after the stall, not before
-                        now = sent - t0
-                if self.watchdog.tripped:
-                    factor = self.watchdog.factor(now)
-                    cmd[:] = last * factor
-                    row[9:12] = cmd
-                    try:
-                        dev.command(cmd)
-                    except Exception:  # the connection is gone: nothing more to send
-                        factor = 0.0
-                    if factor == 0.0:
-                        if self.watchdog.tripped_at == now:  # tripped and ended at once
-                            self.log.event(t, "watchdog", self.watchdog.reason)
-                        self.log.add(t, row)
-                        break
-                else:
-                    if implicit:
-                        code = compute_command_implicit(
-                            pos,
-                            vel,
-                            user,
-                            self._p,
-                            self._p_free,
-                            self._mass,
-                            self._check_period,
-                            self.damping,
-                            self.limit,
-                            cmd,
-                            row,
-                        )
-                    else:
-                        code = compute_command(pos, vel, user, self._p, self.limit, cmd, row)
-                    if code == NON_FINITE:
-                        self.faults += 1
-                        if self.faults <= 100:
-                            self.log.event(t, "fault", "non-finite state or force: zero force")
-                    elif code:
-                        self.saturated += 1
-                    try:
-                        dev.command(cmd)
-                        last[:] = cmd
-                    except Exception as exc:  # the connection dropped while sending
-                        self.watchdog.trip(now, f"device command failed: {exc}")
-                        self.log.event(t, "fault", f"device command failed: {exc}")
-                if sup is not None:
-                    sup.beat()
-                dev.step(T)
-                self.log.add(t, row)
-                timing.worked_for(time.perf_counter() - tic)
-                self.watchdog.cycle(now, late > T)
-                if self.watchdog.tripped and self.watchdog.tripped_at == now:
-                    self.log.event(t, "watchdog", self.watchdog.reason)
-                k += 1
-                self._k = k
-                # cycles run, not slots; not once tripped (a stall's gap is no period)
-                if self.realtime and timing.starts == _RECHECK_AFTER and not self.watchdog.tripped:
-                    self._recheck(timing.period_mean(), t)
-        except BaseException:
-            self.status = "failed"
-            raise
+        else:
+            code = compute_command(
+                self._pos, self._vel, self._user, self._p, self.limit, cmd, self._row
+            )
+        if code == NON_FINITE:
+            self.faults += 1
+            if self.faults <= 100:
+                self.log.event(t, "fault", "non-finite state or force: zero force")
+        elif code:
+            self.saturated += 1
+        try:
+            self.device.command(cmd)
+            self._last[:] = cmd
+        except Exception as exc:  # the connection dropped while sending
+            self.watchdog.trip(now, f"device command failed: {exc}")
+            self.log.event(t, "fault", f"device command failed: {exc}")
+
+    def _ramp_down(self, t: float, now: float) -> bool:
+        """The tripped watchdog's cycle: the last force the device took, scaled down by
+        the ramp, commanded. At zero (or when the command fails: the connection is
+        gone) the cycle's row is logged and False returned: the loop ends."""
+        factor = self.watchdog.factor(now)
+        cmd = self._cmd
+        cmd[:] = self._last * factor
+        self._row[9:12] = cmd
+        try:
+            self.device.command(cmd)
+        except Exception:  # the connection is gone: nothing more to send
+            factor = 0.0
+        if factor == 0.0:
+            if self.watchdog.tripped_at == now:  # tripped and ended at once
+                self.log.event(t, "watchdog", self.watchdog.reason)
+            self.log.add(t, self._row)
+            return False
+        return True
+
+    def _end(self, k: int, n_cycles: float, stop: threading.Event | None) -> None:
+        """After the last cycle (``k`` run), also when the loop raised: the thread's
+        scheduling put back, the supervisor disarmed, the device stopped, the status
+        and the statistics."""
+        self.pacing.end()
+        self.t_end = time.perf_counter()
+        if self.supervisor is not None:  # first: a normal end is no stall
+            self._disarm_supervisor()
+        try:
+            self.device.stop()
         finally:
-            if gc_was_enabled:
-                gc.enable()
-            sys.setswitchinterval(switch_interval)
-            if niceness is not None:
-                self._restore_priority(niceness)
-            self.t_end = time.perf_counter()
-            if self.supervisor is not None:  # first: a normal end is no stall
-                self._disarm_supervisor()
-            try:
-                dev.stop()
-            finally:
-                if self.status != "failed":
-                    stopped = stop is not None and stop.is_set() and k < n_cycles
-                    self.status = self._end_status(stopped)
-                # also when the loop raised: an interrupted log keeps its statistics
-                self.statistics = self._stats(k)
-        return self.statistics
+            if self.status != "failed":
+                stopped = stop is not None and stop.is_set() and k < n_cycles
+                self.status = self._end_status(stopped)
+            # also when the loop raised: an interrupted log keeps its statistics
+            self.statistics = self._stats(k)
 
     def _check_stall(self, sent: float, limit: float) -> float:
         """Trip the watchdog when the loop stalled (paced loops, before each command).
@@ -762,101 +563,6 @@ class ServoLoop:
         if self.watchdog.tripped:
             return "watchdog"
         return "stopped" if stopped else "done"
-
-    def _raise_priority(self):
-        """Give this thread (the loop's) precedence over the machine's other work.
-
-        A paced loop holds its core; anything else the scheduler runs there (a browser
-        drawing the console, the console's process, a test suite) costs it whole
-        periods. In order of preference, where permitted (Linux: per thread):
-
-        * real-time scheduling (SCHED_FIFO, priority ``_RT_PRIORITY``): no normal
-          thread runs on the loop's core while it wants it, and it can sleep between
-          cycles (``_wait_until``) because it wakes on time;
-        * niceness ``_NICENESS``: a larger share of the core, but a sleep would wake
-          late, so the loop spins;
-        * neither: normal priority, said in the log.
-
-        The kernel keeps 5 % of every second from real-time threads by default
-        (``sched_rt_runtime_us``), so a loop that never sleeps (its cycle longer than
-        its period) cannot lock the core up; it misses cycles and the watchdog trips.
-        Returns what ``_restore_priority`` needs.
-        """
-        tid = threading.get_native_id()
-        cpus = None
-        try:  # one core of its own when there are several: no migrations
-            cpus = os.sched_getaffinity(0)
-            if len(cpus) > 1:
-                os.sched_setaffinity(0, {max(cpus)})
-        except (OSError, AttributeError):
-            cpus = None
-        self._realtime_sched = False
-        try:
-            policy = os.sched_getscheduler(0)
-            param = os.sched_getparam(0)
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(_RT_PRIORITY))
-        except (OSError, AttributeError) as exc:
-            rt_refused = exc
-        else:
-            self._realtime_sched = True
-            others = _set_other_threads(tid, os.SCHED_FIFO, _RT_PRIORITY_OTHERS)
-            self.log.event(
-                0.0,
-                "priority",
-                f"loop thread real-time (SCHED_FIFO, priority {_RT_PRIORITY}); "
-                f"{others} other thread(s) of the process at priority {_RT_PRIORITY_OTHERS}",
-            )
-            return tid, None, cpus, (policy, param)
-        try:
-            before = os.getpriority(os.PRIO_PROCESS, tid)
-            os.setpriority(os.PRIO_PROCESS, tid, _NICENESS)
-        except (OSError, AttributeError) as exc:  # not permitted, or not this OS
-            self.log.event(0.0, "priority", f"normal priority ({rt_refused}; {exc})")
-            return (tid, None, cpus, None)
-        self.log.event(
-            0.0,
-            "priority",
-            f"loop thread at niceness {_NICENESS} (was {before}); real-time refused: {rt_refused}",
-        )
-        return tid, before, cpus, None
-
-    def _restore_priority(self, saved) -> None:
-        tid, before, cpus, sched = saved
-        self._realtime_sched = False
-        try:
-            if sched is not None:
-                os.sched_setscheduler(0, *sched)
-                _set_other_threads(tid, os.SCHED_OTHER, 0, only=_RT_PRIORITY_OTHERS)
-            if before is not None:
-                os.setpriority(os.PRIO_PROCESS, tid, before)
-            if cpus is not None:
-                os.sched_setaffinity(0, cpus)
-        except OSError:  # lowering a priority back may need no permission; never fatal
-            pass
-
-    def _wait_until(self, t0: float, t: float) -> float:
-        """Wait for the slot at ``t`` (s after ``t0``): sleep while it is far, then spin.
-
-        A real-time loop (``_raise_priority``) sleeps until ``_RT_SPIN`` before the
-        slot: it wakes within tens of microseconds, and the sleep leaves the
-        interpreter to the process's other threads (the control port) and the core to
-        the rest of the machine. Otherwise the loop spins from 1.5 ms before: a normal
-        thread's sleep wakes 50-100 us late, more on a busy core. The spin holds the
-        interpreter; the other threads get it at the switch interval, 0.1 ms while a
-        paced loop runs (``run``). A ``time.sleep(0)`` per turn served them sooner
-        but, being a system call, let the scheduler take the core from the loop: 2-3 %
-        more cycles late with a browser drawing the console (``benchmarks/console.md``)."""
-        if self._realtime_sched:
-            far, early = _RT_SPIN, _RT_SPIN
-        else:
-            far, early = 0.002, 0.0015
-        while True:
-            now = time.perf_counter() - t0
-            left = t - now
-            if left <= 0:
-                return now
-            if left > far:
-                time.sleep(left - early)
 
     def _recheck(self, measured: float, t: float) -> None:
         """Passivity again with the measured period (over TCP, the round trip)."""
@@ -894,20 +600,7 @@ class ServoLoop:
             # for a simulated device run as fast as it goes
             "wall_s": ((self.t_end or time.perf_counter()) - self.t0) if self.t0 else 0.0,
         }
-        if self.realtime and tm.starts > 1:
-            stats.update(
-                period_mean_s=tm.period_mean(),
-                lateness_p99_s=tm.percentile("late", 99),
-                missed_cycles=int(tm.missed),
-                on_time_fraction=1.0 - tm.missed / max(cycles, 1),  # of the schedule's slots
-            )
-        else:  # simulated time: the period is exact; compute time says if it could keep up
-            stats.update(
-                period_mean_s=self.period,
-                lateness_p99_s=0.0,
-                missed_cycles=int(tm.over),
-                on_time_fraction=1.0 - tm.over / max(tm.worked, 1),
-            )
+        stats.update(tm.schedule(cycles, self.realtime))
         rtt = getattr(self.device, "round_trips", None)  # a networked device's
         if rtt is not None and len(rtt):
             stats.update(

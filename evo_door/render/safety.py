@@ -70,7 +70,7 @@ def _values(params) -> dict[str, float]:
     return params.as_dict() if hasattr(params, "as_dict") else PARAMS.as_dict(params)
 
 
-#: What the loop's implicit law renders (:func:`~evo_door.render.loop.compute_command_implicit`):
+#: What the loop's implicit law renders (:func:`~evo_door.render.kernels.compute_command_implicit`):
 #: the door's tangential springs and its snap-zone damping, solved over the step on
 #: the device's mass, stable and dissipative at any stiffness; left out of the check.
 IMPLICIT = frozenset(

@@ -241,7 +241,7 @@ class Supervisor:
 def _raise_priority() -> str:
     """Real time above the loop, on another core than the loop's, where permitted.
 
-    The loop takes the highest-numbered core (:mod:`evo_door.render.loop`); the
+    The loop takes the highest-numbered core (:mod:`evo_door.render.priority`); the
     supervisor takes the others, so a loop spinning at real time cannot keep it off.
     """
     try:

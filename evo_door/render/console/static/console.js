@@ -1,4 +1,5 @@
-/* evo-door operator's console: the page side of the contract of issue 15.
+/* evo-door operator's console: the page side of its messages with the console's server
+ * (evo_door/render/console/server.py).
  *
  * Plain JavaScript, no build step, nothing loaded from outside 127.0.0.1.
  * The server (evo_door/render/console/server.py) serves this file, GET /api/declaration,

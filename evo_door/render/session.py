@@ -1,0 +1,167 @@
+"""The session record of a render log: a participant's session in the web console.
+
+The console's session events (:data:`SESSION_KINDS`: who the participant is, the A/B
+comparisons, the set chosen) are events of the render log; the final log gathers them
+in its ``/session`` group (:func:`session_tree`). :func:`read_session` reads a log's
+session back, :func:`format_session` says it for people (``evo-door show LOG.h5``) and
+:func:`session_params` gives the set a log stands for (``--params LOG.h5``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.files import ATTRS, Dataset
+
+#: the event kinds that belong to a participant's session
+SESSION_KINDS = ("participant", "ab_store", "ab_switch", "ab_choice", "undo", "reset", "save")
+SESSION_KINDS += ("chosen", "note")
+
+
+def session_tree(events, names, units) -> dict | None:
+    """The ``/session`` group of a log from its events; None without session events.
+
+    Layout::
+
+        /session               participant (str, the last one given), events (json:
+                               every session event, time-stamped), choices (json: the
+                               A/B preferences), chosen_t (s, -1 without a choice)
+            chosen             the participant's final set (SI, in ``names`` order),
+                               attributes names, units; absent without a choice
+    """
+    mine = [e for e in events if e.get("kind") in SESSION_KINDS]
+    if not mine:
+        return None
+    participant = ""
+    for e in mine:
+        if e["kind"] == "participant":
+            participant = str(e.get("id", ""))
+    chosen = [e for e in mine if e["kind"] == "chosen"]
+    tree = {
+        ATTRS: {
+            "participant": participant,
+            "events": mine,
+            "choices": [e for e in mine if e["kind"] == "ab_choice"],
+            "chosen_t": chosen[-1]["t"] if chosen else -1.0,
+        }
+    }
+    values = chosen[-1].get("params", {}) if chosen else {}
+    if chosen and all(n in values for n in names):  # the control port completes it
+        vector = np.array([values[n] for n in names], dtype=np.float64)
+        tree["chosen"] = Dataset(vector, {"names": list(names), "units": list(units)})
+    return tree
+
+
+def read_session(path) -> dict:
+    """A render log's session: participant, duration, parameter sets, the choice.
+
+    Returns ``{"participant", "duration_s", "device", "sets": [(t, {name: value})],
+    "changes", "choices", "chosen": {name: value} or None, "chosen_t", "events",
+    "statistics", "stopped"}`` (``stopped``: who ended the render, as its ``stopped``
+    event says, e.g. "stopped by the operator"; else ""); a log without a session
+    record has an empty participant, no choice and the session events list empty. A file that is not a render log is a
+    UserError.
+    """
+    from evo_door.files import open_h5, read_attrs
+
+    with open_h5(path) as f:
+        if "render" not in f:
+            raise UserError(f"{path}: not a render log (no /render group)")
+        render = read_attrs(f["render"])
+        names = list(read_attrs(f["render/params"])["names"])
+        times = f["render/params/t"][()]
+        values = f["render/params/values"][()]
+        duration = float(f["render/t"][-1]) if f["render/t"].shape[0] else 0.0
+        session = read_attrs(f["session"]) if "session" in f else {}
+        chosen = None
+        if "session/chosen" in f:
+            ds = f["session/chosen"]
+            chosen = dict(zip(read_attrs(ds)["names"], ds[()].tolist(), strict=True))
+    events = render.get("events", [])
+    ended = [e.get("message", "") for e in events if e.get("kind") == "stopped"]
+    return {
+        "participant": session.get("participant", ""),
+        "duration_s": duration,
+        "device": render.get("device", ""),
+        "sets": [
+            (float(t), dict(zip(names, v.tolist(), strict=True)))
+            for t, v in zip(times, values, strict=True)
+        ],
+        "changes": [e for e in events if e.get("kind") == "change"],
+        "choices": session.get("choices", []),
+        "chosen": chosen,
+        "chosen_t": session.get("chosen_t", -1.0),
+        "events": session.get("events", []),
+        "statistics": render.get("statistics", {}),
+        "stopped": ended[-1] if ended else "",
+    }
+
+
+def is_render_log(path) -> bool:
+    """Whether ``path`` is an HDF5 file holding a render log (never raises)."""
+    from evo_door.files import open_h5
+
+    try:
+        with open_h5(path) as f:
+            return "render" in f and "render/params" in f
+    except (UserError, OSError):  # not a file, not HDF5: the caller's own reader says why
+        return False
+
+
+def format_session(s: dict, path="") -> str:
+    """:func:`read_session`'s summary for people (angles in degrees, units)."""
+    from evo_door.models.haptic import PARAMS
+    from evo_door.render.keys import shown as shown_unit
+
+    def shown(name, value):
+        return shown_unit(value, PARAMS[name].unit).strip()
+
+    stats = s["statistics"]
+    lines = [f"render log {path}".rstrip()]
+    who = s["participant"] or "(no participant id)"
+    lines.append(
+        f"  participant {who}, {s['duration_s']:.1f} s on {s['device'] or '?'}, "
+        f"{len(s['changes'])} parameter changes, {len(s['choices'])} A/B choices"
+    )
+    status = s.get("stopped") or stats.get("status", "?")
+    if stats.get("realtime") is False:  # simulated time: it kept no clock to be on time for
+        lines.append(
+            f"  loop {stats.get('rate_hz', 0):g} Hz unpaced (simulated time), "
+            f"{stats.get('faults', 0)} faults, status {status}"
+        )
+    elif "on_time_fraction" in stats:
+        lines.append(
+            f"  loop {stats.get('rate_hz', 0):g} Hz, {100 * stats['on_time_fraction']:.3f} % of "
+            f"cycles on time, {stats.get('faults', 0)} faults, status {status}"
+        )
+    for e in s["choices"]:
+        lines.append(f"  at {e['t']:7.1f} s: prefers {e.get('slot', '?')}")
+    start = s["sets"][0][1] if s["sets"] else {}
+    final = s["chosen"] if s["chosen"] is not None else (s["sets"][-1][1] if s["sets"] else {})
+    title = f"chosen at {s['chosen_t']:.1f} s" if s["chosen"] is not None else "last set in force"
+    differs = [n for n in final if final[n] != start.get(n)]
+    lines.append(f"  {title} (differs from the starting set in {len(differs)} parameters):")
+    for name in differs:
+        lines.append(
+            f"    {name:24s} {shown(name, start[name]):>14s} -> {shown(name, final[name])}"
+        )
+    if s["chosen"] is None:
+        lines.append("  no final choice recorded: --params LOG.h5 takes the last set in force")
+    return "\n".join(lines)
+
+
+def session_params(path) -> tuple[dict, str]:
+    """The parameter set a render log stands for, and what it is.
+
+    The participant's chosen set when the session has one, else the last set in
+    force. Returns ``({name: value}, description)``.
+    """
+    s = read_session(path)
+    if s["chosen"] is not None:
+        who = f" of participant {s['participant']}" if s["participant"] else ""
+        return s["chosen"], f"{path}: the set chosen{who} at {s['chosen_t']:.1f} s"
+    if not s["sets"]:
+        raise UserError(f"{path}: the log holds no parameter set")
+    t, values = s["sets"][-1]
+    return values, f"{path}: the last set in force (from {t:.1f} s; no choice recorded)"
