@@ -49,6 +49,11 @@ from evo_door.render.timing import LoopTiming
 #: or the haptic model's own explicit tanh (for comparison: rings above
 #: :func:`~evo_door.render.friction.tanh_stability_limit`)
 FRICTION_LAWS = ("implicit", "tanh")
+#: the shortest gap between two commands that counts as a stall (s), whatever the
+#: watchdog's budget in cycles: a Python process on a busy machine sees hiccups of
+#: 5-15 ms (13 ms ended a console's render at the 4 ms of 10 cycles at 2500 Hz), and a
+#: force held that long is what the supervisor tolerates too (its 20 ms budget)
+STALL_FLOOR = 0.02
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
@@ -376,7 +381,7 @@ class ServoLoop:
         self._set_vectors()
         self._set_mass()
         self.t0 = self._sent = time.perf_counter()
-        self._stall_limit = (self.watchdog.misses + 1) * T
+        self._stall_limit = max((self.watchdog.misses + 1) * T, STALL_FLOOR)
         if self.supervisor is not None:
             self.supervisor.arm()
 
