@@ -134,7 +134,7 @@ def test_a_stalled_device_is_noticed_in_milliseconds_and_resumes_without_force()
 
 @pytest.mark.slow
 def test_render_over_a_stalled_emulator_ends_within_half_a_second():
-    """The issue's case: a render holds tens of newtons, the emulator stops for 3 s;
+    """A render holds tens of newtons, the emulator stops for 3 s;
     the render ends within 0.5 s of the stall's start, non-zero, with the reason in
     one line; the emulator, resumed, holds no force."""
     with emulator_process("--user", "hold", "--damping", "10") as (emu, port):
