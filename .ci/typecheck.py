@@ -17,6 +17,7 @@ a move of code carried to another file, with the diff of the baseline reviewed.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import subprocess
 import sys
@@ -78,11 +79,15 @@ def write_baseline(lines: list[str]) -> None:
 
 
 def run_mypy() -> str:
+    # without PYTHONPATH: mypy reads it as a search path, and a checkout on it (a
+    # developer's, a test's) makes the modules it names "installed" and unchecked
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     done = subprocess.run(
         [sys.executable, "-m", "mypy", "--no-error-summary", "--hide-error-context"],
         cwd=ROOT,
         capture_output=True,
         text=True,
+        env=env,
     )
     if done.returncode not in (0, 1):  # 2: mypy itself failed (configuration, crash)
         sys.exit(f"typecheck: mypy failed:\n{done.stdout}{done.stderr}")
