@@ -280,8 +280,11 @@ class _OneConnection:
 
     @staticmethod
     def _pipe(a: socket.socket, b: socket.socket) -> None:
-        while data := a.recv(65536):
-            b.sendall(data)
+        try:
+            while data := a.recv(65536):
+                b.sendall(data)
+        except OSError:  # the other direction closed both ends first
+            pass
         b.close()
 
     def close(self) -> None:
