@@ -146,6 +146,14 @@ def _supervisor_pid(renderer: int) -> int:
     raise AssertionError("no supervisor process")
 
 
+def _end(proc: subprocess.Popen) -> None:
+    """A test's render process gone, stopped or not (a stopped one is woken to die)."""
+    if proc.poll() is None:
+        os.kill(proc.pid, signal.SIGCONT)
+        proc.kill()
+        proc.wait()
+
+
 def _gone(pid: int, timeout: float = 10.0) -> bool:
     """The process ended (and was reaped, or is a zombie) within ``timeout``."""
     deadline = time.monotonic() + timeout
@@ -187,10 +195,7 @@ def test_a_frozen_renderer_leaves_no_force_and_does_not_resume(emulator, tmp_pat
             time.sleep(0.002)
         out, err = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGCONT)
-            proc.kill()
-            proc.wait()
+        _end(proc)
         probe.close()
     assert proc.returncode == 1, (out, err)
     match = re.search(r"watchdog: stalled (\d+) ms", out)
@@ -220,9 +225,7 @@ def test_a_killed_renderer_leaves_no_force(emulator):
         off = _time_to_no_force(probe, killed)
         _, err = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _end(proc)
     try:
         assert off < 0.1, f"force still on {off * 1e3:.0f} ms after the kill"
         assert probe.ask("get state") == ["stop"]
@@ -242,9 +245,7 @@ def test_a_normal_end_is_no_stall_and_leaves_no_supervisor(emulator, tmp_path):
         out, err = proc.communicate(timeout=60)
         assert probe.force() == 0.0 and probe.ask("get state") == ["stop"]
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _end(proc)
         probe.close()
     assert proc.returncode == 0, (out, err)
     assert "(done)" in out and "stalled" not in out + err and "supervisor" not in err
@@ -401,10 +402,7 @@ def test_a_frozen_render_on_the_simulated_device_does_not_resume(tmp_path):
         os.kill(proc.pid, signal.SIGCONT)
         out, err = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGCONT)
-            proc.kill()
-            proc.wait()
+        _end(proc)
     assert proc.returncode == 1, (out, err)
     match = re.search(r"watchdog: stalled (\d+) ms", out)
     assert match and int(match.group(1)) >= 900, out
