@@ -1,9 +1,10 @@
-"""Helpers shared by the benchmark scripts: timing and the machine line of a report."""
+"""Helpers shared by the benchmark scripts: timing, a free port, the machine line of a report."""
 
 from __future__ import annotations
 
 import os
 import platform
+import socket
 import statistics
 import time
 from pathlib import Path
@@ -19,6 +20,13 @@ def median_time(fn, repeat: int) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now (for a server to take)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def machine_line(extra: str = "", how: str = "medians of repeats") -> str:

@@ -1,6 +1,6 @@
 """The loop comes first: the servo loop's timing with the web console and a browser open.
 
-Issue 15: serving the page, its socket and the plots must not make the servo loop
+Serving the page, its socket and the plots must not make the servo loop
 late; the target is >= 99.9 % of cycles on time at 2500 Hz on the simulated device
 with the console open and a browser connected. Each run is ``evo-door render --params
 seed_trial --device sim --user swing --realtime --duration S --log LOG.h5`` in its own
@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import os
 import queue
-import socket
 import subprocess
 import sys
 import tempfile
@@ -39,7 +38,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._util import machine_line, publish  # noqa: E402
+from benchmarks._util import free_port, machine_line, publish  # noqa: E402
 from evo_door.render.session import read_session  # noqa: E402
 
 RATE = 2500.0
@@ -83,12 +82,6 @@ def _open(driver, url: str) -> None:
     )
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _health_at(port: int, t: float, proc) -> dict | None:
     """The loop's health once its time reaches ``t`` (s); None if the render ended."""
     from evo_door.errors import UserError
@@ -119,7 +112,7 @@ def render_run(seconds: float, console: bool, tune: bool, folder: Path) -> dict:
     """One render in its own process; the loop's statistics from its log, the page's
     connected time (s) and the load average over the run."""
     log = folder / f"render-{time.monotonic_ns()}.h5"
-    port = _free_port()
+    port = free_port()
     command = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     command += ["--device", "sim", "--user", "swing", "--realtime", "--rate", f"{RATE:g}"]
     command += ["--duration", f"{seconds:g}", "--log", str(log)]
@@ -251,7 +244,7 @@ def main(argv=None) -> int:
         "",
         machine_line(),
         "",
-        "Issue 15, the loop comes first: `evo-door render --params seed_trial --device sim "
+        "The loop comes first: `evo-door render --params seed_trial --device sim "
         f"--user swing --realtime --rate {RATE:g} --duration S --log LOG.h5`, each run in its "
         "own process, the timing from the log's `/render` `statistics`. (a) without the "
         "console; (b) with `--console` (its own process, polling the control port about "

@@ -1,6 +1,6 @@
 """The loop comes first: the servo loop's timing with the control port under a flood.
 
-Issue 24: 200 concurrent clients took the loop to 97.3 % of its cycles on time, and
+Before the port had its limits, 200 concurrent clients took the loop to 97.3 % of its cycles on time, and
 5,000 session events of 16 kB grew the renderer by 118 MB and its log to 164 MB. The
 target is >= 99.9 % of cycles on time at 2500 Hz with 200 clients flooding the control
 port, the renderer's memory and its log bounded. Each run is ``evo-door render --params
@@ -28,7 +28,6 @@ import asyncio
 import itertools
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -39,7 +38,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._util import machine_line, publish  # noqa: E402
+from benchmarks._util import free_port, machine_line, publish  # noqa: E402
 
 RATE = 2500.0
 ON_TIME = 0.999
@@ -50,12 +49,6 @@ BATCH = 20
 #: resident memory the renderer may grow by under the flood (MiB)
 RSS_TARGET_MIB = 64.0
 TOKEN = "bench"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _rss_mib(pid: int) -> float | None:
@@ -180,7 +173,7 @@ def flood_run(seconds: float, clients: int, folder: Path) -> dict:
     from evo_door.render.session import SESSION_KINDS, read_session
 
     log = folder / f"flood-{time.monotonic_ns()}.h5"
-    port = _free_port()
+    port = free_port()
     command = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     command += ["--device", "sim", "--user", "swing", "--realtime", "--rate", f"{RATE:g}"]
     command += ["--duration", f"{seconds:g}", "--log", str(log)]
@@ -283,7 +276,7 @@ def main(argv=None) -> int:
         "",
         machine_line(),
         "",
-        "Issue 24, the loop comes first: `evo-door render --params seed_trial --device sim "
+        "The loop comes first: `evo-door render --params seed_trial --device sim "
         f"--user swing --realtime --rate {RATE:g} --duration S --control PORT --token T --log "
         "LOG.h5`, each run in its own process, the timing from the log's `/render` "
         f"`statistics`. (a) no client; (b) {CLIENTS} clients at once from the benchmark's "

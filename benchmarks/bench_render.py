@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._util import machine_line, publish  # noqa: E402
+from benchmarks._util import free_port, machine_line, publish  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.render.device import SimDevice  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
@@ -71,12 +71,6 @@ def log_growth(params, seconds: float, folder: Path) -> dict:
     return {"partial": partial * per_hour, "final": final * per_hour, "held": held}
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _wait_listening(port: int, timeout: float = 20.0) -> None:
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
@@ -92,7 +86,7 @@ def tcp_run(params, rate: float, seconds: float) -> dict:
     """The loop against ``evo-door emulate hapticmaster`` in a separate process."""
     from evo_door.render.hapticmaster import HapticMasterDevice
 
-    port = _free_port()
+    port = free_port()
     code = "import sys; from evo_door.cli import main; sys.exit(main(sys.argv[1:]))"
     emu = subprocess.Popen(
         [sys.executable, "-c", code, "emulate", "hapticmaster", "--port", str(port)]
