@@ -39,6 +39,7 @@ RANGES = {
     "--watchdog-misses": Range(1, 1000, "cycles", integer=True),
     "--seed": Range(0, 2**32 - 1, integer=True),  # numpy's seeds
     "--token": TOKEN,
+    "--supervisor-budget": Range(BUDGET_RANGE[0] * 1e3, BUDGET_RANGE[1] * 1e3, "ms"),
 }
 
 
@@ -269,12 +270,8 @@ def _check_supervisor_options(args) -> None:
     if not real and (args.no_supervisor or budget is not None):
         flag = "--no-supervisor" if args.no_supervisor else "--supervisor-budget"
         raise UserError(f"{flag} goes with a hapticmaster:// device (the simulated one has none)")
-    if budget is not None:
-        if args.no_supervisor:
-            raise UserError("--supervisor-budget goes without --no-supervisor")
-        low, high = (b * 1e3 for b in BUDGET_RANGE)
-        if not low <= budget <= high:
-            raise UserError(f"--supervisor-budget {budget:g}: must be in {low:g}..{high:g} ms")
+    if budget is not None and args.no_supervisor:  # its range: RANGES
+        raise UserError("--supervisor-budget goes without --no-supervisor")
 
 
 def _start_supervisor(args, device, loop):
