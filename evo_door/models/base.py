@@ -82,6 +82,18 @@ class Model:
     preset_dirs : tuple of Path
         The model's own preset folders (filled by :func:`get_model`: a ``presets/``
         folder next to the model's file).
+    switches : numba cfunc or None
+        ``switches(theta, dtheta, force, p, g)``, compiled: writes the values of the
+        model's ``n_switches`` switching functions into ``g`` (where the right-hand
+        side has a kink or a jump: a latch band's edge, a stop). The integrators
+        locate their sign changes within the step (:mod:`evo_door.sim.located`).
+    n_switches : int
+        How many values ``switches`` writes.
+    stick_slip : bool
+        The model's dry friction is a sign law (``sgn(0) = 0``): the integrators
+        hold the door at rest while the friction can, as the renderer does.
+    tolerance : float
+        Tolerance of the adaptive ``dopri5`` method (per step, rad and rad/s).
     """
 
     name: str
@@ -96,6 +108,10 @@ class Model:
     theta_range: tuple[float, float] = (0.0, 0.5 * math.pi)
     theta_unit: str = "rad"
     preset_dirs: tuple[Path, ...] = ()
+    switches: Callable | None = None
+    n_switches: int = 0
+    stick_slip: bool = False
+    tolerance: float = 1e-7
 
     def load_params(self, spec=None, overrides=None) -> ParamSet:
         """A checked parameter set: ``spec`` is None (declared defaults), a preset name,
@@ -138,6 +154,7 @@ class Declaration:
 #: metadata does not (yet) list them in the ``evo_door.models`` entry-point group.
 REGISTRY: dict[str, str] = {
     "haptic": "evo_door.models.haptic:MODEL",
+    "haptic_tanh": "evo_door.models.haptic:MODEL_TANH",
     "door": "evo_door.models.door:MODEL",
 }
 
@@ -195,7 +212,18 @@ def check_model(model, source: str = "") -> Model:
             f"{name}: theta_range {model.theta_range} must go from open (lower) to closed (upper)"
         )
     _check_accel(model)
+    _check_switches(model)
     return model
+
+
+def _check_switches(model: Model) -> None:
+    name = f"model {model.name!r}"
+    if not (isinstance(model.n_switches, int) and 0 <= model.n_switches <= 64):
+        raise UserError(f"{name}: n_switches must be a whole number from 0 to 64")
+    if (model.switches is None) != (model.n_switches == 0):
+        raise UserError(f"{name}: give switches and n_switches together (or neither)")
+    if not (isinstance(model.tolerance, float) and 0.0 < model.tolerance < 1.0):
+        raise UserError(f"{name}: tolerance must be a number in (0, 1), got {model.tolerance!r}")
 
 
 _WANT = "a numba @njit function accel(theta, dtheta, force, p) -> float"

@@ -37,7 +37,8 @@ from evo_door.models.haptic_params import (  # noqa: F401 (re-exported)
     N_SECTIONS,
     PARAMS,
 )
-from evo_door.params import param_vector
+from evo_door.params import ParamTable, param_vector
+from evo_door.sim.located import SWITCHES_SIGNATURE
 
 # Positions in the kernel vector, generated from the declaration (never literal).
 INERTIA = PARAMS.index("inertia")
@@ -168,8 +169,45 @@ def section_scale(theta, p):
 # The tangential force law: the whole feel, top to bottom
 # ---------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def tangential_force(theta, dtheta, p):
+def dry_friction(theta, dtheta, p, sign_law):
+    """The dry friction (N, + toward closing), asymmetric (eqs. 3.1, 4.44-4.48, corrected).
+
+    With the seed's smooth law (``sign_law`` False)::
+
+        sigma  = S(dtheta, dtheta_0, a)                    closing selector
+        c      = c_open + (c_close - c_open) sigma         magnitude
+        F_dry  = -A(theta) c tanh(a dtheta)
+
+    At speed well above dtheta_0 the door feels friction_closing, below it
+    friction_opening (the seed's eq. 4.47 selected them the other way round and eq.
+    4.46 had tanh(a theta) for tanh(a dtheta)). With the sign law (its limit as
+    a -> inf, what the renderer solves): ``F_dry = -A(theta) c sgn(dtheta)``, ``c``
+    friction_closing above dtheta_0 and friction_opening below it, 0 at rest.
+    """
+    if sign_law:
+        if dtheta == 0.0:
+            return 0.0
+        level = p[FRICTION_CLOSING] if dtheta > p[FRICTION_SPEED_THRESHOLD] else p[FRICTION_OPENING]
+        if level == 0.0:
+            return 0.0
+        return -section_scale(theta, p) * level * (1.0 if dtheta > 0.0 else -1.0)
+    a = p[FRICTION_SLOPE]
+    forward = activation(dtheta, 0.0, a)  # tanh(a dtheta) = 2 forward - 1
+    threshold = p[FRICTION_SPEED_THRESHOLD]
+    sigma = forward if threshold == 0.0 else activation(dtheta, threshold, a)
+    magnitude = p[FRICTION_OPENING] + (p[FRICTION_CLOSING] - p[FRICTION_OPENING]) * sigma
+    if magnitude == 0.0:
+        return 0.0
+    return -section_scale(theta, p) * magnitude * (2.0 * forward - 1.0)
+
+
+@njit(cache=True, inline="always")
+def tangential_force_law(theta, dtheta, p, sign_law):
     """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing.
+
+    ``sign_law`` picks the dry friction's law: its Coulomb limit
+    ``-A(theta) c sgn(dtheta)`` (0 at rest: the integrators and the renderer solve the
+    stick) or the seed's ``-A(theta) c tanh(a dtheta)`` (docs/haptic-model.md).
 
     Sum of the phases of seed section 4.3.3, with the behaviour its text describes
     (where its equations say otherwise: ``docs/conventions.md``). Every effect
@@ -182,20 +220,8 @@ def tangential_force(theta, dtheta, p):
     # at every step, read best as the one sum it is
     f = 0.0
 
-    # 1. Dry friction, asymmetric (eqs. 3.1, 4.44-4.48, corrected):
-    #      sigma  = S(dtheta, dtheta_0, a)                    closing selector
-    #      c      = c_open + (c_close - c_open) sigma         magnitude
-    #      F_dry  = -A(theta) c tanh(a dtheta)
-    #    At speed well above dtheta_0 the door feels friction_closing, below it
-    #    friction_opening (the seed's eq. 4.47 selected them the other way round and
-    #    eq. 4.46 had tanh(a theta) for tanh(a dtheta)).
-    a = p[FRICTION_SLOPE]
-    forward = activation(dtheta, 0.0, a)  # tanh(a dtheta) = 2 forward - 1
-    threshold = p[FRICTION_SPEED_THRESHOLD]
-    sigma = forward if threshold == 0.0 else activation(dtheta, threshold, a)
-    magnitude = p[FRICTION_OPENING] + (p[FRICTION_CLOSING] - p[FRICTION_OPENING]) * sigma
-    if magnitude != 0.0:
-        f -= section_scale(theta, p) * magnitude * (2.0 * forward - 1.0)
+    # 1. Dry friction, asymmetric (eqs. 3.1, 4.44-4.48, corrected): dry_friction
+    f = dry_friction(theta, dtheta, p, sign_law)
 
     # 2. Viscous friction (eq. 4.42):  F_v = -c_v dtheta
     f -= p[VISCOUS_DAMPING] * dtheta
@@ -298,12 +324,21 @@ def tangential_force(theta, dtheta, p):
     return f
 
 
+@njit(cache=True, inline="always")
+def tangential_force(theta, dtheta, p):
+    """F_tan with the seed's tanh friction (:func:`tangential_force_law`): what the
+    device force field of eq. 4.52 (:func:`device_force`) renders as it is."""
+    return tangential_force_law(theta, dtheta, p, False)
+
+
 @njit(cache=True)
 def accel(theta, dtheta, force, p):
     """Reduced dynamics (eq. 5.7): ddtheta = (F_tan(theta, dtheta) + F_u) / I.
 
     ``theta`` (rad), ``dtheta`` (rad/s), ``force`` (N at the handle, + toward closing),
-    ``p`` the kernel vector; returns rad/s^2. With the seed's rendering set:
+    ``p`` the kernel vector; returns rad/s^2. Dry friction is the sign law the
+    renderer solves (:func:`tangential_force_law`): the integrators hold the door
+    at rest while it can (``stick_slip``). With the seed's rendering set:
 
     >>> from evo_door.params import param_vector
     >>> p = param_vector(MODEL.load_params("seed_trial"), PARAMS)
@@ -313,7 +348,53 @@ def accel(theta, dtheta, force, p):
     >>> round(accel(0.8, -0.5, 0.0, p), 4)
     0.9167
     """
-    return (tangential_force(theta, dtheta, p) + force) / p[INERTIA]
+    return (tangential_force_law(theta, dtheta, p, True) + force) / p[INERTIA]
+
+
+@njit(cache=True)
+def accel_tanh(theta, dtheta, force, p):
+    """:func:`accel` with the seed's tanh dry friction (model ``haptic_tanh``)."""
+    return (tangential_force_law(theta, dtheta, p, False) + force) / p[INERTIA]
+
+
+#: How many switching functions :func:`switches` writes.
+N_SWITCHES = 12
+
+
+@njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
+def switches(theta, dtheta, force, p, g):
+    """The haptic law's switching functions (where it has a kink or a jump), into ``g``.
+
+    The stops and where their damper would pull (it never does), the loose band's
+    start and the seat's rise, the latch bands' rise and hold ends
+    (:func:`rise_and_hold`), and the speed at which the friction's level changes.
+    The release edges and speed gates are smooth (the adaptive step follows them).
+    A function that does not apply is 1.
+    """
+    ks = p[STOP_STIFFNESS]
+    g[0] = theta
+    g[1] = -ks * theta - p[STOP_DAMPING] * dtheta if theta < 0.0 and ks > 0.0 else 1.0
+    g[2] = theta - CLOSED
+    g[3] = ks * (theta - CLOSED) + p[STOP_DAMPING] * dtheta if theta > CLOSED and ks > 0.0 else 1.0
+    theta_0, theta_1, theta_2, theta_3 = latch_angles(p)
+    k = p[LATCH_STIFFNESS]
+    g[4] = theta - theta_0
+    g[5] = theta - theta_0 - p[SEAT_FORCE] / k if p[OPEN_FORCE] > 0.0 else 1.0
+    if p[OPEN_FORCE] > 0.0:
+        g[6] = theta - (theta_0 - p[OPEN_FORCE] / k)
+        g[7] = theta - theta_1
+    else:
+        g[6] = 1.0
+        g[7] = 1.0
+    if p[CLOSE_FORCE] > 0.0:
+        g[8] = theta - theta_3
+        g[9] = theta - (theta_3 + p[CLOSE_FORCE] / k)
+        g[10] = theta - theta_2
+    else:
+        g[8] = 1.0
+        g[9] = 1.0
+        g[10] = 1.0
+    g[11] = dtheta - p[FRICTION_SPEED_THRESHOLD] if p[FRICTION_SPEED_THRESHOLD] != 0.0 else 1.0
 
 
 # ---------------------------------------------------------------------------------
@@ -403,17 +484,37 @@ def latch_angles_of(params) -> dict[str, float]:
     return dict(zip(names, (float(v) for v in latch_angles(param_vector(params, PARAMS)))))
 
 
-#: ROS2 (semi-implicit) with 2 steps per 1024 Hz sample: stable for the stiffest
-#: declared latch (1e5 N/rad on 0.05 kg m), steep dry friction and the end stops;
-#: see docs/haptic-model.md "Integration".
+#: Dormand-Prince 5(4), steps of at most half a 1024 Hz sample, the latch's kinks and
+#: the stops located, dry friction sticking as the renderer renders it; see
+#: docs/haptic-model.md "Integration".
 MODEL = Model(
     name="haptic",
     title=DECLARATION.title,
     params=PARAMS,
     accel=accel,
+    method="dopri5",
+    substeps=2,
+    theta0=CLOSED,
+    notes=DECLARATION.notes,
+    rig_kinds=("impulse", "unlock", "lock"),
+    switches=switches,
+    n_switches=N_SWITCHES,
+    stick_slip=True,
+)
+
+#: The same model with the seed's literal tanh dry friction (eq. 3.1): smooth, so no
+#: stick; its parameters and presets are the haptic model's. ROS2 (semi-implicit)
+#: with 2 steps per sample stays stable for its steepest tanh.
+MODEL_TANH = Model(
+    name="haptic_tanh",
+    title=DECLARATION.title + " (seed's tanh friction)",
+    params=ParamTable("haptic_tanh", PARAMS.params, reads=("haptic",)),
+    accel=accel_tanh,
     method="semi_implicit",
     substeps=2,
     theta0=CLOSED,
     notes=DECLARATION.notes,
     rig_kinds=("impulse", "unlock", "lock"),
+    switches=switches,
+    n_switches=N_SWITCHES,
 )

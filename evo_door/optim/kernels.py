@@ -42,9 +42,11 @@ from evo_door.sim.integrators import (
     ACCEL_TYPE,
     BLOWUP_SPEED,
     PREPARE_TYPE,
-    advance,
     kernel_form,
+    step_period,
 )
+from evo_door.sim.located import SWITCHES_TYPE, rate
+from evo_door.sim.simulate import events_of
 
 MAX_SQUARE = 0
 ISE = 1
@@ -61,6 +63,7 @@ _bvec = types.boolean[::1]
 @njit(cache=True, nogil=True)
 def trial_error(
     accel,
+    switches,
     p,
     force,
     target,
@@ -72,6 +75,10 @@ def trial_error(
     theta0,
     dtheta0,
     method,
+    tol,
+    n_sw,
+    stick,
+    g,
     derivative,
     kind,
 ):
@@ -83,16 +90,17 @@ def trial_error(
     """
     theta = theta0
     dtheta = dtheta0
-    a_now = accel(theta, dtheta, force[start], p)
+    a_now = rate(accel, p, theta, dtheta, force[start], stick)
     acc = 0.0
     for k in range(start, stop):
         if k > start:
-            theta, dtheta = advance(
-                accel, p, theta, dtheta, force[k - 1], force[k], a_now, dt, substeps, method
-            )
+            theta, dtheta = step_period(
+                accel, switches, p, theta, dtheta, force[k - 1], force[k], a_now, dt,
+                substeps, method, tol, n_sw, stick, g,
+            )  # fmt: skip
             if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
                 return math.inf, False
-            a_now = accel(theta, dtheta, force[k], p)
+            a_now = rate(accel, p, theta, dtheta, force[k], stick)
         if not mask[k]:
             continue
         if derivative == 0:
@@ -115,7 +123,7 @@ def trial_error(
 
 
 def population_errors(
-    accel,
+    model,
     P,
     force,
     target,
@@ -126,6 +134,7 @@ def population_errors(
     dtheta0,
     substeps,
     method,
+    tol,
     derivative,
     kind,
     err_out,
@@ -134,14 +143,16 @@ def population_errors(
     """Objective of every individual (rows of ``P``) on every trial.
 
     Fills ``err_out[i, j]`` and ``ok_out[i, j]`` for individual ``i`` and trial ``j``
-    (see the module docstring for the packing of trials). ``accel`` is the model's
-    right-hand side; where it has a fast form, that runs (the errors are those of
-    :func:`evo_door.sim.simulate`, which runs it too).
+    (see the module docstring for the packing of trials). ``model`` gives the
+    right-hand side, its switching surfaces and friction law; where the right-hand
+    side has a fast form, that runs (the errors are those of
+    :func:`evo_door.sim.simulate`, which runs it too). ``tol``: ``dopri5``'s tolerance.
     """
-    form = kernel_form(accel, P.shape[1])
+    form = kernel_form(model.accel, P.shape[1])
+    switches, n_sw, stick = events_of(model)
     _population_errors(
-        form.accel, form.prepare, form.size, P, force, target, mask, offsets, dt,
-        theta0, dtheta0, substeps, method, derivative, kind, err_out, ok_out,
+        form.accel, form.prepare, switches, form.size, P, force, target, mask, offsets, dt,
+        theta0, dtheta0, substeps, method, tol, n_sw, stick, derivative, kind, err_out, ok_out,
     )  # fmt: skip
 
 
@@ -149,6 +160,7 @@ def population_errors(
     types.void(
         ACCEL_TYPE,
         PREPARE_TYPE,
+        SWITCHES_TYPE,
         types.int64,
         _mat,
         _vec,
@@ -160,6 +172,9 @@ def population_errors(
         _vec,
         types.int64,
         types.int64,
+        types.float64,
+        types.int64,
+        types.boolean,
         types.int64,
         types.int64,
         _mat,
@@ -171,6 +186,7 @@ def population_errors(
 def _population_errors(
     accel,
     prepare,
+    switches,
     size,
     P,
     force,
@@ -182,6 +198,9 @@ def _population_errors(
     dtheta0,
     substeps,
     method,
+    tol,
+    n_sw,
+    stick,
     derivative,
     kind,
     err_out,
@@ -194,9 +213,11 @@ def _population_errors(
     for i in prange(P.shape[0]):
         p = np.empty(size)
         prepare(P[i], p)
+        g = np.empty((3, max(n_sw, 1)))
         for j in range(n_trials):
             e, ok = trial_error(
                 accel,
+                switches,
                 p,
                 force,
                 target,
@@ -208,6 +229,10 @@ def _population_errors(
                 theta0[j],
                 dtheta0[j],
                 method,
+                tol,
+                n_sw,
+                stick,
+                g,
                 derivative,
                 kind,
             )

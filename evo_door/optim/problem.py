@@ -19,7 +19,7 @@ from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 from evo_door.optim.kernels import KINDS, population_errors
 from evo_door.sim.integrators import METHODS
-from evo_door.sim.simulate import Response, simulate
+from evo_door.sim.simulate import Response, simulate, tolerance_of
 
 #: How the per-trial objectives of one candidate are combined into its fitness.
 COMBINE = ("sum", "max", "mean")
@@ -126,8 +126,9 @@ class Problem:
     objective : Objective
     validation : sequence of Trial
         Trials not fitted; :meth:`validation_errors` reports the model's error on them.
-    method, substeps :
-        Integration scheme and sub-steps per sample (default: the model's).
+    method, substeps, tolerance :
+        Integration scheme, sub-steps per sample and ``dopri5``'s tolerance (default:
+        the model's).
     model_name : str, optional
         What :func:`~evo_door.models.get_model` finds ``model`` by (a name, an import
         path or a file path), default ``model.name``. A problem is pickled with the
@@ -151,6 +152,7 @@ class Problem:
         method: str | None = None,
         substeps: int | None = None,
         model_name: str | None = None,
+        tolerance: float | None = None,
     ):
         self.model = model
         self.model_name = model_name
@@ -167,6 +169,7 @@ class Problem:
         self.method = method or model.method
         self.method_code = METHODS[self.method]
         self.substeps = int(substeps or model.substeps)
+        self.tolerance = tolerance_of(model, tolerance)
         self.fit = TrialPack(trials, objective.derivative)
         if len(self.fit) == 0:
             raise UserError("no trial to fit")
@@ -222,7 +225,7 @@ class Problem:
         ok = np.zeros((P.shape[0], len(pack)), dtype=np.bool_)
         if len(pack) and P.shape[0]:
             population_errors(
-                self.model.accel,
+                self.model,
                 P,
                 pack.force,
                 pack.target,
@@ -233,6 +236,7 @@ class Problem:
                 pack.dtheta0,
                 self.substeps,
                 self.method_code,
+                self.tolerance,
                 self.objective.derivative,
                 KINDS[self.objective.kind],
                 err,
@@ -277,6 +281,7 @@ class Problem:
                     t0=float(tr.t[0]),
                     method=self.method,
                     substeps=self.substeps,
+                    tolerance=self.tolerance,
                 )
             )
         return out
@@ -295,4 +300,5 @@ class Problem:
             self.method,
             self.substeps,
             self.model_name,
+            self.tolerance,
         )

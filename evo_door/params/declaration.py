@@ -101,10 +101,16 @@ class ParamTable:
         Model name, e.g. ``"haptic"``.
     params : iterable of Param
         Declarations, in kernel-vector order.
+    reads : iterable of str
+        Other models whose parameter files and presets this one reads as its own (a
+        variant of a model with the same parameters: ``haptic_tanh`` reads
+        ``haptic``'s).
     """
 
-    def __init__(self, model: str, params: Iterable[Param]):
+    def __init__(self, model: str, params: Iterable[Param], reads: Iterable[str] = ()):
         self.model = model
+        #: the models whose parameter files this table reads, its own first
+        self.reads: tuple[str, ...] = (model, *reads)
         self.params: tuple[Param, ...] = tuple(params)
         self._index = {p.name: i for i, p in enumerate(self.params)}
         if len(self._index) != len(self.params):

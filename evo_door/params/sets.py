@@ -272,7 +272,7 @@ def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
     if not path.is_file():
         if path.suffix or "/" in str(spec):
             raise UserError(f"{spec}: parameter file not found")
-        path = preset_path(table.model, str(spec), preset_dirs)
+        path = _preset_of_family(table, str(spec), preset_dirs)
         shown = f"preset {spec}"
     try:
         doc = load_yaml(read_text(path, "parameter file"))
@@ -288,6 +288,16 @@ def _load_file(table: ParamTable, spec, preset_dirs) -> ParamSet:
     return dataclasses.replace(ps, source=str(path))
 
 
+def _preset_of_family(table: ParamTable, name: str, preset_dirs) -> Path:
+    """The preset ``name`` of ``table``'s model, else of a model it reads."""
+    for model in table.reads[1:]:
+        if name in available_presets(model, preset_dirs) and not _preset_files(
+            table.model, preset_dirs
+        ).get(name):
+            return preset_path(model, name, preset_dirs)
+    return preset_path(table.model, name, preset_dirs)
+
+
 def params_from_document(table: ParamTable, doc, source: str) -> ParamSet:
     """Check a parsed YAML document (``model``, ``description``, ``values``)."""
     if not isinstance(doc, dict):
@@ -299,7 +309,7 @@ def params_from_document(table: ParamTable, doc, source: str) -> ParamSet:
             f"{source}: unknown key {key!r}" + suggest(key, ["model", "description", "values"])
         )
     model = doc.get("model", table.model)
-    if model != table.model:
+    if model not in table.reads:
         raise UserError(f"{source}: parameters are for model {model!r}, not {table.model!r}")
     values = doc.get("values") or {}
     if not isinstance(values, dict):

@@ -59,9 +59,19 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange, types
 
-RK4 = 0
-SEMI_IMPLICIT = 1
-METHODS = {"rk4": RK4, "semi_implicit": SEMI_IMPLICIT}
+from evo_door.sim.located import (
+    DOPRI5,
+    RK4,
+    SEMI_IMPLICIT,
+    SWITCHES_TYPE,
+    advance_located,
+    no_switches,
+    rate,
+)
+
+METHODS = {"rk4": RK4, "semi_implicit": SEMI_IMPLICIT, "dopri5": DOPRI5}
+#: Default tolerance of ``dopri5`` (per step, ``tol (1 + |x|)`` in rad and rad/s).
+DEFAULT_TOLERANCE = 1e-7
 
 #: Angular speed (rad/s) beyond which a simulation counts as blown up.
 BLOWUP_SPEED = 1.0e6
@@ -240,12 +250,28 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def integrate_with(
-    accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
+def step_period(
+    accel, switches, p, theta, dtheta, f0, f1, a_start, dt, substeps, method, tol, n_sw, stick, g
 ):
-    """The body of :func:`integrate`, generic in ``accel``.
+    """Move the state over one sample period: :func:`advance`, or where the model has
+    switching surfaces, stick-slip friction or the method is ``dopri5``,
+    :func:`~evo_door.sim.located.advance_located` (``g``: 3 rows of scratch)."""
+    if method == DOPRI5 or n_sw > 0 or stick:
+        return advance_located(
+            accel, switches, p, theta, dtheta, f0, f1, dt, substeps, method, tol, n_sw, stick,
+            g[0], g[1], g[2],
+        )  # fmt: skip
+    return advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
 
-    :func:`integrate_compiled` hands it a first-class function (called through a
+
+@njit(cache=True, nogil=True, inline="always")
+def integrate_with(
+    accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
+    theta_out, dtheta_out, ddtheta_out,
+):  # fmt: skip
+    """The body of :func:`integrate`, generic in ``accel`` and ``switches``.
+
+    :func:`integrate_compiled` hands it first-class functions (called through a
     pointer); a model's specialised integrator (:func:`register_prepared`) hands it
     its compiled right-hand side by name, which LLVM then inlines into the stages.
     ``inline="always"`` here and in the steps is what lets numba cache that: the
@@ -256,21 +282,23 @@ def integrate_with(
     n = force.shape[0]
     theta = theta0
     dtheta = dtheta0
-    a_now = accel(theta, dtheta, force[0], p)
+    g = np.empty((3, max(n_sw, 1)))
+    a_now = rate(accel, p, theta, dtheta, force[0], stick)
     theta_out[0] = theta
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
     for k in range(n - 1):
-        theta, dtheta = advance(
-            accel, p, theta, dtheta, force[k], force[k + 1], a_now, dt, substeps, method
-        )
+        theta, dtheta = step_period(
+            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, dt, substeps,
+            method, tol, n_sw, stick, g,
+        )  # fmt: skip
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
             for j in range(k + 1, n):
                 theta_out[j] = np.nan
                 dtheta_out[j] = np.nan
                 ddtheta_out[j] = np.nan
             return False
-        a_now = accel(theta, dtheta, force[k + 1], p)
+        a_now = rate(accel, p, theta, dtheta, force[k + 1], stick)
         theta_out[k + 1] = theta
         dtheta_out[k + 1] = dtheta
         ddtheta_out[k + 1] = a_now
@@ -279,53 +307,63 @@ def integrate_with(
 
 #: Signature of :func:`integrate` without its first argument (a specialised form).
 INTEGRATE_SIGNATURE = types.boolean(
-    _vec,
-    _vec,
-    types.float64,
-    types.int64,
-    types.float64,
-    types.float64,
-    types.int64,
+    _vec,  # p
+    _vec,  # force
+    types.float64,  # dt
+    types.int64,  # substeps
+    types.float64,  # theta0
+    types.float64,  # dtheta0
+    types.int64,  # method
+    types.float64,  # tol
+    types.int64,  # n_sw
+    types.boolean,  # stick
     _vec,
     _vec,
     _vec,
 )
 
 
-@njit(types.boolean(ACCEL_TYPE, *INTEGRATE_SIGNATURE.args), cache=True, nogil=True)
+@njit(types.boolean(ACCEL_TYPE, SWITCHES_TYPE, *INTEGRATE_SIGNATURE.args), cache=True, nogil=True)
 def integrate_compiled(
-    accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
-):
-    """:func:`integrate` for compiled callers: ``accel`` through a function pointer."""
+    accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
+    theta_out, dtheta_out, ddtheta_out,
+):  # fmt: skip
+    """:func:`integrate` for compiled callers: ``accel`` and ``switches`` through
+    function pointers."""
     return integrate_with(
-        accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
-    )
+        accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
+        theta_out, dtheta_out, ddtheta_out,
+    )  # fmt: skip
 
 
 def integrate(
-    accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
-):
+    accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
+    theta_out, dtheta_out, ddtheta_out,
+):  # fmt: skip
     """Integrate one trial; fill the three output arrays at the force's sample instants.
 
-    Returns ``True`` on success, ``False`` if the state became non-finite or the speed
-    exceeded :data:`BLOWUP_SPEED` (the rest of the outputs is then NaN). Runs the
-    integrator specialised to ``accel`` where one is registered
-    (:func:`register_prepared`), else :func:`integrate_compiled`.
+    ``switches`` writes the model's ``n_sw`` switching functions and ``stick`` says
+    its dry friction is a sign law (:mod:`evo_door.sim.located`); ``tol`` is the
+    tolerance of ``dopri5``. Returns ``True`` on success, ``False`` if the state
+    became non-finite or the speed exceeded :data:`BLOWUP_SPEED` (the rest of the
+    outputs is then NaN). Runs the integrator specialised to ``accel`` where one is
+    registered (:func:`register_prepared`), else :func:`integrate_compiled`.
     """
+    args = (
+        p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
+        theta_out, dtheta_out, ddtheta_out,
+    )  # fmt: skip
     special = next((f.integrate for f in _PREPARED.values() if f.accel is accel), None)
     if special is not None:
-        return special(
-            p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
-        )
-    return integrate_compiled(
-        accel, p, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
-    )
+        return special(*args)
+    return integrate_compiled(accel, switches or no_switches, *args)
 
 
 @njit(
     types.void(
         ACCEL_TYPE,
         PREPARE_TYPE,
+        SWITCHES_TYPE,
         types.int64,
         _mat,
         _vec,
@@ -334,6 +372,9 @@ def integrate(
         types.float64,
         types.float64,
         types.int64,
+        types.float64,
+        types.int64,
+        types.boolean,
         _mat,
         _mat,
         _mat,
@@ -345,6 +386,7 @@ def integrate(
 def integrate_batch(
     accel,
     prepare,
+    switches,
     size,
     P,
     force,
@@ -353,6 +395,9 @@ def integrate_batch(
     theta0,
     dtheta0,
     method,
+    tol,
+    n_sw,
+    stick,
     theta_out,
     dtheta_out,
     ddtheta_out,
@@ -362,12 +407,13 @@ def integrate_batch(
 
     ``accel``, ``prepare`` and ``size`` are a :func:`kernel_form`: each row is prepared
     (into a vector of ``size`` floats) inside the parallel loop and integrated with
-    ``accel`` on it."""
+    ``accel`` on it; ``switches``, ``n_sw`` and ``stick`` as in :func:`integrate`."""
     for i in prange(P.shape[0]):
         q = np.empty(size)
         prepare(P[i], q)
         ok_out[i] = integrate_compiled(
             accel,
+            switches,
             q,
             force,
             dt,
@@ -375,6 +421,9 @@ def integrate_batch(
             theta0,
             dtheta0,
             method,
+            tol,
+            n_sw,
+            stick,
             theta_out[i],
             dtheta_out[i],
             ddtheta_out[i],

@@ -21,12 +21,14 @@ from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
 from evo_door.sim.integrators import (
     ACCEL_TYPE,
+    DEFAULT_TOLERANCE,
     METHODS,
     integrate,
     integrate_batch,
     kernel_form,
     prepared_form,
 )
+from evo_door.sim.located import no_switches
 
 
 @dataclass
@@ -83,8 +85,40 @@ def check_force(force, dt) -> np.ndarray:
     return force
 
 
+def events_of(model) -> tuple:
+    """``(switches, n_switches, stick_slip)`` of a model, as the kernels take them."""
+    switches = getattr(model, "switches", None)
+    if switches is None:
+        return no_switches, 0, bool(getattr(model, "stick_slip", False))
+    return switches, int(model.n_switches), bool(model.stick_slip)
+
+
+def tolerance_of(model, tolerance=None) -> float:
+    """The ``dopri5`` tolerance: ``tolerance`` if given (checked), else the model's."""
+    tol = getattr(model, "tolerance", DEFAULT_TOLERANCE) if tolerance is None else tolerance
+    tol = float(tol)
+    if not (math.isfinite(tol) and 0.0 < tol < 1.0):
+        raise UserError(f"integration tolerance must be a number in (0, 1), got {tolerance!r}")
+    return tol
+
+
+def refined(method: str, substeps: int, tolerance: float) -> tuple[str, int, float]:
+    """The settings of the a-posteriori error check: the same method at half the step
+    (and, for ``dopri5``, a 32 times tighter tolerance: its error goes as h^5)."""
+    return method, 2 * int(substeps), float(tolerance) / 32.0
+
+
 def simulate(
-    model, params, force, dt, theta0=None, dtheta0=0.0, t0=0.0, method=None, substeps=None
+    model,
+    params,
+    force,
+    dt,
+    theta0=None,
+    dtheta0=0.0,
+    t0=0.0,
+    method=None,
+    substeps=None,
+    tolerance=None,
 ) -> Response:
     """Simulate ``model`` with a :class:`~evo_door.params.ParamSet` (or vector).
 
@@ -97,8 +131,8 @@ def simulate(
         User force (N) sampled every ``dt`` seconds.
     theta0, dtheta0 : float
         Initial angle (rad; default the model's) and angular speed (rad/s).
-    method, substeps :
-        Override the model's integration defaults.
+    method, substeps, tolerance :
+        Override the model's integration defaults (``tolerance``: ``dopri5`` only).
 
     A model with a fast form (:func:`~evo_door.sim.integrators.register_prepared`, the
     door's pose table) runs it: the parameter set is prepared once, then integrated.
@@ -125,8 +159,10 @@ def simulate(
     fast = prepared_form(accel)
     if fast is not None:
         accel, p = fast.accel, fast.vector(p)
+    switches, n_sw, stick = events_of(model)
     ok = integrate(
         accel,
+        switches,
         p,
         force,
         float(dt),
@@ -134,6 +170,9 @@ def simulate(
         theta0,
         float(dtheta0),
         _method_code(method or model.method),
+        tolerance_of(model, tolerance),
+        n_sw,
+        stick,
         out[0],
         out[1],
         out[2],
@@ -142,7 +181,9 @@ def simulate(
     return Response(t, force, out[0], out[1], out[2], bool(ok))
 
 
-def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, substeps=None):
+def simulate_batch(
+    model, P, force, dt, theta0=None, dtheta0=0.0, method=None, substeps=None, tolerance=None
+):
     """Simulate one input for every row of ``P`` in one compiled parallel call.
 
     Returns ``(theta, dtheta, ddtheta, ok)``: three ``(len(P), len(force))`` arrays
@@ -157,6 +198,7 @@ def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, s
     n_ind, n = P.shape[0], force.size
     theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
     ok = np.zeros(n_ind, dtype=np.bool_)
+    switches, n_sw, stick = events_of(model)
     args = (
         P,
         force,
@@ -165,13 +207,16 @@ def simulate_batch(model, P, force, dt, theta0=None, dtheta0=0.0, method=None, s
         theta0,
         float(dtheta0),
         _method_code(method or model.method),
+        tolerance_of(model, tolerance),
+        n_sw,
+        stick,
         theta,
         dtheta,
         ddtheta,
         ok,
     )
     form = kernel_form(model.accel, P.shape[1])
-    integrate_batch(form.accel, form.prepare, form.size, *args)
+    integrate_batch(form.accel, form.prepare, switches, form.size, *args)
     return theta, dtheta, ddtheta, ok
 
 

@@ -56,6 +56,7 @@ from evo_door.models.door.posetable import (
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.params import param_vector
 from evo_door.sim.integrators import INTEGRATE_SIGNATURE, integrate_with, register_prepared
+from evo_door.sim.located import SWITCHES_SIGNATURE
 
 PARAMS = TABLE
 
@@ -201,6 +202,52 @@ def accel(theta, dtheta, force, p):
     )
 
 
+#: How many switching functions :func:`switches` writes.
+N_SWITCHES = 9
+
+
+@njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
+def switches(theta, dtheta, force, p, g):
+    """The door's switching functions (where its right-hand side kinks or jumps), into ``g``.
+
+    The stop H at fully open and the wall at closed (contact, and where their damper
+    would pull: they never do), the free play's end, the seat's rise, the catch's
+    and the lock ramp's rise ends, the lock ramp's foot. The apex and the latch
+    damping's window are steep tanh edges, smooth (the adaptive step follows them).
+    Reads only parameters, so it serves the prepared vector too. A function that
+    does not apply is 1.
+    """
+    g[0] = theta
+    if theta < 0.0:
+        g[1] = -p[STOP_STIFFNESS] * theta - p[STOP_DAMPING] * dtheta
+    else:
+        g[1] = 1.0
+    pen = theta - CLOSED
+    g[2] = pen
+    g[3] = p[WALL_STIFFNESS] * pen + p[WALL_DAMPING] * dtheta if pen > 0.0 else 1.0
+    unlock = p[UNLOCK_FORCE]
+    lock = p[LOCK_FORCE]
+    if unlock > 0.0 or lock > 0.0:
+        k_1 = p[LATCH_OPEN_STIFFNESS]
+        theta_0, _theta_1, theta_3 = latch_angles(
+            unlock,
+            lock,
+            p[LATCH_LOOSE_ANGLE],
+            k_1,
+            p[LATCH_CLOSE_STIFFNESS],
+            p[LATCH_OPEN_HOLD],
+            p[LATCH_CLOSE_HOLD],
+        )
+        g[4] = theta - theta_0
+        g[5] = theta - theta_0 - p[LATCH_SEAT_FORCE] / k_1 if unlock > 0.0 else 1.0
+        g[6] = theta - (theta_0 - unlock / k_1)
+        g[7] = theta - theta_3
+        g[8] = theta - theta_3 - lock / p[LATCH_CLOSE_STIFFNESS]
+    else:
+        for i in range(4, N_SWITCHES):
+            g[i] = 1.0
+
+
 # -- the fast path: a kernel vector with the pose table appended -----------------------
 N_PARAMS = len(TABLE)
 # Header of a prepared vector, after the parameters (what depends on the parameters
@@ -317,23 +364,16 @@ def prepared_vector(params) -> np.ndarray:
 
 @njit(INTEGRATE_SIGNATURE, cache=True, nogil=True)
 def integrate_tabulated(
-    q, force, dt, substeps, theta0, dtheta0, method, theta_out, dtheta_out, ddtheta_out
-):
+    q, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
+    theta_out, dtheta_out, ddtheta_out,
+):  # fmt: skip
     """:func:`~evo_door.sim.integrators.integrate` compiled around
-    :func:`accel_tabulated` (called directly, inlined into the integrator's stages)."""
+    :func:`accel_tabulated` and :func:`switches` (called directly, inlined into the
+    integrator's stages)."""
     return integrate_with(
-        accel_tabulated,
-        q,
-        force,
-        dt,
-        substeps,
-        theta0,
-        dtheta0,
-        method,
-        theta_out,
-        dtheta_out,
-        ddtheta_out,
-    )
+        accel_tabulated, switches, q, force, dt, substeps, theta0, dtheta0, method, tol,
+        n_sw, stick, theta_out, dtheta_out, ddtheta_out,
+    )  # fmt: skip
 
 
 register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE, integrate_tabulated)
@@ -406,4 +446,6 @@ MODEL = Model(
     theta0=0.0,
     notes=_NOTES,
     rig_kinds=("impulse", "unlock", "lock"),
+    switches=switches,
+    n_switches=N_SWITCHES,
 )

@@ -1,0 +1,359 @@
+"""Integration that locates the model's switching surfaces within the step (compiled).
+
+A door model is smooth almost everywhere, but not everywhere: a latch band begins, a
+spring reaches its hold, the door meets a stop, dry friction changes direction or
+sticks. A fixed step that crosses one of these in its middle mixes the laws of both
+sides in its stages and loses its order: the error of a whole trial is then made at a
+handful of crossings, and no sensible step size removes it.
+
+:func:`advance_located` moves the state over one sample period like
+:func:`~evo_door.sim.integrators.advance`, and on top of it:
+
+**Switching surfaces.** A model declares them as a compiled function
+``switches(theta, dtheta, force, p, g)`` that writes the values ``g[i]`` of its
+surfaces (:data:`SWITCHES_SIGNATURE`; a surface is where ``g[i]`` changes sign, for
+example ``theta - theta_0`` at the start of a latch band). After every step the
+signs are compared with those at its start; where one changed, the crossing is found
+by the Illinois method on the step *length* (each trial length a fresh step from the
+same start, so every candidate is a step that does not cross), to 1e-13 of the sample
+period. The step to the last length short of the surface is kept, the state is moved
+across it by an Euler step of the bracket's width (1e-13 s, so the next step's stages
+all see the far side's law), and the period goes on from there. A surface crossed
+more than :data:`MAX_EVENTS` times in one period (a chatter) is stepped over for the
+rest of it.
+
+**Stick-slip friction.** A model whose dry friction is a sign law, ``-F_c sgn(v)``
+with ``sgn(0) = 0`` (``stick_slip``), gets the set-valued Coulomb law that the
+renderer solves (:mod:`evo_door.render.friction`): the speed's zero is a surface;
+there the door sticks (speed exactly 0.0, angle held) while the other forces stay
+within the friction levels, which :func:`rate` reads as the acceleration at a speed of
+``+-``:data:`CREEP` (the friction's two sides, nothing else changed). The force is
+linear between samples and the acceleration affine in it, so the instant the other
+forces break the stick is solved exactly; the door then slips from ``+-CREEP``.
+
+**Adaptive steps** (method ``dopri5``): Dormand and Prince's 5(4) pair, its step
+chosen within each sample period from the embedded error estimate against the
+tolerance ``tol``: ``|error| <= tol (1 + |x|)`` per component (rad, rad/s). Steps
+never exceed ``dt / substeps``; each period starts from that length, so a period's
+result does not depend on how the one before it was cut. ``rk4`` and
+``semi_implicit`` keep their fixed steps, with the surfaces located as above.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, types
+
+#: ``method`` codes (the same as :data:`evo_door.sim.integrators.METHODS`).
+RK4 = 0
+SEMI_IMPLICIT = 1
+DOPRI5 = 2
+
+#: Speed (rad/s) at which a stick-slip model's friction is read at rest: its sign is
+#: the side of the friction, and it is far too small to move anything else.
+CREEP = 1e-200
+#: Surface crossings located in one sample period before the rest is stepped over.
+MAX_EVENTS = 64
+#: Width of a located crossing's bracket, as a fraction of the sample period.
+LOCATE_TOL = 1e-13
+#: Most Illinois iterations of one location.
+LOCATE_ITER = 80
+#: Most step-size rejections in one period before a step is taken regardless.
+MAX_REJECTS = 400
+
+_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+
+#: Signature of a model's ``switches(theta, dtheta, force, p, g)``: writes its
+#: switching functions into ``g``.
+SWITCHES_SIGNATURE = types.void(
+    types.float64, types.float64, types.float64, types.float64[::1], types.float64[::1]
+)
+#: The numba type of a ``switches`` function as a kernel argument.
+SWITCHES_TYPE = types.FunctionType(SWITCHES_SIGNATURE)
+
+
+@njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
+def no_switches(theta, dtheta, force, p, g):
+    """The ``switches`` of a model that declares none."""
+
+
+# Dormand-Prince 5(4): nodes, stages, 5th-order weights and the error weights b - b*.
+_C2, _C3, _C4, _C5 = 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0
+_A21 = 1.0 / 5.0
+_A31, _A32 = 3.0 / 40.0, 9.0 / 40.0
+_A41, _A42, _A43 = 44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0
+_A51, _A52, _A53, _A54 = 19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0
+_A61, _A62, _A63 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0
+_A64, _A65 = 49.0 / 176.0, -5103.0 / 18656.0
+_B1, _B3, _B4, _B5, _B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
+_E1, _E3, _E4 = 71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0
+_E5, _E6, _E7 = -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol):
+    """One Dormand-Prince 5(4) step of length ``h`` from time ``t`` of the period.
+
+    The force is ``f0 + slope * time``; ``a1`` is the acceleration at the start.
+    Returns ``(theta, dtheta, err)``, ``err`` the embedded error estimate over the
+    tolerance (a step is good when it is at most 1).
+    """
+    k1t, k1w = w, a1
+    k2t = w + h * _A21 * k1w
+    k2w = accel(th + h * _A21 * k1t, k2t, f0 + slope * (t + _C2 * h), p)
+    k3t = w + h * (_A31 * k1w + _A32 * k2w)
+    k3w = accel(th + h * (_A31 * k1t + _A32 * k2t), k3t, f0 + slope * (t + _C3 * h), p)
+    k4t = w + h * (_A41 * k1w + _A42 * k2w + _A43 * k3w)
+    k4w = accel(th + h * (_A41 * k1t + _A42 * k2t + _A43 * k3t), k4t, f0 + slope * (t + _C4 * h), p)
+    k5t = w + h * (_A51 * k1w + _A52 * k2w + _A53 * k3w + _A54 * k4w)
+    k5w = accel(
+        th + h * (_A51 * k1t + _A52 * k2t + _A53 * k3t + _A54 * k4t),
+        k5t,
+        f0 + slope * (t + _C5 * h),
+        p,
+    )
+    k6t = w + h * (_A61 * k1w + _A62 * k2w + _A63 * k3w + _A64 * k4w + _A65 * k5w)
+    k6w = accel(
+        th + h * (_A61 * k1t + _A62 * k2t + _A63 * k3t + _A64 * k4t + _A65 * k5t),
+        k6t,
+        f0 + slope * (t + h),
+        p,
+    )
+    th_new = th + h * (_B1 * k1t + _B3 * k3t + _B4 * k4t + _B5 * k5t + _B6 * k6t)
+    w_new = w + h * (_B1 * k1w + _B3 * k3w + _B4 * k4w + _B5 * k5w + _B6 * k6w)
+    k7t = w_new
+    k7w = accel(th_new, w_new, f0 + slope * (t + h), p)
+    et = h * (_E1 * k1t + _E3 * k3t + _E4 * k4t + _E5 * k5t + _E6 * k6t + _E7 * k7t)
+    ew = h * (_E1 * k1w + _E3 * k3w + _E4 * k4w + _E5 * k5w + _E6 * k6w + _E7 * k7w)
+    err = max(abs(et) / (tol * (1.0 + abs(th))), abs(ew) / (tol * (1.0 + abs(w))))
+    return th_new, w_new, err
+
+
+@njit(cache=True, nogil=True, inline="always")
+def fixed_step(accel, p, th, w, a1, t, h, f0, slope, method, a_t, a_w):
+    """One RK4 or ROS2 step of length ``h`` from time ``t`` of the period."""
+    fa = f0 + slope * t
+    fb = f0 + slope * (t + h)
+    if method == SEMI_IMPLICIT:
+        gh = _GAMMA * h
+        m12 = -gh
+        m21 = -gh * a_t
+        m22 = 1.0 - gh * a_w
+        det = m22 - m12 * m21
+        k1t = (m22 * w - m12 * a1) / det
+        k1w = (-m21 * w + a1) / det
+        th1 = th + h * k1t
+        w1 = w + h * k1w
+        r1 = w1 - 2.0 * k1t
+        r2 = accel(th1, w1, fb, p) - 2.0 * k1w
+        k2t = (m22 * r1 - m12 * r2) / det
+        k2w = (-m21 * r1 + r2) / det
+        return th + h * (1.5 * k1t + 0.5 * k2t), w + h * (1.5 * k1w + 0.5 * k2w)
+    fm = 0.5 * (fa + fb)
+    k2t = w + 0.5 * h * a1
+    k2w = accel(th + 0.5 * h * w, k2t, fm, p)
+    k3t = w + 0.5 * h * k2w
+    k3w = accel(th + 0.5 * h * k2t, k3t, fm, p)
+    k4t = w + h * k3w
+    k4w = accel(th + h * k3t, k4t, fb, p)
+    return (
+        th + h / 6.0 * (w + 2.0 * k2t + 2.0 * k3t + k4t),
+        w + h / 6.0 * (a1 + 2.0 * k2w + 2.0 * k3w + k4w),
+    )
+
+
+@njit(cache=True, nogil=True, inline="always")
+def rate(accel, p, theta, dtheta, force, stick):
+    """The acceleration (rad/s^2) at a state, with a stuck door's 0.
+
+    For a stick-slip model at rest (``dtheta`` exactly 0.0): 0 while the friction
+    holds the other forces, else the acceleration of the side it slips to.
+    """
+    if stick and dtheta == 0.0:
+        forward = accel(theta, CREEP, force, p)
+        if forward > 0.0:
+            return forward
+        backward = accel(theta, -CREEP, force, p)
+        if backward < 0.0:
+            return backward
+        return 0.0
+    return accel(theta, dtheta, force, p)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _crossed(a, b):
+    """True when ``a`` and ``b`` lie on two sides of zero (0 counts as positive)."""
+    return (a < 0.0) != (b < 0.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _first_crossing(g0, g1, n, w0, w1, stick, active):
+    """Index of the crossing with the smallest linear estimate of its time, -1 if none;
+    ``n`` stands for the speed's zero (stick-slip)."""
+    best = -1
+    best_u = 2.0
+    for i in range(n):
+        if active[i] and _crossed(g0[i], g1[i]):
+            u = g0[i] / (g0[i] - g1[i])
+            if u < best_u:
+                best, best_u = i, u
+    if stick and w0 != 0.0 and _crossed(w0, w1):
+        u = w0 / (w0 - w1)
+        if u < best_u:
+            best = n
+    return best
+
+
+@njit(cache=True, nogil=True, inline="always")
+def advance_located(
+    accel, switches, p, theta, dtheta, f0, f1, dt, substeps, method, tol, n_sw, stick, g0, g1, gx
+):
+    """Move ``(theta, dtheta)`` over one sample period ``dt``, surfaces located.
+
+    The force goes linearly from ``f0`` to ``f1``. ``switches`` writes the model's
+    ``n_sw`` switching functions; ``stick`` says its dry friction is a sign law (the
+    module docstring). ``g0``, ``g1``, ``gx`` are scratch arrays of at least ``n_sw``
+    floats; ``active`` surfaces are the ones still located this period.
+    """
+    # long: one loop over the period's steps, in four cases read top to bottom (a
+    # stuck door; the step; a crossing located; the move across it); they share the
+    # period's clock, step length and scratch arrays
+    slope = (f1 - f0) / dt
+    h_max = dt / substeps
+    h = h_max
+    t = 0.0
+    active = np.ones(max(n_sw, 1), dtype=np.bool_)
+    events = 0
+    rejects = 0
+    a_t = 0.0
+    a_w = 0.0
+    if method == SEMI_IMPLICIT:
+        a0 = accel(theta, dtheta, f0, p)
+        et = 1e-7 * (1.0 + abs(theta))
+        ew = 1e-7 * (1.0 + abs(dtheta))
+        a_t = min((accel(theta + et, dtheta, f0, p) - a0) / et, 0.0)
+        a_w = min((accel(theta, dtheta + ew, f0, p) - a0) / ew, 0.0)
+    switches(theta, dtheta, f0, p, g0)
+    while dt - t > LOCATE_TOL * dt:
+        force = f0 + slope * t
+        # 1. a stuck door: held until the other forces beat the friction
+        if stick and dtheta == 0.0:
+            forward = accel(theta, CREEP, force, p)
+            backward = accel(theta, -CREEP, force, p)
+            if forward > 0.0:
+                dtheta = CREEP
+            elif backward < 0.0:
+                dtheta = -CREEP
+            else:
+                # accel is affine in the force and the force linear in time: exact
+                forward_end = accel(theta, CREEP, f1, p)
+                backward_end = accel(theta, -CREEP, f1, p)
+                free = dt
+                if forward_end > 0.0:
+                    free = min(free, t + (dt - t) * (-forward) / (forward_end - forward))
+                if backward_end < 0.0:
+                    free = min(free, t + (dt - t) * (-backward) / (backward_end - backward))
+                if free >= dt:
+                    return theta, 0.0
+                t = max(free, t + LOCATE_TOL * dt)
+                continue
+            switches(theta, dtheta, force, p, g0)
+        # 2. the step
+        h = min(h, dt - t)
+        a1 = accel(theta, dtheta, force, p)
+        if method == DOPRI5:
+            th1, w1, err = dopri_step(accel, p, theta, dtheta, a1, t, h, f0, slope, tol)
+            if not (err <= 1.0) and rejects < MAX_REJECTS and h > LOCATE_TOL * dt:
+                rejects += 1
+                if math.isfinite(err):
+                    h *= max(0.2, 0.9 * err**-0.2)
+                else:
+                    h *= 0.2
+                continue
+        else:
+            th1, w1 = fixed_step(accel, p, theta, dtheta, a1, t, h, f0, slope, method, a_t, a_w)
+            err = 0.0
+        switches(th1, w1, f0 + slope * (t + h), p, g1)
+        c = -1
+        if events < MAX_EVENTS:
+            c = _first_crossing(g0, g1, n_sw, dtheta, w1, stick, active)
+        if c < 0:
+            theta, dtheta = th1, w1
+            t += h
+            for i in range(n_sw):
+                g0[i] = g1[i]
+            if method == DOPRI5:
+                grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
+                h = min(h_max, h * min(5.0, grow))
+            continue
+        # 3. a crossing: the longest step short of it, by Illinois on the length
+        events += 1
+        lo, hi = 0.0, h
+        while True:
+            v_lo = dtheta if c == n_sw else g0[c]
+            v_hi = w1 if c == n_sw else g1[c]
+            side = 0
+            th_lo, w_lo = theta, dtheta
+            for _ in range(LOCATE_ITER):
+                if hi - lo <= LOCATE_TOL * dt:
+                    break
+                s = (lo * v_hi - hi * v_lo) / (v_hi - v_lo)
+                if not (lo < s < hi):
+                    s = 0.5 * (lo + hi)
+                if method == DOPRI5:
+                    th_s, w_s, _e = dopri_step(accel, p, theta, dtheta, a1, t, s, f0, slope, tol)
+                else:
+                    th_s, w_s = fixed_step(
+                        accel, p, theta, dtheta, a1, t, s, f0, slope, method, a_t, a_w
+                    )
+                switches(th_s, w_s, f0 + slope * (t + s), p, gx)
+                v = w_s if c == n_sw else gx[c]
+                if _crossed(v, v_lo):
+                    hi, v_hi = s, v
+                    if side == 1:
+                        v_lo *= 0.5
+                    side = 1
+                else:
+                    lo, v_lo, th_lo, w_lo = s, v, th_s, w_s
+                    if side == -1:
+                        v_hi *= 0.5
+                    side = -1
+            # a surface crossed before the located one takes its place
+            switches(th_lo, w_lo, f0 + slope * (t + lo), p, gx)
+            earlier = _first_crossing(g0, gx, n_sw, dtheta, w_lo, stick, active)
+            if earlier < 0 or lo <= 0.0:
+                break
+            c = earlier
+            hi = lo
+            lo = 0.0
+            th1, w1 = th_lo, w_lo
+            for i in range(n_sw):
+                g1[i] = gx[i]
+        # 4. keep the step to the surface, then cross it
+        theta, dtheta = th_lo, w_lo
+        t += lo
+        if c == n_sw:
+            dtheta = 0.0  # the speed's zero: stick, or slip the other way (case 1)
+            switches(theta, dtheta, f0 + slope * t, p, g0)
+            continue
+        width = max(hi - lo, LOCATE_TOL * dt)
+        before = g0[c]
+        for _ in range(12):
+            force = f0 + slope * t
+            a_now = accel(theta, dtheta, force, p)
+            th_x = theta + width * dtheta
+            w_x = dtheta + width * a_now
+            switches(th_x, w_x, force + slope * width, p, gx)
+            if _crossed(gx[c], before) or width > 1e-6 * dt:
+                if stick and _crossed(w_x, dtheta) and dtheta != 0.0:
+                    w_x = 0.0
+                theta, dtheta = th_x, w_x
+                t += width
+                break
+            width *= 4.0
+        switches(theta, dtheta, f0 + slope * min(t, dt), p, g0)
+        if not _crossed(g0[c], before):
+            active[c] = False  # grazes it: step over it for the rest of the period
+    return theta, dtheta
