@@ -484,8 +484,8 @@ def latch_angles_of(params) -> dict[str, float]:
     return dict(zip(names, (float(v) for v in latch_angles(param_vector(params, PARAMS)))))
 
 
-#: Dormand-Prince 5(4), steps of at most half a 1024 Hz sample, the latch's kinks and
-#: the stops located, dry friction sticking as the renderer renders it; see
+#: Dormand-Prince 5(4), adaptive, steps of at most one 1024 Hz sample, the latch's
+#: kinks and the stops located, dry friction sticking as the renderer renders it; see
 #: docs/haptic-model.md "Integration".
 MODEL = Model(
     name="haptic",
@@ -493,7 +493,7 @@ MODEL = Model(
     params=PARAMS,
     accel=accel,
     method="dopri5",
-    substeps=2,
+    substeps=1,
     theta0=CLOSED,
     notes=DECLARATION.notes,
     rig_kinds=("impulse", "unlock", "lock"),

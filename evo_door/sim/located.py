@@ -57,7 +57,7 @@ CREEP = 1e-200
 #: Surface crossings located in one sample period before the rest is stepped over.
 MAX_EVENTS = 64
 #: Width of a located crossing's bracket, as a fraction of the sample period.
-LOCATE_TOL = 1e-13
+LOCATE_TOL = 1e-7
 #: Most Illinois iterations of one location.
 LOCATE_ITER = 80
 #: Most step-size rejections in one period before a step is taken regardless.
@@ -79,6 +79,24 @@ def no_switches(theta, dtheta, force, p, g):
     """The ``switches`` of a model that declares none."""
 
 
+@njit(cache=True, nogil=True, inline="always")
+def sided(accel, p, theta, dtheta, force, side):
+    """``accel`` with the dry friction held on ``side`` (+1 / -1; 0: as it is).
+
+    While a stick-slip door slides one way, the steps' stages must see its friction
+    as that slide's, even where a stage's speed overshoots through zero (the slide's
+    law extended smoothly, so that the step and its error estimate stay those of a
+    smooth problem and the speed's zero is located on it). The friction's two sides
+    at a state differ by ``accel(+CREEP) - accel(-CREEP)``: a stage on the wrong side
+    gets that difference added.
+    """
+    a = accel(theta, dtheta, force, p)
+    if side == 0 or dtheta * side > 0.0:
+        return a
+    here = accel(theta, -side * CREEP, force, p) if dtheta != 0.0 else a
+    return a - here + accel(theta, side * CREEP, force, p)
+
+
 # Dormand-Prince 5(4): nodes, stages, 5th-order weights and the error weights b - b*.
 _C2, _C3, _C4, _C5 = 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0
 _A21 = 1.0 / 5.0
@@ -93,46 +111,58 @@ _E5, _E6, _E7 = -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0
 
 
 @njit(cache=True, nogil=True, inline="always")
-def dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol):
+def dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol, side):
     """One Dormand-Prince 5(4) step of length ``h`` from time ``t`` of the period.
 
     The force is ``f0 + slope * time``; ``a1`` is the acceleration at the start.
-    Returns ``(theta, dtheta, err)``, ``err`` the embedded error estimate over the
-    tolerance (a step is good when it is at most 1).
+    Returns ``(theta, dtheta, err, a_end)``: ``err`` the embedded error estimate over
+    the tolerance (a step is good when it is at most 1), ``a_end`` the acceleration
+    at the new state (the next step's first stage).
     """
     k1t, k1w = w, a1
     k2t = w + h * _A21 * k1w
-    k2w = accel(th + h * _A21 * k1t, k2t, f0 + slope * (t + _C2 * h), p)
+    k2w = sided(accel, p, th + h * _A21 * k1t, k2t, f0 + slope * (t + _C2 * h), side)
     k3t = w + h * (_A31 * k1w + _A32 * k2w)
-    k3w = accel(th + h * (_A31 * k1t + _A32 * k2t), k3t, f0 + slope * (t + _C3 * h), p)
+    k3w = sided(accel, p, th + h * (_A31 * k1t + _A32 * k2t), k3t, f0 + slope * (t + _C3 * h), side)
     k4t = w + h * (_A41 * k1w + _A42 * k2w + _A43 * k3w)
-    k4w = accel(th + h * (_A41 * k1t + _A42 * k2t + _A43 * k3t), k4t, f0 + slope * (t + _C4 * h), p)
+    k4w = sided(
+        accel,
+        p,
+        th + h * (_A41 * k1t + _A42 * k2t + _A43 * k3t),
+        k4t,
+        f0 + slope * (t + _C4 * h),
+        side,
+    )
     k5t = w + h * (_A51 * k1w + _A52 * k2w + _A53 * k3w + _A54 * k4w)
-    k5w = accel(
+    k5w = sided(
+        accel,
+        p,
         th + h * (_A51 * k1t + _A52 * k2t + _A53 * k3t + _A54 * k4t),
         k5t,
         f0 + slope * (t + _C5 * h),
-        p,
+        side,
     )
     k6t = w + h * (_A61 * k1w + _A62 * k2w + _A63 * k3w + _A64 * k4w + _A65 * k5w)
-    k6w = accel(
+    k6w = sided(
+        accel,
+        p,
         th + h * (_A61 * k1t + _A62 * k2t + _A63 * k3t + _A64 * k4t + _A65 * k5t),
         k6t,
         f0 + slope * (t + h),
-        p,
+        side,
     )
     th_new = th + h * (_B1 * k1t + _B3 * k3t + _B4 * k4t + _B5 * k5t + _B6 * k6t)
     w_new = w + h * (_B1 * k1w + _B3 * k3w + _B4 * k4w + _B5 * k5w + _B6 * k6w)
     k7t = w_new
-    k7w = accel(th_new, w_new, f0 + slope * (t + h), p)
+    k7w = sided(accel, p, th_new, w_new, f0 + slope * (t + h), side)
     et = h * (_E1 * k1t + _E3 * k3t + _E4 * k4t + _E5 * k5t + _E6 * k6t + _E7 * k7t)
     ew = h * (_E1 * k1w + _E3 * k3w + _E4 * k4w + _E5 * k5w + _E6 * k6w + _E7 * k7w)
     err = max(abs(et) / (tol * (1.0 + abs(th))), abs(ew) / (tol * (1.0 + abs(w))))
-    return th_new, w_new, err
+    return th_new, w_new, err, k7w
 
 
 @njit(cache=True, nogil=True, inline="always")
-def fixed_step(accel, p, th, w, a1, t, h, f0, slope, method, a_t, a_w):
+def fixed_step(accel, p, th, w, a1, t, h, f0, slope, method, a_t, a_w, side):
     """One RK4 or ROS2 step of length ``h`` from time ``t`` of the period."""
     fa = f0 + slope * t
     fb = f0 + slope * (t + h)
@@ -147,17 +177,17 @@ def fixed_step(accel, p, th, w, a1, t, h, f0, slope, method, a_t, a_w):
         th1 = th + h * k1t
         w1 = w + h * k1w
         r1 = w1 - 2.0 * k1t
-        r2 = accel(th1, w1, fb, p) - 2.0 * k1w
+        r2 = sided(accel, p, th1, w1, fb, side) - 2.0 * k1w
         k2t = (m22 * r1 - m12 * r2) / det
         k2w = (-m21 * r1 + r2) / det
         return th + h * (1.5 * k1t + 0.5 * k2t), w + h * (1.5 * k1w + 0.5 * k2w)
     fm = 0.5 * (fa + fb)
     k2t = w + 0.5 * h * a1
-    k2w = accel(th + 0.5 * h * w, k2t, fm, p)
+    k2w = sided(accel, p, th + 0.5 * h * w, k2t, fm, side)
     k3t = w + 0.5 * h * k2w
-    k3w = accel(th + 0.5 * h * k2t, k3t, fm, p)
+    k3w = sided(accel, p, th + 0.5 * h * k2t, k3t, fm, side)
     k4t = w + h * k3w
-    k4w = accel(th + h * k3t, k4t, fb, p)
+    k4w = sided(accel, p, th + h * k3t, k4t, fb, side)
     return (
         th + h / 6.0 * (w + 2.0 * k2t + 2.0 * k3t + k4t),
         w + h / 6.0 * (a1 + 2.0 * k2w + 2.0 * k3w + k4w),
@@ -227,6 +257,8 @@ def advance_located(
     active = np.ones(max(n_sw, 1), dtype=np.bool_)
     events = 0
     rejects = 0
+    a1 = 0.0
+    fresh = False  # a1 holds the acceleration at the current state
     a_t = 0.0
     a_w = 0.0
     if method == SEMI_IMPLICIT:
@@ -240,6 +272,7 @@ def advance_located(
         force = f0 + slope * t
         # 1. a stuck door: held until the other forces beat the friction
         if stick and dtheta == 0.0:
+            fresh = False
             forward = accel(theta, CREEP, force, p)
             backward = accel(theta, -CREEP, force, p)
             if forward > 0.0:
@@ -260,25 +293,43 @@ def advance_located(
                 t = max(free, t + LOCATE_TOL * dt)
                 continue
             switches(theta, dtheta, force, p, g0)
-        # 2. the step
+        # 2. the step (a sliding door's friction held on its side: see sided)
+        side = 0
+        if stick:
+            side = 1 if dtheta > 0.0 else (-1 if dtheta < 0.0 else 0)
         h = min(h, dt - t)
-        a1 = accel(theta, dtheta, force, p)
+        if not fresh:
+            a1 = accel(theta, dtheta, force, p)
+        fresh = False
         if method == DOPRI5:
-            th1, w1, err = dopri_step(accel, p, theta, dtheta, a1, t, h, f0, slope, tol)
-            if not (err <= 1.0) and rejects < MAX_REJECTS and h > LOCATE_TOL * dt:
-                rejects += 1
-                if math.isfinite(err):
-                    h *= max(0.2, 0.9 * err**-0.2)
-                else:
-                    h *= 0.2
-                continue
+            th1, w1, err, a_end = dopri_step(
+                accel, p, theta, dtheta, a1, t, h, f0, slope, tol, side
+            )
         else:
-            th1, w1 = fixed_step(accel, p, theta, dtheta, a1, t, h, f0, slope, method, a_t, a_w)
+            th1, w1 = fixed_step(
+                accel, p, theta, dtheta, a1, t, h, f0, slope, method, a_t, a_w, side
+            )
             err = 0.0
+            a_end = 0.0
+        # a step too coarse is cut, unless it crosses a surface: then the crossing is
+        # located first (a step across a jump is never accurate, however short)
+        coarse = not (err <= 1.0) and rejects < MAX_REJECTS and h > LOCATE_TOL * dt
         switches(th1, w1, f0 + slope * (t + h), p, g1)
         c = -1
-        if events < MAX_EVENTS:
+        if events < MAX_EVENTS and math.isfinite(th1) and math.isfinite(w1):
             c = _first_crossing(g0, g1, n_sw, dtheta, w1, stick, active)
+        if coarse:
+            shorter = h * (max(0.2, 0.9 * err**-0.2) if math.isfinite(err) else 0.2)
+            if c >= 0:  # locate now if the crossing lies within the accurate length
+                v0 = dtheta if c == n_sw else g0[c]
+                v1 = w1 if c == n_sw else g1[c]
+                if v0 / (v0 - v1) * h <= shorter:
+                    shorter = h
+            if shorter < h:
+                rejects += 1
+                h = shorter
+                fresh = True  # the same start: a1 stands
+                continue
         if c < 0:
             theta, dtheta = th1, w1
             t += h
@@ -287,6 +338,8 @@ def advance_located(
             if method == DOPRI5:
                 grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
                 h = min(h_max, h * min(5.0, grow))
+                a1 = a_end  # first same as last: the next step's first stage
+                fresh = True
             continue
         # 3. a crossing: the longest step short of it, by Illinois on the length
         events += 1
@@ -294,32 +347,37 @@ def advance_located(
         while True:
             v_lo = dtheta if c == n_sw else g0[c]
             v_hi = w1 if c == n_sw else g1[c]
-            side = 0
-            th_lo, w_lo = theta, dtheta
+            last = 0  # the bracket's end that moved last (Illinois)
+            th_lo, w_lo, err_lo = theta, dtheta, 0.0
             for _ in range(LOCATE_ITER):
                 if hi - lo <= LOCATE_TOL * dt:
                     break
                 s = (lo * v_hi - hi * v_lo) / (v_hi - v_lo)
+                if v_hi == 0.0:  # hi lies on the surface: try just short of it
+                    s = hi - 0.5 * LOCATE_TOL * dt
                 if not (lo < s < hi):
                     s = 0.5 * (lo + hi)
+                err_s = 0.0
                 if method == DOPRI5:
-                    th_s, w_s, _e = dopri_step(accel, p, theta, dtheta, a1, t, s, f0, slope, tol)
+                    th_s, w_s, err_s, _a = dopri_step(
+                        accel, p, theta, dtheta, a1, t, s, f0, slope, tol, side
+                    )
                 else:
                     th_s, w_s = fixed_step(
-                        accel, p, theta, dtheta, a1, t, s, f0, slope, method, a_t, a_w
+                        accel, p, theta, dtheta, a1, t, s, f0, slope, method, a_t, a_w, side
                     )
                 switches(th_s, w_s, f0 + slope * (t + s), p, gx)
                 v = w_s if c == n_sw else gx[c]
                 if _crossed(v, v_lo):
                     hi, v_hi = s, v
-                    if side == 1:
+                    if last == 1:
                         v_lo *= 0.5
-                    side = 1
+                    last = 1
                 else:
-                    lo, v_lo, th_lo, w_lo = s, v, th_s, w_s
-                    if side == -1:
+                    lo, v_lo, th_lo, w_lo, err_lo = s, v, th_s, w_s, err_s
+                    if last == -1:
                         v_hi *= 0.5
-                    side = -1
+                    last = -1
             # a surface crossed before the located one takes its place
             switches(th_lo, w_lo, f0 + slope * (t + lo), p, gx)
             earlier = _first_crossing(g0, gx, n_sw, dtheta, w_lo, stick, active)
@@ -331,6 +389,11 @@ def advance_located(
             th1, w1 = th_lo, w_lo
             for i in range(n_sw):
                 g1[i] = gx[i]
+        if not (err_lo <= 1.0) and rejects < MAX_REJECTS:
+            # the step to the surface is too coarse: a shorter one, and locate again
+            rejects += 1
+            h = lo * (max(0.2, 0.9 * err_lo**-0.2) if math.isfinite(err_lo) else 0.2)
+            continue
         # 4. keep the step to the surface, then cross it
         theta, dtheta = th_lo, w_lo
         t += lo
