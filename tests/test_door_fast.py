@@ -16,7 +16,7 @@ from evo_door.models.door import laws, posetable
 from evo_door.models.door.kinematics import Pose, pose
 from evo_door.optim.kernels import ISE, population_errors
 from evo_door.sim import simulate, simulate_batch
-from evo_door.sim.integrators import RK4, integrate, prepared_form
+from evo_door.sim.integrators import DEFAULT_TOLERANCE, DOPRI5, RK4, integrate, prepared_form
 from evo_door.sim.simulate import param_vector
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)
@@ -40,9 +40,13 @@ def pulse(seconds, start, width, amplitude):
 
 
 def closed_form(ps, force, theta0, dtheta0=0.0):
-    """The reference: the same integrator on the closed-form right-hand side."""
+    """The reference: the same integrator (RK4 x 2, the door's switching surfaces
+    located) on the closed-form right-hand side."""
     out = np.empty((3, force.size))
-    ok = integrate(door_module.accel, param_vector(ps), force, DT, 2, theta0, dtheta0, RK4, *out)
+    ok = integrate(
+        door_module.accel, door_module.switches, param_vector(ps), force, DT, 2, theta0,
+        dtheta0, RK4, DEFAULT_TOLERANCE, door_module.N_SWITCHES, False, *out,
+    )  # fmt: skip
     assert ok
     return out
 
@@ -219,7 +223,7 @@ def test_fast_trial_is_the_closed_form_trial(door, name):
     if theta0 is None:
         theta0 = CLOSED - ps["latch_loose_angle"]
     f = pulse(*shape)
-    r = simulate(door, ps, f, DT, theta0=theta0)
+    r = simulate(door, ps, f, DT, theta0=theta0, method="rk4", substeps=2)
     ref = closed_form(ps, f, theta0)
     assert r.ok
     assert np.abs(r.theta - ref[0]).max() < 1e-9
@@ -246,9 +250,9 @@ def test_batch_and_population_kernels_run_the_fast_path_per_row(door, default):
     err = np.empty((len(P), 1))
     good = np.zeros((len(P), 1), dtype=np.bool_)
     population_errors(
-        door.accel, P, f, target, np.ones(f.size, dtype=np.bool_),
+        door, P, f, target, np.ones(f.size, dtype=np.bool_),
         np.array([0, f.size]), np.array([DT]), np.zeros(1), np.zeros(1),
-        2, RK4, 1, ISE, err, good,
+        1, DOPRI5, door.tolerance, 1, ISE, err, good,
     )  # fmt: skip
     assert good.all()
     for i in range(len(P)):

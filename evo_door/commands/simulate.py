@@ -18,7 +18,7 @@ RANGE_MARGIN = 0.05
 
 #: The integration schemes, ``sorted(evo_door.sim.METHODS)``: written out so that the
 #: parser does not import numba (tests/test_cli_startup.py checks they agree).
-METHOD_NAMES = ("rk4", "semi_implicit")
+METHOD_NAMES = ("dopri5", "rk4", "semi_implicit")
 
 
 def register(sub) -> None:
@@ -56,6 +56,12 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--substeps", type=int, help="integration steps per input sample (default: the model's)"
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        metavar="TOL",
+        help="dopri5's tolerance per step, in rad and rad/s (default: the model's)",
     )
     p.add_argument(
         "--out",
@@ -99,6 +105,7 @@ def run(args) -> int:
         t0=float(inp.t[0]),
         method=args.method,
         substeps=args.substeps,
+        tolerance=args.tolerance,
     )
     response.to_csv(args.out)
     claim.note()
@@ -108,7 +115,7 @@ def run(args) -> int:
     if not response.ok:
         raise UserError(
             f"simulation blew up (non-finite state); {args.out} holds NaN from "
-            "that point: try --method semi_implicit or more --substeps"
+            "that point: try --method dopri5, a smaller --tolerance or more --substeps"
         )
     print(
         f"wrote {args.out}: {inp.n} samples at {inp.rate:.6g} Hz, {inp.duration:.3f} s, "

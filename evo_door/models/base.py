@@ -224,6 +224,27 @@ def _check_switches(model: Model) -> None:
         raise UserError(f"{name}: give switches and n_switches together (or neither)")
     if not (isinstance(model.tolerance, float) and 0.0 < model.tolerance < 1.0):
         raise UserError(f"{name}: tolerance must be a number in (0, 1), got {model.tolerance!r}")
+    if model.switches is None:
+        return
+    from numba import config
+    from numba.core.dispatcher import Dispatcher
+
+    from evo_door.sim.located import SWITCHES_SIGNATURE
+
+    want = "a numba @njit function switches(theta, dtheta, force, p, g) writing g"
+    if config.DISABLE_JIT:
+        if not callable(model.switches):
+            raise UserError(f"{name}: switches must be {want}; got {_describe(model.switches)}")
+        return
+    if not isinstance(model.switches, Dispatcher):
+        raise UserError(f"{name}: switches must be {want}; got {_describe(model.switches)}")
+    try:
+        model.switches.get_compile_result(SWITCHES_SIGNATURE)
+    except Exception as exc:  # numba raises TypingError, TypeError, NameError...
+        raise UserError(
+            f"{name}: switches must be {want}; it does not compile for "
+            f"{_signature_text(SWITCHES_SIGNATURE)}: {_numba_reason(exc)}"
+        ) from None
 
 
 _WANT = "a numba @njit function accel(theta, dtheta, force, p) -> float"
