@@ -120,8 +120,10 @@ class Model:
         return load_params(self.params, spec, overrides, self.preset_dirs)
 
     def presets(self) -> list[str]:
-        """Names of the presets this model can load (same lookup as :meth:`load_params`)."""
-        return available_presets(self.params.model, self.preset_dirs)
+        """Names of the presets this model can load (same lookup as :meth:`load_params`,
+        with those of the models whose parameter files it reads)."""
+        names = {n for m in self.params.reads for n in available_presets(m, self.preset_dirs)}
+        return sorted(names)
 
 
 @dataclass(frozen=True)
