@@ -140,7 +140,7 @@ def load(folder, text=None, overrides=None):
         (
             f"model: {OSC}",
             "model: hapic",
-            "exp.yaml:2: model: unknown model 'hapic' (did you mean 'haptic'?)",
+            "exp.yaml:2: model: unknown model 'hapic' (did you mean 'haptic' or 'haptic_tanh'?)",
         ),
         (
             "validate: [v1]}",

@@ -213,7 +213,7 @@ def _population_errors(
     for i in prange(P.shape[0]):
         p = np.empty(size)
         prepare(P[i], p)
-        g = np.empty((3, max(n_sw, 1)))
+        g = np.empty((4, max(n_sw, 1)))
         for j in range(n_trials):
             e, ok = trial_error(
                 accel,

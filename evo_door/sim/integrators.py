@@ -255,11 +255,11 @@ def step_period(
 ):
     """Move the state over one sample period: :func:`advance`, or where the model has
     switching surfaces, stick-slip friction or the method is ``dopri5``,
-    :func:`~evo_door.sim.located.advance_located` (``g``: 3 rows of scratch)."""
+    :func:`~evo_door.sim.located.advance_located` (``g``: 4 rows of scratch)."""
     if method == DOPRI5 or n_sw > 0 or stick:
         return advance_located(
             accel, switches, p, theta, dtheta, f0, f1, dt, substeps, method, tol, n_sw, stick,
-            g[0], g[1], g[2],
+            g[0], g[1], g[2], g[3],
         )  # fmt: skip
     return advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
 
@@ -282,7 +282,7 @@ def integrate_with(
     n = force.shape[0]
     theta = theta0
     dtheta = dtheta0
-    g = np.empty((3, max(n_sw, 1)))
+    g = np.empty((4, max(n_sw, 1)))
     a_now = rate(accel, p, theta, dtheta, force[0], stick)
     theta_out[0] = theta
     dtheta_out[0] = dtheta

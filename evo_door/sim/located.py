@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit, types
 
 #: ``method`` codes (the same as :data:`evo_door.sim.integrators.METHODS`).
@@ -225,7 +224,7 @@ def _first_crossing(g0, g1, n, w0, w1, stick, active):
     best = -1
     best_u = 2.0
     for i in range(n):
-        if active[i] and _crossed(g0[i], g1[i]):
+        if active[i] != 0.0 and _crossed(g0[i], g1[i]):
             u = g0[i] / (g0[i] - g1[i])
             if u < best_u:
                 best, best_u = i, u
@@ -238,14 +237,30 @@ def _first_crossing(g0, g1, n, w0, w1, stick, active):
 
 @njit(cache=True, nogil=True, inline="always")
 def advance_located(
-    accel, switches, p, theta, dtheta, f0, f1, dt, substeps, method, tol, n_sw, stick, g0, g1, gx
+    accel,
+    switches,
+    p,
+    theta,
+    dtheta,
+    f0,
+    f1,
+    dt,
+    substeps,
+    method,
+    tol,
+    n_sw,
+    stick,
+    g0,
+    g1,
+    gx,
+    active,
 ):
     """Move ``(theta, dtheta)`` over one sample period ``dt``, surfaces located.
 
     The force goes linearly from ``f0`` to ``f1``. ``switches`` writes the model's
     ``n_sw`` switching functions; ``stick`` says its dry friction is a sign law (the
     module docstring). ``g0``, ``g1``, ``gx`` are scratch arrays of at least ``n_sw``
-    floats; ``active`` surfaces are the ones still located this period.
+    floats, ``active`` one more (1.0 for a surface still located this period).
     """
     # long: one loop over the period's steps, in four cases read top to bottom (a
     # stuck door; the step; a crossing located; the move across it); they share the
@@ -254,7 +269,8 @@ def advance_located(
     h_max = dt / substeps
     h = h_max
     t = 0.0
-    active = np.ones(max(n_sw, 1), dtype=np.bool_)
+    for i in range(n_sw):
+        active[i] = 1.0
     events = 0
     rejects = 0
     a1 = 0.0
@@ -297,7 +313,7 @@ def advance_located(
         side = 0
         if stick:
             side = 1 if dtheta > 0.0 else (-1 if dtheta < 0.0 else 0)
-        h = min(h, dt - t)
+        h = min(max(h, LOCATE_TOL * dt), dt - t)  # never a step of nothing
         if not fresh:
             a1 = accel(theta, dtheta, force, p)
         fresh = False
@@ -418,5 +434,5 @@ def advance_located(
             width *= 4.0
         switches(theta, dtheta, f0 + slope * min(t, dt), p, g0)
         if not _crossed(g0[c], before):
-            active[c] = False  # grazes it: step over it for the rest of the period
+            active[c] = 0.0  # grazes it: step over it for the rest of the period
     return theta, dtheta

@@ -67,7 +67,8 @@ from evo_door.models.door.kinematics import pose
 from evo_door.models.door.parameters import GRAVITY
 from evo_door.models.door.relativespeed import relative_speed
 from evo_door.params import Param, ParamSet, ParamTable, load_params, param_vector
-from evo_door.sim.integrators import BLOWUP_SPEED, METHODS, integrate
+from evo_door.sim.integrators import BLOWUP_SPEED, DEFAULT_TOLERANCE, METHODS, integrate
+from evo_door.sim.located import no_switches
 
 #: The name ``--truth`` takes for this truth.
 NAME = "rich"
@@ -478,8 +479,11 @@ class DoorTruth:
             end = np.array(state, dtype=np.float64)
             ok = integrate_handle(self.pq, force, float(dt), self.substeps, end, out)
         else:
+            # the richer truth declares no switching surfaces (its own vector is not
+            # the door's): dopri5's step control follows its kinks
             ok = integrate(
                 rigid_accel,
+                no_switches,
                 self.pq,
                 force,
                 float(dt),
@@ -487,6 +491,9 @@ class DoorTruth:
                 float(state[0]),
                 float(state[1]),
                 METHODS[self.method],
+                DEFAULT_TOLERANCE,
+                0,
+                False,
                 out[0],
                 out[1],
                 out[2],
