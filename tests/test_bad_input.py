@@ -231,6 +231,18 @@ CASES = {
         "run {w}/exp.yaml --set target.data={w}/corrupt.h5 --out {w}/r.h5",
         "corrupt.h5",
     ),
+    "run: simulation tolerance 0": (
+        "run {w}/exp.yaml --set simulation.tolerance=0 --out {w}/r.h5",
+        "--set simulation.tolerance=0: simulation.tolerance: must be a number in (0, 1)",
+    ),
+    "run: simulation tolerance 1": (
+        "run {w}/exp.yaml --set simulation.tolerance=1 --out {w}/r.h5",
+        "simulation.tolerance: must be a number in (0, 1) (dopri5's per step), got 1",
+    ),
+    "run: simulation tolerance not a number": (
+        "run {w}/exp.yaml --set simulation.tolerance=tight --out {w}/r.h5",
+        "simulation.tolerance: expected a finite number, got 'tight'",
+    ),
     "run: population beyond memory": (
         "run {w}/exp.yaml --set algorithm.population=1e9 --out {w}/r.h5",
         "algorithm.population",

@@ -43,6 +43,7 @@ from evo_door.files import read_text
 from evo_door.optim.problem import Objective
 from evo_door.params.declaration import suggest
 from evo_door.sim.integrators import METHODS
+from evo_door.sim.simulate import tolerance_of
 
 TOP_KEYS = (
     "name",
@@ -60,7 +61,7 @@ TOP_KEYS = (
     "output",
     "executor",
 )
-SIMULATION_KEYS = ("method", "substeps")
+SIMULATION_KEYS = ("method", "substeps", "tolerance")
 
 
 @dataclass
@@ -80,6 +81,8 @@ class Experiment:
     pooled: bool = False
     method: str | None = None
     substeps: int | None = None
+    #: ``dopri5``'s tolerance per step (``tol (1 + |x|)``, rad and rad/s)
+    tolerance: float | None = None
     output: str = "results"
     #: where the GA's evaluations run (:mod:`evo_door.optim.executors`); provenance,
     #: not part of the result, so not in :meth:`resolved`
@@ -118,7 +121,11 @@ class Experiment:
             "algorithm": self.algorithm.resolved(),
             "per_trial": self.per_trial,
             "pooled": self.pooled,
-            "simulation": {"method": self.method, "substeps": self.substeps},
+            "simulation": {
+                "method": self.method,
+                "substeps": self.substeps,
+                "tolerance": self.tolerance,
+            },
             "output": self.output,
         }
         return json.loads(json.dumps(out))
@@ -223,6 +230,17 @@ def _check_start(exp: Experiment, reader: _Reader) -> None:
         exp.algorithm.start[name] = float(value)
 
 
+def _tolerance(sim: _Reader, model) -> float:
+    """``simulation.tolerance``: ``dopri5``'s tolerance, a number in (0, 1) (default the
+    model's)."""
+    value = sim.number("tolerance", tolerance_of(model))
+    if not 0.0 < value < 1.0:
+        raise sim.fail(
+            "tolerance", f"must be a number in (0, 1) (dopri5's per step), got {value:g}"
+        )
+    return value
+
+
 def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-") or "experiment"
 
@@ -292,6 +310,7 @@ def experiment_from_tree(
     sim.check_keys(SIMULATION_KEYS)
     method = sim.choice("method", model.method, tuple(METHODS))
     substeps = sim.integer("substeps", model.substeps, lo=1, hi=1000)
+    tolerance = _tolerance(sim, model)
     exp = Experiment(
         name=_safe_name(name),
         model=model_name,
@@ -305,6 +324,7 @@ def experiment_from_tree(
         pooled=r.boolean("pooled", False),
         method=method,
         substeps=substeps,
+        tolerance=tolerance,
         output=r.string("output", "results"),
         executor=executor_setting(r),
         source=source,

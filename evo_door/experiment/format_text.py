@@ -80,6 +80,8 @@ def format_show(res: Results) -> str:
             + ", ".join(f"{k} {fmt_number(v)}" for k, v in s["validation_errors"].items())
         )
     lines += format_channel_errors(s.get("channel_errors") or {})
+    if "integration_error" in s:  # a complete run: recorded or not
+        lines += format_integration_error(s["integration_error"])
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
     return "\n".join(lines)
@@ -115,8 +117,19 @@ def _show_head(res: Results, s: dict) -> list[str]:
                 else f"nlpql (SLSQP), max {alg['max_iterations']} iterations"
             )
         ),
+        "  simulation " + _simulation_text(s["simulation"]),
         f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, {(s['seconds'] or 0):.1f} s",
     ]
+
+
+def _simulation_text(sim: dict) -> str:
+    """``dopri5, 2 substeps per sample, tolerance 1e-07``: how the run integrated."""
+    n = sim["substeps"]
+    text = f"{sim['method']}, {n} substep{'s' if n != 1 else ''} per sample"
+    if sim["method"] == "dopri5":
+        tol = sim["tolerance"]
+        text += f", tolerance {tol:.3g}" if tol is not None else ", the model's tolerance"
+    return text
 
 
 def _show_per_trial(res: Results, s: dict) -> list[str]:
@@ -196,6 +209,54 @@ def format_channel_errors(errors: dict) -> list[str]:
         role = "" if e["role"] == "fit" else "  (validation)"
         lines.append(f"  {trial:<8} {text}, largest at {e['at']:.3f} s{role}")
     return lines
+
+
+def format_integration_error(entry: dict | None) -> list[str]:
+    """``show``'s lines of the answer's integration error (``summary()``'s
+    ``integration_error``): both settings, the objective at each, the largest changes,
+    each trial's change of the fitted channel against its RMS fit error, and the
+    warning (a line starting ``warning:``) when it is not small against the fit error."""
+    if entry is None:
+        return [
+            "integration error: not recorded (the run was written before evo-door estimated it)"
+        ]
+    units, refined = entry["units"], entry["refined"]
+    ch, unit = entry["channel"], units["channel_max"]
+
+    def settings(e: dict) -> str:
+        n = e["substeps"]
+        text = f"{n} substep{'s' if n != 1 else ''}"
+        return text + (f", tolerance {e['tolerance']:.3g}" if e["method"] == "dopri5" else "")
+
+    change = entry["objective_change"]
+    lines = [
+        f"integration error of the answer, a posteriori ({entry['method']}, "
+        f"{settings(entry)} per sample, against {settings(refined)}):",
+        f"  objective {_number(entry['objective'])} {units['objective']} at the run's "
+        f"settings, {_number(entry['objective_refined'])} {units['objective']} refined"
+        + ("" if change is None else f" ({100 * change:+.3g} %)"),
+        f"  largest change: theta {_number(entry['theta_max'])} {units['theta_max']}, "
+        f"dtheta {_number(entry['dtheta_max'])} {units['dtheta_max']}"
+        + ("" if ch in ("theta", "dtheta") else f", {ch} {_number(entry['channel_max'])} {unit}"),
+        f"  change of {ch} per trial (largest, RMS) against its RMS fit error:",
+    ]
+    for trial, row in entry["trials"].items():
+        d, r = row["channel_rms"], row["residual_rms"]
+        share = f" ({100 * d / r:.3g} %)" if d is not None and r else ""
+        role = "" if row["role"] == "fit" else "  (validation)"
+        lines.append(
+            f"    {trial:<8} {_number(row['channel_max'])}, {_number(d)} {unit} against "
+            f"{_number(r)} {unit}{share}{role}"
+        )
+    if entry["warning"]:
+        lines.append(f"warning: {entry['warning']}")
+    return lines
+
+
+def _number(v) -> str:
+    """A recorded number; None (not finite: a simulation that did not finish, or no
+    sample counted) is ``-``."""
+    return "-" if v is None else f"{v:.3g}"
 
 
 def format_pipeline(summary: dict) -> str:

@@ -22,6 +22,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.experiment.integration_error import IntegrationError
 from evo_door.files import ATTRS, read_attrs, read_group
 
 
@@ -40,6 +41,8 @@ class RunSettings:
     base: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
+    #: ``dopri5``'s tolerance; None in a file written before it was kept (the model's)
+    tolerance: float | None = None
 
     @property
     def bounds(self) -> dict[str, tuple[float, float]]:
@@ -143,7 +146,9 @@ class RunRecord:
 
     ``attrs`` are the root attributes as stored (status, jobs done, generations...),
     ``config`` the resolved experiment; ``sources`` says which earlier stage a pipeline
-    stage's ``{from: STAGE}`` took (``params``, ``target.params``). ``tree`` is the raw
+    stage's ``{from: STAGE}`` took (``params``, ``target.params``).
+    ``integration_error`` is the answer's integration error (``integration_error/``), None
+    where it is not recorded (a run not finished, or written before it was estimated). ``tree`` is the raw
     layout, kept for code that rebuilds a run's setup from it
     (:func:`store.setup_from_tree`); None when read with ``arrays=False``.
     """
@@ -162,6 +167,7 @@ class RunRecord:
     responses: list[Response] = field(default_factory=list)
     trials: list[StoredTrial] = field(default_factory=list)
     tree: dict | None = None
+    integration_error: IntegrationError | None = None
 
     @property
     def complete(self) -> bool:
@@ -277,7 +283,15 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
         responses=_responses(tree) if arrays else [],
         trials=_trials(tree) if arrays else [],
         tree=tree,
+        integration_error=_integration_error(node),
     )
+
+
+def _integration_error(node) -> IntegrationError | None:
+    """``integration_error/``, None where the file has none (written before it existed)."""
+    if "integration_error" not in node:
+        return None
+    return IntegrationError.from_tree(node["integration_error"])
 
 
 class _Light:
@@ -322,6 +336,7 @@ def _settings(s) -> RunSettings:
         base=np.asarray(s["base"]),
         lower=np.asarray(s["lower"]),
         upper=np.asarray(s["upper"]),
+        tolerance=float(a["tolerance"]) if a.get("tolerance") is not None else None,
     )
 
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment.figures import plot_convergence, plot_fit
+from evo_door.experiment.format_text import format_integration_error
 from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
 from evo_door.experiment.report_case_study import (
@@ -165,6 +166,7 @@ def _run_section(page: _Page, res: Results) -> None:
             row += [f"{e['rms_deg']:.3g}", f"{e['max_deg']:.3g}"] if deg else []
             rows.append(row)
         page.table(header, rows, f"{label}: error of {first['channel']} per trial, model - target")
+    _integration_error(page, s.get("integration_error"))
     page.raw(table_html(spec_table(res)))
     ident = res.identifiability()
     if ident is not None:
@@ -175,6 +177,16 @@ def _run_section(page: _Page, res: Results) -> None:
                 lambda p: _correlation_figure(ident, label, p),
                 f"{label}: correlation of the estimates at the optimum",
             )
+
+
+def _integration_error(page: _Page, entry: dict | None) -> None:
+    """The answer's integration error beside the fit error, as ``show`` prints it; its
+    warning (not small against the fit error) in the page's warning style."""
+    lines = format_integration_error(entry)
+    warning = [line for line in lines if line.startswith("warning:")]
+    page.pre("\n".join(line for line in lines if line not in warning))
+    for line in warning:
+        page.p(line, "fail")
 
 
 def _correlation_figure(ident, label: str, path) -> None:

@@ -115,6 +115,7 @@ def _trial_response(res: Results, node, values: dict):
         t0=float(tr.t[0]),
         method=setup.method,
         substeps=int(setup.substeps),
+        tolerance=setup.tolerance,
     )
     return tr, r
 

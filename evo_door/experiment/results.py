@@ -319,6 +319,7 @@ class Results:
             "free": cfg.get("free", {}),
             "objective": cfg["objective"],
             "algorithm": cfg["algorithm"],
+            "simulation": self.simulation(),
             "per_trial": cfg["per_trial"],
             "target": cfg["target"],
             "progress": self.progress(),
@@ -337,6 +338,12 @@ class Results:
             "validation_errors": {k: finite(v) for k, v in b.validation_errors.items()},
             "best_meaning": b.meaning if b.meaning is not None else "",
             "channel_errors": self.channel_errors(),
+            # None: not recorded (a file written before the estimate existed)
+            "integration_error": (
+                None
+                if self.record.integration_error is None
+                else self.record.integration_error.as_dict()
+            ),
         }
         ident = self.identifiability()
         if ident is not None:
@@ -364,6 +371,12 @@ class Results:
                 for i, n in enumerate(self.free)
             },
         }
+
+    def simulation(self) -> dict:
+        """How the run integrated: ``method``, ``substeps`` per sample and ``dopri5``'s
+        ``tolerance`` (None in a file written before it was kept: the model's)."""
+        s = self.record.settings
+        return {"method": s.method, "substeps": s.substeps, "tolerance": s.tolerance}
 
     def identifiability(self):
         """The identifiability of the run's answer (an

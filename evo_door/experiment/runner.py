@@ -143,6 +143,18 @@ def _identifiability(problem, x):
         return None
 
 
+def _integration_error(setup, fit_x, validation_x):
+    """The answer's integration error, estimated a posteriori
+    (:mod:`evo_door.experiment.integration_error`); None if it cannot be made: a run's
+    answer is never lost to it."""
+    from evo_door.experiment.integration_error import estimate
+
+    try:
+        return estimate(setup, fit_x, validation_x)
+    except (UserError, ValueError):
+        return None
+
+
 class ExperimentRun:
     """A run of an experiment, backed by its results file.
 
@@ -485,13 +497,25 @@ class ExperimentRun:
             ident = _identifiability(self.setup.problem(), best_x)
         else:
             ident = self.jobs[-1].identifiability
+        t0 = time.perf_counter()
+        integration = _integration_error(self.setup, self._fit_vectors(), best_x)
         return {
             "best_x": best_x,
             "best_fitness": best_fitness,
             "full": full,
             "xs": xs,
             "identifiability": ident,
+            "integration_error": integration,
+            "integration_error_s": time.perf_counter() - t0,
         }
+
+    def _fit_vectors(self) -> np.ndarray:
+        """The free parameters each fitted trial's response is shown with, one row per
+        trial: its own fit (``per_trial``), else the fit of every trial at once."""
+        if self.per_trial and not self.pooled:
+            return np.array([job.best_x for job in self.trial_jobs])
+        best = np.asarray(self.jobs[-1].best_x, dtype=np.float64)
+        return np.repeat(best[None, :], len(self.setup.fit), axis=0)
 
     def responses(self) -> list[dict]:
         """Best response next to the target for every fitted and validation trial.

@@ -9,7 +9,7 @@ without the original files.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +18,7 @@ from evo_door.data.trial import Trial
 from evo_door.errors import MissingChannelError, UserError
 from evo_door.optim.problem import Objective, Problem
 from evo_door.params.declaration import suggest
+from evo_door.sim.simulate import refined, tolerance_of
 
 
 @dataclass
@@ -35,6 +36,8 @@ class Setup:
     method: str
     substeps: int
     start: dict = field(default_factory=dict)
+    #: ``dopri5``'s tolerance per step; None: the model's (a run written before it was kept)
+    tolerance: float | None = None
 
     @property
     def model(self):
@@ -56,7 +59,16 @@ class Setup:
             self.method,
             self.substeps,
             self.model_name,  # a pickled problem finds its model by it (executors)
+            self.tolerance,
         )
+
+    def refined(self) -> Setup:
+        """The same setup at the settings of the a-posteriori error check
+        (:func:`evo_door.sim.simulate.refined`: twice the sub-steps, tolerance / 32)."""
+        method, substeps, tolerance = refined(
+            self.method, self.substeps, tolerance_of(self.model, self.tolerance)
+        )
+        return replace(self, method=method, substeps=substeps, tolerance=tolerance)
 
     def start_vector(self) -> np.ndarray:
         """Start point of a local method: ``algorithm.start``, else the base values (clipped)."""
@@ -253,4 +265,5 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         method=exp.method,
         substeps=exp.substeps,
         start=dict(exp.algorithm.start),
+        tolerance=exp.tolerance,
     )

@@ -10,7 +10,7 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
                          generations, generations_done, evo_door_version
     experiment/  text (the YAML as given), resolved (JSON, every default filled in)
     versions/    @attrs: python, numpy, scipy, numba, deap, h5py, ...
-    setup/       base, lower, upper; @attrs: model, free, method, substeps, objective, ...
+    setup/       base, lower, upper; @attrs: model, free, method, substeps, tolerance, ...
     trials/      fit_<k>/, validate_<k>/: t, force, response channels; @attrs: trial fields
     jobs/<k>/    @attrs: name, trials, done, ...; ga/ (population history, fitness,
                  generator states, hall of fame, logbook), local/, best_x, fit_errors, ...
@@ -18,6 +18,10 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
     best/        x, full; @attrs: fitness, values, fit_errors, validation_errors (complete)
     summary/     per-trial fits: x, min, max, mean, std (per_trial runs)
     response/<k> t, force, target, model, model_theta (complete runs)
+    integration_error/  the answer's integration error, estimated a posteriori: per trial
+                 theta_max, dtheta_max, channel_max, channel_rms, residual_rms, error,
+                 error_refined, ok; @attrs: both settings, the overall values, units
+                 (complete runs; :mod:`.integration_error`)
 
 :func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
 file; the ``*_from_tree`` functions rebuild what a resumed run needs.
@@ -40,6 +44,7 @@ from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
 from evo_door.optim.local import LocalResult
 from evo_door.optim.problem import Objective
 from evo_door.params.declaration import suggest
+from evo_door.sim.simulate import tolerance_of
 
 FORMAT = "evo-door run"
 FORMAT_VERSION = 1
@@ -174,6 +179,7 @@ def run_tree(run, trials_on_disk: bool) -> dict:
     cfg = run.config
     ga_settings = run.algorithm.ga
     elapsed = run.elapsed()
+    timing = timings(run.jobs, elapsed)
     tree = {
         ATTRS: {
             "format": FORMAT,
@@ -206,7 +212,7 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         "setup": setup_tree(setup),
         "trials": Keep(lambda: trials_tree(setup)) if trials_on_disk else trials_tree(setup),
         "jobs": {str(k): job_tree(job) for k, job in enumerate(run.jobs)},
-        "timings": {ATTRS: timings(run.jobs, elapsed)},
+        "timings": {ATTRS: timing},
     }
     if run.status == "complete" and run.result:
         tree["best"] = best_tree(run)
@@ -215,6 +221,9 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         tree["response"] = {
             str(k): response_tree(r, setup.objective.channel) for k, r in enumerate(run.responses())
         }
+        if run.result.get("integration_error") is not None:
+            tree["integration_error"] = run.result["integration_error"].to_tree()
+            timing["integration_error_s"] = run.result["integration_error_s"]
     return tree
 
 
@@ -243,6 +252,7 @@ def setup_tree(setup) -> dict:
             "free": list(setup.free),
             "method": setup.method,
             "substeps": int(setup.substeps),
+            "tolerance": tolerance_of(model, setup.tolerance),
             "objective": dataclasses.asdict(setup.objective),
             "start": dict(setup.start),
             "param_names": list(model.params.names),
@@ -340,6 +350,7 @@ def setup_from_tree(tree: dict):
         method=a["method"],
         substeps=int(a["substeps"]),
         start=dict(a.get("start") or {}),
+        tolerance=a.get("tolerance"),  # None: written before it was kept (the model's)
     )
 
 
