@@ -248,8 +248,10 @@ def test_compiled_device_force_writes_into_out(seed):
 
 # -- accuracy against scipy ------------------------------------------------------------
 @pytest.mark.slow
-def test_haptic_against_converged_reference(haptic):
-    """Smooth case (friction, viscous, return spring; no latch): ROS2 x 2 vs DOP853."""
+def test_haptic_against_converged_reference():
+    """Smooth case (friction, viscous, return spring; no latch) of the seed's tanh form:
+    ROS2 x 2 vs DOP853. (The sign-law form and the latch: tests/test_events.py.)"""
+    haptic = get_model("haptic_tanh")
     ps = haptic.load_params(
         None, {**NO_LATCH, "return_stiffness": 20.0, "return_angle": 0.8, "friction_slope": 20.0}
     )
