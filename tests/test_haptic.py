@@ -48,7 +48,7 @@ def test_slow_opening_peaks_at_open_force_then_falls_to_friction(haptic, seed, o
     ps = seed.replace({"open_force": open_force})
     c = near_closed(haptic, ps, speed=1e-3)
     peak = -c["opening"].min()
-    friction = ps["friction_opening"] * math.tanh(ps["friction_slope"] * 1e-3)
+    friction = ps["friction_opening"]  # the sign law: its full level at any speed
     assert peak == pytest.approx(open_force + friction, rel=0.05)
     # through the loose band the door seal pushes the door out: seat and gasket, small
     a = latch_angles_of(ps)
@@ -56,14 +56,14 @@ def test_slow_opening_peaks_at_open_force_then_falls_to_friction(haptic, seed, o
     seal = ps["seat_force"] + ps["gasket_stiffness"] * ps["loose_angle"]
     assert np.abs(c["opening"][loose]).max() <= seal + 0.1
     assert seal < 0.25 * open_force
-    # once unlocked (below the lock band) only friction remains: ~0
+    # once unlocked (below the lock band) only friction remains
     below = c["theta"] < a["theta_3"] - 0.005
-    assert np.abs(c["opening"][below]).max() < 0.5
+    assert np.abs(c["opening"][below]).max() < friction + 0.01
 
 
 def test_slow_closing_peaks_at_close_force_then_latches_in_the_loose_band(haptic, seed):
     c = near_closed(haptic, seed, speed=1e-3)
-    friction = seed["friction_closing"] * math.tanh(seed["friction_slope"] * 1e-3)
+    friction = seed["friction_closing"]  # the sign law: its full level at any speed
     assert c["closing"].max() == pytest.approx(seed["close_force"] + friction, rel=0.05)
     # push the door closed from 10 deg open with a force above close_force, then let go
     t = np.arange(int(3.0 / DT)) * DT

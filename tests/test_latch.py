@@ -60,6 +60,15 @@ class Latch:
             self.close_rise = g["close_force"] / g["latch_stiffness"]
             self.lever = g["radius"]  # m: I = m R, forces at the handle on the radius
             self.seat = g["seat_force"] / g["latch_stiffness"]
+        # where a latched door may rest: on its catch, within the seat's rise above
+        # theta_0, or pressed a hair into the catch (the door's tanh friction lets it
+        # creep back out); the haptic model's dry friction sticks (the renderer's law),
+        # so it holds the door wherever the catch spring pushes less than the friction
+        # level does: up to friction_closing / latch_stiffness into the catch
+        into = 0.05 * self.open_rise
+        if name == "haptic":
+            into = g["friction_closing"] / g["latch_stiffness"]
+        self.rest = (self.theta_0 - into, self.theta_0 + self.seat)
         # thresholds (N): the largest force that holds the door at rest in the latch
         corners = [self.theta_0 - self.open_rise, self.theta_3 + self.close_rise]
         theta = np.union1d(np.linspace(self.theta_3 - 1e-3, CLOSED, 20001), corners)
@@ -127,7 +136,7 @@ def test_closed_door_rests_on_its_catch(latch):
     theta, dtheta = latch.closed()
     assert abs(dtheta) < 1e-3
     # on the catch: within the seat's rise above theta_0, or pressed a hair into the catch
-    assert latch.theta_0 - 0.05 * latch.open_rise <= theta <= latch.theta_0 + latch.seat
+    assert latch.rest[0] <= theta <= latch.rest[1]
     # the run-up a pull has before the catch engages, against the free play it had
     run_up = max(theta - latch.theta_0, 0.0)
     assert run_up < 0.02 * (CLOSED - latch.theta_0)
@@ -151,7 +160,10 @@ def test_brisk_pull_below_the_unlock_force_leaves_the_door_latched(latch, share)
     reach = CLOSED - r.theta.min()  # rad from closed, at the deepest
     assert reach <= CLOSED - latch.theta_0 + latch.open_rise
     # and once the hand is gone the door is back where it rested, latched
-    assert r.theta[-1] == pytest.approx(start[0], abs=0.01 * DEG)
+    if latch.model.stick_slip:  # it sticks wherever on the catch the friction holds it
+        assert latch.rest[0] <= r.theta[-1] <= latch.rest[1]
+    else:
+        assert r.theta[-1] == pytest.approx(start[0], abs=0.01 * DEG)
     assert abs(r.dtheta[-1]) < 1e-3
 
 
@@ -188,7 +200,7 @@ def test_slow_push_above_the_lock_force_locks_and_the_door_rests_on_its_catch(la
     assert r.theta.max() > latch.apex_lock  # it went over
     # latched: at rest on the catch at the end of the free play
     assert abs(r.dtheta[-1]) < 1e-3
-    assert latch.theta_0 - 0.05 * latch.open_rise <= r.theta[-1] <= latch.theta_0 + latch.seat
+    assert latch.rest[0] <= r.theta[-1] <= latch.rest[1]
 
 
 # -- energy ----------------------------------------------------------------------------
