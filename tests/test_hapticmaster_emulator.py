@@ -169,3 +169,36 @@ def test_connections_are_bounded_and_forgotten_when_they_end(emulator):
     device.start()
     device.stop()
     assert emulator.state == "stop"
+
+
+def test_the_scripted_hand_starts_when_the_device_renders_whoever_else_asks():
+    """The hand's script runs from the moment the device enters the force state, each
+    time it does, whatever other clients ask meanwhile. Its clock was the emulator's
+    own, which skips any silence longer than MAX_ADVANCE (a stall): while a host waited
+    for the device to home, a second connection asking 100 times a second (a
+    supervisor's keep-alive) carried the script 0.3 s on, against 0.05 s without it,
+    and a render began at another point of its script (the viscous damping estimated
+    from a swing log moved from 0.85 to 0.95 N s/rad with a 10 Hz keep-alive)."""
+    seen = []
+
+    def hand(t, position, velocity):
+        seen.append(t)
+        return np.zeros(3)
+
+    for asking in (False, True):
+        with HapticMasterEmulator(user_force=hand) as emu:
+            emu.answer_frame("set state init")
+            for _ in range(30):  # the host waits 0.3 s; another client asks, or not
+                time.sleep(0.01)
+                if asking:
+                    emu.answer_frame("get state")
+            for _ in range(2):  # a render, stopped, and another
+                emu.answer_frame("set state force")
+                seen.clear()
+                emu.answer_frame("get modelpos")
+                assert seen == [0.0], (asking, seen)  # at the start of its script
+                time.sleep(0.02)
+                emu.answer_frame("get modelpos")  # an advance takes the hand at its start
+                emu.answer_frame("get modelpos")
+                assert 0.019 < seen[-1] <= 0.05 + 1e-9  # then on the wall clock
+                emu.answer_frame("set state stop")

@@ -60,17 +60,15 @@ def _hand(script_name: str):
     import numpy as np
 
     from evo_door.models.haptic import PARAMS, on_path
-    from evo_door.render.device import hand_force, user_script
+    from evo_door.render.device import Hand, user_script
 
     script = user_script(script_name)
     radius = PARAMS["radius"].default  # the handle's circle, as the render command's
+    hand = Hand(script, radius)
     out = np.zeros(3)
 
     def force(t, position, velocity):
-        target = np.asarray(on_path(script.target(t), radius), dtype=np.float64)
-        hand_force(
-            position, velocity, target, script.stiffness, script.damping, script.max_force, out
-        )
+        hand.force(t, position, velocity, out)
         return out.copy()
 
     start = tuple(float(c) for c in on_path(script.theta_start, radius))

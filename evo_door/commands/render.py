@@ -64,7 +64,7 @@ def register(sub) -> None:
         "--user",
         metavar="SCRIPT",
         help="virtual user of the simulated device: open, close, unlock, lock, swing, "
-        "shake, hold (docs/renderer.md)",
+        "shake, hold, open-shut (docs/renderer.md)",
     )
     p.add_argument("--duration", type=float, metavar="S", help="render time (s)")
     p.add_argument("--rate", type=float, default=2500.0, metavar="HZ", help="loop rate (Hz)")

@@ -413,9 +413,15 @@ def device_force(x, y, z, vx, vy, vz, p, out):
 
     F_x = -k_x x - c_x vx                                           (4.21)
     Q = R (sin th, cos th) is the nearest path point;                (4.26-4.31)
-    F_(y,z) = -k_r (P - Q) - c_r (dP/dt - dQ/dt)                     (4.32-4.33)
+    F_(y,z) = -k_r (P - Q) - c_r [(dP/dt - dQ/dt) . e_r] e_r         (4.32-4.33)
             + c_e R dtheta e_th                                      (4.34-4.35)
             + F_tan(theta, dtheta) e_th                              (4.6-4.8, 4.50)
+
+    The damper takes only the radial part of the velocity relative to Q, dr/dt (the
+    seed's takes all of it): at speed the handle runs outside the circle, where the
+    whole relative velocity holds (r - R) dtheta along e_th too, and damping that
+    braked the door with a force rising with the cube of its speed, which no
+    parameter of the model holds (docs/haptic-model.md, "Device space").
     """
     ym = y + DEVICE_OFFSET_Y
     zm = z + DEVICE_OFFSET_Z
@@ -432,11 +438,13 @@ def device_force(x, y, z, vx, vy, vz, p, out):
         s = 0.0
         c = 1.0
     radius = p[RADIUS]
-    # constraint to the circle: offset and relative velocity from the path point Q
+    # constraint to the circle: offset from the path point Q, and the radial part of
+    # the velocity relative to it (dQ/dt is along e_theta: the radial speed dr/dt)
     dy = ym - radius * s
     dz = zm - radius * c
-    ddy = vy - dtheta * radius * c
-    ddz = vz + dtheta * radius * s
+    v_r = vy * s + vz * c
+    ddy = v_r * s
+    ddz = v_r * c
     # tangential behaviour, plus the energy compensation, along e_theta
     f_t = tangential_force(theta, dtheta, p) + p[C_ENERGY] * radius * dtheta
     out[0] = -p[K_PLANE] * x - p[C_PLANE] * vx

@@ -263,7 +263,7 @@ PARAMS = ParamTable(
             0.0,
             1.0e4,
             "device",
-            "damper holding the end effector on the circle",
+            "damper on the end effector's radial speed, toward the circle",
             symbol="c_r",
         ),
         Param(
@@ -293,7 +293,7 @@ PARAMS = ParamTable(
             0.0,
             1.0e4,
             "device",
-            "tangential negative damping offsetting c_radial's loss (eq. 4.34-4.35)",
+            "tangential negative damping, felt as -c_e R of viscous damping (eq. 4.34-4.35)",
             symbol="c_e",
         ),
         # -- numerics: smoothness of the switches ---------------------------------------

@@ -79,6 +79,11 @@ class UserScript:
     next in the same way (held before the first and after the last). The hand is a
     spring ``stiffness`` (N/m) and damper ``damping`` (N s/m) toward the target's
     point on the circle, its force limited to ``max_force`` (N).
+
+    ``let_go`` ``((t_release s, t_grab s), ...)``: the hand lets go of the handle at
+    ``t_release`` (no force: the door goes on by itself) and takes it again at
+    ``t_grab`` where it finds it, its target going from there to the next waypoint
+    (held there without one; :class:`Hand` keeps where that was).
     """
 
     name: str
@@ -90,11 +95,57 @@ class UserScript:
     damping: float = 40.0
     max_force: float = 80.0
     waypoints: tuple = ()
+    let_go: tuple = ()
 
-    def target(self, t: float) -> float:
+    def target(self, t: float, grab: tuple | None = None) -> float:
+        """The target angle (rad) at ``t`` (s); after a ``grab`` ``(t s, theta rad)``
+        (the hand took the handle again), from there to the next waypoint."""
+        if grab is not None and t >= grab[0]:
+            later = tuple(w for w in self.waypoints if w[0] > grab[0])
+            return _through_waypoints((grab, *later), t)
         if self.waypoints:
             return _through_waypoints(self.waypoints, t)
         return _min_jerk(self.theta_start, self.theta_end, (t - self.t_begin) / self.t_move)
+
+    def holding(self, t: float) -> bool:
+        """Whether the hand holds the handle at ``t`` (s): not while it has let go."""
+        return not any(a <= t < b for a, b in self.let_go)
+
+
+class Hand:
+    """A :class:`UserScript`'s hand on the handle, for a device to ask its force.
+
+    :meth:`force` is the spring-damper toward the script's target (:func:`hand_force`)
+    while the hand holds the handle, zero while it has let go; when it takes the
+    handle again it remembers the angle there, so that its target starts from it.
+    Time going back (a new render) starts the script afresh. ``radius`` (m): the
+    handle's circle.
+    """
+
+    def __init__(self, script: UserScript, radius: float):
+        self.script = script
+        self.radius = float(radius)
+        self._grab: tuple | None = None  # (t s, theta rad) where it took the handle again
+        self._held = True
+        self._last = -math.inf
+        self._target = np.zeros(3)
+
+    def force(self, t: float, pos, vel, out) -> None:
+        """The hand's force (N, device frame) at ``t`` (s) on a handle at ``pos`` (m)
+        moving at ``vel`` (m/s), into ``out``."""
+        s = self.script
+        if t < self._last:  # a new render: the script from its start
+            self._grab, self._held = None, True
+        self._last = t
+        if not s.holding(t):
+            self._held = False
+            out[:] = 0.0
+            return
+        if not self._held:  # takes the handle again, where it is
+            ym, zm = pos[1] + DEVICE_OFFSET_Y, pos[2] + DEVICE_OFFSET_Z
+            self._grab, self._held = (t, math.atan2(ym, zm)), True
+        self._target[:] = on_path(s.target(t, self._grab), self.radius)
+        hand_force(pos, vel, self._target, s.stiffness, s.damping, s.max_force, out)
 
 
 def _min_jerk(a: float, b: float, s: float) -> float:
@@ -164,6 +215,16 @@ SCRIPTS = {
     ),
     # held at 46 deg
     "hold": UserScript("hold", 0.8, 0.8),
+    # from latched through the latch toward 46 deg, let go at 0.9 s while the door
+    # still moves (it coasts to rest), taken again at 2 s and pushed shut through the
+    # latch by 3.2 s, the hand aiming 1.7 deg beyond closed
+    "open-shut": UserScript(
+        "open-shut",
+        _LATCHED,
+        CLOSED + 0.03,
+        waypoints=((0.2, _LATCHED), (1.2, 0.8), (2.0, 0.8), (3.2, CLOSED + 0.03)),
+        let_go=((0.9, 2.0),),
+    ),
 }
 
 
@@ -270,7 +331,7 @@ class SimDevice(Device):
         self.vel = np.zeros(3)
         self._user = np.zeros(3)
         self._cmd = np.zeros(3)
-        self._target = np.zeros(3)
+        self._hand = Hand(self.script, self.radius) if isinstance(self.script, UserScript) else None
         self.stopped = False
         #: the plane constraint rendered natively (N/m, N s/m); 0 until asked
         self.k_plane = 0.0
@@ -312,10 +373,7 @@ class SimDevice(Device):
             f = s.force(self.t) / r if r > 0.0 else 0.0
             self._user[:] = (0.0, f * zm, -f * ym)  # along e_theta = (0, cos, -sin)
             return
-        self._target[:] = on_path(s.target(self.t), self.radius)
-        hand_force(
-            self.pos, self.vel, self._target, s.stiffness, s.damping, s.max_force, self._user
-        )
+        self._hand.force(self.t, self.pos, self.vel, self._user)
 
     def read(self):
         measured = self._user + self.noise * self._rng.standard_normal(3)

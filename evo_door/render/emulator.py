@@ -21,9 +21,13 @@ Its physics, a point mass with damping, Coulomb friction and the enabled effects
 in :mod:`evo_door.render.emulator_physics`. Simulated time advances, before each frame
 is answered, either by the wall time elapsed since the last frame (``clock="wall"``,
 the default: the device does not wait for the host) or by ``steps_per_query`` steps
-(``clock="query"``: reproducible, for tests). The user force is evaluated once per
-advance and held over its steps. The mass only moves in the ``force`` state; otherwise
-it is held where it is.
+(``clock="query"``: reproducible, for tests); on the wall clock, a silence longer
+than :data:`MAX_ADVANCE` is skipped, since it cannot be told from the emulator's own
+stall. The user force is evaluated once per advance and held over its steps; the
+scripted hand's clock starts each time the device enters the ``force`` state, so that
+no other client's frames (a supervisor's keep-alive) and no wait of the host's move
+the script. The mass only moves in the ``force`` state; otherwise it is held where it
+is.
 
 Size: a little over 600 lines: the protocol's commands (states, effects and their
 settings, queries) are one table of small handlers; the physics and the framing are
@@ -187,7 +191,8 @@ class HapticMasterEmulator:
         Its Coulomb friction (N), ``set coulombfriction``.
     user_force
         ``f(t, position, velocity) -> [fx, fy, fz]``: the force (N) the simulated hand
-        applies at simulated time t (s) with the device's position (m) and velocity
+        applies at time t (s, simulated, since the device last entered the ``force``
+        state; 0 before it first does) with the device's position (m) and velocity
         (m/s); ``measforce`` reports it plus ``sensor_noise`` (N, standard deviation).
     clock, steps_per_query
         How simulated time advances (module docstring).
@@ -246,6 +251,9 @@ class HapticMasterEmulator:
         self.effects: dict[str, dict] = {}
         self._layout: tuple | None = None  # the springs and dampers, as arrays
         self.time = 0.0
+        #: the simulated time (s) at which the device last entered the force state: the
+        #: scripted hand's time zero (None: not yet)
+        self._hand_from: float | None = None
         self.position = np.array(position, dtype=np.float64)
         self.velocity = np.zeros(3)
         self.acceleration = np.zeros(3)
@@ -406,7 +414,8 @@ class HapticMasterEmulator:
                 self._steps += n - cap
                 n = cap
             self._steps += n
-        user = self.user_force(self.time, self.position.copy(), self.velocity.copy())
+        t = 0.0 if self._hand_from is None else self.time - self._hand_from
+        user = self.user_force(t, self.position.copy(), self.velocity.copy())
         self._user = np.asarray(user, dtype=np.float64).reshape(3)
         if n <= 0:
             return
@@ -571,6 +580,8 @@ class HapticMasterEmulator:
             if state in ("force", "position") and not self.initialised:
                 return f"{ERROR_PREFIX}: set state init before set state {state}"
             self.initialised = self.initialised or state == "init"
+            if state == "force" and self.state != "force":  # the hand's script starts
+                self._hand_from = self.time
             self.state = state
             if state != "force":
                 self.velocity[:] = 0.0

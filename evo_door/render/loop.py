@@ -354,10 +354,28 @@ class ServoLoop:
         self.timing = LoopTiming(self.period)
         self.log.params(0.0, self._set_vector())
         self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
+        self._log_device()
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
         self.status = "running"
         self.t0 = self.t_end = 0.0
+
+    def _log_device(self) -> None:
+        """What the device puts on the handle besides the set, for a reader of the log
+        (:mod:`evo_door.render.check`): its own damping (N s/m), its dry friction (N,
+        where the device says), its force limit (N)."""
+        friction = getattr(self.device, "coulomb", None)
+        known = {} if friction is None else {"friction": float(friction)}
+        said = "" if friction is None else f", dry friction {float(friction):g} N"
+        self.log.event(
+            0.0,
+            "device",
+            f"the device's own damping {self.damping:g} N s/m{said}, force limit "
+            f"{self.limit:g} N: felt besides the set",
+            damping=self.damping,
+            max_force=self.limit,
+            **known,
+        )
 
     def _start(self) -> None:
         """Just before the first cycle: the kernels loaded, the device started and told
