@@ -187,9 +187,11 @@ algorithm: {population: 6, generations: 1, seed: 1}
 @pytest.mark.parametrize(
     "overrides, warned",
     [
-        ([], False),  # dopri5, 2 substeps, tolerance 1e-7: the haptic model's defaults
-        (["simulation.method=rk4", "simulation.substeps=1"], True),
-        (["simulation.tolerance=0.5"], True),
+        ([], False),  # dopri5, tolerance 1e-7: the haptic model's defaults
+        # ROS2, one step per sample: second order across the latch's snap (a change of
+        # the objective of some 20 %; rk4 x 1 and dopri5 at a loose tolerance, with the
+        # surfaces located, stay under the 1 % rule on these trials)
+        (["simulation.method=semi_implicit", "simulation.substeps=1"], True),
     ],
 )
 def test_coarse_settings_get_the_warning_and_the_defaults_do_not(tmp_path, overrides, warned):

@@ -62,13 +62,14 @@ from numba import njit
 
 from evo_door.errors import UserError
 from evo_door.models.door import TABLE as DOOR_TABLE
+from evo_door.models.door import N_SWITCHES as DOOR_SWITCHES
 from evo_door.models.door import accel as door_accel
+from evo_door.models.door import switches as door_switches
 from evo_door.models.door.kinematics import pose
 from evo_door.models.door.parameters import GRAVITY
 from evo_door.models.door.relativespeed import relative_speed
 from evo_door.params import Param, ParamSet, ParamTable, load_params, param_vector
 from evo_door.sim.integrators import BLOWUP_SPEED, DEFAULT_TOLERANCE, METHODS, integrate
-from evo_door.sim.located import no_switches
 
 #: The name ``--truth`` takes for this truth.
 NAME = "rich"
@@ -479,11 +480,11 @@ class DoorTruth:
             end = np.array(state, dtype=np.float64)
             ok = integrate_handle(self.pq, force, float(dt), self.substeps, end, out)
         else:
-            # the richer truth declares no switching surfaces (its own vector is not
-            # the door's): dopri5's step control follows its kinks
+            # the door's switching surfaces: the combined vector begins with the door's
+            # parameters (the richer truth's own kinks are followed by the step control)
             ok = integrate(
                 rigid_accel,
-                no_switches,
+                door_switches,
                 self.pq,
                 force,
                 float(dt),
@@ -492,7 +493,7 @@ class DoorTruth:
                 float(state[1]),
                 METHODS[self.method],
                 DEFAULT_TOLERANCE,
-                0,
+                DOOR_SWITCHES,
                 False,
                 out[0],
                 out[1],
