@@ -61,8 +61,8 @@ import numpy as np
 from numba import njit
 
 from evo_door.errors import UserError
-from evo_door.models.door import TABLE as DOOR_TABLE
 from evo_door.models.door import N_SWITCHES as DOOR_SWITCHES
+from evo_door.models.door import TABLE as DOOR_TABLE
 from evo_door.models.door import accel as door_accel
 from evo_door.models.door import switches as door_switches
 from evo_door.models.door.kinematics import pose
