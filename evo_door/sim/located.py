@@ -235,7 +235,10 @@ def _first_crossing(g0, g1, n, w0, w1, stick, active):
     return best
 
 
-@njit(cache=True, nogil=True, inline="always")
+# Not inlined: compiled once, for the first-class function types the kernels pass
+# (integrate_compiled, the objective kernels), which keeps compiling the workbench's
+# kernels to about a quarter of what inlining it into each of them took.
+@njit(cache=True, nogil=True)
 def advance_located(
     accel,
     switches,

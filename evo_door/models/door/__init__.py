@@ -55,7 +55,7 @@ from evo_door.models.door.posetable import (
 )
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.params import param_vector
-from evo_door.sim.integrators import INTEGRATE_SIGNATURE, integrate_with, register_prepared
+from evo_door.sim.integrators import register_prepared
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
 PARAMS = TABLE
@@ -331,7 +331,6 @@ def accel_tabulated(theta, dtheta, force, q):
     call (1 / I_O, the uniform pad, where the latch can act: below :data:`LATCH_FROM`
     it is not called, nor the stop above 0). Outside the table's angles, or when the
     table failed its check, the pose is the closed form. Fast-math :data:`FAST`;
-    :func:`integrate_tabulated` runs it inlined into the integrator.
     """
     if q[TABLE_FROM] <= theta <= TABLE_HI:
         k, c, s = table_pose_trig(theta, q[L_OA], q[L_BX], q, TABLE_START)
@@ -362,21 +361,7 @@ def prepared_vector(params) -> np.ndarray:
     return q
 
 
-@njit(INTEGRATE_SIGNATURE, cache=True, nogil=True)
-def integrate_tabulated(
-    q, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-    theta_out, dtheta_out, ddtheta_out,
-):  # fmt: skip
-    """:func:`~evo_door.sim.integrators.integrate` compiled around
-    :func:`accel_tabulated` and :func:`switches` (called directly, inlined into the
-    integrator's stages)."""
-    return integrate_with(
-        accel_tabulated, switches, q, force, dt, substeps, theta0, dtheta0, method, tol,
-        n_sw, stick, theta_out, dtheta_out, ddtheta_out,
-    )  # fmt: skip
-
-
-register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE, integrate_tabulated)
+register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE)
 
 
 @njit(cache=True, nogil=True)
