@@ -47,7 +47,6 @@ the earlier suite's trials keep its names for the points it had
 
 from __future__ import annotations
 
-import inspect
 import math
 import statistics
 from dataclasses import dataclass, field
@@ -192,7 +191,7 @@ def rig_trial(model, preset) -> BenchTrial:
     return BenchTrial(
         model.name,
         "rig",
-        f"the virtual rig's unlock trial (seed {RIG_SEED}; force with sensor noise)",
+        f"the rig's unlock trial (seed {RIG_SEED}, noisy force)",
         preset,
         np.asarray(trial.force, dtype=float),
         float(trial.dt),
@@ -233,11 +232,7 @@ def reference(model, p, trial: BenchTrial, quick: bool):
         return r.theta, r.dtheta, None
     from tests.reference import converged
 
-    kw = {}
-    if "stick" in inspect.signature(converged).parameters:
-        kw = {"stick": model.stick_slip, "switches": model.switches, "n_switches": model.n_switches}
-    elif model.stick_slip:
-        raise RuntimeError("tests.reference.converged cannot solve a stick-slip model yet")
+    kw = {"stick": model.stick_slip, "switches": model.switches, "n_switches": model.n_switches}
     args = (model.accel, p, trial.force, trial.dt, trial.theta0, trial.dtheta0)
     for bound in REFERENCE_BOUNDS:
         try:

@@ -191,15 +191,19 @@ STYLES = {
     "RK45, pure Python": ("tab:red", "v"),
     "LSODA, pure Python": ("tab:purple", "D"),
 }
-#: Smallest error the figure shows (an exact 0 is drawn there).
-FLOOR = 1e-14
+#: Smallest and largest error the figure shows (rad/s; an exact 0 is drawn at the first).
+FLOOR, CEILING = 1e-14, 1e3
 
 
 def figure(results, quick: bool):
     """Max |dtheta error| against seconds per trial, one panel per trial, one line per
-    way (log-log), the default a star, the latch targets dotted."""
+    way (log-log), the default a star, the latch targets dotted; an error beyond
+    :data:`CEILING` is drawn on it (the tables give its value)."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
+
+    def shown(error):
+        return min(max(error, FLOOR), CEILING)
 
     fig = Figure(figsize=(16, 10), layout="constrained")
     axes = fig.subplots(2, 3, squeeze=False)
@@ -210,7 +214,7 @@ def figure(results, quick: bool):
             if got:
                 (line,) = ax.loglog(
                     [pt.seconds for pt in got],
-                    [max(pt.errors[1], FLOOR) for pt in got],
+                    [shown(pt.errors[1]) for pt in got],
                     style,
                     color=color,
                     ms=5,
@@ -220,38 +224,29 @@ def figure(results, quick: bool):
                 handles.setdefault(way, line)
         default = points[0]
         if default.errors:
-            (star,) = ax.loglog(
-                default.seconds,
-                max(default.errors[1], FLOOR),
-                "*",
-                ms=16,
-                color="gold",
-                mec="k",
-                label="evo-door default",
-            )
+            at = (default.seconds, shown(default.errors[1]))
+            (star,) = ax.loglog(*at, "*", ms=16, color="gold", mec="k", label="evo-door default")
             handles.setdefault("evo-door default", star)
-            ax.annotate(
-                f" {default.setting}", (default.seconds, max(default.errors[1], FLOOR)), fontsize=7
-            )
+            ax.annotate(f" {default.setting}", at, fontsize=7)
         if trial.latch:
             ax.axhline(LATCH_DTHETA_TARGET, color="k", ls=":", lw=0.8)
         if not quick:
             ax.axhspan(FLOOR / 10, resolution or REFERENCE_BOUNDS[-1] / 10, color="0.9", zorder=0)
+        remarks = []
         missing = sorted({pt.way for pt in points if pt.errors is None})
         if missing:
-            ax.text(
-                0.02,
-                0.02,
-                "no answer at some settings: " + ", ".join(missing),
-                transform=ax.transAxes,
-                fontsize=7,
-                va="bottom",
-            )
+            remarks.append("no answer at some settings: " + "; ".join(missing))
+        off = [f"{pt.way} {pt.setting}" for pt in points if pt.errors and pt.errors[1] > CEILING]
+        if off:
+            remarks.append(f"drawn at {CEILING:g} rad/s, off scale: " + "; ".join(off))
+        ax.text(0.02, 0.02, "\n".join(remarks), transform=ax.transAxes, fontsize=7, va="bottom")
         ax.set_title(f"{trial.model}, {trial.key}: {trial.title}", fontsize=9)
         ax.set_xlabel("seconds per trial (one thread)")
         ax.set_ylabel("max |dtheta error| (rad/s)")
         ax.grid(True, which="major", lw=0.3)
-        ax.xaxis.set_minor_formatter(NullFormatter())
+        low, high = ax.get_xlim()
+        if high > 10 * low:  # labels on the decades only (else they crowd)
+            ax.xaxis.set_minor_formatter(NullFormatter())
     fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncol=10)
     shade = "" if quick else "; grey: below the reference's resolution"
     fig.suptitle(
