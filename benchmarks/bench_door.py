@@ -33,9 +33,18 @@ SECONDS = 5.0
 
 
 def force_profile():
-    """Push from fully open (half-sine 11 N), free decay, a pull back open."""
+    """Push from fully open (half-sine 11 N), free decay, a pull back open: the latch is
+    never reached (the suite's smooth door trial)."""
     t = np.arange(int(round(SECONDS / DT))) * DT
     return t, half_sine_pulses(t, ((0.2, 0.2, 11.0), (2.6, 0.4, -12.0)))
+
+
+def latch_profile():
+    """From latched shut: a 60 N pull over 1 s unlocks the door, which swings open onto
+    its stop; a 40 N push over 1.2 s swings it back into the wall and latches it (the
+    suite's latch trial of the door, started at rest on its latch)."""
+    t = np.arange(int(round(SECONDS / DT))) * DT
+    return t, half_sine_pulses(t, ((0.2, 1.0, -60.0), (2.5, 1.2, 40.0)))
 
 
 def main(argv=None):

@@ -4,16 +4,23 @@
 ones in subprocesses, as a user types them), prints a table per section with times
 and ratios, and writes ``suite-<timestamp>.json`` (every metric), ``suite-<timestamp>.png``
 (the ratios and the scaling curves) and ``suite-<timestamp>.md`` in ``--out``
-(default ``benchmarks/results/``); a full run (not ``--quick``, not ``--only``) also
-replaces ``benchmarks/suite.md``.
+(default ``benchmarks/results/``), with a section's own figures beside them
+(``suite-<timestamp>-work-precision.png``). A measured run (not ``--quick``) also
+replaces those figures next to this file (``benchmarks/work-precision.png``) and the
+pages that README.md and the docs quote (``benchmarks/trial.md``,
+``benchmarks/casestudy.md``) for the sections it ran; a full run (not ``--quick``, not
+``--only``) also replaces ``benchmarks/suite.md``.
 
 Sections (``--only``):
 
 ``trial``
-    one 5 s trial per model (door, haptic) by evo-door's compiled fixed-step
-    integrator and by scipy ``solve_ivp`` (RK45, LSODA) with a Python right-hand side
-    around the compiled ``accel`` and around the pure-Python model; each one's error
-    against Radau at rtol 1e-10; the door kernel target (<= 3 ms on one thread).
+    work-precision: per model a smooth trial and two latch trials (one from the
+    virtual rig), each by evo-door ``simulate`` (its default; ``dopri5`` over
+    tolerances, ``rk4`` and ``semi_implicit`` over sub-steps) and by scipy
+    ``solve_ivp`` (RK45, LSODA, Radau, DOP853 over rtol) around the compiled
+    ``accel``, errors against a converged reference; a table per trial, the figure
+    ``work-precision.png``, the targets (``precision.py``, ``precision_report.py``); a
+    measured run also replaces ``benchmarks/trial.md``, the figures README quotes.
 ``ga``
     a 100 x 20 GA by the workbench and by the plain loop (the same DEAP-based GA, each
     individual one ``solve_ivp``), the plain one timed on a few generations and
@@ -55,7 +62,6 @@ import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -70,9 +76,8 @@ from evo_door.errors import UserError  # noqa: E402
 SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy", "control")
 DEFAULT_OUT = HERE / "results"
 
-#: targets: one 5 s door trial on one thread; commands that do not simulate
-DOOR_TRIAL_TARGET = 3e-3
-HAPTIC_TRIAL_TARGET = 2e-3
+#: targets: commands that do not simulate, the device force, the servo loop (the trial
+#: section's: benchmarks/precision.py)
 STARTUP_TARGET = 0.3
 DEVICE_PY_TARGET = 2e-6
 DEVICE_C_TARGET = 100e-9
@@ -105,6 +110,8 @@ class Suite:
     curves: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     tables: dict = field(default_factory=dict)
+    #: a section's own figures: name -> (section, matplotlib Figure, caption)
+    figures: dict = field(default_factory=dict)
 
     def add(self, name, section, label, value, unit, **kw) -> Metric:
         m = Metric(name, section, label, None if value is None else float(value), unit, **kw)
@@ -148,155 +155,39 @@ def progress(text: str) -> None:
     print(f"[suite] {text}", file=sys.stderr, flush=True)
 
 
-# -- section: one trial ---------------------------------------------------------------
+# -- section: work-precision of a trial -------------------------------------------------
 def section_trial(suite: Suite) -> None:
-    """One 5 s trial per model: workbench, solve_ivp (compiled / pure-Python right-hand
-    side, RK45 / LSODA), each against Radau."""
+    """Per model a smooth trial and two latch trials, each by every way at every
+    setting, on one numba thread: error against time (:mod:`benchmarks.precision`),
+    tables, the work-precision figure and the targets (:mod:`benchmarks.precision_report`)."""
     import numba
 
-    from benchmarks import bench_door, bench_haptic
-    from benchmarks._util import median_time
-    from benchmarks.plain import pure_python_trials, solve_trial
-    from evo_door.models import get_model
-    from evo_door.sim import simulate
-    from evo_door.sim.simulate import param_vector
+    from benchmarks import precision
+    from benchmarks import precision_report as report
 
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
-    rows = []
+    results = []
     try:
-        for name, preset, mod in (
-            ("door", "default", bench_door),
-            ("haptic", "seed_trial", bench_haptic),
-        ):
-            model = get_model(name)
-            p = param_vector(model.load_params(preset))
-            _, f = mod.force_profile()
-            dt = mod.DT
-            theta0 = 0.0 if name == "door" else model.theta0
-            y0 = (theta0, 0.0)
-            r = simulate(model, p, f, dt, theta0=theta0)  # compile / load the cache
-            wb = median_time(
-                partial(simulate, model, p, f, dt, theta0=theta0), 7 if suite.quick else 31
-            )
-            ref = solve_trial(model.accel, p, dt, f, y0, "Radau", reference=not suite.quick)
-
-            def errors(theta, dtheta, ref=ref):
-                """Max |theta error| (rad), max and RMS |dtheta error| (rad/s)."""
-                dw = dtheta - ref[1]
-                return (
-                    float(np.max(np.abs(theta - ref[0]))),
-                    float(np.max(np.abs(dw))),
-                    float(np.sqrt(np.mean(dw**2))),
-                )
-
-            target = DOOR_TRIAL_TARGET if name == "door" else HAPTIC_TRIAL_TARGET
-            key = f"trial.{name}"
-            e = errors(r.theta, r.dtheta)
-            suite.add(
-                f"{key}.workbench",
-                "trial",
-                f"{name}: evo-door `simulate` ({model.method} x{model.substeps}, 1 thread)",
-                wb,
-                "s",
-                target=target,
-                target_text=f"<= {target * 1e3:g} ms",
-            )
-            ways = [("workbench", f"evo-door `simulate` ({model.method} x{model.substeps})", wb, e)]
-            for method in ("RK45", "LSODA"):
-                solve_trial(model.accel, p, dt, f, y0, method)  # warm scipy's code paths
-                secs = median_time(
-                    partial(solve_trial, model.accel, p, dt, f, y0, method),
-                    1 if suite.quick else 3,
-                )
-                sol = solve_trial(model.accel, p, dt, f, y0, method)
-                ways.append(
-                    (
-                        f"{method.lower()}_compiled",
-                        f"`solve_ivp` {method}, compiled `accel`",
-                        secs,
-                        errors(*sol),
-                    )
-                )
+        for trial in precision.bench_trials():
             try:
-                pure = pure_python_trials(name, preset, f, dt, y0)
-                for method, (secs, th, dth) in pure.items():
-                    ways.append(
-                        (
-                            f"{method.lower()}_python",
-                            f"`solve_ivp` {method}, pure-Python model",
-                            secs,
-                            errors(th, dth),
-                        )
-                    )
-            except RuntimeError as exc:
-                suite.notes.append(f"{name}: {exc}")
-                for method in ("RK45", "LSODA"):
-                    ways.append(
-                        (
-                            f"{method.lower()}_python",
-                            f"`solve_ivp` {method}, pure-Python model",
-                            None,
-                            (None, None, None),
-                        )
-                    )
-            for way, label, secs, (et, ed, er) in ways:
-                if way != "workbench":
-                    suite.add(
-                        f"{key}.{way}",
-                        "trial",
-                        f"{name}: {label}",
-                        secs,
-                        "s",
-                        ratio=None if secs is None else secs / wb,
-                        ratio_to=f"{key}.workbench",
-                    )
-                suite.add(
-                    f"{key}.{way}.error_theta",
-                    "trial",
-                    f"{name}: {label}, max |theta error|",
-                    et,
-                    "rad",
+                points, resolution = precision.measure(
+                    trial, suite.quick, lambda text: progress(f"  {text}")
                 )
-                suite.add(
-                    f"{key}.{way}.error_dtheta",
-                    "trial",
-                    f"{name}: {label}, max |dtheta error|",
-                    ed,
-                    "rad/s",
-                )
-                suite.add(
-                    f"{key}.{way}.error_dtheta_rms",
-                    "trial",
-                    f"{name}: {label}, RMS dtheta error",
-                    er,
-                    "rad/s",
-                )
-                rows.append((name, label, secs, None if secs is None else secs / wb, et, ed, er))
+            except (RuntimeError, AssertionError) as exc:  # a reference that cannot answer
+                suite.notes.append(f"trial {trial.model} {trial.key} skipped: {exc}")
+                continue
+            report.record(suite, trial, points)
+            results.append((trial, points, resolution))
     finally:
         numba.set_num_threads(threads)
-    ref_text = (
-        "Radau rtol 1e-10, atol 1e-12 (max step one sample)"
-        if not suite.quick
-        else "Radau rtol 1e-6, atol 1e-9 (--quick: a smoke test, not a reference)"
-    )
-    lines = [
-        "| model | way | seconds per 5 s trial | / workbench | max abs theta error (rad) "
-        "| max abs dtheta error (rad/s) | RMS dtheta error (rad/s) |",
-        "|---|---|---:|---:|---:|---:|---:|",
-    ]
-    for name, label, secs, ratio, *errs in rows:
-        cells = " | ".join("n/a" if e is None else f"{e:.2e}" for e in errs)
-        lines.append(
-            f"| {name} | {label} | {fmt(secs, 's')} | {fmt_ratio(ratio) or '1'} | {cells} |"
-        )
-    suite.tables["trial"] = (
-        f"One 5 s trial at 1024 Hz (5120 samples; door `default` pushed from open and "
-        f"pulled back, haptic `seed_trial` unlocked, swung and latched), errors against "
-        f"{ref_text}. `solve_ivp`: rtol 1e-6, atol 1e-9, max step "
-        "4 samples, the force interpolated linearly between samples as the compiled "
-        "integrators read it; pure-Python: the same code with `NUMBA_DISABLE_JIT=1` in a "
-        "fresh process.\n\n" + "\n".join(lines)
+    tables = [report.table(*r, quick=suite.quick) for r in results]
+    suite.tables["trial"] = "\n\n".join([report.intro(suite.quick, load), *tables])
+    suite.figures["work-precision"] = (
+        "trial",
+        report.figure(results, suite.quick),
+        "work-precision: max |dtheta error| against seconds per trial",
     )
 
 
@@ -946,11 +837,13 @@ def _generic_table(metrics) -> str:
 def targets_table(suite: Suite) -> str:
     lines = ["| target | measured | | ", "|---|---:|---|"]
     for m in suite.metrics:
-        if m.met is None:
+        if m.met is None and not m.target_text:
             continue
-        lines.append(
-            f"| {m.label}: {m.target_text} | {fmt(m.value, m.unit)} | {'met' if m.met else '**not met**'} |"
-        )
+        verdict = "met" if m.met else "**not met**"
+        if m.met is None:
+            verdict = f"not measured ({m.note})" if m.note else "not measured"
+        measured = fmt(m.value, m.unit) + (f" ({m.note})" if m.note and m.met is not None else "")
+        lines.append(f"| {m.label}: {m.target_text} | {measured} | {verdict} |")
     return "\n".join(lines)
 
 
@@ -1021,7 +914,34 @@ def casestudy_markdown(suite: Suite, info: dict) -> str:
     )
 
 
-def to_markdown(suite: Suite, info: dict, sections, seconds: float) -> str:
+def trial_markdown(suite: Suite, info: dict) -> str:
+    """``benchmarks/trial.md``: the work-precision figures that the README quotes, with
+    the machine that made them, its targets and its figure (``work-precision.png``)."""
+    from benchmarks._util import machine_line
+
+    trial = Suite(quick=suite.quick, metrics=[m for m in suite.metrics if m.section == "trial"])
+    return "\n".join(
+        [
+            "# Work-precision of a trial, measured (`python -m benchmarks --only trial`)",
+            "",
+            machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}")
+            + f" Commit {info['commit']}." * bool(info["commit"]),
+            "",
+            "## Targets",
+            "",
+            targets_table(trial),
+            "",
+            f"![{suite.figures['work-precision'][2]}](work-precision.png)",
+            "",
+            suite.tables["trial"],
+            "",
+        ]
+    )
+
+
+def to_markdown(suite: Suite, info: dict, sections, seconds: float, figures=None) -> str:
+    """The suite's Markdown; ``figures`` maps a section figure's name to the path its
+    link gives (relative to the Markdown file)."""
     from benchmarks._util import machine_line
 
     lines = [
@@ -1035,11 +955,15 @@ def to_markdown(suite: Suite, info: dict, sections, seconds: float) -> str:
         "workbench's: how many times faster the workbench is.",
         "",
     ]
-    if any(m.met is not None for m in suite.metrics):
+    if any(m.met is not None or m.target_text for m in suite.metrics):
         lines += ["## Targets", "", targets_table(suite), ""]
     for s in sections:
         if s in suite.tables:
-            lines += [f"## {s}", "", suite.tables[s], ""]
+            lines += [f"## {s}", ""]
+            for name, (section, _, caption) in suite.figures.items():
+                if section == s and figures and name in figures:
+                    lines += [f"![{caption}]({figures[name]})", ""]
+            lines += [suite.tables[s], ""]
     if suite.notes:
         lines += ["## Notes", ""] + [f"- {n}" for n in suite.notes] + [""]
     return "\n".join(lines)
@@ -1109,7 +1033,7 @@ def figure(suite: Suite):
     ax = axes[1, 2]
     tg = [m for m in suite.metrics if m.target and m.value is not None]
     if tg:
-        frac = [m.value / m.target for m in tg]
+        frac = [max(m.value / m.target, 1e-6) for m in tg]  # an exact 0 drawn at 1e-6
         colors = ["tab:green" if m.met else "tab:red" for m in tg]
         y = list(range(len(tg)))
         ax.hlines(y, 1.0, frac, colors=colors, lw=6)
@@ -1153,11 +1077,24 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     }
     write_text(paths["json"], json.dumps(doc, indent=1, default=_json_default) + "\n")
     save_figure(figure(suite), paths["png"])
-    md = to_markdown(suite, info, sections, seconds)
+    for name, (_, fig, _) in suite.figures.items():
+        paths[name] = out / f"suite-{stamp}-{name}.png"
+        save_figure(fig, paths[name])
+    md = to_markdown(
+        suite, info, sections, seconds, {n: f"suite-{stamp}-{n}.png" for n in suite.figures}
+    )
     write_text(paths["md"], md)
+    if not suite.quick:  # measured: the latest figures, next to benchmarks/suite.md
+        for name, (_, fig, _) in suite.figures.items():
+            paths[f"{name} (latest)"] = HERE / f"{name}.png"
+            save_figure(fig, HERE / f"{name}.png")
     if write_md:
-        write_text(HERE / "suite.md", md)
+        links = {n: f"{n}.png" for n in suite.figures}
+        write_text(HERE / "suite.md", to_markdown(suite, info, sections, seconds, links))
         paths["summary"] = HERE / "suite.md"
+    if not suite.quick and "trial" in suite.tables:  # measured: the figures docs quote
+        write_text(HERE / "trial.md", trial_markdown(suite, info))
+        paths["trial"] = HERE / "trial.md"
     if not suite.quick and "casestudy" in suite.tables:  # measured: the figures docs quote
         write_text(HERE / "casestudy.md", casestudy_markdown(suite, info))
         paths["casestudy"] = HERE / "casestudy.md"
@@ -1305,7 +1242,8 @@ def _main(args) -> int:
     write_md = not args.quick and args.only is None and not failed
     paths = save(suite, out, sections, seconds, write_md)
     info = machine()
-    print(to_markdown(suite, info, sections, seconds))
+    links = {n: str(paths[n]) for n in suite.figures}
+    print(to_markdown(suite, info, sections, seconds, links))
     for p in paths.values():
         print(f"wrote {p}")
     if old is not None:

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -280,3 +281,134 @@ def test_the_render_log_growth_is_measured_and_the_log_is_compressed(tmp_path, s
     assert 3600 * 1000 * N_COLUMNS * 8 <= g["partial"] < 1.1 * 3600 * 1000 * N_COLUMNS * 8
     assert g["final"] < 0.5 * g["partial"]  # float32, shuffled, compressed
     assert 0 < g["held"] < 10e6 and list(tmp_path.iterdir()) == []
+
+
+def damped_oscillator(t, k=1e4, c=10.0, theta0=0.1):
+    """Exact ``(theta, dtheta)`` of ``ddtheta = -k theta - c dtheta`` from rest at ``theta0``."""
+    a = -0.5 * c
+    wd = np.sqrt(k - a * a)
+    b = -a * theta0 / wd
+    theta = np.exp(a * t) * (theta0 * np.cos(wd * t) + b * np.sin(wd * t))
+    dtheta = np.exp(a * t) * (
+        (a * theta0 + wd * b) * np.cos(wd * t) + (a * b - wd * theta0) * np.sin(wd * t)
+    )
+    return theta, dtheta
+
+
+@pytest.mark.parametrize("method", ["RK45", "LSODA"])
+def test_the_plain_way_converges_to_the_exact_oscillator_as_rtol_tightens(method):
+    from benchmarks.plain import run_plain
+    from tests.conftest import oscillator_accel
+
+    dt = 1 / 1024
+    t = dt * np.arange(2048)
+    exact = damped_oscillator(t)
+    p = np.array([1e4, 10.0, 1.0, 0.0])
+    errors = {}
+    for rtol in (1e-3, 1e-9):
+        run = run_plain(oscillator_accel, p, dt, np.zeros(t.size), (0.1, 0.0), method, rtol=rtol)
+        assert run.complete and run.stopped == "" and run.reached == pytest.approx(t[-1])
+        errors[rtol] = np.abs(run.theta - exact[0]).max(), np.abs(run.dtheta - exact[1]).max()
+    assert errors[1e-9][0] < 1e-8 and errors[1e-9][1] < 1e-6  # rad, rad/s
+    assert errors[1e-3][1] > 100 * errors[1e-9][1]  # rtol reaches the solver
+
+
+def test_a_plain_run_past_its_time_limit_gives_no_answer():
+    from benchmarks.plain import run_plain
+    from tests.conftest import oscillator_accel
+
+    p = np.array([1e4, 10.0, 1.0, 0.0])
+    run = run_plain(oscillator_accel, p, 1 / 1024, np.zeros(64), (0.1, 0.0), "RK45", time_limit=0.0)
+    assert not run.complete and run.stopped == "time limit" and run.reached == 0.0
+    assert np.isnan(run.theta).all() and np.isnan(run.dtheta).all()
+
+
+def bench_trial(model, key, latch, legacy=False):
+    from benchmarks.precision import BenchTrial
+
+    return BenchTrial(
+        model, key, "a trial", "default", np.zeros(8), 1 / 1024, 0.0, 0.0, latch, legacy
+    )
+
+
+def test_trial_points_keep_the_earlier_names_and_are_judged_as_printed():
+    from benchmarks.precision import Point
+    from benchmarks.precision_report import record
+    from benchmarks.suite import Suite, targets_table
+
+    suite = Suite(quick=False)
+    smooth = bench_trial("door", "smooth", latch=False, legacy=True)
+    points = [
+        Point("default", "rk4 x2", "default", 2.6849e-3, 31, (2.5249e-8, 1.2851e-5, 1e-7)),
+        Point("LSODA", "rtol 1e-06", "lsoda.rtol1e-06", 0.06, 3, (1e-7, 1e-6, 1e-7)),
+        Point("rk4", "x4", "rk4.x4", 0.005, 11, (1e-9, 1e-7, 1e-8)),
+    ]
+    record(suite, smooth, points)
+    m = {x.name: x for x in suite.metrics}
+    wb = m["trial.door.workbench"]
+    assert wb.value == 2.6849e-3 and wb.target == 2.68e-3 and wb.met is True  # printed 2.68 ms
+    assert m["trial.door.workbench.error_theta"].met is True  # printed 2.52e-08
+    assert m["trial.door.workbench.error_dtheta"].met is False  # printed 1.29e-05 > 1.28e-05
+    lsoda = m["trial.door.lsoda_compiled"]
+    assert (
+        lsoda.ratio == pytest.approx(0.06 / 2.6849e-3) and lsoda.ratio_to == "trial.door.workbench"
+    )
+    assert m["trial.door.smooth.rk4.x4"].ratio is None  # only the earlier plain ways have one
+    assert m["trial.door.smooth.rk4.x4.error_dtheta_rms"].value == 1e-8
+
+    latch = bench_trial("haptic", "rig", latch=True)
+    limited = Point("LSODA", "rtol 1e-06", "lsoda.rtol1e-06", stopped="no answer within 20 s")
+    limited.extra["lower_bound"] = 20.0
+    record(
+        suite, latch, [Point("default", "dopri5", "default", 0.01, 31, (2e-4, 2e-2, 1e-3)), limited]
+    )
+    m = {x.name: x for x in suite.metrics}
+    assert m["trial.haptic.rig.default.error_theta"].met is False  # 1e-4 rad
+    assert m["trial.haptic.rig.default.error_dtheta"].met is False  # 1e-2 rad/s
+    ratio = m["trial.haptic.rig.lsoda_over_default"]
+    assert ratio.value == pytest.approx(2000) and ratio.met is True and "at least" in ratio.note
+
+    failed = bench_trial("door", "latch", latch=True)
+    gave_up = Point("LSODA", "rtol 1e-06", "lsoda.rtol1e-06", stopped="stopped at t = 1 s")
+    record(
+        suite, failed, [Point("default", "rk4", "default", 0.01, 31, (1e-6, 1e-3, 1e-4)), gave_up]
+    )
+    m = {x.name: x for x in suite.metrics}
+    assert m["trial.door.latch.default.error_dtheta"].met is True
+    assert m["trial.door.latch.lsoda_over_default"].met is None
+    assert "| door latch: LSODA rtol 1e-6 time / the default's: >= 10x | n/a | not measured" in (
+        targets_table(suite)
+    )
+
+
+@pytest.mark.slow
+def test_quick_trial_section_measures_every_trial_and_draws_the_work_precision(tmp_path):
+    latest = [ROOT / "benchmarks" / n for n in ("suite.md", "trial.md", "work-precision.png")]
+    before = [p.read_bytes() if p.exists() else None for p in latest]
+    done = bench("--quick", "--only", "trial", "--out", str(tmp_path), timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (js,) = tmp_path.glob("suite-*.json")
+    (png,) = tmp_path.glob("suite-*-work-precision.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"]({png})" in done.stdout  # the Markdown links the figure
+    metrics = {m["name"]: m for m in json.loads(js.read_text())["metrics"]}
+    for model in ("door", "haptic"):
+        for trial in ("smooth", "latch", "rig"):
+            base = {("door", "smooth"): "trial.door.workbench"}.get((model, trial))
+            base = base or {("haptic", "latch"): "trial.haptic.workbench"}.get((model, trial))
+            base = base or f"trial.{model}.{trial}.default"
+            assert metrics[base]["value"] > 0
+            for way in ("dopri5.tol1e-05", "rk4.x8", "semi_implicit.x1"):
+                name = base.rsplit(".", 1)[0] + f".{way}"
+                if base.endswith("workbench"):
+                    name = f"trial.{model}.{trial}.{way}"
+                assert metrics[f"{name}.error_dtheta"]["value"] >= 0, name
+            # the default's accuracy targets carry their verdict
+            verdicts = [metrics[f"{base}.{e}"]["met"] for e in ("error_theta", "error_dtheta")]
+            assert all(isinstance(v, bool) for v in verdicts), base
+            if trial != "smooth":
+                assert metrics[f"trial.{model}.{trial}.lsoda_over_default"]["target_text"]
+    # the reference: dopri5 at tol 1e-12 agrees with the default on the smooth door
+    assert metrics["trial.door.workbench.error_theta"]["value"] < 1e-6
+    # a smoke run replaces none of the latest figures
+    assert [p.read_bytes() if p.exists() else None for p in latest] == before
