@@ -42,6 +42,7 @@ SECONDS = 5.0
 #: "specification" / "sensation" parameters with a non-zero default).
 FREE = {
     "haptic": ["inertia", "friction_closing", "friction_opening", "viscous_damping"],
+    "haptic_tanh": ["inertia", "friction_closing", "friction_opening", "viscous_damping"],
     "door": ["K", "F_load", "T_atO", "F_atD"],
     "oscillator": ["k", "c", "inertia"],
 }
