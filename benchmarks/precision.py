@@ -51,6 +51,7 @@ import math
 import statistics
 from dataclasses import dataclass, field
 from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +70,12 @@ RTOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 #: CPU time (s) after which a ``solve_ivp`` run is stopped.
 TIME_LIMIT = 20.0
 #: The same in ``--quick`` (and only RK45 and LSODA).
-QUICK = {"tolerances": (1e-5, 1e-8), "substeps": (1, 8), "rtols": (1e-6,), "limit": 2.0}
+QUICK: dict[str, Any] = {
+    "tolerances": (1e-5, 1e-8),
+    "substeps": (1, 8),
+    "rtols": (1e-6,),
+    "limit": 2.0,
+}
 #: Repeats of a workbench run (the default's carry the targets).
 REPEATS, DEFAULT_REPEATS = 11, 31
 #: A ``solve_ivp`` run shorter than this (s) is repeated 3 times.
@@ -195,8 +201,8 @@ def rig_trial(model, preset) -> BenchTrial:
         preset,
         np.asarray(trial.force, dtype=float),
         float(trial.dt),
-        float(trial.theta0),
-        float(trial.dtheta0),
+        float(trial.theta0 or 0.0),
+        float(trial.dtheta0 or 0.0),
         True,
     )
 
@@ -257,7 +263,7 @@ def workbench_points(model, p, trial: BenchTrial, ref, quick: bool) -> list[Poin
     default = f"{model.method} x{model.substeps}"
     if model.method == "dopri5":
         default += f", tol {tolerance_of(model):.0e}"
-    specs = [("default", default, "default", {})]
+    specs: list[tuple[str, str, str, dict[str, Any]]] = [("default", default, "default", {})]
     specs += [
         (
             "dopri5",

@@ -8,6 +8,9 @@ against seconds per trial, log-log, one line per way).
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 from benchmarks.plain import RTOL
 from benchmarks.precision import (
     DEFAULT_REPEATS,
@@ -65,7 +68,7 @@ def record(suite, trial: BenchTrial, points: list[Point]) -> None:
             # the earlier suite's plain ways keep their speed-up over its workbench figure
             if point.seconds is not None:
                 kw = {
-                    "ratio": point.seconds / default.seconds,
+                    "ratio": point.seconds / (default.seconds or math.nan),
                     "ratio_to": metric_name(trial, "default"),
                 }
         elif point.key == "default" and not trial.latch:
@@ -73,7 +76,7 @@ def record(suite, trial: BenchTrial, points: list[Point]) -> None:
             kw = {
                 "target": target,
                 "target_text": f"<= {target * 1e3:g} ms (the earlier suite)",
-                "met": met_at_print(point.seconds, target),
+                "met": met_at_print(point.seconds or math.nan, target),
             }
         suite.add(name, "trial", label, point.seconds, "s", note=point.stopped or None, **kw)
         errors = point.errors or (None, None, None)
@@ -110,7 +113,7 @@ def record_lsoda_ratio(suite, trial: BenchTrial, points: list[Point]) -> None:
     lsoda = next(pt for pt in points if pt.key == f"lsoda.rtol{RTOL:.0e}")
     value, note, met = None, None, None
     if lsoda.seconds is not None:
-        value = lsoda.seconds / default.seconds
+        value = lsoda.seconds / (default.seconds or math.nan)
         met = value >= LSODA_RATIO_TARGET
     elif "lower_bound" in lsoda.extra:
         value = lsoda.extra["lower_bound"] / default.seconds
@@ -159,7 +162,7 @@ def table(trial: BenchTrial, points: list[Point], resolution, quick: bool = Fals
         if point.seconds is None:
             lines.append(f"| {way} | {point.setting} | {point.stopped} | | | | |")
             continue
-        ratio = point.seconds / default.seconds
+        ratio = point.seconds / (default.seconds or math.nan)
         errors = point.errors or ("n/a",) * 3
         cells = " | ".join(e if isinstance(e, str) else f"{e:.2e}" for e in errors)
         note = f" ({point.stopped})" if point.stopped else ""
@@ -207,7 +210,7 @@ def figure(results, quick: bool):
 
     fig = Figure(figsize=(16, 10), layout="constrained")
     axes = fig.subplots(2, 3, squeeze=False)
-    handles = {}
+    handles: dict[str, Any] = {}
     for (trial, points, resolution), ax in zip(results, axes.flat):
         for way, (color, style) in STYLES.items():
             got = [pt for pt in points if pt.way == way and pt.key != "default" and pt.errors]
@@ -247,7 +250,7 @@ def figure(results, quick: bool):
         low, high = ax.get_xlim()
         if high > 10 * low:  # labels on the decades only (else they crowd)
             ax.xaxis.set_minor_formatter(NullFormatter())
-    fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncol=10)
+    fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncol=10)  # type: ignore[call-overload]
     shade = "" if quick else "; grey: below the reference's resolution"
     fig.suptitle(
         "Work-precision: error against time per way and setting (dotted: the latch trials' "

@@ -300,5 +300,6 @@ def _never(s, x):
     return 1.0
 
 
-_never.terminal = True
-_never.direction = 0.0
+# solve_ivp reads these attributes of an event function
+_never.terminal = True  # type: ignore[attr-defined]
+_never.direction = 0.0  # type: ignore[attr-defined]

@@ -234,7 +234,7 @@ def _check_switches(model: Model) -> None:
     from evo_door.sim.located import SWITCHES_SIGNATURE
 
     want = "a numba @njit function switches(theta, dtheta, force, p, g) writing g"
-    if config.DISABLE_JIT:
+    if getattr(config, "DISABLE_JIT", False):
         if not callable(model.switches):
             raise UserError(f"{name}: switches must be {want}; got {_describe(model.switches)}")
         return

@@ -80,7 +80,7 @@ class Agreement:
         ok = np.isfinite(self.theta_sim) & np.isfinite(self.dtheta_sim)
         if not ok.any():
             raise UserError("render log: no sample could be simulated")
-        out = {"samples": int(ok.sum())}
+        out: dict[str, float] = {"samples": int(ok.sum())}
         for name, log, sim in (
             ("theta", self.theta, self.theta_sim),
             ("dtheta", self.dtheta, self.dtheta_sim),
@@ -215,8 +215,8 @@ def _device_term(given, log: dict, name: str, params, unit: str) -> float:
     if params is not None:
         return 0.0
     recorded = [e for e in log["events"] if e.get("kind") == "device"]
-    value = recorded[-1].get(name) if recorded else None
-    return float(value) if value is not None else 0.0
+    logged = recorded[-1].get(name) if recorded else None
+    return float(logged) if logged is not None else 0.0
 
 
 def _runs(t, set_times, force, theta, dtheta, window):

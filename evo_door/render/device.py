@@ -373,6 +373,7 @@ class SimDevice(Device):
             f = s.force(self.t) / r if r > 0.0 else 0.0
             self._user[:] = (0.0, f * zm, -f * ym)  # along e_theta = (0, cos, -sin)
             return
+        assert self._hand is not None  # set with the script that has no force of its own
         self._hand.force(self.t, self.pos, self.vel, self._user)
 
     def read(self):
