@@ -363,8 +363,8 @@ def test_a_pipeline_shares_one_executor_across_stages(tmp_path, pool):
 
 def _wait_for_ctrl_c(folder):
     """A batch's task that waits for Ctrl-C: it says it started, and what stopped it."""
-    Path(folder, "started").touch()
-    try:
+    try:  # "started" inside the try: a Ctrl-C right after it is still caught
+        Path(folder, "started").touch()
         time.sleep(60)
     except KeyboardInterrupt:
         Path(folder, "interrupted").touch()
