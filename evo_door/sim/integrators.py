@@ -65,8 +65,11 @@ from evo_door.sim.located import (
     SEMI_IMPLICIT,
     SWITCHES_TYPE,
     advance_located,
+    jacobian,
     no_switches,
     rate,
+    rk4_step,
+    ros2_step,
 )
 
 METHODS = {"rk4": RK4, "semi_implicit": SEMI_IMPLICIT, "dopri5": DOPRI5}
@@ -76,7 +79,6 @@ DEFAULT_TOLERANCE = 1e-7
 #: Angular speed (rad/s) beyond which a simulation counts as blown up.
 BLOWUP_SPEED = 1.0e6
 
-_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 #: Signature every model's ``accel(theta, dtheta, force, p) -> ddtheta`` must have.
 ACCEL_SIGNATURE = types.float64(types.float64, types.float64, types.float64, types.float64[::1])
@@ -158,71 +160,6 @@ def kernel_form(accel, n_params: int) -> Prepared:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def rk4_step(accel, p, theta, dtheta, a_start, f0, f1, h):
-    """One RK4 step of length ``h`` with the force going linearly from f0 to f1.
-
-    ``a_start`` is ``accel(theta, dtheta, f0, p)``, which the caller already has.
-    """
-    fm = 0.5 * (f0 + f1)
-    k1t = dtheta
-    k1w = a_start
-    k2t = dtheta + 0.5 * h * k1w
-    k2w = accel(theta + 0.5 * h * k1t, k2t, fm, p)
-    k3t = dtheta + 0.5 * h * k2w
-    k3w = accel(theta + 0.5 * h * k2t, k3t, fm, p)
-    k4t = dtheta + h * k3w
-    k4w = accel(theta + h * k3t, k4t, f1, p)
-    theta_new = theta + h / 6.0 * (k1t + 2.0 * k2t + 2.0 * k3t + k4t)
-    dtheta_new = dtheta + h / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w)
-    return theta_new, dtheta_new
-
-
-@njit(cache=True, nogil=True, inline="always")
-def jacobian(accel, p, theta, dtheta, force, a_start):
-    """Stabilising part of (d ddtheta / d theta, d ddtheta / d dtheta), forward differences.
-
-    ``a_start`` is ``accel(theta, dtheta, force, p)``. A W-method keeps its order with
-    any Jacobian approximation, so one-sided differences (two calls instead of four)
-    are enough. Only the stabilising part is treated implicitly: a snap (a latch apex,
-    negative damping) gives a_t > 0 or a_w > 0, with which det(I - gamma h J) can pass
-    through zero and the step explodes; with a_t, a_w <= 0 the determinant is >= 1.
-    """
-    et = 1e-7 * (1.0 + abs(theta))
-    ew = 1e-7 * (1.0 + abs(dtheta))
-    a_t = (accel(theta + et, dtheta, force, p) - a_start) / et
-    a_w = (accel(theta, dtheta + ew, force, p) - a_start) / ew
-    return min(a_t, 0.0), min(a_w, 0.0)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def ros2_step(accel, p, theta, dtheta, a_start, f1, h, a_t, a_w):
-    """One ROS2 step; (a_t, a_w) is the (possibly frozen) Jacobian row of ddtheta.
-
-    ``a_start`` is ``accel`` at the start of the step. With x = (theta, dtheta) and
-    J = [[0, 1], [a_t, a_w]]:
-    (I - gamma h J) k1 = f(t, x);  (I - gamma h J) k2 = f(t + h, x + h k1) - 2 k1;
-    x_new = x + h (3 k1 + k2) / 2.
-    """
-    gh = _GAMMA * h
-    # M = I - gamma h J = [[1, -gh], [-gh a_t, 1 - gh a_w]]
-    m12 = -gh
-    m21 = -gh * a_t
-    m22 = 1.0 - gh * a_w
-    det = m22 - m12 * m21
-    r1 = dtheta
-    r2 = a_start
-    k1t = (m22 * r1 - m12 * r2) / det
-    k1w = (-m21 * r1 + r2) / det
-    theta1 = theta + h * k1t
-    dtheta1 = dtheta + h * k1w
-    r1 = dtheta1 - 2.0 * k1t
-    r2 = accel(theta1, dtheta1, f1, p) - 2.0 * k1w
-    k2t = (m22 * r1 - m12 * r2) / det
-    k2w = (-m21 * r1 + r2) / det
-    return theta + h * (1.5 * k1t + 0.5 * k2t), dtheta + h * (1.5 * k1w + 0.5 * k2w)
-
-
-@njit(cache=True, nogil=True, inline="always")
 def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
     """Move the state over one sample period ``dt`` in ``substeps`` steps.
 
@@ -238,13 +175,15 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
         for s in range(substeps):
             if s > 0:
                 a_s = accel(theta, dtheta, f0 + s * df, p)
-            theta, dtheta = ros2_step(accel, p, theta, dtheta, a_s, f0 + (s + 1) * df, h, a_t, a_w)
+            theta, dtheta = ros2_step(
+                accel, p, theta, dtheta, a_s, f0 + (s + 1) * df, h, a_t, a_w, 0
+            )
     else:
         for s in range(substeps):
             if s > 0:
                 a_s = accel(theta, dtheta, f0 + s * df, p)
             theta, dtheta = rk4_step(
-                accel, p, theta, dtheta, a_s, f0 + s * df, f0 + (s + 1) * df, h
+                accel, p, theta, dtheta, a_s, f0 + s * df, f0 + (s + 1) * df, h, 0
             )
     return theta, dtheta
 

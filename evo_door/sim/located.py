@@ -161,36 +161,89 @@ def dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol, side):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def rk4_step(accel, p, theta, dtheta, a_start, f0, f1, h, side):
+    """One RK4 step of length ``h`` with the force going linearly from f0 to f1.
+
+    ``a_start`` is ``accel(theta, dtheta, f0, p)``, which the caller already has;
+    ``side`` holds a sliding door's friction (:func:`sided`; 0 for none).
+    """
+    fm = 0.5 * (f0 + f1)
+    k1t = dtheta
+    k1w = a_start
+    k2t = dtheta + 0.5 * h * k1w
+    k2w = sided(accel, p, theta + 0.5 * h * k1t, k2t, fm, side)
+    k3t = dtheta + 0.5 * h * k2w
+    k3w = sided(accel, p, theta + 0.5 * h * k2t, k3t, fm, side)
+    k4t = dtheta + h * k3w
+    k4w = sided(accel, p, theta + h * k3t, k4t, f1, side)
+    theta_new = theta + h / 6.0 * (k1t + 2.0 * k2t + 2.0 * k3t + k4t)
+    dtheta_new = dtheta + h / 6.0 * (k1w + 2.0 * k2w + 2.0 * k3w + k4w)
+    return theta_new, dtheta_new
+
+
+@njit(cache=True, nogil=True, inline="always")
+def jacobian(accel, p, theta, dtheta, force, a_start):
+    """Stabilising part of (d ddtheta / d theta, d ddtheta / d dtheta), forward differences.
+
+    ``a_start`` is ``accel(theta, dtheta, force, p)``. A W-method keeps its order with
+    any Jacobian approximation, so one-sided differences (two calls instead of four)
+    are enough. Only the stabilising part is treated implicitly: a snap (a latch apex,
+    negative damping) gives a_t > 0 or a_w > 0, with which det(I - gamma h J) can pass
+    through zero and the step explodes; with a_t, a_w <= 0 the determinant is >= 1.
+    """
+    et = 1e-7 * (1.0 + abs(theta))
+    ew = 1e-7 * (1.0 + abs(dtheta))
+    a_t = (accel(theta + et, dtheta, force, p) - a_start) / et
+    a_w = (accel(theta, dtheta + ew, force, p) - a_start) / ew
+    return min(a_t, 0.0), min(a_w, 0.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def ros2_step(accel, p, theta, dtheta, a_start, f1, h, a_t, a_w, side):
+    """One ROS2 step; (a_t, a_w) is the (possibly frozen) Jacobian row of ddtheta.
+
+    ``a_start`` is ``accel`` at the start of the step; ``side`` as in
+    :func:`rk4_step`. With x = (theta, dtheta) and
+    J = [[0, 1], [a_t, a_w]]:
+    (I - gamma h J) k1 = f(t, x);  (I - gamma h J) k2 = f(t + h, x + h k1) - 2 k1;
+    x_new = x + h (3 k1 + k2) / 2.
+    """
+    gh = _GAMMA * h
+    # M = I - gamma h J = [[1, -gh], [-gh a_t, 1 - gh a_w]]
+    m12 = -gh
+    m21 = -gh * a_t
+    m22 = 1.0 - gh * a_w
+    det = m22 - m12 * m21
+    r1 = dtheta
+    r2 = a_start
+    k1t = (m22 * r1 - m12 * r2) / det
+    k1w = (-m21 * r1 + r2) / det
+    theta1 = theta + h * k1t
+    dtheta1 = dtheta + h * k1w
+    r1 = dtheta1 - 2.0 * k1t
+    r2 = sided(accel, p, theta1, dtheta1, f1, side) - 2.0 * k1w
+    k2t = (m22 * r1 - m12 * r2) / det
+    k2w = (-m21 * r1 + r2) / det
+    return theta + h * (1.5 * k1t + 0.5 * k2t), dtheta + h * (1.5 * k1w + 0.5 * k2w)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def fixed_step(accel, p, th, w, a1, t, h, f0, slope, method, a_t, a_w, side):
     """One RK4 or ROS2 step of length ``h`` from time ``t`` of the period."""
-    fa = f0 + slope * t
-    fb = f0 + slope * (t + h)
     if method == SEMI_IMPLICIT:
-        gh = _GAMMA * h
-        m12 = -gh
-        m21 = -gh * a_t
-        m22 = 1.0 - gh * a_w
-        det = m22 - m12 * m21
-        k1t = (m22 * w - m12 * a1) / det
-        k1w = (-m21 * w + a1) / det
-        th1 = th + h * k1t
-        w1 = w + h * k1w
-        r1 = w1 - 2.0 * k1t
-        r2 = sided(accel, p, th1, w1, fb, side) - 2.0 * k1w
-        k2t = (m22 * r1 - m12 * r2) / det
-        k2w = (-m21 * r1 + r2) / det
-        return th + h * (1.5 * k1t + 0.5 * k2t), w + h * (1.5 * k1w + 0.5 * k2w)
-    fm = 0.5 * (fa + fb)
-    k2t = w + 0.5 * h * a1
-    k2w = sided(accel, p, th + 0.5 * h * w, k2t, fm, side)
-    k3t = w + 0.5 * h * k2w
-    k3w = sided(accel, p, th + 0.5 * h * k2t, k3t, fm, side)
-    k4t = w + h * k3w
-    k4w = sided(accel, p, th + h * k3t, k4t, fb, side)
-    return (
-        th + h / 6.0 * (w + 2.0 * k2t + 2.0 * k3t + k4t),
-        w + h / 6.0 * (a1 + 2.0 * k2w + 2.0 * k3w + k4w),
-    )
+        return ros2_step(accel, p, th, w, a1, f0 + slope * (t + h), h, a_t, a_w, side)
+    return rk4_step(accel, p, th, w, a1, f0 + slope * t, f0 + slope * (t + h), h, side)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def trial_step(accel, p, th, w, a1, t, h, f0, slope, method, tol, a_t, a_w, side):
+    """One step of ``method`` of length ``h`` from time ``t`` of the period:
+    ``(theta, dtheta, err, a_end)``, ``err`` and ``a_end`` as :func:`dopri_step`
+    gives them (0 for the fixed steps: no estimate, no first stage to reuse)."""
+    if method == DOPRI5:
+        return dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol, side)
+    th1, w1 = fixed_step(accel, p, th, w, a1, t, h, f0, slope, method, a_t, a_w, side)
+    return th1, w1, 0.0, 0.0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -281,11 +334,7 @@ def advance_located(
     a_t = 0.0
     a_w = 0.0
     if method == SEMI_IMPLICIT:
-        a0 = accel(theta, dtheta, f0, p)
-        et = 1e-7 * (1.0 + abs(theta))
-        ew = 1e-7 * (1.0 + abs(dtheta))
-        a_t = min((accel(theta + et, dtheta, f0, p) - a0) / et, 0.0)
-        a_w = min((accel(theta, dtheta + ew, f0, p) - a0) / ew, 0.0)
+        a_t, a_w = jacobian(accel, p, theta, dtheta, f0, accel(theta, dtheta, f0, p))
     switches(theta, dtheta, f0, p, g0)
     while dt - t > LOCATE_TOL * dt:
         force = f0 + slope * t
@@ -320,16 +369,9 @@ def advance_located(
         if not fresh:
             a1 = accel(theta, dtheta, force, p)
         fresh = False
-        if method == DOPRI5:
-            th1, w1, err, a_end = dopri_step(
-                accel, p, theta, dtheta, a1, t, h, f0, slope, tol, side
-            )
-        else:
-            th1, w1 = fixed_step(
-                accel, p, theta, dtheta, a1, t, h, f0, slope, method, a_t, a_w, side
-            )
-            err = 0.0
-            a_end = 0.0
+        th1, w1, err, a_end = trial_step(
+            accel, p, theta, dtheta, a1, t, h, f0, slope, method, tol, a_t, a_w, side
+        )
         # a step too coarse is cut, unless it crosses a surface: then the crossing is
         # located first (a step across a jump is never accurate, however short)
         coarse = not (err <= 1.0) and rejects < MAX_REJECTS and h > LOCATE_TOL * dt
@@ -376,15 +418,9 @@ def advance_located(
                     s = hi - 0.5 * LOCATE_TOL * dt
                 if not (lo < s < hi):
                     s = 0.5 * (lo + hi)
-                err_s = 0.0
-                if method == DOPRI5:
-                    th_s, w_s, err_s, _a = dopri_step(
-                        accel, p, theta, dtheta, a1, t, s, f0, slope, tol, side
-                    )
-                else:
-                    th_s, w_s = fixed_step(
-                        accel, p, theta, dtheta, a1, t, s, f0, slope, method, a_t, a_w, side
-                    )
+                th_s, w_s, err_s, _a = trial_step(
+                    accel, p, theta, dtheta, a1, t, s, f0, slope, method, tol, a_t, a_w, side
+                )
                 switches(th_s, w_s, f0 + slope * (t + s), p, gx)
                 v = w_s if c == n_sw else gx[c]
                 if _crossed(v, v_lo):
