@@ -23,6 +23,7 @@ The equations, and how they correct the seed's eqs. 4.39-4.47, are written out i
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from numba import njit
@@ -513,16 +514,13 @@ MODEL = Model(
 #: The same model with the seed's literal tanh dry friction (eq. 3.1): smooth, so no
 #: stick; its parameters and presets are the haptic model's. ROS2 (semi-implicit)
 #: with 2 steps per sample stays stable for its steepest tanh.
-MODEL_TANH = Model(
+MODEL_TANH = replace(
+    MODEL,
     name="haptic_tanh",
     title=DECLARATION.title + " (seed's tanh friction)",
     params=ParamTable("haptic_tanh", PARAMS.params, reads=("haptic",)),
     accel=accel_tanh,
     method="semi_implicit",
     substeps=2,
-    theta0=CLOSED,
-    notes=DECLARATION.notes,
-    rig_kinds=("impulse", "unlock", "lock"),
-    switches=switches,
-    n_switches=N_SWITCHES,
+    stick_slip=False,
 )
