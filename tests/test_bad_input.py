@@ -173,6 +173,14 @@ CASES = {
         "simulate door --input {w}/force.csv --substeps 0 --out {w}/o.csv",
         "--substeps",
     ),
+    "simulate: tolerance out of range": (
+        "simulate door --input {w}/force.csv --tolerance 2 --out {w}/o.csv",
+        "--tolerance",
+    ),
+    "simulate: tolerance not a number": (
+        "simulate door --input {w}/force.csv --tolerance tight --out {w}/o.csv",
+        "--tolerance",
+    ),
     # curve
     "curve: unsupported image": (
         "curve door --out {w}/c.csv --plot {w}/c.jpg2",

@@ -4,11 +4,22 @@ from __future__ import annotations
 
 import sys
 
-from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
+from evo_door.commands._common import (
+    MODEL_HELP,
+    Range,
+    add_params_arguments,
+    check_ranges,
+    declare_ranges,
+    model_and_params,
+)
 from evo_door.commands.data import add_read_options, check_finite, check_positive, trial_selection
 from evo_door.errors import UserError
 
 ORDER = 20
+
+#: the numeric flags' ranges, checked before any work (dopri5's tolerance per step,
+#: rad and rad/s; 1 itself is refused by the integrators: no error is allowed that big)
+RANGES = {"--tolerance": Range(0, 1, above=True)}
 
 #: How far (a fraction of the model's range: 4.5 deg for a door) a response may pass an
 #: end of the range before it is pointed out. The end stops are stiff springs that a
@@ -59,7 +70,6 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--tolerance",
-        type=float,
         metavar="TOL",
         help="dopri5's tolerance per step, in rad and rad/s (default: the model's)",
     )
@@ -69,6 +79,7 @@ def register(sub) -> None:
         metavar="OUT.csv",
         help="output columns t, force, theta, dtheta, ddtheta (SI)",
     )
+    declare_ranges(p, RANGES)
     p.set_defaults(func=run)
 
 
@@ -78,6 +89,7 @@ def run(args) -> int:
     from evo_door.files import Output, claim_outputs
     from evo_door.sim import simulate
 
+    check_ranges(args)
     model, params = model_and_params(args)
     claim = claim_outputs([Output(args.out)], [args.input, params.source])
     if args.substeps is not None and args.substeps < 1:

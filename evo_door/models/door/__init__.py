@@ -416,9 +416,8 @@ rig's door), table53_min / table53_mid / table53_max (seed table 5.3), table54_s
 
 #: Dormand-Prince 5(4), adaptive, steps of at most one 1024 Hz sample, the stops, the
 #: wall and the latch's kinks located (:func:`switches`): the steep apex and the tanh
-#: frictions are followed by the step control. Against a converged reference, the
-#: rig's unlock and lock trials are exact to 2e-7 rad and 2e-5 rad/s
-#: (docs/physical-model.md, "Integration").
+#: frictions are followed by the step control. Its accuracy against a converged
+#: reference: tests/test_events.py (bounds), benchmarks/trial.md (measured).
 MODEL = Model(
     name="door",
     title="Physical model of the dishwasher door",
