@@ -29,7 +29,7 @@ LAYERS: list[set[str]] = [
     {"params"},
     {"sim"},
     {"models"},
-    {"data"},
+    {"data", "perception"},
     {"optim", "render"},
     {"plugins"},
     {"experiment"},

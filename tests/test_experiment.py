@@ -67,7 +67,7 @@ def load(folder, text=None, overrides=None):
         (
             "per_trial: false",
             "per_trail: false",
-            "exp.yaml:19: per_trail: unknown key (did you mean 'per_trial'?)",
+            "exp.yaml:19: per_trail: unknown key (did you mean 'per_trial' or 'perception'?)",
         ),
         (
             "  mutation_probability: 0.1",
@@ -475,7 +475,7 @@ def test_cli_bad_yaml_exits_2_with_one_line(folder, capsys, monkeypatch):
     assert res.returncode == 2, res.stderr
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
     assert (
-        "bad.yaml:9: objective.kind: 'maxsquare' is not one of max_square, ise "
+        "bad.yaml:9: objective.kind: 'maxsquare' is not one of max_square, ise, perceptual "
         "(did you mean 'max_square'?)"
     ) in res.stderr
     assert not (folder / "results").exists()

@@ -60,6 +60,7 @@ TOP_KEYS = (
     "simulation",
     "output",
     "executor",
+    "perception",
 )
 SIMULATION_KEYS = ("method", "substeps", "tolerance")
 
@@ -84,6 +85,9 @@ class Experiment:
     #: ``dopri5``'s tolerance per step (``tol (1 + |x|)``, rad and rad/s)
     tolerance: float | None = None
     output: str = "results"
+    #: the just-noticeable differences a feel is judged with (:class:`~evo_door.perception.JND`
+    #: settings by name; the defaults where left out)
+    perception: dict = field(default_factory=dict)
     #: where the GA's evaluations run (:mod:`evo_door.optim.executors`); provenance,
     #: not part of the result, so not in :meth:`resolved`
     executor: str = "local"
@@ -107,6 +111,12 @@ class Experiment:
             key: spec["from"] for key, spec in keys if isinstance(spec, dict) and "from" in spec
         }
 
+    def jnd(self):
+        """The :class:`~evo_door.perception.JND` this experiment judges a feel with."""
+        from evo_door.perception import JND
+
+        return JND.from_mapping(self.perception)
+
     def resolved(self) -> dict:
         """The configuration with every default filled in, as plain JSON-able data."""
         out = {
@@ -127,6 +137,7 @@ class Experiment:
                 "tolerance": self.tolerance,
             },
             "output": self.output,
+            "perception": self.jnd().as_dict(),
         }
         return json.loads(json.dumps(out))
 
@@ -136,6 +147,41 @@ def _require_declared(where: str, name, model) -> None:
         raise UserError(
             f"{where}: model {model.name!r} has no parameter {name!r}"
             + suggest(str(name), model.params.names)
+        )
+
+
+def perception_setting(r: _Reader) -> dict:
+    """The ``perception`` section: JND settings by name, checked (:class:`JND`)."""
+    from evo_door.perception import JND
+
+    node = r.get("perception")
+    if node is None:
+        return {}
+    if not isinstance(node, dict):
+        raise r.fail("perception", "expected a mapping of JND settings (e.g. force: 0.1)")
+    p = _Reader(node, "perception", r.node.where("perception"))
+    names = list(JND().as_dict())
+    p.check_keys(tuple(names))
+    values = {k: p.number(k, None, lo=0.0, open_lo=True) for k in node}
+    try:
+        JND.from_mapping(values)
+    except UserError as exc:
+        raise UserError(f"{r.node.where('perception')}: {exc}") from None
+    return values
+
+
+def _check_perceptual(exp: Experiment) -> None:
+    """The perceptual objective needs a chosen feel; a model target without one needs inputs."""
+    t = exp.target
+    if exp.objective.perceptual and t.kind == "data":
+        raise UserError(
+            f"{exp.locs['objective']}: objective.kind perceptual: scores a feel against a "
+            "chosen one; measured trials are not one (target: curve: FILE.csv, or model:)"
+        )
+    if t.kind == "model" and t.inputs is None and not exp.objective.perceptual:
+        raise UserError(
+            f"{t.locs['model']}: target.inputs: required key missing (the input forces the "
+            "target model is driven by; only the perceptual objective needs none)"
         )
 
 
@@ -318,7 +364,9 @@ def experiment_from_tree(
         free={},
         params=_param_spec(r, "params", base_dir),
         description=r.string("description", "") or "",
-        objective=_objective(r),
+        objective=_objective(
+            r, curve_target=isinstance(r.get("target"), dict) and "curve" in r.get("target")
+        ),
         algorithm=_algorithm(r),
         per_trial=r.boolean("per_trial", False),
         pooled=r.boolean("pooled", False),
@@ -326,6 +374,7 @@ def experiment_from_tree(
         substeps=substeps,
         tolerance=tolerance,
         output=r.string("output", "results"),
+        perception=perception_setting(r),
         executor=executor_setting(r),
         source=source,
         text=text,
@@ -333,6 +382,7 @@ def experiment_from_tree(
         locs={k: tree.where(k) for k in TOP_KEYS},
     )
     _check_parameters(exp, r, model)
+    _check_perceptual(exp)
     if exp.target.kind == "model":
         try:
             get_model(exp.target.model)

@@ -11,9 +11,8 @@ from dataclasses import asdict, dataclass, field, fields
 
 from evo_door.experiment.config_reader import _Reader
 from evo_door.optim.ga import GASettings
-from evo_door.optim.kernels import KINDS
 from evo_door.optim.local import LocalSettings
-from evo_door.optim.problem import COMBINE, Objective
+from evo_door.optim.problem import COMBINE, OBJECTIVE_KINDS, PERCEPTUAL, Objective
 from evo_door.params.declaration import suggest
 
 OBJECTIVE_KEYS = ("kind", "derivative", "combine")
@@ -60,11 +59,20 @@ class AlgorithmSpec:
         )
 
 
-def _objective(reader: _Reader) -> Objective:
+def _objective(reader: _Reader, curve_target: bool = False) -> Objective:
+    """The ``objective`` section; a curve target (a chosen feel) is scored by the
+    perceptual objective, which is then its default and its only kind."""
     o = _Reader(reader.get("objective"), "objective", reader.node.where("objective"))
     o.check_keys(OBJECTIVE_KEYS)
+    kind = o.choice("kind", PERCEPTUAL if curve_target else "max_square", OBJECTIVE_KINDS)
+    if curve_target and kind != PERCEPTUAL:
+        raise o.fail(
+            "kind",
+            f"{kind}: a curve target has no trials to score; it is fitted by the "
+            "perceptual objective (leave kind out)",
+        )
     return Objective(
-        kind=o.choice("kind", "max_square", tuple(KINDS)),
+        kind=kind,
         derivative=o.choice("derivative", 1, (0, 1, 2)),
         combine=o.choice("combine", "sum", COMBINE),
     )

@@ -1,9 +1,11 @@
 """The ``target`` section of an experiment: what the model is fitted to.
 
-Either measured trials (``data: FILE``, chosen by id, kind and user, some kept for
-validation, each preprocessed alike) or another model's response (``model: NAME`` to
-``inputs``: a trial or force file, or a rig specification). Read and checked here
-without reading the data; :mod:`evo_door.experiment.setup` reads it.
+Measured trials (``data: FILE``, chosen by id, kind and user, some kept for
+validation, each preprocessed alike), another model's response (``model: NAME`` to
+``inputs``: a trial or force file, or a rig specification; with the ``perceptual``
+objective, its feel, and ``inputs`` may be left out) or a chosen feel given as a
+force-angle curve (``curve: FILE.csv``, the columns ``evo-door curve`` writes). Read
+and checked here without reading the data; :mod:`evo_door.experiment.setup` reads it.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from evo_door.experiment.config_reader import (
 from evo_door.experiment.yamltree import LinedMap
 
 DATA_TARGET_KEYS = ("data", "trials", "kinds", "users", "validate", "preprocess")
+CURVE_TARGET_KEYS = ("curve",)
 MODEL_TARGET_KEYS = (
     "model",
     "params",
@@ -62,7 +65,7 @@ class PreprocessSpec:
 class TargetSpec:
     """What the model is fitted to: trials from a file, or another model's response."""
 
-    kind: str  # "data" or "model"
+    kind: str  # "data", "model" or "curve"
     trials: object = "all"  # "all" or list of trial ids
     kinds: list = field(default_factory=list)  # with trials: all, only these trial kinds
     users: list = field(default_factory=list)  # only these users' trials (kind "data")
@@ -72,6 +75,7 @@ class TargetSpec:
     params: object = None  # preset name, resolved file path or {name: value}
     set: dict = field(default_factory=dict)
     inputs: object = None  # resolved file path, or a rig specification (mapping)
+    curve: str | None = None  # resolved path of a force-angle curve (kind "curve")
     theta0: float | None = None
     dtheta0: float | None = None
     preprocess: PreprocessSpec = field(default_factory=lambda: PreprocessSpec())
@@ -87,19 +91,29 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
             "(e.g. target: {data: FILE, trials: all})"
         )
     t = _Reader(node, "target", reader.node.where("target"))
-    if "data" in t.node and "model" in t.node:
+    given = [k for k in ("data", "model", "curve") if k in t.node]
+    if len(given) > 1:
         raise t.fail(
-            "model", "give either data (measured trials) or model (a target model), not both"
+            given[1],
+            "give one of data (measured trials), model (a target model) or curve (a "
+            f"force-angle curve), not {' and '.join(given)}",
         )
     locs = _locations(t)
+    if "curve" in t.node:
+        t.check_keys(CURVE_TARGET_KEYS, required=("curve",))
+        path = _resolve_path(
+            t.string("curve", required=True), base_dir, t.node.where("curve"), "target.curve"
+        )
+        return TargetSpec("curve", trials=[], curve=path, locs=locs)
     if "data" in t.node:
         spec = _data_target(t, base_dir, locs)
     elif "model" in t.node:
         spec = _model_target(t, base_dir, locs)
     else:
         raise UserError(
-            f"{t.node.loc}: target: give data: FILE (measured trials) or "
-            "model: NAME with inputs: FILE (another model's response)"
+            f"{t.node.loc}: target: give data: FILE (measured trials), "
+            "model: NAME with inputs: FILE (another model's response) or curve: FILE.csv "
+            "(a chosen feel)"
         )
     if isinstance(spec.trials, list):
         both = [x for x in spec.validate if x in spec.trials]
@@ -137,9 +151,11 @@ def _data_target(t: _Reader, base_dir: Path, locs: dict) -> TargetSpec:
 
 def _model_target(t: _Reader, base_dir: Path, locs: dict) -> TargetSpec:
     """``target: {model: NAME, inputs: ...}``: another model's response to the inputs."""
-    t.check_keys(MODEL_TARGET_KEYS, required=("model", "inputs"))
+    t.check_keys(MODEL_TARGET_KEYS, required=("model",))
     inputs = t.get("inputs")
-    if isinstance(inputs, str):
+    if inputs is None:
+        pass  # only the perceptual objective needs no inputs: the experiment checks
+    elif isinstance(inputs, str):
         inputs = _resolve_path(inputs, base_dir, t.node.where("inputs"), "target.inputs")
     elif isinstance(inputs, LinedMap):
         inputs = _rig_spec(t, inputs, base_dir)

@@ -38,7 +38,12 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
-from evo_door.experiment.config import Experiment, _safe_name, experiment_from_tree
+from evo_door.experiment.config import (
+    Experiment,
+    _safe_name,
+    experiment_from_tree,
+    perception_setting,
+)
 from evo_door.experiment.config_reader import _Reader, _resolve_path, executor_setting
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
 from evo_door.experiment.runner import ExperimentRun
@@ -46,7 +51,7 @@ from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
 from evo_door.params.declaration import suggest
 
-PIPELINE_KEYS = ("name", "description", "stages", "output", "report", "executor")
+PIPELINE_KEYS = ("name", "description", "stages", "output", "report", "executor", "perception")
 #: settings of ``evo-door report`` a pipeline file may give (the command line wins)
 REPORT_KEYS = ("jnd", "force_floor")
 FORMAT_VERSION = 1
@@ -160,11 +165,15 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
         base_dir=str(base_dir),
         executor=executor_setting(r) if "executor" in tree else None,
     )
+    # the JND settings of every stage, which a stage's own perception: overrides
+    perception = perception_setting(r)
     for name, value in node.items():
         where = node.where(name)
         if not isinstance(name, str) or _safe_name(name) != name:
             raise UserError(f"{where}: stages: {name!r}: name stages with letters, digits, - _ .")
-        pipe.stages.append(Stage(name, _stage_experiment(name, value, where, base_dir), where))
+        exp = _stage_experiment(name, value, where, base_dir)
+        exp.perception = {**perception, **exp.perception}
+        pipe.stages.append(Stage(name, exp, where))
     _check_uses(pipe)
     return pipe
 

@@ -135,9 +135,12 @@ def users_trials(exp, trials=None) -> list:
 def _identifiability(problem, x):
     """The identifiability of a fit at ``x`` (None if the check cannot be made: a run's
     answer is never lost to it)."""
+    from evo_door.optim.feel_identifiability import feel_identifiability
     from evo_door.optim.identifiability import identifiability
 
     try:
+        if problem.objective.perceptual:
+            return feel_identifiability(problem, x)
         return identifiability(problem, x)
     except (UserError, ValueError, np.linalg.LinAlgError):
         return None
@@ -149,6 +152,8 @@ def _integration_error(setup, fit_x, validation_x):
     answer is never lost to it."""
     from evo_door.experiment.integration_error import estimate
 
+    if not setup.fit:  # a chosen feel alone: a curve, no integration
+        return None
     try:
         return estimate(setup, fit_x, validation_x)
     except (UserError, ValueError):

@@ -38,6 +38,8 @@ class Setup:
     start: dict = field(default_factory=dict)
     #: ``dopri5``'s tolerance per step; None: the model's (a run written before it was kept)
     tolerance: float | None = None
+    #: the chosen feel of the perceptual objective (:class:`~evo_door.perception.FeelTarget`)
+    feel: object = None
 
     @property
     def model(self):
@@ -60,6 +62,7 @@ class Setup:
             self.substeps,
             self.model_name,  # a pickled problem finds its model by it (executors)
             self.tolerance,
+            self.feel,
         )
 
     def refined(self) -> Setup:
@@ -221,7 +224,12 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
 
     model = get_model(exp.model)
     spec = exp.target
-    if trials is not None:
+    feel = _feel(exp, model)
+    if spec.kind == "curve":
+        all_trials, source = [], spec.curve
+    elif spec.kind == "model" and spec.inputs is None:
+        all_trials, source = [], f"target.model {spec.model}"
+    elif trials is not None:
         all_trials, source = list(trials), "the trials given"
     elif spec.kind == "data":
         from evo_door.data.io import read_trials
@@ -234,7 +242,12 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
     else:
         all_trials, source = _model_target_trials(spec), "the inputs of target.model"
     all_trials = _unique_ids(all_trials, source)
-    fit, validation = _select(all_trials, spec, spec.locs["trials"], spec.locs["validate"], source)
+    if all_trials:
+        fit, validation = _select(
+            all_trials, spec, spec.locs["trials"], spec.locs["validate"], source
+        )
+    else:  # a chosen feel alone (the perceptual objective): nothing to select
+        fit, validation = [], []
     if spec.preprocess.active:
         where = spec.locs.get("preprocess", spec.locs["trials"])
         fit = [_preprocessed(tr, spec.preprocess, where) for tr in fit]
@@ -266,4 +279,35 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         substeps=exp.substeps,
         start=dict(exp.algorithm.start),
         tolerance=exp.tolerance,
+        feel=feel,
+    )
+
+
+def _feel(exp, model):
+    """The chosen feel of a perceptual objective: the curve file's, or the target
+    model's (its Coulomb curve and its felt dynamics); None for another objective."""
+    from evo_door.perception import FeelTarget, read_curve_csv
+
+    if not exp.objective.perceptual:
+        return None
+    spec = exp.target
+    jnd = exp.jnd()
+    closed = float(model.theta_range[1])
+    if spec.kind == "curve":
+        try:
+            curve = read_curve_csv(spec.curve)
+            return FeelTarget(curve, jnd, closed=closed)
+        except UserError as exc:
+            raise UserError(f"{spec.locs['curve']}: target.curve: {exc}") from None
+    from evo_door.models import get_model
+
+    target_model = get_model(spec.model)
+    try:
+        params = target_model.load_params(spec.params, spec.set)
+    except UserError as exc:
+        raise UserError(
+            f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: {exc}"
+        ) from None
+    return FeelTarget.from_model(
+        target_model, params, jnd, source=f"{spec.model} model", closed=closed
     )

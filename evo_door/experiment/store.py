@@ -262,7 +262,48 @@ def setup_tree(setup) -> dict:
         "base": np.asarray(setup.base, dtype=np.float64),
         "lower": np.asarray(setup.lower, dtype=np.float64),
         "upper": np.asarray(setup.upper, dtype=np.float64),
+        **({"feel": feel_tree(setup.feel)} if setup.feel is not None else {}),
     }
+
+
+def feel_tree(feel) -> dict:
+    """The chosen feel of a perceptual objective: its curve (rad, N) and its settings."""
+    return {
+        ATTRS: {
+            "source": feel.curve.source,
+            "origin": json.dumps(feel.curve.origin),
+            "jnd": json.dumps(feel.jnd.as_dict()),
+            "dynamics": json.dumps(feel.dynamics),
+            "closed": feel.closed,
+            "latch_zone": feel.latch_zone,
+            "peak_weight": feel.peak_weight,
+        },
+        "theta": feel.curve.theta,
+        "opening": feel.curve.opening,
+        "closing": feel.curve.closing,
+    }
+
+
+def feel_from_tree(node: dict):
+    from evo_door.perception import JND, FeelCurve, FeelTarget
+
+    a = node[ATTRS]
+    curve = FeelCurve(
+        np.array(node["theta"]),
+        np.array(node["opening"]),
+        np.array(node["closing"]),
+        source=str(a["source"]),
+        origin=json.loads(a["origin"]),
+    )
+    dynamics = json.loads(a["dynamics"])
+    return FeelTarget(
+        curve,
+        JND.from_mapping(json.loads(a["jnd"])),
+        dynamics=tuple(dynamics) if dynamics is not None else None,
+        closed=float(a["closed"]),
+        latch_zone=float(a["latch_zone"]),
+        peak_weight=float(a["peak_weight"]),
+    )
 
 
 _TRIAL_FIELDS = (
@@ -351,6 +392,7 @@ def setup_from_tree(tree: dict):
         substeps=int(a["substeps"]),
         start=dict(a.get("start") or {}),
         tolerance=a.get("tolerance"),  # None: written before it was kept (the model's)
+        feel=feel_from_tree(s["feel"]) if "feel" in s else None,
     )
 
 

@@ -35,6 +35,7 @@ from evo_door.models.haptic_params import (  # noqa: F401 (re-exported)
     DECLARATION,
     DEVICE_OFFSET_Y,
     DEVICE_OFFSET_Z,
+    N_BALANCE,
     N_SECTIONS,
     PARAMS,
 )
@@ -47,6 +48,7 @@ FRICTION_CLOSING = PARAMS.index("friction_closing")
 FRICTION_OPENING = PARAMS.index("friction_opening")
 FRICTION_SCALE_1 = PARAMS.index("friction_scale_1")
 VISCOUS_DAMPING = PARAMS.index("viscous_damping")
+BALANCE_1 = PARAMS.index("balance_1")
 RETURN_STIFFNESS = PARAMS.index("return_stiffness")
 RETURN_ANGLE = PARAMS.index("return_angle")
 RETURN_ONSET = PARAMS.index("return_onset")
@@ -78,6 +80,7 @@ LATCH_GATE_SLOPE = PARAMS.index("latch_gate_slope")
 assert all(
     PARAMS.index(f"friction_scale_{k + 1}") == FRICTION_SCALE_1 + k for k in range(N_SECTIONS)
 )
+assert all(PARAMS.index(f"balance_{k + 1}") == BALANCE_1 + k for k in range(N_BALANCE))
 
 
 # ---------------------------------------------------------------------------------
@@ -166,6 +169,27 @@ def section_scale(theta, p):
     return scale
 
 
+@njit(cache=True, inline="always")
+def balance(theta, p):
+    """B(theta): the door's own push at rest (N, + toward closing), what weight and
+    springs give a real door over its whole stroke.
+
+    Linear between the nine values balance_1..balance_9 set at the section boundaries
+    theta_j = j pi/16 (0 to pi/2), held at the end values beyond them. All zero
+    (the default) is no force. Conservative: it depends on the angle alone, so it
+    shifts the opening and the closing curve alike, where a friction moves them apart.
+    """
+    width = CLOSED / N_SECTIONS
+    u = theta / width
+    if u <= 0.0:
+        return p[BALANCE_1]
+    if u >= N_SECTIONS:
+        return p[BALANCE_1 + N_SECTIONS]
+    j = min(int(u), N_SECTIONS - 1)
+    w = u - j
+    return (1.0 - w) * p[BALANCE_1 + j] + w * p[BALANCE_1 + j + 1]
+
+
 # ---------------------------------------------------------------------------------
 # The tangential force law: the whole feel, top to bottom
 # ---------------------------------------------------------------------------------
@@ -214,7 +238,7 @@ def tangential_force_law(theta, dtheta, p, sign_law):
     (where its equations say otherwise: ``docs/conventions.md``). Every effect
     is switched off by a zero: frictions, viscous_damping, return_stiffness,
     open_force and close_force (both zero: no latch at all), open_hold, close_hold,
-    seat_force, gasket_stiffness, transition_damping, stop_stiffness.
+    the nine balance values, seat_force, gasket_stiffness, transition_damping, stop_stiffness.
     """
     # long: the sum of the seed's phases (section 4.3.3) in the order the text gives
     # them, each a few lines under its equation; one compiled function the kernels call
@@ -226,6 +250,10 @@ def tangential_force_law(theta, dtheta, p, sign_law):
 
     # 2. Viscous friction (eq. 4.42):  F_v = -c_v dtheta
     f -= p[VISCOUS_DAMPING] * dtheta
+
+    # 2b. The balance: the door's own push at rest over the stroke (weight, springs),
+    #     linear between its nine angles (not in the seed: docs/haptic-model.md)
+    f += balance(theta, p)
 
     # 3. Return spring above its onset (eq. 4.43):
     #      F_ret = -k_ret (theta - theta_k) S(theta, theta_on)

@@ -14,6 +14,8 @@ from evo_door.params import Param, ParamTable
 
 #: Number of angular sections of the friction scale (eq. 4.48 / 5.8), over [0, pi/2].
 N_SECTIONS = 8
+#: Number of angles at which the balance force is set: the section boundaries, 0 to pi/2.
+N_BALANCE = N_SECTIONS + 1
 #: Closed door angle (rad).
 CLOSED = 0.5 * math.pi
 #: Origin of the model frame in device coordinates is (0, -0.158, -0.138) m (eq. 4.2):
@@ -70,6 +72,20 @@ PARAMS = ParamTable(
                 symbol=f"A_{k}",
             )
             for k in range(1, N_SECTIONS + 1)
+        ],
+        *[
+            Param(
+                f"balance_{k}",
+                "N",
+                0.0,
+                -100.0,
+                100.0,
+                "sensation",
+                f"the door's own push at rest at {(k - 1) * 90 / N_SECTIONS:g} deg, + toward "
+                "closing (weight and springs); linear between the nine angles",
+                symbol=f"B_{k}",
+            )
+            for k in range(1, N_BALANCE + 1)
         ],
         Param(
             "viscous_damping",

@@ -23,17 +23,25 @@ from evo_door.sim.simulate import Response, simulate, tolerance_of
 
 #: How the per-trial objectives of one candidate are combined into its fitness.
 COMBINE = ("sum", "max", "mean")
+#: The objective kind that scores a feel against a chosen one in JND units
+#: (:mod:`evo_door.perception.target`), not a trial's response against its samples.
+PERCEPTUAL = "perceptual"
+#: Every objective kind: the trial kernels' and the perceptual one.
+OBJECTIVE_KINDS = (*KINDS, PERCEPTUAL)
 
 
 @dataclass(frozen=True)
 class Objective:
-    """Objective of eq. 5.3 (``max_square``) or 5.4 (``ise``) on derivative 0, 1 or 2.
+    """Objective of eq. 5.3 (``max_square``) or 5.4 (``ise``) on derivative 0, 1 or 2,
+    or the ``perceptual`` objective: the feel against a chosen one, in JND units.
 
     Parameters
     ----------
-    kind : {"max_square", "ise"}
+    kind : {"max_square", "ise", "perceptual"}
     derivative : {0, 1, 2}
-        0 angle (rad), 1 angular speed (rad/s), 2 angular acceleration (rad/s^2).
+        0 angle (rad), 1 angular speed (rad/s), 2 angular acceleration (rad/s^2): the
+        channel of the trial objectives (with ``perceptual``, those the run reports on
+        its trials beside the fitness, as ISE).
     combine : {"sum", "max", "mean"}
         How the objectives of several trials make one fitness.
     """
@@ -43,8 +51,8 @@ class Objective:
     combine: str = "sum"
 
     def __post_init__(self):
-        if self.kind not in KINDS:
-            raise ValueError(f"objective kind {self.kind!r} not in {tuple(KINDS)}")
+        if self.kind not in OBJECTIVE_KINDS:
+            raise ValueError(f"objective kind {self.kind!r} not in {OBJECTIVE_KINDS}")
         if self.derivative not in (0, 1, 2):
             raise ValueError(f"objective derivative {self.derivative!r} not in (0, 1, 2)")
         if self.combine not in COMBINE:
@@ -60,8 +68,19 @@ class Objective:
         """The fitness unit for an angle coordinate: ``(rad/s)^2 s`` for ISE on speed."""
         return self.unit_for("rad")
 
+    @property
+    def perceptual(self) -> bool:
+        return self.kind == PERCEPTUAL
+
+    @property
+    def trial_kind(self) -> str:
+        """The trial kernel's kind: this one's, or ISE beside a perceptual fitness."""
+        return "ise" if self.perceptual else self.kind
+
     def unit_for(self, theta_unit: str) -> str:
         """The fitness unit for a model whose coordinate is in ``theta_unit``."""
+        if self.perceptual:
+            return "JND^2"
         return f"({unit(self.channel, theta_unit)})^2" + (" s" if self.kind == "ise" else "")
 
     def combine_errors(self, errors: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -129,6 +148,10 @@ class Problem:
     method, substeps, tolerance :
         Integration scheme, sub-steps per sample and ``dopri5``'s tolerance (default:
         the model's).
+    feel : FeelTarget, optional
+        The chosen feel (:class:`~evo_door.perception.FeelTarget`): required by the
+        ``perceptual`` objective, which scores candidates against it alone; the
+        trials may then be none.
     model_name : str, optional
         What :func:`~evo_door.models.get_model` finds ``model`` by (a name, an import
         path or a file path), default ``model.name``. A problem is pickled with the
@@ -153,6 +176,7 @@ class Problem:
         substeps: int | None = None,
         model_name: str | None = None,
         tolerance: float | None = None,
+        feel=None,
     ):
         self.model = model
         self.model_name = model_name
@@ -170,8 +194,13 @@ class Problem:
         self.method_code = METHODS[self.method]
         self.substeps = int(substeps or model.substeps)
         self.tolerance = tolerance_of(model, tolerance)
+        self.feel = feel
+        if objective.perceptual and feel is None:
+            raise UserError(
+                "objective perceptual: needs a chosen feel (target: curve: FILE, or model:)"
+            )
         self.fit = TrialPack(trials, objective.derivative)
-        if len(self.fit) == 0:
+        if len(self.fit) == 0 and not objective.perceptual:
             raise UserError("no trial to fit")
         self.validation = TrialPack(validation, objective.derivative)
 
@@ -238,7 +267,7 @@ class Problem:
                 self.method_code,
                 self.tolerance,
                 self.objective.derivative,
-                KINDS[self.objective.kind],
+                KINDS[self.objective.trial_kind],
                 err,
                 ok,
             )
@@ -246,6 +275,12 @@ class Problem:
 
     def evaluate(self, X):
         """``(fitness, blown)`` per candidate; a blown-up candidate has fitness inf."""
+        if self.objective.perceptual:
+            X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+            self.check_bounds(X)
+            f = self.feel.evaluate(self.model, self.full(X))
+            blown = ~np.isfinite(f) | (f >= 1e12)
+            return np.where(blown, np.inf, f), blown
         err, ok = self.trial_errors(X)
         blown = ~ok.all(axis=1)
         return self.objective.combine_errors(err, ok), blown
@@ -301,4 +336,5 @@ class Problem:
             self.substeps,
             self.model_name,
             self.tolerance,
+            self.feel,
         )

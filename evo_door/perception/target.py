@@ -1,0 +1,202 @@
+"""The chosen feel as a fitting target: the perceptual objective.
+
+A mechanism's parameters are scored by how far its feel is from the chosen one, in
+units of the just-noticeable difference (JND), as a user would judge it:
+
+- **the stroke**: on a grid of the angles below the latch zone, the difference of the
+  force-angle curves (Coulomb level, :func:`~evo_door.sim.simulate.hold_forces`) of
+  each stroke divided by the force JND of the chosen force, squared, averaged over the
+  angle range and over both strokes;
+- **the latch peaks**: in the latch zone (the last ``latch_zone`` rad before closed,
+  sampled densely enough to resolve a catch a few thousandths of a radian wide), the
+  largest pull of the opening stroke and the largest push of the closing stroke,
+  each against its own force JND, squared, times ``peak_weight``;
+- **the dynamics**, where the chosen feel has them (a model, not a bare curve): the
+  mean felt inertia (the force per angular acceleration at the handle) and viscous
+  damping (the force per angular speed beyond the dry friction, between half and the
+  whole of :attr:`JND.speed`) over the stroke, each against its JND, squared.
+
+The objective is the sum: 0 is the chosen feel, 1 is a difference of one JND
+everywhere. :meth:`FeelTarget.residuals` gives the terms as a vector whose squares sum
+to it (for the identifiability check and for local polish).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.perception.feel import DIRECTIONS, FeelCurve
+from evo_door.perception.jnd import JND
+
+#: rad before closed where the latch is compared by its peaks (3 deg)
+LATCH_ZONE = math.radians(3.0)
+#: spacing of the latch zone's grid (rad): a catch rises over about 1e-3 rad
+LATCH_SPACING = 2e-5
+#: points of the stroke's grid below the latch zone
+STROKE_POINTS = 361
+#: points of the stroke at which the felt inertia and damping are averaged
+DYNAMICS_POINTS = 33
+#: weight of each latch peak's squared JND difference: a peak one JND off counts as the
+#: whole stroke one JND off (a latch is felt as one event)
+PEAK_WEIGHT = 1.0
+
+
+@dataclass
+class FeelTarget:
+    """A chosen feel and how a mechanism is scored against it (module docstring)."""
+
+    curve: FeelCurve
+    jnd: JND = field(default_factory=JND)
+    #: (inertia kg m, damping N s/rad) felt on the chosen feel, None for a bare curve
+    dynamics: tuple[float, float] | None = None
+    closed: float = 0.5 * math.pi
+    latch_zone: float = LATCH_ZONE
+    peak_weight: float = PEAK_WEIGHT
+
+    def __post_init__(self):
+        lo = float(self.curve.theta[0])
+        edge = self.closed - self.latch_zone
+        if edge <= lo:
+            raise UserError(
+                f"{self.curve.source}: the curve must reach below {math.degrees(edge):.1f} deg"
+            )
+        stroke = np.linspace(lo, edge, STROKE_POINTS)
+        self.stroke = np.union1d(stroke, self.curve.theta[(self.curve.theta < edge)])
+        w = np.zeros(self.stroke.size)
+        h = np.diff(self.stroke)
+        w[:-1] += h / 2
+        w[1:] += h / 2
+        self.weights = w / (self.stroke[-1] - self.stroke[0])
+        hi = min(self.closed, float(self.curve.theta[-1]))
+        n = max(2, int(math.ceil((hi - edge) / LATCH_SPACING)) + 1)
+        self.latch = np.union1d(
+            np.linspace(edge, hi, n), self.curve.theta[self.curve.theta >= edge]
+        )
+        self.dyn_grid = np.linspace(lo, edge, DYNAMICS_POINTS)
+        self.chosen = {d: self.curve.force(d, self.stroke) for d in DIRECTIONS}
+        self.threshold = {d: self.jnd.force_threshold(self.chosen[d]) for d in DIRECTIONS}
+        latch = {d: self.curve.force(d, self.latch) for d in DIRECTIONS}
+        self.peaks = {
+            "opening": float(latch["opening"].min()),
+            "closing": float(latch["closing"].max()),
+        }
+        self.peak_threshold = {d: self.jnd.force_threshold(v) for d, v in self.peaks.items()}
+
+    # -- from a model ----------------------------------------------------------------
+    @classmethod
+    def from_model(
+        cls, model, params, jnd: JND | None = None, source: str = "", closed: float | None = None
+    ) -> FeelTarget:
+        """The feel of ``model`` with ``params``: its Coulomb curve and its dynamics.
+        ``closed`` (rad): where the latch zone ends, default the model's closed angle."""
+        from evo_door.params import param_vector
+        from evo_door.perception.feel import model_curve
+
+        jnd = jnd or JND()
+        closed = float(model.theta_range[1]) if closed is None else closed
+        curve = model_curve(model, params, source)
+        probe = cls(curve, jnd, closed=closed)
+        p = param_vector(params, model.params)
+        return cls(curve, jnd, dynamics=probe.felt_dynamics(model, p), closed=closed)
+
+    # -- the mechanism's side ----------------------------------------------------------
+    def felt_dynamics(self, model, p) -> tuple[float, float]:
+        """Mean felt inertia (kg m) and viscous damping (N s/rad) of ``model`` at ``p``
+        over the stroke (module docstring)."""
+        from evo_door.sim.simulate import hold_forces
+
+        theta = self.dyn_grid
+        v = self.jnd.speed
+        inertia = []
+        for th in theta:
+            a0 = model.accel(float(th), -0.5 * v, 0.0, p)
+            a1 = model.accel(float(th), -0.5 * v, 1.0, p)
+            inertia.append(1.0 / (a1 - a0))
+        damping = 0.0
+        for s in (-1.0, 1.0):
+            half = hold_forces(model, p, theta, 0.5 * s * v)
+            full = hold_forces(model, p, theta, s * v)
+            damping += float(np.mean((full - half) / (0.5 * s * v)))
+        return float(np.mean(inertia)), 0.5 * damping
+
+    def residuals(self, model, p) -> np.ndarray:
+        """The objective's terms as a vector whose squares sum to :meth:`value`."""
+        from evo_door.sim.simulate import COULOMB_SPEED, hold_forces
+
+        pc = _coulomb(model, p)
+        parts = []
+        for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
+            f = hold_forces(model, pc, self.stroke, s * COULOMB_SPEED)
+            parts.append(np.sqrt(0.5 * self.weights) * (f - self.chosen[d]) / self.threshold[d])
+        w = math.sqrt(self.peak_weight)
+        for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
+            f = hold_forces(model, pc, self.latch, s * COULOMB_SPEED)
+            peak = f.min() if d == "opening" else f.max()
+            parts.append(np.array([w * (peak - self.peaks[d]) / self.peak_threshold[d]]))
+        if self.dynamics is not None:
+            inertia, damping = self.felt_dynamics(model, np.asarray(p, dtype=np.float64))
+            ti, tc = self.dynamics
+            parts.append(
+                np.array(
+                    [
+                        (inertia - ti) / self.jnd.inertia_threshold(ti),
+                        (damping - tc) / self.jnd.damping_threshold(tc),
+                    ]
+                )
+            )
+        r = np.concatenate(parts)
+        return np.where(np.isfinite(r), r, 1e6)
+
+    def value(self, model, p) -> float:
+        """The perceptual objective of one parameter vector (JND units, squared)."""
+        r = self.residuals(model, p)
+        return float(np.dot(r, r))
+
+    def evaluate(self, model, P) -> np.ndarray:
+        """:meth:`value` of every row of the full parameter matrix ``P``."""
+        P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+        return np.array([self.value(model, np.ascontiguousarray(row)) for row in P])
+
+    def describe(self) -> dict:
+        """What a results file keeps of it (the chosen curve, the settings)."""
+        out = {
+            "source": self.curve.source,
+            "origin": dict(self.curve.origin),
+            "jnd": self.jnd.as_dict(),
+            "latch_zone_rad": self.latch_zone,
+            "peak_weight": self.peak_weight,
+            "peaks_N": dict(self.peaks),
+        }
+        if self.dynamics is not None:
+            out["inertia_kg_m"], out["damping_N_s_per_rad"] = self.dynamics
+        return out
+
+
+def _coulomb(model, p) -> np.ndarray:
+    """``p`` with every non-zero speed sensitivity sent to the Coulomb limit."""
+    from evo_door.sim.simulate import COULOMB_SENSITIVITY
+
+    index = _sensitivity_index(model)
+    q = np.array(p, dtype=np.float64)
+    if index.size:
+        nz = index[q[index] != 0.0]
+        q[nz] = COULOMB_SENSITIVITY
+    return q
+
+
+_SENSITIVITY_CACHE: dict[str, np.ndarray] = {}
+
+
+def _sensitivity_index(model) -> np.ndarray:
+    from evo_door.sim.simulate import speed_sensitivities
+
+    key = model.name
+    if key not in _SENSITIVITY_CACHE:
+        _SENSITIVITY_CACHE[key] = np.array(
+            [model.params.index(n) for n in speed_sensitivities(model)], dtype=np.int64
+        )
+    return _SENSITIVITY_CACHE[key]
