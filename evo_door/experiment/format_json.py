@@ -178,6 +178,7 @@ def _run_entry(res: Results, params: list[str]) -> dict:
         "objective": res.config["objective"],
         "fitness": finite(res.fitness()),
         "fitness_unit": res.fitness_unit,
+        "trial_error_unit": res.trial_error_unit,
         "best_meaning": b.meaning if b is not None and b.meaning is not None else "best so far",
         "params": entry,
         "fit_errors": {k: finite(v) for k, v in (b.fit_errors if b else {}).items()},

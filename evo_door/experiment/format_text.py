@@ -68,7 +68,7 @@ def format_show(res: Results) -> str:
     """The human-readable ``evo-door show``: head, per-trial table, answer, errors."""
     s = res.summary()
     lines = _show_head(res, s) + _show_per_trial(res, s) + _show_best(res, s)
-    funit = s["fitness_unit"]
+    funit = s.get("trial_error_unit", s["fitness_unit"])
     if s.get("fit_errors"):
         lines.append(
             f"fit error per trial in {funit}: "

@@ -336,7 +336,7 @@ def estimate(setup, fit_x, validation_x) -> IntegrationError:
         refined_tolerance=float(refined.tolerance),
         channel=setup.objective.channel,
         theta_unit=model.theta_unit,
-        fitness_unit=setup.objective.unit_for(model.theta_unit),
+        fitness_unit=setup.objective.trial_objective.unit_for(model.theta_unit),
         trial_ids=[r["trial_id"] for r in rows],
         roles=[r["role"] for r in rows],
         ok=np.array([r["ok"] for r in rows], dtype=bool),

@@ -143,6 +143,12 @@ def objective_unit(obj: dict, model_name: str = "") -> str:
     return objective.unit_for(theta_unit_of(model_name)) if model_name else objective.unit
 
 
+def trial_error_unit(obj: dict, model_name: str = "") -> str:
+    """The unit of a run's errors per trial (ISE's beside a perceptual fitness)."""
+    objective = Objective(obj["kind"], obj["derivative"], obj["combine"]).trial_objective
+    return objective.unit_for(theta_unit_of(model_name)) if model_name else objective.unit
+
+
 def objective_text(obj: dict) -> str:
     """``ise on dtheta`` (the compared channel says the derivative in the user's terms)."""
     return f"{obj['kind']} on {Objective(obj['kind'], obj['derivative']).channel}"
@@ -213,6 +219,10 @@ class Results:
     @property
     def fitness_unit(self) -> str:
         return objective_unit(self.config["objective"], self.attrs["model"])
+
+    @property
+    def trial_error_unit(self) -> str:
+        return trial_error_unit(self.config["objective"], self.attrs["model"])
 
     def jobs(self) -> list[dict]:
         """Each job's stored group whole (populations included), in job order."""
@@ -315,6 +325,7 @@ class Results:
             "truth": self.truth(),
             "fitness": finite(self.fitness()),
             "fitness_unit": self.fitness_unit,
+            "trial_error_unit": self.trial_error_unit,
             "fixed": cfg.get("fixed", {}),
             "free": cfg.get("free", {}),
             "objective": cfg["objective"],

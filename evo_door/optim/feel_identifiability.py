@@ -6,8 +6,10 @@ in JND units, whose squares sum to the perceptual objective, so the interval of 
 specification is how far it can move, the others following as best they can, before
 the feel changes by one JND (the objective rises by 1): ``sqrt(diag (J^T J)^-1)`` of
 that residual's Jacobian ``J`` at the estimate. A specification whose interval is wider
-than ``max_relative_ci`` of its value is one the feel does not determine: it is *not
-identifiable*, and a specification built from the feel keeps its value of the product
+than ``max_relative_ci`` of its value (:data:`FEEL_MAX_RELATIVE_CI`, 25 %: with force
+JNDs of 7-10 %, a latch force is pinned by its peak to about +-10-15 % at one JND, and
+one that may move by a quarter of its value unnoticed is not set by the feel) is one the
+feel does not determine: it is *not identifiable*, and a specification built from the feel keeps its value of the product
 it starts from (``kept``). Singular directions and parameters without sensitivity
 (the mass, on a static curve without dynamics) are found as for trials
 (:func:`~evo_door.optim.covariance.covariance`).
@@ -23,7 +25,6 @@ import numpy as np
 from evo_door.optim.covariance import MAX_CONDITION, MIN_SENSITIVITY, covariance
 from evo_door.optim.identifiability import (
     MAX_CORRELATION,
-    MAX_RELATIVE_CI,
     Identifiability,
     _bound_note,
     _partners,
@@ -33,6 +34,8 @@ from evo_door.optim.sensitivity import check_estimate
 
 #: finite-difference step, as a fraction of each search range (central differences)
 FEEL_STEP = 1e-4
+#: the widest 1-JND interval, relative to the value, of a specification the feel sets
+FEEL_MAX_RELATIVE_CI = 0.25
 
 
 def feel_identifiability(
@@ -40,7 +43,7 @@ def feel_identifiability(
     x,
     step: float = FEEL_STEP,
     max_correlation: float = MAX_CORRELATION,
-    max_relative_ci: float = MAX_RELATIVE_CI,
+    max_relative_ci: float = FEEL_MAX_RELATIVE_CI,
 ) -> Identifiability:
     """Identifiability of ``problem``'s free parameters at ``x`` against its chosen feel
     (``problem.feel``, the perceptual objective): intervals of one JND (module docstring)."""

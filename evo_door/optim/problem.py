@@ -77,6 +77,11 @@ class Objective:
         """The trial kernel's kind: this one's, or ISE beside a perceptual fitness."""
         return "ise" if self.perceptual else self.kind
 
+    @property
+    def trial_objective(self) -> Objective:
+        """The objective the trials are scored by (ISE beside a perceptual fitness)."""
+        return Objective(self.trial_kind, self.derivative, self.combine)
+
     def unit_for(self, theta_unit: str) -> str:
         """The fitness unit for a model whose coordinate is in ``theta_unit``."""
         if self.perceptual:
