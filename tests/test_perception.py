@@ -76,7 +76,10 @@ def test_a_curve_file_written_by_evo_door_curve_reads_back(tmp_path, capsys):
     "text, message",
     [
         ("theta,force\n0,1\n", "missing column(s) direction"),
-        ("theta,force,direction\n0,1,opening\n1,2,opening\n0,1,closing\n", "needs at least 2 closing"),
+        (
+            "theta,force,direction\n0,1,opening\n1,2,opening\n0,1,closing\n",
+            "needs at least 2 closing",
+        ),
         ("theta,force,direction\n0,x,opening\n", ":2: expected theta,force,direction"),
         ("theta,force,direction\n0,1,sideways\n", ":2: direction 'sideways'"),
         (
@@ -121,9 +124,7 @@ def test_balance_shifts_both_strokes_alike_and_is_linear_between_its_angles():
     base = {"friction_opening": 3.0, "friction_closing": 2.0, "open_force": 0.0}
     plain = force_angle_curve(HAPTIC, HAPTIC.load_params("seed_trial", base), n=181)
     values = {f"balance_{k}": 2.0 * k - 7.0 for k in range(1, 10)}
-    pushed = force_angle_curve(
-        HAPTIC, HAPTIC.load_params("seed_trial", {**base, **values}), n=181
-    )
+    pushed = force_angle_curve(HAPTIC, HAPTIC.load_params("seed_trial", {**base, **values}), n=181)
     theta = np.linspace(0.0, math.pi / 2 - 0.05, 50)
     nodes = np.linspace(0.0, math.pi / 2, 9)
     expected = np.interp(theta, nodes, list(values.values()))
@@ -222,7 +223,9 @@ algorithm: {population: 60, generations: 10, seed: 1, polish: slsqp, max_iterati
 def test_a_feel_made_from_a_door_is_reached_and_its_door_found(tmp_path, capsys):
     chosen = {"K": 340.0, "F_atD": 12.0, "unlock_force": 32.0}
     sets = [x for n, v in chosen.items() for x in ("--set", f"{n}={v}")]
-    res = cli(capsys, "curve", "door", "--params", "default", *sets, "--out", str(tmp_path / "feel.csv"))
+    res = cli(
+        capsys, "curve", "door", "--params", "default", *sets, "--out", str(tmp_path / "feel.csv")
+    )
     assert res.returncode == 0, res.stderr
     run = _run(tmp_path, SPEC_STAGE)
     truth = DOOR.load_params("default", chosen)

@@ -9,8 +9,8 @@ that residual's Jacobian ``J`` at the estimate. A specification whose interval i
 than ``max_relative_ci`` of its value (:data:`FEEL_MAX_RELATIVE_CI`, 25 %: with force
 JNDs of 7-10 %, a latch force is pinned by its peak to about +-10-15 % at one JND, and
 one that may move by a quarter of its value unnoticed is not set by the feel) is one the
-feel does not determine: it is *not identifiable*, and a specification built from the feel keeps its value of the product
-it starts from (``kept``). Singular directions and parameters without sensitivity
+feel does not determine: it is *not identifiable*, and a specification built from the
+feel keeps its value of the product it starts from (``kept``). Singular directions and parameters without sensitivity
 (the mass, on a static curve without dynamics) are found as for trials
 (:func:`~evo_door.optim.covariance.covariance`).
 """
