@@ -413,3 +413,18 @@ def test_quick_trial_section_measures_every_trial_and_draws_the_work_precision(t
     assert metrics["trial.door.workbench.error_theta"]["value"] < 1e-6
     # a smoke run replaces none of the latest figures
     assert [p.read_bytes() if p.exists() else None for p in latest] == before
+
+
+def test_the_case_study_page_takes_its_figures_from_the_benchmark(tmp_path):
+    from benchmarks.suite import GENERATED_BEGIN, GENERATED_END, replace_generated
+
+    doc = (ROOT / "docs" / "case-study.md").read_text()
+    assert doc.count(GENERATED_BEGIN) == 1 and doc.count(GENERATED_END) == 1
+    page = tmp_path / "page.md"
+    page.write_text(f"intro\n{GENERATED_BEGIN}\nold 87 s\n{GENERATED_END}\nafter\n")
+    replace_generated(page, "# title\n\nnew table 42 s\n")
+    assert page.read_text() == f"intro\n{GENERATED_BEGIN}\nnew table 42 s\n{GENERATED_END}\nafter\n"
+    bare = tmp_path / "bare.md"
+    bare.write_text("no markers\n")
+    with pytest.raises(RuntimeError, match="no generated block"):
+        replace_generated(bare, "# t\nx\n")
