@@ -106,31 +106,29 @@ def stage_figures(path: Path, stage: str) -> dict:
 
 
 def perceptual(path: Path, stages: list[str]) -> dict | None:
-    """The report's perceptual check (default JND) of the last mechanism stage fitted to
-    a chosen feel (the redesign's door, else the specification's), or None."""
+    """The perceptual check (each stage's own JND) of the last door stage fitted to a
+    chosen feel (the redesign's, else the specification's), as its results file holds
+    it, or None."""
     from evo_door.experiment import Results
-    from evo_door.experiment.report_case_study import Settings, _target_model, perceptual_check
-    from evo_door.sim.simulate import force_angle_curve
 
     fitted = [Results(path, s) for s in stages]
-    to_model = [r for r in fitted if _target_model(r) is not None and r.model.name == "door"]
-    if not to_model:
+    checked = [
+        r for r in fitted if r.record.perceptual_check is not None and r.attrs["model"] == "door"
+    ]
+    if not checked:
         return None
-    final = to_model[-1]
-    target_model, chosen = _target_model(final)
-    model = final.model
-    mech = model.load_params({n: v for n, v in final.values().items() if n in model.params})
-    check = perceptual_check(
-        force_angle_curve(model, mech), force_angle_curve(target_model, chosen), Settings()
-    )
+    final = checked[-1]
+    check = final.record.perceptual_check
+    assert check is not None  # (checked holds only the stages with one)
+    judged = check.judged()
     out = {"stage": final.stage}
-    for d, c in check.items():
-        angle, diff, thr = c["worst"]
+    for d in ("opening", "closing"):
+        c = judged[d]
         out[d] = {
-            "fraction_pct": 100.0 * c["fraction"],
-            "worst_n": diff,
-            "worst_deg": math.degrees(angle),
-            "jnd_n": thr,
+            "fraction_pct": 100.0 * c["fraction_beyond_jnd"],
+            "worst_n": c["worst"]["difference_N"],
+            "worst_deg": c["worst"]["angle_deg"],
+            "jnd_n": c["worst"]["jnd_N"],
         }
     return out
 

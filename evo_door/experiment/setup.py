@@ -225,6 +225,7 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
     model = get_model(exp.model)
     spec = exp.target
     feel = _feel(exp, model)
+    all_trials: list[Trial]
     if spec.kind == "curve":
         all_trials, source = [], spec.curve
     elif spec.kind == "model" and spec.inputs is None:
