@@ -108,28 +108,21 @@ def stage_figures(path: Path, stage: str) -> dict:
 
 
 def perceptual(path: Path, stages: list[str]) -> list[dict]:
-    """The perceptual check of every stage fitted to a chosen feel (its results file's
-    ``setup/feel``: the haptic model against the door, the specification and the
-    redesign against the chosen feel), each at its own JND settings."""
+    """The perceptual check of every stage fitted to a chosen feel, as its results file
+    holds it (the haptic model against the door, the specification and the redesign
+    against the chosen feel), each at its own JND settings."""
     from evo_door.experiment import Results
-    from evo_door.experiment.store import feel_from_tree
-    from evo_door.perception import check_verdict, model_curve, perceptual_check
 
     out = []
     for stage in stages:
         res = Results(path, stage)
-        node = res.tree.get("setup", {}).get("feel")
-        if node is None or not res.complete:
+        check = res.record.perceptual_check
+        if check is None or not res.complete:
             continue
-        feel = feel_from_tree(node)
-        model = res.model
-        values = model.load_params({n: v for n, v in res.values().items() if n in model.params})
-        check = check_verdict(
-            perceptual_check(model_curve(model, values), feel.curve, feel.jnd), feel.jnd
-        )
-        row = {"stage": stage, "chosen": feel.curve.source, "jnd": feel.jnd.as_dict()}
+        judged = check.judged()
+        row = {"stage": stage, "chosen": judged["chosen"], "jnd": judged["jnd"]}
         for d in ("opening", "closing"):
-            c = check[d]
+            c = judged[d]
             row[d] = {
                 "fraction_pct": 100.0 * c["fraction_beyond_jnd"],
                 "worst_n": c["worst"]["difference_N"],

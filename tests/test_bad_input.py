@@ -71,6 +71,10 @@ def ws(tmp_path_factory):
     (w / "exp.yaml").write_text(EXPERIMENT)
     (w / "rig.yaml").write_text(RIG_EXPERIMENT)
     (w / "rig-bad.yaml").write_text(RIG_EXPERIMENT.replace("users: 2", "users: abc"))
+    # a bad JND setting on its own line, below the perception: key
+    (w / "perception.yaml").write_text(
+        EXPERIMENT + "perception:\n  force_floor: 0.5\n  force: 1.5\n"
+    )
     exp = load_experiment(w / "exp.yaml", ["algorithm.generations=2", "algorithm.polish=none"])
     run_experiment(exp, out=w / "run.h5")
     t = np.arange(64) / 1024
@@ -250,6 +254,22 @@ CASES = {
     "run: simulation tolerance not a number": (
         "run {w}/exp.yaml --set simulation.tolerance=tight --out {w}/r.h5",
         "simulation.tolerance: expected a finite number, got 'tight'",
+    ),
+    "run: perception, a Weber fraction of 1.5": (
+        "run {w}/perception.yaml --out {w}/r.h5",
+        "perception.yaml:{line}: perception.force: a Weber fraction below 1 (0.1 is 10 %), got 1.5",
+    ),
+    "run: perception, a force floor of 0": (
+        "run {w}/exp.yaml --set perception.force_floor=0 --out {w}/r.h5",
+        "perception.force_floor: must be > 0, got 0",
+    ),
+    "run: perception, an unknown setting": (
+        "run {w}/exp.yaml --set perception.forse=0.1 --out {w}/r.h5",
+        "perception.forse: unknown key (did you mean 'force'",
+    ),
+    "run: perception, not a mapping": (
+        "run {w}/exp.yaml --set perception=3 --out {w}/r.h5",
+        "perception: expected a mapping of JND settings",
     ),
     "run: population beyond memory": (
         "run {w}/exp.yaml --set algorithm.population=1e9 --out {w}/r.h5",
@@ -534,6 +554,8 @@ def test_every_command_refuses_bad_input_in_one_line(case, ws, tmp_path, capsys)
     command, names = CASES[case]
     ro = _readonly_folder(tmp_path)
     before = snapshot(ws)
+    line = (ws / "perception.yaml").read_text().splitlines().index("  force: 1.5") + 1
+    names = names.format(line=line) if "{line}" in names else names
     args = command.format(w=ws, ro=ro).split()
     res = cli(capsys, *args)
     assert res.returncode == 2, (res.returncode, res.stderr)

@@ -8,8 +8,8 @@ import pytest
 
 from evo_door.errors import UserError
 from evo_door.experiment.pipeline import PipelineRun, load_pipeline
-from evo_door.experiment.report import Settings, write_report
-from evo_door.experiment.report_case_study import perceptual_check
+from evo_door.experiment.report import JNDChanges, write_report
+from evo_door.perception import JND, perceptual_check
 from tests.test_cli import cli
 from tests.test_pipeline import PIPELINE, folder  # noqa: F401  (the fixture)
 
@@ -49,7 +49,7 @@ def test_the_perceptual_check_finds_the_angles_beyond_the_jnd():
         "opening": (chosen["opening"] * scale)[::2],
         "closing": (chosen["closing"] * scale)[::2],
     }
-    check = perceptual_check(mech, chosen, Settings(jnd=0.10))
+    check = perceptual_check(mech, chosen, JND(force=0.10))
     for d in ("opening", "closing"):
         c = check[d]
         assert len(c["bands"]) == 1
@@ -57,16 +57,21 @@ def test_the_perceptual_check_finds_the_angles_beyond_the_jnd():
         assert lo == pytest.approx(0.5, abs=0.011) and hi == pytest.approx(0.8, abs=0.011)
         assert c["fraction"] == pytest.approx(0.3 / 1.5, abs=0.02)
         assert abs(c["worst"][1]) == pytest.approx(1.0)  # 20 % of 5 N
-    # a looser JND passes everywhere; below the floor the JND is the floor's
-    assert not perceptual_check(mech, chosen, Settings(jnd=0.25))["opening"]["fails"].any()
+    # a looser JND passes everywhere; below the floor the JND is the floor, an absolute
+    # 0.5 N (not 10 % of it): 0.45 N off a 0.1 N force passes, 0.55 N does not
+    assert not perceptual_check(mech, chosen, JND(force=0.25))["opening"]["fails"].any()
     small = {"theta": theta, "opening": 0 * theta - 0.1, "closing": 0 * theta + 0.1}
-    near = {"theta": theta, "opening": 0 * theta - 0.15, "closing": 0 * theta + 0.15}
-    assert not perceptual_check(near, small, Settings())["closing"]["fails"].any()
+    near = {"theta": theta, "opening": 0 * theta - 0.55, "closing": 0 * theta + 0.55}
+    far = {"theta": theta, "opening": 0 * theta - 0.65, "closing": 0 * theta + 0.65}
+    assert not perceptual_check(near, small, JND())["closing"]["fails"].any()
+    assert perceptual_check(far, small, JND())["closing"]["fails"].all()
 
 
 def test_bad_settings_and_unfinished_runs_are_refused(pipeline_file, tmp_path):
     with pytest.raises(UserError, match="--jnd 1.5"):
-        write_report(pipeline_file, tmp_path / "a", Settings(jnd=1.5))
+        write_report(pipeline_file, tmp_path / "a", JNDChanges(jnd=1.5))
+    with pytest.raises(UserError, match="--force-floor 0"):
+        write_report(pipeline_file, tmp_path / "a", JNDChanges(force_floor=0.0))
     (tmp_path / "afile").write_text("x")
     with pytest.raises(UserError, match="not a folder"):
         write_report(pipeline_file, tmp_path / "afile")
@@ -83,3 +88,11 @@ def test_the_pipeline_file_sets_the_jnd_and_the_command_line_wins(folder, tmp_pa
     summary = pipeline_summary(path)
     assert pipeline_settings(path, summary).jnd == 0.2
     assert pipeline_settings(path, summary, jnd=0.05).jnd == 0.05
+    # no report: key and no flag: each run's own perception settings are kept
+    assert pipeline_settings(path, None) == JNDChanges()
+    # the pipeline's report.jnd replaces the force fraction of the stages' own JND,
+    # the floor stays theirs
+    from evo_door.perception import JND
+
+    changes = pipeline_settings(path, summary, force_floor=2.0)
+    assert changes.apply(JND()) == JND(force=0.2, force_floor=2.0)

@@ -6,11 +6,12 @@ import sys
 
 ORDER = 47
 
-#: The report's defaults (``DEFAULT_JND``, ``FORCE_FLOOR`` N of
-#: :mod:`evo_door.experiment.report`), for the help only, written out so that the parser
-#: does not import the experiment package (tests/test_cli_startup.py checks they agree).
+#: The force JND's defaults (``DEFAULT_JND``, ``FORCE_FLOOR`` N of
+#: :mod:`evo_door.experiment.report`, the :class:`~evo_door.perception.JND`'s), for the help
+#: only, written out so that the parser does not import the experiment package
+#: (tests/test_cli_startup.py checks they agree).
 DEFAULT_JND = 0.10
-FORCE_FLOOR = 1.0
+FORCE_FLOOR = 0.5
 
 
 def register(sub) -> None:
@@ -26,15 +27,16 @@ def register(sub) -> None:
     p.add_argument(
         "--jnd",
         type=float,
-        help="force just-noticeable difference, a fraction (default: the pipeline file's "
-        f"report.jnd, else {DEFAULT_JND:g})",
+        help="force just-noticeable difference, a fraction, for every perceptual check "
+        "(default: the pipeline file's report.jnd, else each run's perception.force, "
+        f"by default {DEFAULT_JND:g})",
     )
     p.add_argument(
         "--force-floor",
         type=float,
         metavar="N",
-        help="below this force the JND is taken of it (default: the pipeline file's "
-        f"report.force_floor, else {FORCE_FLOOR:g} N)",
+        help="the smallest force JND, N (default: the pipeline file's report.force_floor, "
+        f"else each run's perception.force_floor, by default {FORCE_FLOOR:g} N)",
     )
     p.set_defaults(func=run)
 

@@ -162,11 +162,13 @@ def perception_setting(r: _Reader) -> dict:
     p = _Reader(node, "perception", r.node.where("perception"))
     names = list(JND().as_dict())
     p.check_keys(tuple(names))
-    values = {k: p.number(k, None, lo=0.0, open_lo=True) for k in node}
-    try:
-        JND.from_mapping(values)
-    except UserError as exc:
-        raise UserError(f"{r.node.where('perception')}: {exc}") from None
+    values = {}
+    for k in node:  # each setting checked alone, so that its error names its own line
+        values[k] = p.number(k, None, lo=0.0, open_lo=True)
+        try:
+            JND.from_mapping({k: values[k]})
+        except UserError as exc:
+            raise p.fail(k, f"{str(exc).split(': ', 1)[-1]}, got {values[k]:g}") from None
     return values
 
 

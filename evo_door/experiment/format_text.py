@@ -82,6 +82,8 @@ def format_show(res: Results) -> str:
     lines += format_channel_errors(s.get("channel_errors") or {})
     if "integration_error" in s:  # a complete run: recorded or not
         lines += format_integration_error(s["integration_error"])
+    if "perceptual_check" in s:
+        lines += format_perceptual_check(s["perceptual_check"])
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
     return "\n".join(lines)
@@ -250,6 +252,31 @@ def format_integration_error(entry: dict | None) -> list[str]:
         )
     if entry["warning"]:
         lines.append(f"warning: {entry['warning']}")
+    return lines
+
+
+def format_perceptual_check(entry: dict) -> list[str]:
+    """``show``'s lines of the perceptual check (``summary()``'s ``perceptual_check``):
+    the JND it is judged by, then per stroke the verdict, the share of the stroke beyond
+    the JND and the largest difference, with the angles where the JND is exceeded."""
+    jnd = entry["jnd"]
+    pass_pct = 100 * entry["pass_fraction"]
+    lines = [
+        f"perceptual check: {entry['mechanism']} against the chosen feel, {entry['chosen']}"
+        + ("" if entry.get("recorded", True) else " (computed on reading: not in the file)"),
+        f"  force JND {100 * jnd['force']:g} % of the chosen force, at least "
+        f"{jnd['force_floor']:g} N; a stroke passes with {pass_pct:g} % of it within the JND",
+    ]
+    for d in ("opening", "closing"):
+        c = entry[d]
+        w = c["worst"]
+        bands = ", ".join(f"{a:.1f}..{b:.1f}" for a, b in c["bands_deg"][:6])
+        more = f" (+{len(c['bands_deg']) - 6} more)" if len(c["bands_deg"]) > 6 else ""
+        lines.append(
+            f"  {d:<8} {c['verdict']:<15} {100 * c['fraction_beyond_jnd']:5.1f} % of the stroke "
+            f"beyond the JND; largest {w['difference_N']:+.2f} N at {w['angle_deg']:.2f} deg "
+            f"(JND {w['jnd_N']:.2f} N)" + (f"; beyond at {bands}{more} deg" if bands else "")
+        )
     return lines
 
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.experiment.feel_check import FeelCheck, try_feel_check
 from evo_door.experiment.integration_error import IntegrationError
 from evo_door.files import ATTRS, read_attrs, read_group
 
@@ -148,7 +149,10 @@ class RunRecord:
     ``config`` the resolved experiment; ``sources`` says which earlier stage a pipeline
     stage's ``{from: STAGE}`` took (``params``, ``target.params``).
     ``integration_error`` is the answer's integration error (``integration_error/``), None
-    where it is not recorded (a run not finished, or written before it was estimated). ``tree`` is the raw
+    where it is not recorded (a run not finished, or written before it was estimated).
+    ``perceptual_check`` is the answer's perceptual check against the chosen feel
+    (``perceptual_check/``; for a file written before the group existed, computed on a
+    full read), None for a run not fitted to a chosen feel or not finished. ``tree`` is the raw
     layout, kept for code that rebuilds a run's setup from it
     (:func:`store.setup_from_tree`); None when read with ``arrays=False``.
     """
@@ -168,6 +172,7 @@ class RunRecord:
     trials: list[StoredTrial] = field(default_factory=list)
     tree: dict | None = None
     integration_error: IntegrationError | None = None
+    perceptual_check: FeelCheck | None = None
 
     @property
     def complete(self) -> bool:
@@ -263,7 +268,7 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
     tree = read_group(g) if arrays else None
     node = tree if arrays else _Light(g)
     experiment = node["experiment"]
-    return RunRecord(
+    record = RunRecord(
         path=path,
         stage=stage,
         attrs=node[ATTRS],
@@ -285,6 +290,8 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
         tree=tree,
         integration_error=_integration_error(node),
     )
+    record.perceptual_check = _perceptual_check(node, record)
+    return record
 
 
 def _integration_error(node) -> IntegrationError | None:
@@ -292,6 +299,27 @@ def _integration_error(node) -> IntegrationError | None:
     if "integration_error" not in node:
         return None
     return IntegrationError.from_tree(node["integration_error"])
+
+
+def _perceptual_check(node, record: RunRecord) -> FeelCheck | None:
+    """``perceptual_check/``; where the file has none, computed for a complete run fitted
+    to a chosen feel when the arrays are read (``arrays=False`` reads stay cheap)."""
+    if "perceptual_check" in node:
+        return FeelCheck.from_tree(node["perceptual_check"])
+    if record.tree is None or not record.complete or "best" not in node:
+        return None
+    from evo_door.experiment.feel_check import fitted_to_feel
+    from evo_door.models import get_model
+
+    if not fitted_to_feel(record.config):
+        return None
+    try:
+        model = get_model(record.attrs["model"])
+    except UserError:  # a user model file moved away: nothing to compute with
+        return None
+    setup = node["setup"]
+    feel = store.feel_from_tree(setup["feel"]) if "feel" in setup else None
+    return try_feel_check(model, node["best"]["full"], record.config, feel, recorded=False)
 
 
 class _Light:

@@ -25,27 +25,31 @@ from evo_door.experiment.figures import plot_convergence, plot_fit
 from evo_door.experiment.format_text import format_integration_error
 from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
-from evo_door.experiment.report_case_study import (
+from evo_door.experiment.report_case_study import _case_study
+from evo_door.experiment.report_feel import (
     DEFAULT_JND,
     FORCE_FLOOR,
-    Settings,
-    _case_study,
+    JNDChanges,
+    perceptual_section,
 )
 from evo_door.experiment.results import Results
 from evo_door.experiment.spec import spec_table, table_html
 from evo_door.files import save_figure, write_text
 
+__all__ = ["DEFAULT_JND", "FORCE_FLOOR", "JNDChanges", "pipeline_settings", "write_report"]
 
-def pipeline_settings(path, pipeline=None, jnd=None, force_floor=None) -> Settings:
-    """The report's settings: the command line's, else the pipeline file's ``report:``,
-    else the defaults. ``path`` is the results file or its record (read once)."""
+
+def pipeline_settings(path, pipeline=None, jnd=None, force_floor=None) -> JNDChanges:
+    """The report's changes to each run's JND (the run's ``perception:`` settings): the
+    command line's, else the pipeline file's ``report:``, else none. ``path`` is the
+    results file or its record (read once)."""
     stored = {}
     if pipeline is not None:
         record = path if isinstance(path, PipelineRecord) else read_results(path)
         stored = record.report
-    return Settings(
-        jnd if jnd is not None else stored.get("jnd", DEFAULT_JND),
-        force_floor if force_floor is not None else stored.get("force_floor", FORCE_FLOOR),
+    return JNDChanges(
+        jnd if jnd is not None else stored.get("jnd"),
+        force_floor if force_floor is not None else stored.get("force_floor"),
     )
 
 
@@ -54,10 +58,11 @@ def default_folder(path) -> Path:
     return path.with_name(path.stem + "-report")
 
 
-def write_report(path, out=None, settings: Settings | None = None, log=None) -> Path:
+def write_report(path, out=None, settings: JNDChanges | None = None, log=None) -> Path:
     """Write the report of the results file ``path`` (or its record, read once by
     :func:`~.reader.read_results`) into the folder ``out`` (default ``<RUN>-report/``
-    next to it); returns the HTML file."""
+    next to it); returns the HTML file. ``settings`` changes the JND every perceptual
+    check is judged by (default: the pipeline file's ``report:``, else the runs' own)."""
     from evo_door.experiment.pipeline import pipeline_summary
 
     t0 = time.perf_counter()
@@ -78,7 +83,7 @@ def write_report(path, out=None, settings: Settings | None = None, log=None) -> 
     for res in results:
         if log:
             log(f"report: {res.stage or name}")
-        _run_section(page, res)
+        _run_section(page, res, settings)
     if pipeline:
         _case_study(page, results, settings)
     page.p(_made_by(results[0].record.provenance.versions, time.perf_counter() - t0), "small")
@@ -129,7 +134,7 @@ def _made_by(v: dict, seconds: float) -> str:
 
 
 # -- one run -----------------------------------------------------------------------------
-def _run_section(page: _Page, res: Results) -> None:
+def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
     label = res.stage or res.attrs.get("name", "run")
     key = res.stage or "run"
     page.h(2, f"{'Stage ' if res.stage else 'Run '}{label}", f"stage-{key}")
@@ -152,7 +157,10 @@ def _run_section(page: _Page, res: Results) -> None:
         lambda p: plot_convergence(res, p),
         f"{label}: best and mean fitness per generation",
     )
-    page.figure(f"{key}-fit", lambda p: plot_fit(res, p), f"{label}: best response against target")
+    if res.responses():  # a run fitted to a feel alone (a curve) has no trial to draw
+        page.figure(
+            f"{key}-fit", lambda p: plot_fit(res, p), f"{label}: best response against target"
+        )
     errors = s.get("channel_errors") or {}
     if errors:
         first = next(iter(errors.values()))
@@ -167,6 +175,7 @@ def _run_section(page: _Page, res: Results) -> None:
             rows.append(row)
         page.table(header, rows, f"{label}: error of {first['channel']} per trial, model - target")
     _integration_error(page, s.get("integration_error"))
+    perceptual_section(page, res, changes, key)
     page.raw(table_html(spec_table(res)))
     ident = res.identifiability()
     if ident is not None:

@@ -6,13 +6,11 @@ found by what the stages do rather than by their names:
 - a stage fitting ``per_trial`` with a range (the *physical* stage): seed figure 5.2,
   each trial with its own best fit and the responses at the minimum and the maximum of
   the per-trial range;
-- a stage fitting a mechanism to another model (the *specification*): the force-angle
-  curves of the specified mechanism against the chosen haptic behaviour, and the
-  **perceptual check**: over the stroke, where does the mechanism's force differ from
-  the chosen behaviour's by more than a force just-noticeable difference (JND, default
-  10 %, relative to the larger of the chosen force and a floor of 1 N, below which a
-  relative threshold means nothing)? The seed names this as the open risk of its
-  method;
+- every stage fitted to a chosen feel: a table of its **perceptual check** (does its
+  answer feel like the chosen feel, within the force just-noticeable difference?), one
+  row per stage, each naming its stage; the check itself, with its figure, is in the
+  stage's own section (:mod:`.report_feel`). The seed names this as the open risk of
+  its method;
 - a later stage of the same target freeing the pad-friction sections (the
   *redesign*): the A(theta) chart (seed figure 5.6) and constant against variable
   friction on the target (seed figure 5.7), with the numbers.
@@ -21,32 +19,14 @@ found by what the stages do rather than by their names:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
-from evo_door.errors import UserError
 from evo_door.experiment.page import Page as _Page  # the name the sections use
+from evo_door.experiment.report_feel import JNDChanges
 from evo_door.experiment.results import Results
 from evo_door.files import save_figure
-
-#: a force JND: the relative difference of force a hand notices (Weber fraction)
-DEFAULT_JND = 0.10
-#: below this force (N) the JND is taken of this force: 10 % of 0 N is no threshold
-FORCE_FLOOR = 1.0
-
-
-@dataclass
-class Settings:
-    jnd: float = DEFAULT_JND
-    force_floor: float = FORCE_FLOOR
-
-    def check(self) -> Settings:
-        if not (0.0 < self.jnd < 1.0):
-            raise UserError(f"--jnd {self.jnd:g}: a fraction between 0 and 1 (0.1 is 10 %)")
-        if not (self.force_floor > 0.0 and math.isfinite(self.force_floor)):
-            raise UserError(f"--force-floor {self.force_floor:g}: a force above 0 N")
-        return self
+from evo_door.perception.feel import DIRECTIONS
 
 
 # -- the case study --------------------------------------------------------------------
@@ -65,7 +45,7 @@ def _target_model(res: Results):
     return model, model.load_params(t.get("params"), t.get("set") or {})
 
 
-def _case_study(page: _Page, results: list[Results], settings: Settings) -> None:
+def _case_study(page: _Page, results: list[Results], changes: JNDChanges) -> None:
     page.h(2, "The case study", "case-study")
     physical = [r for r in results if r.complete and "table" in r.summary()]
     for res in physical[:1]:
@@ -84,15 +64,49 @@ def _case_study(page: _Page, results: list[Results], settings: Settings) -> None
         and _target_model(r) is not None
         and any(n.startswith("friction_scale_") for n in r.free)
     ]
-    if not spec:
-        page.p("no stage fits a mechanism to a chosen behaviour: no perceptual check")
-        return
-    chosen_res = spec[-1]
-    final = redesign[-1] if redesign else chosen_res
-    _perceptual_check(page, chosen_res, final, settings)
-    if redesign:
+    _perceptual_summary(page, results, changes)
+    if spec and redesign:
         _a_of_theta(page, redesign[-1])
-        _constant_vs_variable(page, chosen_res, redesign[-1])
+        _constant_vs_variable(page, spec[-1], redesign[-1])
+
+
+def _perceptual_summary(page: _Page, results: list[Results], changes: JNDChanges) -> None:
+    """One row per stage fitted to a chosen feel: its verdict per stroke, and whether
+    its answer passes; the checks themselves are in the stages' sections."""
+    rows = []
+    for res in results:
+        fc = res.record.perceptual_check
+        if not res.complete or fc is None:
+            continue
+        judged = fc.judged(changes.apply(fc.jnd))
+        rows.append(
+            [
+                res.stage or "run",
+                fc.mechanism.source,
+                fc.chosen.source,
+                *(
+                    f"{judged[d]['verdict']} ({100 * judged[d]['fraction_beyond_jnd']:.1f} %)"
+                    for d in DIRECTIONS
+                ),
+                "passes" if judged["passes"] else "noticeable",
+            ]
+        )
+    page.h(3, "Perceptual checks: each stage's answer against its chosen feel")
+    if not rows:
+        page.p("no stage is fitted to a chosen feel: no perceptual check")
+        return
+    page.table(
+        [
+            "stage",
+            "answer",
+            "chosen feel",
+            "opening (stroke beyond the JND)",
+            "closing (stroke beyond the JND)",
+            "verdict",
+        ],
+        rows,
+        "perceptual check per stage (figures and angles in each stage's section)",
+    )
 
 
 def _trial_response(res: Results, node, values: dict):
@@ -173,178 +187,6 @@ def _figure_5_2(page: _Page, res: Results) -> None:
         "each trial with its own best fit and the responses at the minimum and the "
         "maximum of the per-trial range (seed table 5.3)",
     )
-
-
-def perceptual_check(mech_curve: dict, chosen_curve: dict, settings: Settings) -> dict:
-    """Where the mechanism's force-angle curve differs from the chosen one by more than
-    a JND; both curves on the union of their grids (each is linear between its points).
-
-    Returns per direction (``opening``, ``closing``): ``theta`` (rad), ``mechanism``,
-    ``chosen``, ``threshold`` (N), ``fails`` (bool per point), ``fraction`` of the
-    stroke failing, ``worst`` (angle rad, difference N, threshold N) and ``bands``
-    (failing angle intervals, rad).
-    """
-    theta = np.union1d(mech_curve["theta"], chosen_curve["theta"])
-    out = {}
-    for d in ("opening", "closing"):
-        fm = np.interp(theta, mech_curve["theta"], mech_curve[d])
-        fc = np.interp(theta, chosen_curve["theta"], chosen_curve[d])
-        threshold = settings.jnd * np.maximum(np.abs(fc), settings.force_floor)
-        diff = fm - fc
-        fails = np.abs(diff) > threshold
-        k = int(np.argmax(np.abs(diff) / threshold))
-        widths = np.diff(theta)
-        failing = np.sum(widths * (fails[:-1] & fails[1:]))
-        out[d] = {
-            "theta": theta,
-            "mechanism": fm,
-            "chosen": fc,
-            "threshold": threshold,
-            "fails": fails,
-            "fraction": float(failing / (theta[-1] - theta[0])),
-            "worst": (float(theta[k]), float(diff[k]), float(threshold[k])),
-            "bands": _bands(theta, fails),
-        }
-    return out
-
-
-def _bands(theta, fails) -> list[tuple[float, float]]:
-    """The runs of consecutive failing points as (first, last) angle intervals."""
-    f = np.concatenate([[False], np.asarray(fails, dtype=bool), [False]])
-    starts = np.flatnonzero(f[1:] & ~f[:-1])
-    ends = np.flatnonzero(~f[1:] & f[:-1]) - 1
-    return [(float(theta[a]), float(theta[b])) for a, b in zip(starts, ends)]
-
-
-def _perceptual_check(page: _Page, spec: Results, final: Results, settings: Settings) -> None:
-    target_model, curves, constant = _perceptual_curves(spec, final)
-    check = perceptual_check(curves["mechanism"], curves["chosen"], settings)
-    page.h(3, "Perceptual check: the specified mechanism against the chosen feel")
-    page.p(
-        f"Force-angle curves (Coulomb level, latch peaks resolved) of the mechanism of stage "
-        f"{final.stage} and of the chosen behaviour ({target_model.name} model, the target of "
-        f"stage {spec.stage}). A difference is noticeable where it exceeds {100 * settings.jnd:g} % "
-        f"of the chosen force, or of {settings.force_floor:g} N where that force is smaller."
-    )
-    page.table(
-        [
-            "direction",
-            "verdict",
-            "stroke beyond the JND",
-            "largest difference",
-            "angles beyond the JND [deg]",
-        ],
-        _perceptual_rows(check),
-        "perceptual check",
-    )
-    failing = any(c["fails"].any() for c in check.values())
-    page.p(
-        "The mechanism's force differs noticeably from the chosen feel at the angles above."
-        if failing
-        else "The mechanism's force stays within the JND of the chosen feel over the stroke.",
-        "fail" if failing else "pass",
-    )
-
-    def draw(path):
-        _perceptual_figure(path, check, settings, target_model.name, final, spec, constant)
-
-    page.figure(
-        "perceptual-check",
-        draw,
-        "force to move the door slowly, opening and closing, against angle; crosses "
-        "mark where the mechanism leaves the JND band of the chosen feel",
-    )
-
-
-def _perceptual_curves(spec: Results, final: Results):
-    """``(target model, {"mechanism", "chosen"} curves, constant)``: the force-angle
-    curves of the final stage's mechanism and of the chosen feel, and of the
-    specification stage's mechanism (constant friction) when the final stage is another
-    one (else None)."""
-    from evo_door.sim.simulate import force_angle_curve
-
-    target_model, chosen = _target_model(spec)
-    model = final.model
-    mech = model.load_params({n: v for n, v in final.values().items() if n in model.params})
-    curves = {
-        "mechanism": force_angle_curve(model, mech),
-        "chosen": force_angle_curve(target_model, chosen),
-    }
-    constant = None
-    if final is not spec:
-        p0 = model.load_params({n: v for n, v in spec.values().items() if n in model.params})
-        constant = force_angle_curve(model, p0)
-    return target_model, curves, constant
-
-
-def _perceptual_rows(check: dict) -> list[list]:
-    """One row per direction: verdict, share of the stroke and largest difference
-    beyond the JND, the angle bands where it is exceeded (the first 8)."""
-    rows = []
-    for d, c in check.items():
-        angle, diff, thr = c["worst"]
-        bands = ", ".join(
-            f"{math.degrees(a):.1f}..{math.degrees(b):.1f}" for a, b in c["bands"][:8]
-        )
-        more = f" (+{len(c['bands']) - 8} more)" if len(c["bands"]) > 8 else ""
-        rows.append(
-            [
-                d,
-                "noticeable" if c["fails"].any() else "within the JND",
-                f"{100 * c['fraction']:.1f} %",
-                f"{diff:+.2f} N at {math.degrees(angle):.2f} deg (JND {thr:.2f} N)",
-                (bands + more) or "-",
-            ]
-        )
-    return rows
-
-
-def _perceptual_figure(path, check, settings, target_name, final, spec, constant) -> None:
-    """The two panels (opening, closing): the chosen force with its JND band, the
-    mechanism's (crosses beyond the band), and the constant-friction one if any."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(11, 6.5), layout="constrained")
-    axes = fig.subplots(2, 1, sharex=True)
-    for ax, d in zip(axes, ("opening", "closing")):
-        c = check[d]
-        deg = np.degrees(c["theta"])
-        ax.fill_between(
-            deg,
-            c["chosen"] - c["threshold"],
-            c["chosen"] + c["threshold"],
-            color="0.85",
-            label=f"chosen +- JND ({100 * settings.jnd:g} %)",
-        )
-        ax.plot(deg, c["chosen"], color="k", lw=1.2, label=f"chosen ({target_name})")
-        ax.plot(
-            deg,
-            c["mechanism"],
-            color="tab:red",
-            lw=1.1,
-            ls="--",
-            label=f"mechanism (stage {final.stage})",
-        )
-        if constant is not None:
-            ax.plot(
-                np.degrees(constant["theta"]),
-                constant[d],
-                color="tab:blue",
-                lw=0.9,
-                ls=":",
-                label=f"constant friction (stage {spec.stage})",
-            )
-        bad = c["fails"]
-        ax.plot(deg[bad], c["mechanism"][bad], "x", color="tab:red", ms=3, label="beyond the JND")
-        ax.set_ylabel(f"{d} force [N]\n(+ toward closing)")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, ncol=2)
-    axes[1].set_xlabel("theta [deg] (0 open, 90 closed)")
-    fig.suptitle(
-        "force-angle curves: specified mechanism against the chosen haptic behaviour",
-        fontsize=10,
-    )
-    save_figure(fig, path, dpi=110)
 
 
 def _a_of_theta(page: _Page, res: Results) -> None:

@@ -356,6 +356,9 @@ class Results:
                 else self.record.integration_error.as_dict()
             ),
         }
+        check = self.record.perceptual_check
+        if check is not None:  # a run fitted to a chosen feel
+            out["perceptual_check"] = check.judged()
         ident = self.identifiability()
         if ident is not None:
             out["identifiability"] = ident.as_dict()

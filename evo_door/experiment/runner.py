@@ -38,6 +38,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.config import AlgorithmSpec
+from evo_door.experiment.feel_check import try_feel_check
 from evo_door.experiment.run_preflight import (
     _LOCKED,
     check_memory,
@@ -504,6 +505,8 @@ class ExperimentRun:
             ident = self.jobs[-1].identifiability
         t0 = time.perf_counter()
         integration = _integration_error(self.setup, self._fit_vectors(), best_x)
+        integration_s = time.perf_counter() - t0
+        check = try_feel_check(self.setup.model, full, self.config, self.setup.feel)
         return {
             "best_x": best_x,
             "best_fitness": best_fitness,
@@ -511,7 +514,8 @@ class ExperimentRun:
             "xs": xs,
             "identifiability": ident,
             "integration_error": integration,
-            "integration_error_s": time.perf_counter() - t0,
+            "integration_error_s": integration_s,
+            "perceptual_check": check,
         }
 
     def _fit_vectors(self) -> np.ndarray:

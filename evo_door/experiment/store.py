@@ -22,6 +22,9 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
                  theta_max, dtheta_max, channel_max, channel_rms, residual_rms, error,
                  error_refined, ok; @attrs: both settings, the overall values, units
                  (complete runs; :mod:`.integration_error`)
+    perceptual_check/  a run fitted to a chosen feel: mechanism/ and chosen/ (theta rad,
+                 opening, closing N: both force-angle curves); @attrs: jnd, pass_fraction,
+                 passes, verdict (complete runs; :mod:`.feel_check`)
 
 :func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
 file; the ``*_from_tree`` functions rebuild what a resumed run needs.
@@ -224,6 +227,8 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         if run.result.get("integration_error") is not None:
             tree["integration_error"] = run.result["integration_error"].to_tree()
             timing["integration_error_s"] = run.result["integration_error_s"]
+        if run.result.get("perceptual_check") is not None:
+            tree["perceptual_check"] = run.result["perceptual_check"].to_tree()
     return tree
 
 

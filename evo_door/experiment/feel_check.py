@@ -1,0 +1,174 @@
+"""The perceptual check of a run fitted to a chosen feel: made, stored, read back, judged.
+
+A run is *fitted to a chosen feel* when its objective is ``perceptual`` or its target
+is another model's behaviour (``target: {model: ...}``) or a force-angle curve
+(``target: {curve: FILE.csv}``). When such a run completes, the force-angle curve of
+its answer (the mechanism: the run's model with the best values, Coulomb level,
+latch peaks resolved) is compared with the chosen feel's curve in units of the force
+JND (:func:`evo_door.perception.perceptual_check`), and both curves are kept in the
+results file's ``perceptual_check`` group so that ``show`` and ``report`` judge and
+draw them without simulating again. A file written before the group existed has it
+computed on read (:mod:`.reader`).
+
+The JND is the run's own (its ``perception:`` settings, the defaults where it has
+none); :meth:`FeelCheck.judged` gives the verdict under another one (``report --jnd``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.files import ATTRS, Dataset
+from evo_door.perception import JND, FeelCurve, check_verdict, model_curve, perceptual_check
+from evo_door.perception.feel import DIRECTIONS, PASS_FRACTION
+
+#: the units of the settings and of the curves' datasets, as the file records them
+_CURVE_UNITS = {"theta": "rad", "opening": "N", "closing": "N"}
+
+
+@dataclass(frozen=True)
+class FeelCheck:
+    """A run's answer against the chosen feel: both curves and the JND they are judged by.
+
+    ``mechanism`` is the answer's force-angle curve, ``chosen`` the chosen feel's (their
+    ``source`` says what each is), ``jnd`` the run's JND settings; ``recorded`` says
+    whether the file holds the group (False: computed when the file was read).
+    """
+
+    mechanism: FeelCurve
+    chosen: FeelCurve
+    jnd: JND
+    pass_fraction: float = PASS_FRACTION
+    recorded: bool = True
+
+    def check(self, jnd: JND | None = None) -> dict:
+        """:func:`~evo_door.perception.perceptual_check` of the curves (arrays per point)."""
+        return perceptual_check(self.mechanism, self.chosen, jnd or self.jnd)
+
+    def judged(self, jnd: JND | None = None) -> dict:
+        """What ``show --json`` prints: per direction the share of the stroke beyond the
+        JND, the worst difference and the verdict; the JND settings and their units; the
+        sources of both curves. ``jnd`` judges it under other settings than the run's."""
+        jnd = jnd or self.jnd
+        out = check_verdict(self.check(jnd), jnd, self.pass_fraction)
+        out["jnd_units"] = dict(JND.UNITS)
+        out["mechanism"] = self.mechanism.source
+        out["chosen"] = self.chosen.source
+        out["recorded"] = self.recorded
+        return out
+
+    def to_tree(self) -> dict:
+        """The ``perceptual_check`` group: the verdict and the JND as attributes, each
+        curve as a group of datasets (``theta`` rad, ``opening`` and ``closing`` N)."""
+        verdict = self.judged()
+        return {
+            ATTRS: {
+                "jnd": json.dumps(self.jnd.as_dict()),
+                "pass_fraction": float(self.pass_fraction),
+                "passes": bool(verdict["passes"]),
+                "verdict": json.dumps({d: verdict[d] for d in DIRECTIONS}),
+            },
+            "mechanism": _curve_tree(self.mechanism),
+            "chosen": _curve_tree(self.chosen),
+        }
+
+    @classmethod
+    def from_tree(cls, node) -> FeelCheck:
+        """Read the group back (a tree, or a group read on demand)."""
+        a = node[ATTRS]
+        return cls(
+            mechanism=_curve_from_tree(node["mechanism"]),
+            chosen=_curve_from_tree(node["chosen"]),
+            jnd=JND.from_mapping(json.loads(a["jnd"])),
+            pass_fraction=float(a["pass_fraction"]),
+            recorded=True,
+        )
+
+
+def _curve_tree(curve: FeelCurve) -> dict:
+    return {
+        ATTRS: {"source": curve.source, "origin": json.dumps(curve.origin)},
+        **{
+            k: Dataset(np.asarray(v, dtype=np.float64), {"unit": _CURVE_UNITS[k]})
+            for k, v in curve.as_dict().items()
+        },
+    }
+
+
+def _curve_from_tree(node) -> FeelCurve:
+    a = node[ATTRS]
+    return FeelCurve(
+        np.asarray(node["theta"]),
+        np.asarray(node["opening"]),
+        np.asarray(node["closing"]),
+        source=str(a.get("source", "")),
+        origin=json.loads(a.get("origin") or "{}"),
+    )
+
+
+def fitted_to_feel(config: dict) -> bool:
+    """Whether a run (its resolved configuration) was fitted to a chosen feel."""
+    kind = (config.get("target") or {}).get("kind")
+    return config["objective"]["kind"] == "perceptual" or kind in ("model", "curve")
+
+
+def run_jnd(config: dict, feel=None) -> JND:
+    """The JND a run judges a feel by: its chosen feel's, else its ``perception``
+    settings (a file written before they were kept: the defaults)."""
+    if feel is not None:
+        return feel.jnd
+    return JND.from_mapping(config.get("perception") or {})
+
+
+def chosen_curve(config: dict, feel=None) -> FeelCurve:
+    """The chosen feel's curve: the one the run stored (``setup/feel``, the perceptual
+    objective's), else the target model's with its parameters, else the curve file."""
+    if feel is not None:
+        return feel.curve
+    target = config["target"]
+    if target.get("kind") == "curve":
+        from evo_door.perception import read_curve_csv
+
+        return read_curve_csv(target["curve"])
+    from evo_door.models import get_model
+
+    model = get_model(target["model"])
+    params = model.load_params(target.get("params"), target.get("set") or {})
+    return model_curve(model, params, source=f"{model.name} model (the target)")
+
+
+def feel_check(model, full, config: dict, feel=None, recorded: bool = True) -> FeelCheck | None:
+    """The perceptual check of ``model`` with the full parameter vector ``full`` against
+    the run's chosen feel; None for a run not fitted to one.
+
+    ``feel`` is the run's :class:`~evo_door.perception.FeelTarget` where it has one.
+    """
+    if not fitted_to_feel(config):
+        return None
+    mechanism = model_curve(
+        model, np.asarray(full, dtype=np.float64), source=f"{model.name} model (the answer)"
+    )
+    return FeelCheck(
+        mechanism, chosen_curve(config, feel), run_jnd(config, feel), recorded=recorded
+    )
+
+
+def try_feel_check(model, full, config: dict, feel=None, recorded: bool = True):
+    """:func:`feel_check`, or None where it cannot be made (a target model that no longer
+    loads, a curve file moved away, a curve that is not finite): a run's answer and a
+    file's other contents are never lost to it."""
+    try:
+        return feel_check(model, full, config, feel, recorded)
+    except (UserError, ValueError, KeyError):
+        return None
+
+
+def with_jnd(check: FeelCheck, **settings) -> JND:
+    """The check's JND with some settings replaced (``force``, ``force_floor``...);
+    a bad value is the JND's one-line error."""
+    given = {k: float(v) for k, v in settings.items() if v is not None}
+    return replace(check.jnd, **given) if given else check.jnd

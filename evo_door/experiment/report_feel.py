@@ -1,0 +1,161 @@
+"""The report's perceptual check, per stage: the stage's own answer against its chosen feel.
+
+Every run (every stage of a pipeline) fitted to a chosen feel gets this section in its
+own part of the page: the table ``show`` prints (verdict per stroke, share of the
+stroke beyond the JND, the largest difference, the angles beyond it) and the figure of
+both force-angle curves with the chosen one's JND band. The curves are the results
+file's (:mod:`.feel_check`), so nothing is simulated again; the JND is the run's own
+``perception`` settings, with the report's changes (``--jnd``, ``--force-floor``, a
+pipeline file's ``report:``) applied on top (:class:`JNDChanges`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.experiment.page import Page as _Page  # the name the sections use
+from evo_door.experiment.results import Results
+from evo_door.files import save_figure
+from evo_door.perception import JND
+from evo_door.perception.feel import DIRECTIONS
+
+#: the defaults of the force JND, for the help of ``evo-door report`` (the JND's own)
+DEFAULT_JND = JND().force
+FORCE_FLOOR = JND().force_floor
+
+
+@dataclass(frozen=True)
+class JNDChanges:
+    """The report's changes to each run's JND: the force Weber fraction ``jnd`` and the
+    ``force_floor`` (N); None keeps the run's own (its ``perception:`` settings)."""
+
+    jnd: float | None = None
+    force_floor: float | None = None
+
+    def check(self) -> JNDChanges:
+        if self.jnd is not None and not (0.0 < self.jnd < 1.0):
+            raise UserError(f"--jnd {self.jnd:g}: a fraction between 0 and 1 (0.1 is 10 %)")
+        if self.force_floor is not None and not (
+            self.force_floor > 0.0 and math.isfinite(self.force_floor)
+        ):
+            raise UserError(f"--force-floor {self.force_floor:g}: a force above 0 N")
+        return self
+
+    def apply(self, jnd: JND) -> JND:
+        """``jnd`` with these changes."""
+        given = {"force": self.jnd, "force_floor": self.force_floor}
+        return replace(jnd, **{k: float(v) for k, v in given.items() if v is not None})
+
+
+def stage_label(res: Results) -> str:
+    return f"stage {res.stage}" if res.stage else "the run"
+
+
+def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str) -> dict | None:
+    """The section of ``res``'s perceptual check (nothing for a run not fitted to a
+    chosen feel); returns the verdict shown (:meth:`FeelCheck.judged`), or None."""
+    fc = res.record.perceptual_check
+    if fc is None:
+        return None
+    jnd = changes.apply(fc.jnd)
+    check = fc.check(jnd)
+    judged = fc.judged(jnd)
+    label = stage_label(res)
+    page.h(3, f"Perceptual check of {label}: its answer against the chosen feel")
+    changed = "" if jnd == fc.jnd else " (changed for this report; the run's own differ)"
+    page.p(
+        f"Force-angle curves (Coulomb level, latch peaks resolved) of {fc.mechanism.source} "
+        f"of {label} and of the chosen feel ({fc.chosen.source}). A difference is noticeable "
+        f"where it exceeds {100 * jnd.force:g} % of the chosen force, or {jnd.force_floor:g} N "
+        f"where that is larger{changed}; a stroke passes with "
+        f"{100 * fc.pass_fraction:g} % of it within the JND."
+    )
+    page.table(
+        [
+            "direction",
+            "verdict",
+            "stroke beyond the JND",
+            "largest difference",
+            "angles beyond the JND [deg]",
+        ],
+        perceptual_rows(judged),
+        f"{label}: perceptual check",
+    )
+    page.p(
+        f"The answer of {label} feels like the chosen feel, within the JND."
+        if judged["passes"]
+        else f"The answer of {label} differs noticeably from the chosen feel at the angles above.",
+        "pass" if judged["passes"] else "fail",
+    )
+
+    def draw(path):
+        _figure(path, check, jnd, fc, label)
+
+    page.figure(
+        f"{key}-perceptual-check",
+        draw,
+        f"{label}: force to move the door slowly, opening and closing, against angle; "
+        "crosses mark where the answer leaves the JND band of the chosen feel",
+    )
+    return judged
+
+
+def perceptual_rows(judged: dict) -> list[list[str]]:
+    """One row per direction: verdict, share of the stroke and largest difference beyond
+    the JND, the angle bands where it is exceeded (the first 8)."""
+    rows = []
+    for d in DIRECTIONS:
+        c = judged[d]
+        w = c["worst"]
+        bands = ", ".join(f"{a:.1f}..{b:.1f}" for a, b in c["bands_deg"][:8])
+        more = f" (+{len(c['bands_deg']) - 8} more)" if len(c["bands_deg"]) > 8 else ""
+        rows.append(
+            [
+                d,
+                c["verdict"],
+                f"{100 * c['fraction_beyond_jnd']:.1f} %",
+                f"{w['difference_N']:+.2f} N at {w['angle_deg']:.2f} deg (JND {w['jnd_N']:.2f} N)",
+                (bands + more) or "-",
+            ]
+        )
+    return rows
+
+
+def _figure(path, check: dict, jnd: JND, fc, label: str) -> None:
+    """The two panels (opening, closing): the chosen force with its JND band and the
+    answer's, crosses where it leaves the band."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 6.5), layout="constrained")
+    axes = fig.subplots(2, 1, sharex=True)
+    for ax, d in zip(axes, DIRECTIONS):
+        c = check[d]
+        deg = np.degrees(c["theta"])
+        ax.fill_between(
+            deg,
+            c["chosen"] - c["threshold"],
+            c["chosen"] + c["threshold"],
+            color="0.85",
+            label=f"chosen +- JND ({100 * jnd.force:g} %, at least {jnd.force_floor:g} N)",
+        )
+        ax.plot(deg, c["chosen"], color="k", lw=1.2, label=f"chosen ({fc.chosen.source})")
+        ax.plot(
+            deg,
+            c["mechanism"],
+            color="tab:red",
+            lw=1.1,
+            ls="--",
+            label=f"{fc.mechanism.source}, {label}",
+        )
+        bad = c["fails"]
+        ax.plot(deg[bad], c["mechanism"][bad], "x", color="tab:red", ms=3, label="beyond the JND")
+        ax.set_ylabel(f"{d} force [N]\n(+ toward closing)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, ncol=2)
+    axes[1].set_xlabel("theta [deg] (0 open, 90 closed)")
+    fig.suptitle(f"{label}: force-angle curves, its answer against the chosen feel", fontsize=10)
+    save_figure(fig, path, dpi=110)
