@@ -131,10 +131,10 @@ def read_curve_csv(path) -> FeelCurve:
         if np.any(np.diff(a[:, 0]) <= 0):
             raise UserError(f"{path}: two {d} rows at one angle")
         arrays[d] = a
-    theta = np.union1d(arrays["opening"][:, 0], arrays["closing"][:, 0])
-    forces = {d: np.interp(theta, a[:, 0], a[:, 1]) for d, a in arrays.items()}
+    grid = np.union1d(arrays["opening"][:, 0], arrays["closing"][:, 0])
+    forces = {d: np.interp(grid, a[:, 0], a[:, 1]) for d, a in arrays.items()}
     return FeelCurve(
-        theta,
+        grid,
         forces["opening"],
         forces["closing"],
         source=str(path),
