@@ -180,6 +180,19 @@ def _check_perceptual(exp: Experiment) -> None:
             f"{exp.locs['objective']}: objective.kind perceptual: scores a feel against a "
             "chosen one; measured trials are not one (target: curve: FILE.csv, or model:)"
         )
+    if exp.algorithm.kind == "nsga2":
+        where = exp.locs["algorithm"]
+        if not exp.objective.perceptual:
+            raise UserError(
+                f"{where}: algorithm.kind nsga2: trades the perceptual error against the "
+                "change from the AS-IS door; it needs a chosen feel (target: curve: FILE.csv, "
+                "or model: without inputs; objective.kind perceptual)"
+            )
+        if exp.per_trial:
+            raise UserError(
+                f"{exp.locs['per_trial']}: per_trial: a chosen feel is one target; "
+                "algorithm.kind nsga2 makes one front of it (leave per_trial out)"
+            )
     if t.kind == "model" and t.inputs is None and not exp.objective.perceptual:
         raise UserError(
             f"{t.locs['model']}: target.inputs: required key missing (the input forces the "

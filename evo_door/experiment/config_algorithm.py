@@ -2,7 +2,8 @@
 
 The objective (max-square or ISE, on which derivative, how trials combine) and the
 algorithm: the GA's settings, the local method (SLSQP) as polish or alone (``nlpql``),
-and a start point.
+a start point, or NSGA-II on the GA's settings (``nsga2``: the smallest change within
+the JND, :mod:`evo_door.optim.smallest_change`) with its measure of change.
 """
 
 from __future__ import annotations
@@ -13,14 +14,18 @@ from evo_door.experiment.config_reader import _Reader
 from evo_door.optim.ga import GASettings
 from evo_door.optim.local import LocalSettings
 from evo_door.optim.problem import COMBINE, OBJECTIVE_KINDS, PERCEPTUAL, Objective
+from evo_door.optim.smallest_change import CHANGE_MEASURES
 from evo_door.params.declaration import suggest
 
 OBJECTIVE_KEYS = ("kind", "derivative", "combine")
 GA_KEYS = tuple(f.name for f in fields(GASettings))
 #: the SLSQP settings an experiment may set (the finite-difference step stays internal)
 LOCAL_KEYS = ("max_iterations", "ftol")
-ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, "start")
-ALGORITHM_KINDS = ("ga", "nlpql")
+ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, "start", "change")
+#: ``nsga2``: the perceptual error and the change from the AS-IS door, as a front
+ALGORITHM_KINDS = ("ga", "nlpql", "nsga2")
+#: the algorithms that breed a population (a GA's settings, checkpoints, executors)
+POPULATION_KINDS = ("ga", "nsga2")
 POLISH = ("none", "slsqp")
 
 
@@ -33,6 +38,20 @@ class AlgorithmSpec:
     polish: str = "none"
     local: LocalSettings = field(default_factory=LocalSettings)
     start: dict = field(default_factory=dict)
+    #: how ``nsga2`` measures the change from the AS-IS door (``CHANGE_MEASURES``)
+    change: str = "normalised"
+
+    @property
+    def population_based(self) -> bool:
+        """Whether a population is bred (GA or NSGA-II), with its checkpoints."""
+        return self.kind in POPULATION_KINDS
+
+    def search(self):
+        """The population search of this section: NSGA-II or the GA."""
+        from evo_door.optim.ga import GeneticAlgorithm
+        from evo_door.optim.nsga2 import NSGA2
+
+        return NSGA2(self.ga) if self.kind == "nsga2" else GeneticAlgorithm(self.ga)
 
     def resolved(self) -> dict:
         """The section as plain data, every default filled in (as results files store it)."""
@@ -42,6 +61,7 @@ class AlgorithmSpec:
             "polish": self.polish,
             **asdict(self.local),
             "start": dict(self.start),
+            "change": self.change,
         }
 
     @classmethod
@@ -56,6 +76,7 @@ class AlgorithmSpec:
                 **{f.name: data[f.name] for f in fields(LocalSettings) if f.name in data}
             ),
             start=dict(data.get("start") or {}),
+            change=str(data.get("change", "normalised")),
         )
 
 
@@ -92,8 +113,15 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
     start = a.get("start") or {}
     if not isinstance(start, dict):
         raise a.fail("start", "expected a mapping of free parameter names to start values")
+    if "change" in a.node and kind != "nsga2":
+        raise a.fail("change", f"measures the change of kind nsga2, not of kind {kind}")
     return AlgorithmSpec(
-        kind=kind, ga=ga, polish=polish, local=local, start={str(k): v for k, v in start.items()}
+        kind=kind,
+        ga=ga,
+        polish=polish,
+        local=local,
+        start={str(k): v for k, v in start.items()},
+        change=a.choice("change", CHANGE_MEASURES[0], CHANGE_MEASURES),
     )
 
 

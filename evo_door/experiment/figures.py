@@ -105,7 +105,11 @@ def plot_convergence(res: Results, path) -> None:
     jobs = [j for j in res.record.jobs if j.ga is not None and np.size(j.ga.logbook["gen"])]
     if not jobs:
         kind = res.config["algorithm"]["kind"]
-        why = "it has no genetic algorithm" if kind != "ga" else "no generation is finished yet"
+        why = (
+            "it has no genetic algorithm"
+            if kind not in ("ga", "nsga2")
+            else "no generation is finished yet"
+        )
         raise UserError(f"{res.path}: no convergence to plot: {why} (algorithm {kind})")
     fig = Figure(figsize=(7.5, 4.8), layout="constrained")
     ax = fig.subplots()

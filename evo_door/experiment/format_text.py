@@ -84,9 +84,56 @@ def format_show(res: Results) -> str:
         lines += format_integration_error(s["integration_error"])
     if "perceptual_check" in s:
         lines += format_perceptual_check(s["perceptual_check"])
+    if "smallest_change" in s:
+        lines += format_smallest_change(s)
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
     return "\n".join(lines)
+
+
+def format_smallest_change(s: dict) -> list[str]:
+    """``show``'s lines of an ``nsga2`` run: the front, the answer, the kept
+    specifications, the check; for an unreachable feel, the closest door and its miss."""
+    from evo_door.optim.smallest_change import miss_text
+
+    c = s["smallest_change"]
+    units = s["units"]
+    lines = [
+        "",
+        f"smallest change within the JND: front of {len(c['front'])} points "
+        f"(perceptual error JND^2, change {c['measure']}: mean |x - AS-IS| / search range)",
+    ]
+    if s["reachable"]:
+        start = f"front point {c['chosen']}" if c["chosen"] >= 0 else "the polished closest point"
+        lines.append(
+            f"  reachable: from {start}, error {c['error']:.4g} JND^2, change {c['change']:.4g}"
+            + (", polished" if c["polished"] else "")
+        )
+    else:
+        lines.append(
+            f"  ! unreachable: no door of the front passes the check; the closest door "
+            f"(least error, {c['error']:.4g} JND^2, change {c['change']:.4g}):"
+        )
+        lines += [f"    {n} = {v:.6g} {units.get(n, '')}".rstrip() for n, v in c["answer"].items()]
+        lines.append("  where it misses:")
+        lines += ["  " + line for line in miss_text(c["miss"])]
+    w = max(len(n) for n in c["answer"])
+    for n, v in c["answer"].items():
+        asis = c["asis"][n]
+        rel = f"{100 * (v - asis) / asis:+.2f} %" if asis else ""
+        mark = "kept (AS-IS)" if n in s["kept"] else f"changed {rel}"
+        lines.append(
+            f"  {n:<{w}}  {v:>14.8g} {units.get(n, ''):<8} AS-IS {asis:.8g}  {mark}".rstrip()
+        )
+    check = c["check"]
+    lines.append(
+        "  check: "
+        + "; ".join(
+            f"{d} {check[d]['verdict']} ({100 * check[d]['fraction_beyond_jnd']:.1f} % beyond)"
+            for d in ("opening", "closing")
+        )
+    )
+    return lines
 
 
 def _show_head(res: Results, s: dict) -> list[str]:
@@ -111,11 +158,13 @@ def _show_head(res: Results, s: dict) -> list[str]:
         (
             "  algorithm "
             + (
-                f"GA population {alg['population']} x {alg['generations']} "
+                f"{'GA' if alg['kind'] == 'ga' else 'NSGA-II'} population "
+                f"{alg['population']} x {alg['generations']} "
                 f"generations, reproduction {alg['reproduction_ratio']:g}, "
                 f"mutation p {alg['mutation_probability']:g} amplitude "
                 f"{alg['mutation_amplitude']:g}, polish {alg['polish']}"
-                if alg["kind"] == "ga"
+                + (f", change {alg.get('change')}" if alg["kind"] == "nsga2" else "")
+                if alg["kind"] in ("ga", "nsga2")
                 else f"nlpql (SLSQP), max {alg['max_iterations']} iterations"
             )
         ),

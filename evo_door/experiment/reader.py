@@ -25,6 +25,7 @@ from evo_door.experiment import store
 from evo_door.experiment.feel_check import FeelCheck, try_feel_check
 from evo_door.experiment.integration_error import IntegrationError
 from evo_door.files import ATTRS, read_attrs, read_group
+from evo_door.optim.smallest_change import SmallestChange
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,8 @@ class Job:
     ga_stop: str
     ga: GAState | None
     local_fitness: float | None  # after the SLSQP polish, where there was one
+    #: NSGA-II's front and the smallest change chosen from it (full reads of done jobs)
+    front: SmallestChange | None = None
 
 
 @dataclass(frozen=True)
@@ -380,7 +383,7 @@ def _job(j, arrays: bool) -> Job:
             blowups=int(ga_attrs["blowups"]),
             best_fitness=float(ga_attrs["best_fitness"]),
             hof_x=np.asarray(g["hof_x"]) if "hof_x" in g else np.zeros((0, 0)),
-            hof_fitness=np.asarray(g["hof_fitness"]) if "hof_fitness" in g else np.zeros(0),
+            hof_fitness=_first_objective(g["hof_fitness"]) if "hof_fitness" in g else np.zeros(0),
             logbook={k: v for k, v in g["logbook"].items() if k != ATTRS} if arrays else None,
         )
     local = None
@@ -392,7 +395,15 @@ def _job(j, arrays: bool) -> Job:
         ga_stop=a.get("ga_stop") or "",
         ga=ga,
         local_fitness=local,
+        front=SmallestChange.from_tree(j["front"]) if arrays and "front" in j else None,
     )
+
+
+def _first_objective(values) -> np.ndarray:
+    """A hall of fame's fitness; NSGA-II's archive keeps two objectives a point: its
+    first, the perceptual error, is the fitness a run is listed and compared by."""
+    values = np.asarray(values)
+    return values[:, 0] if values.ndim == 2 else values
 
 
 def _best(b, arrays: bool) -> Best:

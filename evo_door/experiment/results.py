@@ -25,6 +25,7 @@ import numpy as np
 from evo_door.channels import unit as channel_unit
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.experiment.config_algorithm import POPULATION_KINDS
 from evo_door.experiment.reader import Response, RunRecord, read_run
 from evo_door.files import FileLock
 from evo_door.optim.bounds import bound_hits
@@ -78,7 +79,7 @@ def _where_stopped(attrs: dict, config: dict) -> str:
     jobs_done, jobs = _jobs(attrs)
     if jobs_done >= jobs:
         return "interrupted after the last fit, before the results were written"
-    if config["algorithm"]["kind"] != "ga":
+    if config["algorithm"]["kind"] not in POPULATION_KINDS:
         return f"interrupted after {jobs_done}/{jobs} fits done"
     # jobs run one after the other: the first one not done is the one stopped
     gen = done[jobs_done] if jobs_done < len(done) else -1
@@ -98,7 +99,7 @@ def progress_text(attrs: dict, config: dict) -> str:
     done = attrs.get("generations_done") or []
     total = attrs.get("generations", 0)
     jobs_done, jobs = _jobs(attrs)
-    if config["algorithm"]["kind"] != "ga":
+    if config["algorithm"]["kind"] not in POPULATION_KINDS:
         return f"{jobs_done}/{jobs} fits done"
     if jobs == 1 and len(done) <= 1:
         return f"{max(done[0], 0) if done else 0}/{total} gen"
@@ -297,7 +298,54 @@ class Results:
             out.update(self._answer())
         if self.record.per_trial is not None:
             out.update(self._per_trial())
+        front = self.smallest_change()
+        if front is not None:
+            out.update(self._smallest_change(front))
         return out
+
+    def smallest_change(self):
+        """NSGA-II's front and the smallest change chosen from it (a
+        :class:`~evo_door.optim.smallest_change.SmallestChange`), None for another run
+        or one not finished."""
+        fronts = [j.front for j in self.record.jobs if j.front is not None]
+        return fronts[-1] if fronts else None
+
+    def _smallest_change(self, front) -> dict:
+        """``show --json``'s keys of an ``nsga2`` run: ``reachable``, ``kept`` and the
+        ``smallest_change`` (the front, the chosen point, the check, a miss)."""
+        free = self.free
+        closest = dict(zip(free, map(float, front.front_x[front.closest])))
+        return {
+            "reachable": front.reachable,
+            "kept": list(front.kept),
+            "smallest_change": {
+                "measure": front.measure,
+                "change_unit": "1",
+                "error_unit": "JND^2",
+                "asis": dict(zip(free, map(float, front.asis))),
+                "answer": dict(zip(free, map(float, front.x))),
+                "error": front.error,
+                "change": front.change,
+                "chosen": front.chosen,
+                "closest": front.closest,
+                "closest_door": dict(zip(free, map(float, front.x)))
+                if not front.reachable
+                else None,
+                "closest_on_front": closest,
+                "polished": front.polished,
+                "check": front.check,
+                "miss": front.miss(),
+                "steps": list(front.steps),
+                "front": [
+                    {
+                        "values": dict(zip(free, map(float, x))),
+                        "error": float(f[0]),
+                        "change": float(f[1]),
+                    }
+                    for x, f in zip(front.front_x, front.front_f)
+                ],
+            },
+        }
 
     def _head(self) -> dict:
         """What every run has, finished or not: status, settings, best so far, cost."""

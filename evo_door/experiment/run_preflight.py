@@ -55,7 +55,7 @@ def check_memory(algorithm: AlgorithmSpec, n_free: int, available=None) -> int:
     says is available.
     """
     ga = algorithm.ga
-    if algorithm.kind != "ga":
+    if not algorithm.population_based:
         return 0
     # one job in memory at a time, per_trial or not
     history = (ga.generations + 1) * ga.population * (n_free + 1) * 8 * 2

@@ -45,14 +45,14 @@ from evo_door.experiment.run_preflight import (
     claim_output,
     default_output,
 )
-from evo_door.experiment.setup import Setup
+from evo_door.experiment.setup import Setup, users_trials
 from evo_door.files import ATTRS, FileLock, remove_stale_temporaries, write_h5
 from evo_door.optim.bounds import bound_hits
 from evo_door.optim.executors import DEFAULT as DEFAULT_EXECUTOR
 from evo_door.optim.executors import Executor, check_executor, open_executor
-from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
+from evo_door.optim.smallest_change import ChangeObjectives, SmallestChange, smallest_change_of
 
 #: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
 POOLED = "pooled"
@@ -78,6 +78,8 @@ class Job:
     validation_errors: np.ndarray = field(default_factory=lambda: np.zeros(0))
     seconds: float = 0.0
     identifiability: object = None  # Identifiability at best_x (optim.identifiability)
+    #: ``nsga2``: the front and the smallest change chosen from it (optim.smallest_change)
+    front: SmallestChange | None = None
 
 
 class _TermAsInterrupt:
@@ -108,29 +110,6 @@ class _TermAsInterrupt:
     def __exit__(self, *exc) -> None:
         if self._previous is not None:
             signal.signal(signal.SIGTERM, self._previous)
-
-
-def users_trials(exp, trials=None) -> list:
-    """The target's trials of the users ``target.users`` names (data targets)."""
-    spec = exp.target
-    where = spec.locs.get("users", spec.locs.get("trials", exp.source))
-    if trials is None:
-        if spec.kind != "data":
-            raise UserError(f"{where}: target.users: selects among a data file's trials")
-        from evo_door.data.io import read_trials
-
-        try:
-            trials = read_trials(spec.data)
-        except UserError as exc:
-            raise UserError(f"{spec.locs['data']}: target.data: {exc}") from None
-    present = sorted({str(tr.user_id) for tr in trials if tr.user_id})
-    for user in spec.users:
-        if user not in present:
-            raise UserError(
-                f"{where}: target.users: no trial of user {user!r}; users: "
-                + (", ".join(present) or "none (the trials carry no user id)")
-            )
-    return [tr for tr in trials if str(tr.user_id) in spec.users]
 
 
 def _identifiability(problem, x):
@@ -298,7 +277,7 @@ class ExperimentRun:
             root["created"],
             elapsed=float(tree["timings"][ATTRS].get("total_s", 0.0)),
         )
-        ga = GeneticAlgorithm(algorithm.ga)
+        ga = algorithm.search()
         stored = sorted(
             ((k, v) for k, v in tree["jobs"].items() if k != ATTRS), key=lambda kv: int(kv[0])
         )
@@ -320,6 +299,8 @@ class ExperimentRun:
                     job.local = store.local_from_tree(node["local"])
                 if "identifiability" in node:
                     job.identifiability = store.identifiability_from_tree(node["identifiability"])
+                if "front" in node:
+                    job.front = SmallestChange.from_tree(node["front"])
         # every job done but the final write (best, responses) missing: still running
         run.status = (
             "complete"
@@ -361,7 +342,7 @@ class ExperimentRun:
         """The executor of :meth:`run`: ``given`` if started, else one for this run."""
         if isinstance(given, Executor):
             return contextlib.nullcontext(given)
-        ga_left = self.algorithm.kind == "ga" and not all(j.done for j in self.jobs)
+        ga_left = self.algorithm.population_based and not all(j.done for j in self.jobs)
         ex = open_executor(self.executor if ga_left else DEFAULT_EXECUTOR)
         if progress and ex.name != DEFAULT_EXECUTOR:
             print(f"{self._label_root()}: starting executor {ex.name} ...", file=sys.stderr)
@@ -382,10 +363,15 @@ class ExperimentRun:
                 continue
             t0 = time.perf_counter()
             problem = self.setup.problem(job.trials)
-            if self.algorithm.kind == "ga":
+            if self.algorithm.population_based:
                 self._run_ga(job, problem, progress)
             x = job.ga.best_x if job.ga is not None else self.setup.start_vector()
-            if self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":
+            if self.algorithm.kind == "nsga2":
+                job.front = smallest_change_of(
+                    problem, job.ga, self.algorithm.polish == "slsqp", self.algorithm.local
+                )
+                x, job.best_fitness = job.front.x, job.front.error
+            elif self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":
                 if progress:
                     print(
                         f"{self._label(job)}: SLSQP from fitness "
@@ -440,8 +426,10 @@ class ExperimentRun:
         )
 
     def _run_ga(self, job: Job, problem, progress: bool) -> None:
-        """The GA's one loop, with this run's hooks: progress, checkpoint, early stop."""
+        """The GA's (or NSGA-II's) one loop, with this run's hooks: progress,
+        checkpoint, early stop."""
         settings = self.algorithm.ga
+        search = self.algorithm.search()
 
         def checkpoint(state):
             job.ga = state
@@ -461,11 +449,18 @@ class ExperimentRun:
             )
         ex = self._ex
         if ex is None or ex.name == DEFAULT_EXECUTOR:
-            state = GeneticAlgorithm(settings).run(problem, job.ga, hooks)
+            state = search.run(self._searched(problem, problem), job.ga, hooks)
         else:
             with ex.bind(problem) as remote:
-                state = GeneticAlgorithm(settings).run(remote, job.ga, hooks)
+                state = search.run(self._searched(problem, remote), job.ga, hooks)
         job.ga_stop = state.stop_reason
+
+    def _searched(self, problem, evaluator):
+        """What the search evaluates: ``evaluator`` (the problem, or an executor's
+        stand-in), with NSGA-II the change from the AS-IS door beside it."""
+        if self.algorithm.kind == "nsga2":
+            return ChangeObjectives.around(problem, evaluator)
+        return evaluator
 
     def _checkpoint_and_hook(self, job: Job) -> None:
         self.checkpoint()

@@ -80,6 +80,29 @@ class Setup:
         return np.clip(x, self.lower, self.upper)
 
 
+def users_trials(exp, trials=None) -> list:
+    """The target's trials of the users ``target.users`` names (data targets)."""
+    spec = exp.target
+    where = spec.locs.get("users", spec.locs.get("trials", exp.source))
+    if trials is None:
+        if spec.kind != "data":
+            raise UserError(f"{where}: target.users: selects among a data file's trials")
+        from evo_door.data.io import read_trials
+
+        try:
+            trials = read_trials(spec.data)
+        except UserError as exc:
+            raise UserError(f"{spec.locs['data']}: target.data: {exc}") from None
+    present = sorted({str(tr.user_id) for tr in trials if tr.user_id})
+    for user in spec.users:
+        if user not in present:
+            raise UserError(
+                f"{where}: target.users: no trial of user {user!r}; users: "
+                + (", ".join(present) or "none (the trials carry no user id)")
+            )
+    return [tr for tr in trials if str(tr.user_id) in spec.users]
+
+
 def _select(trials: list[Trial], spec, where_trials: str, where_validate: str, source: str):
     ids = [tr.trial_id for tr in trials]
     for key, wanted, where in (

@@ -11,8 +11,11 @@ and the renderer read back.
 Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
 every free parameter whatever its group; geometry and numerical settings stay out of
 the table (the YAML file has them all). ``status`` says where a value comes from:
-``estimated`` (free in this fit), ``fixed`` (``fixed:`` of the experiment) or ``given``
-(the base set: a preset, a file or an earlier stage).
+``estimated`` (free in this fit), ``kept`` (free in a smallest-change fit, ``algorithm:
+{kind: nsga2}``, and left at its AS-IS value because the chosen feel does not need it
+changed), ``fixed`` (``fixed:`` of the experiment) or ``given`` (the base set: a preset,
+a file or an earlier stage). A smallest-change fit whose feel is unreachable says so in
+the caption (and the YAML's description): its table is the closest door's.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ class SpecRow:
     symbol: str
     unit: str
     value: float
-    status: str  # estimated, fixed, given
+    status: str  # estimated, kept, fixed, given
     low: float = math.nan  # per-trial range (per_trial runs), else nan
     high: float = math.nan
     true: float = math.nan  # where the trials carry the truth
@@ -59,6 +62,8 @@ class SpecTable:
     rows: list[SpecRow]
     values: dict  # every parameter -> value (the YAML file)
     form: str  # "table 5.3" (a per-trial range) or "table 5.4" (one value)
+    #: a smallest-change fit's outcome for the caption ("" for another fit)
+    remark: str = ""
 
     @property
     def has_range(self) -> bool:
@@ -81,12 +86,20 @@ def spec_table(res: Results) -> SpecTable:
     table = summary.get("table", {})
     truth = summary.get("truth", {})
     ident = res.identifiability()
+    front = res.smallest_change()
+    kept = set(front.kept) if front is not None else set()
     verdicts = ident.as_dict() if ident is not None else {}
     rows = []
     for p in model.params:
         if (p.group not in SPEC_GROUPS and p.name not in res.free) or p.name not in values:
             continue  # (a parameter declared since the run was made has no value in it)
-        status = "estimated" if p.name in res.free else "fixed" if p.name in fixed else "given"
+        status = (
+            ("kept" if p.name in kept else "estimated")
+            if p.name in res.free
+            else "fixed"
+            if p.name in fixed
+            else "given"
+        )
         row = SpecRow(
             p.name,
             p.symbol or p.name,
@@ -104,7 +117,11 @@ def spec_table(res: Results) -> SpecTable:
             row.verdict, row.se = v["verdict"], v["se"]
             if v["verdict"] != "identifiable":
                 row.note = v["reason"]
-        if p.name in summary.get("at_bound", {}):
+        if p.name in kept:
+            row.note = "kept at its AS-IS value: the chosen feel does not need it changed"
+        elif front is not None and not front.reachable and p.name in res.free:
+            row.note = "closest door: the chosen feel is unreachable; " + row.note
+        elif p.name in summary.get("at_bound", {}):
             row.note = (row.note + "; " if row.note else "") + (
                 f"on the {summary['at_bound'][p.name]} bound of its search range"
             )
@@ -119,6 +136,20 @@ def spec_table(res: Results) -> SpecTable:
         rows=rows,
         values=values,
         form=form,
+        remark=_remark(front),
+    )
+
+
+def _remark(front) -> str:
+    """The caption's word on a smallest-change fit (module docstring); "" otherwise."""
+    if front is None:
+        return ""
+    kept = f"; kept at AS-IS: {', '.join(front.kept)}" if front.kept else ""
+    if front.reachable:
+        return f"smallest change within the JND (change {front.change:.3g}){kept}"
+    return (
+        "UNREACHABLE feel: no door passes the perceptual check; this is the closest door "
+        f"(perceptual error {front.error:.3g} JND^2){kept}"
     )
 
 
@@ -153,7 +184,8 @@ def _caption(t: SpecTable) -> str:
         if t.has_range
         else "one value per parameter"
     )
-    return f"{t.title}, in the form of seed {t.form} ({what}); from {t.source}"
+    remark = f"; {t.remark}" if t.remark else ""
+    return f"{t.title}, in the form of seed {t.form} ({what}){remark}; from {t.source}"
 
 
 def render(t: SpecTable, fmt: str) -> str:
@@ -250,7 +282,7 @@ def _yaml(t: SpecTable) -> str:
     from evo_door.params.sets import ParamSet
 
     model = get_model(t.model)
-    description = f"{t.title}, from {t.source}"
+    description = f"{t.title}, from {t.source}" + (f"; {t.remark}" if t.remark else "")
     values = {n: v for n, v in t.values.items() if n in model.params}
     return ParamSet.from_mapping(model.params, values, description).to_yaml()
 

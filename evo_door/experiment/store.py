@@ -13,7 +13,10 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
     setup/       base, lower, upper; @attrs: model, free, method, substeps, tolerance, ...
     trials/      fit_<k>/, validate_<k>/: t, force, response channels; @attrs: trial fields
     jobs/<k>/    @attrs: name, trials, done, ...; ga/ (population history, fitness,
-                 generator states, hall of fame, logbook), local/, best_x, fit_errors, ...
+                 generator states, hall of fame, logbook; NSGA-II: both objectives, the
+                 Pareto archive as the hall of fame, crowding), local/, best_x,
+                 fit_errors, ...; front/ (NSGA-II: front_x, front_f, asis, x; @attrs:
+                 chosen, closest, kept, reachable, check, ...)
     timings/     @attrs: total_s, jobs_s, evaluations, evaluations_per_s, ...
     best/        x, full; @attrs: fitness, values, fit_errors, validation_errors (complete)
     summary/     per-trial fits: x, min, max, mean, std (per_trial runs)
@@ -45,6 +48,7 @@ from evo_door.files import ATTRS, Keep, decode_attr, open_h5, read_attrs, read_g
 from evo_door.optim.bounds import bound_hits
 from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
 from evo_door.optim.local import LocalResult
+from evo_door.optim.nsga2 import NSGA2, FrontState
 from evo_door.optim.problem import Objective
 from evo_door.params.declaration import suggest
 from evo_door.sim.simulate import tolerance_of
@@ -214,7 +218,7 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         "versions": {ATTRS: dict(run.versions)},
         "setup": setup_tree(setup),
         "trials": Keep(lambda: trials_tree(setup)) if trials_on_disk else trials_tree(setup),
-        "jobs": {str(k): job_tree(job) for k, job in enumerate(run.jobs)},
+        "jobs": {str(k): job_tree(job, setup.free) for k, job in enumerate(run.jobs)},
         "timings": {ATTRS: timing},
     }
     if run.status == "complete" and run.result:
@@ -401,7 +405,10 @@ def setup_from_tree(tree: dict):
     )
 
 
-def job_tree(job) -> dict:
+def job_tree(job, free=()) -> dict:
+    """``jobs/<k>``: a job's state (its GA's or NSGA-II's snapshot), and its answer once
+    done (with NSGA-II: ``front/``, the front and the smallest change chosen from it;
+    :meth:`~evo_door.optim.smallest_change.SmallestChange.to_tree`)."""
     node = {
         ATTRS: {
             "name": job.name,
@@ -412,7 +419,7 @@ def job_tree(job) -> dict:
         }
     }
     if job.ga is not None:
-        snap = GeneticAlgorithm.snapshot(job.ga)
+        snap = (NSGA2 if isinstance(job.ga, FrontState) else GeneticAlgorithm).snapshot(job.ga)
         log = snap.pop("logbook")
         node["ga"] = {
             ATTRS: {
@@ -438,6 +445,8 @@ def job_tree(job) -> dict:
         node["validation_errors"] = np.asarray(job.validation_errors, dtype=np.float64)
         if job.identifiability is not None:
             node["identifiability"] = job.identifiability.to_tree()
+        if job.front is not None:
+            node["front"] = job.front.to_tree(free)
     return node
 
 
@@ -511,7 +520,9 @@ def best_tree(run) -> dict:
             "validation_errors": validation,
             "param_names": list(run.setup.model.params.names),
             "meaning": (
-                "fit of every trial at once"
+                _front_meaning(run.jobs[-1].front)
+                if run.jobs[-1].front is not None
+                else "fit of every trial at once"
                 if run.pooled
                 else "mean of the per-trial fits"
                 if run.per_trial
@@ -527,6 +538,13 @@ def best_tree(run) -> dict:
             else {}
         ),
     }
+
+
+def _front_meaning(front) -> str:
+    """What an NSGA-II run's answer is: the smallest change, or the closest door."""
+    if front.reachable:
+        return "smallest change within the JND"
+    return "closest door: the chosen feel is unreachable (no door of the front passes the check)"
 
 
 def summary_tree(run) -> dict:

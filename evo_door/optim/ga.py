@@ -271,22 +271,13 @@ class GeneticAlgorithm:
         return state
 
     def _finish_generation(self, problem, state, population, start_state, t0):
-        fresh = [ind for ind in population if not ind.fitness.valid]
-        t_eval = time.perf_counter()
-        blowups = 0
-        if fresh:
-            X = np.array([list(ind) for ind in fresh], dtype=np.float64)
-            fitness, blown = problem.evaluate(X)
-            for ind, f in zip(fresh, fitness):
-                ind.fitness.values = (float(f),)
-            blowups = int(blown.sum())
-        t_eval = time.perf_counter() - t_eval
+        n_fresh, blowups, t_eval = evaluate_fresh(problem, population, _single)
         state.population = population
         state.hof.update(population)
-        state.evaluations += len(fresh)
+        state.evaluations += n_fresh
         state.blowups += blowups
         record = self.statistics().compile(population)
-        state.logbook.record(gen=state.generation, evals=len(fresh), blowups=blowups, **record)
+        state.logbook.record(gen=state.generation, evals=n_fresh, blowups=blowups, **record)
         state.history_x.append(np.array([list(ind) for ind in population], dtype=np.float64))
         state.history_f.append(np.array([ind.fitness.values[0] for ind in population]))
         state.history_rng.append(start_state)
@@ -366,15 +357,7 @@ class GeneticAlgorithm:
 
     def restore(self, snap: dict) -> GAState:
         """Rebuild a :class:`GAState` from :meth:`snapshot` arrays, bit for bit."""
-        state = self.new_state(rng_from_state(snap["rng_state"]))
-        state.generation = int(snap["generation"])
-        state.evaluations = int(snap["evaluations"])
-        state.blowups = int(snap["blowups"])
-        state.history_x = [np.array(x) for x in snap["population"]]
-        state.history_f = [np.array(f) for f in snap["fitness"]]
-        state.history_rng = [list(map(int, r)) for r in snap["rng_states"]]
-        state.times = list(map(float, snap["times"]))
-        state.eval_times = list(map(float, snap["eval_times"]))
+        state = restore_history(self.new_state(rng_from_state(snap["rng_state"])), snap)
         population = []
         for x, f in zip(state.history_x[-1], state.history_f[-1]):
             ind = Individual(map(float, x))
@@ -390,11 +373,44 @@ class GeneticAlgorithm:
             items.append(ind)
         state.hof.items = items
         state.hof.keys = [ind.fitness for ind in reversed(items)]
-        log = snap["logbook"]
-        for i in range(len(log["gen"])):
-            row = {k: log[k][i].item() for k in LOG_FIELDS}
-            state.logbook.record(**row)
         return state
+
+
+def restore_history(state: GAState, snap: dict) -> GAState:
+    """Put a :meth:`GeneticAlgorithm.snapshot`'s counters, histories and logbook into a
+    fresh ``state`` (the population and the hall of fame are the algorithm's to rebuild)."""
+    state.generation = int(snap["generation"])
+    state.evaluations = int(snap["evaluations"])
+    state.blowups = int(snap["blowups"])
+    state.history_x = [np.array(x) for x in snap["population"]]
+    state.history_f = [np.array(f) for f in snap["fitness"]]
+    state.history_rng = [list(map(int, r)) for r in snap["rng_states"]]
+    state.times = list(map(float, snap["times"]))
+    state.eval_times = list(map(float, snap["eval_times"]))
+    log = snap["logbook"]
+    for i in range(len(log["gen"])):
+        state.logbook.record(**{k: log[k][i].item() for k in LOG_FIELDS})
+    return state
+
+
+def evaluate_fresh(problem, population, fitness_of) -> tuple[int, int, float]:
+    """Evaluate the individuals of ``population`` without a valid fitness, in one batched
+    call; ``fitness_of(row)`` turns a row of the problem's answer into DEAP's fitness
+    values. Returns (individuals evaluated, blow-ups, seconds)."""
+    fresh = [ind for ind in population if not ind.fitness.valid]
+    t0 = time.perf_counter()
+    blowups = 0
+    if fresh:
+        X = np.array([list(ind) for ind in fresh], dtype=np.float64)
+        values, blown = problem.evaluate(X)
+        for ind, v in zip(fresh, values):
+            ind.fitness.values = fitness_of(v)
+        blowups = int(np.sum(blown))
+    return len(fresh), blowups, time.perf_counter() - t0
+
+
+def _single(value) -> tuple[float]:
+    return (float(value),)
 
 
 def _notify(hooks, state: GAState) -> str | None:

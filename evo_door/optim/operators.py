@@ -146,3 +146,26 @@ def rng_from_state(state: Sequence[int]) -> random.Random:
     rng = random.Random()
     rng.setstate((version, words, gauss_next))
     return rng
+
+
+def sel_tournament_dcd(individuals, k: int, *, rng: random.Random):
+    """``k`` winners of binary tournaments on Pareto dominance, then crowding distance.
+
+    NSGA-II's parent selection (DEAP's ``selTournamentDCD``, on the run's generator and
+    for any ``k``): of two uniform draws, one that dominates the other wins; otherwise
+    the one of larger ``fitness.crowding_dist`` (set by ``deap.tools.selNSGA2``); a tie
+    goes to the first drawn.
+    """
+    chosen = []
+    n = len(individuals)
+    for _ in range(k):
+        a = individuals[rng.randrange(n)]
+        b = individuals[rng.randrange(n)]
+        if b.fitness.dominates(a.fitness):
+            a = b
+        elif (
+            not a.fitness.dominates(b.fitness) and b.fitness.crowding_dist > a.fitness.crowding_dist
+        ):
+            a = b
+        chosen.append(a)
+    return chosen

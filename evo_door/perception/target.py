@@ -151,6 +151,27 @@ class FeelTarget:
         r = np.concatenate(parts)
         return np.where(np.isfinite(r), r, 1e6)
 
+    def mechanism_curve(self, model, p) -> FeelCurve:
+        """The Coulomb force-angle curve of ``model`` at ``p`` where the objective
+        samples it (the stroke's grid and the latch zone's, which hold every angle of
+        the chosen curve): what :func:`~evo_door.perception.perceptual_check` needs,
+        a few milliseconds instead of a full ``model_curve``'s refinement."""
+        from evo_door.sim.simulate import COULOMB_SPEED, hold_forces
+
+        pc = _coulomb(model, np.asarray(p, dtype=np.float64))
+        theta = np.union1d(self.stroke, self.latch)
+        forces = {
+            d: hold_forces(model, pc, theta, s * COULOMB_SPEED)
+            for d, s in zip(DIRECTIONS, (-1.0, 1.0))
+        }
+        return FeelCurve(
+            theta,
+            np.where(np.isfinite(forces["opening"]), forces["opening"], 1e6),
+            np.where(np.isfinite(forces["closing"]), forces["closing"], 1e6),
+            source=f"{model.name} model",
+            origin={"kind": "model", "model": model.name},
+        )
+
     def value(self, model, p) -> float:
         """The perceptual objective of one parameter vector (JND units, squared)."""
         r = self.residuals(model, p)
