@@ -84,6 +84,8 @@ def format_show(res: Results) -> str:
         lines += format_integration_error(s["integration_error"])
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
+    if s.get("tolerance_text"):
+        lines += ["", s["tolerance_text"]]
     return "\n".join(lines)
 
 

@@ -24,6 +24,7 @@ from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.integration_error import IntegrationError
 from evo_door.files import ATTRS, read_attrs, read_group
+from evo_door.optim.tolerance import Tolerances
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,9 @@ class RunRecord:
     trials: list[StoredTrial] = field(default_factory=list)
     tree: dict | None = None
     integration_error: IntegrationError | None = None
+    #: the specifications' tolerances against a chosen feel (``tolerance/``), None where
+    #: not recorded (no chosen feel, not finished, or read with ``arrays=False``)
+    tolerance: Tolerances | None = None
 
     @property
     def complete(self) -> bool:
@@ -284,7 +288,15 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
         trials=_trials(tree) if arrays else [],
         tree=tree,
         integration_error=_integration_error(node),
+        tolerance=_tolerance(tree),
     )
+
+
+def _tolerance(tree: dict | None) -> Tolerances | None:
+    """``tolerance/``, None where the file has none or was read without arrays."""
+    if tree is None or "tolerance" not in tree:
+        return None
+    return Tolerances.from_tree(tree["tolerance"])
 
 
 def _integration_error(node) -> IntegrationError | None:

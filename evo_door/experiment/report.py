@@ -33,6 +33,7 @@ from evo_door.experiment.report_case_study import (
 )
 from evo_door.experiment.results import Results
 from evo_door.experiment.spec import spec_table, table_html
+from evo_door.experiment.tolerance import plot_tolerances, tolerances_of
 from evo_door.files import save_figure, write_text
 
 
@@ -152,7 +153,12 @@ def _run_section(page: _Page, res: Results) -> None:
         lambda p: plot_convergence(res, p),
         f"{label}: best and mean fitness per generation",
     )
-    page.figure(f"{key}-fit", lambda p: plot_fit(res, p), f"{label}: best response against target")
+    if res.responses():
+        page.figure(
+            f"{key}-fit", lambda p: plot_fit(res, p), f"{label}: best response against target"
+        )
+    else:  # fitted to a chosen feel alone: no trial to respond to
+        page.p(f"{label}: no trials (fitted to a chosen feel's force-angle curve)")
     errors = s.get("channel_errors") or {}
     if errors:
         first = next(iter(errors.values()))
@@ -168,6 +174,16 @@ def _run_section(page: _Page, res: Results) -> None:
         page.table(header, rows, f"{label}: error of {first['channel']} per trial, model - target")
     _integration_error(page, s.get("integration_error"))
     page.raw(table_html(spec_table(res)))
+    tol = tolerances_of(res)
+    if tol is not None:
+        page.pre(tol.format())
+        page.figure(
+            f"{key}-tolerance",
+            lambda p: plot_tolerances(tol, label, p),
+            f"{label}: each specification's band alone and together, as a share of its "
+            "value; the force-angle curves of doors built within the together bands "
+            "(dashed: their lowest and highest) against the chosen feel's JND band",
+        )
     ident = res.identifiability()
     if ident is not None:
         page.pre(ident.format())

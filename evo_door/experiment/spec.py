@@ -9,8 +9,12 @@ as CSV, Markdown, LaTeX, HTML or a parameter file (YAML) that ``--params``, expe
 and the renderer read back.
 
 Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
-every free parameter whatever its group; geometry and numerical settings stay out of
-the table (the YAML file has them all). ``status`` says where a value comes from:
+every free parameter whatever its group (:func:`spec_names`); geometry and numerical
+settings stay out of the table (the YAML file has them all). A run against a chosen
+feel (the perceptual objective) adds two columns, the **tolerances**: the band
+``+-b`` within which the specification alone, and all of them together, may be built
+and the door still feels like the chosen one (:mod:`evo_door.optim.tolerance`; the
+YAML file has them as comments). ``status`` says where a value comes from:
 ``estimated`` (free in this fit), ``fixed`` (``fixed:`` of the experiment) or ``given``
 (the base set: a preset, a file or an earlier stage).
 """
@@ -45,6 +49,9 @@ class SpecRow:
     se: float = math.nan  # standard error, unit of the value
     note: str = ""
     meaning: str = ""
+    alone: float = math.nan  # tolerance +- alone (against a chosen feel), unit of the value
+    together: float = math.nan  # tolerance +- with every specification at once
+    capped: bool = False  # the alone band is its search range: the feel does not limit it
 
     @property
     def has_range(self) -> bool:
@@ -59,14 +66,30 @@ class SpecTable:
     rows: list[SpecRow]
     values: dict  # every parameter -> value (the YAML file)
     form: str  # "table 5.3" (a per-trial range) or "table 5.4" (one value)
+    #: the Monte-Carlo of the together bands and any note, for the caption ("" if none)
+    tolerance_text: str = ""
 
     @property
     def has_range(self) -> bool:
         return any(r.has_range for r in self.rows)
 
+    @property
+    def has_tolerance(self) -> bool:
+        return any(math.isfinite(r.alone) for r in self.rows)
 
-def spec_table(res: Results) -> SpecTable:
-    """The specification table of a finished run or stage (see the module docstring)."""
+
+def spec_names(model, free) -> list[str]:
+    """The parameters a specification table lists: the model's ``specification`` and
+    ``sensation`` groups and the free ones, in declaration order."""
+    return [p.name for p in model.params if p.group in SPEC_GROUPS or p.name in free]
+
+
+def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
+    """The specification table of a finished run or stage (see the module docstring);
+    ``tolerance`` False leaves out tolerances that the file does not store (they would be
+    computed, a few seconds)."""
+    from evo_door.experiment.tolerance import tolerances_of
+
     if not res.complete:
         raise UserError(
             f"{res.path}: the run is not complete ({res.status().text}); a specification "
@@ -83,8 +106,10 @@ def spec_table(res: Results) -> SpecTable:
     ident = res.identifiability()
     verdicts = ident.as_dict() if ident is not None else {}
     rows = []
+    tol = tolerances_of(res, compute=tolerance)
+    listed = spec_names(model, res.free)
     for p in model.params:
-        if (p.group not in SPEC_GROUPS and p.name not in res.free) or p.name not in values:
+        if p.name not in listed or p.name not in values:
             continue  # (a parameter declared since the run was made has no value in it)
         status = "estimated" if p.name in res.free else "fixed" if p.name in fixed else "given"
         row = SpecRow(
@@ -104,6 +129,9 @@ def spec_table(res: Results) -> SpecTable:
             row.verdict, row.se = v["verdict"], v["se"]
             if v["verdict"] != "identifiable":
                 row.note = v["reason"]
+        if tol is not None and p.name in tol.names:
+            band = tol.row(p.name)
+            row.alone, row.together, row.capped = band["alone"], band["together"], band["capped"]
         if p.name in summary.get("at_bound", {}):
             row.note = (row.note + "; " if row.note else "") + (
                 f"on the {summary['at_bound'][p.name]} bound of its search range"
@@ -119,7 +147,19 @@ def spec_table(res: Results) -> SpecTable:
         rows=rows,
         values=values,
         form=form,
+        tolerance_text=_tolerance_caption(tol) if tol is not None else "",
     )
+
+
+def _tolerance_caption(tol) -> str:
+    text = (
+        f"tolerances: the band alone, and together ({tol.factor:.3g} x alone: "
+        f"{tol.passed} of {tol.samples} doors drawn within every band at once, seed "
+        f"{tol.seed}, feel like the chosen one; {100 * tol.lower_bound:.1f} % at "
+        f"{100 * tol.confidence:.0f} % confidence); (cap) = the search range, the feel "
+        "does not limit it"
+    )
+    return text + (f"; {tol.note}" if tol.note else "")
 
 
 # -- rendering ----------------------------------------------------------------------------
@@ -127,7 +167,15 @@ def _num(v: float, digits: int = 6) -> str:
     return "" if not math.isfinite(v) else f"{v:.{digits}g}"
 
 
-def _columns(t: SpecTable) -> list[tuple[str, callable]]:
+def _band(r: SpecRow, band: float) -> str:
+    from evo_door.optim.tolerance import band_text
+
+    if not math.isfinite(band):
+        return ""
+    return band_text(band, r.unit, band / abs(r.value) if r.value != 0.0 else math.inf)
+
+
+def _columns(t: SpecTable, fmt: str = "md") -> list[tuple[str, callable]]:
     cols = [
         ("parameter", lambda r: r.name),
         ("symbol", lambda r: r.symbol),
@@ -138,6 +186,18 @@ def _columns(t: SpecTable) -> list[tuple[str, callable]]:
         cols += [("min", lambda r: _num(r.low)), ("max", lambda r: _num(r.high))]
     if any(math.isfinite(r.true) for r in t.rows):
         cols.append(("true", lambda r: _num(r.true)))
+    if t.has_tolerance:
+        if fmt == "csv":  # numbers, in the unit column's unit
+            cols += [
+                ("tolerance alone (+-)", lambda r: _num(r.alone)),
+                ("tolerance together (+-)", lambda r: _num(r.together)),
+                ("tolerance capped", lambda r: "yes" if r.capped else "no"),
+            ]
+        else:
+            cols += [
+                ("tolerance alone", lambda r: _band(r, r.alone) + (" (cap)" if r.capped else "")),
+                ("tolerance together", lambda r: _band(r, r.together)),
+            ]
     cols += [
         ("status", lambda r: r.status),
         ("identifiability", lambda r: r.verdict),
@@ -153,7 +213,8 @@ def _caption(t: SpecTable) -> str:
         if t.has_range
         else "one value per parameter"
     )
-    return f"{t.title}, in the form of seed {t.form} ({what}); from {t.source}"
+    tol = f"; {t.tolerance_text}" if t.tolerance_text else ""
+    return f"{t.title}, in the form of seed {t.form} ({what}); from {t.source}{tol}"
 
 
 def render(t: SpecTable, fmt: str) -> str:
@@ -162,7 +223,7 @@ def render(t: SpecTable, fmt: str) -> str:
         raise UserError(f"--format {fmt!r}: choose one of {', '.join(FORMATS)}")
     if fmt == "yaml":
         return _yaml(t)
-    cols = _columns(t)
+    cols = _columns(t, fmt)
     header = [c for c, _ in cols]
     body = [[f(r) for _, f in cols] for r in t.rows]
     if fmt == "csv":
@@ -252,14 +313,27 @@ def _yaml(t: SpecTable) -> str:
     model = get_model(t.model)
     description = f"{t.title}, from {t.source}"
     values = {n: v for n, v in t.values.items() if n in model.params}
-    return ParamSet.from_mapping(model.params, values, description).to_yaml()
+    notes = {
+        r.name: f"tolerance {_band(r, r.alone)}{' (cap)' if r.capped else ''} alone, "
+        f"{_band(r, r.together)} together"
+        for r in t.rows
+        if math.isfinite(r.alone)
+    }
+    if notes:
+        description += f"; {t.tolerance_text}"
+    return ParamSet.from_mapping(model.params, values, description).to_yaml(notes=notes)
 
 
-def export(res: Results, fmt: str, out=None) -> str:
-    """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically)."""
+def export(res: Results, fmt: str, out=None, log=None) -> str:
+    """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically).
+    ``log(line)`` hears that tolerances were computed because the file had none."""
+    from evo_door.experiment.tolerance import COMPUTED_NOTE
     from evo_door.files import write_text
 
-    text = render(spec_table(res), fmt)
+    table = spec_table(res)
+    if log is not None and COMPUTED_NOTE in table.tolerance_text:
+        log(f"note: tolerances {COMPUTED_NOTE}")
+    text = render(table, fmt)
     if out is not None:
         write_text(out, text)
     return text

@@ -22,6 +22,10 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
                  theta_max, dtheta_max, channel_max, channel_rms, residual_rms, error,
                  error_refined, ok; @attrs: both settings, the overall values, units
                  (complete runs; :mod:`.integration_error`)
+    tolerance/   against a chosen feel: each specification's band alone and together,
+                 value, cap, capped; curves/ (the sampled doors' force band); @attrs:
+                 names, units, factor, samples, seed, passed, target, confidence
+                 (complete perceptual runs; :mod:`evo_door.optim.tolerance`)
 
 :func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
 file; the ``*_from_tree`` functions rebuild what a resumed run needs.
@@ -224,6 +228,8 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         if run.result.get("integration_error") is not None:
             tree["integration_error"] = run.result["integration_error"].to_tree()
             timing["integration_error_s"] = run.result["integration_error_s"]
+        if run.result.get("tolerance") is not None:
+            tree["tolerance"] = run.result["tolerance"].to_tree()
     return tree
 
 
