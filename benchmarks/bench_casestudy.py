@@ -120,7 +120,7 @@ def perceptual(path: Path, stages: list[str]) -> list[dict]:
         if check is None or not res.complete:
             continue
         judged = check.judged()
-        row = {"stage": stage, "chosen": judged["chosen"], "jnd": judged["jnd"]}
+        row: dict = {"stage": stage, "chosen": judged["chosen"], "jnd": judged["jnd"]}
         for d in ("opening", "closing"):
             c = judged[d]
             row[d] = {

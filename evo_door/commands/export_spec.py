@@ -13,7 +13,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "export-spec",
         help="a fit's specification table (symbol, unit, value, per-trial range, "
-        "identifiability) as CSV, Markdown, LaTeX, HTML, or a parameter file",
+        "identifiability, tolerances against a chosen feel) as CSV, Markdown, LaTeX, "
+        "HTML, or a parameter file",
     )
     p.add_argument("results", metavar="RUN.h5", help="results file (a run's or a pipeline's)")
     p.add_argument("--stage", metavar="NAME", help="the stage of a pipeline's results file")
@@ -29,6 +30,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    import sys
+
     from evo_door.errors import UserError
     from evo_door.experiment import Results
     from evo_door.experiment.spec import FORMATS, export
@@ -37,7 +40,12 @@ def run(args) -> int:
     if args.format not in FORMATS:
         raise UserError(f"--format {args.format!r}: choose one of {', '.join(FORMATS)}")
     claim = claim_outputs([Output(args.out)], [args.results])
-    text = export(Results(args.results, args.stage), args.format, args.out)  # one open
+    text = export(
+        Results(args.results, args.stage),  # one open
+        args.format,
+        args.out,
+        log=lambda line: print(line, file=sys.stderr),
+    )
     if args.out:
         print(f"wrote {args.out}")
         claim.note()

@@ -88,6 +88,8 @@ def format_show(res: Results) -> str:
         lines += format_smallest_change(s)
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
+    if s.get("tolerance_text"):
+        lines += ["", s["tolerance_text"]]
     return "\n".join(lines)
 
 

@@ -26,6 +26,7 @@ from evo_door.experiment.feel_check import FeelCheck, try_feel_check
 from evo_door.experiment.integration_error import IntegrationError
 from evo_door.files import ATTRS, read_attrs, read_group
 from evo_door.optim.smallest_change import SmallestChange
+from evo_door.optim.tolerance import Tolerances
 
 
 @dataclass(frozen=True)
@@ -176,6 +177,9 @@ class RunRecord:
     tree: dict | None = None
     integration_error: IntegrationError | None = None
     perceptual_check: FeelCheck | None = None
+    #: the specifications' tolerances against a chosen feel (``tolerance/``), None where
+    #: not recorded (no chosen feel, not finished, or read with ``arrays=False``)
+    tolerance: Tolerances | None = None
 
     @property
     def complete(self) -> bool:
@@ -292,9 +296,17 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
         trials=_trials(tree) if arrays else [],
         tree=tree,
         integration_error=_integration_error(node),
+        tolerance=_tolerance(tree),
     )
     record.perceptual_check = _perceptual_check(node, record)
     return record
+
+
+def _tolerance(tree: dict | None) -> Tolerances | None:
+    """``tolerance/``, None where the file has none or was read without arrays."""
+    if tree is None or "tolerance" not in tree:
+        return None
+    return Tolerances.from_tree(tree["tolerance"])
 
 
 def _integration_error(node) -> IntegrationError | None:

@@ -34,6 +34,7 @@ from evo_door.experiment.report_feel import (
 )
 from evo_door.experiment.results import Results
 from evo_door.experiment.spec import spec_table, table_html
+from evo_door.experiment.tolerance import plot_tolerances, tolerances_of
 from evo_door.files import save_figure, write_text
 
 __all__ = ["DEFAULT_JND", "FORCE_FLOOR", "JNDChanges", "pipeline_settings", "write_report"]
@@ -161,6 +162,8 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
         page.figure(
             f"{key}-fit", lambda p: plot_fit(res, p), f"{label}: best response against target"
         )
+    else:  # fitted to a chosen feel alone: no trial to respond to
+        page.p(f"{label}: no trials (fitted to a chosen feel's force-angle curve)")
     errors = s.get("channel_errors") or {}
     if errors:
         first = next(iter(errors.values()))
@@ -177,6 +180,16 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
     _integration_error(page, s.get("integration_error"))
     perceptual_section(page, res, changes, key)
     page.raw(table_html(spec_table(res)))
+    tol = tolerances_of(res)
+    if tol is not None:
+        page.pre(tol.format())
+        page.figure(
+            f"{key}-tolerance",
+            lambda p: plot_tolerances(tol, label, p),
+            f"{label}: each specification's band alone and together, as a share of its "
+            "value; the force-angle curves of doors built within the together bands "
+            "(dashed: their lowest and highest) against the chosen feel's JND band",
+        )
     ident = res.identifiability()
     if ident is not None:
         page.pre(ident.format())

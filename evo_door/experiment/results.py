@@ -411,6 +411,9 @@ class Results:
         if ident is not None:
             out["identifiability"] = ident.as_dict()
             out["identifiability_text"] = ident.format()
+        if self.record.tolerance is not None:
+            out["tolerance"] = self.record.tolerance.as_dict()
+            out["tolerance_text"] = self.record.tolerance.format()
         return out
 
     def _per_trial(self) -> dict:

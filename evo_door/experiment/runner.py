@@ -403,7 +403,7 @@ class ExperimentRun:
                 print(self._end_line(job), file=sys.stderr, flush=True)
             self._checkpoint_and_hook(job)
         self.status = "complete"
-        self.result = self._results()
+        self.result = self._results(progress)
         self.checkpoint()
 
     def _end_line(self, job: Job) -> str:
@@ -479,8 +479,11 @@ class ExperimentRun:
         """The per-trial fits of a ``per_trial`` run (every job but the pooled one)."""
         return [j for j in self.jobs if not (self.pooled and j.name == POOLED)]
 
-    def _results(self) -> dict:
-        """Best parameters, per-trial table, responses: filled when every job is done."""
+    def _results(self, progress: bool = False) -> dict:
+        """Best parameters, per-trial table, responses, and against a chosen feel the
+        specifications' tolerances: filled when every job is done."""
+        from evo_door.experiment.tolerance import stage_tolerances
+
         xs = np.array([j.best_x for j in self.trial_jobs])
         if self.pooled:
             best_x = self.jobs[-1].best_x
@@ -511,6 +514,7 @@ class ExperimentRun:
             "integration_error": integration,
             "integration_error_s": integration_s,
             "perceptual_check": check,
+            "tolerance": stage_tolerances(self.setup, full, progress),
         }
 
     def _fit_vectors(self) -> np.ndarray:

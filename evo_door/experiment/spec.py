@@ -9,8 +9,12 @@ as CSV, Markdown, LaTeX, HTML or a parameter file (YAML) that ``--params``, expe
 and the renderer read back.
 
 Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
-every free parameter whatever its group; geometry and numerical settings stay out of
-the table (the YAML file has them all). ``status`` says where a value comes from:
+every free parameter whatever its group (:func:`spec_names`); geometry and numerical
+settings stay out of the table (the YAML file has them all). A run against a chosen
+feel (the perceptual objective) adds two columns, the **tolerances**: the band
+``+-b`` within which the specification alone, and all of them together, may be built
+and the door still feels like the chosen one (:mod:`evo_door.optim.tolerance`; the
+YAML file has them as comments). ``status`` says where a value comes from:
 ``estimated`` (free in this fit), ``kept`` (free in a smallest-change fit, ``algorithm:
 {kind: nsga2}``, and left at its AS-IS value because the chosen feel does not need it
 changed), ``fixed`` (``fixed:`` of the experiment) or ``given`` (the base set: a preset,
@@ -48,6 +52,9 @@ class SpecRow:
     se: float = math.nan  # standard error, unit of the value
     note: str = ""
     meaning: str = ""
+    alone: float = math.nan  # tolerance +- alone (against a chosen feel), unit of the value
+    together: float = math.nan  # tolerance +- with every specification at once
+    capped: bool = False  # the alone band is its search range: the feel does not limit it
 
     @property
     def has_range(self) -> bool:
@@ -64,14 +71,30 @@ class SpecTable:
     form: str  # "table 5.3" (a per-trial range) or "table 5.4" (one value)
     #: a smallest-change fit's outcome for the caption ("" for another fit)
     remark: str = ""
+    #: the Monte-Carlo of the together bands and any note, for the caption ("" if none)
+    tolerance_text: str = ""
 
     @property
     def has_range(self) -> bool:
         return any(r.has_range for r in self.rows)
 
+    @property
+    def has_tolerance(self) -> bool:
+        return any(math.isfinite(r.alone) for r in self.rows)
 
-def spec_table(res: Results) -> SpecTable:
-    """The specification table of a finished run or stage (see the module docstring)."""
+
+def spec_names(model, free) -> list[str]:
+    """The parameters a specification table lists: the model's ``specification`` and
+    ``sensation`` groups and the free ones, in declaration order."""
+    return [p.name for p in model.params if p.group in SPEC_GROUPS or p.name in free]
+
+
+def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
+    """The specification table of a finished run or stage (see the module docstring);
+    ``tolerance`` False leaves out tolerances that the file does not store (they would be
+    computed, a few seconds)."""
+    from evo_door.experiment.tolerance import tolerances_of
+
     if not res.complete:
         raise UserError(
             f"{res.path}: the run is not complete ({res.status().text}); a specification "
@@ -90,8 +113,10 @@ def spec_table(res: Results) -> SpecTable:
     kept = set(front.kept) if front is not None else set()
     verdicts = ident.as_dict() if ident is not None else {}
     rows = []
+    tol = tolerances_of(res, compute=tolerance)
+    listed = spec_names(model, res.free)
     for p in model.params:
-        if (p.group not in SPEC_GROUPS and p.name not in res.free) or p.name not in values:
+        if p.name not in listed or p.name not in values:
             continue  # (a parameter declared since the run was made has no value in it)
         status = (
             ("kept" if p.name in kept else "estimated")
@@ -117,6 +142,9 @@ def spec_table(res: Results) -> SpecTable:
             row.verdict, row.se = v["verdict"], v["se"]
             if v["verdict"] != "identifiable":
                 row.note = v["reason"]
+        if tol is not None and p.name in tol.names:
+            band = tol.row(p.name)
+            row.alone, row.together, row.capped = band["alone"], band["together"], band["capped"]
         if p.name in kept:
             row.note = "kept at its AS-IS value: the chosen feel does not need it changed"
         elif front is not None and not front.reachable and p.name in res.free:
@@ -137,6 +165,7 @@ def spec_table(res: Results) -> SpecTable:
         values=values,
         form=form,
         remark=_remark(front),
+        tolerance_text=_tolerance_caption(tol) if tol is not None else "",
     )
 
 
@@ -153,12 +182,31 @@ def _remark(front) -> str:
     )
 
 
+def _tolerance_caption(tol) -> str:
+    text = (
+        f"tolerances: the band alone, and together ({tol.factor:.3g} x alone: "
+        f"{tol.passed} of {tol.samples} doors drawn within every band at once, seed "
+        f"{tol.seed}, feel like the chosen one; {100 * tol.lower_bound:.1f} % at "
+        f"{100 * tol.confidence:.0f} % confidence); (cap) = the search range, the feel "
+        "does not limit it"
+    )
+    return text + (f"; {tol.note}" if tol.note else "")
+
+
 # -- rendering ----------------------------------------------------------------------------
 def _num(v: float, digits: int = 6) -> str:
     return "" if not math.isfinite(v) else f"{v:.{digits}g}"
 
 
-def _columns(t: SpecTable) -> list[tuple[str, callable]]:
+def _band(r: SpecRow, band: float) -> str:
+    from evo_door.optim.tolerance import band_text
+
+    if not math.isfinite(band):
+        return ""
+    return band_text(band, r.unit, band / abs(r.value) if r.value != 0.0 else math.inf)
+
+
+def _columns(t: SpecTable, fmt: str = "md") -> list[tuple[str, callable]]:
     cols = [
         ("parameter", lambda r: r.name),
         ("symbol", lambda r: r.symbol),
@@ -169,6 +217,18 @@ def _columns(t: SpecTable) -> list[tuple[str, callable]]:
         cols += [("min", lambda r: _num(r.low)), ("max", lambda r: _num(r.high))]
     if any(math.isfinite(r.true) for r in t.rows):
         cols.append(("true", lambda r: _num(r.true)))
+    if t.has_tolerance:
+        if fmt == "csv":  # numbers, in the unit column's unit
+            cols += [
+                ("tolerance alone (+-)", lambda r: _num(r.alone)),
+                ("tolerance together (+-)", lambda r: _num(r.together)),
+                ("tolerance capped", lambda r: "yes" if r.capped else "no"),
+            ]
+        else:
+            cols += [
+                ("tolerance alone", lambda r: _band(r, r.alone) + (" (cap)" if r.capped else "")),
+                ("tolerance together", lambda r: _band(r, r.together)),
+            ]
     cols += [
         ("status", lambda r: r.status),
         ("identifiability", lambda r: r.verdict),
@@ -185,7 +245,8 @@ def _caption(t: SpecTable) -> str:
         else "one value per parameter"
     )
     remark = f"; {t.remark}" if t.remark else ""
-    return f"{t.title}, in the form of seed {t.form} ({what}){remark}; from {t.source}"
+    tol = f"; {t.tolerance_text}" if t.tolerance_text else ""
+    return f"{t.title}, in the form of seed {t.form} ({what}){remark}; from {t.source}{tol}"
 
 
 def render(t: SpecTable, fmt: str) -> str:
@@ -194,7 +255,7 @@ def render(t: SpecTable, fmt: str) -> str:
         raise UserError(f"--format {fmt!r}: choose one of {', '.join(FORMATS)}")
     if fmt == "yaml":
         return _yaml(t)
-    cols = _columns(t)
+    cols = _columns(t, fmt)
     header = [c for c, _ in cols]
     body = [[f(r) for _, f in cols] for r in t.rows]
     if fmt == "csv":
@@ -284,14 +345,27 @@ def _yaml(t: SpecTable) -> str:
     model = get_model(t.model)
     description = f"{t.title}, from {t.source}" + (f"; {t.remark}" if t.remark else "")
     values = {n: v for n, v in t.values.items() if n in model.params}
-    return ParamSet.from_mapping(model.params, values, description).to_yaml()
+    notes = {
+        r.name: f"tolerance {_band(r, r.alone)}{' (cap)' if r.capped else ''} alone, "
+        f"{_band(r, r.together)} together"
+        for r in t.rows
+        if math.isfinite(r.alone)
+    }
+    if notes:
+        description += f"; {t.tolerance_text}"
+    return ParamSet.from_mapping(model.params, values, description).to_yaml(notes=notes)
 
 
-def export(res: Results, fmt: str, out=None) -> str:
-    """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically)."""
+def export(res: Results, fmt: str, out=None, log=None) -> str:
+    """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically).
+    ``log(line)`` hears that tolerances were computed because the file had none."""
+    from evo_door.experiment.tolerance import COMPUTED_NOTE
     from evo_door.files import write_text
 
-    text = render(spec_table(res), fmt)
+    table = spec_table(res)
+    if log is not None and COMPUTED_NOTE in table.tolerance_text:
+        log(f"note: tolerances {COMPUTED_NOTE}")
+    text = render(table, fmt)
     if out is not None:
         write_text(out, text)
     return text

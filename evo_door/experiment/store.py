@@ -28,6 +28,10 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
     perceptual_check/  a run fitted to a chosen feel: mechanism/ and chosen/ (theta rad,
                  opening, closing N: both force-angle curves); @attrs: jnd, pass_fraction,
                  passes, verdict (complete runs; :mod:`.feel_check`)
+    tolerance/   against a chosen feel: each specification's band alone and together,
+                 value, cap, capped; curves/ (the sampled doors' force band); @attrs:
+                 names, units, factor, samples, seed, passed, target, confidence
+                 (complete perceptual runs; :mod:`evo_door.optim.tolerance`)
 
 :func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
 file; the ``*_from_tree`` functions rebuild what a resumed run needs.
@@ -233,6 +237,8 @@ def run_tree(run, trials_on_disk: bool) -> dict:
             timing["integration_error_s"] = run.result["integration_error_s"]
         if run.result.get("perceptual_check") is not None:
             tree["perceptual_check"] = run.result["perceptual_check"].to_tree()
+        if run.result.get("tolerance") is not None:
+            tree["tolerance"] = run.result["tolerance"].to_tree()
     return tree
 
 

@@ -107,15 +107,18 @@ class ParamSet:
         merged.update(values)
         return ParamSet.from_mapping(self.table, merged, self.description, source or self.source)
 
-    def to_yaml(self, path: str | Path | None = None) -> str:
-        """YAML text of the set (units as comments); written to ``path`` when given."""
+    def to_yaml(self, path: str | Path | None = None, notes: dict | None = None) -> str:
+        """YAML text of the set (units as comments, each followed by ``notes[name]``
+        where given); written to ``path`` when given."""
+        notes = notes or {}
         lines = [f"model: {self.model}"]
         if self.description:
             lines.append(f"description: {json.dumps(self.description)}")
         lines.append("values:")
         width = max(len(n) for n in self.table.names)
         for p, v in zip(self.table, self.vector):
-            lines.append(f"  {p.name + ':':<{width + 1}} {format_float(v):<22} # {p.unit}")
+            note = f"; {notes[p.name]}" if p.name in notes else ""
+            lines.append(f"  {p.name + ':':<{width + 1}} {format_float(v):<22} # {p.unit}{note}")
         text = "\n".join(lines) + "\n"
         if path is not None:
             write_text(path, text)

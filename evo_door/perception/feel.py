@@ -163,8 +163,6 @@ def perceptual_check(mechanism: FeelCurve | dict, chosen: FeelCurve | dict, jnd:
     c = chosen if isinstance(chosen, FeelCurve) else FeelCurve(**_arrays(chosen))
     theta = np.union1d(m.theta, c.theta)
     out = {}
-    widths = np.diff(theta)
-    span = theta[-1] - theta[0]
     for d in DIRECTIONS:
         fm = m.force(d, theta)
         fc = c.force(d, theta)
@@ -178,11 +176,25 @@ def perceptual_check(mechanism: FeelCurve | dict, chosen: FeelCurve | dict, jnd:
             "chosen": fc,
             "threshold": threshold,
             "fails": fails,
-            "fraction": float(np.sum(widths * (fails[:-1] & fails[1:])) / span),
+            "fraction": float(fraction_beyond(theta, fails)),
             "worst": (float(theta[k]), float(diff[k]), float(threshold[k])),
             "bands": _bands(theta, fails),
         }
     return out
+
+
+def fraction_beyond(theta, fails):
+    """The share of the angle range of ``theta`` (rising) that is beyond the JND: the
+    intervals whose both ends fail. ``fails`` may hold one row per curve (last axis along
+    ``theta``); a row's share each.
+
+    >>> float(fraction_beyond([0.0, 1.0, 2.0, 4.0], [False, True, True, True]))
+    0.75
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    fails = np.asarray(fails, dtype=bool)
+    both = fails[..., :-1] & fails[..., 1:]
+    return np.sum(np.diff(theta) * both, axis=-1) / (theta[-1] - theta[0])
 
 
 def _arrays(curve: dict) -> dict:

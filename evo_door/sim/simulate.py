@@ -294,6 +294,18 @@ def _hold_parallel(accel, p, theta, dtheta, out):
         out[i] = _hold(accel, p, theta[i], dtheta)
 
 
+_ROWS_SIGNATURE = types.void(
+    ACCEL_TYPE, types.float64[:, ::1], _vec, types.float64, types.float64[:, ::1]
+)
+
+
+@njit(_ROWS_SIGNATURE, cache=True, parallel=True)
+def _hold_rows(accel, P, theta, dtheta, out):
+    for r in prange(P.shape[0]):
+        for i in range(theta.shape[0]):
+            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
+
+
 def speed_sensitivities(model) -> list[str]:
     """Names of ``model``'s speed sensitivities: parameters in s/m, s/rad or s/<theta unit>.
 
@@ -333,6 +345,16 @@ def hold_forces(model, p, theta, dtheta) -> np.ndarray:
     out = np.empty(theta.shape)
     kernel = _hold_parallel if theta.size > 4096 else _hold_serial
     kernel(model.accel, p, theta, float(dtheta), out)
+    return out
+
+
+def hold_forces_rows(model, P, theta, dtheta) -> np.ndarray:
+    """:func:`hold_forces` of every row of the kernel matrix ``P`` (one door a row):
+    an array (rows, angles), in one compiled call with the rows across threads."""
+    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+    theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+    out = np.empty((P.shape[0], theta.size))
+    _hold_rows(model.accel, P, theta, float(dtheta), out)
     return out
 
 
