@@ -70,7 +70,7 @@ def register(sub) -> None:
     imp.add_argument("--user", metavar="ID", help="user id of the imported trials")
     imp.add_argument(
         "--kind",
-        choices=("unlock", "lock", "impulse", "free", ""),
+        choices=("unlock", "lock", "impulse", "slow", "free", ""),
         help="what the user did in these trials",
     )
     imp.add_argument(

@@ -14,8 +14,8 @@ def register(sub) -> None:
     p.set_defaults(func=lambda args: p.print_help() or 2)
     g = rsub.add_parser(
         "generate",
-        help="simulate a measurement campaign (unlock, lock, "
-        "impulse trials by virtual users, seed sensors)",
+        help="simulate a measurement campaign (unlock, lock, impulse and slow "
+        "trials by virtual users, seed sensors)",
     )
     g.add_argument("--model", required=True, help=MODEL_HELP)
     add_params_arguments(g)
@@ -25,8 +25,9 @@ def register(sub) -> None:
     g.add_argument(
         "--kinds",
         default=None,
-        help="kinds cycled over the trials (default impulse,unlock,impulse,lock, "
-        "keeping the kinds the model supports)",
+        help="kinds cycled over the trials: unlock, lock, impulse, slow (the stroke opened "
+        "from closed and closed again at 0.07-0.21 rad/s: friction and spring apart from "
+        "inertia); default impulse,unlock,impulse,lock, keeping the kinds the model supports",
     )
     g.add_argument("--rate", type=float, default=1024.0, help="sampling rate in Hz (default 1024)")
     g.add_argument(

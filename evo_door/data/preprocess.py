@@ -352,6 +352,70 @@ def trim_to_motion(trial: Trial, pad: float = 0.2, **tols) -> Trial:
     )
 
 
+def split_windows(trial: Trial, length: float) -> list[Trial]:
+    """``trial`` cut into consecutive windows of ``length`` seconds (the last one takes
+    the remainder when it is shorter than half a window), each a trial that starts from
+    the state measured there.
+
+    A slow trial (:mod:`evo_door.data.rig`) is a quasi-static stroke: the user's force
+    stays within a newton of the door's Coulomb curve, so a model driven open loop by
+    that force over the whole stroke drifts away from the measured motion (a force
+    noise of 0.15 N moves it by 0.05 rad/s within a few seconds, and an angle off
+    changes the force it needs). Short windows, each from the measured state, keep the
+    drift small and the fit's objective smooth. The window's ``theta0`` is the angle
+    (``theta`` if measured and inside its sensor's range, else ``theta0`` carried by the
+    rate, as :func:`trim_to_motion` does), its ``dtheta0`` the measured rate. Window
+    ``k`` of trial ``T01`` is ``T01w01``... (from 1).
+    """
+    if not (np.isfinite(length) and length > 0):
+        raise UserError(f"windows: give a length in seconds > 0, got {length!r}")
+    n = max(int(round(length * trial.rate)), 2)
+    starts = list(range(0, trial.n, n))
+    if len(starts) > 1 and trial.n - starts[-1] < n // 2:
+        starts.pop()  # a short remainder joins the window before it
+    ends = starts[1:] + [trial.n]
+    theta0, dtheta0 = trial.initial_state()
+    angle = _angle_anchored(trial, theta0)
+    out = []
+    for k, (i0, i1) in enumerate(zip(starts, ends), start=1):
+        th0 = float(angle[i0]) if angle is not None else theta0
+        w0 = float(trial.dtheta[i0]) if trial.dtheta is not None else (dtheta0 if i0 == 0 else 0.0)
+        changes = {name: getattr(trial, name)[i0:i1] for name in ("t", "force", *trial.channels)}
+        window = _noted(
+            trial,
+            {
+                "window": {
+                    "index": k,
+                    "start_s": float(trial.t[i0]),
+                    "stop_s": float(trial.t[i1 - 1]),
+                }
+            },
+            trial_id=f"{trial.trial_id}w{k:02d}",
+            theta0=th0 if i0 else theta0,
+            dtheta0=w0 if i0 else dtheta0,
+            **changes,
+        )
+        out.append(window)
+    return out
+
+
+def _angle_anchored(trial: Trial, theta0: float) -> np.ndarray | None:
+    """The angle at every sample: ``theta`` where its sensor reads it (inside the range),
+    elsewhere the last such reading (or ``theta0``) carried by the integrated rate; None
+    without a rate. The inclinometer's last reading near closed anchors what follows a
+    latch's snap, faster than a gyroscope's range."""
+    if trial.dtheta is None:
+        return None
+    integral = integrate_rate(trial.t, trial.dtheta, 0.0)
+    if trial.theta is None:
+        return theta0 + integral
+    inside = trial.unsaturated("theta")
+    last = np.maximum.accumulate(np.where(inside, np.arange(trial.n), -1))
+    anchor = np.where(last >= 0, trial.theta[np.maximum(last, 0)], theta0)
+    base = np.where(last >= 0, integral[np.maximum(last, 0)], 0.0)
+    return anchor + integral - base
+
+
 # -- unlock / lock force --------------------------------------------------------------
 @dataclass(frozen=True)
 class ForcePeak:

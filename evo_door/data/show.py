@@ -10,7 +10,7 @@ from evo_door.data.preprocess import angle_from_rate, find_force_peak, lowpass
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 
-KIND_ORDER = ("unlock", "lock", "impulse", "free", "")
+KIND_ORDER = ("unlock", "lock", "impulse", "slow", "free", "")
 
 
 def _range(x, scale=1.0, fmt="{:.1f}") -> str:

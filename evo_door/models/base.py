@@ -48,7 +48,7 @@ from evo_door.params.declaration import suggest
 #: Entry-point group through which installed packages register models.
 MODEL_GROUP = "evo_door.models"
 #: Trial kinds of the virtual rig (:mod:`evo_door.data.rig`).
-RIG_KINDS = ("unlock", "lock", "impulse")
+RIG_KINDS = ("unlock", "lock", "impulse", "slow")
 
 
 @dataclass(frozen=True)
@@ -73,6 +73,8 @@ class Model:
         Trials the virtual rig can make with the model. ``unlock`` and ``lock`` need a
         latch near closed that the rig's hand can feel; only a model that has one says
         so. ``impulse`` (a push from fully open, then free motion) suits any model.
+        ``slow`` (the stroke opened from closed and closed again at a slow speed, in
+        rad/s and starting through the latch) needs an angle in rad and a closed door.
     theta_range : (float, float)
         The coordinate from fully open to closed, in ``theta_unit``: the grid of
         ``evo-door curve``.

@@ -15,6 +15,15 @@ model instead of a dishwasher:
     Door fully open, at rest. A short push toward closing (a half-sine, cut short
     once the door moves at the speed the user intends), then free decay. Load cell +
     gyroscope. These are the main fitting targets (speed decays ~linearly: friction).
+``slow``
+    Door closed and latched. The user holds the handle and moves the door through its
+    stroke at a slow speed (0.07-0.21 rad/s), a PI controller on the angular speed
+    (:class:`~.policies.SlowPolicy`): opens it through the latch to 5 deg from fully
+    open, stops, closes it again up to the latch (4-8 deg from closed) and lets go.
+    Quasi-static: the force is the door's Coulomb force-angle curve, so friction,
+    spring and weight stand apart from inertia. Load cell + inclinometer (the latch's
+    snap, faster than the gyroscope's range) + gyroscope; fit it in windows
+    (:func:`evo_door.data.preprocess.split_windows`).
 
 **The hand** is a spring-damper between the handle and a target the user moves at
 his own pace (pull / push speed) with a one-sided contact (a hand pulls or pushes,
@@ -28,7 +37,7 @@ tremor (:func:`make_users`); each trial jitters its user's traits by ~10 %.
 
 **What a model can do**: unlock and lock trials need a latch near closed that the
 hand can feel, and the inclinometer only reads +-10 deg about closed; a model lists the
-kinds it supports (``Model.rig_kinds``; the doors all three, any model ``impulse``) and
+kinds it supports (``Model.rig_kinds``; the doors all four, any model ``impulse``) and
 other kinds are refused. A trial whose measured response sits at a sensor's limit for
 more than half of the time that matters (the whole impulse trial; an unlock or lock
 trial up to the latch event) is refused too: the model moves outside the sensors'
@@ -70,7 +79,7 @@ from evo_door.data.rig.one_trial import (
     RigSettings,
     generate_trial,
 )
-from evo_door.data.rig.policies import HandPolicy, ImpulsePolicy, Policy
+from evo_door.data.rig.policies import HandPolicy, ImpulsePolicy, Policy, SlowPolicy
 from evo_door.data.rig.spec import SPEC_DEFAULTS, SpecError, check_spec, trials_from_spec
 from evo_door.data.rig.truth import TRUTHS, make_truth, params_source
 from evo_door.data.rig.users import USER_RANGES, VirtualUser, make_users
@@ -86,6 +95,7 @@ __all__ = [
     "Policy",
     "RigSettings",
     "SPEC_DEFAULTS",
+    "SlowPolicy",
     "SpecError",
     "TRUTHS",
     "USER_RANGES",

@@ -10,23 +10,25 @@ import numpy as np
 
 from evo_door import __version__
 from evo_door.data.rig.loop import run_closed_loop, settle_model, settle_truth
-from evo_door.data.rig.policies import HandPolicy, ImpulsePolicy
+from evo_door.data.rig.policies import HandPolicy, ImpulsePolicy, SlowPolicy
 from evo_door.data.rig.truth import truth_record, with_dynamics
 from evo_door.data.rig.users import VirtualUser, make_tremor
 from evo_door.data.sensors import CLOSED, DEG, SEED_SENSORS, Sensor
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
+from evo_door.models.base import RIG_KINDS
 
-#: The kinds of trial the rig makes (:mod:`evo_door.data.rig`).
-KINDS = ("unlock", "lock", "impulse")
+#: The kinds of trial the rig makes (:mod:`evo_door.data.rig`), declared with the models.
+KINDS = RIG_KINDS
 #: Channels each kind measures (seed 3.4: inclinometer near closed, gyroscope in motion).
 KIND_CHANNELS = {
     "unlock": ("force", "theta"),
     "lock": ("force", "theta"),
     "impulse": ("force", "dtheta"),
+    "slow": ("force", "theta", "dtheta"),
 }
 #: The channel of each kind a fit compares; it must stay inside its sensor's range.
-KIND_RESPONSE = {"unlock": "theta", "lock": "theta", "impulse": "dtheta"}
+KIND_RESPONSE = {"unlock": "theta", "lock": "theta", "impulse": "dtheta", "slow": "dtheta"}
 #: Largest fraction of saturated response samples a trial may have (:mod:`evo_door.data.rig`).
 MAX_SATURATED = 0.5
 
@@ -86,7 +88,7 @@ def generate_trial(
     dt = 1.0 / settings.rate
     tremor = make_tremor(user, rng)
     theta0, dtheta0, state0 = _start(model, params, kind, user, dt, settings, truth)
-    policy = _policy(kind, user, tremor, dt, theta0, settings)
+    policy = _policy(model, kind, user, tremor, dt, theta0, settings)
     clean = run_closed_loop(
         model,
         params,
@@ -94,7 +96,7 @@ def generate_trial(
         dt,
         theta0,
         dtheta0,
-        settings.t_max,
+        getattr(policy, "t_max", settings.t_max),
         settings.chunk,
         method=settings.method,
         substeps=settings.substeps,
@@ -132,7 +134,7 @@ def _start(model, params, kind, user, dt, settings, truth):
     """Where the trial starts: ``(theta0, dtheta0, the truth's state or None)``, the door
     settled with no force from where the kind begins (closed, a few degrees from closed,
     fully open)."""
-    if kind == "unlock":
+    if kind in ("unlock", "slow"):
         theta = CLOSED
     elif kind == "lock":
         # a door that pulls itself shut over its last degrees comes to rest on the lock
@@ -149,9 +151,14 @@ def _start(model, params, kind, user, dt, settings, truth):
     return float(state0[0]), float(state0[1]), state0
 
 
-def _policy(kind, user, tremor, dt, theta0, settings):
+def _policy(model, kind, user, tremor, dt, theta0, settings):
     """What the user does in a trial of ``kind``: pull to unlock or push to lock with a
-    compliant hand, or give the open door a short push (impulse)."""
+    compliant hand, give the open door a short push (impulse), or move the door through
+    its stroke slowly and back (slow, whose time limit is its own: the stroke at the
+    user's pace)."""
+    if kind == "slow":
+        lo, hi = (float(v) for v in getattr(model, "theta_range", (0.0, CLOSED)))
+        return SlowPolicy(user, tremor, settings.handle_radius, theta0, (lo, hi), settings.tail)
     if kind not in ("unlock", "lock"):
         return ImpulsePolicy(user, tremor, settings.settle, settings.t_max)
     unlock = kind == "unlock"
@@ -174,6 +181,14 @@ def _rig_record(settings, user, policy, clean) -> dict:
     events = {"t_start": policy.t_start}
     if isinstance(policy, HandPolicy):
         events.update(t_event=policy.t_event, t_release=policy.t_release, gave_up=policy.gave_up)
+    elif isinstance(policy, SlowPolicy):
+        events.update(
+            t_turn=policy.t_turn,
+            t_stop=policy.t_stop,
+            t_release=policy.t_release,
+            speed_open=policy.speed_open,
+            speed_close=policy.speed_close,
+        )
     else:
         events.update(t_cut=policy.t_cut, t_push_end=policy.t_end)
     return {
@@ -230,6 +245,14 @@ def _warn_if_nothing_happened(model, kind, trial_id, user, policy, clean) -> Non
             f"rig: trial {trial_id} ({kind}, {user.user_id}): the door of model "
             f"{model.name!r} did not {kind} (user's strength {user.max_force:.0f} N, "
             f"{clean['t'][-1]:.1f} s); check the parameters",
+            stacklevel=3,
+        )
+    if isinstance(policy, SlowPolicy) and policy.t_stop is None:
+        leg = "open" if policy.t_turn is None else "close"
+        warnings.warn(
+            f"rig: trial {trial_id} (slow, {user.user_id}): the user could not {leg} the door "
+            f"of model {model.name!r} through its stroke (user's strength "
+            f"{user.max_force:.0f} N, {clean['t'][-1]:.1f} s); check the parameters",
             stacklevel=3,
         )
     if isinstance(policy, ImpulsePolicy) and np.max(np.abs(clean["dtheta"])) < 5 * DEG:

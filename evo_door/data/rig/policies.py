@@ -14,6 +14,10 @@ import numpy as np
 from evo_door.data.rig.users import VirtualUser
 from evo_door.data.sensors import CLOSED
 
+#: The pace of a slow trial: this fraction of the user's pull / push speed at the handle
+#: (0.05-0.16 m/s at 0.6 m: about 0.07-0.21 rad/s)
+SLOW_PACE = 0.8
+
 
 class Policy:
     """What the user does, decided chunk by chunk from what has happened so far."""
@@ -140,5 +144,102 @@ class ImpulsePolicy(Policy):
                 self.t_still = None
             if self.t_still is not None and t > self.t_still + self.settle:
                 self.finished = True
+        if t >= self.t_max:
+            self.finished = True
+
+
+class SlowPolicy(Policy):
+    """Move the door through its stroke slowly, holding the handle: open it from closed
+    (through the latch) to near fully open, stop, close it again up to the latch, let go.
+
+    The hand is a PI controller on the door's angular speed toward a slow target speed
+    (the user's pace, :data:`SLOW_PACE` of the pull / push speed at the handle): its
+    proportional gain is the hand's damping and its integral gain the hand's stiffness,
+    both at the handle (``c R`` in N s/rad, ``k R`` in N/rad), so the integral is the
+    lead of the hand's target angle over the door. The force is bounded by the user's
+    strength both ways (the hand grips the handle: it pulls and pushes), and so is the
+    lead (no wind-up beyond what the user would pull). Closed on the true motion: the
+    user feels the door, not the sensors.
+    """
+
+    RAMP = 0.5  # s, raised-cosine ramps of the target speed (start, stop, turn)
+    PAUSE = 0.5  # s at rest where the stroke turns
+    #: angle (rad) before fully open where the opening leg stops (5 deg)
+    OPEN_MARGIN = 5.0 * math.pi / 180.0
+
+    def __init__(
+        self,
+        user: VirtualUser,
+        tremor,
+        radius: float,
+        theta_start: float,
+        theta_range: tuple[float, float],
+        tail: float,
+    ):
+        self.u, self.tremor, self.tail = user, tremor, tail
+        self.speed_open = SLOW_PACE * user.pull_speed / radius
+        self.speed_close = SLOW_PACE * user.push_speed / radius
+        self.kp = user.hand_damping * radius
+        self.ki = user.hand_stiffness * radius
+        self.lead_max = user.max_force / self.ki
+        self.theta_open = theta_range[0] + self.OPEN_MARGIN
+        self.theta_close = theta_range[1] - user.lock_start
+        self.t_start = user.rest_time
+        self.t_turn = None  # the door reached theta_open: the target speed turns
+        self.t_stop = None  # the door reached theta_close: the target speed stops
+        self.t_release = None  # the user starts letting go
+        self.theta_ref = theta_start
+        stroke = abs(theta_start - self.theta_open) + abs(self.theta_close - self.theta_open)
+        expected = (
+            self.t_start
+            + stroke / min(self.speed_open, self.speed_close)
+            + 4 * self.RAMP
+            + self.PAUSE
+            + user.release_time
+            + tail
+        )
+        #: s, the trial's time limit: twice what the stroke should take
+        self.t_max = 2.0 * expected
+
+    def speed_target(self, ts) -> np.ndarray:
+        """The target speed (rad/s) at times ``ts``, from the events seen so far."""
+
+        def rise(t0):
+            return 1.0 - _cos_fade((ts - t0) / self.RAMP)
+
+        v = -self.speed_open * rise(self.t_start)
+        if self.t_turn is not None:
+            v = v * _cos_fade((ts - self.t_turn) / self.RAMP)
+            v = v + self.speed_close * rise(self.t_turn + self.RAMP + self.PAUSE)
+        if self.t_stop is not None:
+            v = v * _cos_fade((ts - self.t_stop) / self.RAMP)
+        return np.where(ts >= self.t_start, v, 0.0)
+
+    def plan(self, ts, tk, theta_k, dtheta_k):
+        if ts[-1] < self.t_start:
+            return np.zeros_like(ts)
+        v_ref = self.speed_target(ts)
+        dt = ts[1] - ts[0] if ts.size > 1 else ts[0] - tk
+        ref = self.theta_ref + np.cumsum(v_ref) * dt
+        # the hand's target leads the door by what the user's strength allows at most
+        ref = np.clip(ref, theta_k - self.lead_max, theta_k + self.lead_max)
+        self.theta_ref = float(ref[-1])
+        theta = theta_k + dtheta_k * (ts - tk)  # predicted over the chunk
+        f = self.ki * (ref - theta) + self.kp * (v_ref - dtheta_k) + self.tremor(ts)
+        f = np.clip(f, -self.u.max_force, self.u.max_force)
+        if self.t_release is not None:
+            f = f * _cos_fade((ts - self.t_release) / self.u.release_time)
+        return np.where(ts >= self.t_start, f, 0.0)
+
+    def observe(self, ts, theta, dtheta):
+        t = ts[-1]
+        if self.t_turn is None and np.any(theta <= self.theta_open):
+            self.t_turn = float(ts[np.argmax(theta <= self.theta_open)])
+        closing = self.t_turn is not None and t > self.t_turn + self.RAMP + self.PAUSE
+        if closing and self.t_stop is None and np.any(theta >= self.theta_close):
+            self.t_stop = float(ts[np.argmax(theta >= self.theta_close)])
+            self.t_release = self.t_stop + self.RAMP
+        if self.t_release is not None and t > self.t_release + self.u.release_time + self.tail:
+            self.finished = True
         if t >= self.t_max:
             self.finished = True

@@ -427,7 +427,7 @@ MODEL = Model(
     substeps=1,
     theta0=0.0,
     notes=_NOTES,
-    rig_kinds=("impulse", "unlock", "lock"),
+    rig_kinds=("impulse", "unlock", "lock", "slow"),
     switches=switches,
     n_switches=N_SWITCHES,
 )
