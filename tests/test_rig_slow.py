@@ -148,3 +148,27 @@ def test_a_render_log_is_a_chosen_feel_for_the_perceptual_objective(tmp_path):
     assert log.exists() and run.setup.feel.curve.source.startswith("haptic")
     assert best["friction_closing"] == pytest.approx(4.0, abs=0.05)
     assert best["friction_opening"] == pytest.approx(2.5, abs=0.05)
+
+
+def test_an_experiment_cuts_slow_trials_into_windows(tmp_path):
+    """``preprocess: {windows: S}`` in an experiment file: each slow trial becomes its
+    windows, each from its measured state; a length of 0 is a one-line error."""
+    from evo_door.data.io import write_trials
+    from evo_door.experiment import load_experiment
+    from evo_door.experiment.setup import resolve
+
+    trials = _slow(1, 4, 256.0)
+    write_trials(tmp_path / "slow.h5", trials)
+    text = (
+        "model: door\nparams: default\n"
+        "target: {data: slow.h5, kinds: [slow], preprocess: {rate_bias: start, windows: WIN}}\n"
+        "free: {F_atD: [5.0, 40.0]}\nobjective: {kind: ise}\n"
+    )
+    (tmp_path / "exp.yaml").write_text(text.replace("WIN", "1.0"))
+    setup = resolve(load_experiment(tmp_path / "exp.yaml"))
+    expected = sum(len(split_windows(remove_rate_bias(t, "start"), 1.0)) for t in trials)
+    assert len(setup.fit) == expected > 2
+    assert all("w" in tr.trial_id for tr in setup.fit)
+    (tmp_path / "exp.yaml").write_text(text.replace("WIN", "0"))
+    with pytest.raises(UserError, match="windows"):
+        load_experiment(tmp_path / "exp.yaml")

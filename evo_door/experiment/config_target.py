@@ -38,7 +38,7 @@ MODEL_TARGET_KEYS = (
     "dtheta0",
     "preprocess",
 )
-PREPROCESS_KEYS = ("rate_bias", "lowpass", "trim")
+PREPROCESS_KEYS = ("rate_bias", "lowpass", "trim", "windows")
 RATE_BIAS = ("none", "start", "all")
 
 
@@ -49,16 +49,23 @@ class PreprocessSpec:
     Applied in this order: ``rate_bias`` (remove the gyroscope's bias, measured at rest:
     ``start`` before the first motion, ``all`` on every rest run, ``none``), ``lowpass``
     (zero-phase Butterworth at this many Hz on every channel, or None), ``trim`` (cut to
-    the motion).
+    the motion), ``windows`` (cut every trial into windows of this many seconds, each
+    from its measured state: what a slow trial needs to be fitted, or None).
     """
 
     rate_bias: str = "none"
     lowpass: float | None = None
     trim: bool = False
+    windows: float | None = None
 
     @property
     def active(self) -> bool:
-        return self.rate_bias != "none" or self.lowpass is not None or self.trim
+        return (
+            self.rate_bias != "none"
+            or self.lowpass is not None
+            or self.trim
+            or self.windows is not None
+        )
 
 
 @dataclass
@@ -215,6 +222,7 @@ def _preprocess(t: _Reader) -> PreprocessSpec:
         rate_bias=p.choice("rate_bias", "none", RATE_BIAS),
         lowpass=p.number("lowpass", None, lo=0.0, open_lo=True, allow_none=True),
         trim=p.boolean("trim", False),
+        windows=p.number("windows", None, lo=0.0, open_lo=True, allow_none=True),
     )
 
 

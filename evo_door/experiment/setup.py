@@ -221,8 +221,9 @@ def _model_target_trials(spec) -> list[Trial]:
     return out
 
 
-def _preprocessed(tr: Trial, pre, where: str) -> Trial:
-    """``tr`` after the experiment's ``target.preprocess`` steps (see PreprocessSpec)."""
+def _preprocessed(tr: Trial, pre, where: str) -> list[Trial]:
+    """``tr`` after the experiment's ``target.preprocess`` steps (see PreprocessSpec):
+    one trial, or its windows (``windows``)."""
     from evo_door.data import preprocess
 
     try:
@@ -232,9 +233,11 @@ def _preprocessed(tr: Trial, pre, where: str) -> Trial:
             tr = preprocess.lowpass_trial(tr, pre.lowpass)
         if pre.trim:
             tr = preprocess.trim_to_motion(tr)
+        if pre.windows is not None:
+            return preprocess.split_windows(tr, pre.windows)
     except UserError as exc:
         raise UserError(f"{where}: target.preprocess: trial {tr.trial_id!r}: {exc}") from None
-    return tr
+    return [tr]
 
 
 def resolve(exp, trials: list[Trial] | None = None) -> Setup:
@@ -274,8 +277,8 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         fit, validation = [], []
     if spec.preprocess.active:
         where = spec.locs.get("preprocess", spec.locs["trials"])
-        fit = [_preprocessed(tr, spec.preprocess, where) for tr in fit]
-        validation = [_preprocessed(tr, spec.preprocess, where) for tr in validation]
+        fit = [w for tr in fit for w in _preprocessed(tr, spec.preprocess, where)]
+        validation = [w for tr in validation for w in _preprocessed(tr, spec.preprocess, where)]
     for tr in fit + validation:
         try:
             tr.require(exp.objective.derivative)
