@@ -248,3 +248,13 @@ def test_nsga2_needs_a_chosen_feel_and_one_front(folder):
     (folder / "bad.yaml").write_text(stage_text + "per_trial: true\n")
     with pytest.raises(UserError, match=r"bad.yaml:\d+: per_trial: .*nsga2 makes one front"):
         load_experiment(folder / "bad.yaml")
+
+
+@pytest.mark.slow
+def test_the_report_draws_the_front_with_the_answer(reached, tmp_path):
+    from evo_door.experiment.report import write_report
+
+    page = write_report(reached.path, tmp_path / "rep").read_text()
+    assert "smallest change within the JND" in page and "kept at their AS-IS values" in page
+    (png,) = (tmp_path / "rep").rglob("*-front.png")
+    assert png.stat().st_size > 1000

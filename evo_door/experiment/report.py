@@ -30,6 +30,7 @@ from evo_door.experiment.report_feel import (
     DEFAULT_JND,
     FORCE_FLOOR,
     JNDChanges,
+    front_section,
     perceptual_section,
 )
 from evo_door.experiment.results import Results
@@ -179,6 +180,7 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
         page.table(header, rows, f"{label}: error of {first['channel']} per trial, model - target")
     _integration_error(page, s.get("integration_error"))
     perceptual_section(page, res, changes, key)
+    front_section(page, res, key)
     page.raw(table_html(spec_table(res)))
     tol = tolerances_of(res)
     if tol is not None:

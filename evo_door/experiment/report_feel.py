@@ -159,3 +159,60 @@ def _figure(path, check: dict, jnd: JND, fc, label: str) -> None:
     axes[1].set_xlabel("theta [deg] (0 open, 90 closed)")
     fig.suptitle(f"{label}: force-angle curves, its answer against the chosen feel", fontsize=10)
     save_figure(fig, path, dpi=110)
+
+
+def front_section(page: _Page, res: Results, key: str) -> None:
+    """A smallest-change fit's Pareto front (``algorithm: {kind: nsga2}``): the feel's
+    distance from the chosen one against the size of the change, the answer marked;
+    nothing for another fit."""
+    front = res.smallest_change()
+    if front is None:
+        return
+    label = stage_label(res)
+    kept = ", ".join(front.kept) or "none"
+    page.p(
+        f"{label}: smallest change within the JND: {len(front.front_f)} points on the "
+        f"front; the answer changes the AS-IS door by {front.change:.3g} (mean share of the "
+        f"search ranges) at a perceptual error of {front.error:.3g} JND^2; kept at their "
+        f"AS-IS values: {kept}"
+        + ("" if front.reachable else "; UNREACHABLE: this is the closest door"),
+        "pass" if front.reachable else "fail",
+    )
+    page.figure(
+        f"{key}-front",
+        lambda p: _front_figure(p, front, label),
+        f"{label}: the Pareto front of NSGA-II, perceptual error against the size of the "
+        "change from the AS-IS door; the answer and the AS-IS door marked",
+    )
+
+
+def _front_figure(path, front, label: str) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.2), layout="constrained")
+    ax = fig.subplots()
+    f = np.asarray(front.front_f, dtype=np.float64)
+    order = np.argsort(f[:, 1])
+    ax.plot(
+        f[order, 1],
+        np.maximum(f[order, 0], 1e-12),
+        "o-",
+        ms=4,
+        color="tab:blue",
+        label="Pareto front",
+    )
+    ax.plot(
+        [front.change],
+        [max(front.error, 1e-12)],
+        "*",
+        ms=14,
+        color="tab:green" if front.reachable else "tab:red",
+        label="answer" + ("" if front.reachable else " (closest door: unreachable)"),
+    )
+    ax.set_yscale("log")
+    ax.set_xlabel("size of the change from the AS-IS door [mean share of the search ranges]")
+    ax.set_ylabel("perceptual error [JND^2]")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{label}: the smallest change within the JND", fontsize=10)
+    save_figure(fig, path, dpi=110)
