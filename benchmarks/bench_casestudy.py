@@ -39,16 +39,19 @@ def stage_names(pipeline: Path = PIPELINE) -> list[str]:
     return list(yaml.safe_load(pipeline.read_text())["stages"])
 
 
-def run_pipeline(out: Path, quick: bool) -> float:
-    """Run the main job into ``out`` in a fresh process; its wall time (s)."""
+def run_pipeline(out: Path, quick: bool, settings=(), env=None) -> float:
+    """Run the main job into ``out`` in a fresh process; its wall time (s).
+
+    ``settings`` are ``--set`` overrides of every stage's algorithm (``seed=3``), ``env``
+    extra environment variables (``NUMBA_CPU_NAME``)."""
     cmd = [sys.executable, "-m", "evo_door", "run", str(PIPELINE), "--out", str(out), "--quiet"]
-    if quick:
-        for stage in stage_names():
-            for setting in QUICK_SETTINGS:
-                cmd += ["--set", f"stages.{stage}.algorithm.{setting}"]
+    for stage in stage_names():
+        for setting in (*(QUICK_SETTINGS if quick else ()), *settings):
+            cmd += ["--set", f"stages.{stage}.algorithm.{setting}"]
     # the checkout's evo_door, also when another one is installed
     env = {
         **os.environ,
+        **(env or {}),
         "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
     }
     t0 = time.perf_counter()

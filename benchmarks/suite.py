@@ -42,6 +42,10 @@ Sections (``--only``):
     against the virtual door's truth where the trials carry it, the perceptual check
     (``bench_casestudy.py``); a measured run (not ``--quick``) also replaces
     ``benchmarks/casestudy.md``, the figures README and ``docs/case-study.md`` quote.
+``seeds``
+    the main job with GA seeds 1, 2, 3 and on a generic CPU: each estimate's spread
+    against the interval it states (``bench_seeds.py``); a measured run also writes
+    ``benchmarks/seeds.md``.
 ``control``
     the servo loop's cycles on time with 200 clients flooding the control port, the
     renderer's memory growth and its log's session events (``bench_control.py``).
@@ -73,7 +77,17 @@ if str(ROOT) not in sys.path:
 
 from evo_door.errors import UserError  # noqa: E402
 
-SECTIONS = ("trial", "ga", "scaling", "executors", "device", "startup", "casestudy", "control")
+SECTIONS = (
+    "trial",
+    "ga",
+    "scaling",
+    "executors",
+    "device",
+    "startup",
+    "casestudy",
+    "seeds",
+    "control",
+)
 DEFAULT_OUT = HERE / "results"
 
 #: targets: commands that do not simulate, the device force, the servo loop (the trial
@@ -748,6 +762,34 @@ def section_casestudy(suite: Suite) -> None:
     )
 
 
+# -- section: the main job across seeds and CPUs ---------------------------------------
+def section_seeds(suite: Suite) -> None:
+    """The main job four times (seeds 1-3, a generic CPU): do the estimates agree?"""
+    from benchmarks.bench_seeds import agreement, markdown, measure
+
+    done = measure(suite.quick)
+    rows = agreement(done)
+    for label, (wall, _) in done.items():
+        key = label.replace(" ", "_").replace(",", "")
+        suite.add(f"seeds.{key}.wall", "seeds", f"main job, {label}: wall time", wall, "s")
+    for r in rows:
+        suite.add(
+            f"seeds.{r['stage']}.{r['name']}.spread",
+            "seeds",
+            f"stage {r['stage']}: {r['name']}, half its spread over the runs",
+            100.0 * r["spread"],
+            "%",
+        )
+    suite.add(
+        "seeds.claims_failing",
+        "seeds",
+        "estimates whose spread beats their claim",
+        sum(r["fails"] for r in rows),
+        "1",
+    )
+    suite.tables["seeds"] = markdown(done, rows)
+
+
 # -- section: control port under a flood -----------------------------------------------
 def section_control(suite: Suite) -> None:
     """The servo loop with 200 clients flooding its control port."""
@@ -821,6 +863,7 @@ RUNNERS = {
     "device": section_device,
     "startup": section_startup,
     "casestudy": section_casestudy,
+    "seeds": section_seeds,
     "control": section_control,
 }
 
@@ -912,6 +955,25 @@ def casestudy_markdown(suite: Suite, info: dict) -> str:
             + f" Commit {info['commit']}." * bool(info["commit"]),
             "",
             suite.tables["casestudy"],
+            "",
+        ]
+    )
+
+
+def seeds_markdown(suite: Suite, info: dict) -> str:
+    """``benchmarks/seeds.md``: the main job's estimates across seeds and CPUs."""
+    from benchmarks._util import machine_line
+
+    return "\n".join(
+        [
+            "# The main job across GA seeds and CPUs (`python -m benchmarks --only seeds`)",
+            "",
+            machine_line(
+                f" ({info['cpu']}), numba threads {info['numba_threads']}", how="four runs"
+            )
+            + f" Commit {info['commit']}." * bool(info["commit"]),
+            "",
+            suite.tables["seeds"],
             "",
         ]
     )
@@ -1118,6 +1180,9 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     if not suite.quick and "trial" in suite.tables:  # measured: the figures docs quote
         write_text(HERE / "trial.md", trial_markdown(suite, info))
         paths["trial"] = HERE / "trial.md"
+    if not suite.quick and "seeds" in suite.tables:
+        write_text(HERE / "seeds.md", seeds_markdown(suite, info))
+        paths["seeds"] = HERE / "seeds.md"
     if not suite.quick and "casestudy" in suite.tables:  # measured: the figures docs quote
         text = casestudy_markdown(suite, info)
         write_text(HERE / "casestudy.md", text)

@@ -47,6 +47,8 @@ REQUIRED = (
     "casestudy.redesign.fitness",
     "casestudy.specification.perceptual.opening",
     "casestudy.haptic.perceptual.closing",
+    "seeds.seed_1.wall",
+    "seeds.claims_failing",
     "control.flood.on_time",
     "control.flood.memory_growth",
     "control.flood.events_kept",
@@ -428,3 +430,24 @@ def test_the_case_study_page_takes_its_figures_from_the_benchmark(tmp_path):
     bare.write_text("no markers\n")
     with pytest.raises(RuntimeError, match="no generated block"):
         replace_generated(bare, "# t\nx\n")
+
+
+def test_seeds_flags_an_estimate_that_spreads_wider_than_it_claims():
+    from benchmarks.bench_seeds import agreement, markdown
+
+    done = {
+        "seed 1": (
+            10.0,
+            {"latch": {"u": (40.0, 0.01, "identifiable"), "k": (5.0, 0.5, "not identifiable")}},
+        ),
+        "seed 2": (
+            11.0,
+            {"latch": {"u": (42.0, 0.01, "identifiable"), "k": (7.0, 0.5, "not identifiable")}},
+        ),
+    }
+    rows = {r["name"]: r for r in agreement(done)}
+    # u: half its spread is 1 / 41 = 2.4 %, against a claimed 1 %: the claim fails
+    assert rows["u"]["spread"] == pytest.approx(1.0 / 41.0) and rows["u"]["fails"]
+    # k spreads by 17 % but claims nothing
+    assert rows["k"]["spread"] == pytest.approx(1.0 / 6.0) and not rows["k"]["fails"]
+    assert "Claims the runs do not bear out: latch.u." in markdown(done, list(rows.values()))
