@@ -49,7 +49,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.files import ATTRS
 from evo_door.perception import FeelTarget
-from evo_door.perception.feel import DIRECTIONS, PASS_FRACTION, fraction_beyond
+from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE, PASS_FRACTION, fraction_beyond
 from evo_door.sim.simulate import COULOMB_SPEED, coulomb_vector, hold_forces, hold_forces_rows
 
 #: Monte-Carlo doors per factor tried
@@ -80,7 +80,8 @@ class FeelCheck:
 
     :meth:`judge` takes one door a row of a kernel matrix and says which pass (as
     :func:`check_verdict`'s ``passes`` would: at most ``1 - pass_fraction`` of each
-    stroke beyond the force JND, by :func:`fraction_beyond`), with their Coulomb curves
+    stroke beyond the force JND, by :func:`fraction_beyond`, and each latch peak within
+    its JND), with their Coulomb curves
     on :attr:`theta`; the doors are computed in one compiled call, across threads.
     """
 
@@ -92,6 +93,8 @@ class FeelCheck:
         self.theta = np.union1d(np.union1d(feel.stroke, latch), feel.curve.theta)
         self.chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
         self.threshold = {d: feel.jnd.force_threshold(self.chosen[d]) for d in DIRECTIONS}
+        # the latch peaks, judged as perceptual_check judges them (on this grid)
+        self.latch = self.theta >= feel.curve.theta[-1] - LATCH_ZONE
         self.evaluations = 0
 
     def judge(self, P) -> tuple[np.ndarray, dict]:
@@ -106,6 +109,10 @@ class FeelCheck:
             finite = np.all(np.isfinite(f), axis=1)
             fails = ~(np.abs(f - self.chosen[d]) <= self.threshold[d])
             ok &= finite & (fraction_beyond(self.theta, fails) <= 1.0 - self.pass_fraction)
+            if self.latch.any():
+                pick = np.min if d == "opening" else np.max
+                peak = pick(f[:, self.latch], axis=1)
+                ok &= ~(np.abs(peak - self.feel.peaks[d]) > self.feel.peak_threshold[d])
             forces[d] = f
         return ok, forces
 

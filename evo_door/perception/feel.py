@@ -29,6 +29,8 @@ DIRECTIONS = ("opening", "closing")
 CURVE_COLUMNS = ("theta", "force", "direction", "speed")
 #: a share of the stroke within the JND at or above this passes the check
 PASS_FRACTION = 0.95
+#: rad before closed where the latch is, judged by its peaks (3 deg)
+LATCH_ZONE = math.radians(3.0)
 
 
 @dataclass
@@ -149,7 +151,11 @@ def perceptual_check(mechanism: FeelCurve | dict, chosen: FeelCurve | dict, jnd:
     direction (``opening``, ``closing``): ``theta`` (rad), ``mechanism``, ``chosen``,
     ``threshold`` (N, :meth:`JND.force_threshold` of the chosen force), ``fails`` (bool
     per point), ``fraction`` (share of the stroke's angle range beyond the JND),
-    ``worst`` (angle rad, difference N, threshold N) and ``bands`` (failing intervals).
+    ``worst`` (angle rad, difference N, threshold N), ``bands`` (failing intervals) and
+    ``peak``: the latch's peak of the stroke (the largest pull opening, the largest push
+    closing, in the last :data:`LATCH_ZONE` rad of the chosen curve, each curve on its
+    own points) as ``(mechanism N, chosen N, threshold N)``. A latch is felt as one event:
+    a peak beyond its JND is noticeable however little of the stroke it spans.
 
     >>> import numpy as np
     >>> th = np.linspace(0.0, 1.5, 151)
@@ -179,8 +185,21 @@ def perceptual_check(mechanism: FeelCurve | dict, chosen: FeelCurve | dict, jnd:
             "fraction": float(fraction_beyond(theta, fails)),
             "worst": (float(theta[k]), float(diff[k]), float(threshold[k])),
             "bands": _bands(theta, fails),
+            "peak": _peak(m, c, d, jnd),
         }
     return out
+
+
+def _peak(m: FeelCurve, c: FeelCurve, direction: str, jnd: JND) -> tuple[float, float, float]:
+    """``(mechanism, chosen, threshold)`` (N) of the latch peak of ``direction``."""
+    edge = c.theta[-1] - LATCH_ZONE
+    pick = np.min if direction == "opening" else np.max
+    fm = getattr(m, direction)[m.theta >= edge]
+    fc = getattr(c, direction)[c.theta >= edge]
+    if fm.size == 0 or fc.size == 0:
+        return (math.nan, math.nan, math.nan)
+    chosen = float(pick(fc))
+    return (float(pick(fm)), chosen, float(jnd.force_threshold(chosen)))
 
 
 def fraction_beyond(theta, fails):
@@ -215,16 +234,19 @@ def check_verdict(check: dict, jnd: JND, pass_fraction: float = PASS_FRACTION) -
     ``fraction_beyond_jnd`` of the stroke, the ``worst`` difference (``angle_deg``,
     ``difference_N``, ``jnd_N``) and a ``verdict``: ``"within the JND"`` where no point
     of the stroke is beyond it, ``"passes"`` where at least ``pass_fraction`` of the
-    stroke is within it, ``"noticeable"`` otherwise. ``jnd`` is recorded beside it.
+    stroke is within it and its latch peak within its JND (``latch_peak``: mechanism,
+    chosen, JND in N), ``"noticeable"`` otherwise. ``jnd`` is recorded beside it.
     """
     out: dict = {}
     for d in DIRECTIONS:
         c = check[d]
         angle, diff, thr = c["worst"]
         fraction = c["fraction"]
+        mech, chosen, limit = c.get("peak", (math.nan, math.nan, math.nan))
+        peak_ok = not (abs(mech - chosen) > limit)  # (nan: no latch zone, nothing to judge)
         if not c["fails"].any():
             verdict = "within the JND"
-        elif fraction <= 1.0 - pass_fraction:
+        elif fraction <= 1.0 - pass_fraction and peak_ok:
             verdict = "passes"
         else:
             verdict = "noticeable"
@@ -233,6 +255,7 @@ def check_verdict(check: dict, jnd: JND, pass_fraction: float = PASS_FRACTION) -
             "worst": {"angle_deg": math.degrees(angle), "difference_N": diff, "jnd_N": thr},
             "verdict": verdict,
             "bands_deg": [(math.degrees(a), math.degrees(b)) for a, b in c["bands"]],
+            "latch_peak": {"mechanism_N": mech, "chosen_N": chosen, "jnd_N": limit},
         }
     out["pass_fraction"] = pass_fraction
     out["jnd"] = jnd.as_dict()

@@ -29,11 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.perception.feel import DIRECTIONS, FeelCurve
+from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE, FeelCurve
 from evo_door.perception.jnd import JND
 
-#: rad before closed where the latch is compared by its peaks (3 deg)
-LATCH_ZONE = math.radians(3.0)
 #: spacing of the latch zone's grid (rad): a catch rises over about 1e-3 rad
 LATCH_SPACING = 2e-5
 #: points of the stroke's grid below the latch zone
