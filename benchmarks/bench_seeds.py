@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 
 #: the runs: (label, --set overrides of every stage's algorithm, environment)
-RUNS = (
+RUNS: tuple[tuple[str, tuple[str, ...], dict[str, str]], ...] = (
     ("seed 1", ("seed=1",), {}),
     ("seed 2", ("seed=2",), {}),
     ("seed 3", ("seed=3",), {}),
@@ -31,7 +31,9 @@ def estimates(path: Path) -> dict:
     from evo_door.experiment.pipeline import pipeline_summary
 
     out: dict = {}
-    for st in pipeline_summary(path)["stages"]:
+    summary = pipeline_summary(path)
+    assert summary is not None, path  # (a pipeline's results file: the run just made)
+    for st in summary["stages"]:
         res = Results(path, st["name"])
         s = res.summary()
         ident = s.get("identifiability", {})
