@@ -52,6 +52,7 @@ from evo_door.optim.executors import Executor, check_executor, open_executor
 from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
+from evo_door.optim.multistart import scan_and_polish
 
 #: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
 POOLED = "pooled"
@@ -382,13 +383,20 @@ class ExperimentRun:
             if self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":
                 if progress:
                     print(
-                        f"{self._label(job)}: SLSQP from fitness "
+                        f"{self._label(job)}: "
+                        + ("scan and " if self.algorithm.scan.enabled else "")
+                        + "SLSQP from fitness "
                         f"{problem.evaluate(x)[0][0]:.4g} ...",
                         end="",
                         file=sys.stderr,
                         flush=True,
                     )
-                job.local = polish(problem, x, self.algorithm.local)
+                if self.algorithm.scan.enabled:
+                    job.local = scan_and_polish(
+                        problem, x, self.algorithm.scan, self.algorithm.local
+                    )
+                else:
+                    job.local = polish(problem, x, self.algorithm.local)
                 if progress:
                     print(
                         f" {job.local.fitness:.4g} ({job.local.evaluations} evaluations, "
@@ -497,6 +505,12 @@ class ExperimentRun:
             ident = _identifiability(self.setup.problem(), best_x)
         else:
             ident = self.jobs[-1].identifiability
+        if self.per_trial and ident is not None:  # the trials' spread, a floor
+            from evo_door.optim.spread import trial_estimates, with_trial_spread
+
+            ident = with_trial_spread(
+                ident, *trial_estimates([j.identifiability for j in self.trial_jobs])
+            )
         t0 = time.perf_counter()
         integration = _integration_error(self.setup, self._fit_vectors(), best_x)
         return {
