@@ -53,6 +53,7 @@ from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
 from evo_door.optim.multistart import scan_and_polish
+from evo_door.optim.spread import trial_estimates, with_trial_spread
 
 #: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
 POOLED = "pooled"
@@ -133,13 +134,14 @@ def users_trials(exp, trials=None) -> list:
     return [tr for tr in trials if str(tr.user_id) in spec.users]
 
 
-def _identifiability(problem, x):
+def _identifiability(problem, x, measured: bool = True):
     """The identifiability of a fit at ``x`` (None if the check cannot be made: a run's
-    answer is never lost to it)."""
+    answer is never lost to it), widened for model mismatch if the target is ``measured``
+    (a model's target is noise-free: no truth beyond the best fit to cover)."""
     from evo_door.optim.identifiability import identifiability
 
     try:
-        return identifiability(problem, x)
+        return identifiability(problem, x, mismatch=measured)
     except (UserError, ValueError, np.linalg.LinAlgError):
         return None
 
@@ -383,9 +385,8 @@ class ExperimentRun:
             if self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":
                 if progress:
                     print(
-                        f"{self._label(job)}: "
-                        + ("scan and " if self.algorithm.scan.enabled else "")
-                        + "SLSQP from fitness "
+                        f"{self._label(job)}: {'scan, ' * self.algorithm.scan.enabled}SLSQP from "
+                        "fitness "
                         f"{problem.evaluate(x)[0][0]:.4g} ...",
                         end="",
                         file=sys.stderr,
@@ -412,7 +413,7 @@ class ExperimentRun:
             err, ok = problem.trial_errors(job.best_x)
             job.fit_errors = np.where(ok, err, np.inf)[0]
             job.validation_errors = problem.validation_errors(job.best_x)
-            job.identifiability = _identifiability(problem, job.best_x)
+            job.identifiability = _identifiability(problem, job.best_x, self._measured)
             job.done = True
             job.seconds += time.perf_counter() - t0
             if progress:
@@ -421,6 +422,10 @@ class ExperimentRun:
         self.status = "complete"
         self.result = self._results()
         self.checkpoint()
+
+    @property
+    def _measured(self) -> bool:  # the target is data, not a model's noise-free response
+        return self.config["target"].get("kind", "data") == "data"
 
     def _end_line(self, job: Job) -> str:
         """The progress display's last line for a job: its fitness, and any estimate
@@ -502,12 +507,10 @@ class ExperimentRun:
             best_fitness = self.jobs[0].best_fitness
         full = self.setup.problem().full(best_x)[0]
         if self.per_trial and not self.pooled:  # the mean of the fits, on every trial
-            ident = _identifiability(self.setup.problem(), best_x)
+            ident = _identifiability(self.setup.problem(), best_x, self._measured)
         else:
             ident = self.jobs[-1].identifiability
         if self.per_trial and ident is not None:  # the trials' spread, a floor
-            from evo_door.optim.spread import trial_estimates, with_trial_spread
-
             ident = with_trial_spread(
                 ident, *trial_estimates([j.identifiability for j in self.trial_jobs])
             )

@@ -256,6 +256,8 @@ def _widening_text(ident: Identifiability) -> str:
         )
         if ident.mismatch > 1.0 and ident.settings.get("mismatch", True):
             out += f": intervals x{ident.mismatch:.3g} for model mismatch"
+        elif ident.mismatch > 1.0:
+            out += ": intervals not widened for it"
     floors = [n for n, t in zip(ident.names, ident.trial_se) if math.isfinite(t)]
     if floors:
         out += f"; per-trial spread a floor for {', '.join(floors)}"
@@ -384,10 +386,8 @@ def _bound_reason(name: str, unit_: str, x: float, lower: float, upper: float) -
     if not side:
         return ""
     bound = upper if side == "upper" else lower
-    return (
-        f"on the {side} bound of its search range ({x:.4g} {unit_}, bound {bound:g} {unit_}): "
-        f"widen free: {name}"
-    )
+    u = "" if unit_ == "1" else f" {unit_}"
+    return f"on the {side} bound of its search range ({x:.4g}{u}, bound {bound:g}{u}): widen free: {name}"
 
 
 def _note(objective, r) -> str:

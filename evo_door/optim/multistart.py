@@ -19,7 +19,7 @@ The scan
     notch. The ``starts`` best intervals are searched again, each on a grid of
     ``points`` values over it and one step on either side (a zoom of ``(points - 1) /
     3`` a level), ``levels - 1`` times following its best interval. Cost:
-    ``points (1 + starts (levels - 1))`` evaluations a parameter (21, 3, 4: 210).
+    ``points (1 + starts (levels - 1))`` evaluations a parameter (21, 2, 4: 147).
 The polish
     The best ``starts`` distinct points met (the start point, every scan's best; two
     are distinct when some parameter differs by more than 1 % of its range)

@@ -79,8 +79,9 @@ def with_trial_spread(ident: Identifiability, estimates, usable=None) -> Identif
         verdicts[j], reasons[j] = _verdict(
             None, ci_rel[j], ident.partners[j], ident.partner_r[j], *thresholds, on_bound
         )
-    widened = {"se": se, "ci_half": ci_half, "ci_rel": ci_rel, "trial_se": trial_se}
-    return replace(ident, verdicts=verdicts, reasons=reasons, **widened)
+    out = replace(ident, verdicts=verdicts, reasons=reasons)
+    out.se, out.ci_half, out.ci_rel, out.trial_se = se, ci_half, ci_rel, trial_se
+    return out
 
 
 def trial_estimates(idents) -> tuple[np.ndarray, np.ndarray]:
