@@ -9,12 +9,16 @@ grid of the unlock force, +-3 % about the truth, the lock force at its truth, an
 :func:`notches` holds the curve to one local minimum and a small jaggedness.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from evo_door.experiment.pipeline import fill, load_pipeline
 from evo_door.experiment.setup import resolve
 from evo_door.models import get_model
+from evo_door.optim.ga import GeneticAlgorithm
+from evo_door.optim.multistart import scan_and_polish
 from evo_door.optim.problem import Problem
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)
@@ -105,3 +109,26 @@ def test_the_notch_check_flags_a_jagged_objective(latch_stage):
     assert notches(x, noisy)[-1].startswith("jaggedness")
     dip = x**2 - 0.1 * np.exp(-(((x - 0.5) / 0.03) ** 2))
     assert notches(x, dip)[0].startswith("2 local minima")
+
+
+@pytest.mark.slow
+def test_latch_forces_are_the_same_whatever_the_ga_seed(latch_stage):
+    """The stage's own algorithm (GA, then ``scan`` and a multi-start polish) over GA
+    seeds 1..5 gives the unlock and lock forces within 1 % of each other and of the
+    virtual door's truth, which the trials carry. Before the scan the unlock force
+    ended +4.9, +5.0 % off for seeds 1, 2 (SLSQP started on the plateau beside the
+    notch) and -0.03 % for seeds 3..5."""
+    algorithm = load_pipeline("experiments/case_study.yaml").stage("latch").experiment.algorithm
+    assert algorithm.scan.enabled
+    truth = latch_stage.fit.trials[0].truth["params"]
+    truth = np.array([truth[n] for n in latch_stage.free])
+    assert truth.tolist() == [TRUE_UNLOCK, TRUE_LOCK]
+    answers = []
+    for seed in range(1, 6):
+        ga = GeneticAlgorithm(dataclasses.replace(algorithm.ga, seed=seed)).run(latch_stage)
+        answers.append(scan_and_polish(latch_stage, ga.best_x, algorithm.scan, algorithm.local).x)
+    answers = np.array(answers)
+    print("unlock, lock (N) per seed:", answers.round(3).tolist())
+    assert np.all(np.abs(answers / truth - 1.0) < 0.01), answers
+    spread = (answers.max(axis=0) - answers.min(axis=0)) / answers.mean(axis=0)
+    assert np.all(spread < 0.01), answers

@@ -2,8 +2,10 @@
 
 The objective (max-square or ISE, on which derivative, how trials combine) and the
 algorithm: the GA's settings, the local method (SLSQP) as polish or alone (``nlpql``),
-a start point, or NSGA-II on the GA's settings (``nsga2``: the smallest change within
-the JND, :mod:`evo_door.optim.smallest_change`) with its measure of change.
+a start point, a scan along each parameter before a polish from several starts
+(``scan``, ``starts``: :mod:`evo_door.optim.multistart`), or NSGA-II on the GA's settings
+(``nsga2``: the smallest change within the JND, :mod:`evo_door.optim.smallest_change`)
+with its measure of change.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import asdict, dataclass, field, fields
 from evo_door.experiment.config_reader import _Reader
 from evo_door.optim.ga import GASettings
 from evo_door.optim.local import LocalSettings
+from evo_door.optim.multistart import ScanSettings
 from evo_door.optim.problem import COMBINE, OBJECTIVE_KINDS, PERCEPTUAL, Objective
 from evo_door.optim.smallest_change import CHANGE_MEASURES
 from evo_door.params.declaration import suggest
@@ -21,7 +24,9 @@ OBJECTIVE_KEYS = ("kind", "derivative", "combine")
 GA_KEYS = tuple(f.name for f in fields(GASettings))
 #: the SLSQP settings an experiment may set (the finite-difference step stays internal)
 LOCAL_KEYS = ("max_iterations", "ftol")
-ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, "start", "change")
+#: the scan before a multi-start polish: points a parameter (0: none), starts polished
+SCAN_KEYS = ("scan", "starts")
+ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, *SCAN_KEYS, "start", "change")
 #: ``nsga2``: the perceptual error and the change from the AS-IS door, as a front
 ALGORITHM_KINDS = ("ga", "nlpql", "nsga2")
 #: the algorithms that breed a population (a GA's settings, checkpoints, executors)
@@ -38,6 +43,7 @@ class AlgorithmSpec:
     polish: str = "none"
     local: LocalSettings = field(default_factory=LocalSettings)
     start: dict = field(default_factory=dict)
+    scan: ScanSettings = field(default_factory=ScanSettings)
     #: how ``nsga2`` measures the change from the AS-IS door (``CHANGE_MEASURES``)
     change: str = "normalised"
 
@@ -60,6 +66,8 @@ class AlgorithmSpec:
             **asdict(self.ga),
             "polish": self.polish,
             **asdict(self.local),
+            "scan": self.scan.points,
+            "starts": self.scan.starts,
             "start": dict(self.start),
             "change": self.change,
         }
@@ -77,6 +85,9 @@ class AlgorithmSpec:
             ),
             start=dict(data.get("start") or {}),
             change=str(data.get("change", "normalised")),
+            scan=ScanSettings(
+                points=int(data.get("scan", 0)), starts=int(data.get("starts", STARTS))
+            ),
         )
 
 
@@ -122,7 +133,27 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
         local=local,
         start={str(k): v for k, v in start.items()},
         change=a.choice("change", CHANGE_MEASURES[0], CHANGE_MEASURES),
+        scan=_scan(a, kind, polish),
     )
+
+
+#: polishes after a scan when ``starts`` is not given
+STARTS = ScanSettings().starts
+
+
+def _scan(a: _Reader, kind: str, polish: str) -> ScanSettings:
+    """``scan`` (points a parameter, 0 / false / empty: none) and ``starts``, checked: a
+    scan hands its points to SLSQP, so it needs ``polish: slsqp`` or ``kind: nlpql``."""
+    raw = a.get("scan")
+    points = 0 if raw is None or raw is False else a.integer("scan", 0, lo=0)
+    if 0 < points < 3:
+        raise a.fail("scan", f"{points} points cannot bracket a minimum: give 3 or more (0: none)")
+    if a.get("starts") is not None and not points:
+        raise a.fail("starts", "polishes the scan's best points: give scan: N too")
+    starts = a.integer("starts", STARTS, lo=1)
+    if points and kind == "ga" and polish != "slsqp":
+        raise a.fail("scan", "hands its best points to SLSQP: set polish: slsqp")
+    return ScanSettings(points=points, starts=starts)
 
 
 def _ga_settings(a: _Reader) -> GASettings:

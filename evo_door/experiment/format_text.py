@@ -169,6 +169,12 @@ def _show_head(res: Results, s: dict) -> list[str]:
                 if alg["kind"] in ("ga", "nsga2")
                 else f"nlpql (SLSQP), max {alg['max_iterations']} iterations"
             )
+            + (
+                f", after a scan of {alg['scan']} points a parameter and "
+                f"{alg.get('starts', 1)} starts"
+                if alg.get("scan")
+                else ""
+            )
         ),
         "  simulation " + _simulation_text(s["simulation"]),
         f"  {s['evaluations']} evaluations, {s['blowups']} blow-ups, {(s['seconds'] or 0):.1f} s",

@@ -37,6 +37,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.experiment.answer_checks import identifiability_of, integration_error_of
 from evo_door.experiment.config import AlgorithmSpec
 from evo_door.experiment.feel_check import try_feel_check
 from evo_door.experiment.run_preflight import (
@@ -52,7 +53,9 @@ from evo_door.optim.executors import DEFAULT as DEFAULT_EXECUTOR
 from evo_door.optim.executors import Executor, check_executor, open_executor
 from evo_door.optim.hooks import Callback, EarlyStop, ProgressBar
 from evo_door.optim.local import LocalResult, polish
+from evo_door.optim.multistart import scan_and_polish
 from evo_door.optim.smallest_change import ChangeObjectives, SmallestChange, smallest_change_of
+from evo_door.optim.spread import trial_estimates, with_trial_spread
 
 #: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
 POOLED = "pooled"
@@ -110,34 +113,6 @@ class _TermAsInterrupt:
     def __exit__(self, *exc) -> None:
         if self._previous is not None:
             signal.signal(signal.SIGTERM, self._previous)
-
-
-def _identifiability(problem, x):
-    """The identifiability of a fit at ``x`` (None if the check cannot be made: a run's
-    answer is never lost to it)."""
-    from evo_door.optim.feel_identifiability import feel_identifiability
-    from evo_door.optim.identifiability import identifiability
-
-    try:
-        if problem.objective.perceptual:
-            return feel_identifiability(problem, x)
-        return identifiability(problem, x)
-    except (UserError, ValueError, np.linalg.LinAlgError):
-        return None
-
-
-def _integration_error(setup, fit_x, validation_x):
-    """The answer's integration error, estimated a posteriori
-    (:mod:`evo_door.experiment.integration_error`); None if it cannot be made: a run's
-    answer is never lost to it."""
-    from evo_door.experiment.integration_error import estimate
-
-    if not setup.fit:  # a chosen feel alone: a curve, no integration
-        return None
-    try:
-        return estimate(setup, fit_x, validation_x)
-    except (UserError, ValueError):
-        return None
 
 
 class ExperimentRun:
@@ -374,13 +349,19 @@ class ExperimentRun:
             elif self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":
                 if progress:
                     print(
-                        f"{self._label(job)}: SLSQP from fitness "
+                        f"{self._label(job)}: {'scan, ' * self.algorithm.scan.enabled}SLSQP from "
+                        "fitness "
                         f"{problem.evaluate(x)[0][0]:.4g} ...",
                         end="",
                         file=sys.stderr,
                         flush=True,
                     )
-                job.local = polish(problem, x, self.algorithm.local)
+                if self.algorithm.scan.enabled:
+                    job.local = scan_and_polish(
+                        problem, x, self.algorithm.scan, self.algorithm.local
+                    )
+                else:
+                    job.local = polish(problem, x, self.algorithm.local)
                 if progress:
                     print(
                         f" {job.local.fitness:.4g} ({job.local.evaluations} evaluations, "
@@ -396,7 +377,7 @@ class ExperimentRun:
             err, ok = problem.trial_errors(job.best_x)
             job.fit_errors = np.where(ok, err, np.inf)[0]
             job.validation_errors = problem.validation_errors(job.best_x)
-            job.identifiability = _identifiability(problem, job.best_x)
+            job.identifiability = identifiability_of(problem, job.best_x, self._measured)
             job.done = True
             job.seconds += time.perf_counter() - t0
             if progress:
@@ -405,6 +386,10 @@ class ExperimentRun:
         self.status = "complete"
         self.result = self._results(progress)
         self.checkpoint()
+
+    @property
+    def _measured(self) -> bool:  # the target is data, not a model's noise-free response
+        return self.config["target"].get("kind", "data") == "data"
 
     def _end_line(self, job: Job) -> str:
         """The progress display's last line for a job: its fitness, and any estimate
@@ -498,11 +483,15 @@ class ExperimentRun:
             best_fitness = self.jobs[0].best_fitness
         full = self.setup.problem().full(best_x)[0]
         if self.per_trial and not self.pooled:  # the mean of the fits, on every trial
-            ident = _identifiability(self.setup.problem(), best_x)
+            ident = identifiability_of(self.setup.problem(), best_x, self._measured)
         else:
             ident = self.jobs[-1].identifiability
+        if self.per_trial and ident is not None:  # the trials' spread, a floor
+            ident = with_trial_spread(
+                ident, *trial_estimates([j.identifiability for j in self.trial_jobs])
+            )
         t0 = time.perf_counter()
-        integration = _integration_error(self.setup, self._fit_vectors(), best_x)
+        integration = integration_error_of(self.setup, self._fit_vectors(), best_x)
         integration_s = time.perf_counter() - t0
         check = try_feel_check(self.setup.model, full, self.config, self.setup.feel)
         return {

@@ -203,6 +203,7 @@ def run_tree(run, trials_on_disk: bool) -> dict:
             "seed": ga_settings.seed,
             "algorithm": run.algorithm.kind,
             "polish": run.algorithm.polish,
+            "scan": run.algorithm.scan.points,
             "objective": cfg["objective"],
             "per_trial": run.per_trial,
             "jobs": len(run.jobs),
@@ -499,7 +500,7 @@ def local_from_tree(node: dict) -> LocalResult:
 def best_tree(run) -> dict:
     """``/best``: the run's answer, its errors, and the estimates a bound decided.
 
-    ``at_bound`` maps each free parameter within 0.1 % of its search range from a bound
+    ``at_bound`` maps each free parameter within 1 % of its search range from a bound
     to ``"lower"`` or ``"upper"`` (:func:`evo_door.optim.bounds.bound_hits`).
     """
     res = run.result

@@ -30,6 +30,16 @@ Singular or ill-conditioned ``J^T J``
     dominates the smallest singular vector is set aside as undetermined, naming the
     parameters it trades with. The covariance of the others is that of the fit with
     those held at their values (a pseudo-inverse that drops the null directions).
+Noise level and mismatch
+    :func:`noise_level` estimates the measurement noise from the residual's
+    sample-to-sample differences: white noise of standard deviation ``s`` gives
+    differences of variance ``2 s^2``, while a model error, smooth over a sample (a lag,
+    a friction law of another shape), hardly shows in them. The *mismatch ratio* is the
+    residual's RMS over that level: about 1 when the model matches the data but for
+    noise (1.1-2.0 measured on the rig's own impulse trials, where the load cell's noise
+    integrated by the door adds a slow part), 8-200 on the rig's richer truth
+    (``docs/model-mismatch.md``). :mod:`evo_door.optim.identifiability` widens the
+    intervals by it.
 """
 
 from __future__ import annotations
@@ -66,6 +76,31 @@ def autocorrelation_time(r) -> float:
     stop = 1 + (int(negative[0]) if negative.size else n - 1)
     tau = 1.0 + 2.0 * float(np.sum(acf[1:stop]))
     return float(min(max(tau, 1.0), n))
+
+
+def noise_level(parts) -> tuple[float, float]:
+    """``(noise, ratio)``: the residual's white-noise level and its RMS over that level.
+
+    ``parts`` are the trials' residuals (each in sample order); the level is
+    ``sqrt(sum diff(r)^2 / (2 sum (n - 1)))`` over every trial (module docstring), the
+    ratio ``sqrt(mean r^2) / noise`` (NaN when either is zero or undefined).
+
+    >>> rng = np.random.default_rng(1)
+    >>> noise, ratio = noise_level([rng.normal(0.0, 0.1, 4000)])
+    >>> round(noise, 2), round(ratio, 1)
+    (0.1, 1.0)
+    >>> noise_level([0.1 * rng.normal(size=4000) + np.sin(np.linspace(0, 3, 4000))])[1] > 5
+    True
+    """
+    parts = [np.asarray(r, dtype=np.float64) for r in parts]
+    diffs = sum(float(np.sum(np.diff(r) ** 2)) for r in parts)
+    pairs = sum(max(r.size - 1, 0) for r in parts)
+    count = sum(r.size for r in parts)
+    if pairs == 0 or not diffs > 0.0:
+        return 0.0, math.nan
+    noise = math.sqrt(diffs / (2.0 * pairs))
+    rms = math.sqrt(sum(float(r @ r) for r in parts) / count)
+    return noise, rms / noise
 
 
 @dataclass

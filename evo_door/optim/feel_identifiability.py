@@ -26,7 +26,7 @@ from evo_door.optim.covariance import MAX_CONDITION, MIN_SENSITIVITY, covariance
 from evo_door.optim.identifiability import (
     MAX_CORRELATION,
     Identifiability,
-    _bound_note,
+    _bound_reason,
     _partners,
     _verdict,
 )
@@ -57,13 +57,7 @@ def feel_identifiability(
         return feel.residuals(model, problem.full(z)[0])
 
     r = residual(x)
-    J = np.empty((r.size, x.size))
-    for j in range(x.size):
-        h = step * width[j]
-        lo, hi = x.copy(), x.copy()
-        lo[j] = max(problem.lower[j], x[j] - h)
-        hi[j] = min(problem.upper[j], x[j] + h)
-        J[:, j] = (residual(hi) - residual(lo)) / (hi[j] - lo[j])
+    J = _jacobian(residual, x, problem.lower, problem.upper, step * width, r.size)
     cov = covariance(J, r, None, width, MAX_CONDITION, MIN_SENSITIVITY, names)
     keep = [j for j in range(x.size) if j not in cov.reasons]
     se = np.full(x.size, math.inf)
@@ -74,6 +68,9 @@ def feel_identifiability(
     partners, partner_r = _partners(cov.correlation, names)
     verdicts, reasons = [], []
     for i in range(len(names)):
+        on_bound = _bound_reason(
+            names[i], model.params[names[i]].unit, x[i], problem.lower[i], problem.upper[i]
+        )
         verdict, why = _verdict(
             cov.reasons.get(i),
             ci_rel[i],
@@ -82,10 +79,10 @@ def feel_identifiability(
             max_relative_ci,
             max_correlation,
             0.0,
+            on_bound,
         )
-        why = why.replace("0 % CI", "1-JND interval")
         verdicts.append(verdict)
-        reasons.append(why + _bound_note(x[i], problem.lower[i], problem.upper[i]))
+        reasons.append(why.replace("0 % CI", "1-JND interval"))
     norms = np.linalg.norm(np.where(np.isfinite(J), J, 0.0), axis=0)
     unit_j = J / np.where(norms > 0, norms, 1.0)
     return Identifiability(
@@ -127,3 +124,14 @@ def feel_identifiability(
         note="intervals: the change that moves the feel by one JND (the objective by 1)",
         seconds=time.perf_counter() - t0,
     )
+
+
+def _jacobian(residual, x, lower, upper, steps, n: int) -> np.ndarray:
+    """Central differences of ``residual`` at ``x`` (one-sided where a bound is near)."""
+    J = np.empty((n, x.size))
+    for j in range(x.size):
+        lo, hi = x.copy(), x.copy()
+        lo[j] = max(lower[j], x[j] - steps[j])
+        hi[j] = min(upper[j], x[j] + steps[j])
+        J[:, j] = (residual(hi) - residual(lo)) / (hi[j] - lo[j])
+    return J

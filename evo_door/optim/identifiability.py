@@ -12,31 +12,64 @@ give (:mod:`evo_door.optim.covariance`: what a coloured residual and a singular
 ``J^T J`` do), and here the verdicts, which are the thresholds below applied to the
 confidence intervals and correlations.
 
+Intervals that own up to model mismatch
+    The covariance of :mod:`evo_door.optim.covariance` is that of an estimate whose
+    residual is measurement noise: it shrinks with every effective sample. When the
+    model cannot match the data (a real door; the rig's ``--truth rich``), most of the
+    residual is model error, the same shape in every trial, which no number of samples
+    averages out, and the estimate carries a bias the curvature knows nothing of (on
+    the rig's rich truth: F_atD 43 % and unlock_force 5 % off with +-0.1 % intervals).
+    The data cannot measure that bias (the part of the model error the parameters
+    absorbed leaves no residual), so the intervals are widened by two measurable
+    signs of it, and the widening is reported:
+
+    * **the mismatch ratio** ``m`` (:func:`~evo_door.optim.covariance.noise_level`):
+      the residual's RMS over its sample-to-sample noise level. Every standard error is
+      multiplied by ``max(1, m)``: a model that matches the data (``m`` about 1) keeps
+      its statistical intervals, one whose residual is ``m`` times the noise has
+      intervals ``m`` times wider. This is a rule of thumb, not a theorem: it is
+      calibrated on the rig, where it makes every interval of the physical stage on the
+      rich truth cover the truth or say ``not identifiable`` and leaves the model-truth
+      fits within their 5 % (``tests/test_identifiability_mismatch.py``);
+    * **the spread of per-trial fits** (:func:`evo_door.optim.spread.with_trial_spread`,
+      for a ``per_trial``
+      run with a pooled answer): each trial alone gives an estimate; their standard
+      error ``s / sqrt(n)`` (n trials whose own fit determined the parameter off its
+      bounds) is a floor for the pooled estimate's, and ``t(0.975, n - 1) s / sqrt(n)``
+      one for its half-width: trials made under other conditions (speed, user) that
+      disagree beyond the local interval show a model error the pooled curvature hides.
+
+    ``se_local`` keeps the purely statistical standard errors, ``mismatch`` the ratio,
+    ``trial_se`` the per-trial floor (NaN where none applied).
+
 Verdicts (thresholds are arguments, these are the defaults)
-    ``not identifiable``: no sensitivity, singular, or a relative 95 % half-width above
-    10 % of the value; ``correlated``: the half-width is narrow but ``|corr| > 0.95``
-    with a named other parameter (the data determine a combination better than each);
-    ``identifiable`` otherwise. A parameter on a bound of its search range is noted in
-    its reason (the local theory assumes an interior optimum).
+    ``not identifiable``: on a bound of its search range (within
+    :data:`~evo_door.optim.bounds.BOUND_TOLERANCE`, 1 % of the range: the bound, not the
+    data, decided it; the reason says which bound and to widen ``free:``), no
+    sensitivity, singular, or a relative 95 % half-width above 10 % of the value;
+    ``correlated``: the half-width is narrow but ``|corr| > 0.95`` with a named other
+    parameter (the data determine a combination better than each); ``identifiable``
+    otherwise.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from evo_door.channels import RESPONSE_CHANNELS, unit
 from evo_door.errors import UserError
 from evo_door.files import ATTRS
-from evo_door.optim.bounds import BOUND_TOLERANCE
+from evo_door.optim.bounds import BOUND_TOLERANCE, bound_side
 from evo_door.optim.covariance import (
     MAX_CONDITION,
     MIN_SENSITIVITY,
     autocorrelation_time,
     covariance,
+    noise_level,
 )
 from evo_door.optim.sensitivity import STEP, check_estimate, jacobians, sample_weights
 
@@ -56,6 +89,8 @@ _ARRAYS = (
     "lower",
     "upper",
     "se",
+    "se_local",
+    "trial_se",
     "ci_half",
     "ci_rel",
     "correlation",
@@ -105,6 +140,22 @@ class Identifiability:
     settings: dict
     note: str = ""
     seconds: float = 0.0
+    # statistical standard error before any widening; per-trial fits' s / sqrt(n) (NaN:
+    # none applied); the residual's noise level (residual unit); residual RMS / noise
+    se_local: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    trial_se: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    noise: float = math.nan
+    mismatch: float = math.nan
+
+    def __post_init__(self):
+        p = len(self.names)
+        if self.se_local.size != p:  # a file written before the widening existed
+            self.se_local = np.asarray(self.se, dtype=np.float64).copy()
+        if self.trial_se.size != p:
+            self.trial_se = np.full(p, math.nan)
+
+    def _widening(self) -> str:
+        return _widening_text(self)
 
     @property
     def residual_unit(self) -> str:
@@ -148,7 +199,7 @@ class Identifiability:
         """The inverse of :meth:`to_tree` (from a tree read back by ``read_group``)."""
         attrs = dict(tree[ATTRS])
         attrs.pop("format", None)
-        values = {k: np.asarray(tree[k], dtype=np.float64) for k in _ARRAYS}
+        values = {k: np.asarray(tree[k], dtype=np.float64) for k in _ARRAYS if k in tree}
         for k in ("names", "units", "verdicts", "reasons", "partners", "trial_ids"):
             values[k] = list(attrs.pop(k))
         values.update(attrs)
@@ -164,7 +215,7 @@ class Identifiability:
             f"{self.n_effective:.3g} effective (residual correlation time "
             f"{_range(self.tau)} samples), RMS error {self.rms:.3g} {self.channel_unit}, "
             f"cond(J^T J) {self.condition:.3g}"
-        )
+        ) + self._widening()
         header = ["parameter", "value", "unit", "SE", f"{level} CI", "verdict", "most correlated"]
         rows = []
         for i, n in enumerate(self.names):
@@ -195,6 +246,24 @@ class Identifiability:
         return "\n".join(lines)
 
 
+def _widening_text(ident: Identifiability) -> str:
+    """What :meth:`Identifiability.format`'s head adds on the widened intervals."""
+    out = ""
+    if math.isfinite(ident.mismatch):
+        out += (
+            f"; residual {ident.mismatch:.3g} times its noise level "
+            f"({ident.noise:.3g} {ident.residual_unit})"
+        )
+        if ident.mismatch > 1.0 and ident.settings.get("mismatch", True):
+            out += f": intervals x{ident.mismatch:.3g} for model mismatch"
+        elif ident.mismatch > 1.0:
+            out += ": intervals not widened for it"
+    floors = [n for n, t in zip(ident.names, ident.trial_se) if math.isfinite(t)]
+    if floors:
+        out += f"; per-trial spread a floor for {', '.join(floors)}"
+    return out
+
+
 def _range(values) -> str:
     values = np.asarray(values)
     if values.size == 0:
@@ -219,15 +288,9 @@ def _effective_samples(r, pack, effective: bool) -> tuple[np.ndarray, float]:
     (:mod:`evo_door.optim.covariance`). Without ``effective`` every ``tau`` is 1: each
     sample counts as independent.
     """
-    counted = [int(pack.mask[a:b].sum()) for a, b in zip(pack.offsets[:-1], pack.offsets[1:])]
-    bounds = np.cumsum([0, *counted])
-    tau = np.array(
-        [
-            autocorrelation_time(r[a:b]) if effective else 1.0
-            for a, b in zip(bounds[:-1], bounds[1:])
-        ]
-    )
-    n_eff = float(sum(c / t for c, t in zip(counted, tau)))
+    parts = _per_trial(r, pack)
+    tau = np.array([autocorrelation_time(part) if effective else 1.0 for part in parts])
+    n_eff = float(sum(part.size / t for part, t in zip(parts, tau)))
     return tau, n_eff
 
 
@@ -239,11 +302,16 @@ def _confidence_intervals(cov, x, confidence: float) -> tuple[np.ndarray, np.nda
 
     dof = cov.dof
     quantile = float(stdtrit(dof, 0.5 + confidence / 2.0)) if dof > 0 else math.inf
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):
         ci_half = quantile * cov.se
+    return ci_half, relative_half_widths(ci_half, x)
+
+
+def relative_half_widths(ci_half, x) -> np.ndarray:
+    """``ci_half / |x|``, inf where ``x`` is 0 or the half-width is not determined."""
+    with np.errstate(invalid="ignore", divide="ignore"):
         ci_rel = np.where(x != 0.0, ci_half / np.abs(x), math.inf)
-    ci_rel = np.where(np.isnan(ci_rel), math.inf, ci_rel)
-    return ci_half, ci_rel
+    return np.where(np.isnan(ci_rel), math.inf, ci_rel)
 
 
 def _sensitivity_columns(J, J2) -> tuple[np.ndarray, np.ndarray, float]:
@@ -281,12 +349,19 @@ def _verdict(
     max_relative_ci: float,
     max_correlation: float,
     confidence: float,
+    on_bound: str = "",
 ) -> tuple[str, str]:
     """One parameter's verdict and its reason (module docstring, "Verdicts").
 
     ``undetermined`` is why the covariance could not determine it (None if it could);
-    ``partner`` its most correlated other parameter and ``r`` their correlation.
+    ``partner`` its most correlated other parameter and ``r`` their correlation;
+    ``on_bound`` what :func:`_bound_reason` says (``""``: off its bounds).
     """
+    if on_bound:
+        _, why = _verdict(
+            undetermined, ci_rel, partner, r, max_relative_ci, max_correlation, confidence
+        )
+        return NOT_IDENTIFIABLE, f"{on_bound}; {why}"
     correlated = bool(partner) and abs(r) > max_correlation
     if undetermined is not None:
         return NOT_IDENTIFIABLE, undetermined
@@ -300,14 +375,19 @@ def _verdict(
     return IDENTIFIABLE, f"{100 * confidence:g} % CI +-{100 * ci_rel:.3g} %"
 
 
-def _bound_note(x: float, lower: float, upper: float) -> str:
-    """What a reason adds for an estimate on a bound of its search range (else ``""``):
-    the local theory assumes an interior optimum."""
-    slack = BOUND_TOLERANCE * (upper - lower)
-    if x - lower <= slack or upper - x <= slack:
-        side = "lower" if x - lower <= slack else "upper"
-        return f"; on the {side} bound of its search range: the local theory does not hold"
-    return ""
+def _bound_reason(name: str, unit_: str, x: float, lower: float, upper: float) -> str:
+    """Why an estimate on a bound of its search range (within ``BOUND_TOLERANCE`` of it)
+    is not identifiable, else ``""``.
+
+    >>> _bound_reason("friction_opening", "N", 29.96, 0.0, 30.0)
+    'on the upper bound of its search range (29.96 N, bound 30 N): widen free: friction_opening'
+    """
+    side = bound_side(x, lower, upper, BOUND_TOLERANCE)
+    if not side:
+        return ""
+    bound = upper if side == "upper" else lower
+    u = "" if unit_ == "1" else f" {unit_}"
+    return f"on the {side} bound of its search range ({x:.4g}{u}, bound {bound:g}{u}): widen free: {name}"
 
 
 def _note(objective, r) -> str:
@@ -334,6 +414,12 @@ def _note(objective, r) -> str:
     return note
 
 
+def _per_trial(r, pack) -> list[np.ndarray]:
+    """``r`` (every trial's counted samples, stacked) cut back into its trials."""
+    counted = [int(pack.mask[a:b].sum()) for a, b in zip(pack.offsets[:-1], pack.offsets[1:])]
+    return np.split(r, np.cumsum(counted)[:-1])
+
+
 def _rms(r, pack) -> float:
     """The RMS error on the channel: ``sqrt(SSR / counted time)``, in the channel's unit."""
     counted_time = float(sum(np.sum(w**2) for w in sample_weights(pack)))
@@ -351,6 +437,7 @@ def identifiability(
     min_sensitivity: float = MIN_SENSITIVITY,
     confidence: float = CONFIDENCE,
     effective: bool = True,
+    mismatch: bool = True,
 ) -> Identifiability:
     """Identifiability of ``problem``'s free parameters at the estimate ``x``.
 
@@ -368,6 +455,9 @@ def identifiability(
     effective : bool
         Count effective samples from the residual's autocorrelation (default); False
         treats every sample as independent (white residual).
+    mismatch : bool
+        Widen the standard errors by the mismatch ratio (default; module docstring);
+        False keeps the statistical ones of the noise alone.
     """
     t0 = time.perf_counter()
     _check_settings(step, confidence)
@@ -377,28 +467,29 @@ def identifiability(
     r, (J, J2), _ = jacobians(problem, x, (step, 2.0 * step))
     tau, n_eff = _effective_samples(r, problem.fit, effective)
     cov = covariance(J, r, n_eff, width, max_condition, min_sensitivity, names)
+    se_local = cov.se.copy()
+    noise, ratio = noise_level(_per_trial(r, problem.fit))
+    if mismatch and math.isfinite(ratio) and ratio > 1.0:
+        cov.se = cov.se * ratio
     ci_half, ci_rel = _confidence_intervals(cov, x, confidence)
     norms, cosine, agreement = _sensitivity_columns(J, J2)
     partners, partner_r = _partners(cov.correlation, names)
+    units = [problem.model.params[n].unit for n in names]
+    thresholds = (max_relative_ci, max_correlation, confidence)
     verdicts, reasons = [], []
     for i in range(len(names)):
+        on_bound = _bound_reason(names[i], units[i], x[i], problem.lower[i], problem.upper[i])
         verdict, why = _verdict(
-            cov.reasons.get(i),
-            ci_rel[i],
-            partners[i],
-            partner_r[i],
-            max_relative_ci,
-            max_correlation,
-            confidence,
+            cov.reasons.get(i), ci_rel[i], partners[i], partner_r[i], *thresholds, on_bound
         )
         verdicts.append(verdict)
-        reasons.append(why + _bound_note(x[i], problem.lower[i], problem.upper[i]))
+        reasons.append(why)
     objective = problem.objective
     channel = RESPONSE_CHANNELS[objective.derivative]
     # the result's fields, one a line: what makes this function long
     return Identifiability(
         names=names,
-        units=[problem.model.params[n].unit for n in names],
+        units=units,
         x=x.copy(),
         lower=problem.lower.copy(),
         upper=problem.upper.copy(),
@@ -438,7 +529,11 @@ def identifiability(
             "min_sensitivity": min_sensitivity,
             "confidence": confidence,
             "effective": effective,
+            "mismatch": mismatch,
         },
         note=_note(objective, r),
         seconds=time.perf_counter() - t0,
+        se_local=se_local,
+        noise=noise,
+        mismatch=ratio,
     )
