@@ -103,16 +103,9 @@ def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
     # the compiled door trial agrees with Radau (the quick reference is loose)
     assert metrics["trial.door.workbench.error_theta"]["value"] < 1e-3
     # every section announced its progress, the table was printed
-    for section in (
-        "trial",
-        "ga",
-        "scaling",
-        "executors",
-        "device",
-        "startup",
-        "casestudy",
-        "control",
-    ):
+    from benchmarks.suite import SECTIONS
+
+    for section in SECTIONS:
         assert f"{section} done in" in done.stderr
     assert "## Targets" in done.stdout
     # and a run compares with it

@@ -177,18 +177,24 @@ def _input_trials(spec) -> list[Trial]:
         raise
 
 
-def _model_target_trials(spec) -> list[Trial]:
-    """Trials whose response is the target model's response to the inputs' forces."""
+def _target_params(spec):
+    """``(model, ParamSet)`` of a model target, a bad parameter set refused at its line."""
     from evo_door.models import get_model
-    from evo_door.sim import simulate
 
     target_model = get_model(spec.model)
     try:
-        params = target_model.load_params(spec.params, spec.set)
+        return target_model, target_model.load_params(spec.params, spec.set)
     except UserError as exc:
         raise UserError(
             f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: {exc}"
         ) from None
+
+
+def _model_target_trials(spec) -> list[Trial]:
+    """Trials whose response is the target model's response to the inputs' forces."""
+    from evo_door.sim import simulate
+
+    target_model, params = _target_params(spec)
     out = []
     for tr in _input_trials(spec):
         theta0, dtheta0 = tr.initial_state(default_theta0=target_model.theta0)
@@ -326,15 +332,7 @@ def _feel(exp, model):
             return FeelTarget(curve, jnd, closed=closed)
         except UserError as exc:
             raise UserError(f"{spec.locs['curve']}: target.curve: {exc}") from None
-    from evo_door.models import get_model
-
-    target_model = get_model(spec.model)
-    try:
-        params = target_model.load_params(spec.params, spec.set)
-    except UserError as exc:
-        raise UserError(
-            f"{spec.locs.get('params', spec.locs.get('model'))}: target.params: {exc}"
-        ) from None
+    target_model, params = _target_params(spec)
     return FeelTarget.from_model(
         target_model, params, jnd, source=f"{spec.model} model", closed=closed
     )
