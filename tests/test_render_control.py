@@ -14,7 +14,7 @@ from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
 from evo_door.render.control import ControlServer, parse_control, request
 from evo_door.render.device import SimDevice
-from evo_door.render.keys import LETTERS, key_change, key_map, nice_step
+from evo_door.render.keys import KEY_PAIRS, key_change, key_map, nice_step
 from evo_door.render.loop import ServoLoop
 from evo_door.render.session import format_session, read_session, session_params
 from tests.conftest import yielding_sim
@@ -234,8 +234,8 @@ def test_key_map_covers_every_sensation_with_two_keys():
     sensations = [p.name for p in PARAMS if p.group == "sensation"]
     assert len(keys) == 2 * len(sensations)
     assert "q" not in keys and "Q" not in keys
-    for letter, name in zip(LETTERS, sensations):
-        (n_down, down), (n_up, up) = keys[letter], keys[letter.upper()]
+    for (down_key, up_key), name in zip(KEY_PAIRS, sensations):
+        (n_down, down), (n_up, up) = keys[down_key], keys[up_key]
         assert n_down == n_up == name and down == -up
         span = PARAMS[name].upper - PARAMS[name].lower
         assert span / 50 <= up <= span / 20 * (1 + 1e-12)  # 2 % .. 5 % of the range

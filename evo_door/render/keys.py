@@ -2,7 +2,9 @@
 
 Every parameter of the haptic declaration's ``sensation`` group gets two keys, a
 letter and its capital: the letter steps it down, the capital up (``q`` is kept to
-quit, so the letters run ``a`` .. ``z`` without ``q``, in declaration order). A step
+quit, so the letters run ``a`` .. ``z`` without ``q``, in declaration order); past the
+letters, a digit steps down and its shifted sign on a US keyboard up (``1`` / ``!``
+.. ``0`` / ``)``). A step
 is 1/20 of the declared range (upper - lower), rounded down to 1, 2 or 5 times a power
 of ten so the values stay readable; a step that would leave the declared range stops
 on its bound. Each change goes to :meth:`ServoLoop.request_change`, so the loop checks
@@ -26,6 +28,9 @@ from evo_door.models.haptic import PARAMS
 GROUP = "sensation"
 #: the letters handed out in declaration order (q quits)
 LETTERS = "abcdefghijklmnoprstuvwxyz"
+#: every (down, up) pair of keys, in the order they are handed out: the letters and
+#: their capitals, then the digits and their shifted signs (US layout)
+KEY_PAIRS = [(c, c.upper()) for c in LETTERS] + list(zip("1234567890", "!@#$%^&*()"))
 #: fraction of the declared range a step is at most
 STEP_FRACTION = 1.0 / 20.0
 
@@ -52,13 +57,13 @@ def nice_step(span: float) -> float:
 def key_map(table=PARAMS, group: str = GROUP) -> dict[str, tuple[str, float]]:
     """key -> (parameter name, signed step in SI units) for ``group`` of ``table``."""
     names = [p for p in table if p.group == group]
-    if len(names) > len(LETTERS):
+    if len(names) > len(KEY_PAIRS):
         raise UserError(f"{len(names)} parameters in group {group!r}: more than the keys")
     keys: dict[str, tuple[str, float]] = {}
-    for letter, p in zip(LETTERS, names):
+    for (down, up), p in zip(KEY_PAIRS, names):
         step = nice_step(p.upper - p.lower)
-        keys[letter] = (p.name, -step)
-        keys[letter.upper()] = (p.name, step)
+        keys[down] = (p.name, -step)
+        keys[up] = (p.name, step)
     return keys
 
 
