@@ -221,7 +221,9 @@ def test_nsga2_snapshot_and_restore_continue_exactly():
             "kind: nsga2, change: normalized",
             "algorithm.change: 'normalized' is not one of normalised",
         ),
-        ("kind: ga, change: normalised", "algorithm.change: measures the change of kind nsga2"),
+        ("kind: ga, change: normalised", "algorithm.change: belongs to kind nsga2"),
+        ("kind: ga, margin: 0.5", "algorithm.margin: belongs to kind nsga2"),
+        ("kind: nsga2, margin: 1.5", "algorithm.margin"),
         ("kind: nsga3", "algorithm.kind: 'nsga3' is not one of ga, nlpql, nsga2"),
     ],
 )
@@ -258,3 +260,17 @@ def test_the_report_draws_the_front_with_the_answer(reached, tmp_path):
     assert "smallest change within the JND" in page and "kept at their AS-IS values" in page
     (png,) = (tmp_path / "rep").rglob("*-front.png")
     assert png.stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_a_margin_chooses_within_that_share_of_the_jnd_or_says_it_could_not(reached):
+    from evo_door.optim.smallest_change import _Judge, choose_smallest_change
+
+    problem = reached.setup.problem()
+    front = Results(reached.path).smallest_change()
+    half = choose_smallest_change(problem, front.front_x, front.front_f, None, True, margin=0.5)
+    assert half.margin == 0.5 and half.reachable
+    assert _Judge(problem, 0.5).passes(half.x)
+    # no door is within a millionth of the JND: the whole JND is taken, and said
+    tiny = choose_smallest_change(problem, front.front_x, front.front_f, None, True, margin=1e-6)
+    assert tiny.reachable and "the whole JND taken" in tiny.steps[0]

@@ -26,7 +26,16 @@ GA_KEYS = tuple(f.name for f in fields(GASettings))
 LOCAL_KEYS = ("max_iterations", "ftol")
 #: the scan before a multi-start polish: points a parameter (0: none), starts polished
 SCAN_KEYS = ("scan", "starts")
-ALGORITHM_KEYS = ("kind", *GA_KEYS, "polish", *LOCAL_KEYS, *SCAN_KEYS, "start", "change")
+ALGORITHM_KEYS = (
+    "kind",
+    *GA_KEYS,
+    "polish",
+    *LOCAL_KEYS,
+    *SCAN_KEYS,
+    "start",
+    "change",
+    "margin",
+)
 #: ``nsga2``: the perceptual error and the change from the AS-IS door, as a front
 ALGORITHM_KINDS = ("ga", "nlpql", "nsga2")
 #: the algorithms that breed a population (a GA's settings, checkpoints, executors)
@@ -46,6 +55,9 @@ class AlgorithmSpec:
     scan: ScanSettings = field(default_factory=ScanSettings)
     #: how ``nsga2`` measures the change from the AS-IS door (``CHANGE_MEASURES``)
     change: str = "normalised"
+    #: ``nsga2``: the share of the JND the answer is chosen within (the rest is left to
+    #: the tolerances)
+    margin: float = 1.0
 
     @property
     def population_based(self) -> bool:
@@ -70,6 +82,7 @@ class AlgorithmSpec:
             "starts": self.scan.starts,
             "start": dict(self.start),
             "change": self.change,
+            "margin": self.margin,
         }
 
     @classmethod
@@ -85,6 +98,7 @@ class AlgorithmSpec:
             ),
             start=dict(data.get("start") or {}),
             change=str(data.get("change", "normalised")),
+            margin=float(data.get("margin", 1.0)),
             scan=ScanSettings(
                 points=int(data.get("scan", 0)), starts=int(data.get("starts", STARTS))
             ),
@@ -124,8 +138,9 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
     start = a.get("start") or {}
     if not isinstance(start, dict):
         raise a.fail("start", "expected a mapping of free parameter names to start values")
-    if "change" in a.node and kind != "nsga2":
-        raise a.fail("change", f"measures the change of kind nsga2, not of kind {kind}")
+    for key in ("change", "margin"):
+        if key in a.node and kind != "nsga2":
+            raise a.fail(key, f"belongs to kind nsga2 (the smallest change), not to kind {kind}")
     return AlgorithmSpec(
         kind=kind,
         ga=ga,
@@ -133,6 +148,7 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
         local=local,
         start={str(k): v for k, v in start.items()},
         change=a.choice("change", CHANGE_MEASURES[0], CHANGE_MEASURES),
+        margin=a.number("margin", 1.0, lo=0.0, hi=1.0, open_lo=True),
         scan=_scan(a, kind, polish),
     )
 

@@ -343,7 +343,11 @@ class ExperimentRun:
             x = job.ga.best_x if job.ga is not None else self.setup.start_vector()
             if self.algorithm.kind == "nsga2":
                 job.front = smallest_change_of(
-                    problem, job.ga, self.algorithm.polish == "slsqp", self.algorithm.local
+                    problem,
+                    job.ga,
+                    self.algorithm.polish == "slsqp",
+                    self.algorithm.local,
+                    self.algorithm.margin,
                 )
                 x, job.best_fitness = job.front.x, job.front.error
             elif self.algorithm.kind == "nlpql" or self.algorithm.polish == "slsqp":

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -120,6 +120,8 @@ class SmallestChange:
     reachable: bool
     check: dict
     measure: str = "normalised"
+    #: the share of the JND the answer was chosen within (1: the check's own JND)
+    margin: float = 1.0
     polished: bool = False
     checks: int = 0
     seconds: float = 0.0
@@ -147,6 +149,7 @@ class SmallestChange:
         return {
             ATTRS: {
                 "measure": self.measure,
+                "margin": float(self.margin),
                 "free": list(free),
                 "chosen": int(self.chosen),
                 "closest": int(self.closest),
@@ -185,6 +188,7 @@ class SmallestChange:
             reachable=bool(a["reachable"]),
             check=json.loads(a["check"]),
             measure=str(a.get("measure", "normalised")),
+            margin=float(a.get("margin", 1.0)),
             polished=bool(a.get("polished", False)),
             checks=int(a.get("checks", 0)),
             seconds=float(a.get("seconds", 0.0)),
@@ -205,18 +209,21 @@ def _plain(value):
 
 class _Judge:
     """The perceptual check of free vectors of ``problem`` against its chosen feel,
-    counted, on the mechanism's curve sampled where the objective samples it."""
+    counted, on the mechanism's curve sampled where the objective samples it; with a
+    ``margin`` below 1, every force JND (fraction and floor) taken at that share."""
 
-    def __init__(self, problem):
+    def __init__(self, problem, margin: float = 1.0):
         self.problem = problem
         self.feel = problem.feel
+        jnd = self.feel.jnd
+        self.jnd = replace(jnd, force=jnd.force * margin, force_floor=jnd.force_floor * margin)
         self.count = 0
 
     def verdict(self, x) -> dict:
         self.count += 1
         p = self.problem.full(x)[0]
         mech = self.feel.mechanism_curve(self.problem.model, p)
-        return check_verdict(perceptual_check(mech, self.feel.curve, self.feel.jnd), self.feel.jnd)
+        return check_verdict(perceptual_check(mech, self.feel.curve, self.jnd), self.jnd)
 
     def passes(self, x) -> bool:
         return bool(self.verdict(x)["passes"])
@@ -258,19 +265,24 @@ def choose_smallest_change(
     identifiable: dict[str, bool] | None = None,
     polish: bool = True,
     settings: LocalSettings | None = None,
+    margin: float = 1.0,
 ) -> SmallestChange:
     """The answer of a smallest-change search from its front (module docstring).
 
     ``identifiable`` maps a free specification to whether the feel determines it
     (:func:`~evo_door.optim.feel_identifiability.feel_identifiability` at the front's
-    point of least error; None: taken as determined).
+    point of least error; None: taken as determined). ``margin`` (in (0, 1]): the answer
+    is chosen to pass the check at that share of the JND, leaving the rest of it to the
+    tolerances a supplier builds to; where no door passes at it, the smallest change
+    within the whole JND is the answer, and its steps say so. Its ``check`` and
+    ``reachable`` are always the check's at the whole JND.
     """
     t0 = time.perf_counter()
     settings = settings or LocalSettings()
     front_x = np.atleast_2d(np.asarray(front_x, dtype=np.float64))
     front_f = np.atleast_2d(np.asarray(front_f, dtype=np.float64))
     asis = asis_vector(problem)
-    judge = _Judge(problem)
+    judge = _Judge(problem, margin)
     steps: list[str] = []
     closest = int(np.argmin(front_f[:, 0]))
     chosen = -1
@@ -292,6 +304,11 @@ def choose_smallest_change(
             + (" polished" if polish else "")
         )
     reachable = judge.passes(x)
+    if margin < 1.0 and not reachable:  # not within the margin: within the whole JND
+        out = choose_smallest_change(problem, front_x, front_f, identifiable, polish, settings)
+        out.steps.insert(0, f"no door passes within {margin:g} of the JND: the whole JND taken")
+        out.seconds = time.perf_counter() - t0
+        return out
     if reachable:
         x = _keep_asis(problem, judge, x, asis, identifiable or {}, settings, steps)
         changed = _changed(problem, x, asis)
@@ -302,7 +319,7 @@ def choose_smallest_change(
                 steps.append(f"polished {', '.join(changed)} within the JND")
             else:
                 steps.append("the polished door fails the check: kept the unpolished one")
-    check = judge.verdict(x)
+    check = _Judge(problem).verdict(x)  # the check's own JND, whatever the margin
     kept = [n for n in problem.free if n not in _changed(problem, x, asis)]
     return SmallestChange(
         front_x=front_x,
@@ -316,6 +333,7 @@ def choose_smallest_change(
         kept=kept,
         reachable=bool(check["passes"]),
         check=check,
+        margin=float(margin),
         polished=polished,
         checks=judge.count,
         seconds=time.perf_counter() - t0,
@@ -374,7 +392,9 @@ def miss_text(miss: dict) -> list[str]:
     return lines
 
 
-def smallest_change_of(problem, state, polish: bool, settings: LocalSettings | None = None):
+def smallest_change_of(
+    problem, state, polish: bool, settings: LocalSettings | None = None, margin: float = 1.0
+):
     """:func:`choose_smallest_change` on an NSGA-II state's archive, the feel's verdicts
     (:func:`~.feel_identifiability.feel_identifiability`) taken at its point of least
     error (none where they cannot be made: every specification counts as determined)."""
@@ -386,4 +406,4 @@ def smallest_change_of(problem, state, polish: bool, settings: LocalSettings | N
         identifiable = {n: v == "identifiable" for n, v in zip(ident.names, ident.verdicts)}
     except (UserError, ValueError, np.linalg.LinAlgError):
         identifiable = None
-    return choose_smallest_change(problem, front_x, front_f, identifiable, polish, settings)
+    return choose_smallest_change(problem, front_x, front_f, identifiable, polish, settings, margin)
