@@ -9,7 +9,7 @@ a new run on another machine refreshes every figure at once:
 
 The run happens in a fresh process, as a user types it (start-up and numba's cache
 loading included in the wall time); the figures are then read back from its results
-file. ``quick=True`` shrinks every stage's GA (population 8, 1 generation, no polish):
+file. ``quick=True`` shrinks every stage's GA (population 8, 1 generation, 2 SLSQP steps):
 a smoke test of this code, not a measurement.
 """
 
@@ -28,8 +28,9 @@ PIPELINE = ROOT / "experiments" / "case_study.yaml"
 
 #: the main job's budget (s of wall time on 2 cores)
 BUDGET_S = 120.0
-#: every stage's GA in a --quick run: enough to exercise the code, nothing more
-QUICK_SETTINGS = ("population=8", "generations=1", "polish=none")
+#: every stage's GA in a --quick run: enough to exercise the code, nothing more (the
+#: polish and the scans stay, each cut to two SLSQP iterations)
+QUICK_SETTINGS = ("population=8", "generations=1", "max_iterations=2")
 
 
 def stage_names(pipeline: Path = PIPELINE) -> list[str]:

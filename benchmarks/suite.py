@@ -750,7 +750,7 @@ def section_casestudy(suite: Suite) -> None:
                 "%",
             )
     how = (
-        "--quick: every stage's GA 8 x 1 without polish, a smoke test, not a measurement"
+        "--quick: every stage's GA 8 x 1, two SLSQP iterations, a smoke test, not a measurement"
         if suite.quick
         else "the pipeline as the file states it"
     )

@@ -74,6 +74,7 @@ def test_main_job_recovers_the_rig_door_within_3_percent(tmp_path):
         "rate_bias": "start",
         "lowpass": None,
         "trim": False,
+        "windows": None,
     }
     best, truth = res.best(), res.truth()
     for name, value in truth.items():
