@@ -194,7 +194,8 @@ def markdown(fig: dict) -> str:
         "",
         "Each stage's estimates; where the trials carry the virtual door's truth (the "
         "stages fitted to its trials), the error against it. 95 % CI: the half-width of "
-        "the identifiability check's confidence interval, relative to the value.",
+        "the identifiability check's confidence interval, relative to the value (for the "
+        "stages fitted to a feel: the change that moves the feel by one JND).",
         "",
         "| stage | parameter | per-trial min .. max | estimate | true | error | 95 % CI "
         "| verdict |",
@@ -227,7 +228,8 @@ def markdown(fig: dict) -> str:
             "The perceptual check of every stage fitted to a chosen feel: its answer's "
             "force-angle curve against the feel it was fitted to (force JND "
             f"{100 * jnd['force']:g} % of the chosen force, at least {jnd['force_floor']:g} N; "
-            "it passes where at least 95 % of each stroke is within it):",
+            "it passes where at least 95 % of each stroke is within it and its latch peak within "
+            "the peak's JND):",
             "",
             "| stage | fitted to | direction | stroke beyond the JND | largest difference "
             "| verdict |",
