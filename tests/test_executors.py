@@ -414,3 +414,17 @@ def test_the_experiment_key_says_the_reason_once(value, reason):
     with pytest.raises(executors.ExecutorNameError) as err:
         ExecutorSpec.parse(value.strip('"'))
     assert err.value.reason.startswith(reason)
+
+
+@pytest.mark.slow  # a spawned worker imports the package
+def test_interrupt_reaches_workers_spawned_while_ctrl_c_was_ignored(tmp_path):
+    """A worker inherits an ignored SIGINT from its parent across exec (a parent that
+    ignored Ctrl-C while it started the pool: a test runner, a shell's background job);
+    the pool's workers take Ctrl-C back, so that ``interrupt`` still reaches them."""
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        test_interrupt_passes_ctrl_c_to_the_pools_workers(tmp_path)
+    finally:
+        signal.signal(signal.SIGINT, previous)

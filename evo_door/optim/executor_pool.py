@@ -78,7 +78,7 @@ class ProcessExecutor(Executor):
         return ProcessPoolExecutor(
             max_workers=self.slots,
             mp_context=self._context,
-            initializer=_set_threads,
+            initializer=_start_worker,
             initargs=(self.threads,),
         )
 
@@ -213,3 +213,17 @@ class WorkerRecordingContext:
 
     def __getattr__(self, name):
         return getattr(self.spawn, name)
+
+
+def _start_worker(threads: int | None) -> None:
+    """A pool worker's start: Ctrl-C taken back, numba's threads set.
+
+    A process that ignored SIGINT when it started the pool (a test runner, a job a shell
+    put in the background) passes the ignored disposition on across exec, and Python
+    leaves an ignored SIGINT ignored: :meth:`ProcessExecutor.interrupt` would then not
+    reach the worker's run. The worker raises KeyboardInterrupt on it, as any program.
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    _set_threads(threads)
