@@ -21,8 +21,8 @@ from evo_door.optim.ga import GeneticAlgorithm
 from evo_door.optim.multistart import scan_and_polish
 from evo_door.optim.problem import Problem
 
-# compared against references: run again on a generic CPU in CI (pyproject markers)
-pytestmark = pytest.mark.numerics
+# the fitness checks are compared against references: run again on a generic CPU in CI
+# (pyproject markers); the seeds test once (benchmarks --only seeds compares the CPUs)
 
 #: Largest jaggedness (RMS of the second differences over the fitness's range) of a
 #: smooth curve on the grid. A curve smooth but for one step of s (a fraction of its
@@ -87,6 +87,7 @@ def with_steps(problem, method, substeps):
 
 
 @pytest.mark.slow
+@pytest.mark.numerics
 def test_latch_fitness_along_the_unlock_force_has_no_notch(latch_stage):
     u, f = along_unlock_force(latch_stage)
     assert abs(u[f.argmin()] - TRUE_UNLOCK) < 0.05  # N: the fit's answer is the truth
@@ -96,6 +97,7 @@ def test_latch_fitness_along_the_unlock_force_has_no_notch(latch_stage):
 
 
 @pytest.mark.slow
+@pytest.mark.numerics
 def test_the_notch_check_flags_a_jagged_objective(latch_stage):
     """The same check on the same problem with one RK4 step per sample (jagged where
     the latch gives), and on made-up curves: a parabola passes it, the same with 0.2 %

@@ -30,8 +30,6 @@ from evo_door.sim.simulate import force_angle_curve
 from tests.test_cli import cli
 from tests.test_input_files import one_line_error
 
-pytestmark = pytest.mark.numerics
-
 HAPTIC = get_model("haptic")
 DOOR = get_model("door")
 
@@ -61,6 +59,7 @@ def test_bad_jnd_settings_are_refused(values, message):
 
 
 # -- a feel from a file ----------------------------------------------------------------------
+@pytest.mark.numerics
 def test_a_curve_file_written_by_evo_door_curve_reads_back(tmp_path, capsys):
     path = tmp_path / "feel.csv"
     res = cli(capsys, "curve", "door", "--params", "default", "--out", str(path))
@@ -97,6 +96,7 @@ def test_a_bad_curve_file_is_one_line_naming_the_line(tmp_path, text, message):
 
 
 # -- the perceptual objective --------------------------------------------------------------
+@pytest.mark.numerics
 def test_the_feel_scores_zero_against_itself_and_a_uniform_offset_its_size_in_jnds():
     params = DOOR.load_params("default")
     target = FeelTarget.from_model(DOOR, params)
@@ -120,6 +120,7 @@ def test_the_feel_scores_zero_against_itself_and_a_uniform_offset_its_size_in_jn
     assert bare.value(DOOR, p) > 1.0
 
 
+@pytest.mark.numerics
 def test_balance_shifts_both_strokes_alike_and_is_linear_between_its_angles():
     base = {"friction_opening": 3.0, "friction_closing": 2.0, "open_force": 0.0}
     plain = force_angle_curve(HAPTIC, HAPTIC.load_params("seed_trial", base), n=181)

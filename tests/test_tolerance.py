@@ -28,8 +28,6 @@ from evo_door.optim.tolerance import FeelCheck, allowed_failures, tolerances, wi
 from evo_door.perception import check_verdict, model_curve, perceptual_check
 from evo_door.sim.simulate import force_angle_curve
 
-pytestmark = pytest.mark.numerics
-
 EXPERIMENT = """\
 name: feelfit
 model: door
@@ -118,6 +116,7 @@ def test_together_bands_pass_with_an_independent_seed(fitted):
 
 
 @pytest.mark.slow
+@pytest.mark.numerics
 def test_just_outside_an_alone_band_fails(fitted):
     """The band's edge passes the full check; 10 % beyond it, on one side, fails."""
     res, setup, full = fitted
@@ -133,6 +132,7 @@ def test_just_outside_an_alone_band_fails(fitted):
 
 
 @pytest.mark.slow
+@pytest.mark.numerics
 def test_fast_check_agrees_with_the_perceptual_check(fitted):
     res, setup, full = fitted
     check = FeelCheck(setup.model, setup.feel)
