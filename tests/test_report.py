@@ -96,3 +96,22 @@ def test_the_pipeline_file_sets_the_jnd_and_the_command_line_wins(folder, tmp_pa
 
     changes = pipeline_settings(path, summary, force_floor=2.0)
     assert changes.apply(JND()) == JND(force=0.2, force_floor=2.0)
+
+
+@pytest.mark.slow
+def test_a_stage_without_a_genetic_algorithm_is_reported_without_its_convergence(
+    folder,  # noqa: F811
+    tmp_path,
+):
+    """SLSQP alone (``kind: nlpql``, the case study's redesign) has no generations to
+    draw: the report says so and draws the rest."""
+    text = (folder / "pipe.yaml").read_text()
+    (folder / "pipe.yaml").write_text(
+        text.replace("seed: 2, polish: slsqp}", "seed: 2, kind: nlpql}")
+    )
+    pipe = load_pipeline(folder / "pipe.yaml")
+    path = PipelineRun.create(pipe, folder / "nlpql.h5").run().path
+    page = write_report(path, tmp_path / "rep").read_text()
+    assert "second: nlpql (SLSQP) without a genetic algorithm" in page
+    names = {p.name for p in (tmp_path / "rep").glob("*.png")}
+    assert "first-convergence.png" in names and "second-convergence.png" not in names

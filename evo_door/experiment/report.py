@@ -154,11 +154,14 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
     if not res.complete:
         page.p("not finished: the figures and tables below wait for its end", "fail")
         return
-    page.figure(
-        f"{key}-convergence",
-        lambda p: plot_convergence(res, p),
-        f"{label}: best and mean fitness per generation",
-    )
+    if cfg["algorithm"]["kind"] in ("ga", "nsga2"):
+        page.figure(
+            f"{key}-convergence",
+            lambda p: plot_convergence(res, p),
+            f"{label}: best and mean fitness per generation",
+        )
+    else:  # SLSQP alone (after a scan, perhaps): no generations to draw
+        page.p(f"{label}: {cfg['algorithm']['kind']} (SLSQP) without a genetic algorithm")
     if res.responses():  # a run fitted to a feel alone (a curve) has no trial to draw
         page.figure(
             f"{key}-fit", lambda p: plot_fit(res, p), f"{label}: best response against target"
