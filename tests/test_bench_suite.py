@@ -11,8 +11,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: the sections whose quick run is the main job itself (each some 25 s): run on their
-#: own, by the casestudy test
+#: the sections whose quick run is the main job itself (each some 25 s): casestudy's
+#: run by its own test, seeds' runs stood in for by a small pipeline
 MAIN_JOB_SECTIONS = ("casestudy", "seeds")
 #: their metrics
 MAIN_JOB_REQUIRED = (
@@ -23,8 +23,6 @@ MAIN_JOB_REQUIRED = (
     "casestudy.redesign.fitness",
     "casestudy.specification.perceptual.opening",
     "casestudy.haptic.perceptual.closing",
-    "seeds.seed_1.wall",
-    "seeds.claims_failing",
 )
 #: metrics every other section's quick run has (the ratios and targets the suite states)
 REQUIRED = (
@@ -200,9 +198,7 @@ def test_casestudy_section_runs_the_main_job_and_leaves_the_quoted_figures_alone
     pages = [ROOT / "benchmarks" / "casestudy.md", ROOT / "benchmarks" / "seeds.md"]
     pages.append(ROOT / "docs" / "case-study.md")
     before = [p.read_bytes() if p.exists() else None for p in pages]
-    done = bench(
-        "--quick", "--only", ",".join(MAIN_JOB_SECTIONS), "--out", str(tmp_path), timeout=900
-    )
+    done = bench("--quick", "--only", "casestudy", "--out", str(tmp_path), timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
     (js,) = tmp_path.glob("suite-*.json")
     doc = json.loads(js.read_text())
@@ -456,3 +452,37 @@ def test_seeds_flags_an_estimate_that_spreads_wider_than_it_claims():
     # k spreads by 17 % but claims nothing
     assert rows["k"]["spread"] == pytest.approx(1.0 / 6.0) and not rows["k"]["fails"]
     assert "Claims the runs do not bear out: latch.u." in markdown(done, list(rows.values()))
+
+
+def test_seeds_runs_the_main_job_once_a_run_and_reads_every_estimate(tmp_path, monkeypatch):
+    """``measure``: each run of RUNS into its own file, with its settings and its
+    environment (a cache of its own for the generic CPU), then each stage's estimates
+    read back; a small pipeline stands in for the main job."""
+    import benchmarks.bench_casestudy as casestudy
+    from benchmarks.bench_seeds import RUNS, agreement, measure
+    from evo_door.data.io import write_trials
+    from evo_door.experiment.pipeline import PipelineRun, load_pipeline
+    from tests.test_optim import make_trial
+    from tests.test_pipeline import PIPELINE
+
+    folder = tmp_path  # the two-stage pipeline of tests/test_pipeline.py and its trials
+    trials = [make_trial(s, 0.75, tid=f"t{s}") for s in (1, 2, 3)]
+    write_trials(folder / "trials.h5", [*trials, make_trial(4, 0.75, tid="v1")])
+    (folder / "pipe.yaml").write_text(PIPELINE)
+    calls = []
+
+    def small(out, quick, settings=(), env=None):
+        calls.append((tuple(settings), dict(env or {})))
+        PipelineRun.create(load_pipeline(folder / "pipe.yaml"), out).run()
+        return 1.0
+
+    monkeypatch.setattr(casestudy, "run_pipeline", small)
+    done = measure(quick=False)
+    assert list(done) == [label for label, _, _ in RUNS]
+    assert [c[0] for c in calls] == [settings for _, settings, _ in RUNS]
+    assert calls[-1][1]["NUMBA_CPU_NAME"] == "generic" and "NUMBA_CACHE_DIR" in calls[-1][1]
+    wall, estimates = done["seed 1"]
+    assert wall == 1.0 and set(estimates) == {"first", "second"}
+    assert set(estimates["first"]) == {"k", "c", "inertia"}
+    rows = agreement(done)
+    assert {r["stage"] for r in rows} == {"first", "second"} and not any(r["fails"] for r in rows)
