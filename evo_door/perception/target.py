@@ -123,9 +123,9 @@ class FeelTarget:
 
     def residuals(self, model, p) -> np.ndarray:
         """The objective's terms as a vector whose squares sum to :meth:`value`."""
-        from evo_door.sim.simulate import COULOMB_SPEED, hold_forces
+        from evo_door.sim.simulate import COULOMB_SPEED, coulomb_vector, hold_forces
 
-        pc = _coulomb(model, p)
+        pc = coulomb_vector(model, p)
         parts = []
         for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
             f = hold_forces(model, pc, self.stroke, s * COULOMB_SPEED)
@@ -154,9 +154,9 @@ class FeelTarget:
         samples it (the stroke's grid and the latch zone's, which hold every angle of
         the chosen curve): what :func:`~evo_door.perception.perceptual_check` needs,
         a few milliseconds instead of a full ``model_curve``'s refinement."""
-        from evo_door.sim.simulate import COULOMB_SPEED, hold_forces
+        from evo_door.sim.simulate import COULOMB_SPEED, coulomb_vector, hold_forces
 
-        pc = _coulomb(model, np.asarray(p, dtype=np.float64))
+        pc = coulomb_vector(model, np.asarray(p, dtype=np.float64))
         theta = np.union1d(self.stroke, self.latch)
         forces = {
             d: hold_forces(model, pc, theta, s * COULOMB_SPEED)
@@ -193,29 +193,3 @@ class FeelTarget:
         if self.dynamics is not None:
             out["inertia_kg_m"], out["damping_N_s_per_rad"] = self.dynamics
         return out
-
-
-def _coulomb(model, p) -> np.ndarray:
-    """``p`` with every non-zero speed sensitivity sent to the Coulomb limit."""
-    from evo_door.sim.simulate import COULOMB_SENSITIVITY
-
-    index = _sensitivity_index(model)
-    q = np.array(p, dtype=np.float64)
-    if index.size:
-        nz = index[q[index] != 0.0]
-        q[nz] = COULOMB_SENSITIVITY
-    return q
-
-
-_SENSITIVITY_CACHE: dict[str, np.ndarray] = {}
-
-
-def _sensitivity_index(model) -> np.ndarray:
-    from evo_door.sim.simulate import speed_sensitivities
-
-    key = model.name
-    if key not in _SENSITIVITY_CACHE:
-        _SENSITIVITY_CACHE[key] = np.array(
-            [model.params.index(n) for n in speed_sensitivities(model)], dtype=np.int64
-        )
-    return _SENSITIVITY_CACHE[key]
