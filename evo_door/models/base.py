@@ -358,15 +358,24 @@ def resolve_model_name(name: str, base_dir=None) -> str:
     paths are returned as they are. Stored absolute, the name still finds the model
     when a run is shown or resumed from another folder.
     """
+    from evo_door.models.fmu import is_fmu_spec, join_spec, split_spec
+
+    if is_fmu_spec(name):
+        fmu, interface, mapping = split_spec(name)
+        return join_spec(_beside(fmu, base_dir), interface, mapping)
     if not is_file_spec(name):
         return name
-    path, _, attr = name.rpartition(":")
-    p = Path(path).expanduser()
+    file, _, attr = name.rpartition(":")
+    return f"{_beside(Path(file).expanduser(), base_dir)}:{attr}"
+
+
+def _beside(p: Path, base_dir) -> Path:
+    """``p`` made absolute: in ``base_dir`` first, then in the current folder."""
     if not p.is_absolute():
         here = Path.cwd() / p
         beside = Path(base_dir) / p if base_dir is not None else here
         p = here if here.is_file() and not beside.is_file() else beside
-    return f"{p.resolve()}:{attr}"
+    return p.resolve()
 
 
 def get_model(name: str) -> Model:
@@ -375,11 +384,16 @@ def get_model(name: str) -> Model:
     The same model is returned for the same name (and for one file however its path
     is written), checked once by :func:`check_model`.
     """
+    from evo_door.models.fmu import is_fmu_spec, load_fmu
+
     name = str(name).strip()
-    key = resolve_model_name(name) if is_file_spec(name) else name
+    fmu = is_fmu_spec(name)
+    key = resolve_model_name(name) if is_file_spec(name) or fmu else name
     if key in _MODELS:
         return _MODELS[key]
-    if is_file_spec(name):
+    if fmu:
+        model, folder = load_fmu(key), Path(key.partition("?")[0].rpartition(".fmu")[0]).parent
+    elif is_file_spec(name):
         path, _, attr = key.rpartition(":")
         model, folder = _from_file(name, Path(path), attr)
     elif ":" in name and name not in REGISTRY:

@@ -148,6 +148,13 @@ def population_errors(
     side has a fast form, that runs (the errors are those of
     :func:`evo_door.sim.simulate`, which runs it too). ``tol``: ``dopri5``'s tolerance.
     """
+    runner = getattr(model, "runner", None)
+    if runner is not None:  # a model that runs itself (an FMU): its own loop
+        runner.population_errors(
+            P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, derivative,
+            kind, err_out, ok_out,
+        )  # fmt: skip
+        return
     form = kernel_form(model.accel, P.shape[1])
     switches, n_sw, stick = events_of(model)
     _population_errors(

@@ -182,8 +182,13 @@ class Problem:
         model_name: str | None = None,
         tolerance: float | None = None,
         feel=None,
+        time_limit: float | None = None,
     ):
         self.model = model
+        #: a model that runs native code of its own (an FMU) is evaluated in a sandbox
+        #: process, each candidate within ``time_limit`` seconds (:mod:`.sandbox`)
+        self.sandboxed = getattr(model, "runner", None) is not None
+        self.time_limit = time_limit
         self.model_name = model_name
         self.free = tuple(free)
         self.index = np.array([model.params.index(n) for n in self.free], dtype=np.int64)
@@ -280,6 +285,12 @@ class Problem:
 
     def evaluate(self, X):
         """``(fitness, blown)`` per candidate; a blown-up candidate has fitness inf."""
+        if self.sandboxed:
+            from evo_door.optim.sandbox import sandbox_for
+
+            X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+            self.check_bounds(X)
+            return sandbox_for(self, self.time_limit).evaluate(X)
         if self.objective.perceptual:
             X = np.atleast_2d(np.asarray(X, dtype=np.float64))
             self.check_bounds(X)
@@ -342,4 +353,5 @@ class Problem:
             self.model_name,
             self.tolerance,
             self.feel,
+            self.time_limit,
         )

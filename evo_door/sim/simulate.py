@@ -154,6 +154,12 @@ def simulate(
     p = param_vector(params, model.params)
     theta0 = model.theta0 if theta0 is None else float(theta0)
     n = force.size
+    t = t0 + dt * np.arange(n)
+    runner = getattr(model, "runner", None)
+    if runner is not None:  # a model that runs itself (an FMU)
+        steps = int(substeps or model.substeps)
+        th, w, a, ok = runner.simulate(p, force, float(dt), theta0, float(dtheta0), t0, steps)
+        return Response(t, force, th, w, a, bool(ok))
     out = np.empty((3, n))
     accel = model.accel
     fast = prepared_form(accel)
@@ -177,7 +183,6 @@ def simulate(
         out[1],
         out[2],
     )
-    t = t0 + dt * np.arange(n)
     return Response(t, force, out[0], out[1], out[2], bool(ok))
 
 
@@ -198,6 +203,12 @@ def simulate_batch(
     n_ind, n = P.shape[0], force.size
     theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
     ok = np.zeros(n_ind, dtype=np.bool_)
+    if getattr(model, "runner", None) is not None:  # an FMU: one run per row
+        steps = int(substeps or model.substeps)
+        for i, p in enumerate(P):
+            r = simulate(model, p, force, dt, theta0, dtheta0, substeps=steps)
+            theta[i], dtheta[i], ddtheta[i], ok[i] = r.theta, r.dtheta, r.ddtheta, r.ok
+        return theta, dtheta, ddtheta, ok
     switches, n_sw, stick = events_of(model)
     args = (
         P,
@@ -220,11 +231,22 @@ def simulate_batch(
     return theta, dtheta, ddtheta, ok
 
 
+def require_accel(model, what: str) -> None:
+    """Refuse, in one line, ``what`` for a model that runs itself (an FMU): it gives its
+    derivatives along a run, not its acceleration at any state."""
+    if getattr(model, "runner", None) is not None:
+        raise UserError(
+            f"model {model.name!r} is an FMU: {what} needs the model's acceleration at "
+            "any state, which an FMU gives only along a simulation"
+        )
+
+
 def quasi_static_force(model, params, theta, dtheta) -> np.ndarray:
     """User force (N, + toward closing) that holds ``ddtheta = 0`` at each (theta, dtheta).
 
     Uses that ``accel`` is affine in the force: F = -a(F=0) / (a(F=1) - a(F=0)).
     """
+    require_accel(model, "the quasi-static force")
     p = param_vector(params, model.params)
     theta = np.atleast_1d(np.asarray(theta, dtype=np.float64))
     dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
@@ -326,6 +348,7 @@ def coulomb_vector(model, params) -> np.ndarray:
     (dry friction at its full level, a speed gate shut or open) wherever the slip speed
     is not zero. A zero sensitivity stays zero (a law switched off stays off).
     """
+    require_accel(model, "the Coulomb-level curve")
     p = param_vector(params, model.params).copy()
     for name in speed_sensitivities(model):
         i = model.params.index(name)
@@ -340,6 +363,7 @@ def hold_forces(model, p, theta, dtheta) -> np.ndarray:
     ``p`` is a kernel vector, ``dtheta`` one speed; :func:`quasi_static_force` in one
     compiled (for many angles, multi-threaded) call.
     """
+    require_accel(model, "the force that holds the door")
     theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
     p = np.ascontiguousarray(p, dtype=np.float64)
     out = np.empty(theta.shape)
@@ -351,6 +375,7 @@ def hold_forces(model, p, theta, dtheta) -> np.ndarray:
 def hold_forces_rows(model, P, theta, dtheta) -> np.ndarray:
     """:func:`hold_forces` of every row of the kernel matrix ``P`` (one door a row):
     an array (rows, angles), in one compiled call with the rows across threads."""
+    require_accel(model, "the force that holds the door")
     P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
     theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
     out = np.empty((P.shape[0], theta.size))
@@ -403,6 +428,7 @@ def force_angle_curve(
     >>> f"{c['closing'].max():.2f} N", f"{-c['opening'].min():.2f} N", c["speed"]
     ('13.00 N', '27.00 N', 0.0)
     """
+    require_accel(model, "the force-angle curve")
     # long: four steps of one grid, marked below (the checks, the dense scan,
     # the refinement, the extremes); they share the scan's arrays and tolerance
     lo = float(model.theta_range[0] if lo is None else lo)

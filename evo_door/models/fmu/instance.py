@@ -1,0 +1,177 @@
+"""One loaded FMU in this process: extracted once, instantiated once, reset per run.
+
+:class:`Instance` holds the FMU's shared library and one instance of it, made through
+FMPy's classes (``FMU2Model``, ``FMU2Slave``, ``FMU3Model``, ``FMU3Slave``). Before each
+run (a trial of one candidate) it is reset and initialised with the run's parameters
+and initial state, through FMPy; the run itself is a compiled kernel calling the
+library (:mod:`evo_door.models.fmu.kernels`). A process keeps one instance per FMU
+(:func:`instance`): a worker of an executor extracts and instantiates once, however
+many candidates it evaluates.
+
+Loading an FMU runs its code: load only FMUs you trust.
+"""
+
+from __future__ import annotations
+
+import atexit
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.models.fmu import kernels
+from evo_door.models.fmu.calls import api
+from evo_door.models.fmu.description import FmuInfo
+
+#: the trial's channels the kernels write, in this order, where the FMU has them
+OUTPUT_KEYS = ("theta", "dtheta", "ddtheta")
+
+_INSTANCES: dict = {}
+
+
+class FmuRunError(Exception):
+    """The FMU refused a call while it was being set up for a run."""
+
+
+class Instance:
+    """A loaded, instantiated FMU (see the module docstring)."""
+
+    def __init__(self, info: FmuInfo):
+        import fmpy
+
+        info.check_channels()
+        self.info = info
+        md = info.description
+        self.folder = Path(fmpy.extract(str(info.path)))
+        atexit.register(shutil.rmtree, self.folder, True)
+        cls = _fmpy_class(info.version, info.interface)
+        token = md.guid if info.version == 2 else md.instantiationToken
+        try:
+            self.fmu = cls(
+                guid=token,
+                unzipDirectory=str(self.folder),
+                modelIdentifier=info.identifier,
+                instanceName="evo_door",
+            )
+            self.fmu.instantiate()
+        except Exception as exc:
+            raise UserError(f"FMU {info.path}: cannot load or instantiate it: {exc}") from None
+        self.comp = np.uintp(self.fmu.component or 0)
+        self.api = api(self.fmu.dll, info.version)
+        ch = info.channels
+        self.vr_in = np.array([ch["force"].vr], dtype=np.uint32)
+        self.outputs = tuple(k for k in OUTPUT_KEYS if k in ch)
+        self.vr_out = np.array([ch[k].vr for k in self.outputs], dtype=np.uint32)
+        self.params = list(info.parameters.items())  # declaration order
+        self._started = False
+
+    # -- one run ------------------------------------------------------------------
+    def _set(self, vrs, values) -> None:
+        if not len(vrs):
+            return
+        if self.info.version == 2:
+            self.fmu.setReal(list(vrs), list(values))
+        else:
+            self.fmu.setFloat64(list(vrs), list(values))
+
+    def initialise(self, p, theta0: float, dtheta0: float, t0: float) -> None:
+        """Reset, set the parameters ``p`` (declaration order) and the initial state
+        (SI), and initialise; raise :class:`FmuRunError` if the FMU refuses."""
+        info, fmu = self.info, self.fmu
+        ch = info.channels
+        try:
+            if self._started:
+                fmu.reset()
+            self._started = True
+            if info.version == 2:
+                fmu.setupExperiment(startTime=t0)
+            self._set([vr for _, (vr, _) in self.params], np.asarray(p, dtype=np.float64))
+            for key, value in (("theta0", theta0), ("dtheta0", dtheta0)):
+                if key in ch:
+                    c = ch[key]
+                    self._set([c.vr], [(value - c.offset) / c.factor])
+            if info.version == 2:
+                fmu.enterInitializationMode()
+            else:
+                fmu.enterInitializationMode(startTime=t0)
+            fmu.exitInitializationMode()
+            if info.interface == "me":
+                self._settle_events()
+                fmu.enterContinuousTimeMode()
+        except Exception as exc:
+            raise FmuRunError(" ".join(str(exc).split()) or type(exc).__name__) from None
+
+    def _settle_events(self) -> None:
+        for _ in range(kernels.MAX_EVENT_ITERATIONS):
+            if self.info.version == 2:
+                needed, terminate, *_ = self.fmu.newDiscreteStates()
+            else:
+                needed, terminate, *_ = self.fmu.updateDiscreteStates()
+            if terminate:
+                raise FmuRunError("the FMU asked to terminate at initialisation")
+            if not needed:
+                return
+        raise FmuRunError("the FMU's discrete states do not settle at initialisation")
+
+    def run(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
+        """One run: ``(outputs, status)``, ``outputs`` (n, len(self.outputs)) in SI."""
+        ch = self.info.channels
+        f = (np.asarray(force, dtype=np.float64) - ch["force"].offset) / ch["force"].factor
+        f = np.ascontiguousarray(f)
+        out = np.empty((f.size, len(self.outputs)))
+        try:
+            self.initialise(p, theta0, dtheta0, t0)
+        except FmuRunError:
+            out[:] = np.nan
+            return out, kernels.FMU_ERROR
+        if self.info.interface == "me":
+            nx = self.info.n_states
+            x = np.zeros(nx)
+            if nx:
+                self.fmu.getContinuousStates(x.ctypes.data_as(_double_p()), nx)
+            status = kernels.run_me(
+                self.api,
+                self.comp,
+                x,
+                self.info.n_events,
+                f,
+                float(t0),
+                float(dt),
+                int(substeps),
+                self.vr_in,
+                self.vr_out,
+                out,
+            )
+        else:
+            status = kernels.run_cs(
+                self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out
+            )
+        for j, key in enumerate(self.outputs):
+            out[:, j] = out[:, j] * ch[key].factor + ch[key].offset
+        return out, int(status)
+
+
+def _double_p():
+    import ctypes
+
+    return ctypes.POINTER(ctypes.c_double)
+
+
+def _fmpy_class(version: int, interface: str):
+    if version == 2:
+        from fmpy.fmi2 import FMU2Model, FMU2Slave
+
+        return FMU2Model if interface == "me" else FMU2Slave
+    from fmpy.fmi3 import FMU3Model, FMU3Slave
+
+    return FMU3Model if interface == "me" else FMU3Slave
+
+
+def instance(info: FmuInfo) -> Instance:
+    """This process's instance of the FMU ``info`` describes (made on first use)."""
+    key = (str(info.path), info.interface, info.path.stat().st_mtime_ns)
+    inst = _INSTANCES.get(key)
+    if inst is None:
+        inst = _INSTANCES[key] = Instance(info)
+    return inst

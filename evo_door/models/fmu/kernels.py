@@ -1,0 +1,319 @@
+"""Compiled runs of an FMU over one trial: no Python between the steps.
+
+``run_me`` integrates a model-exchange FMU with the classical fourth-order Runge-Kutta
+method at a fixed step (``substeps`` steps per sample period), the force going linearly
+from one sample to the next, as the workbench's own integrators do
+(:mod:`evo_door.sim.integrators`). Each stage sets the time, the states and the input
+and asks the FMU for the derivatives; after each step it reports the completed step and
+reads the event indicators. Where an indicator changes sign, the FMU asks for an event
+or a time event falls due, the event is handled at the end of that step (event mode,
+discrete-state updates until the FMU is done, continuous-time mode, states read back):
+events are located to within one step, not within it.
+
+``run_cs`` steps a co-simulation FMU from one sample to the next (``fmi2DoStep`` /
+``fmi3DoStep``), the force held at the sample's value over the step.
+
+Both write the output channels at every sample into ``out`` (one row per sample, one
+column per output variable, in the FMU's units) and return a status: :data:`OK`, or why
+the run stopped (:data:`FMU_ERROR`, :data:`NOT_FINITE`, :data:`TERMINATED`); the rows
+after a stop are NaN.
+
+The FMI version is read from the types of the function tuple
+(:func:`evo_door.models.fmu.calls.api`), so one kernel serves FMI 2 and 3.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numba.core import types
+from numba.extending import overload
+
+from evo_door.models.fmu.calls import (
+    COMPLETED_STEP,
+    DISCRETE_STATES,
+    DO_STEP,
+    ENTER_CONTINUOUS_MODE,
+    ENTER_EVENT_MODE,
+    GET_DERIVATIVES,
+    GET_EVENT_INDICATORS,
+    GET_REAL,
+    GET_STATES,
+    SET_REAL,
+    SET_STATES,
+    SET_TIME,
+)
+
+OK = 0
+FMU_ERROR = 1
+NOT_FINITE = 2
+TERMINATED = 3
+#: statuses fmiOK and fmiWarning: the call did what was asked
+_GOOD = 1
+#: at most this many discrete-state updates per event (an FMU that never settles)
+MAX_EVENT_ITERATIONS = 100
+
+
+@njit(cache=True, inline="always")
+def at(array, offset):
+    """The address of byte ``offset`` of ``array`` (a C pointer argument)."""
+    return np.uintp(array.ctypes.data) + np.uintp(offset)
+
+
+# -- the calls whose arguments differ between FMI 2 and FMI 3 ---------------------------
+def _version(api) -> int:
+    return 3 if api.types[SET_REAL].nargs == 5 else 2
+
+
+def set_reals(api, comp, vr, values):
+    """``fmi2SetReal`` / ``fmi3SetFloat64`` of ``values`` at value references ``vr``."""
+
+
+def get_reals(api, comp, vr, values):
+    """``fmi2GetReal`` / ``fmi3GetFloat64`` into ``values``."""
+
+
+def completed_step(api, comp, flags):
+    """Report a completed integrator step; True when the FMU asks for event mode."""
+
+
+def do_step(api, comp, t, h, flags):
+    """One communication step of a co-simulation FMU; its status."""
+
+
+def update_discrete(api, comp, flags, times):
+    """One discrete-state update in event mode: its status; ``flags[2]`` says another
+    is needed, ``flags[3]`` terminate, ``flags[5]`` the states changed, ``flags[6]`` a
+    next time event is set, at ``times[0]``."""
+
+
+@overload(set_reals)
+def _set_reals(api, comp, vr, values):
+    if _version(api) == 3:
+        return lambda api, comp, vr, values: api[SET_REAL](
+            comp, at(vr, 0), vr.size, at(values, 0), values.size
+        )
+    return lambda api, comp, vr, values: api[SET_REAL](comp, at(vr, 0), vr.size, at(values, 0))
+
+
+@overload(get_reals)
+def _get_reals(api, comp, vr, values):
+    if _version(api) == 3:
+        return lambda api, comp, vr, values: api[GET_REAL](
+            comp, at(vr, 0), vr.size, at(values, 0), values.size
+        )
+    return lambda api, comp, vr, values: api[GET_REAL](comp, at(vr, 0), vr.size, at(values, 0))
+
+
+@overload(completed_step)
+def _completed_step(api, comp, flags):
+    no_prior = types.uint8 if _version(api) == 3 else types.int32
+
+    def impl(api, comp, flags):
+        flags[0] = 0
+        flags[1] = 0
+        status = api[COMPLETED_STEP](comp, no_prior(1), at(flags, 0), at(flags, 4))
+        return status, flags[0] != 0, flags[1] != 0
+
+    return impl
+
+
+@overload(do_step)
+def _do_step(api, comp, t, h, flags):
+    if _version(api) == 3:
+
+        def impl3(api, comp, t, h, flags):
+            flags[:] = 0
+            return api[DO_STEP](
+                comp, t, h, np.uint8(1), at(flags, 0), at(flags, 4), at(flags, 8), at(flags, 16)
+            )
+
+        return impl3
+    return lambda api, comp, t, h, flags: api[DO_STEP](comp, t, h, np.int32(1))
+
+
+@overload(update_discrete)
+def _update_discrete(api, comp, flags, times):
+    if _version(api) == 3:
+
+        def impl3(api, comp, flags, times):
+            flags[:] = 0
+            return api[DISCRETE_STATES](
+                comp,
+                at(flags, 8),
+                at(flags, 12),
+                at(flags, 16),
+                at(flags, 20),
+                at(flags, 24),
+                at(times, 0),
+            )
+
+        return impl3
+
+    def impl2(api, comp, flags, times):
+        # fmi2EventInfo: five fmi2Boolean (int), then the next event time (double,
+        # at byte 24): laid over flags[2:7] and flags[8:10]
+        flags[:] = 0
+        status = api[DISCRETE_STATES](comp, at(flags, 8))
+        times[0] = flags[8:10].view(np.float64)[0]
+        return status
+
+    return impl2
+
+
+# -- events ------------------------------------------------------------------------------
+@njit(cache=True)
+def handle_event(api, comp, x, nx, flags, times):
+    """Event mode at the current time: update the discrete states until the FMU is done,
+    back to continuous time, read the states (they may have been reset). Returns a
+    status of this module; ``times[1]`` is the next time event (inf if none)."""
+    if api[ENTER_EVENT_MODE](comp) > _GOOD:
+        return FMU_ERROR
+    times[1] = math.inf
+    for _ in range(MAX_EVENT_ITERATIONS):
+        if update_discrete(api, comp, flags, times) > _GOOD:
+            return FMU_ERROR
+        if flags[3] != 0:
+            return TERMINATED
+        if flags[6] != 0:
+            times[1] = times[0]
+        if flags[2] == 0:
+            break
+    else:
+        return FMU_ERROR
+    if api[ENTER_CONTINUOUS_MODE](comp) > _GOOD:
+        return FMU_ERROR
+    if nx > 0 and api[GET_STATES](comp, at(x, 0), nx) > _GOOD:
+        return FMU_ERROR
+    return OK
+
+
+# -- model exchange ----------------------------------------------------------------------
+@njit(cache=True)
+def derivatives(api, comp, t, x, force, vr_in, u, dx):
+    """``dx = f(t, x, force)`` of the FMU; its status (> 1: failed)."""
+    s = api[SET_TIME](comp, t)
+    if s <= _GOOD:
+        s = max(s, api[SET_STATES](comp, at(x, 0), x.size))
+    if s <= _GOOD and vr_in.size:
+        u[0] = force
+        s = max(s, set_reals(api, comp, vr_in, u))
+    if s <= _GOOD:
+        s = max(s, api[GET_DERIVATIVES](comp, at(dx, 0), dx.size))
+    return s
+
+
+@njit(cache=True)
+def read_outputs(api, comp, t, x, force, vr_in, u, vr_out, row):
+    """The outputs at ``(t, x, force)`` into ``row``; the status."""
+    s = api[SET_TIME](comp, t)
+    if s <= _GOOD and x.size:
+        s = max(s, api[SET_STATES](comp, at(x, 0), x.size))
+    if s <= _GOOD and vr_in.size:
+        u[0] = force
+        s = max(s, set_reals(api, comp, vr_in, u))
+    if s <= _GOOD:
+        s = max(s, get_reals(api, comp, vr_out, row))
+    return s
+
+
+@njit(cache=True)
+def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):  # long: one loop
+    """Integrate a model-exchange FMU over the samples of ``force`` (see the module
+    docstring); ``x`` holds the initial states (after initialisation) and is advanced."""
+    n, nx = force.size, x.size
+    out[:] = np.nan
+    u = np.zeros(1)
+    k1, k2, k3, k4, xs = np.empty(nx), np.empty(nx), np.empty(nx), np.empty(nx), np.empty(nx)
+    z0, z1 = np.empty(n_events), np.empty(n_events)
+    flags = np.zeros(10, dtype=np.int32)
+    times = np.array([math.inf, math.inf])
+    if n_events and api[GET_EVENT_INDICATORS](comp, at(z0, 0), n_events) > _GOOD:
+        return FMU_ERROR
+    h = dt / substeps
+    next_event = math.inf
+    for k in range(n):
+        t = t0 + k * dt
+        if read_outputs(api, comp, t, x, force[k], vr_in, u, vr_out, out[k]) > _GOOD:
+            return FMU_ERROR
+        for j in range(out.shape[1]):
+            if not math.isfinite(out[k, j]):
+                out[k:] = np.nan
+                return NOT_FINITE
+        if k == n - 1:
+            break
+        f0, df = force[k], (force[k + 1] - force[k]) / substeps
+        for s in range(substeps):
+            ts, fs = t + s * h, f0 + s * df
+            st = derivatives(api, comp, ts, x, fs, vr_in, u, k1)
+            xs[:] = x + 0.5 * h * k1
+            st = max(st, derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k2))
+            xs[:] = x + 0.5 * h * k2
+            st = max(st, derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k3))
+            xs[:] = x + h * k3
+            st = max(st, derivatives(api, comp, ts + h, xs, fs + df, vr_in, u, k4))
+            if st > _GOOD:
+                out[k + 1 :] = np.nan
+                return FMU_ERROR
+            x += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            for i in range(nx):
+                if not math.isfinite(x[i]):
+                    out[k + 1 :] = np.nan
+                    return NOT_FINITE
+            # the state at the end of the step, then the events it may have crossed
+            st = derivatives(api, comp, ts + h, x, fs + df, vr_in, u, xs)
+            status, enter, terminate = completed_step(api, comp, flags)
+            if st > _GOOD or status > _GOOD:
+                out[k + 1 :] = np.nan
+                return FMU_ERROR
+            if terminate:
+                out[k + 1 :] = np.nan
+                return TERMINATED
+            crossed = False
+            if n_events:
+                if api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events) > _GOOD:
+                    return FMU_ERROR
+                for i in range(n_events):
+                    if (z0[i] > 0.0) != (z1[i] > 0.0):
+                        crossed = True
+            if enter or crossed or ts + h >= next_event:
+                r = handle_event(api, comp, x, nx, flags, times)
+                if r != OK:
+                    out[k + 1 :] = np.nan
+                    return r
+                next_event = times[1]
+                if n_events:
+                    api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events)
+            z0[:] = z1
+    return OK
+
+
+# -- co-simulation -----------------------------------------------------------------------
+@njit(cache=True)
+def run_cs(api, comp, force, t0, dt, vr_in, vr_out, out):
+    """Step a co-simulation FMU over the samples of ``force`` (module docstring)."""
+    n = force.size
+    out[:] = np.nan
+    u = np.zeros(1)
+    flags = np.zeros(10, dtype=np.int32)
+    for k in range(n):
+        t = t0 + k * dt
+        u[0] = force[k]
+        if vr_in.size and set_reals(api, comp, vr_in, u) > _GOOD:
+            return FMU_ERROR
+        if get_reals(api, comp, vr_out, out[k]) > _GOOD:
+            out[k] = np.nan
+            return FMU_ERROR
+        for j in range(out.shape[1]):
+            if not math.isfinite(out[k, j]):
+                out[k:] = np.nan
+                return NOT_FINITE
+        if k == n - 1:
+            break
+        if do_step(api, comp, t, dt, flags) > _GOOD:
+            return FMU_ERROR
+        if flags[1] != 0:
+            return TERMINATED
+    return OK

@@ -1,0 +1,148 @@
+"""An FMU as a workbench model: :class:`FmuModel` and :func:`load_fmu`.
+
+An :class:`FmuModel` is a :class:`~evo_door.models.Model` whose response is not given
+by a compiled ``accel`` but by the FMU itself: it carries a ``runner``
+(:class:`FmuRunner`) that :func:`evo_door.sim.simulate` and the objective kernels
+(:func:`evo_door.optim.kernels.population_errors`) hand the run to. What needs the
+acceleration at any state (the quasi-static force-angle curve, the perceptual
+objective) refuses an FMU in one line: an FMU gives its derivatives only along a run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from evo_door.models.base import Model
+from evo_door.models.fmu import kernels
+from evo_door.models.fmu.description import FmuInfo, is_fmu_spec, read_info, split_spec
+from evo_door.models.fmu.instance import instance
+
+#: objective kinds, as :mod:`evo_door.optim.kernels` codes them
+MAX_SQUARE, ISE = 0, 1
+#: what the run statuses of :mod:`~evo_door.models.fmu.kernels` mean, for messages
+STATUS_TEXT = {
+    kernels.FMU_ERROR: "the FMU returned an error",
+    kernels.NOT_FINITE: "the response is not finite",
+    kernels.TERMINATED: "the FMU asked to terminate",
+}
+
+
+@njit(cache=True)
+def no_accel(theta, dtheta, force, p):
+    """An FMU's stand-in ``accel``: never called (the runner simulates); NaN if it were."""
+    return math.nan
+
+
+@dataclass(frozen=True)
+class FmuModel(Model):
+    """A model read from an FMU (see the module docstring)."""
+
+    info: FmuInfo | None = None
+
+    @property
+    def runner(self) -> FmuRunner:
+        assert self.info is not None, "an FmuModel is made by load_fmu"
+        return FmuRunner(self.info)
+
+
+class FmuRunner:
+    """Runs an FMU for the simulator and the objective (this process's instance)."""
+
+    def __init__(self, info: FmuInfo):
+        self.info = info
+
+    def simulate(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
+        """``(theta, dtheta, ddtheta, ok)``, each (n,) in SI: one run of the FMU."""
+        out, status = instance(self.info).run(p, force, dt, theta0, dtheta0, t0, substeps)
+        theta, dtheta, ddtheta = channels_of(out, instance(self.info).outputs, dt)
+        return theta, dtheta, ddtheta, status == kernels.OK
+
+    def population_errors(
+        self, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, derivative,
+        kind, err_out, ok_out,
+    ):  # fmt: skip
+        """As :func:`evo_door.optim.kernels.population_errors`, one run per candidate
+        and trial on this process's instance (an FMU instance is not shared between
+        threads)."""
+        inst = instance(self.info)
+        for i in range(P.shape[0]):
+            for j in range(offsets.size - 1):
+                a, b = offsets[j], offsets[j + 1]
+                out, status = inst.run(
+                    P[i], force[a:b], dt[j], theta0[j], dtheta0[j], 0.0, substeps
+                )
+                y = channels_of(out, inst.outputs, dt[j])[derivative]
+                if status != kernels.OK:
+                    err_out[i, j], ok_out[i, j] = math.inf, False
+                    continue
+                e = error_of(y, target[a:b], mask[a:b], dt[j], kind)
+                err_out[i, j], ok_out[i, j] = e, math.isfinite(e)
+                if not ok_out[i, j]:
+                    err_out[i, j] = math.inf
+
+
+def channels_of(out, outputs, dt) -> tuple:
+    """``(theta, dtheta, ddtheta)`` from the FMU's output columns; a derivative the FMU
+    does not give is the central difference of the one below it."""
+    got = {k: out[:, j] for j, k in enumerate(outputs)}
+    theta = got["theta"]
+    dtheta = got.get("dtheta")
+    if dtheta is None:
+        dtheta = np.gradient(theta, dt) if theta.size > 1 else np.zeros_like(theta)
+    ddtheta = got.get("ddtheta")
+    if ddtheta is None:
+        ddtheta = np.gradient(dtheta, dt) if dtheta.size > 1 else np.zeros_like(dtheta)
+    return theta, dtheta, ddtheta
+
+
+def error_of(y, target, mask, dt, kind) -> float:
+    """The objective of one trial (max square or trapezoid ISE over unmasked samples,
+    the trial's ends weighted 1/2), as :func:`evo_door.optim.kernels.trial_error`."""
+    e2 = (y - target) ** 2
+    if kind == MAX_SQUARE:
+        return float(e2[mask].max()) if mask.any() else 0.0
+    w = np.full(y.size, dt)
+    w[0] = w[-1] = 0.5 * dt
+    return float(np.sum(w[mask] * e2[mask]))
+
+
+def load_fmu(spec: str, mapping=None) -> FmuModel:
+    """The model of the FMU ``spec`` names (``path.fmu``, ``path.fmu:me|cs``, with a
+    channel mapping: :func:`~evo_door.models.fmu.description.split_spec`); ``mapping``
+    adds to the one the name gives."""
+    path, interface, named = split_spec(spec)
+    named.update(mapping or {})
+    info = read_info(path.resolve() if path.exists() else path, interface, named)
+    kinds = "model exchange" if info.interface == "me" else "co-simulation"
+    md = info.description
+    ch = info.channels
+    if ch:
+        mapped = ", ".join(
+            f"{k} <- {c.name}" + (f" [{c.unit}]" if c.unit else "") for k, c in ch.items()
+        )
+        channels = f"channels: {mapped}"
+    else:
+        channels = f"channels not matched: {info.channel_problem}"
+    notes = (
+        f"FMU {info.path.name}: FMI {md.fmiVersion}, {kinds}, generated by "
+        f"{md.generationTool or 'an unnamed tool'}.\n{channels}\nLoading an FMU runs "
+        "its code: load only FMUs you trust."
+    )
+    return FmuModel(
+        name=info.name,
+        title=" ".join((md.description or md.modelName or info.path.stem).split()),
+        params=info.declaration,
+        accel=no_accel,
+        method="rk4",
+        substeps=4,
+        notes=notes,
+        theta_unit="rad",
+        info=info,
+    )
+
+
+__all__ = ["FmuModel", "FmuRunner", "is_fmu_spec", "load_fmu"]
