@@ -5,8 +5,13 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+from evo_door.errors import UserError
+
 #: Help text of every MODEL argument.
-MODEL_HELP = "model: a name (haptic, door), package.module:MODEL or path/to/file.py:MODEL"
+MODEL_HELP = (
+    "model: a name (haptic, door), package.module:MODEL, path/to/file.py:MODEL or "
+    "path/to/model.fmu (FMI 2.0 / 3.0; :me or :cs after it chooses the interface)"
+)
 
 
 def add_progress_arguments(parser) -> None:
@@ -43,12 +48,45 @@ def add_params_arguments(parser) -> None:
     )
 
 
+def add_channels_argument(parser) -> None:
+    """``--channels CHANNEL=VARIABLE``: an FMU's variables for the trial's channels."""
+    parser.add_argument(
+        "--channels",
+        action="append",
+        default=[],
+        metavar="CHANNEL=VARIABLE",
+        help="for an FMU model: the variable that carries a channel (force, theta, dtheta, "
+        "ddtheta; theta0, dtheta0: the variables the initial state is written to), where "
+        "the FMU does not name it so: force=F_hand, theta=angle; repeatable (units are "
+        "converted from the FMU's)",
+    )
+
+
+def model_name(args) -> str:
+    """``args.model`` with ``--channels`` added to an FMU's name (``x.fmu?force=F``)."""
+    channels = getattr(args, "channels", None) or []
+    if not channels:
+        return args.model
+    from evo_door.models.fmu import is_fmu_spec, join_spec, split_spec
+
+    if not is_fmu_spec(args.model):
+        raise UserError(f"--channels: only for an FMU model; {args.model!r} is not one")
+    path, interface, mapping = split_spec(args.model)
+    for item in channels:
+        key, eq, var = item.partition("=")
+        if not eq or not key.strip() or not var.strip():
+            raise UserError(f"--channels {item!r}: expected CHANNEL=VARIABLE (force=F_hand)")
+        mapping[key.strip()] = var.strip()
+    return join_spec(path, interface, mapping)
+
+
 def model_and_params(args):
-    """The model named by ``args.model`` and its checked parameter set."""
+    """The model named by ``args.model`` (and ``--channels``) and its checked parameter
+    set."""
     from evo_door.models import get_model
     from evo_door.params import parse_assignments
 
-    model = get_model(args.model)
+    model = get_model(model_name(args))
     params = model.load_params(args.params, parse_assignments(args.assignments))
     return model, params
 

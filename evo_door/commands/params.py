@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import json
 
-from evo_door.commands._common import MODEL_HELP, add_params_arguments
+from evo_door.commands._common import (
+    MODEL_HELP,
+    add_channels_argument,
+    add_params_arguments,
+    model_name,
+)
 
 ORDER = 10
 
@@ -17,6 +22,7 @@ def register(sub) -> None:
     p.add_argument("model", help=MODEL_HELP)
     add_params_arguments(p)
     p.add_argument("--json", action="store_true", help="print the declaration as JSON")
+    add_channels_argument(p)
     p.add_argument(
         "--write", metavar="OUT.yaml", help="write the (loaded, overridden) parameter set as YAML"
     )
@@ -28,7 +34,7 @@ def run(args) -> int:
     from evo_door.params import parse_assignments
 
     # the declaration only: a bundled model's is read without numba (quick start-up)
-    model = get_declaration(args.model)
+    model = get_declaration(model_name(args))
     values = None
     if args.params or args.assignments or args.write:
         ps = model.load_params(args.params, parse_assignments(args.assignments))

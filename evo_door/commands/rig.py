@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
-from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
+from evo_door.commands._common import (
+    MODEL_HELP,
+    add_channels_argument,
+    add_params_arguments,
+    model_and_params,
+)
 from evo_door.errors import UserError
 
 ORDER = 45
@@ -19,6 +24,7 @@ def register(sub) -> None:
     )
     g.add_argument("--model", required=True, help=MODEL_HELP)
     add_params_arguments(g)
+    add_channels_argument(g)
     g.add_argument("--users", type=int, default=3, help="number of virtual users (default 3)")
     g.add_argument("--trials", type=int, default=10, help="number of trials (default 10)")
     g.add_argument("--seed", type=int, default=1, help="random seed (default 1)")

@@ -7,6 +7,7 @@ import sys
 from evo_door.commands._common import (
     MODEL_HELP,
     Range,
+    add_channels_argument,
     add_params_arguments,
     check_ranges,
     declare_ranges,
@@ -38,6 +39,7 @@ def register(sub) -> None:
     )
     p.add_argument("model", help=MODEL_HELP)
     add_params_arguments(p)
+    add_channels_argument(p)
     p.add_argument(
         "--input",
         required=True,

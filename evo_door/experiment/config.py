@@ -61,8 +61,9 @@ TOP_KEYS = (
     "output",
     "executor",
     "perception",
+    "channels",
 )
-SIMULATION_KEYS = ("method", "substeps", "tolerance")
+SIMULATION_KEYS = ("method", "substeps", "tolerance", "time_limit")
 
 
 @dataclass
@@ -84,6 +85,9 @@ class Experiment:
     substeps: int | None = None
     #: ``dopri5``'s tolerance per step (``tol (1 + |x|)``, rad and rad/s)
     tolerance: float | None = None
+    #: s: the longest one candidate's evaluation may take, for a model that runs native
+    #: code of its own (an FMU; :mod:`evo_door.optim.sandbox`); None: the default
+    time_limit: float | None = None
     output: str = "results"
     #: the just-noticeable differences a feel is judged with (:class:`~evo_door.perception.JND`
     #: settings by name; the defaults where left out)
@@ -142,7 +146,37 @@ class Experiment:
         return json.loads(json.dumps(out))
 
 
+def _with_channels(r: _Reader, tree: LinedMap) -> str:
+    """``model:`` with the FMU channel mapping of ``channels:`` added to its name
+    (``x.fmu?force=F&theta=angle``): the name a results file and a worker find it by."""
+    from evo_door.models.fmu import is_fmu_spec, join_spec, split_spec
+
+    name = r.string("model", required=True)
+    channels = r.get("channels")
+    if channels is None:
+        return name
+    if not is_fmu_spec(name):
+        raise UserError(
+            f"{tree.where('channels')}: channels: maps an FMU's variables to the trial's "
+            f"channels; model {name!r} is not an FMU"
+        )
+    if not isinstance(channels, LinedMap) or not all(isinstance(v, str) for v in channels.values()):
+        raise r.fail("channels", "expected a mapping channel: VARIABLE (force: F_hand, ...)")
+    path, interface, mapping = split_spec(name)
+    mapping.update({str(k): v for k, v in channels.items()})
+    return join_spec(path, interface, mapping)
+
+
 def _require_declared(where: str, name, model) -> None:
+    info = getattr(model, "info", None)
+    if name not in model.params and info is not None:
+        var = next((v for v in info.description.modelVariables if v.name == name), None)
+        if var is not None:  # an FMU variable that is no real, settable parameter
+            raise UserError(
+                f"{where}: {name!r} of FMU {info.path.name} cannot be set (causality "
+                f"{var.causality}, variability {var.variability}, type {var.type}): only "
+                "real parameters (causality parameter, fixed or tunable) can be fitted"
+            )
     if name not in model.params:
         raise UserError(
             f"{where}: model {model.name!r} has no parameter {name!r}"
@@ -360,9 +394,12 @@ def experiment_from_tree(
     overrides = list(overrides)
     r = _Reader(tree, "", tree.loc)
     r.check_keys(TOP_KEYS, required=("model", "target", "free"))
-    model_name = resolve_model_name(r.string("model", required=True), base_dir)
+    model_name = resolve_model_name(_with_channels(r, tree), base_dir)
     try:
         model = get_model(model_name)
+        info = getattr(model, "info", None)
+        if info is not None:  # an FMU: its channels must match before anything runs
+            info.check_channels()
     except UserError as exc:
         raise UserError(f"{tree.where('model')}: model: {exc}") from None
     default_name = Path(source).stem if source and not source.startswith("<") else "experiment"
@@ -372,6 +409,9 @@ def experiment_from_tree(
     method = sim.choice("method", model.method, tuple(METHODS))
     substeps = sim.integer("substeps", model.substeps, lo=1, hi=1000)
     tolerance = _tolerance(sim, model)
+    time_limit = sim.number("time_limit", 0.0) or None
+    if time_limit is not None and time_limit <= 0.0:
+        raise sim.fail("time_limit", f"must be a time in s above 0, got {time_limit:g}")
     exp = Experiment(
         name=_safe_name(name),
         model=model_name,
@@ -388,6 +428,7 @@ def experiment_from_tree(
         method=method,
         substeps=substeps,
         tolerance=tolerance,
+        time_limit=time_limit,
         output=r.string("output", "results"),
         perception=perception_setting(r),
         executor=executor_setting(r),
@@ -398,6 +439,12 @@ def experiment_from_tree(
     )
     _check_parameters(exp, r, model)
     _check_perceptual(exp)
+    if exp.objective.perceptual and getattr(model, "runner", None) is not None:
+        raise UserError(
+            f"{tree.where('objective')}: objective perceptual: model {model.name!r} is an "
+            "FMU, whose force-angle curve evo-door cannot compute (it needs the "
+            "acceleration at any state); fit it to trials (ise, max_square)"
+        )
     if exp.target.kind == "model":
         try:
             get_model(exp.target.model)

@@ -38,6 +38,8 @@ class Setup:
     start: dict = field(default_factory=dict)
     #: ``dopri5``'s tolerance per step; None: the model's (a run written before it was kept)
     tolerance: float | None = None
+    #: s per candidate's evaluation of a model that runs native code (an FMU); None: default
+    time_limit: float | None = None
     #: the chosen feel of the perceptual objective (:class:`~evo_door.perception.FeelTarget`)
     feel: object = None
 
@@ -63,6 +65,7 @@ class Setup:
             self.model_name,  # a pickled problem finds its model by it (executors)
             self.tolerance,
             self.feel,
+            self.time_limit,
         )
 
     def refined(self) -> Setup:
@@ -312,6 +315,7 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
         substeps=exp.substeps,
         start=dict(exp.algorithm.start),
         tolerance=exp.tolerance,
+        time_limit=exp.time_limit,
         feel=feel,
     )
 

@@ -164,21 +164,28 @@ def read_info(path: Path, interface: str | None = None, mapping=None) -> FmuInfo
         raise UserError(f"FMU {shown} is not an FMU: not a zip archive")
     with zipfile.ZipFile(path) as archive:
         names = archive.namelist()
-    if "modelDescription.xml" not in names:
-        raise UserError(f"FMU {shown} has no modelDescription.xml")
+        if "modelDescription.xml" not in names:
+            raise UserError(f"FMU {shown} has no modelDescription.xml")
+        xml = archive.read("modelDescription.xml")
+    # the version first, from the XML itself: FMPy reads an FMI 1.0 file by other rules
+    import xml.etree.ElementTree as ET
+
     try:
-        md = read_model_description(str(path), validate=False)
-    except Exception as exc:  # lxml's, FMPy's and the attrs' errors alike
-        first = " ".join(str(exc).split())[:200] or type(exc).__name__
-        raise UserError(f"FMU {shown}: modelDescription.xml is malformed: {first}") from None
-    version = str(md.fmiVersion or "")
+        version = ET.fromstring(xml).get("fmiVersion") or ""
+    except ET.ParseError as exc:
+        raise UserError(f"FMU {shown}: modelDescription.xml is malformed: {exc}") from None
     if version.startswith("1."):
         raise UserError(
             f"FMU {shown} is FMI {version}; evo-door reads FMI 2.0 and 3.0 "
             "(export it again as FMI 2.0 or 3.0)"
         )
     if not version.startswith(("2.", "3.")):
-        raise UserError(f"FMU {shown}: unknown FMI version {version!r}")
+        raise UserError(f"FMU {shown}: unknown FMI version {version!r} (FMI 2.0 and 3.0 are read)")
+    try:
+        md = read_model_description(str(path), validate=False)
+    except Exception as exc:  # lxml's, FMPy's and the attrs' errors alike
+        first = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise UserError(f"FMU {shown}: modelDescription.xml is malformed: {first}") from None
     major = int(version[0])
     offered = {k for k, v in (("me", md.modelExchange), ("cs", md.coSimulation)) if v}
     if not offered:

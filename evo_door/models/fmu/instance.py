@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import atexit
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
+from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from evo_door.errors import UserError
 from evo_door.models.fmu import kernels
@@ -125,6 +127,14 @@ class Instance:
         except FmuRunError:
             out[:] = np.nan
             return out, kernels.FMU_ERROR
+        with warnings.catch_warnings():  # numba's "experimental" on the first compile
+            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+            status = self._run(f, out, t0, dt, substeps)
+        for j, key in enumerate(self.outputs):
+            out[:, j] = out[:, j] * ch[key].factor + ch[key].offset
+        return out, int(status)
+
+    def _run(self, f, out, t0, dt, substeps) -> int:
         if self.info.interface == "me":
             nx = self.info.n_states
             x = np.zeros(nx)
@@ -147,9 +157,7 @@ class Instance:
             status = kernels.run_cs(
                 self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out
             )
-        for j, key in enumerate(self.outputs):
-            out[:, j] = out[:, j] * ch[key].factor + ch[key].offset
-        return out, int(status)
+        return status
 
 
 def _double_p():
@@ -170,7 +178,8 @@ def _fmpy_class(version: int, interface: str):
 
 def instance(info: FmuInfo) -> Instance:
     """This process's instance of the FMU ``info`` describes (made on first use)."""
-    key = (str(info.path), info.interface, info.path.stat().st_mtime_ns)
+    channels = tuple(sorted((k, c.name) for k, c in info.channels.items()))
+    key = (str(info.path), info.interface, info.path.stat().st_mtime_ns, channels)
     inst = _INSTANCES.get(key)
     if inst is None:
         inst = _INSTANCES[key] = Instance(info)

@@ -1,0 +1,288 @@
+"""FMU models: declared from their description, simulated by the compiled kernels,
+fitted from trials made by FMPy, refused in one line when broken (issue 28).
+
+The FMUs are the project's own door (examples/fmu), built here from its C sources for
+FMI 2.0 and 3.0. The "untuned" layout is the FMU nobody tuned for evo-door: its input is
+``F_hand``, its outputs ``angle`` and ``speed`` in degrees, its parameters named like a
+Modelica export (``door.J``); the tests reach it only through a channel mapping.
+"""
+
+import importlib.util
+import math
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from evo_door.cli import main
+
+fmpy = pytest.importorskip("fmpy")
+
+pytestmark = [pytest.mark.numerics]
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("door_fmu_build", ROOT / "examples/fmu/build.py")
+build = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = build
+_spec.loader.exec_module(build)
+
+DT = 1 / 1024  # s
+UNTUNED = {"force": "F_hand", "theta": "angle", "dtheta": "speed"}
+STATES = {"theta0": "door.phi", "dtheta0": "door.w"}
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    """(fmi, layout) -> path of the built FMU (both interfaces in each)."""
+    folder = tmp_path_factory.mktemp("fmus")
+    out = {}
+    for fmi in (2, 3):
+        for layout in ("tuned", "untuned"):
+            out[fmi, layout] = build.build_fmu(folder / f"door{fmi}_{layout}.fmu", fmi, layout)
+    return out
+
+
+def push(amp=20.0, width=0.15, duration=2.0):
+    """A half-sine push of ``amp`` N for ``width`` s, sampled at 1024 Hz."""
+    t = np.arange(int(round(duration / DT)) + 1) * DT
+    return t, np.where(t < width, amp * np.sin(np.pi * t / width), 0.0)
+
+
+def reference(t, force, theta0=0.0, **changes):
+    """The door's equation of motion (examples/fmu/README.md), by scipy at rtol 1e-10,
+    the force linearly interpolated between samples as evo-door's kernels take it."""
+    p = {p.name: p.start for p in build.PARAMETERS}
+    p.update(changes)
+
+    def rhs(tt, y):
+        th, w = y
+        stop = 0.0
+        if th < 0.0:
+            stop = -p["stop_stiffness"] * th - p["stop_damping"] * w
+        elif th > math.pi / 2:
+            stop = -p["stop_stiffness"] * (th - math.pi / 2) - p["stop_damping"] * w
+        torque = (
+            p["lever_arm"] * np.interp(tt, t, force)
+            + p["spring_preload"]
+            + p["spring_stiffness"] * (math.pi / 2 - th)
+            - p["weight_moment"] * math.cos(th)
+            - p["damping"] * w
+            - p["friction"] * math.tanh(w / p["friction_speed"])
+            + stop
+        )
+        return [w, torque / p["inertia"]]
+
+    sol = solve_ivp(rhs, (t[0], t[-1]), [theta0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12,
+                    method="DOP853", max_step=DT)  # fmt: skip
+    return sol.y[0]
+
+
+def fmpy_run(path, t, force, interface, input_name="force", output="theta", **start):
+    """FMPy's own simulation of the same trial (what a user of FMPy gets)."""
+    sig = np.array(list(zip(t, force)), dtype=[("time", float), (input_name, float)])
+    kind = "ModelExchange" if interface == "me" else "CoSimulation"
+    extra = {"solver": "CVode", "relative_tolerance": 1e-10} if interface == "me" else {}
+    r = fmpy.simulate_fmu(str(path), fmi_type=kind, stop_time=t[-1], output_interval=DT,
+                          input=sig, output=[output], start_values=start, **extra)  # fmt: skip
+    return np.interp(t, r["time"], r[output])
+
+
+def write_csv(path, t, force):
+    np.savetxt(path, np.c_[t, force], delimiter=",", header="t,force", comments="")
+
+
+def read_csv(path):
+    return np.genfromtxt(path, delimiter=",", names=True)
+
+
+# -- the declaration --------------------------------------------------------------------
+def test_params_lists_an_untuned_fmus_parameters_with_units_bounds_and_meaning(fmus, capsys):
+    assert main(["params", str(fmus[3, "untuned"])]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line.split() for line in out.splitlines() if line.strip()}
+    # name, unit, default (start), lower (min), upper (max), group, meaning
+    assert rows["door.J"][1:5] == ["kg.m2", "0.7", "0.05", "5"]
+    assert rows["spring.k"][1:5] == ["N.m/rad", "8", "0", "60"]
+    assert "fixed: set before initialisation" in out.split("door.r", 1)[1].splitlines()[0]
+    # nothing named force here: the channels are said, the parameters listed anyway
+    assert "channels not matched" in out and "F_hand" in out
+
+
+def test_params_and_set_are_checked_against_the_fmus_bounds(fmus, capsys):
+    path = str(fmus[2, "tuned"])
+    assert main(["params", path, "--set", "inertia=9"]) == 2
+    assert "outside its declared range [0.05, 5]" in capsys.readouterr().err
+
+
+# -- simulate -----------------------------------------------------------------------------
+@pytest.mark.parametrize("fmi", [2, 3])
+@pytest.mark.parametrize("interface", ["me", "cs"])
+def test_simulate_agrees_with_fmpy_and_with_scipy(fmus, fmi, interface, tmp_path, capsys):
+    t, force = push()
+    write_csv(tmp_path / "in.csv", t, force)
+    args = ["simulate", f"{fmus[fmi, 'untuned']}:{interface}", "--input", str(tmp_path / "in.csv")]
+    args += [f"--channels={k}={v}" for k, v in UNTUNED.items()]
+    assert main([*args, "--out", str(tmp_path / "out.csv")]) == 0
+    ours = read_csv(tmp_path / "out.csv")["theta"]  # rad: converted from the FMU's deg
+    theirs = np.radians(fmpy_run(fmus[fmi, "untuned"], t, force, interface, "F_hand", "angle"))
+    assert np.abs(ours - theirs).max() < 2e-3
+    if interface == "cs":  # the same steps inside the FMU, the same held input: exact
+        assert np.abs(ours - theirs).max() < 1e-9
+    else:  # the compiled RK4 against an independent integration of the same law
+        assert np.abs(ours - reference(t, force)).max() < 1e-6
+
+
+def test_the_trials_initial_state_and_parameters_reach_the_fmu(fmus):
+    from evo_door.models import get_model
+    from evo_door.sim import simulate
+
+    t, force = push(amp=-10.0)
+    name = "{}?{}".format(
+        fmus[3, "untuned"], "&".join(f"{k}={v}" for k, v in {**UNTUNED, **STATES}.items())
+    )
+    model = get_model(name)
+    params = model.load_params(None, {"door.J": 1.4, "hinge.d": 2.0})
+    r = simulate(model, params, force, DT, theta0=1.2)
+    assert r.ok and r.theta[0] == pytest.approx(1.2, abs=1e-12)
+    ref = reference(t, force, theta0=1.2, inertia=1.4, damping=2.0)
+    free = t < t[np.argmax(ref > math.pi / 2)]  # till it meets the closed stop: a kink
+    assert free.sum() > 500 and np.abs(r.theta - ref)[free].max() < 1e-6
+    assert np.abs(r.theta - ref).max() < 2e-4  # RK4 steps across the stop's kink
+    # ddtheta, which this FMU does not output, is the difference quotient of dtheta
+    assert np.abs(r.ddtheta[1:-1] - np.gradient(r.dtheta, DT)[1:-1]).max() < 1e-9
+
+
+# -- the round trip ---------------------------------------------------------------------------
+TRUE = {"door.J": 0.9, "spring.k": 11.0, "hinge.d": 1.3}
+
+
+@pytest.mark.slow
+def test_a_ga_recovers_three_parameters_of_an_untuned_fmu_from_fmpy_trials(fmus, tmp_path, capsys):
+    from evo_door.data import Trial, write_trials
+
+    fmu = tmp_path / "door.fmu"
+    fmu.write_bytes(fmus[3, "untuned"].read_bytes())
+    trials = []
+    for i, (amp, width, theta0) in enumerate([(20, 0.15, 0.0), (-15, 0.2, 1.2), (30, 0.1, 0.3)]):
+        t, force = push(amp, width)
+        deg = fmpy_run(fmu, t, force, "cs", "F_hand", "speed", **TRUE, **{"door.phi": theta0})
+        trials.append(Trial(t=t, force=force, dtheta=np.radians(deg), trial_id=f"T{i + 1}",
+                            user_id="U1", kind="impulse", theta0=theta0, dtheta0=0.0))  # fmt: skip
+    write_trials(tmp_path / "trials.h5", trials)
+    (tmp_path / "fit.yaml").write_text(
+        "model: door.fmu\n"
+        "channels: {force: F_hand, theta: angle, dtheta: speed, theta0: door.phi, dtheta0: door.w}\n"
+        "target: {data: trials.h5}\n"
+        "free: {door.J: [0.3, 2.0], spring.k: [2.0, 20.0], hinge.d: [0.2, 3.0]}\n"
+        "objective: {kind: ise, derivative: 1}\n"
+        "algorithm: {kind: ga, population: 20, generations: 6, seed: 1, polish: slsqp}\n"
+    )
+    out = tmp_path / "fit.h5"
+    assert main(["run", str(tmp_path / "fit.yaml"), "--out", str(out), "--quiet"]) == 0
+    from evo_door.experiment.reader import read_results
+
+    best = read_results(out).best.values
+    for name, value in TRUE.items():
+        assert best[name] == pytest.approx(value, rel=0.02), name
+
+
+# -- refused in one line --------------------------------------------------------------------
+def _rezip(src: Path, dst: Path, edit) -> Path:
+    """``src`` rewritten entry by entry: ``edit(name, data)`` returns the new
+    ``(name, data)`` or None to leave the entry out."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w") as zout:
+        for item in zin.infolist():
+            kept = edit(item.filename, zin.read(item.filename))
+            if kept is not None:
+                zout.writestr(kept[0], kept[1])
+    return dst
+
+
+BROKEN = {
+    "not a zip": (
+        lambda src, dst: dst.write_bytes(b"MZ not an archive") and dst,
+        "not a zip archive",
+    ),
+    "no description": (
+        lambda src, dst: _rezip(
+            src, dst, lambda n, d: None if n == "modelDescription.xml" else (n, d)
+        ),
+        "has no modelDescription.xml",
+    ),
+    "malformed description": (
+        lambda src, dst: _rezip(
+            src, dst, lambda n, d: (n, d[: len(d) // 2]) if n.endswith(".xml") else (n, d)
+        ),
+        "modelDescription.xml is malformed",
+    ),
+    "FMI 1.0": (
+        lambda src, dst: _rezip(
+            src, dst, lambda n, d: (n, d.replace(b'fmiVersion="2.0"', b'fmiVersion="1.0"'))
+        ),
+        "is FMI 1.0; evo-door reads FMI 2.0 and 3.0",
+    ),
+    "no binary for this platform": (
+        lambda src, dst: _rezip(
+            src, dst, lambda n, d: (n.replace("linux64", "win64").replace(".so", ".dll"), d)
+        ),
+        "has no binary for this platform (linux64",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BROKEN))
+def test_a_broken_fmu_is_refused_in_one_line_with_exit_status_2(fmus, case, tmp_path, capsys):
+    make, expected = BROKEN[case]
+    bad = tmp_path / "bad.fmu"
+    make(fmus[2, "tuned"], bad)
+    assert main(["params", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and len(err.strip().splitlines()) == 1, err
+    if case == "no binary for this platform":
+        assert "it has win64" in err
+
+
+def _experiment(tmp_path, fmu, extra="", free="door.J: [0.3, 2.0]"):
+    from evo_door.data import Trial, write_trials
+
+    t, force = push()
+    write_trials(
+        tmp_path / "trials.h5",
+        [Trial(t=t, force=force, dtheta=0 * t, trial_id="T1", kind="impulse")],
+    )
+    (tmp_path / "x.fmu").write_bytes(Path(fmu).read_bytes())
+    (tmp_path / "fit.yaml").write_text(
+        f"model: x.fmu\n{extra}target: {{data: trials.h5}}\nfree: {{{free}}}\n"
+        "objective: {kind: ise, derivative: 1}\n"
+        "algorithm: {kind: ga, population: 4, generations: 1, seed: 1}\n"
+    )
+    return tmp_path / "fit.yaml"
+
+
+@pytest.mark.parametrize(
+    "extra, free, expected",
+    [
+        ("", "door.J: [0.3, 2.0]", "fit.yaml:1: model: FMU"),  # nothing named force
+        ("channels: {force: F_hnd, theta: angle}\n", "door.J: [0.3, 2.0]",
+         "the channel mapping names 'F_hnd', which it does not have (did you mean 'F_hand'"),
+        ("channels: {force: angle, theta: angle}\n", "door.J: [0.3, 2.0]", "the force must be an input"),
+        ("channels: {force: F_hand, theta: F_hand}\n", "door.J: [0.3, 2.0]", "cannot convert to the theta"),
+        ("channels: {force: F_hand, theta: angle}\n", "angle: [0, 1]", "'angle' of FMU x.fmu cannot be set"),
+    ],
+)  # fmt: skip
+def test_an_experiment_that_does_not_fit_its_fmu_is_refused_in_one_line(
+    fmus, tmp_path, capsys, extra, free, expected
+):
+    exp = _experiment(tmp_path, fmus[3, "untuned"], extra, free)
+    assert main(["run", str(exp), "--out", str(tmp_path / "r.h5")]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "r.h5").exists()
+
+
+def test_what_needs_the_acceleration_at_any_state_refuses_an_fmu(fmus, tmp_path, capsys):
+    assert main(["curve", str(fmus[2, "tuned"]), "--out", str(tmp_path / "c.csv")]) == 2
+    assert "is an FMU: the force-angle curve needs" in capsys.readouterr().err
