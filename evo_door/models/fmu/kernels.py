@@ -234,6 +234,7 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
         return FMU_ERROR
     h = dt / substeps
     next_event = math.inf
+    fresh = False  # k1 already holds f at the step's start (the last step's end)
     for k in range(n):
         t = t0 + k * dt
         if read_outputs(api, comp, t, x, force[k], vr_in, u, vr_out, out[k]) > _GOOD:
@@ -247,7 +248,7 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
         f0, df = force[k], (force[k + 1] - force[k]) / substeps
         for s in range(substeps):
             ts, fs = t + s * h, f0 + s * df
-            st = derivatives(api, comp, ts, x, fs, vr_in, u, k1)
+            st = OK if fresh else derivatives(api, comp, ts, x, fs, vr_in, u, k1)
             xs[:] = x + 0.5 * h * k1
             st = max(st, derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k2))
             xs[:] = x + 0.5 * h * k2
@@ -262,8 +263,10 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
                 if not math.isfinite(x[i]):
                     out[k + 1 :] = np.nan
                     return NOT_FINITE
-            # the state at the end of the step, then the events it may have crossed
-            st = derivatives(api, comp, ts + h, x, fs + df, vr_in, u, xs)
+            # the state at the end of the step (its derivatives are the next step's k1),
+            # then the events it may have crossed
+            st = derivatives(api, comp, ts + h, x, fs + df, vr_in, u, k1)
+            fresh = True
             status, enter, terminate = completed_step(api, comp, flags)
             if st > _GOOD or status > _GOOD:
                 out[k + 1 :] = np.nan
@@ -284,6 +287,7 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
                     out[k + 1 :] = np.nan
                     return r
                 next_event = times[1]
+                fresh = False  # the states or the law may have changed
                 if n_events:
                     api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events)
             z0[:] = z1
