@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from evo_door.errors import UserError
 from evo_door.models.base import Model
 from evo_door.models.fmu import kernels
 from evo_door.models.fmu.description import FmuInfo, is_fmu_spec, read_info, split_spec
@@ -57,9 +58,34 @@ class FmuRunner:
 
     def simulate(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
         """``(theta, dtheta, ddtheta, ok)``, each (n,) in SI: one run of the FMU."""
+        self.check_start(theta0, dtheta0)
         out, status = instance(self.info).run(p, force, dt, theta0, dtheta0, t0, substeps)
         theta, dtheta, ddtheta = channels_of(out, instance(self.info).outputs, dt)
         return theta, dtheta, ddtheta, status == kernels.OK
+
+    def check_start(self, theta0: float, dtheta0: float, where: str = "", p=None) -> None:
+        """Refuse an initial state the FMU cannot be given: no variable takes it (the
+        ``theta0`` / ``dtheta0`` channels) and the FMU starts elsewhere by itself (at
+        the parameters ``p``, default the declared ones)."""
+        ch = self.info.channels
+        self.info.check_channels()
+        if ("theta0" in ch or "theta" not in ch) and ("dtheta0" in ch or "dtheta" not in ch):
+            return
+        p = self.info.declaration.defaults if p is None else p
+        inst = instance(self.info)
+        out, status = inst.run(p, np.zeros(1), 1e-3, theta0, dtheta0)
+        for j, key in enumerate(inst.outputs):
+            value = theta0 if key == "theta" else dtheta0 if key == "dtheta" else None
+            if value is None or f"{key}0" in ch or status != kernels.OK:
+                continue
+            own = float(out[0, j])
+            if abs(own - value) > 1e-9 * max(1.0, abs(value)):
+                raise UserError(
+                    f"{where + ': ' if where else ''}the run starts at {key} = {value:.6g} "
+                    f"(SI), but FMU {self.info.path.name} starts at {own:.6g} by itself and "
+                    f"{ch[key].name!r} cannot be set before initialisation; map the "
+                    f"variable that sets it: channels: {{{key}0: VARIABLE}}"
+                )
 
     def population_errors(
         self, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, derivative,
