@@ -49,6 +49,13 @@ Sections (``--only``):
 ``control``
     the servo loop's cycles on time with 200 clients flooding the control port, the
     renderer's memory growth and its log's session events (``bench_control.py``).
+``fmu``
+    the door FMU of ``examples/fmu`` built in the run: one trial's evaluation by the
+    workbench (sandbox off and on) against ``fmpy.simulate_fmu`` called per
+    evaluation, model exchange and co-simulation, each against a scipy reference;
+    ``evo-door run --executor processes:2`` of a 100 x 20 GA on trials made by FMPy,
+    against FMPy's cost extrapolated (``bench_fmu.py``); a measured run also writes
+    ``benchmarks/fmu.md``.
 
 A ratio is the plain (or reference) way's value divided by the workbench's: how many
 times faster the workbench is. ``--compare OLD.json [NEW.json]`` prints new / old per
@@ -87,6 +94,7 @@ SECTIONS = (
     "casestudy",
     "seeds",
     "control",
+    "fmu",
 )
 DEFAULT_OUT = HERE / "results"
 
@@ -421,7 +429,7 @@ def section_scaling(suite: Suite) -> None:
 
 
 # -- section: executors ---------------------------------------------------------------
-def _run_experiment_cli(exp: Path, out: Path, executor: str | None) -> dict:
+def run_experiment_cli(exp: Path, out: Path, executor: str | None) -> dict:
     """``evo-door run EXP --out OUT [--executor X] --quiet`` in a fresh process: wall
     time, the run's own total time and best parameters (``evo-door show --json``)."""
     cmd = [sys.executable, "-m", "evo_door", "run", str(exp), "--out", str(out), "--quiet"]
@@ -497,11 +505,11 @@ def section_executors(suite: Suite) -> None:
                 why = refused
             else:
                 try:
-                    res = _run_experiment_cli(exp, tmp / f"{key}.h5", executor)
+                    res = run_experiment_cli(exp, tmp / f"{key}.h5", executor)
                 except RuntimeError as exc:
                     if REFUSED in str(exc) and key == "local":
                         refused = "not available: `evo-door run` refuses `--executor`"
-                        res = _run_experiment_cli(exp, tmp / f"{key}.h5", None)
+                        res = run_experiment_cli(exp, tmp / f"{key}.h5", None)
                     else:
                         why = f"not available: {exc}"
             results[key] = res
@@ -855,6 +863,100 @@ def section_control(suite: Suite) -> None:
     )
 
 
+# -- section: an FMU as the model ------------------------------------------------------
+#: the workbench's time per evaluation of one trial against FMPy's (target: at least)
+FMU_RATIO_TARGET = 5.0
+
+
+def section_fmu(suite: Suite) -> None:
+    """The door FMU: one trial per evaluation against FMPy, and a GA on 2 cores."""
+    from benchmarks import bench_fmu as bf
+
+    with tempfile.TemporaryDirectory() as tmp:
+        fmu = bf.build(Path(tmp))
+        trial = bf.one_trial(fmu, suite.quick)
+        rows = trial["rows"]
+        prof = bf.profile_evaluation(fmu, trial["trial"], 8 if suite.quick else 50)
+        (cs_plain,) = [
+            r for r in rows if r["interface"] == "cs" and r["way"] == "FMPy" and not r["extracted"]
+        ]
+        ga = bf.ga_run(fmu, suite.quick, cs_plain["seconds"])
+    for r in rows:
+        key = f"fmu.trial.{r['interface']}.{r['key']}"
+        wb_key = f"fmu.trial.{r['interface']}.workbench.sandbox_on"
+        wb_metric = suite.get(wb_key)
+        is_plain = r["way"] == "FMPy" and wb_metric is not None and bool(wb_metric.value)
+        suite.add(
+            key,
+            "fmu",
+            f"FMU {r['interface'].upper()}, one 2 s trial, {r['way']} {r['setting']}: per evaluation",
+            r["seconds"],
+            "s",
+            ratio=r["seconds"] / wb_metric.value
+            if is_plain and wb_metric and wb_metric.value
+            else None,
+            ratio_to=wb_key if is_plain else None,
+        )
+        suite.add(
+            f"{key}.error_theta",
+            "fmu",
+            f"  {r['setting']}: max theta error",
+            r["error_theta"],
+            "rad",
+        )
+        suite.add(
+            f"{key}.error_dtheta",
+            "fmu",
+            f"  {r['setting']}: max dtheta error",
+            r["error_dtheta"],
+            "rad/s",
+        )
+    for interface in ("me", "cs"):
+        wb, plain, ok = bf.matched(rows, interface)
+        ratio = plain["seconds"] / wb["seconds"]
+        suite.add(
+            f"fmu.trial.{interface}.speedup",
+            "fmu",
+            f"FMU {interface.upper()}: FMPy ({plain['setting']}) / workbench (sandbox on), "
+            "one trial per evaluation",
+            ratio,
+            "1",
+            target_text=f">= {FMU_RATIO_TARGET:g}x",
+            met=ratio >= FMU_RATIO_TARGET,
+            note="matched accuracy" if ok else "FMPy less accurate: a lower bound",
+        )
+    suite.add(
+        "fmu.ga.workbench",
+        "fmu",
+        f"FMU GA {ga['population']} x {ga['generations']}, "
+        f"`evo-door run --executor processes:{bf.CORES}`: wall time",
+        ga["wall"],
+        "s",
+    )
+    suite.add("fmu.ga.evaluations", "fmu", "FMU GA: evaluations", ga["evaluations"], "1")
+    suite.add(
+        "fmu.ga.plain",
+        "fmu",
+        f"FMU GA: FMPy per evaluation, extrapolated to {bf.CORES} cores",
+        ga["plain"],
+        "s",
+        ratio=ga["plain"] / ga["wall"],
+        ratio_to="fmu.ga.workbench",
+    )
+    for name, err in ga["errors"].items():
+        suite.add(
+            f"fmu.ga.{name}.error", "fmu", f"FMU GA: {name}, error against the truth", err, "%"
+        )
+    suite.add(
+        "fmu.profile.per_candidate",
+        "fmu",
+        "FMU ME: one candidate under cProfile",
+        prof["per_candidate"],
+        "s",
+    )
+    suite.tables["fmu"] = bf.markdown(trial, ga, prof, suite.quick)
+
+
 RUNNERS = {
     "trial": section_trial,
     "ga": section_ga,
@@ -865,6 +967,7 @@ RUNNERS = {
     "casestudy": section_casestudy,
     "seeds": section_seeds,
     "control": section_control,
+    "fmu": section_fmu,
 }
 
 
@@ -979,6 +1082,39 @@ def seeds_markdown(suite: Suite, info: dict) -> str:
     )
 
 
+def fmu_markdown(suite: Suite, info: dict) -> str:
+    """``benchmarks/fmu.md``: an FMU as the model, against FMPy."""
+    return targets_page(
+        suite,
+        info,
+        "fmu",
+        "# An FMU as the model, against FMPy (`python -m benchmarks --only fmu`)",
+        [suite.tables["fmu"]],
+    )
+
+
+def targets_page(suite: Suite, info: dict, section: str, title: str, body: list[str]) -> str:
+    """A section's page: its title, the machine, its targets, then ``body``."""
+    from benchmarks._util import machine_line
+
+    own = Suite(quick=suite.quick, metrics=[m for m in suite.metrics if m.section == section])
+    return "\n".join(
+        [
+            title,
+            "",
+            machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}")
+            + f" Commit {info['commit']}." * bool(info["commit"]),
+            "",
+            "## Targets",
+            "",
+            targets_table(own),
+            "",
+            *body,
+            "",
+        ]
+    )
+
+
 #: the markers of the block of docs/case-study.md that the casestudy section writes
 GENERATED_BEGIN = "<!-- generated by python -m benchmarks --only casestudy: do not edit -->"
 GENERATED_END = "<!-- end of the generated block -->"
@@ -1002,25 +1138,16 @@ def replace_generated(path: Path, page: str) -> Path:
 def trial_markdown(suite: Suite, info: dict) -> str:
     """``benchmarks/trial.md``: the work-precision figures that the README quotes, with
     the machine that made them, its targets and its figure (``work-precision.png``)."""
-    from benchmarks._util import machine_line
-
-    trial = Suite(quick=suite.quick, metrics=[m for m in suite.metrics if m.section == "trial"])
-    return "\n".join(
+    return targets_page(
+        suite,
+        info,
+        "trial",
+        "# Work-precision of a trial, measured (`python -m benchmarks --only trial`)",
         [
-            "# Work-precision of a trial, measured (`python -m benchmarks --only trial`)",
-            "",
-            machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}")
-            + f" Commit {info['commit']}." * bool(info["commit"]),
-            "",
-            "## Targets",
-            "",
-            targets_table(trial),
-            "",
             f"![{suite.figures['work-precision'][2]}](work-precision.png)",
             "",
             suite.tables["trial"],
-            "",
-        ]
+        ],
     )
 
 
@@ -1183,6 +1310,9 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     if not suite.quick and "seeds" in suite.tables:
         write_text(HERE / "seeds.md", seeds_markdown(suite, info))
         paths["seeds"] = HERE / "seeds.md"
+    if not suite.quick and "fmu" in suite.tables:
+        write_text(HERE / "fmu.md", fmu_markdown(suite, info))
+        paths["fmu"] = HERE / "fmu.md"
     if not suite.quick and "casestudy" in suite.tables:  # measured: the figures docs quote
         text = casestudy_markdown(suite, info)
         write_text(HERE / "casestudy.md", text)

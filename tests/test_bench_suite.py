@@ -2,6 +2,7 @@
 figure, ``--compare`` prints new / old per metric, bad options are one-line errors."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the sections whose quick run is the main job itself (each some 25 s): casestudy's
 #: run by its own test, seeds' runs stood in for by a small pipeline
 MAIN_JOB_SECTIONS = ("casestudy", "seeds")
+#: sections with a test of their own below (the FMU's needs CMake and FMPy)
+OWN_TEST_SECTIONS = ("fmu",)
 #: their metrics
 MAIN_JOB_REQUIRED = (
     "casestudy.wall",
@@ -83,7 +86,7 @@ def suite_doc(metrics):
 def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
     from benchmarks.suite import SECTIONS
 
-    others = [s for s in SECTIONS if s not in MAIN_JOB_SECTIONS]
+    others = [s for s in SECTIONS if s not in MAIN_JOB_SECTIONS + OWN_TEST_SECTIONS]
     done = bench("--quick", "--only", ",".join(others), "--out", str(tmp_path), timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
     (js,) = tmp_path.glob("suite-*.json")
@@ -486,3 +489,57 @@ def test_seeds_runs_the_main_job_once_a_run_and_reads_every_estimate(tmp_path, m
     assert set(estimates["first"]) == {"k", "c", "inertia"}
     rows = agreement(done)
     assert {r["stage"] for r in rows} == {"first", "second"} and not any(r["fails"] for r in rows)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is not installed")
+def test_fmu_section_builds_the_fmu_and_compares_with_fmpy(tmp_path):
+    """The fmu section's plumbing: the FMU built, each way's error against the scipy
+    reference, the ratios against FMPy, a small GA through `evo-door run`; a smoke run
+    leaves benchmarks/fmu.md alone."""
+    pytest.importorskip("fmpy")
+    page = ROOT / "benchmarks" / "fmu.md"
+    before = page.read_bytes() if page.exists() else None
+    done = bench("--quick", "--only", "fmu", "--out", str(tmp_path), timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (js,) = tmp_path.glob("suite-*.json")
+    metrics = {m["name"]: m for m in json.loads(js.read_text())["metrics"]}
+    for interface in ("me", "cs"):
+        wb = metrics[f"fmu.trial.{interface}.workbench.sandbox_on"]
+        assert 0 < metrics[f"fmu.trial.{interface}.workbench.sandbox_off"]["value"] < 1.0
+        # the workbench's response agrees with the independent reference (rad)
+        assert metrics[f"fmu.trial.{interface}.workbench.sandbox_on.error_theta"]["value"] < 1e-8
+        plain = metrics[f"fmu.trial.{interface}.plain.default"]
+        assert plain["ratio_to"] == wb["name"]
+        assert plain["ratio"] == pytest.approx(plain["value"] / wb["value"])
+        speedup = metrics[f"fmu.trial.{interface}.speedup"]
+        assert speedup["target_text"] == ">= 5x" and isinstance(speedup["met"], bool)
+    # FMPy's co-simulation is the same RK4 in the same C: the same response
+    assert metrics["fmu.trial.cs.plain.default.error_theta"]["value"] < 1e-10
+    assert metrics["fmu.ga.evaluations"]["value"] >= 8
+    assert metrics["fmu.ga.plain"]["ratio_to"] == "fmu.ga.workbench"
+    for name in ("inertia", "spring_stiffness", "damping"):
+        assert metrics[f"fmu.ga.{name}.error"]["unit"] == "%"
+    assert "| inertia | 0.9 |" in done.stdout and "fmu done in" in done.stderr
+    assert (page.read_bytes() if page.exists() else None) == before
+
+
+def test_fmu_reference_agrees_with_the_exact_free_swing():
+    """The section's scipy reference integrates what it says: with the door's weight,
+    spring torque, damping and friction off, a constant force gives theta = a t^2 / 2."""
+    from benchmarks import bench_fmu
+
+    t = np.arange(64) * bench_fmu.DT
+    force = np.full(t.size, 10.0)
+    zero = {"weight_moment": 0.0, "spring_preload": 0.0, "spring_stiffness": 0.0}
+    zero |= {"damping": 0.0, "friction": 0.0, "inertia": 0.5}
+    theta, dtheta = bench_fmu.reference(zero, t, force, hold=True)
+    a = 0.55 * 10.0 / 0.5  # lever arm x force / inertia (rad/s^2)
+    assert theta == pytest.approx(0.5 * a * t**2, abs=1e-12)
+    assert dtheta == pytest.approx(a * t, abs=1e-10)
+    # a ramp of force: held, it lags the linear one, which gives theta = a' t^3 / 6
+    ramp = 1000.0 * t
+    linear = bench_fmu.reference(zero, t, ramp, hold=False)[0]
+    held = bench_fmu.reference(zero, t, ramp, hold=True)[0]
+    assert linear == pytest.approx(0.55 * 1000.0 / 0.5 * t**3 / 6, abs=1e-12)
+    assert (held[1:] < linear[1:]).all()

@@ -1,7 +1,8 @@
 """The example door FMUs (examples/fmu): built from their C sources, checked with FMPy only.
 
 Each FMU is compared with an independent scipy integration of the same equation of
-motion, written again here from the README's formula. The force is a half-sine push
+motion, written again from the README's formula (``benchmarks/bench_fmu.py``'s
+``door_accel``, which the benchmark's reference uses too). The force is a half-sine push
 held constant over each 1/1024 s sample, given to FMPy as a staircase (a repeated time
 at each step): FMPy then stops its model-exchange solver at every step and applies the
 new value, so both interfaces and scipy see the same force. (With a linearly
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from benchmarks.bench_fmu import door_accel as accel
 from evo_door.errors import UserError
 
 fmpy = pytest.importorskip("fmpy")
@@ -55,23 +57,6 @@ def staircase(name: str) -> np.ndarray:
     t = np.repeat(T_SAMPLES, 2)[1:]
     f = np.repeat(F_SAMPLES, 2)[:-1]
     return np.array(list(zip(t, f)), dtype=[("time", float), (name, float)])
-
-
-def accel(theta, omega, force, p):
-    """The README's equation of motion (rad/s2), for scipy."""
-    torque = (
-        p["lever_arm"] * force
-        + p["spring_preload"]
-        + p["spring_stiffness"] * (np.pi / 2 - theta)
-        - p["weight_moment"] * np.cos(theta)
-        - p["damping"] * omega
-        - p["friction"] * np.tanh(omega / p["friction_speed"])
-    )
-    if theta < 0:
-        torque += -p["stop_stiffness"] * theta - p["stop_damping"] * omega
-    elif theta > np.pi / 2:
-        torque += -p["stop_stiffness"] * (theta - np.pi / 2) - p["stop_damping"] * omega
-    return torque / p["inertia"]
 
 
 def reference(theta0=0.0, stop=STOP, **changed):
