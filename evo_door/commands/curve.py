@@ -14,7 +14,12 @@ from __future__ import annotations
 
 import math
 
-from evo_door.commands._common import MODEL_HELP, add_params_arguments, model_and_params
+from evo_door.commands._common import (
+    MODEL_HELP,
+    add_channels_argument,
+    add_params_arguments,
+    model_and_params,
+)
 from evo_door.errors import UserError
 
 ORDER = 30
@@ -36,6 +41,7 @@ def register(sub) -> None:
     )
     p.add_argument("model", help=MODEL_HELP)
     add_params_arguments(p)
+    add_channels_argument(p)
     p.add_argument(
         "--coulomb",
         action="store_true",

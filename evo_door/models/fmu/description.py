@@ -235,9 +235,10 @@ def unit_of(var) -> str:
 
 def _declaration(md, shown: str) -> tuple[ParamTable, dict]:
     params, where = [], {}
-    # the file's name, not the modelName: a model exported as "door" must not take the
-    # bundled door's presets and parameter files
-    name = Path(shown).stem
+    # the file's name, not the modelName, and with its suffix: an FMU exported as
+    # "door" (or saved as door.fmu) must not take the bundled door's presets and
+    # parameter files
+    name = Path(shown).name
     for var in md.modelVariables:
         if var.causality != "parameter" or var.type not in _REAL_TYPES:
             continue
