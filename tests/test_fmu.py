@@ -245,13 +245,13 @@ def test_a_broken_fmu_is_refused_in_one_line_with_exit_status_2(fmus, case, tmp_
         assert "it has win64" in err
 
 
-def _experiment(tmp_path, fmu, extra="", free="door.J: [0.3, 2.0]"):
+def _experiment(tmp_path, fmu, extra="", free="door.J: [0.3, 2.0]", theta0=None):
     from evo_door.data import Trial, write_trials
 
     t, force = push()
     write_trials(
         tmp_path / "trials.h5",
-        [Trial(t=t, force=force, dtheta=0 * t, trial_id="T1", kind="impulse")],
+        [Trial(t=t, force=force, dtheta=0 * t, trial_id="T1", kind="impulse", theta0=theta0)],
     )
     (tmp_path / "x.fmu").write_bytes(Path(fmu).read_bytes())
     (tmp_path / "fit.yaml").write_text(
@@ -286,3 +286,32 @@ def test_an_experiment_that_does_not_fit_its_fmu_is_refused_in_one_line(
 def test_what_needs_the_acceleration_at_any_state_refuses_an_fmu(fmus, tmp_path, capsys):
     assert main(["curve", str(fmus[2, "tuned"]), "--out", str(tmp_path / "c.csv")]) == 2
     assert "is an FMU: the force-angle curve needs" in capsys.readouterr().err
+
+
+def test_a_trial_that_starts_where_the_fmu_cannot_be_put_is_refused(fmus, tmp_path, capsys):
+    channels = "channels: {force: F_hand, theta: angle, dtheta: speed}\n"
+    exp = _experiment(tmp_path, fmus[3, "untuned"], channels, theta0=1.0)
+    assert main(["run", str(exp), "--out", str(tmp_path / "r.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "trial T1: the run starts at theta = 1" in err and "channels: {theta0: VARIABLE}" in err
+    # mapped to the state that sets it, the same experiment starts
+    text = exp.read_text().replace(
+        "dtheta: speed}", "dtheta: speed, theta0: door.phi, dtheta0: door.w}"
+    )
+    exp.write_text(text)
+    assert main(["run", str(exp), "--out", str(tmp_path / "r.h5"), "--quiet"]) == 0
+
+
+def test_channels_are_only_for_an_fmu(capsys, tmp_path):
+    args = [
+        "simulate",
+        "haptic",
+        "--channels",
+        "force=F",
+        "--input",
+        "x.csv",
+        "--out",
+        str(tmp_path / "o.csv"),
+    ]
+    assert main(args) == 2
+    assert "--channels: only for an FMU model" in capsys.readouterr().err
