@@ -67,6 +67,7 @@ class Instance:
         self.vr_out = np.array([ch[k].vr for k in self.outputs], dtype=np.uint32)
         self.params = list(info.parameters.items())  # declaration order
         self._started = False
+        self._entries: dict = {}  # kernel -> its compiled entry point for these types
 
     # -- one run ------------------------------------------------------------------
     def _set(self, vrs, values) -> None:
@@ -140,23 +141,26 @@ class Instance:
             x = np.zeros(nx)
             if nx:
                 self.fmu.getContinuousStates(x.ctypes.data_as(_double_p()), nx)
-            status = kernels.run_me(
-                self.api,
-                self.comp,
-                x,
-                self.info.n_events,
-                f,
-                float(t0),
-                float(dt),
-                int(substeps),
-                self.vr_in,
-                self.vr_out,
-                out,
-            )
-        else:
-            status = kernels.run_cs(
-                self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out
-            )
+            args = (
+                self.api, self.comp, x, self.info.n_events, f, float(t0), float(dt),
+                int(substeps), self.vr_in, self.vr_out, out,
+            )  # fmt: skip
+            return self._call(kernels.run_me, args)
+        args = (self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out)
+        return self._call(kernels.run_cs, args)
+
+    def _call(self, kernel, args) -> int:
+        """``kernel(*args)``, through its compiled entry point once it is known: numba's
+        dispatcher would type the tuple of C functions again on every call (0.2 ms)."""
+        entry = self._entries.get(kernel)
+        if entry is not None:
+            return entry(*args)
+        status = kernel(*args)
+        import numba
+
+        compiled = kernel.overloads.get(tuple(numba.typeof(a) for a in args))
+        if compiled is not None:
+            self._entries[kernel] = compiled.entry_point
         return status
 
 
