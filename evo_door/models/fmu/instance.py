@@ -146,8 +146,8 @@ class Instance:
                 int(substeps), self.vr_in, self.vr_out, out,
             )  # fmt: skip
             return self._call(kernels.run_me, args)
-        args = (self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out)
-        return self._call(kernels.run_cs, args)
+        cs = (self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out)
+        return self._call(kernels.run_cs, cs)
 
     def _call(self, kernel, args) -> int:
         """``kernel(*args)``, through its compiled entry point once it is known: numba's
