@@ -189,6 +189,38 @@ def test_a_ga_recovers_three_parameters_of_an_untuned_fmu_from_fmpy_trials(fmus,
         assert best[name] == pytest.approx(value, rel=0.02), name
 
 
+@pytest.mark.slow
+def test_a_ga_recovers_three_parameters_of_a_co_simulation_fmi2_fmu(fmus, tmp_path):
+    """The other version and interface: trials by FMPy, the fit stepping the FMU's own
+    co-simulation (FMI 2.0, the tuned layout: nothing mapped)."""
+    from evo_door.data import Trial, write_trials
+    from evo_door.experiment.reader import read_results
+
+    truth = {"inertia": 1.2, "spring_stiffness": 7.0, "damping": 0.5}
+    fmu = tmp_path / "door2.fmu"
+    fmu.write_bytes(fmus[2, "tuned"].read_bytes())
+    trials = []
+    for i, (amp, width) in enumerate([(25, 0.15), (18, 0.25)]):
+        t, force = push(amp, width, duration=1.5)
+        sig = np.array(list(zip(t, force)), dtype=[("time", float), ("force", float)])
+        r = fmpy.simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=t[-1], output_interval=DT,
+                              input=sig, output=["dtheta"], start_values=truth)  # fmt: skip
+        trials.append(Trial(t=t, force=force, dtheta=np.interp(t, r["time"], r["dtheta"]),
+                            trial_id=f"T{i + 1}", kind="impulse", theta0=0.0, dtheta0=0.0))  # fmt: skip
+    write_trials(tmp_path / "trials.h5", trials)
+    (tmp_path / "fit.yaml").write_text(
+        "model: door2.fmu:cs\ntarget: {data: trials.h5}\n"
+        "free: {inertia: [0.3, 3.0], spring_stiffness: [1.0, 20.0], damping: [0.1, 3.0]}\n"
+        "objective: {kind: ise, derivative: 1}\n"
+        "algorithm: {kind: ga, population: 16, generations: 4, seed: 2, polish: slsqp}\n"
+    )
+    out = tmp_path / "fit.h5"
+    assert main(["run", str(tmp_path / "fit.yaml"), "--out", str(out), "--quiet"]) == 0
+    best = read_results(out).best.values
+    for name, value in truth.items():
+        assert best[name] == pytest.approx(value, rel=0.02), name
+
+
 # -- refused in one line --------------------------------------------------------------------
 def _rezip(src: Path, dst: Path, edit) -> Path:
     """``src`` rewritten entry by entry: ``edit(name, data)`` returns the new
