@@ -14,6 +14,9 @@ or, from Python (``sys.path`` holding this folder)::
     from build import build_fmu
     build_fmu(Path("door2.fmu"), fmi=2, layout="tuned", interfaces=("me", "cs"))
 
+``--faults`` (``faults=True``) builds the faulty door of the tests: it crashes, hangs or
+fails on purpose for some damping values (:data:`FAULTS`, README.md).
+
 Needs CMake and a C compiler, and the standard's headers: FMPy ships them (its
 ``c-code`` folder), or pass ``include_dir``.
 """
@@ -46,6 +49,10 @@ INTERFACE_NAMES = ("me", "cs")
 RK4_MAX_STEP = 1e-4
 #: the value reference of the first parameter; the others follow in PARAMETERS' order
 FIRST_PARAMETER_VR = 10
+#: The faulty door of the tests (``faults=True``, C ``DOOR_FAULTS``): its derivatives and
+#: its DoStep misbehave when ``damping`` is above a threshold (N.m.s/rad), the highest
+#: one passed deciding: a segmentation fault, an endless loop, an error status.
+FAULTS = {"crash": 9.0, "hang": 8.0, "error": 7.0}
 
 
 @dataclass(frozen=True)
@@ -190,9 +197,11 @@ def variables(layout: str) -> list[tuple[int, Signal | Parameter]]:
     return out
 
 
-def token(fmi: int, layout: str, interfaces: tuple[str, ...]) -> str:
+def token(fmi: int, layout: str, interfaces: tuple[str, ...], faults: bool = False) -> str:
     """The guid (FMI 2) or instantiationToken (FMI 3): the same for the same build."""
     text = repr((fmi, layout, interfaces, PARAMETERS, LAYOUTS[layout], RK4_MAX_STEP))
+    if faults:
+        text += repr(FAULTS)
     return "{" + str(uuid.uuid5(uuid.NAMESPACE_OID, text)) + "}"
 
 
@@ -214,7 +223,9 @@ def check_arguments(fmi, layout, interfaces) -> tuple[str, ...]:
 # ---------------------------------------------------------------- the C header
 
 
-def c_sources(fmi: int, layout: str, interfaces: tuple[str, ...]) -> dict[str, str]:
+def c_sources(
+    fmi: int, layout: str, interfaces: tuple[str, ...], faults: bool = False
+) -> dict[str, str]:
     """``door_variables.h`` and ``door_variables.c`` for one build."""
     layout_names = {VALUE_REFERENCES[s.quantity]: s.name for s in LAYOUTS[layout]}
     layout_names[VALUE_REFERENCES["time"]] = TIME.name
@@ -230,16 +241,19 @@ def c_sources(fmi: int, layout: str, interfaces: tuple[str, ...]) -> dict[str, s
     vr_enum = [f"    DOOR_VR_{key.upper()} = {vr}," for key, vr in VALUE_REFERENCES.items()]
     p_enum = [f"    DOOR_P_{p.name.upper()} = {i}," for i, p in enumerate(PARAMETERS)]
     stamp = f'/* Written by examples/fmu/build.py (FMI {fmi}, layout "{layout}"): do not edit. */'
+    fault_lines = ["/* the faulty door of the tests: damping thresholds, N.m.s/rad */"]
+    fault_lines += [f"#define DOOR_FAULT_{k.upper()}_ABOVE {v!r}" for k, v in FAULTS.items()]
     header = "\n".join(
         [
             stamp,
             "#ifndef DOOR_VARIABLES_H",
             "#define DOOR_VARIABLES_H",
             "",
-            f'#define DOOR_TOKEN "{token(fmi, layout, interfaces)}"',
+            f'#define DOOR_TOKEN "{token(fmi, layout, interfaces, faults)}"',
             f"#define DOOR_MODEL_EXCHANGE {int('me' in interfaces)}",
             f"#define DOOR_CO_SIMULATION {int('cs' in interfaces)}",
             f"#define DOOR_RK4_MAX_STEP {RK4_MAX_STEP!r}",
+            *(fault_lines if faults else []),
             "",
             "enum {",
             *vr_enum,
@@ -326,7 +340,9 @@ def _attributes(variable: Signal | Parameter, layout: str, vr: int) -> tuple[dic
     return own, value
 
 
-def model_description(fmi: int, layout: str, interfaces: tuple[str, ...]) -> bytes:
+def model_description(
+    fmi: int, layout: str, interfaces: tuple[str, ...], faults: bool = False
+) -> bytes:
     """The modelDescription.xml of one build, as UTF-8 bytes."""
     listed = variables(layout)
     index = {id(v): i + 1 for i, (_, v) in enumerate(listed)}  # FMI 2 refers by index
@@ -336,9 +352,11 @@ def model_description(fmi: int, layout: str, interfaces: tuple[str, ...]) -> byt
         {
             "fmiVersion": f"{fmi}.0",
             "modelName": "door",
-            ("guid" if fmi == 2 else "instantiationToken"): token(fmi, layout, interfaces),
+            ("guid" if fmi == 2 else "instantiationToken"): token(fmi, layout, interfaces, faults),
             "description": "A dishwasher-like door on a hinge, driven by the hand's force "
-            f"(evo-door's example FMU, layout {layout})",
+            f"(evo-door's example FMU, layout {layout}"
+            + ("; faulty on purpose: a test fixture" if faults else "")
+            + ")",
             "generationTool": "evo-door examples/fmu/build.py",
             "variableNamingConvention": "structured",
         },
@@ -424,7 +442,12 @@ def _run(command: list[str], what: str) -> None:
 
 
 def compile_library(
-    build_dir: Path, fmi: int, layout: str, interfaces: tuple[str, ...], include_dir: Path
+    build_dir: Path,
+    fmi: int,
+    layout: str,
+    interfaces: tuple[str, ...],
+    include_dir: Path,
+    faults: bool = False,
 ) -> Path:
     """Write the generated C into ``build_dir``, configure and build with CMake; the
     library's path."""
@@ -433,7 +456,7 @@ def compile_library(
         raise UserError("cmake is not on PATH: install it (e.g. apt-get install cmake)")
     generated = build_dir / "generated"
     generated.mkdir(parents=True)
-    for name, text in c_sources(fmi, layout, interfaces).items():
+    for name, text in c_sources(fmi, layout, interfaces, faults).items():
         (generated / name).write_text(text)
     cmake_dir = build_dir / "cmake"
     configure = [cmake, "-S", str(SOURCES), "-B", str(cmake_dir), "-DCMAKE_BUILD_TYPE=Release"]
@@ -441,6 +464,7 @@ def compile_library(
     configure += [
         f"-DDOOR_GENERATED_DIR={generated}",
         f"-DMODEL_IDENTIFIER={model_identifier(fmi)}",
+        f"-DDOOR_FAULTS={'ON' if faults else 'OFF'}",
     ]
     _run(configure, "cmake configure")
     _run([cmake, "--build", str(cmake_dir), "--config", "Release"], "cmake --build")
@@ -459,6 +483,7 @@ def build_fmu(
     *,
     force: bool = False,
     include_dir: Path | None = None,
+    faults: bool = False,
 ) -> Path:
     """Build the door FMU into ``out`` (a .fmu zip) and return its path.
 
@@ -471,6 +496,9 @@ def build_fmu(
     interfaces : "me", "cs" or both: which of ModelExchange and CoSimulation the
         modelDescription declares (the binary refuses to instantiate the other).
     include_dir : the FMI headers; FMPy's by default.
+    faults : build the faulty door of the tests (:data:`FAULTS`): its derivatives and
+        DoStep crash, hang or return an error status for damping values above the
+        thresholds. A test fixture, never a model.
     """
     interfaces = check_arguments(fmi, layout, interfaces)
     out = Path(out)
@@ -481,10 +509,11 @@ def build_fmu(
     include_dir = Path(include_dir) if include_dir else fmi_headers()
     in_zip = binary_path(fmi)
     with tempfile.TemporaryDirectory(prefix="door-fmu-") as tmp:
-        library = compile_library(Path(tmp), fmi, layout, interfaces, include_dir)
+        library = compile_library(Path(tmp), fmi, layout, interfaces, include_dir, faults)
         partial = out.with_name(f".{out.name}.partial")
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
-            zf.writestr("modelDescription.xml", model_description(fmi, layout, interfaces))
+            description = model_description(fmi, layout, interfaces, faults)
+            zf.writestr("modelDescription.xml", description)
             zf.write(library, in_zip)
         os.replace(partial, out)
     return out
@@ -500,6 +529,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="the .fmu to write")
     parser.add_argument("--force", action="store_true", help="write over an existing --out")
     parser.add_argument("--include-dir", type=Path, help="the FMI headers (default: FMPy's)")
+    parser.add_argument(
+        "--faults",
+        action="store_true",
+        help="the faulty door of the tests: damping > {crash:g} crashes, > {hang:g} hangs, "
+        "> {error:g} fails (N.m.s/rad)".format(**FAULTS),
+    )
     args = parser.parse_args(argv)
     started = time.perf_counter()
     try:
@@ -510,13 +545,15 @@ def main(argv: list[str] | None = None) -> int:
             tuple(i.strip() for i in args.interfaces.split(",") if i.strip()),
             force=args.force,
             include_dir=args.include_dir,
+            faults=args.faults,
         )
     except UserError as e:
         print(f"build.py: error: {e}", file=sys.stderr)
         return 2
     size = out.stat().st_size / 1024
+    faulty = ", faulty on purpose" if args.faults else ""
     print(
-        f"wrote {out} (FMI {args.fmi}.0, layout {args.layout}, {args.interfaces}; "
+        f"wrote {out} (FMI {args.fmi}.0, layout {args.layout}, {args.interfaces}{faulty}; "
         f"{size:.1f} KiB) in {time.perf_counter() - started:.1f} s"
     )
     return 0

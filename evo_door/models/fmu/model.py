@@ -56,6 +56,13 @@ class FmuRunner:
     def __init__(self, info: FmuInfo):
         self.info = info
 
+    def prepare(self) -> None:
+        """Load the FMU in this process and the compiled kernels, running no trial: an
+        empty run at the declared defaults (what a sandbox's child does before it says
+        it is ready, so that its time limit counts candidates, not compilation)."""
+        inst = instance(self.info)
+        inst.run(self.info.declaration.defaults, np.zeros(0), 1.0, 0.0, 0.0)
+
     def simulate(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
         """``(theta, dtheta, ddtheta, ok)``, each (n,) in SI: one run of the FMU."""
         self.check_start(theta0, dtheta0)

@@ -39,6 +39,37 @@ DoorStatus door_error(const DoorInstance *door, const char *format, ...) {
     return DOOR_ERROR;
 }
 
+#ifdef DOOR_FAULTS
+#include <signal.h>
+
+/* A test fixture, compiled only with -DDOOR_FAULTS (build.py --faults): the door
+ * misbehaves on purpose for damping values a test picks (the thresholds are build.py's
+ * FAULTS, written into door_variables.h), so that a host can be shown to survive an FMU
+ * that crashes, hangs or fails. Called where the work is: the derivatives and DoStep. */
+static DoorStatus door_fault(const DoorInstance *door, const char *function) {
+    const double damping = door->s.p[DOOR_P_DAMPING];
+    if (damping > DOOR_FAULT_CRASH_ABOVE) {
+        volatile int *nowhere = NULL;
+        *nowhere = 1;  /* a segmentation fault, as a real bug would give */
+        raise(SIGSEGV); /* in case page 0 is mapped */
+    }
+    if (damping > DOOR_FAULT_HANG_ABOVE) {
+        volatile unsigned long spins = 0;
+        for (;;) spins++; /* never returns */
+    }
+    if (damping > DOOR_FAULT_ERROR_ABOVE)
+        return door_error(door, "%s: damping = %g N.m.s/rad is a fault on purpose (DOOR_FAULTS)",
+                          function, damping);
+    return DOOR_OK;
+}
+#define DOOR_FAULT(door, function)                                  \
+    do {                                                            \
+        if (door_fault(door, function) != DOOR_OK) return DOOR_ERROR; \
+    } while (0)
+#else
+#define DOOR_FAULT(door, function) ((void)0)
+#endif
+
 DoorStatus door_require(const DoorInstance *door, int allowed, const char *function) {
     if (!door) return DOOR_ERROR;
     if (door->s.mode & allowed) return DOOR_OK;
@@ -214,6 +245,7 @@ DoorStatus door_get_states(const DoorInstance *door, double x[], size_t nx) {
 
 DoorStatus door_get_derivatives(const DoorInstance *door, double dx[], size_t nx) {
     if (check_states(door, dx, nx)) return DOOR_ERROR;
+    DOOR_FAULT(door, "GetDerivatives");
     const DoorState *s = &door->s;
     dx[0] = s->x[1];
     dx[1] = door_accel(s->p, s->x[0], s->x[1], s->force);
@@ -240,6 +272,7 @@ DoorStatus door_do_step(DoorInstance *door, double t, double step) {
         return door_error(door, "DoStep: step %g s must be finite and not negative", step);
     if (fabs(t - s->time) > 1e-9 * fmax(1.0, fabs(t)))
         return door_error(door, "DoStep from t = %.17g s but the FMU is at %.17g s", t, s->time);
+    DOOR_FAULT(door, "DoStep");
     /* the slack keeps a step that is a whole number of max steps from taking one more */
     long n = (long)ceil(step / DOOR_RK4_MAX_STEP * (1.0 - 1e-12));
     if (n < 1) n = 1;
