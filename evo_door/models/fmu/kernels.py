@@ -248,13 +248,17 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
         f0, df = force[k], (force[k + 1] - force[k]) / substeps
         for s in range(substeps):
             ts, fs = t + s * h, f0 + s * df
+            # the four stages, stopping at the first the FMU refuses
             st = OK if fresh else derivatives(api, comp, ts, x, fs, vr_in, u, k1)
-            xs[:] = x + 0.5 * h * k1
-            st = max(st, derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k2))
-            xs[:] = x + 0.5 * h * k2
-            st = max(st, derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k3))
-            xs[:] = x + h * k3
-            st = max(st, derivatives(api, comp, ts + h, xs, fs + df, vr_in, u, k4))
+            if st <= _GOOD:
+                xs[:] = x + 0.5 * h * k1
+                st = derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k2)
+            if st <= _GOOD:
+                xs[:] = x + 0.5 * h * k2
+                st = derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k3)
+            if st <= _GOOD:
+                xs[:] = x + h * k3
+                st = derivatives(api, comp, ts + h, xs, fs + df, vr_in, u, k4)
             if st > _GOOD:
                 out[k + 1 :] = np.nan
                 return FMU_ERROR
