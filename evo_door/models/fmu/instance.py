@@ -14,6 +14,7 @@ Loading an FMU runs its code: load only FMUs you trust.
 from __future__ import annotations
 
 import atexit
+import math
 import shutil
 import warnings
 from pathlib import Path
@@ -68,6 +69,7 @@ class Instance:
         self.params = list(info.parameters.items())  # declaration order
         self._started = False
         self._entries: dict = {}  # kernel -> its compiled entry point for these types
+        self._next_event = math.inf  # the time event the initialisation set
 
     # -- one run ------------------------------------------------------------------
     def _set(self, vrs, values) -> None:
@@ -100,21 +102,23 @@ class Instance:
                 fmu.enterInitializationMode(startTime=t0)
             fmu.exitInitializationMode()
             if info.interface == "me":
-                self._settle_events()
+                self._next_event = self._settle_events()
                 fmu.enterContinuousTimeMode()
         except Exception as exc:
             raise FmuRunError(" ".join(str(exc).split()) or type(exc).__name__) from None
 
-    def _settle_events(self) -> None:
+    def _settle_events(self) -> float:
+        """The initialisation's event iteration; the time event it sets (inf if none),
+        which the run must stop at."""
         for _ in range(kernels.MAX_EVENT_ITERATIONS):
             if self.info.version == 2:
-                needed, terminate, *_ = self.fmu.newDiscreteStates()
+                needed, terminate, _, _, timed, at = self.fmu.newDiscreteStates()
             else:
-                needed, terminate, *_ = self.fmu.updateDiscreteStates()
+                needed, terminate, _, _, timed, at = self.fmu.updateDiscreteStates()
             if terminate:
                 raise FmuRunError("the FMU asked to terminate at initialisation")
             if not needed:
-                return
+                return float(at) if timed else math.inf
         raise FmuRunError("the FMU's discrete states do not settle at initialisation")
 
     def run(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
@@ -142,8 +146,8 @@ class Instance:
             if nx:
                 self.fmu.getContinuousStates(x.ctypes.data_as(_double_p()), nx)
             args = (
-                self.api, self.comp, x, self.info.n_events, f, float(t0), float(dt),
-                int(substeps), self.vr_in, self.vr_out, out,
+                self.api, self.comp, x, self.info.n_events, self._next_event, f, float(t0),
+                float(dt), int(substeps), self.vr_in, self.vr_out, out,
             )  # fmt: skip
             return self._call(kernels.run_me, args)
         cs = (self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out)

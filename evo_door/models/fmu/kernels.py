@@ -5,10 +5,12 @@ method at a fixed step (``substeps`` steps per sample period), the force going l
 from one sample to the next, as the workbench's own integrators do
 (:mod:`evo_door.sim.integrators`). Each stage sets the time, the states and the input
 and asks the FMU for the derivatives; after each step it reports the completed step and
-reads the event indicators. Where an indicator changes sign, the FMU asks for an event
-or a time event falls due, the event is handled at the end of that step (event mode,
-discrete-state updates until the FMU is done, continuous-time mode, states read back):
-events are located to within one step, not within it.
+reads the event indicators. Where an indicator changes sign or the FMU asks for an
+event, the event is handled at the end of that step (event mode, discrete-state updates
+until the FMU is done, continuous-time mode, states read back): state events are located
+to within one step, not within it. A time event (the next event time the FMU gave at
+initialisation or at its last event) ends a shorter step at its very time, as the
+standard asks, and the step's rest follows.
 
 ``run_cs`` steps a co-simulation FMU from one sample to the next (``fmi2DoStep`` /
 ``fmi3DoStep``), the force held at the sample's value over the step.
@@ -52,6 +54,8 @@ NOT_FINITE = 2
 TERMINATED = 3
 #: statuses fmiOK and fmiWarning: the call did what was asked
 _GOOD = 1
+#: what :func:`rk4_step` returns for a state that is not finite (no FMI status)
+_NOT_FINITE_STEP = -1
 #: at most this many discrete-state updates per event (an FMU that never settles)
 MAX_EVENT_ITERATIONS = 100
 
@@ -177,8 +181,8 @@ def handle_event(api, comp, x, nx, flags, times):
             return FMU_ERROR
         if flags[3] != 0:
             return TERMINATED
-        if flags[6] != 0:
-            times[1] = times[0]
+        # the last update's word on the next time event holds (as at initialisation)
+        times[1] = times[0] if flags[6] != 0 else math.inf
         if flags[2] == 0:
             break
     else:
@@ -220,9 +224,41 @@ def read_outputs(api, comp, t, x, force, vr_in, u, vr_out, row):
 
 
 @njit(cache=True)
-def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):  # long: one loop
+def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, fresh, k1, k2, k3, k4, xs):
+    """One classical RK4 step of ``x`` from ``t`` to ``t_end = t + h`` (given apart, so
+    that a step ending at a time event ends at its time to the bit), the force going
+    linearly from ``force`` to ``force + dforce``. ``k1`` holds f at the start when
+    ``fresh``; on return it holds f at the end (the next step's first stage). The FMU's
+    worst status, or ``_NOT_FINITE_STEP``."""
+    # the four stages, stopping at the first the FMU refuses
+    st = OK if fresh else derivatives(api, comp, t, x, force, vr_in, u, k1)
+    if st <= _GOOD:
+        xs[:] = x + 0.5 * h * k1
+        st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k2)
+    if st <= _GOOD:
+        xs[:] = x + 0.5 * h * k2
+        st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k3)
+    if st <= _GOOD:
+        xs[:] = x + h * k3
+        st = derivatives(api, comp, t_end, xs, force + dforce, vr_in, u, k4)
+    if st > _GOOD:
+        return st
+    x += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    for i in range(x.size):
+        if not math.isfinite(x[i]):
+            return _NOT_FINITE_STEP
+    # the state at the end of the step: the FMU holds it for the step's completion and
+    # its event indicators, and its derivatives are the next step's k1
+    return derivatives(api, comp, t_end, x, force + dforce, vr_in, u, k1)
+
+
+@njit(cache=True)
+def run_me(  # long: one loop
+    api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, vr_out, out
+):
     """Integrate a model-exchange FMU over the samples of ``force`` (see the module
-    docstring); ``x`` holds the initial states (after initialisation) and is advanced."""
+    docstring); ``x`` holds the initial states (after initialisation) and is advanced;
+    ``next_event`` is the time event the initialisation set (inf if none)."""
     n, nx = force.size, x.size
     out[:] = np.nan
     u = np.zeros(1)
@@ -233,7 +269,6 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
     if n_events and api[GET_EVENT_INDICATORS](comp, at(z0, 0), n_events) > _GOOD:
         return FMU_ERROR
     h = dt / substeps
-    next_event = math.inf
     fresh = False  # k1 already holds f at the step's start (the last step's end)
     for k in range(n):
         t = t0 + k * dt
@@ -247,54 +282,51 @@ def run_me(api, comp, x, n_events, force, t0, dt, substeps, vr_in, vr_out, out):
             break
         f0, df = force[k], (force[k + 1] - force[k]) / substeps
         for s in range(substeps):
-            ts, fs = t + s * h, f0 + s * df
-            # the four stages, stopping at the first the FMU refuses
-            st = OK if fresh else derivatives(api, comp, ts, x, fs, vr_in, u, k1)
-            if st <= _GOOD:
-                xs[:] = x + 0.5 * h * k1
-                st = derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k2)
-            if st <= _GOOD:
-                xs[:] = x + 0.5 * h * k2
-                st = derivatives(api, comp, ts + 0.5 * h, xs, fs + 0.5 * df, vr_in, u, k3)
-            if st <= _GOOD:
-                xs[:] = x + h * k3
-                st = derivatives(api, comp, ts + h, xs, fs + df, vr_in, u, k4)
-            if st > _GOOD:
-                out[k + 1 :] = np.nan
-                return FMU_ERROR
-            x += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            for i in range(nx):
-                if not math.isfinite(x[i]):
+            ts, fs, end = t + s * h, f0 + s * df, t + s * h + h
+            hs, dfs = h, df
+            while True:
+                # a time event inside the step ends a shorter step at its time (the
+                # standard: integrate at most until the next event time), the rest of
+                # the step follows it
+                split = ts < next_event < end
+                te = next_event if split else end
+                hh = te - ts if split else hs
+                dff = dfs * (hh / hs) if split else dfs
+                st = rk4_step(
+                    api, comp, ts, hh, te, x, fs, dff, vr_in, u, fresh, k1, k2, k3, k4, xs
+                )
+                fresh = True
+                if st == _NOT_FINITE_STEP or st > _GOOD:
                     out[k + 1 :] = np.nan
-                    return NOT_FINITE
-            # the state at the end of the step (its derivatives are the next step's k1),
-            # then the events it may have crossed
-            st = derivatives(api, comp, ts + h, x, fs + df, vr_in, u, k1)
-            fresh = True
-            status, enter, terminate = completed_step(api, comp, flags)
-            if st > _GOOD or status > _GOOD:
-                out[k + 1 :] = np.nan
-                return FMU_ERROR
-            if terminate:
-                out[k + 1 :] = np.nan
-                return TERMINATED
-            crossed = False
-            if n_events:
-                if api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events) > _GOOD:
+                    return NOT_FINITE if st == _NOT_FINITE_STEP else FMU_ERROR
+                # no call after one that failed: the step is reported only when done
+                status, enter, terminate = completed_step(api, comp, flags)
+                if status > _GOOD:
+                    out[k + 1 :] = np.nan
                     return FMU_ERROR
-                for i in range(n_events):
-                    if (z0[i] > 0.0) != (z1[i] > 0.0):
-                        crossed = True
-            if enter or crossed or ts + h >= next_event:
-                r = handle_event(api, comp, x, nx, flags, times)
-                if r != OK:
+                if terminate:
                     out[k + 1 :] = np.nan
-                    return r
-                next_event = times[1]
-                fresh = False  # the states or the law may have changed
+                    return TERMINATED
+                crossed = False
                 if n_events:
-                    api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events)
-            z0[:] = z1
+                    if api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events) > _GOOD:
+                        return FMU_ERROR
+                    for i in range(n_events):
+                        if (z0[i] > 0.0) != (z1[i] > 0.0):
+                            crossed = True
+                if enter or crossed or te >= next_event:
+                    r = handle_event(api, comp, x, nx, flags, times)
+                    if r != OK:
+                        out[k + 1 :] = np.nan
+                        return r
+                    next_event = times[1]
+                    fresh = False  # the states or the law may have changed
+                    if n_events:
+                        api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events)
+                z0[:] = z1
+                if not split:
+                    break
+                ts, fs, hs, dfs = te, fs + dff, end - te, dfs - dff
     return OK
 
 

@@ -1,0 +1,1 @@
+"""A hybrid door FMU (latch, time event, bounce) built from C for the event tests."""
