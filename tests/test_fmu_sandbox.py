@@ -61,6 +61,13 @@ LIMIT = 2.0
 GA = GASettings(population=8, generations=2, seed=3)
 
 
+@pytest.fixture(autouse=True)
+def one_child(monkeypatch):
+    """One sandbox child per process, as in an executor's worker (the ``local``
+    executor's group of children has a test of its own)."""
+    monkeypatch.setattr(sandbox, "CHILDREN", 1)
+
+
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     """The faulty door, FMI 2.0 and 3.0 (both interfaces in each), and two trials of
@@ -137,6 +144,21 @@ def test_the_faults_are_a_build_option_that_adds_nothing_without_it(fmus):
 
 
 # -- Problem.evaluate ---------------------------------------------------------------
+@pytest.mark.slow
+def test_a_group_of_children_splits_a_batch_and_gives_the_single_childs_numbers(fmus, monkeypatch):
+    monkeypatch.setattr(sandbox, "CHILDREN", 2)
+    problem = faulty_problem(fmus, f"{fmus[2]}:me")
+    X = rows(GOOD, OTHER, CRASH, GOOD + 0.1, 0.3, 1.2)
+    f, blown = problem.evaluate(X)
+    group = sandbox.current()
+    assert isinstance(group, sandbox.SandboxGroup) and len(set(group.pids)) == 2
+    assert group.lost == {"crashed": 1, "timed out": 0}  # the crash cost its part only
+    assert list(blown) == [False, False, True, False, False, False]
+    ok = ~blown
+    ref_f, _ = in_process(problem, X[ok])
+    assert f[ok].tobytes() == ref_f.tobytes()  # bit for bit, whichever child ran it
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("fmi, interface", [(2, "me"), (3, "cs")])
 def test_faulty_candidates_are_blown_and_the_others_exactly_as_in_process(

@@ -4,7 +4,8 @@ A model that runs native code it did not compile with evo-door (an FMU's shared
 library) can crash its process or hang in a loop. :class:`Sandbox` keeps that away
 from the run: the problem's candidates are evaluated one by one in a child process
 (a plain subprocess over a socket pair, one per process that evaluates: the run's own
-or an executor's worker), and the parent waits for each at most ``time_limit`` seconds.
+or an executor's worker; under the ``local`` executor one per numba thread, each with
+a part of the batch: :class:`SandboxGroup`), and the parent waits for each at most ``time_limit`` seconds.
 A candidate whose evaluation kills the child or overruns the limit is scored as a
 blow-up (fitness inf), the child is replaced, and the other candidates go on; what
 happened is counted (:attr:`Sandbox.lost`) and said once on stderr.
@@ -357,6 +358,61 @@ def _close_all() -> None:
         box.close()
 
 
+class SandboxGroup:
+    """Several sandboxes for one problem, each with its child, evaluating a batch's rows
+    side by side (contiguous parts, one per child): the ``local`` executor's cores. A
+    row's result is the one a single sandbox gives (each candidate on its own)."""
+
+    def __init__(self, problem, n: int, time_limit: float | None = None):
+        self.boxes = [Sandbox(problem, time_limit) for _ in range(n)]
+
+    @property
+    def time_limit(self) -> float:
+        return self.boxes[0].time_limit
+
+    @time_limit.setter
+    def time_limit(self, value: float) -> None:
+        for box in self.boxes:
+            box.time_limit = value
+
+    @property
+    def lost(self) -> dict:
+        return {k: sum(b.lost[k] for b in self.boxes) for k in self.boxes[0].lost}
+
+    @property
+    def starts(self) -> int:
+        return sum(b.starts for b in self.boxes)
+
+    @property
+    def pids(self) -> list:
+        """The running children's process ids."""
+        return [b.pid for b in self.boxes if b.pid is not None]
+
+    @property
+    def pid(self) -> int | None:
+        return self.boxes[0].pid
+
+    def evaluate(self, X):
+        """``(fitness, blown)`` of every row of ``X``, as ``Problem.evaluate``."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        parts = [p for p in np.array_split(np.arange(X.shape[0]), len(self.boxes)) if p.size]
+        if len(parts) <= 1:
+            return self.boxes[0].evaluate(X)
+        with ThreadPoolExecutor(len(parts)) as pool:  # each waits on its child's socket
+            done = list(pool.map(lambda bp: bp[0].evaluate(X[bp[1]]), zip(self.boxes, parts)))
+        return np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])
+
+    def close(self) -> None:
+        for box in self.boxes:
+            box.close()
+
+
+#: children per sandbox: None takes numba's threads in the evaluating thread (the
+#: ``local`` executor's cores; 1 in an executor's worker slot)
+CHILDREN: int | None = None
+
 #: this process's sandbox: ``(weak reference to its problem, sandbox)``. One problem at
 #: a time (a run's problems follow each other); the reference is weak so that a new
 #: problem made where a collected one was is never taken for it.
@@ -364,21 +420,32 @@ _CURRENT: list = [None, None]
 _CURRENT_LOCK = threading.Lock()
 
 
-def sandbox_for(problem, time_limit: float | None = None) -> Sandbox:
-    """The sandbox this process keeps for ``problem`` (its child started on first use),
-    with ``time_limit`` (s; :data:`DEFAULT_TIME_LIMIT` if None)."""
+def _children() -> int:
+    if CHILDREN is not None:
+        return max(1, int(CHILDREN))
+    import numba
+
+    return max(1, numba.get_num_threads())
+
+
+def sandbox_for(problem, time_limit: float | None = None):
+    """The sandbox this process keeps for ``problem`` (its children started on first
+    use), with ``time_limit`` (s; :data:`DEFAULT_TIME_LIMIT` if None): a
+    :class:`Sandbox`, or a :class:`SandboxGroup` of one per numba thread."""
     with _CURRENT_LOCK:
         ref, box = _CURRENT
-        if ref is None or ref() is not problem:
+        n = _children()
+        size = len(box.boxes) if isinstance(box, SandboxGroup) else 1
+        if ref is None or ref() is not problem or size != n:
             if box is not None:
                 box.close()
-            box = Sandbox(problem, time_limit)
+            box = Sandbox(problem, time_limit) if n == 1 else SandboxGroup(problem, n, time_limit)
             _CURRENT[:] = [weakref.ref(problem), box]
         box.time_limit = float(time_limit or DEFAULT_TIME_LIMIT)
         return box
 
 
-def current() -> Sandbox | None:
+def current():
     """This process's sandbox (the last problem's), or None if it has made none."""
     return _CURRENT[1]
 
