@@ -31,8 +31,9 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 from tests.fmu_events.hinge_fmu import PARAMETERS, build_hinge_fmu  # noqa: E402
 
+# not numerics: the errors measured here are the events' (a step late at most), far
+# above what another vector width changes; tests/test_fmu.py runs the kernels there
 pytestmark = [
-    pytest.mark.numerics,
     pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is not installed"),
 ]
 
