@@ -350,3 +350,24 @@ def test_channels_are_only_for_an_fmu(capsys, tmp_path):
     ]
     assert main(args) == 2
     assert "--channels: only for an FMU model" in capsys.readouterr().err
+
+
+def test_a_preset_beside_the_fmu_is_found_by_name_and_checked(fmus, tmp_path, capsys):
+    fmu = tmp_path / "door.fmu"
+    fmu.write_bytes(fmus[2, "tuned"].read_bytes())
+    (tmp_path / "presets").mkdir()
+    (tmp_path / "presets" / "heavy.yaml").write_text(
+        'model: door.fmu\ndescription: "a heavier door"\nvalues:\n  inertia: 1.5\n'
+    )
+    (tmp_path / "presets" / "other.yaml").write_text("model: door\nvalues:\n  L: 0.6\n")
+    assert main(["params", str(fmu)]) == 0
+    out = capsys.readouterr().out
+    # the FMU's own preset; not the bundled door's, not one for another model
+    assert "presets: heavy\n" in out and "table53" not in out
+    assert main(["params", str(fmu), "--params", "heavy", "--set", "damping=2"]) == 0
+    rows = {
+        line.split()[0]: line.split()
+        for line in capsys.readouterr().out.splitlines()
+        if line.strip()
+    }
+    assert rows["inertia"][2] == "1.5" and rows["damping"][2] == "2"
