@@ -24,8 +24,8 @@ co-simulation and for FMPy. The plain setting the ratio is taken against is the
 loosest tolerance within :data:`MATCH_FACTOR` times the workbench's error (or, when
 none is, the most accurate tried: the ratio is then a lower bound).
 
-**A GA.** ``evo-door run EXP.yaml --executor processes:2`` in a fresh process, as a
-user types it: population 100 x 20 generations (``--quick``: 8 x 2) on the
+**A GA.** ``evo-door run EXP.yaml`` (the ``local`` executor: one sandbox process per
+core, each with a part of every batch) in a fresh process, as a user types it: population 100 x 20 generations (``--quick``: 8 x 2) on the
 co-simulation (the trials' own force convention), three free parameters, on two trials
 made by FMPy at :data:`TRUTH` (pushes of 20 N and 15 N); its wall time, evaluations and
 each estimate's error against the truth, and the plain way's cost extrapolated:
@@ -381,7 +381,7 @@ def profile_evaluation(fmu: Path, trial, population: int = 20, top: int = 8) -> 
 
 # -- the GA ---------------------------------------------------------------------------
 def ga_run(fmu: Path, quick: bool, per_call_plain: float) -> dict:
-    """``evo-door run EXP.yaml --executor processes:2`` on two trials made by FMPy."""
+    """``evo-door run EXP.yaml --executor local`` on two trials made by FMPy."""
     from benchmarks.bench_ga import experiment_yaml
     from benchmarks.suite import run_experiment_cli
     from evo_door.data.io import write_trials
@@ -398,7 +398,7 @@ def ga_run(fmu: Path, quick: bool, per_call_plain: float) -> dict:
         write_trials(folder / "trials.h5", trials)
         exp = folder / "fmu_ga.yaml"
         exp.write_text(experiment_yaml(spec, problem, population, generations, run="bench_fmu"))
-        done = run_experiment_cli(exp, folder / "run.h5", f"processes:{CORES}")
+        done = run_experiment_cli(exp, folder / "run.h5", "local")
     best = done["params"]
     errors = {n: 100.0 * (float(best[n]) - v) / v for n, v in TRUTH.items()}
     plain = done["evaluations"] * len(trials) * per_call_plain / CORES
@@ -481,8 +481,8 @@ def markdown(trial: dict, ga: dict, prof: dict, quick: bool) -> str:
         "",
         f"A GA of population {ga['population']} x {ga['generations']} generations"
         + (" (--quick: a smoke run, not a measurement)" if quick else "")
-        + f": `evo-door run fmu_ga.yaml --executor processes:{CORES}` in a fresh process "
-        f"(start-up, the workers' and their sandboxes' start included), model "
+        + ": `evo-door run fmu_ga.yaml` (the `local` executor: one sandbox process per core, "
+        f"{CORES} here) in a fresh process (start-up and the sandboxes' start included), model "
         f"`{ga['spec']}`, {ga['trials']} trials made by FMPy's co-simulation at the truth "
         f"(pushes of {', '.join(f'{a:g}' for a in PUSHES)} N), free "
         + ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, (lo, hi) in BOUNDS.items())

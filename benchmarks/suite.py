@@ -929,7 +929,7 @@ def section_fmu(suite: Suite) -> None:
         "fmu.ga.workbench",
         "fmu",
         f"FMU GA {ga['population']} x {ga['generations']}, "
-        f"`evo-door run --executor processes:{bf.CORES}`: wall time",
+        f"`evo-door run` ({bf.CORES} sandboxes): wall time",
         ga["wall"],
         "s",
     )
