@@ -25,10 +25,11 @@ loosest tolerance within :data:`MATCH_FACTOR` times the workbench's error (or, w
 none is, the most accurate tried: the ratio is then a lower bound).
 
 **A GA.** ``evo-door run EXP.yaml`` (the ``local`` executor: one sandbox process per
-core, each with a part of every batch) in a fresh process, as a user types it: population 100 x 20 generations (``--quick``: 8 x 2) on the
-co-simulation (the trials' own force convention), three free parameters, on two trials
-made by FMPy at :data:`TRUTH` (pushes of 20 N and 15 N); its wall time, evaluations and
-each estimate's error against the truth, and the plain way's cost extrapolated:
+core, each with a part of every batch) in a fresh process, as a user types it:
+population 100 x 20 generations (``--quick``: 8 x 2) on the co-simulation (the
+trials' own force convention), three free parameters, on two trials made by FMPy at
+:data:`TRUTH` (pushes of 20 N and 15 N); its wall time, evaluations and each
+estimate's error against the truth, and the plain way's cost extrapolated:
 evaluations x FMPy's time per call / 2 cores.
 
 A measured run writes ``benchmarks/fmu.md``. Needs CMake and a C compiler (the FMU is
