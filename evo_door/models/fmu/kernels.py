@@ -93,22 +93,22 @@ def update_discrete(api, comp, flags, times):
     next time event is set, at ``times[0]``."""
 
 
-@overload(set_reals)
-def _set_reals(api, comp, vr, values):
-    if _version(api) == 3:
-        return lambda api, comp, vr, values: api[SET_REAL](
-            comp, at(vr, 0), vr.size, at(values, 0), values.size
-        )
-    return lambda api, comp, vr, values: api[SET_REAL](comp, at(vr, 0), vr.size, at(values, 0))
+def _reals_call(index: int):
+    """The overload of :func:`set_reals` / :func:`get_reals`: the C function at
+    ``index`` of the tuple, with FMI 3's extra count of values."""
+
+    def typer(api, comp, vr, values):
+        if _version(api) == 3:
+            return lambda api, comp, vr, values: api[index](
+                comp, at(vr, 0), vr.size, at(values, 0), values.size
+            )
+        return lambda api, comp, vr, values: api[index](comp, at(vr, 0), vr.size, at(values, 0))
+
+    return typer
 
 
-@overload(get_reals)
-def _get_reals(api, comp, vr, values):
-    if _version(api) == 3:
-        return lambda api, comp, vr, values: api[GET_REAL](
-            comp, at(vr, 0), vr.size, at(values, 0), values.size
-        )
-    return lambda api, comp, vr, values: api[GET_REAL](comp, at(vr, 0), vr.size, at(values, 0))
+overload(set_reals)(_reals_call(SET_REAL))
+overload(get_reals)(_reals_call(GET_REAL))
 
 
 @overload(completed_step)

@@ -66,8 +66,9 @@ class FmuRunner:
     def simulate(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
         """``(theta, dtheta, ddtheta, ok)``, each (n,) in SI: one run of the FMU."""
         self.check_start(theta0, dtheta0)
-        out, status = instance(self.info).run(p, force, dt, theta0, dtheta0, t0, substeps)
-        theta, dtheta, ddtheta = channels_of(out, instance(self.info).outputs, dt)
+        inst = instance(self.info)
+        out, status = inst.run(p, force, dt, theta0, dtheta0, t0, substeps)
+        theta, dtheta, ddtheta = channels_of(out, inst.outputs, dt)
         return theta, dtheta, ddtheta, status == kernels.OK
 
     def check_start(self, theta0: float, dtheta0: float, where: str = "", p=None) -> None:
