@@ -371,3 +371,24 @@ def test_a_preset_beside_the_fmu_is_found_by_name_and_checked(fmus, tmp_path, ca
         if line.strip()
     }
     assert rows["inertia"][2] == "1.5" and rows["damping"][2] == "2"
+
+
+def test_a_malformed_channel_mapping_is_one_line(fmus, tmp_path, capsys):
+    out = tmp_path / "o.csv"
+    args = [
+        "simulate",
+        str(fmus[2, "tuned"]),
+        "--channels",
+        "force",
+        "--input",
+        "x.csv",
+        "--out",
+        str(out),
+    ]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert (
+        "--channels 'force': expected CHANNEL=VARIABLE" in err
+        and len(err.strip().splitlines()) == 1
+    )
+    assert not out.exists()
