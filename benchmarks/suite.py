@@ -56,6 +56,11 @@ Sections (``--only``):
     ``evo-door run --executor processes:2`` of a 100 x 20 GA on trials made by FMPy,
     against FMPy's cost extrapolated (``bench_fmu.py``); a measured run also writes
     ``benchmarks/fmu.md``.
+``jnd``
+    planning a JND session: many simulated sessions of a simulated participant per
+    method and number of trials; the estimates' bias and spread, the share within
+    +-20 % and the intervals' coverage (``bench_jnd.py``); a measured run also writes
+    ``benchmarks/jnd.md``.
 
 A ratio is the plain (or reference) way's value divided by the workbench's: how many
 times faster the workbench is. ``--compare OLD.json [NEW.json]`` prints new / old per
@@ -95,6 +100,7 @@ SECTIONS = (
     "seeds",
     "control",
     "fmu",
+    "jnd",
 )
 DEFAULT_OUT = HERE / "results"
 
@@ -957,6 +963,53 @@ def section_fmu(suite: Suite) -> None:
     suite.tables["fmu"] = bf.markdown(trial, ga, prof, suite.quick)
 
 
+# -- section: planning a JND session ---------------------------------------------------
+def section_jnd(suite: Suite) -> None:
+    """Simulated JND sessions: bias, spread and coverage against the number of trials."""
+    from benchmarks import bench_jnd as bj
+
+    rows = bj.measure(suite.quick)
+    for r in rows:
+        key = f"jnd.{r['method']}.{r['trials']}"
+        what = f"JND {r['method']}, {r['trials']} trials"
+        suite.add(f"{key}.bias", "jnd", f"{what}: median estimate's bias", 100 * r["bias"], "%")
+        suite.add(f"{key}.within", "jnd", f"{what}: sessions within +-20 %", 100 * r["within"], "%")
+        suite.add(
+            f"{key}.coverage",
+            "jnd",
+            f"{what}: intervals covering the truth",
+            100 * r["coverage"],
+            "%",
+        )
+        suite.add(f"{key}.seconds", "jnd", f"{what}: per session (no device)", r["seconds"], "s")
+    for method, k in bj.trials_needed(rows).items():
+        suite.add(
+            f"jnd.{method}.trials_for_20_percent",
+            "jnd",
+            f"JND {method}: fewest trials with 90 % of sessions within +-20 %",
+            k,
+            "1",
+            note=None if k else "none of those tried",
+        )
+    suite.tables["jnd"] = bj.markdown(rows, suite.quick)
+    suite.figures["jnd-planning"] = (
+        "jnd",
+        bj.figure(rows),
+        "JND sessions within +-20 % and intervals covering the truth, against trials",
+    )
+
+
+def jnd_markdown(suite: Suite, info: dict) -> str:
+    """``benchmarks/jnd.md``: how many trials a JND session needs."""
+    return targets_page(
+        suite,
+        info,
+        "jnd",
+        "# Planning a JND session (`python -m benchmarks --only jnd`)",
+        [suite.tables["jnd"], "", "![sessions within +-20 % against trials](jnd-planning.png)"],
+    )
+
+
 RUNNERS = {
     "trial": section_trial,
     "ga": section_ga,
@@ -968,6 +1021,7 @@ RUNNERS = {
     "seeds": section_seeds,
     "control": section_control,
     "fmu": section_fmu,
+    "jnd": section_jnd,
 }
 
 
@@ -1313,6 +1367,9 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     if not suite.quick and "fmu" in suite.tables:
         write_text(HERE / "fmu.md", fmu_markdown(suite, info))
         paths["fmu"] = HERE / "fmu.md"
+    if not suite.quick and "jnd" in suite.tables:
+        write_text(HERE / "jnd.md", jnd_markdown(suite, info))
+        paths["jnd"] = HERE / "jnd.md"
     if not suite.quick and "casestudy" in suite.tables:  # measured: the figures docs quote
         text = casestudy_markdown(suite, info)
         write_text(HERE / "casestudy.md", text)

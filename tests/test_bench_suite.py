@@ -59,6 +59,9 @@ REQUIRED = (
     "control.flood.on_time",
     "control.flood.memory_growth",
     "control.flood.events_kept",
+    "jnd.staircase.40.within",
+    "jnd.quest.160.coverage",
+    "jnd.quest.40.bias",
 )
 
 

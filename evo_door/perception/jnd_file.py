@@ -271,7 +271,9 @@ def measured_jnd(base: JND, files=(), table: dict | None = None) -> tuple[JND, d
         if not got:
             sources[name] = LITERATURE
             continue
-        values[name] = math.exp(sum(math.log(w) for w, _ in got) / len(got))
+        values[name] = (
+            got[0][0] if len(got) == 1 else math.exp(sum(math.log(w) for w, _ in got) / len(got))
+        )
         lines = "; ".join(s for _, s in got)
         sources[name] = lines if len(got) == 1 else f"geometric mean of {len(got)}: {lines}"
     return replace(base, **values), sources

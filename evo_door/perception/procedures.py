@@ -227,7 +227,10 @@ class SimParticipant:
             raise UserError(f"participant {spec!r}: WEBER, SLOPE and LAPSE are numbers") from None
         if len(numbers) > 3:
             raise UserError(f"participant {spec!r}: at most WEBER,SLOPE,LAPSE")
-        return cls(*numbers, seed=seed)
+        weber, *rest = numbers
+        slope = rest[0] if rest else 0.4
+        lapse = rest[1] if len(rest) > 1 else 0.02
+        return cls(weber, slope, lapse, seed=seed)
 
     def describe(self) -> str:
         f = self.function

@@ -47,6 +47,8 @@ GUESS = 0.5
 WEBER_RANGE = (1e-3, 10.0)
 SLOPE_RANGE = (0.05, 2.0)
 LAPSE_RANGE = (0.0, 0.06)
+#: the chi-square(1) 95 % point: twice a log-likelihood ratio at a 95 % bound
+_CHI2_95 = 3.841458820694124
 
 
 @dataclass(frozen=True)
@@ -172,8 +174,8 @@ def fit_psychometric(steps, correct, grid: int = 241) -> Fit:
     """
     levels, n, k = _counts(steps, correct)
     lw = np.linspace(math.log(WEBER_RANGE[0]), math.log(WEBER_RANGE[1]), grid)
-    ls = np.linspace(math.log(SLOPE_RANGE[0]), math.log(SLOPE_RANGE[1]), 25)
-    la = np.linspace(LAPSE_RANGE[0], LAPSE_RANGE[1], 7)
+    ls = np.linspace(math.log(SLOPE_RANGE[0]), math.log(SLOPE_RANGE[1]), 15)
+    la = np.linspace(LAPSE_RANGE[0], LAPSE_RANGE[1], 4)
     W, S, A = np.meshgrid(np.exp(lw), np.exp(ls), la, indexing="ij")
     ll = _log_likelihood(levels, n, k, W[..., None], S[..., None], A[..., None])
     best = np.unravel_index(np.argmax(ll), ll.shape)
@@ -192,8 +194,10 @@ def fit_psychometric(steps, correct, grid: int = 241) -> Fit:
     post = np.exp(ll - ll.max()).sum(axis=(1, 2))
     cdf = np.cumsum(post) / post.sum()
     lo, hi = (math.exp(float(np.interp(q, cdf, lw))) for q in (0.025, 0.975))
-    lo_open = cdf[0] > 0.01  # the grid's first cell alone holds 1 % of the belief
-    hi_open = 1.0 - cdf[-2] > 0.01
+    # an end is open where the search's edge is still as likely as the 95 % region's
+    # (likelihood ratio, chi-square(1) 95 % point 3.84): the answers do not bound it
+    prof = ll.max(axis=(1, 2))
+    lo_open, hi_open = (bool(prof[i] > ll_max - _CHI2_95 / 2.0) for i in (0, -1))
     weber = math.exp(x[0])
     return Fit(
         weber=weber,
