@@ -227,9 +227,9 @@ class SimParticipant:
             raise UserError(f"participant {spec!r}: WEBER, SLOPE and LAPSE are numbers") from None
         if len(numbers) > 3:
             raise UserError(f"participant {spec!r}: at most WEBER,SLOPE,LAPSE")
-        weber, *rest = numbers
-        slope = rest[0] if rest else 0.4
-        lapse = rest[1] if len(rest) > 1 else 0.02
+        weber, *shape = numbers
+        slope = shape[0] if shape else 0.4
+        lapse = shape[1] if len(shape) > 1 else 0.02
         return cls(weber, slope, lapse, seed=seed)
 
     def describe(self) -> str:
