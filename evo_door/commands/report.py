@@ -38,6 +38,15 @@ def register(sub) -> None:
         help="the smallest force JND, N (default: the pipeline file's report.force_floor, "
         f"else each run's perception.force_floor, by default {FORCE_FLOOR:g} N)",
     )
+    p.add_argument(
+        "--jnd-file",
+        action="append",
+        default=[],
+        metavar="J.h5",
+        help="a JND file (evo-door jnd): its measured Weber fraction judges every "
+        "perceptual check instead of the run's (repeatable; several on one setting: "
+        "their geometric mean); not with --jnd on the force JND",
+    )
     p.set_defaults(func=run)
 
 
@@ -58,7 +67,9 @@ def run(args) -> int:
     folder = Path(args.out) if args.out else default_folder(args.results)
     claim = claim_outputs([Output(folder / "report.html", makes_folder=True)], [args.results])
     record = read_results(args.results)  # the one open of the file
-    settings = pipeline_settings(record, pipeline_summary(record), args.jnd, args.force_floor)
+    settings = pipeline_settings(
+        record, pipeline_summary(record), args.jnd, args.force_floor, args.jnd_file
+    )
     page = write_report(record, args.out, settings, log)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
     claim.note()

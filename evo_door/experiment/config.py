@@ -36,7 +36,13 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment.config_algorithm import AlgorithmSpec, _algorithm, _objective
-from evo_door.experiment.config_reader import _param_spec, _Reader, _show, executor_setting
+from evo_door.experiment.config_reader import (
+    _param_spec,
+    _Reader,
+    _resolve_path,
+    _show,
+    executor_setting,
+)
 from evo_door.experiment.config_target import TargetSpec, _target
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import read_text
@@ -92,6 +98,9 @@ class Experiment:
     #: the just-noticeable differences a feel is judged with (:class:`~evo_door.perception.JND`
     #: settings by name; the defaults where left out)
     perception: dict = field(default_factory=dict)
+    #: where each setting of ``perception`` comes from (the file and line, a table's
+    #: source, a JND file's session), by name; the others are the literature's defaults
+    perception_sources: dict = field(default_factory=dict)
     #: where the GA's evaluations run (:mod:`evo_door.optim.executors`); provenance,
     #: not part of the result, so not in :meth:`resolved`
     executor: str = "local"
@@ -121,6 +130,13 @@ class Experiment:
 
         return JND.from_mapping(self.perception)
 
+    def jnd_sources(self) -> dict[str, str]:
+        """Where each JND setting comes from, by name (:meth:`jnd`'s settings)."""
+        from evo_door.experiment.feel_check import default_source
+        from evo_door.perception import JND
+
+        return {k: self.perception_sources.get(k) or default_source(k) for k in JND().as_dict()}
+
     def resolved(self) -> dict:
         """The configuration with every default filled in, as plain JSON-able data."""
         out = {
@@ -142,6 +158,8 @@ class Experiment:
             },
             "output": self.output,
             "perception": self.jnd().as_dict(),
+            # provenance of the settings above (a resumed run compares the values only)
+            "perception_sources": self.jnd_sources(),
         }
         return json.loads(json.dumps(out))
 
@@ -184,26 +202,120 @@ def _require_declared(where: str, name, model) -> None:
         )
 
 
-def perception_setting(r: _Reader) -> dict:
-    """The ``perception`` section: JND settings by name, checked (:class:`JND`)."""
+def perception_setting(r: _Reader, base_dir: Path) -> tuple[dict, dict]:
+    """The ``perception`` section: JND settings by name, checked (:class:`JND`), and
+    the source of each one it sets.
+
+    A setting is a number (its source: this file and line), a table entry
+    ``{weber: W, source: TEXT}`` of a Weber fraction, or measured by one of the JND
+    files of ``files:`` (paths next to the YAML file; several on one setting give the
+    geometric mean, :func:`~evo_door.perception.jnd_file.measured_jnd`). One setting is
+    given one way; a conflict or a file that cannot set a JND is one line naming the
+    file and line.
+    """
     from evo_door.perception import JND
 
     node = r.get("perception")
     if node is None:
-        return {}
+        return {}, {}
     if not isinstance(node, dict):
         raise r.fail("perception", "expected a mapping of JND settings (e.g. force: 0.1)")
     p = _Reader(node, "perception", r.node.where("perception"))
     names = list(JND().as_dict())
-    p.check_keys(tuple(names))
-    values = {}
+    p.check_keys((*names, "files"))
+    values, sources, table = {}, {}, {}
     for k in node:  # each setting checked alone, so that its error names its own line
+        if k == "files":
+            continue
+        if isinstance(node[k], dict):
+            table[k] = _weber_entry(p, k)
+            continue
         values[k] = p.number(k, None, lo=0.0, open_lo=True)
         try:
             JND.from_mapping({k: values[k]})
         except UserError as exc:
             raise p.fail(k, f"{str(exc).split(': ', 1)[-1]}, got {values[k]:g}") from None
-    return values
+        sources[k] = f"set in {p.node.where(k)}"
+    files = _jnd_files(p, base_dir, set(values) | set(table))
+    if files or table:
+        measured, measured_sources = _measured(files, table)
+        for k in (*table, *(s for _, s in files)):
+            values[k] = getattr(measured, k)
+            sources[k] = measured_sources[k]
+    return values, sources
+
+
+def _weber_entry(p: _Reader, key: str) -> dict:
+    """A table entry ``{weber: W, source: TEXT}`` of the Weber setting ``key``, checked;
+    its source says where it was given."""
+    from evo_door.perception.jnd_file import WEBER_SETTINGS
+
+    if key not in WEBER_SETTINGS:
+        raise p.fail(
+            key,
+            "{weber: W, source: TEXT} sets a Weber fraction "
+            f"({', '.join(WEBER_SETTINGS)}); {key} is a number",
+        )
+    entry = p.get(key)
+    where = entry.where if isinstance(entry, LinedMap) else (lambda _k: p.node.where(key))
+    if set(entry) - {"weber", "source"} or "weber" not in entry:
+        raise p.fail(key, f"expected {{weber: W, source: TEXT}}, got keys {', '.join(entry)}")
+    w = entry["weber"]
+    if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 < w < 1.0:
+        raise UserError(
+            f"{where('weber')}: perception.{key}.weber: {_show(w)}: a Weber fraction "
+            "between 0 and 1 (0.3 is 30 %)"
+        )
+    source = entry.get("source")
+    if source is not None and (not isinstance(source, str) or not source.strip()):
+        raise UserError(
+            f"{where('source')}: perception.{key}.source: expected a text (who "
+            f"measured it, how), got {_show(source)}"
+        )
+    return {
+        "weber": float(w),
+        "source": f"{source or 'no source given'} (table at {p.node.where(key)})",
+    }
+
+
+def _jnd_files(p: _Reader, base_dir: Path, given: set) -> list[tuple[str, str]]:
+    """``perception.files``: each JND file found next to the YAML file and checked
+    (complete, a unit with a JND setting, a bounded estimate below 1): (path, setting).
+    A setting the section also gives as a number or a table entry is refused."""
+    from evo_door.perception.jnd_file import read_jnd_file, usable_weber
+
+    node = p.get("files")
+    if node is None:
+        return []
+    items = [node] if isinstance(node, str) else node
+    if not isinstance(items, list) or not items or not all(isinstance(x, str) for x in items):
+        raise p.fail("files", f"expected a list of JND files (jnd/p01-force.h5), got {_show(node)}")
+    where = p.node.where("files")
+    out = []
+    for i, text in enumerate(items):
+        key = f"perception.files[{i}]"
+        path = _resolve_path(text, base_dir, where, key)
+        try:
+            record = read_jnd_file(path)
+            usable_weber(record)
+        except UserError as exc:
+            raise UserError(f"{where}: {key}: {exc}") from None
+        setting = str(record.setting)
+        if setting in given:
+            raise UserError(
+                f"{where}: {key}: {Path(text).name} measures the {setting} JND, which "
+                f"perception.{setting} sets too (at {p.node.where(setting)}); give it once"
+            )
+        out.append((path, setting))
+    return out
+
+
+def _measured(files: list[tuple[str, str]], table: dict):
+    """The JND settings measured by ``files`` and given by ``table``, with their sources."""
+    from evo_door.perception import JND
+    from evo_door.perception.jnd_file import measured_jnd
+
+    return measured_jnd(JND(), [f for f, _ in files], table)
 
 
 def _check_perceptual(exp: Experiment) -> None:
@@ -430,13 +542,13 @@ def experiment_from_tree(
         tolerance=tolerance,
         time_limit=time_limit,
         output=r.string("output", "results"),
-        perception=perception_setting(r),
         executor=executor_setting(r),
         source=source,
         text=text,
         overrides=overrides,
         locs={k: tree.where(k) for k in TOP_KEYS},
     )
+    exp.perception, exp.perception_sources = perception_setting(r, base_dir)
     _check_parameters(exp, r, model)
     _check_perceptual(exp)
     if exp.objective.perceptual and getattr(model, "runner", None) is not None:

@@ -124,6 +124,45 @@ def run_jnd(config: dict, feel=None) -> JND:
     return JND.from_mapping(config.get("perception") or {})
 
 
+def default_source(setting: str) -> str:
+    """The source of a JND setting left at its default: a Weber fraction's is the
+    literature's; a floor's and a typical speed's, the project's choice."""
+    from evo_door.perception.jnd_file import LITERATURE, WEBER_SETTINGS
+
+    return LITERATURE if setting in WEBER_SETTINGS else "default (docs/perception.md)"
+
+
+def run_jnd_sources(config: dict) -> dict[str, str]:
+    """Where each of a run's JND settings came from (the resolved configuration's
+    ``perception_sources``). A file written before they were kept: a setting at its
+    default is the literature's, another one was set in the run's experiment file."""
+    from evo_door.perception.jnd_file import LITERATURE
+
+    stored = config.get("perception_sources") or {}
+    jnd, default = run_jnd(config).as_dict(), JND().as_dict()
+    unknown = "set in the run's experiment file (the file does not say where)"
+    return {k: stored.get(k) or (LITERATURE if jnd[k] == default[k] else unknown) for k in jnd}
+
+
+def jnds_used(jnd: JND, sources: dict[str, str]) -> dict[str, dict]:
+    """Every JND setting with its value, unit and source: what ``show --json`` gives as
+    ``jnds`` and the report's table "JNDs used" shows."""
+    return {
+        k: {"value": v, "unit": JND.UNITS[k], "source": sources.get(k) or default_source(k)}
+        for k, v in jnd.as_dict().items()
+    }
+
+
+def jnd_value(entry: dict) -> str:
+    """One entry of :func:`jnds_used` as text: a Weber fraction in %, else with its unit.
+
+    >>> jnd_value({"value": 0.1, "unit": "1"}), jnd_value({"value": 0.5, "unit": "N"})
+    ('10 %', '0.5 N')
+    """
+    value, unit = entry["value"], entry["unit"]
+    return f"{100 * value:.3g} %" if unit == "1" else f"{value:g} {unit}"
+
+
 def chosen_curve(config: dict, feel=None) -> FeelCurve:
     """The chosen feel's curve: the one the run stored (``setup/feel``, the perceptual
     objective's), else the target model's with its parameters, else the curve file."""

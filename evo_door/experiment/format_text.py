@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from evo_door.experiment.feel_check import jnd_value
 from evo_door.experiment.results import (
     Results,
     declared_params,
@@ -84,6 +85,8 @@ def format_show(res: Results) -> str:
         lines += format_integration_error(s["integration_error"])
     if "perceptual_check" in s:
         lines += format_perceptual_check(s["perceptual_check"])
+    if "jnds" in s:
+        lines += format_jnds(s["jnds"])
     if "smallest_change" in s:
         lines += format_smallest_change(s)
     if s.get("identifiability_text"):
@@ -321,7 +324,7 @@ def format_perceptual_check(entry: dict) -> list[str]:
     lines = [
         f"perceptual check: {entry['mechanism']} against the chosen feel, {entry['chosen']}"
         + ("" if entry.get("recorded", True) else " (computed on reading: not in the file)"),
-        f"  force JND {100 * jnd['force']:g} % of the chosen force, at least "
+        f"  force JND {100 * jnd['force']:.3g} % of the chosen force, at least "
         f"{jnd['force_floor']:g} N; a stroke passes with {pass_pct:g} % of it within the JND",
     ]
     for d in ("opening", "closing"):
@@ -334,6 +337,16 @@ def format_perceptual_check(entry: dict) -> list[str]:
             f"beyond the JND; largest {w['difference_N']:+.2f} N at {w['angle_deg']:.2f} deg "
             f"(JND {w['jnd_N']:.2f} N)" + (f"; beyond at {bands}{more} deg" if bands else "")
         )
+    return lines
+
+
+def format_jnds(jnds: dict) -> list[str]:
+    """``show``'s lines of the JNDs a run judges its feel by (``summary()``'s ``jnds``):
+    each setting, its value with its unit (a Weber fraction in %) and where it came from."""
+    w = max(len(k) for k in jnds)
+    lines = ["JNDs used:"]
+    for k, e in jnds.items():
+        lines.append(f"  {k:<{w}}  {jnd_value(e):<9} {e['source']}")
     return lines
 
 

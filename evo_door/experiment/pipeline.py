@@ -166,13 +166,14 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
         executor=executor_setting(r) if "executor" in tree else None,
     )
     # the JND settings of every stage, which a stage's own perception: overrides
-    perception = perception_setting(r)
+    perception, perception_sources = perception_setting(r, base_dir)
     for name, value in node.items():
         where = node.where(name)
         if not isinstance(name, str) or _safe_name(name) != name:
             raise UserError(f"{where}: stages: {name!r}: name stages with letters, digits, - _ .")
         exp = _stage_experiment(name, value, where, base_dir)
         exp.perception = {**perception, **exp.perception}
+        exp.perception_sources = {**perception_sources, **exp.perception_sources}
         pipe.stages.append(Stage(name, exp, where))
     _check_uses(pipe)
     return pipe

@@ -41,17 +41,26 @@ from evo_door.files import save_figure, write_text
 __all__ = ["DEFAULT_JND", "FORCE_FLOOR", "JNDChanges", "pipeline_settings", "write_report"]
 
 
-def pipeline_settings(path, pipeline=None, jnd=None, force_floor=None) -> JNDChanges:
+def pipeline_settings(path, pipeline=None, jnd=None, force_floor=None, jnd_files=()) -> JNDChanges:
     """The report's changes to each run's JND (the run's ``perception:`` settings): the
-    command line's, else the pipeline file's ``report:``, else none. ``path`` is the
-    results file or its record (read once)."""
+    command line's (``--jnd``, ``--force-floor``, the JND files ``--jnd-file``), else the
+    pipeline file's ``report:``, else none. ``path`` is the results file or its record
+    (read once)."""
     stored = {}
     if pipeline is not None:
         record = path if isinstance(path, PipelineRecord) else read_results(path)
         stored = record.report
+    report = "the pipeline file's report."
     return JNDChanges(
         jnd if jnd is not None else stored.get("jnd"),
         force_floor if force_floor is not None else stored.get("force_floor"),
+        files=tuple(jnd_files or ()),
+        jnd_from=report + "jnd" if jnd is None and "jnd" in stored else "--jnd",
+        floor_from=(
+            report + "force_floor"
+            if force_floor is None and "force_floor" in stored
+            else "--force-floor"
+        ),
     )
 
 
@@ -188,6 +197,13 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
     tol = tolerances_of(res)
     if tol is not None:
         page.pre(tol.format())
+        fc = res.record.perceptual_check
+        if fc is not None and changes.apply(fc.jnd) != fc.jnd:
+            page.p(
+                f"{label}: the tolerances are the run's, found with its own JNDs when it ran, "
+                "not with this report's changes",
+                "small",
+            )
         page.figure(
             f"{key}-tolerance",
             lambda p: plot_tolerances(tol, label, p),

@@ -17,11 +17,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from evo_door.errors import UserError
+from evo_door.experiment.feel_check import jnd_value, jnds_used, run_jnd_sources
 from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.results import Results
 from evo_door.files import save_figure
 from evo_door.perception import JND
 from evo_door.perception.feel import DIRECTIONS
+from evo_door.perception.jnd_file import (
+    LITERATURE,
+    WEBER_SETTINGS,
+    measured_jnd,
+    read_jnd_file,
+    usable_weber,
+)
 
 #: the defaults of the force JND, for the help of ``evo-door report`` (the JND's own)
 DEFAULT_JND = JND().force
@@ -31,10 +39,20 @@ FORCE_FLOOR = JND().force_floor
 @dataclass(frozen=True)
 class JNDChanges:
     """The report's changes to each run's JND: the force Weber fraction ``jnd`` and the
-    ``force_floor`` (N); None keeps the run's own (its ``perception:`` settings)."""
+    ``force_floor`` (N), and the Weber fractions measured by the JND ``files``; None
+    and no file keep the run's own (its ``perception:`` settings).
+
+    ``jnd_from`` and ``floor_from`` say who gave ``jnd`` and ``force_floor`` (the
+    command line, or a pipeline file's ``report:``); :meth:`check` reads the files into
+    ``measured``: (setting, Weber fraction, source) for each setting they set.
+    """
 
     jnd: float | None = None
     force_floor: float | None = None
+    files: tuple = ()
+    jnd_from: str = "--jnd"
+    floor_from: str = "--force-floor"
+    measured: tuple = ()
 
     def check(self) -> JNDChanges:
         if self.jnd is not None and not (0.0 < self.jnd < 1.0):
@@ -43,12 +61,43 @@ class JNDChanges:
             self.force_floor > 0.0 and math.isfinite(self.force_floor)
         ):
             raise UserError(f"--force-floor {self.force_floor:g}: a force above 0 N")
-        return self
+        if not self.files or self.measured:
+            return self
+        jnd = self.jnd
+        for path in self.files:  # each file checked alone, so that an error names it
+            record = read_jnd_file(path)
+            usable_weber(record)
+            if record.setting == "force" and jnd is not None:
+                if self.jnd_from != "--jnd":  # the command line's file beats the pipeline's
+                    jnd = None
+                    continue
+                raise UserError(
+                    f"--jnd {jnd:g} and --jnd-file {path}: both set the force JND "
+                    f"({record.param} is in {record.unit}); give one"
+                )
+        values, sources = measured_jnd(JND(), self.files)
+        measured = tuple(
+            (k, getattr(values, k), sources[k]) for k in WEBER_SETTINGS if sources[k] != LITERATURE
+        )
+        return replace(self, jnd=jnd, measured=measured)
 
     def apply(self, jnd: JND) -> JND:
         """``jnd`` with these changes."""
         given = {"force": self.jnd, "force_floor": self.force_floor}
+        given.update({k: w for k, w, _ in self.measured})
         return replace(jnd, **{k: float(v) for k, v in given.items() if v is not None})
+
+    def sources(self, run_sources: dict[str, str]) -> dict[str, str]:
+        """The source of each setting of :meth:`apply`'s JND, from the run's own."""
+        out = dict(run_sources)
+        if self.jnd is not None:
+            out["force"] = f"changed for this report ({self.jnd_from} {self.jnd:g})"
+        if self.force_floor is not None:
+            out["force_floor"] = (
+                f"changed for this report ({self.floor_from} {self.force_floor:g} N)"
+            )
+        out.update({k: f"changed for this report (--jnd-file): {s}" for k, _, s in self.measured})
+        return out
 
 
 def stage_label(res: Results) -> str:
@@ -70,9 +119,14 @@ def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str)
     page.p(
         f"Force-angle curves (Coulomb level, latch peaks resolved) of {fc.mechanism.source} "
         f"of {label} and of the chosen feel ({fc.chosen.source}). A difference is noticeable "
-        f"where it exceeds {100 * jnd.force:g} % of the chosen force, or {jnd.force_floor:g} N "
+        f"where it exceeds {100 * jnd.force:.3g} % of the chosen force, or {jnd.force_floor:g} N "
         f"where that is larger{changed}; a stroke passes with "
         f"{100 * fc.pass_fraction:g} % of it within the JND."
+    )
+    page.table(
+        ["setting", "value", "source"],
+        jnd_rows(jnds_used(jnd, changes.sources(run_jnd_sources(res.config)))),
+        f"{label}: JNDs used",
     )
     page.table(
         [
@@ -102,6 +156,12 @@ def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str)
         "crosses mark where the answer leaves the JND band of the chosen feel",
     )
     return judged
+
+
+def jnd_rows(jnds: dict) -> list[list[str]]:
+    """One row per JND setting (:func:`~.feel_check.jnds_used`): its name, its value
+    with its unit (a Weber fraction in %) and its source."""
+    return [[k, jnd_value(e), e["source"]] for k, e in jnds.items()]
 
 
 def perceptual_rows(judged: dict) -> list[list[str]]:
@@ -140,7 +200,7 @@ def _figure(path, check: dict, jnd: JND, fc, label: str) -> None:
             c["chosen"] - c["threshold"],
             c["chosen"] + c["threshold"],
             color="0.85",
-            label=f"chosen +- JND ({100 * jnd.force:g} %, at least {jnd.force_floor:g} N)",
+            label=f"chosen +- JND ({100 * jnd.force:.3g} %, at least {jnd.force_floor:g} N)",
         )
         ax.plot(deg, c["chosen"], color="k", lw=1.2, label=f"chosen ({fc.chosen.source})")
         ax.plot(

@@ -26,6 +26,7 @@ from evo_door.channels import unit as channel_unit
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.config_algorithm import POPULATION_KINDS
+from evo_door.experiment.feel_check import jnds_used, run_jnd_sources
 from evo_door.experiment.reader import Response, RunRecord, read_run
 from evo_door.files import FileLock
 from evo_door.optim.bounds import bound_hits
@@ -407,6 +408,7 @@ class Results:
         check = self.record.perceptual_check
         if check is not None:  # a run fitted to a chosen feel
             out["perceptual_check"] = check.judged()
+            out["jnds"] = jnds_used(check.jnd, run_jnd_sources(self.config))
         ident = self.identifiability()
         if ident is not None:
             out["identifiability"] = ident.as_dict()
