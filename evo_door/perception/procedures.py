@@ -227,7 +227,7 @@ class SimParticipant:
             raise UserError(f"participant {spec!r}: WEBER, SLOPE and LAPSE are numbers") from None
         if len(numbers) > 3:
             raise UserError(f"participant {spec!r}: at most WEBER,SLOPE,LAPSE")
-        return cls(*numbers, seed=seed)
+        return cls(**dict(zip(("weber", "slope", "lapse"), numbers)), seed=seed)
 
     def describe(self) -> str:
         f = self.function
