@@ -89,6 +89,13 @@ def test_file_show_report_and_log(tmp_path, capsys):
     # each interval holds the set it should: the parameter's value in force there
     switches = [e for e in events if e["kind"] == "jnd_switch" and "value" in e]
     assert all(e["value"] in (25.0, *record.trials["comparison"].tolist()) for e in switches)
+    # every switch is a ramp of checked changes: neutral (open_force's default, 20 N)
+    # to the reference (25 N) passes 20 + 5 k / 8 N
+    with open_h5(log) as f:
+        names = list(read_attrs(f["render/params"])["names"])
+        logged = f["render/params/values"][()][:, names.index("open_force")]
+    for k in range(1, 9):
+        assert np.any(np.isclose(logged, 20.0 + 5.0 * k / 8)), k
     # report: the page and its two figures
     assert main(["report", str(tmp_path / "j.h5"), "--out", str(tmp_path / "rep")]) == 0
     page = (tmp_path / "rep" / "report.html").read_text()
@@ -125,10 +132,15 @@ def test_bad_input_is_one_line(tmp_path, capsys, args, message):
     assert not (tmp_path / "j.h5").exists()
 
 
-def test_refused_change_ends_the_session_with_the_file(tmp_path, capsys):
+@pytest.mark.parametrize("paced", [False, True])
+def test_refused_change_ends_the_session_with_the_file(tmp_path, capsys, paced):
     """c_energy is negative damping: the comparison above the device's damping margin
-    is refused by the loop's passivity check; the file keeps what was answered."""
-    code = jnd(tmp_path, "--param", "c_energy", "--reference", "0.8", "--participant", "sim:0.1")
+    is refused by the loop's passivity check (in the cycle, or in the checking thread
+    of a paced loop); the file keeps what was answered."""
+    extra = ["--realtime"] if paced else []
+    code = jnd(
+        tmp_path, "--param", "c_energy", "--reference", "0.8", "--participant", "sim:0.1", *extra
+    )
     assert code == 2
     err = capsys.readouterr().err
     assert "refused" in err and "not passive" in err
@@ -185,6 +197,19 @@ def test_terminal_person_answers_only_when_asked():
         finally:
             person.close()
             os.close(write)
+
+
+def test_neutral_set_keeps_the_device_parameters():
+    from evo_door.models import get_model
+    from evo_door.render.jnd import neutral_values
+
+    model = get_model("haptic")
+    reference = model.load_params(None, {"open_force": 40.0, "radius": 0.4})
+    neutral = neutral_values(reference)
+    assert neutral["open_force"] == 20.0  # a sensation: the model's default
+    assert neutral["radius"] == 0.4  # the device's: the reference's
+    other = model.load_params(None, {"open_force": 30.0})
+    assert neutral_values(reference, other)["open_force"] == 30.0
 
 
 def test_timing_checked():

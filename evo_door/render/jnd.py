@@ -21,8 +21,11 @@ cycles; the ramp keeps a large switch from being felt as a jolt, itself a cue). 
 change the loop refuses ends the session (status ``refused``) with every answer so
 far kept. The schedule runs in the loop's own thread (:attr:`ServoLoop.on_cycle`),
 never blocking it: a participant is asked (:meth:`ask`) and then polled each cycle
-(:meth:`poll`), so the watchdog, the force limit and a real device's supervisor
-work exactly as in ``evo-door render``.
+(:meth:`poll`), and on a paced loop the changes are validated in a thread of their
+own (a check takes 0.1 ms, a quarter of a 2500 Hz period; on an unpaced simulated
+device they are made in the cycle, so a session's log is the same every run). The
+watchdog, the force limit and a real device's supervisor work exactly as in
+``evo-door render``.
 
 Every switch and every answer is an event of the render log (kinds
 :data:`EVENT_KINDS`), so a log kept with the session is its full record.
@@ -37,6 +40,7 @@ from __future__ import annotations
 
 import math
 import os
+import queue
 import select
 import sys
 import threading
@@ -255,11 +259,46 @@ class JndSchedule:
         self._phase_end = -math.inf  # loop time the phase ends (question: its ramp ends)
         self._ramp: tuple = ()  # (t0, from, to, changes done)
         self._stimulus = None
+        self._refused = ""  # a change the worker's check refused (paced loops)
+        self._queue: queue.SimpleQueue | None = None
+        self._worker: threading.Thread | None = None
+        if loop.realtime:
+            self._queue = queue.SimpleQueue()
+            self._worker = threading.Thread(
+                target=self._validate, name="evo-door-jnd-changes", daemon=True
+            )
+            self._worker.start()
+
+    def _validate(self) -> None:
+        """The worker of a paced loop: each change checked by the loop, in order."""
+        assert self._queue is not None
+        while (values := self._queue.get()) is not None:
+            if self._refused:
+                continue  # the session is ending: nothing more to change
+            try:
+                self.loop.request_change(values)
+            except UserError as exc:
+                self._refused = str(exc)
+
+    def close(self) -> None:
+        """Stop the worker (after the loop ended)."""
+        if self._queue is not None and self._worker is not None:
+            self._queue.put(None)
+            self._worker.join(timeout=5.0)
+
+    def _request(self, values: dict) -> None:
+        if self._queue is None:
+            self.loop.request_change(values)
+        else:
+            self._queue.put(values)
 
     # -- the hook ---------------------------------------------------------------------
     def tick(self, t: float) -> None:
         """One cycle at loop time ``t`` (s): the ramp's next change, the next phase."""
         if self.status:
+            return
+        if self._refused:
+            self._finish(t, "refused", self._refused)
             return
         try:
             self._step_ramp(t)
@@ -315,7 +354,7 @@ class JndSchedule:
             value = stim.values[interval - 1]
             holds = "comparison" if interval == stim.order else "reference"
             target = {**self.reference, self.session.param: value}
-            self._switch(t, target, f"trial {trial}: interval {interval}", interval=interval)
+            self._switch(t, target)
             self.loop.log.event(
                 t,
                 "jnd_switch",
@@ -328,7 +367,7 @@ class JndSchedule:
             self.participant.cue(f"trial {trial}: interval {interval}")
             self._phase_end = t + timing.interval
             return
-        self._switch(t, self.neutral, "neutral")
+        self._switch(t, self.neutral)
         what = "pause" if self._phase == 1 else "question"
         self.loop.log.event(
             t, "jnd_switch", f"trial {trial}: {what} (neutral)", trial=trial, phase=what
@@ -340,7 +379,7 @@ class JndSchedule:
             self.participant.ask(stim, self.session.word)
 
     # -- switches ---------------------------------------------------------------------
-    def _switch(self, t: float, target: dict, what: str, **_) -> None:
+    def _switch(self, t: float, target: dict) -> None:
         """Start the ramp from the set in force to ``target``; its first change now."""
         self._ramp = (t, dict(self._current), dict(target), 0)
         self._step_ramp(t)
@@ -361,7 +400,7 @@ class JndSchedule:
             }
             changed = {k: v for k, v in values.items() if v != self._current[k]}
             if changed:
-                self.loop.request_change(changed)
+                self._request(changed)
                 self._current.update(changed)
             done += 1
         self._ramp = (t0, start, end, done) if done < n else ()
@@ -405,6 +444,7 @@ def run_session(
         stats = loop.run(stop=stop)
     finally:
         loop.on_cycle = None
+        schedule.close()
     status, message = schedule.status, schedule.message
     if not status:  # the loop ended on its own: Ctrl-C, or the watchdog
         status = "stopped" if stats.get("status") == "stopped" else stats.get("status", "failed")
