@@ -216,3 +216,33 @@ def test_timing_checked():
     with pytest.raises(Exception, match="--ramp"):
         JndTiming(interval=0.2, ramp=0.5)
     assert JndTiming(ramp=0.0).steps == 1
+
+
+@pytest.mark.slow
+def test_a_person_at_a_terminal_answers_and_stops(tmp_path):
+    """A person on a terminal (a pty): blind cues and questions on stderr, keys 2 to
+    answer, q to stop; the two answers are kept, status 'stopped'."""
+    out = tmp_path / "j.h5"
+    master, slave = os.openpty()
+    cmd = [sys.executable, "-m", "evo_door", "jnd", *FAST, "--trials", "10"]
+    cmd += ["--param", "open_force", "--participant", "person:P01", "--out", str(out)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        cmd, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
+    asked, shown = 0, []
+    for line in proc.stderr:
+        shown.append(line)
+        if line.startswith("Which interval felt stronger: 1 or 2?"):
+            asked += 1
+            os.write(master, b"2" if asked <= 2 else b"q")
+    proc.wait(timeout=60)
+    os.close(master)
+    os.close(slave)
+    assert proc.returncode == 0, "".join(shown)
+    record = read_jnd_file(out)
+    assert record.status == "stopped" and record.participant == "person P01"
+    assert record.trials["answer"].tolist() == [2, 2]
+    # blind: nothing on the screen says where the comparison was or whether it was right
+    text = "".join(shown)
+    assert "trial 2/10 answered" in text and "right" not in text and "step" not in text

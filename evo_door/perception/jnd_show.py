@@ -79,11 +79,21 @@ def plot_track(record: JndRecord, path) -> None:
         ax.axhspan(100 * lo, 100 * hi, color="tab:blue", alpha=0.12, label="95 % interval")
         ax.axhline(100 * fit.weber, color="tab:blue", lw=1.2, label=f"Weber {fit.weber:.3g}")
     ax.set_yscale("log")
+    _plain_numbers(ax.yaxis)
     ax.set_xlabel("trial")
     ax.set_ylabel(f"step of {record.param} [%]")
     ax.set_title(f"{record.param} at {record.reference:g} {record.unit}: {record.method} track")
     ax.legend(fontsize=8, loc="upper right")
     save_figure(fig, path)
+
+
+def _plain_numbers(axis) -> None:
+    """A log axis labelled 5, 10, 20 rather than 5 x 10^0."""
+    from matplotlib.ticker import FuncFormatter
+
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    axis.set_major_formatter(plain)
+    axis.set_minor_formatter(plain)
 
 
 def step_bins(steps, correct, per_bin: int = 8):
@@ -137,6 +147,7 @@ def plot_psychometric(record: JndRecord, path) -> None:
         )
     ax.axhline(0.5, color="0.7", lw=0.8, ls=":")
     ax.set_xscale("log")
+    _plain_numbers(ax.xaxis)
     ax.set_ylim(0.45, 1.02)
     ax.set_xlabel(f"step of {record.param} [%]")
     ax.set_ylabel("proportion right [1]")
