@@ -78,15 +78,9 @@ def register(sub) -> None:
     p.add_argument("--pause", default=1.0, metavar="S", help="neutral pause between (s, default 1)")
     p.add_argument("--ramp", default=0.2, metavar="S", help="ramp of every switch (s, default 0.2)")
     p.add_argument("--rate", default=2500.0, metavar="HZ", help="loop rate (Hz, default 2500)")
-    p.add_argument(
-        "--log-rate", metavar="HZ", help="log rate (Hz, default 1000 or the loop rate below it)"
-    )
-    p.add_argument(
-        "--device-damping",
-        metavar="N_S_M",
-        help="the device's own damping for the passivity check (N s/m; default sim 2, "
-        "a HapticMaster 0)",
-    )
+    p.add_argument("--log-rate", metavar="HZ", help="log rate (Hz, default min(1000, --rate))")
+    damping = "the device's own damping for the passivity check (N s/m; sim 2, a HapticMaster 0)"
+    p.add_argument("--device-damping", metavar="N_S_M", help=damping)
     p.add_argument(
         "--realtime",
         action="store_true",
