@@ -69,7 +69,12 @@ def register(sub) -> None:
         help="who answers: a simulated participant, or a person at the terminal "
         "(keys 1 and 2, q stops; the default)",
     )
-    p.add_argument("--method", choices=("staircase", "quest"), default="staircase")
+    p.add_argument(
+        "--method",
+        choices=("staircase", "quest"),
+        default="staircase",
+        help="how each step is chosen: a 3-down 1-up staircase (default) or QUEST",
+    )
     p.add_argument("--trials", default=80, metavar="N", help="trials (default 80)")
     p.add_argument(
         "--seed", default=0, metavar="S", help="seed of the order (and a sim participant)"
