@@ -20,7 +20,11 @@ def register(sub) -> None:
         help="one self-contained HTML page of a run or a pipeline (figures embedded, and "
         "as PNG): convergence, fits, parameter tables, identifiability, the perceptual check",
     )
-    p.add_argument("results", metavar="RUN.h5", help="results file (a run's or a pipeline's)")
+    p.add_argument(
+        "results",
+        metavar="RUN.h5",
+        help="results file (a run's or a pipeline's), or a JND file (its track and fit)",
+    )
     p.add_argument(
         "--out", metavar="DIR", help="folder of the page and its figures (default RUN-report/)"
     )
@@ -57,6 +61,10 @@ def run(args) -> int:
     from evo_door.experiment.reader import read_results
     from evo_door.experiment.report import default_folder, pipeline_settings, write_report
     from evo_door.files import Output, claim_outputs
+    from evo_door.perception.jnd_file import is_jnd_file
+
+    if is_jnd_file(args.results):
+        return _report_jnd(args)
 
     def log(text):
         if sys.stderr.isatty():
@@ -71,6 +79,27 @@ def run(args) -> int:
         record, pipeline_summary(record), args.jnd, args.force_floor, args.jnd_file
     )
     page = write_report(record, args.out, settings, log)
+    print(f"wrote {page} (and its figures as PNG in {page.parent})")
+    claim.note()
+    return 0
+
+
+def _report_jnd(args) -> int:
+    """A JND file's page: the session, its track and its psychometric fit."""
+    from pathlib import Path
+
+    from evo_door.errors import UserError
+    from evo_door.experiment.report_jnd import default_jnd_folder, write_jnd_report
+    from evo_door.files import Output, claim_outputs
+    from evo_door.perception.jnd_file import read_jnd_file
+
+    if args.jnd is not None or args.force_floor is not None:
+        raise UserError(
+            f"{args.results}: a JND file: --jnd and --force-floor are for results files"
+        )
+    folder = Path(args.out) if args.out else default_jnd_folder(args.results)
+    claim = claim_outputs([Output(folder / "report.html", makes_folder=True)], [args.results])
+    page = write_jnd_report(read_jnd_file(args.results), folder)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
     claim.note()
     return 0

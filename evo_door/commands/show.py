@@ -14,7 +14,8 @@ def register(sub) -> None:
     p.add_argument(
         "results",
         metavar="RUN.h5",
-        help="results file (a run's or a pipeline's), or a render log (a participant's session)",
+        help="results file (a run's or a pipeline's), a render log (a participant's session) "
+        "or a JND file (evo-door jnd)",
     )
     p.add_argument(
         "--stage",
@@ -40,8 +41,11 @@ def register(sub) -> None:
 def run(args) -> int:
     from evo_door.errors import NotResultsFileError
     from evo_door.experiment.reader import PipelineRecord, pick, read_results
+    from evo_door.perception.jnd_file import is_jnd_file
     from evo_door.render.session import format_session, is_render_log, read_session
 
+    if is_jnd_file(args.results):
+        return _show_jnd(args)
     try:
         record = read_results(args.results)  # the one open of a results file
     except NotResultsFileError:
@@ -62,6 +66,21 @@ def _show_session(args, format_session, read_session) -> int:
         )
     session = read_session(args.results)
     print(json.dumps(session) if args.json else format_session(session, args.results))
+    return 0
+
+
+def _show_jnd(args) -> int:
+    """A JND file: the session and its estimate."""
+    from evo_door.perception.jnd_file import read_jnd_file
+    from evo_door.perception.jnd_show import format_jnd
+
+    if args.stage or args.plot or args.convergence:
+        raise UserError(
+            f"{args.results}: a JND file: --stage, --plot and --convergence are for results "
+            "files (evo-door report J.h5 draws its track and fit)"
+        )
+    record = read_jnd_file(args.results)
+    print(json.dumps(record.summary()) if args.json else format_jnd(record))
     return 0
 
 

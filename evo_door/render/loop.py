@@ -180,6 +180,9 @@ class ServoLoop:
         self._k = 0  # cycles run
         self._sent = 0.0  # when the last command went (perf_counter, s; paced loops)
         self._stall_limit = 0.0  # a gap between two commands this long is a stall (s)
+        #: called with the loop time (s) at the end of every cycle, in the loop's thread
+        #: (a JND session's schedule: :mod:`evo_door.render.jnd`); it must not block
+        self.on_cycle = None
         self._new_buffers()
 
     # -- parameter changes ---------------------------------------------------------
@@ -437,7 +440,8 @@ class ServoLoop:
         4. the force: while the watchdog is tripped, the last force ramped down
            (:meth:`_ramp_down`); else the kernel's, commanded (:meth:`_command`);
         5. the supervisor's heartbeat, the device's step (a simulated device moves),
-           the log row, the cycle's work timed, the watchdog fed;
+           the log row, the cycle's work timed, the watchdog fed, the ``on_cycle``
+           hook called;
         6. once, after :data:`_RECHECK_AFTER` paced cycles: passivity with the period
            measured (:meth:`_recheck`).
 
@@ -465,6 +469,8 @@ class ServoLoop:
         watchdog.cycle(now, late > self.period)
         if watchdog.tripped and watchdog.tripped_at == now:
             self.log.event(t, "watchdog", watchdog.reason)
+        if self.on_cycle is not None:
+            self.on_cycle(t)
         # paced cycles run (not slots); not once tripped (a stall's gap is no period)
         if self.realtime and self.timing.starts == _RECHECK_AFTER and not watchdog.tripped:
             self._recheck(self.timing.period_mean(), t)
