@@ -76,7 +76,7 @@ def test_file_show_report_and_log(tmp_path, capsys):
     shown = json.loads(capsys.readouterr().out)
     assert shown == record.summary()
     assert main(["show", str(tmp_path / "j.h5")]) == 0
-    assert "informs the JND setting force" in capsys.readouterr().out
+    assert "sets the JND setting force (a Weber fraction) where it is used" in capsys.readouterr().out
     # the render log holds the session: its start, every switch and answer, its end
     with open_h5(log) as f:
         events = read_attrs(f["render"])["events"]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from evo_door.files import save_figure
-from evo_door.perception.jnd_file import LITERATURE, JndRecord, fitted_curve
+from evo_door.perception.jnd_file import JndRecord, fitted_curve
 
 #: the proportion correct at the Weber fraction (lapses aside): the 2IFC criterion
 CRITERION = 0.75
@@ -47,7 +47,10 @@ def format_jnd(record: JndRecord) -> str:
     if r.setting is None:
         lines.append(f"  informs no JND setting (a parameter in {r.unit} has none)")
     else:
-        lines.append(f"  informs the JND setting {r.setting} (Weber fraction; else {LITERATURE})")
+        lines.append(
+            f"  sets the JND setting {r.setting} (a Weber fraction) where it is used: "
+            f"perception: {{files: [{r.path.name}]}} in an experiment, or report --jnd-file"
+        )
     return "\n".join(lines)
 
 
