@@ -227,7 +227,8 @@ class SimParticipant:
             raise UserError(f"participant {spec!r}: WEBER, SLOPE and LAPSE are numbers") from None
         if len(numbers) > 3:
             raise UserError(f"participant {spec!r}: at most WEBER,SLOPE,LAPSE")
-        return cls(*numbers, seed=seed)
+        given = dict(zip(("weber", "slope", "lapse"), numbers))
+        return cls(**given, seed=seed)
 
     def describe(self) -> str:
         f = self.function

@@ -15,8 +15,10 @@ from evo_door.errors import UserError
 from evo_door.files import ATTRS, Dataset
 
 #: the event kinds that belong to a participant's session
-SESSION_KINDS = ("participant", "ab_store", "ab_switch", "ab_choice", "undo", "reset", "save")
-SESSION_KINDS += ("chosen", "note")
+SESSION_KINDS: tuple[str, ...] = ("participant", "ab_store", "ab_switch", "ab_choice", "undo")
+SESSION_KINDS += ("reset", "save", "chosen", "note")
+#: and a JND session's (evo_door.render.console.jnd_mode)
+SESSION_KINDS += ("jnd_start", "jnd_trial", "jnd_answer", "jnd_end", "jnd_save")
 
 
 def session_tree(events, names, units) -> dict | None:
