@@ -631,6 +631,7 @@ def test_a_jnd_session_answered_through_the_page(session, page, tmp_path):
     assert path.parent.resolve() == session.folder.resolve() and path.suffix == ".h5"
     record = read_jnd_file(path)
     assert record.complete and record.trials["answer"].tolist() == answers
+    assert record.participant == "P07" and "numpy" in record.attrs["versions"]
     png = page.get_screenshot_as_png()
     write = os.environ.get("EVO_DOOR_WRITE_FIGURES") == "1"
     shot = ROOT / "docs" / "figures" / "console-jnd.png" if write else tmp_path / "jnd.png"

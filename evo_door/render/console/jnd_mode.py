@@ -68,8 +68,6 @@ CURVE_POINTS = 80
 #: the page messages refused while a session runs: they would change the set in force
 #: (or record it) under the participant's hand
 BLOCKED = ("set", "undo", "reset", "ab_store", "ab_switch", "choose")
-#: the phases a page is told of
-PHASES = ("pause", "1", "2", "answer", "fitting", "done", "stopped", "aborted")
 
 
 @dataclass(frozen=True)
