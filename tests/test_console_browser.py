@@ -72,9 +72,10 @@ from evo_door.cli import main  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.haptic import PARAMS  # noqa: E402
 from evo_door.render.keys import GROUP, key_map  # noqa: E402
-from evo_door.render.session import read_session  # noqa: E402
+from evo_door.render.session import format_session, read_session  # noqa: E402
 
 RATE = 2500.0  # Hz, the loop rate (render's default)
+CONTROL_TOKEN = "browser-test-token"
 PERIOD = 1.0 / RATE  # s
 #: how long the renderer gets to print its console URL (numba's cache, the console's start)
 START_TIMEOUT = 60.0
@@ -133,6 +134,8 @@ class Session:
         self.chosen: dict | None = None
         self.participant = ""
         self.preferred: str | None = None
+        self.control: tuple[str, int] | None = None  # the renderer's control port
+        self.jnd: dict = {}  # the JND session the page ran: what was felt and answered
 
 
 def _read_lines(stream, out: queue.Queue, lines: list[str]) -> None:
@@ -170,6 +173,8 @@ def session(browser, tmp_path_factory):
     command = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     command += ["--device", "sim", "--user", "swing", "--realtime"]
     command += ["--console", "--console-port", "0", "--log", str(log)]
+    # a control port of known token: the JND test reads what the renderer has in force
+    command += ["--control", "127.0.0.1:0", "--token", CONTROL_TOKEN]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(
         command,
@@ -184,6 +189,7 @@ def session(browser, tmp_path_factory):
     out: queue.Queue = queue.Queue()
     threading.Thread(target=_read_lines, args=(proc.stdout, out, lines), daemon=True).start()
     url = None
+    control = None
     deadline = time.monotonic() + START_TIMEOUT
     try:
         while url is None:
@@ -193,11 +199,15 @@ def session(browser, tmp_path_factory):
                 break
             if line is None:
                 break
+            if line.startswith("control port "):
+                host, _, port = line.split()[2].rpartition(":")
+                control = (host, int(port))
             if line.startswith("console "):
                 url = line.split()[1]
         if url is None:
             pytest.fail("the renderer printed no console URL:\n" + "\n".join(lines))
         s = Session(proc, url, folder, log, lines)
+        s.control = control
         yield s
     finally:
         if proc.poll() is None:  # a test failed before the last one stopped it
@@ -492,6 +502,151 @@ def test_every_value_the_page_sent_is_within_the_declaration(session, page):
             assert p.lower <= value <= p.upper, message
 
 
+# -- a JND session -----------------------------------------------------------------------
+JND_PARAM = "friction_closing"  # N: 10 N in force since the slider test
+JND_TRIALS = 32
+JND_WEBER = 0.15  # the simulated participant's
+
+
+class _Felt:
+    """What the participant felt: the parameter's values in interval 1 and 2."""
+
+    def __init__(self, values):
+        self.values = values
+
+
+def _in_force_on_renderer(session, name: str) -> float:
+    """The value the renderer has in force now, asked on its control port."""
+    from evo_door.render.control import request
+
+    host, port = session.control
+    answer = request(host, port, {"token": CONTROL_TOKEN, "get": "params"})
+    assert answer.get("ok"), answer
+    return float(answer["params"][name])
+
+
+def _jnd_phase(driver) -> tuple[str, int]:
+    phase, trial = driver.execute_script(
+        "const j = window.evoConsole.jnd;"
+        "return j ? [document.getElementById('jnd-phase').dataset.phase || '', j.trial]"
+        " : ['', -1];"
+    )
+    return phase, int(trial)
+
+
+def _wait_phase(driver, phase: str, trial: int) -> None:
+    wait(
+        driver,
+        lambda d: _jnd_phase(d) == (phase, trial),
+        what=f"JND phase {phase!r} of trial {trial} (now {_jnd_phase(driver)})",
+    )
+
+
+def test_a_jnd_session_answered_through_the_page(session, page, tmp_path):
+    """The operator starts a blind JND session from the page; a simulated participant
+    answers each trial from the values the renderer had in force in interval 1 and 2
+    (its control port), by the page's buttons and by keys 1 and 2."""
+    from evo_door.perception.jnd_file import read_jnd_file
+    from evo_door.perception.procedures import SimParticipant
+
+    assert session.control is not None, "the renderer printed no control port"
+    reference = in_force(page, JND_PARAM)
+    assert _in_force_on_renderer(session, JND_PARAM) == reference
+    select = page.find_element(By.ID, "jnd-param")
+    options = [o.get_attribute("value") for o in select.find_elements(By.TAG_NAME, "option")]
+    assert JND_PARAM in options and "viscous_damping" in options and "return_angle" not in options
+    page.execute_script(
+        "document.getElementById('jnd-param').value = arguments[0];"
+        "document.getElementById('jnd-param').dispatchEvent(new Event('change'));",
+        JND_PARAM,
+    )
+    assert page.find_element(By.ID, "jnd-unit").text == "N"
+    for element_id, value in (
+        ("jnd-trials", str(JND_TRIALS)),
+        ("jnd-seed", "11"),
+        ("jnd-interval", "0.25"),
+        ("jnd-pause", "0.1"),
+    ):
+        field = page.find_element(By.ID, element_id)
+        field.clear()
+        field.send_keys(value)
+    assert page.find_element(By.ID, "jnd-blind").is_selected()  # blind by default
+    started = time.monotonic()
+    click(page, "jnd-start")
+    wait(page, lambda d: d.find_element(By.ID, "jnd-view").is_displayed(), what="JND view")
+    assert page.find_element(By.ID, "jnd-question").text == "Which felt stronger?"
+    participant = SimParticipant(JND_WEBER, seed=5)
+    felt, answers, blind_track = [], [], []
+    for k in range(JND_TRIALS):
+        _wait_phase(page, "1", k)
+        v1 = _in_force_on_renderer(session, JND_PARAM)
+        _wait_phase(page, "2", k)
+        v2 = _in_force_on_renderer(session, JND_PARAM)
+        _wait_phase(page, "answer", k)
+        # blind: the page shows the reference, and the track only the answers so far
+        assert in_force(page, JND_PARAM) == reference
+        marks = page.find_elements(By.CSS_SELECTOR, "#jnd-track circle.mark")
+        blind_track.append([m.get_attribute("data-step") for m in marks])
+        answer = participant.answer(_Felt((v1, v2)))
+        if k % 2:
+            press(page, str(answer))
+        else:
+            click(page, f"jnd-answer-{answer}")
+        felt.append((v1, v2))
+        answers.append(answer)
+    wait(page, lambda d: "Weber fraction" in d.find_element(By.ID, "jnd-result").text, 20.0, "fit")
+    wall = time.monotonic() - started
+    # blind until the end: no step on the page, nor in what the page was sent
+    assert [len(t) for t in blind_track] == list(range(JND_TRIALS))
+    assert all(step is None for t in blind_track for step in t)
+    running = [
+        m
+        for m in received(page, "jnd") + received(page, "jnd_phase")
+        if m.get("status", "running") == "running"
+    ]
+    assert running and all("step" not in m and "order" not in m for m in running)
+    assert all(m.get("fit") is None for m in running if m["type"] == "jnd")
+    assert all(set(t) == {"answer"} for m in running for t in m.get("track", []))
+    assert all(m["params"][JND_PARAM] == reference for m in received(page, "params")[-10:])
+    # the end: one mark per trial with its step, the fitted function, the estimate
+    wait(page, lambda d: d.find_element(By.ID, "jnd-result").text.count("saved to"), 10.0, "file")
+    marks = page.find_elements(By.CSS_SELECTOR, "#jnd-track circle.mark")
+    assert len(marks) == JND_TRIALS
+    assert all(float(m.get_attribute("data-step")) > 0 for m in marks)
+    assert [int(m.get_attribute("data-answer")) for m in marks] == answers
+    curve = page.find_element(By.ID, "jnd-fit-curve").get_attribute("d")
+    assert curve.startswith("M") and curve.count("L") >= 50
+    result = page.find_element(By.ID, "jnd-result").text
+    assert "Weber fraction" in result and " N at " in result and "95 % interval" in result
+    (end,) = [m for m in received(page, "jnd") if m["status"] == "complete"]
+    fit = end["fit"]
+    assert fit["trials"] == JND_TRIALS and fit["ci95"][0] <= fit["weber"] <= fit["ci95"][1]
+    # the answers were right or wrong as the rendered values say
+    for (v1, v2), t in zip(felt, end["track"], strict=True):
+        assert v1 != v2 and reference in (v1, v2)
+        assert t["order"] == (1 if v1 > v2 else 2)
+        assert max(v1, v2) == pytest.approx(reference * (1 + t["step"]), rel=1e-9)
+    # the file, beside the console's saves; the set in force back
+    path = Path(end["path"])
+    assert path.parent.resolve() == session.folder.resolve() and path.suffix == ".h5"
+    record = read_jnd_file(path)
+    assert record.complete and record.trials["answer"].tolist() == answers
+    assert record.participant == "P07" and "numpy" in record.attrs["versions"]
+    png = page.get_screenshot_as_png()
+    write = os.environ.get("EVO_DOOR_WRITE_FIGURES") == "1"
+    shot = ROOT / "docs" / "figures" / "console-jnd.png" if write else tmp_path / "jnd.png"
+    from evo_door.files import atomic_write
+
+    with atomic_write(shot) as tmp:
+        tmp.write_bytes(png)
+    wait_in_force(page, JND_PARAM, reference)
+    assert _in_force_on_renderer(session, JND_PARAM) == reference
+    click(page, "jnd-close")
+    assert not page.find_element(By.ID, "jnd-view").is_displayed()
+    session.jnd = {"felt": felt, "answers": answers, "track": end["track"], "wall_s": wall}
+    assert wall < 60.0, f"the session took {wall:.1f} s"
+
+
 # -- the log -----------------------------------------------------------------------------
 def test_the_log_holds_each_change_between_two_cycles_and_the_choice(session, capsys):
     if session.driver is None:  # run alone: no page, nothing to check
@@ -550,3 +705,32 @@ def test_the_log_holds_each_change_between_two_cycles_and_the_choice(session, ca
     assert "participant P07" in text and "1 A/B choices" in text, text
     assert f"{len(changes)} parameter changes" in text, text
     assert "chosen at" in text and "viscous_damping" in text and "friction_closing" in text, text
+
+
+def test_the_log_holds_every_jnd_presentation_and_answer(session):
+    if not session.jnd or session.proc.poll() is None:
+        pytest.skip("the JND session or the log test did not run")
+    events = read_session(session.log)["events"]
+    (start,) = [e for e in events if e["kind"] == "jnd_start"]
+    assert start["param"] == JND_PARAM and start["blind"] is True and start["trials"] == JND_TRIALS
+    assert (start["interval_s"], start["pause_s"], start["seed"]) == (0.25, 0.1, 11)
+    trials = [e for e in events if e["kind"] == "jnd_trial"]
+    answers = [e for e in events if e["kind"] == "jnd_answer"]
+    assert len(trials) == len(answers) == JND_TRIALS
+    for k, (shown, answered, felt, track) in enumerate(
+        zip(trials, answers, session.jnd["felt"], session.jnd["track"], strict=True)
+    ):
+        assert shown["trial"] == answered["trial"] == k and shown["t"] < answered["t"]
+        assert tuple(shown["values"]) == felt
+        assert (answered["order"], answered["step"]) == (track["order"], track["step"])
+        assert answered["answer"] == session.jnd["answers"][k]
+        assert answered["correct"] == (answered["answer"] == answered["order"])
+    (end,) = [e for e in events if e["kind"] == "jnd_end"]
+    assert end["status"] == "complete" and end["answers"] == JND_TRIALS
+    (saved,) = [e for e in events if e["kind"] == "jnd_save"]
+    assert Path(saved["path"]).is_file()
+    order = [e["kind"] for e in events if e["kind"].startswith("jnd_")]
+    assert order[0] == "jnd_start" and order[-2:] == ["jnd_end", "jnd_save"]
+    # evo-door show says it
+    text = format_session(read_session(session.log))
+    assert f"JND session on {JND_PARAM} complete, {JND_TRIALS} answers, Weber fraction" in text

@@ -21,7 +21,7 @@ def register(sub) -> None:
         help="serve the operator's web console for a running renderer (render --control)",
         description="Serve a web page to tune a running renderer live: the door and its "
         "force-angle curve, loop health, a slider and two keys per sensation, undo, "
-        "reset, save, A/B comparison, the participant's choice. It talks to the "
+        "reset, save, A/B comparison, JND sessions, the participant's choice. It talks to the "
         "renderer only through its control port. Runs until Ctrl-C.",
     )
     p.add_argument(
@@ -44,7 +44,8 @@ def register(sub) -> None:
         "--save-dir",
         default=".",
         metavar="DIR",
-        help="folder the page's Save writes parameter files to (default: here)",
+        help="folder the page's Save writes parameter files to, and a JND session its "
+        "JND file (default: here)",
     )
     p.add_argument("--open", action="store_true", help="open the page in the web browser")
     # render --console: end with the renderer even if it cannot say so (killed)
@@ -78,7 +79,9 @@ def run(args) -> int:
     if not save_dir.is_dir():
         raise UserError(f"--save-dir {args.save_dir}: no such folder")
     token = args.token or os.environ.get(TOKEN_ENV) or None
-    server = ConsoleServer((host, port), token, args.host, args.port, save_dir)
+    from evo_door.experiment.store import versions
+
+    server = ConsoleServer((host, port), token, args.host, args.port, save_dir, versions=versions())
     parent = os.getppid()
 
     async def serve() -> None:

@@ -204,7 +204,7 @@ def fit_psychometric(steps, correct, grid: int = 241) -> Fit:
         slope=math.exp(x[1]),
         lapse=float(x[2]),
         ci95=(min(lo, weber), max(hi, weber)),
-        open_ended=(lo_open, hi_open),
+        open_ended=(bool(lo_open), bool(hi_open)),  # not numpy booleans: JSON takes these
         trials=int(n.sum()),
         log_likelihood=float(ll_max),
     )

@@ -477,6 +477,11 @@ EVENT_KINDS = (
     "save",
     "chosen",
     "note",
+    "jnd_start",
+    "jnd_trial",
+    "jnd_answer",
+    "jnd_end",
+    "jnd_save",
 )
 
 

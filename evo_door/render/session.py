@@ -15,8 +15,10 @@ from evo_door.errors import UserError
 from evo_door.files import ATTRS, Dataset
 
 #: the event kinds that belong to a participant's session
-SESSION_KINDS = ("participant", "ab_store", "ab_switch", "ab_choice", "undo", "reset", "save")
-SESSION_KINDS += ("chosen", "note")
+SESSION_KINDS: tuple[str, ...] = ("participant", "ab_store", "ab_switch", "ab_choice", "undo")
+SESSION_KINDS += ("reset", "save", "chosen", "note")
+#: and a JND session's (evo_door.render.console.jnd_mode)
+SESSION_KINDS += ("jnd_start", "jnd_trial", "jnd_answer", "jnd_end", "jnd_save")
 
 
 def session_tree(events, names, units) -> dict | None:
@@ -137,6 +139,14 @@ def format_session(s: dict, path="") -> str:
         )
     for e in s["choices"]:
         lines.append(f"  at {e['t']:7.1f} s: prefers {e.get('slot', '?')}")
+    for e in s["events"]:
+        if e.get("kind") == "jnd_end":
+            w, ci = e.get("weber"), e.get("ci95")
+            fit = f", Weber fraction {w:.3g} (95 %: {ci[0]:.3g} to {ci[1]:.3g})" if w and ci else ""
+            lines.append(
+                f"  at {e['t']:7.1f} s: JND session on {e.get('param', '?')} "
+                f"{e.get('status', '?')}, {e.get('answers', 0)} answers{fit}"
+            )
     start = s["sets"][0][1] if s["sets"] else {}
     final = s["chosen"] if s["chosen"] is not None else (s["sets"][-1][1] if s["sets"] else {})
     title = f"chosen at {s['chosen_t']:.1f} s" if s["chosen"] is not None else "last set in force"

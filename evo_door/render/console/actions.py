@@ -2,7 +2,8 @@
 sends, each an ``async`` function of the console, the page and the message.
 
 A change goes to the renderer as a control-port ``set`` (:meth:`Console.apply`); the
-A/B steps are in :mod:`~evo_door.render.console.ab`, Save in
+A/B steps are in :mod:`~evo_door.render.console.ab`, the JND session's in
+:mod:`~evo_door.render.console.jnd_mode`, Save in
 :mod:`~evo_door.render.console.saving`. An action raises a UserError to refuse; the
 console tells the page (:meth:`Console.handle`).
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from evo_door.errors import UserError
-from evo_door.render.console import ab
+from evo_door.render.console import ab, jnd_mode
 from evo_door.render.console.page import error, one_line, refused
 from evo_door.render.console.saving import MAX_ID, on_save
 from evo_door.render.console.sensations import check_values
@@ -78,6 +79,9 @@ ACTIONS = {
     "ab_blind": ab.on_ab_blind,
     "ab_choice": ab.on_ab_choice,
     "choose": on_choose,
+    "jnd_start": jnd_mode.on_jnd_start,
+    "jnd_answer": jnd_mode.on_jnd_answer,
+    "jnd_stop": jnd_mode.on_jnd_stop,
 }
 #: their names
 PAGE_KINDS = tuple(ACTIONS)

@@ -31,14 +31,17 @@ The HTTP and WebSocket API (every number in SI units)::
     GET /api/curve               quasi-static force-angle curve of the set in force
     GET /ws                      WebSocket, JSON messages:
         server -> page: hello, tick (~30/s), params (source slider, key, undo, reset,
-                        ab or push), refused, saved, ab, participant, chosen, error;
+                        ab, jnd or push), refused, saved, ab, participant, chosen,
+                        jnd (a JND session: settings, track, fit), jnd_phase, error;
                         hello and tick carry ``health`` (the control port's health
                         answer: status, rate_hz, cycles, missed_cycles,
                         on_time_fraction, lateness_p99_s, faults, saturated_cycles,
                         watchdog: "" or why it tripped) and ``state``
         page -> server: set {values, source}, undo, reset, save {name},
                         participant {id}, ab_store / ab_switch / ab_choice {slot},
-                        ab_blind {blind}, choose
+                        ab_blind {blind}, choose, jnd_start {param, reference,
+                        method, trials, seed, interval_s, pause_s, blind},
+                        jnd_answer {answer: 1 or 2}, jnd_stop
 
 Limits: a page's messages are read by the control port's rules
 (:func:`~evo_door.render.messages.parse_message`: size, values, nesting, bounded
@@ -59,6 +62,7 @@ The console's modules, each answering one question:
 ``session``    what do the pages share? the state, the polling of the loop, changes
 ``actions``    what does each page message do?
 ``ab``         A/B comparison and blind mode
+``jnd_mode``   JND sessions: 2IFC trials played on the renderer, answered on the page
 ``saving``     Save: the set in force as a parameter file
 ``sensations`` what may a page change? the declaration, a change checked, the curve
 ``client``     how does it reach the renderer? one control-port connection
@@ -93,6 +97,7 @@ class ConsoleServer:
         port: int = 8765,
         save_dir=".",
         wait: float | None = None,
+        versions: dict | None = None,
     ):
         if not is_loopback(host) and not token:
             raise UserError(
@@ -100,7 +105,7 @@ class ConsoleServer:
             )
         self.host, self.port, self.token = host, int(port), token or None
         self.wait = CONNECT_WAIT if wait is None else wait
-        self.console = Console(ControlClient(*control, token=self.token), save_dir)
+        self.console = Console(ControlClient(*control, token=self.token), save_dir, versions)
         self.runner: web.AppRunner | None = None
         self.url = ""
 

@@ -2,7 +2,8 @@
 
 A :class:`Console` keeps what the pages share: the set in force and the one the
 session started from, the undo stack (the whole sets in force before each accepted
-change), the A/B slots, the participant, the open pages. Background tasks poll the
+change), the A/B slots, the participant, the JND session
+(:mod:`~evo_door.render.console.jnd_mode`), the open pages. Background tasks poll the
 renderer (:meth:`Console.start_polling`): the new log rows, the state and the loop's
 health about 30 times a second while a page is open, sent to every page as a
 ``tick``; the set in force 4 times a second, the pages told when it changed
@@ -21,6 +22,7 @@ from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
 from evo_door.render.console.actions import ACTIONS, PAGE_KINDS
 from evo_door.render.console.client import ControlClient
+from evo_door.render.console.jnd_mode import BLOCKED, JndRun
 from evo_door.render.console.page import Page, dumps, error, one_line, refused
 from evo_door.render.console.saving import MAX_ID
 from evo_door.render.console.sensations import force_curve
@@ -56,12 +58,16 @@ class Console:
     client : ControlClient
         The renderer's control port.
     save_dir : path
-        Where ``save`` writes parameter files.
+        Where ``save`` writes parameter files (and a JND session its JND file).
+    versions : dict, optional
+        The software's versions, recorded in JND files (the command passes them).
     """
 
-    def __init__(self, client: ControlClient, save_dir="."):
+    def __init__(self, client: ControlClient, save_dir=".", versions: dict | None = None):
         self.client = client
         self.save_dir = Path(save_dir)
+        self.versions = dict(versions or {})  # the software's, for the JND files
+        self.jnd: JndRun | None = None  # the JND session, running or last ended
         self.params: dict[str, float] = {}
         self.params_t = 0.0
         self.start: dict[str, float] = {}
@@ -116,7 +122,18 @@ class Console:
         loop = asyncio.get_running_loop()
         self._tasks = [loop.create_task(self._tick_loop()), loop.create_task(self._params_loop())]
 
+    @property
+    def action_lock(self) -> asyncio.Lock:
+        """Held by each page action, and by a JND session while it changes the set."""
+        return self._actions
+
+    def visible(self, params: dict[str, float]) -> dict[str, float]:
+        """``params`` as the pages may see them (a blind JND session hides its step)."""
+        return self.jnd.visible(params) if self.jnd is not None else params
+
     async def stop(self) -> None:
+        if self.jnd is not None and self.jnd.task is not None:
+            self.jnd.task.cancel()
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -139,11 +156,12 @@ class Console:
         health and state as read when it opened (:meth:`read_health`)."""
         return {
             "type": "hello",
-            "params": self.params,
+            "params": self.visible(self.params),
             "t": self.params_t,
             "start": self.start,
             "participant": self.participant,
             "ab": self.ab_state(),
+            "jnd": self.jnd.state() if self.jnd is not None else None,
             "rows": list(self.history),
             "health": self._health,
             "state": self._tick_state(),
@@ -244,8 +262,9 @@ class Console:
         if now != self.params:
             self._push_undo(self.params)
             self.params, self.params_t = now, float(answer.get("t", 0.0))
+            shown = self.visible(self.params)
             self.broadcast(
-                {"type": "params", "params": self.params, "t": self.params_t, "source": "push"}
+                {"type": "params", "params": shown, "t": self.params_t, "source": "push"}
             )
         return now
 
@@ -267,9 +286,8 @@ class Console:
         new = dict(self.params)
         new.update({k: float(v) for k, v in answer.get("applied", values).items()})
         self.params, self.params_t = new, float(answer.get("t", self.params_t))
-        self.broadcast(
-            {"type": "params", "params": self.params, "t": self.params_t, "source": source}
-        )
+        shown = self.visible(self.params)
+        self.broadcast({"type": "params", "params": shown, "t": self.params_t, "source": source})
         return True
 
     async def apply_set(self, target: dict, source: str, page: Page, undoable=True) -> bool:
@@ -305,6 +323,8 @@ class Console:
             reason = (
                 f"more than {ACTIONS_PER_S:g} actions a second from all pages together: slow down"
             )
+        if reason is None and kind in BLOCKED and self.jnd is not None and self.jnd.running:
+            reason = f"a JND session is running: {kind} waits until it ends (or stop it)"
         if reason is not None:
             page.post(refused(reason, message.get("values")) if kind == "set" else error(reason))
             return
@@ -320,7 +340,7 @@ class Console:
     # -- the curve ---------------------------------------------------------------------
     async def curve(self) -> dict:
         """The force-angle curve of the set in force (cached per set)."""
-        values, t = dict(self.params), self.params_t
+        values, t = self.visible(dict(self.params)), self.params_t
         key = tuple(values[n] for n in PARAMS.names)
         if key not in self._curves:
             loop = asyncio.get_running_loop()

@@ -36,6 +36,7 @@
     target: {}, // name -> {value, at}: sent and not yet confirmed
     dragging: {}, // name -> true while the pointer holds its slider
     ab: { A: null, B: null, active: null, blind: false },
+    jnd: null, // the JND session (the server's latest jnd message), or null
     participant: "",
     rows: { t: [], theta: [], dtheta: [], force: [] },
     state: null, // latest tick's state
@@ -180,6 +181,7 @@
         }
         S.participant = msg.participant || "";
         if (msg.ab) setAB(msg.ab);
+        if (msg.jnd) setJnd(msg.jnd);
         S.target = {};
         applyParams(msg.params || {}, "hello");
         if (Array.isArray(msg.rows)) loadHistory(msg.rows);
@@ -205,6 +207,16 @@
         break;
       case "ab":
         setAB(msg);
+        break;
+      case "jnd":
+        setJnd(msg);
+        break;
+      case "jnd_phase":
+        if (S.jnd) {
+          S.jnd.phase = msg.phase;
+          S.jnd.trial = msg.trial;
+          renderJndPhase();
+        }
         break;
       case "participant":
         S.participant = msg.id || "";
@@ -304,6 +316,7 @@
     }
     for (const p of rows) showValue(p.name);
     setAB(S.ab);
+    fillJndParams(rows);
   }
 
   function makeParam(p, labelText, half) {
@@ -439,6 +452,7 @@
     for (const p of S.decl) showValue(p.name);
     latch.configure(S.inForce);
     renderAB();
+    showJndUnit();
     requestCurve();
     invalidate();
   }
@@ -471,6 +485,12 @@
     if (e.ctrlKey || e.metaKey || e.altKey) return;
     if (isTyping(e.target)) return;
     if ($("choose-dialog").open) return;
+    if (jndRunning()) {
+      // a session owns the set in force: 1 and 2 answer, the parameter keys rest
+      if (e.key === "1" || e.key === "2") answerJnd(Number(e.key));
+      if (e.key === "1" || e.key === "2" || S.keyMap[e.key]) e.preventDefault();
+      return;
+    }
     const k = S.keyMap[e.key];
     if (!k) return;
     const p = S.byName[k.name];
@@ -577,6 +597,253 @@
     if (!diffs.length) return "A and B are the same set.";
     const shown = diffs.slice(0, 3).join("; ");
     return "A / B: " + shown + (diffs.length > 3 ? "; and " + (diffs.length - 3) + " more" : "");
+  }
+
+  // ---------------------------------------------------------------- JND session
+  // The server plays each trial (pause, interval 1, pause, interval 2) and asks for the
+  // answer; blind, it sends neither the step nor the order nor whether an answer was
+  // right until the session ends (evo_door/render/console/jnd_mode.py).
+  const JND_UNITS = ["N", "N s/rad", "kg m", "N/rad"]; // the units a JND setting is measured in
+  const SVG_NS = "http://www.w3.org/2000/svg";
+  const PHASE_TEXT = {
+    pause: "Pause: let go",
+    1: "Interval 1",
+    2: "Interval 2",
+    answer: "Answer",
+    answered: "...",
+    fitting: "Fitting ...",
+    done: "Done",
+    stopped: "Stopped",
+    aborted: "Ended",
+  };
+
+  function jndRunning() {
+    return !!(S.jnd && S.jnd.status === "running");
+  }
+
+  function fillJndParams(rows) {
+    const sel = $("jnd-param");
+    const was = sel.value;
+    sel.textContent = "";
+    for (const p of rows) {
+      if (!JND_UNITS.includes(p.unit)) continue;
+      const o = document.createElement("option");
+      o.value = p.name;
+      o.textContent = p.name;
+      sel.appendChild(o);
+    }
+    if (was && S.byName[was]) sel.value = was;
+    showJndUnit();
+  }
+
+  function showJndUnit() {
+    const p = S.byName[$("jnd-param").value];
+    $("jnd-unit").textContent = p ? p.unit : "";
+    const v = p ? S.inForce[p.name] : undefined;
+    $("jnd-reference").placeholder = v === undefined ? "in force" : "in force: " + fmt(v);
+  }
+
+  // a number field: its value, null when empty (the server's default), NaN when not a number
+  function fieldNumber(id) {
+    const text = $(id).value.trim();
+    return text === "" ? null : Number(text);
+  }
+
+  function startJnd() {
+    const msg = {
+      type: "jnd_start",
+      param: $("jnd-param").value,
+      method: $("jnd-method").value,
+      blind: $("jnd-blind").checked,
+    };
+    const fields = { reference: "jnd-reference", trials: "jnd-trials", seed: "jnd-seed",
+      interval_s: "jnd-interval", pause_s: "jnd-pause" };
+    for (const [key, id] of Object.entries(fields)) {
+      const v = fieldNumber(id);
+      if (v === null) continue;
+      if (!isFinite(v)) {
+        setMessage(key + " " + JSON.stringify($(id).value) + ": not a number", "error");
+        return;
+      }
+      msg[key] = v;
+    }
+    if (send(msg)) setMessage("Starting a JND session on " + msg.param, "info");
+  }
+
+  function answerJnd(answer) {
+    if (!jndRunning() || S.jnd.phase !== "answer") return;
+    if (send({ type: "jnd_answer", answer: answer })) {
+      S.jnd.phase = "answered"; // until the server says what comes next
+      renderJndPhase();
+    }
+  }
+
+  function setJnd(msg) {
+    S.jnd = msg;
+    renderJnd();
+  }
+
+  function renderJndPhase() {
+    const j = S.jnd;
+    if (!j) return;
+    const el = $("jnd-phase");
+    el.textContent = PHASE_TEXT[j.phase] || j.phase;
+    el.className = j.phase === "answer" ? "answer" : "";
+    el.dataset.phase = j.phase;
+    const open = j.status === "running" && j.phase === "answer";
+    for (const k of [1, 2]) $("jnd-answer-" + k).disabled = !open;
+    $("jnd-progress").textContent = "trial " + Math.min(j.trial + (j.status === "running" ? 1 : 0), j.trials) +
+      " of " + j.trials;
+  }
+
+  function renderJnd() {
+    const j = S.jnd;
+    const view = $("jnd-view");
+    if (!j) {
+      view.hidden = true;
+      return;
+    }
+    view.hidden = false;
+    view.dataset.status = j.status;
+    document.body.classList.toggle("jnd-blind", j.status === "running" && j.blind);
+    $("jnd-title").textContent = "JND session: " + j.param + (j.participant ? ", participant " + j.participant : "") +
+      (j.status === "running" ? (j.blind ? " (blind)" : "") : " (" + j.status + ")");
+    $("jnd-question").textContent = "Which felt " + j.word + "?";
+    $("jnd-stop").hidden = j.status !== "running";
+    $("jnd-close").hidden = j.status === "running";
+    renderJndPhase();
+    drawTrack(j);
+    drawFit(j);
+    const r = $("jnd-result");
+    if (j.fit) {
+      const f = j.fit;
+      const pct = (w) => fmt(100 * w, 3) + " %";
+      r.textContent = "Weber fraction " + fmt(f.weber, 3) + " (" + pct(f.weber) + "), 95 % interval " +
+        fmt(f.ci95[0], 3) + " to " + fmt(f.ci95[1], 3) + ": a JND of " + fmt(f.jnd, 3) + " " + j.unit +
+        " at " + fmt(j.reference) + " " + j.unit + ", from " + f.trials + " trials" +
+        (f.open_ended[0] || f.open_ended[1] ? " (the interval is open: more trials needed)" : "") +
+        (j.path ? "; saved to " + j.path : "");
+    } else if (j.status === "running") {
+      r.textContent = "Reference " + fmt(j.reference) + " " + j.unit + ", " + j.method + ", " +
+        fmt(j.interval_s) + " s intervals, " + fmt(j.pause_s) + " s pauses";
+    } else {
+      r.textContent = "No fit: " + j.track.length + " answers" + (j.path ? "; saved to " + j.path : "");
+    }
+  }
+
+  function svgEl(parent, tag, attrs, text) {
+    const el = document.createElementNS(SVG_NS, tag);
+    for (const [k, v] of Object.entries(attrs || {})) el.setAttribute(k, String(v));
+    if (text !== undefined) el.textContent = text;
+    parent.appendChild(el);
+    return el;
+  }
+
+  const PLOT = { left: 52, right: 572, top: 12, bottom: 200 };
+
+  // ticks of a log axis over [lo, hi]: 1, 2, 5 times powers of ten
+  function logTicks(lo, hi) {
+    const out = [];
+    for (let e = Math.floor(Math.log10(lo)); e <= Math.ceil(Math.log10(hi)); e++) {
+      for (const m of [1, 2, 5]) {
+        const v = m * Math.pow(10, e);
+        if (v >= lo && v <= hi) out.push(v);
+      }
+    }
+    return out;
+  }
+
+  function percent(v) {
+    return fmt(100 * v, 2) + " %";
+  }
+
+  function svgFrame(svg, xlabel, ylabel) {
+    svg.textContent = "";
+    svgEl(svg, "path", { class: "axis", d: "M" + PLOT.left + " " + PLOT.top + "V" + PLOT.bottom + "H" + PLOT.right });
+    svgEl(svg, "text", { x: (PLOT.left + PLOT.right) / 2, y: 234, "text-anchor": "middle" }, xlabel);
+    svgEl(svg, "text", { x: 12, y: (PLOT.top + PLOT.bottom) / 2, "text-anchor": "middle",
+      transform: "rotate(-90 12 " + (PLOT.top + PLOT.bottom) / 2 + ")" }, ylabel);
+  }
+
+  function drawTrack(j) {
+    const svg = $("jnd-track");
+    const n = Math.max(j.trials, 1);
+    const X = (k) => PLOT.left + 8 + (PLOT.right - PLOT.left - 16) * (n > 1 ? k / (n - 1) : 0.5);
+    const hidden = j.track.some((t) => t.step === undefined);
+    svgFrame(svg, "trial", hidden ? "(step hidden: blind)" : "step (log scale)");
+    $("jnd-track-note").textContent = hidden ? "(answers only until the end)" : "(filled: correct, ring: wrong)";
+    for (let k = 0; k < n; k += Math.max(1, Math.ceil(n / 10))) {
+      svgEl(svg, "text", { x: X(k), y: PLOT.bottom + 16, "text-anchor": "middle" }, String(k + 1));
+    }
+    if (hidden) {
+      const y = (PLOT.top + PLOT.bottom) / 2;
+      j.track.forEach((t, k) => {
+        svgEl(svg, "circle", { class: "mark blind", cx: X(k), cy: y, r: 4, "data-trial": k + 1, "data-answer": t.answer });
+      });
+      return;
+    }
+    const steps = j.track.map((t) => t.step);
+    if (j.fit) steps.push(j.fit.weber);
+    const lo = steps.length ? Math.min(...steps) / 1.5 : 0.01;
+    const hi = steps.length ? Math.max(...steps) * 1.5 : 1;
+    const Y = (v) => PLOT.bottom - (PLOT.bottom - PLOT.top) * Math.log(v / lo) / Math.log(hi / lo);
+    for (const v of logTicks(lo, hi)) {
+      svgEl(svg, "line", { class: "grid", x1: PLOT.left, x2: PLOT.right, y1: Y(v), y2: Y(v) });
+      svgEl(svg, "text", { x: PLOT.left - 4, y: Y(v) + 4, "text-anchor": "end" }, percent(v));
+    }
+    if (j.fit) {
+      svgEl(svg, "line", { class: "estimate", x1: PLOT.left, x2: PLOT.right, y1: Y(j.fit.weber), y2: Y(j.fit.weber) });
+    }
+    if (j.track.length > 1) {
+      const d = j.track.map((t, k) => (k ? "L" : "M") + X(k).toFixed(1) + " " + Y(t.step).toFixed(1)).join("");
+      svgEl(svg, "path", { class: "track-line", d: d });
+    }
+    j.track.forEach((t, k) => {
+      const c = svgEl(svg, "circle", { class: "mark " + (t.correct ? "correct" : "wrong"), cx: X(k), cy: Y(t.step),
+        r: 4, "data-trial": k + 1, "data-step": t.step, "data-order": t.order, "data-answer": t.answer });
+      svgEl(c, "title", {}, "trial " + (k + 1) + ": step " + percent(t.step) + ", comparison in " + t.order +
+        ", answered " + t.answer);
+    });
+  }
+
+  function drawFit(j) {
+    const svg = $("jnd-fit");
+    svgFrame(svg, "step (log scale)", "P(correct)");
+    // from 0: a share of correct answers below chance (few trials at a step) is shown as it is
+    const Y = (p) => PLOT.bottom - (PLOT.bottom - PLOT.top) * p;
+    for (const p of [0, 0.5, 0.75, 1.0]) {
+      svgEl(svg, "line", { class: "grid", x1: PLOT.left, x2: PLOT.right, y1: Y(p), y2: Y(p) });
+      svgEl(svg, "text", { x: PLOT.left - 4, y: Y(p) + 4, "text-anchor": "end" }, percent(p));
+    }
+    if (!j.fit) {
+      svgEl(svg, "text", { x: (PLOT.left + PLOT.right) / 2, y: Y(0.75) - 8, "text-anchor": "middle" },
+        j.status === "running" ? "fitted at the end of the session" : "no fit");
+      return;
+    }
+    const f = j.fit;
+    const xs = f.curve.step;
+    const lo = xs[0];
+    const hi = xs[xs.length - 1];
+    const X = (v) => PLOT.left + (PLOT.right - PLOT.left) * Math.log(Math.min(Math.max(v, lo), hi) / lo) / Math.log(hi / lo);
+    svgEl(svg, "rect", { class: "ci95", x: X(f.ci95[0]), y: PLOT.top, width: Math.max(1, X(f.ci95[1]) - X(f.ci95[0])),
+      height: PLOT.bottom - PLOT.top });
+    for (const v of logTicks(lo, hi)) {
+      svgEl(svg, "text", { x: X(v), y: PLOT.bottom + 16, "text-anchor": "middle" }, percent(v));
+    }
+    // the answers: the share correct at each step, a dot as large as its count
+    const at = {};
+    for (const t of j.track) {
+      const a = at[t.step] || (at[t.step] = { n: 0, k: 0 });
+      a.n += 1;
+      a.k += t.correct ? 1 : 0;
+    }
+    for (const [s, a] of Object.entries(at)) {
+      svgEl(svg, "circle", { class: "observed", cx: X(Number(s)), cy: Y(a.k / a.n), r: 2 + Math.sqrt(a.n) });
+    }
+    const d = xs.map((x, k) => (k ? "L" : "M") + X(x).toFixed(1) + " " + Y(f.curve.p_correct[k]).toFixed(1)).join("");
+    svgEl(svg, "path", { id: "jnd-fit-curve", d: d });
+    svgEl(svg, "line", { class: "estimate", x1: X(f.weber), x2: X(f.weber), y1: PLOT.top, y2: PLOT.bottom });
+    svgEl(svg, "text", { x: X(f.weber) + 4, y: PLOT.top + 12 }, "Weber " + fmt(f.weber, 3));
   }
 
   // ---------------------------------------------------------------- ticks and history
@@ -1526,6 +1793,15 @@
       choose();
     });
     $("choose-cancel").addEventListener("click", () => dialog.close());
+    $("jnd-param").addEventListener("change", showJndUnit);
+    $("jnd-start").addEventListener("click", startJnd);
+    $("jnd-stop").addEventListener("click", () => send({ type: "jnd_stop" }));
+    $("jnd-close").addEventListener("click", () => {
+      S.jnd = null;
+      document.body.classList.remove("jnd-blind");
+      renderJnd();
+    });
+    for (const k of [1, 2]) $("jnd-answer-" + k).addEventListener("click", () => answerJnd(k));
     $("participant").addEventListener("change", () => {
       const id = $("participant").value.trim();
       $("participant").value = id;
