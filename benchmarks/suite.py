@@ -964,6 +964,11 @@ def section_fmu(suite: Suite) -> None:
 
 
 # -- section: planning a JND session ---------------------------------------------------
+#: a 95 % interval that covers the truth in fewer sessions than this (%) overstates
+#: what the session knows
+JND_COVERAGE_TARGET = 90.0
+
+
 def section_jnd(suite: Suite) -> None:
     """Simulated JND sessions: bias, spread and coverage against the number of trials."""
     from benchmarks import bench_jnd as bj
@@ -977,9 +982,11 @@ def section_jnd(suite: Suite) -> None:
         suite.add(
             f"{key}.coverage",
             "jnd",
-            f"{what}: intervals covering the truth",
+            f"{what}: 95 % intervals covering the truth",
             100 * r["coverage"],
             "%",
+            target_text=f">= {JND_COVERAGE_TARGET:g} %",
+            met=100 * r["coverage"] >= JND_COVERAGE_TARGET,
         )
         suite.add(f"{key}.seconds", "jnd", f"{what}: per session (no device)", r["seconds"], "s")
     for method, k in bj.trials_needed(rows).items():

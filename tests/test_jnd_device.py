@@ -76,12 +76,14 @@ def test_file_show_report_and_log(tmp_path, capsys):
     shown = json.loads(capsys.readouterr().out)
     assert shown == record.summary()
     assert main(["show", str(tmp_path / "j.h5")]) == 0
-    assert "sets the JND setting force (a Weber fraction) where it is used" in capsys.readouterr().out
+    assert (
+        "sets the JND setting force (a Weber fraction) where it is used" in capsys.readouterr().out
+    )
     # the render log holds the session: its start, every switch and answer, its end
     with open_h5(log) as f:
         events = read_attrs(f["render"])["events"]
     kinds = [e["kind"] for e in events]
-    assert kinds.count("jnd_answer") == 12 and kinds.count("jnd_session") == 1
+    assert kinds.count("jnd_answer") == 12 and kinds.count("jnd_start") == 1
     assert kinds.count("jnd_switch") == 4 * 12
     answers = [e for e in events if e["kind"] == "jnd_answer"]
     assert [e["answer"] for e in answers] == record.trials["answer"].tolist()

@@ -51,7 +51,7 @@ from evo_door.models.haptic import PARAMS
 from evo_door.render.device import UserScript, _min_jerk
 
 #: the event kinds a JND session adds to the render log
-EVENT_KINDS = ("jnd_session", "jnd_switch", "jnd_answer", "jnd_end")
+EVENT_KINDS = ("jnd_start", "jnd_switch", "jnd_answer", "jnd_end")
 #: what :meth:`poll` returns when the participant stops the session
 STOP = "stop"
 #: the parameter group a neutral set takes from the model's defaults (or --neutral)
@@ -412,7 +412,8 @@ class JndSchedule:
             "jnd_end",
             f"JND session {status}: {message}",
             status=status,
-            trials=len(self.session.answers),
+            param=self.session.param,
+            answers=len(self.session.answers),
         )
         self.stop.set()
 
@@ -426,7 +427,7 @@ def run_session(
     schedule = JndSchedule(loop, session, participant, reference, neutral, timing, stop, progress)
     loop.log.event(
         0.0,
-        "jnd_session",
+        "jnd_start",
         f"JND session: {session.param} at {session.reference:g} {session.unit}, "
         f"{session.method}, {session.trials} trials, {participant.describe()}",
         param=session.param,
@@ -450,6 +451,11 @@ def run_session(
         status = "stopped" if stats.get("status") == "stopped" else stats.get("status", "failed")
         message = "stopped by the operator" if status == "stopped" else stats.get("watchdog", "")
         loop.log.event(
-            loop.snapshot()["t"], "jnd_end", f"JND session {status}: {message}", status=status
+            loop.snapshot()["t"],
+            "jnd_end",
+            f"JND session {status}: {message}",
+            status=status,
+            param=session.param,
+            answers=len(session.answers),
         )
     return Outcome(status, message, stats)

@@ -17,8 +17,9 @@ from evo_door.files import ATTRS, Dataset
 #: the event kinds that belong to a participant's session
 SESSION_KINDS: tuple[str, ...] = ("participant", "ab_store", "ab_switch", "ab_choice", "undo")
 SESSION_KINDS += ("reset", "save", "chosen", "note")
-#: and a JND session's (evo_door.render.console.jnd_mode)
-SESSION_KINDS += ("jnd_start", "jnd_trial", "jnd_answer", "jnd_end", "jnd_save")
+#: and a JND session's (the console's, evo_door.render.console.jnd_mode, and
+#: ``evo-door jnd``'s, evo_door.render.jnd: jnd_switch for each phase)
+SESSION_KINDS += ("jnd_start", "jnd_trial", "jnd_switch", "jnd_answer", "jnd_end", "jnd_save")
 
 
 def session_tree(events, names, units) -> dict | None:
