@@ -63,7 +63,7 @@ def test_file_show_report_and_log(tmp_path, capsys):
     code = jnd(
         tmp_path,
         *["--param", "open_force", "--participant", "sim:0.15", "--trials", "12"],
-        *["--reference", "25", "--log", str(log)],
+        *["--reference", "25", "--log", str(log), "--neutral", "defaults"],
     )
     assert code == 0
     text = capsys.readouterr().out
@@ -84,7 +84,7 @@ def test_file_show_report_and_log(tmp_path, capsys):
         events = read_attrs(f["render"])["events"]
     kinds = [e["kind"] for e in events]
     assert kinds.count("jnd_answer") == 12 and kinds.count("jnd_start") == 1
-    assert kinds.count("jnd_switch") == 4 * 12
+    assert kinds.count("jnd_switch") == 5 * 12  # pause, interval 1, pause, interval 2, question
     answers = [e for e in events if e["kind"] == "jnd_answer"]
     assert [e["answer"] for e in answers] == record.trials["answer"].tolist()
     assert events[kinds.index("jnd_end")]["status"] == "complete"
@@ -248,3 +248,34 @@ def test_a_person_at_a_terminal_answers_and_stops(tmp_path):
     # blind: nothing on the screen says where the comparison was or whether it was right
     text = "".join(shown)
     assert "trial 2/10 answered" in text and "right" not in text and "step" not in text
+
+
+@pytest.mark.slow
+def test_let_go_pauses_switch_only_while_nobody_holds_the_handle(tmp_path):
+    """Without --neutral the pauses are let-go pauses: the next interval's set comes in
+    during the pause, so each interval renders its set from its first cycle, and no
+    change lands within an interval or the question."""
+    log = tmp_path / "log.h5"
+    args = ["--param", "viscous_damping", "--participant", "sim:0.2", "--trials", "10"]
+    assert jnd(tmp_path, *args, "--log", str(log)) == 0
+    with open_h5(log) as f:
+        events = read_attrs(f["render"])["events"]
+        names = list(read_attrs(f["render/params"])["names"])
+        change_t = f["render/params/t"][()]
+        values = f["render/params/values"][()][:, names.index("viscous_damping")]
+    phases = [e for e in events if e["kind"] == "jnd_switch"]
+    assert [e["phase"] for e in phases[:5]] == [
+        "pause",
+        "interval 1",
+        "pause",
+        "interval 2",
+        "question",
+    ]
+    for e in phases:
+        if e["phase"].startswith("interval"):
+            in_force = values[np.searchsorted(change_t, e["t"], side="right") - 1]
+            assert in_force == pytest.approx(e["value"]), e
+    # every change after the start lies within a pause
+    pauses = [(e["t"], e["t"] + 0.05) for e in phases if e["phase"] == "pause"]
+    for t in change_t[1:]:
+        assert any(a - 1e-9 <= t <= b + 1e-9 for a, b in pauses), t

@@ -39,8 +39,8 @@ def register(sub) -> None:
         help="measure a just-noticeable difference of one parameter on a device "
         "(two-interval forced choice, staircase or QUEST, Weber fraction with 95 %% interval)",
         description="Each trial renders the reference set and a comparison set (one "
-        "parameter changed by a relative step) in random order, a neutral pause between "
-        "them; the participant says which interval felt stronger. The Weber fraction "
+        "parameter changed by a relative step) in random order, a neutral pause before "
+        "each (the participant lets go); the participant says which interval felt stronger. The Weber fraction "
         "comes from a psychometric fit (docs/perception-lab.md).",
     )
     add_params_arguments(p)
@@ -52,9 +52,11 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--neutral",
-        metavar="P.yaml",
-        help="parameter file or preset whose sensation parameters make the neutral set "
-        "of the pauses (default: the model's defaults); the others stay --params'",
+        metavar="P.yaml|defaults",
+        help="render a neutral set in the pauses and the question: the sensation "
+        "parameters of this parameter file or preset, or the model's defaults (the "
+        "others stay --params'); default: none, the participant lets go in the pauses "
+        "while the next interval's set comes in",
     )
     p.add_argument(
         "--device",
@@ -80,7 +82,9 @@ def register(sub) -> None:
         "--seed", default=0, metavar="S", help="seed of the order (and a sim participant)"
     )
     p.add_argument("--interval", default=2.0, metavar="S", help="each interval (s, default 2)")
-    p.add_argument("--pause", default=1.0, metavar="S", help="neutral pause between (s, default 1)")
+    p.add_argument(
+        "--pause", default=1.0, metavar="S", help="pause before each interval (s, default 1)"
+    )
     p.add_argument("--ramp", default=0.2, metavar="S", help="ramp of every switch (s, default 0.2)")
     p.add_argument("--rate", default=2500.0, metavar="HZ", help="loop rate (Hz, default 2500)")
     p.add_argument("--log-rate", metavar="HZ", help="log rate (Hz, default min(1000, --rate))")
@@ -149,8 +153,12 @@ def _sets(args):
         )
     declared.check(reference, "--reference")
     params = params.replace({args.param: reference}, source=params.source)
-    neutral = model.load_params(args.neutral) if args.neutral else None
-    return params, neutral_values(params, neutral), declared, float(reference)
+    if not args.neutral:  # let-go pauses: no neutral set
+        return params, None, declared, float(reference)
+    if args.neutral == "defaults":  # the model's declared sensations
+        return params, neutral_values(params), declared, float(reference)
+    neutral = neutral_values(params, model.load_params(args.neutral))
+    return params, neutral, declared, float(reference)
 
 
 def run(args) -> int:
@@ -165,7 +173,7 @@ def run(args) -> int:
     params, neutral, declared, reference = _sets(args)
     claim = claim_outputs(
         [Output(args.out, "--out", TRIALS), Output(args.log, "--log", TRIALS)],
-        [params.source, args.neutral],
+        [params.source, None if args.neutral == "defaults" else args.neutral],
         force=args.force,
     )
     session = JndSession(
@@ -189,7 +197,7 @@ def _run_session(args, params, neutral, session, participant, timing, claim) -> 
     from evo_door.render.stopping import stop_on_ctrl_c
 
     device, name = _device(args, params["radius"])
-    start = params.replace(neutral, source="neutral")
+    start = params if neutral is None else params.replace(neutral, source="neutral")
     paced = True if (args.realtime or participant.blind) else None
     loop = ServoLoop(
         device,
@@ -251,7 +259,7 @@ def _finish(args, loop, session, participant, params, outcome, name, t0, claim) 
         "params": str(params.source),
         "param": args.param,
         "reference": session.reference,
-        "neutral": args.neutral or "the model's defaults (sensation parameters)",
+        "neutral": args.neutral or "none: the participant lets go in the pauses",
         "method": args.method,
         "trials": session.trials,
         "interval_s": args.interval,

@@ -2,20 +2,28 @@
 
 :class:`~evo_door.perception.procedures.JndSession` decides each trial (the step, which
 interval holds the comparison) and records the answers; this module renders it. Each
-trial is four phases, timed on the loop's clock (simulated time on an unpaced
-simulated device, the wall clock otherwise):
+trial is five phases, timed on the loop's clock (simulated time on an unpaced
+simulated device, the wall clock otherwise), the same as in the console's JND mode:
 
-1. **interval 1**: the set of interval 1 (the reference set or the comparison set),
+1. **pause**: the participant lets go, for ``pause`` seconds;
+2. **interval 1**: the set of interval 1 (the reference set or the comparison set),
    for ``interval`` seconds;
-2. **pause**: the neutral set (:func:`neutral_values`), for ``pause`` seconds;
-3. **interval 2**: the set of interval 2, for ``interval`` seconds;
-4. **question**: the neutral set again until the participant answers which interval
-   felt stronger (the word is the parameter's: :func:`~evo_door.perception.procedures.word_for`).
+3. **pause**: the participant lets go again;
+4. **interval 2**: the set of interval 2, for ``interval`` seconds;
+5. **question**: until the participant answers which interval felt stronger (the word
+   is the parameter's: :func:`~evo_door.perception.procedures.word_for`).
+
+The **neutral pause** is, by default, one in which nobody holds the handle: the next
+interval's set comes into force during it, so the participant never feels a switch
+(a switch felt would itself be a cue). With a neutral set (``--neutral P``:
+:func:`neutral_values`) the pauses and the question render that set instead, a
+washout between the intervals, and each interval's set comes into force as the
+interval starts.
 
 Every switch goes through :meth:`ServoLoop.request_change
 <evo_door.render.loop.ServoLoop.request_change>`, the loop's checked change (the
 declaration's bounds, passivity at the loop period), as a **ramp**: ``ramp_steps``
-changes spread over the first ``ramp`` seconds of the phase, each a linear blend of
+changes spread over the first ``ramp`` seconds of its phase, each a linear blend of
 the set before and the set after (the loop applies a change whole between two
 cycles; the ramp keeps a large switch from being felt as a jolt, itself a cue). A
 change the loop refuses ends the session (status ``refused``) with every answer so
@@ -236,32 +244,43 @@ class Outcome:
 class JndSchedule:
     """The phases of a session's trials, run from the loop's ``on_cycle`` hook.
 
-    ``reference`` and ``neutral`` are ``{name: value}`` over the model; the
-    comparison set is the reference with ``session.param`` at the stimulus's value.
-    ``progress(text)`` is told each answered trial (without the step and whether
-    it was right for a blind participant).
+    ``reference`` is ``{name: value}`` over the model, and ``neutral`` too or None
+    (the pauses are let-go pauses: see the module docstring); the comparison set is
+    the reference with ``session.param`` at the stimulus's value. ``progress(text)``
+    is told each answered trial (without the step and whether it was right for a
+    blind participant).
     """
+
+    #: the phases of a trial, in order
+    PHASES = ("pause", "interval 1", "pause", "interval 2", "question")
 
     def __init__(self, loop, session, participant, reference, neutral, timing, stop, progress):
         self.loop = loop
         self.session = session
         self.participant = participant
         self.reference = dict(reference)
-        self.neutral = dict(neutral)
+        self.neutral = None if neutral is None else dict(neutral)
         self.timing = timing
         self.stop = stop
         self.progress = progress
         self.status = ""
         self.message = ""
         self._names = [p.name for p in PARAMS]
-        self._current = dict(self.neutral)  # the set the last change asked for
-        self._phase = -1  # 0..3: interval 1, pause, interval 2, question
+        # the set the last change asked for: the loop starts in the neutral set, or
+        # (let-go pauses) in the reference set
+        self._current = dict(self.neutral if self.neutral is not None else self.reference)
+        self._phase = -1  # index in PHASES
         self._phase_end = -math.inf  # loop time the phase ends (question: its ramp ends)
         self._ramp: tuple = ()  # (t0, from, to, changes done)
         self._stimulus = None
         self._refused = ""  # a change the worker's check refused (paced loops)
         self._queue: queue.SimpleQueue | None = None
         self._worker: threading.Thread | None = None
+        if self.neutral is None and timing.ramp > timing.pause:
+            raise UserError(
+                f"--pause {timing.pause:g}: the next interval's set comes in during the "
+                f"pause, which must last its ramp ({timing.ramp:g} s) at least"
+            )
         if loop.realtime:
             self._queue = queue.SimpleQueue()
             self._worker = threading.Thread(
@@ -304,7 +323,7 @@ class JndSchedule:
             self._step_ramp(t)
             if t < self._phase_end:
                 return
-            if self._phase == 3 and not self._answered(t):
+            if self._phase == len(self.PHASES) - 1 and not self._answered(t):
                 return
             if self.status:
                 return
@@ -342,41 +361,46 @@ class JndSchedule:
             self._finish(t, "complete", f"{n} trials answered")
         return True
 
+    def _interval_set(self, interval: int) -> dict:
+        """The set of interval 1 or 2 of the current trial."""
+        value = self._stimulus.values[interval - 1]
+        return {**self.reference, self.session.param: value}
+
     def _next_phase(self, t: float) -> None:
+        """Start the next phase at loop time ``t``: its switch (if any), its event, its
+        end; a new trial's stimulus at the first pause, the question at the last."""
         timing = self.timing
-        self._phase = (self._phase + 1) % 4
+        self._phase = (self._phase + 1) % len(self.PHASES)
+        phase = self.PHASES[self._phase]
         if self._phase == 0:
             self._stimulus = self.session.next_trial()
         stim = self._stimulus
         trial = len(self.session.answers) + 1
-        if self._phase in (0, 2):
-            interval = 1 if self._phase == 0 else 2
-            value = stim.values[interval - 1]
+        details: dict = {}
+        if phase == "pause":
+            if self.neutral is not None:
+                self._switch(t, self.neutral)
+            else:  # let go: the next interval's set comes in now
+                self._switch(t, self._interval_set(1 if self._phase == 0 else 2))
+            self._phase_end = t + timing.pause
+            text = f"trial {trial}: pause" + (" (neutral set)" if self.neutral else " (let go)")
+        elif phase == "question":
+            if self.neutral is not None:
+                self._switch(t, self.neutral)
+            self._phase_end = t + (timing.ramp if self.neutral is not None else 0.0)
+            self.participant.ask(stim, self.session.word)
+            text = f"trial {trial}: question"
+        else:
+            interval = 1 if phase == "interval 1" else 2
+            target = self._interval_set(interval)
+            if self.neutral is not None:
+                self._switch(t, target)
             holds = "comparison" if interval == stim.order else "reference"
-            target = {**self.reference, self.session.param: value}
-            self._switch(t, target)
-            self.loop.log.event(
-                t,
-                "jnd_switch",
-                f"trial {trial}: interval {interval} ({holds})",
-                trial=trial,
-                phase=f"interval {interval}",
-                holds=holds,
-                value=value,
-            )
+            details = {"holds": holds, "value": target[self.session.param]}
             self.participant.cue(f"trial {trial}: interval {interval}")
             self._phase_end = t + timing.interval
-            return
-        self._switch(t, self.neutral)
-        what = "pause" if self._phase == 1 else "question"
-        self.loop.log.event(
-            t, "jnd_switch", f"trial {trial}: {what} (neutral)", trial=trial, phase=what
-        )
-        if self._phase == 1:
-            self._phase_end = t + timing.pause
-        else:
-            self._phase_end = t + timing.ramp  # the next trial waits for the ramp
-            self.participant.ask(stim, self.session.word)
+            text = f"trial {trial}: interval {interval} ({holds})"
+        self.loop.log.event(t, "jnd_switch", text, trial=trial, phase=phase, **details)
 
     # -- switches ---------------------------------------------------------------------
     def _switch(self, t: float, target: dict) -> None:
