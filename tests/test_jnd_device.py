@@ -125,6 +125,8 @@ def test_out_exists_refused(tmp_path, capsys):
         (["--param", "open_force", "--reference", "500"], "open_force"),  # above its bound
         (["--param", "open_force", "--participant", "robot"], "--participant 'robot'"),
         (["--param", "open_force", "--trials", "5"], "--trials 5"),
+        (["--param", "open_force", "--supervisor-budget", "50"], "hapticmaster:// device"),
+        (["--param", "open_force", "--watchdog-misses", "0"], "--watchdog-misses 0"),
     ],
 )
 def test_bad_input_is_one_line(tmp_path, capsys, args, message):
@@ -279,3 +281,39 @@ def test_let_go_pauses_switch_only_while_nobody_holds_the_handle(tmp_path):
     pauses = [(e["t"], e["t"] + 0.05) for e in phases if e["phase"] == "pause"]
     for t in change_t[1:]:
         assert any(a - 1e-9 <= t <= b + 1e-9 for a, b in pauses), t
+
+
+@pytest.mark.slow
+def test_a_session_over_the_emulated_hapticmaster(tmp_path):
+    """The same session over real TCP to the HapticMaster's protocol emulator, paced on
+    the wall clock with the supervisor watching: complete, every answer in the file
+    and the log, the same steps as without a device."""
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "evo_door", "emulate", "hapticmaster", "--port", "0"]
+        + ["--user", "swing", "--damping", "2", "--seconds", "60"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        port = int(emulator.stdout.readline().split("127.0.0.1:")[1].split()[0])
+        log = tmp_path / "log.h5"
+        args = ["jnd", "--param", "viscous_damping", "--participant", "sim:0.2"]
+        args += ["--trials", "10", "--interval", "0.3", "--pause", "0.2", "--ramp", "0.05"]
+        args += ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
+        args += ["--rate", "1000", "--watchdog-misses", "50", "--supervisor-budget", "200"]
+        args += ["--out", str(tmp_path / "j.h5"), "--log", str(log), "--json"]
+        code = main(args)
+    finally:
+        emulator.terminate()
+        emulator.wait(10)
+    assert code == 0
+    record = read_jnd_file(tmp_path / "j.h5")
+    assert record.status == "complete" and record.device.startswith("hapticmaster://")
+    with open_h5(log) as f:
+        events = read_attrs(f["render"])["events"]
+    assert sum(e["kind"] == "jnd_answer" for e in events) == 10
+    plain = JndSession(
+        "viscous_damping", "N s/rad", record.reference, "staircase", 10, seed=[0, 0], upper=100.0
+    )
+    run_simulated(plain, SimParticipant(0.2, seed=[0, 1]))
+    np.testing.assert_array_equal(record.trials["step"], plain.table()["step"])

@@ -15,6 +15,7 @@ from evo_door.commands._common import (
     declare_ranges,
 )
 from evo_door.errors import UserError
+from evo_door.render.supervisor import BUDGET, BUDGET_RANGE
 
 ORDER = 61
 
@@ -29,6 +30,8 @@ RANGES = {
     "--rate": Range(100, 5000, "Hz"),
     "--log-rate": Range(1, "--rate", "Hz"),
     "--device-damping": DEVICE_DAMPING,
+    "--watchdog-misses": Range(1, 1000, "cycles", integer=True),
+    "--supervisor-budget": Range(BUDGET_RANGE[0] * 1e3, BUDGET_RANGE[1] * 1e3, "ms"),
 }
 
 
@@ -94,6 +97,20 @@ def register(sub) -> None:
         "--realtime",
         action="store_true",
         help="pace the simulated device on the wall clock (implied by a person answering)",
+    )
+    p.add_argument(
+        "--watchdog-misses",
+        type=int,
+        default=10,
+        metavar="N",
+        help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
+    )
+    p.add_argument(
+        "--supervisor-budget",
+        type=float,
+        metavar="MS",
+        help="a HapticMaster's supervisor takes the force off when the loop has not beaten "
+        f"for this long (ms; default {BUDGET * 1e3:g}); a session always has a supervisor",
     )
     p.add_argument("--json", action="store_true", help="print the estimate as one JSON object")
     p.add_argument("--out", required=True, metavar="J.h5", help="the JND file to write")
@@ -169,6 +186,8 @@ def run(args) -> int:
     from evo_door.render.jnd import JndTiming
 
     check_ranges(args)
+    if args.supervisor_budget is not None and not args.device.startswith("hapticmaster://"):
+        raise UserError("--supervisor-budget goes with a hapticmaster:// device")
     timing = JndTiming(args.interval, args.pause, args.ramp)
     params, neutral, declared, reference = _sets(args)
     claim = claim_outputs(
@@ -206,11 +225,13 @@ def _run_session(args, params, neutral, session, participant, timing, claim) -> 
         log_rate=args.log_rate or min(1000.0, args.rate),
         realtime=paced,
         device_name=name,
+        watchdog_misses=args.watchdog_misses,
     )
     if args.device.startswith("hapticmaster://"):
         from evo_door.render.supervised import start_supervisor
 
-        loop.supervisor = start_supervisor(device, loop, None)
+        budget = None if args.supervisor_budget is None else args.supervisor_budget / 1e3
+        loop.supervisor = start_supervisor(device, loop, budget)
     if args.log:
         loop.log.spill_to(args.log, loop_rate=loop.rate, device=name)
     else:
