@@ -212,3 +212,41 @@ def test_stop_ends_a_session_and_puts_the_starting_set_back(console, renderer, t
     assert kinds == ["jnd_start", "jnd_trial", "jnd_end"]  # no answer: no file
     assert _events(loop, "jnd_end")[0]["status"] == "stopped"
     assert not list(tmp_path.glob("*.h5"))
+
+
+def test_a_console_shut_down_mid_session_writes_what_was_answered(renderer, tmp_path):
+    """Closing the console while a session runs (its process told to stop) loses no
+    answer: the session ends "stopped", its file holds every answer so far, and the
+    starting set is back in force on the renderer."""
+    from evo_door.render.console.server import ConsoleServer
+
+    loop, control = renderer
+    start = loop.params.as_dict()
+    served = base._Served(ConsoleServer(control.address, base.TOKEN, "127.0.0.1", 0, tmp_path))
+    closed = False
+    try:
+
+        async def scenario(session):
+            seen: list[dict] = []
+            async with _page(served, session) as ws:
+                await ws.send_json(
+                    {"type": "jnd_start", "param": PARAM, "trials": 20, "seed": 2}
+                    | {"interval_s": 0.05, "pause_s": 0.05, "blind": False}
+                )
+                for _ in range(3):
+                    await _until_phase(ws, "answer", seen)
+                    await ws.send_json({"type": "jnd_answer", "answer": 1})
+                await _until_phase(ws, "1", seen)  # the fourth trial is playing
+
+        _session(scenario)
+        served.close()
+        closed = True
+    finally:
+        if not closed:
+            served.close()
+    (path,) = tmp_path.glob("jnd-*.h5")
+    record = read_jnd_file(path)
+    assert record.status == "stopped" and record.trials["answer"].tolist() == [1, 1, 1]
+    assert record.fit is None  # 3 answers: too few to fit, kept all the same
+    assert _events(loop, "jnd_end")[-1]["status"] == "stopped"
+    assert loop.params.as_dict() == start

@@ -35,6 +35,7 @@ correct, step, order, time), ``jnd_end`` (status and fit) and ``jnd_save`` (the 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import difflib
 import math
 import secrets
@@ -325,16 +326,17 @@ class JndRun:
             loop = asyncio.get_running_loop()
             self.fit = await loop.run_in_executor(None, self.session.fit)
         f = self.fit
-        await self.console.event(
-            "jnd_end",
-            status=status,
-            param=self.settings.param,
-            answers=len(self.session.answers),
-            weber=f.weber if f else None,
-            ci95=list(f.ci95) if f else None,
-            slope=f.slope if f else None,
-            lapse=f.lapse if f else None,
-        )
+        with contextlib.suppress(UserError, OSError):  # a renderer gone: the file still
+            await self.console.event(
+                "jnd_end",
+                status=status,
+                param=self.settings.param,
+                answers=len(self.session.answers),
+                weber=f.weber if f else None,
+                ci95=list(f.ci95) if f else None,
+                slope=f.slope if f else None,
+                lapse=f.lapse if f else None,
+            )
         try:
             if self.session.answers:
                 await self._save()
@@ -382,7 +384,8 @@ class JndRun:
             path.unlink(missing_ok=True)
             raise
         self.path = str(path)
-        await console.event("jnd_save", path=self.path)
+        with contextlib.suppress(UserError, OSError):  # written: the event is a record
+            await console.event("jnd_save", path=self.path)
 
     async def stop(self) -> None:
         """The operator's stop (the caller holds the action lock)."""

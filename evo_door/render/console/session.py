@@ -40,6 +40,8 @@ CONNECT_WAIT = 10.0
 UNDO_DEPTH = 1000
 #: seconds of rows a page gets in its hello
 HISTORY_S = 10.0
+#: s a shutdown waits for a running JND session to write what was answered
+STOP_JND_S = 10.0
 #: log rows per second the control port counts in (its ``since``)
 LOG_ROWS_HZ = 1000.0
 #: actions a second of all pages together, and at once: each is one to three requests
@@ -127,11 +129,21 @@ class Console:
         """Held by each page action, and by a JND session while it changes the set."""
         return self._actions
 
+    async def _stop_jnd(self) -> None:
+        assert self.jnd is not None
+        async with self.action_lock:
+            await self.jnd.stop()
+
     def visible(self, params: dict[str, float]) -> dict[str, float]:
         """``params`` as the pages may see them (a blind JND session hides its step)."""
         return self.jnd.visible(params) if self.jnd is not None else params
 
     async def stop(self) -> None:
+        if self.jnd is not None and self.jnd.running:
+            # the console shuts down mid-session: the answers so far are written (a
+            # stopped session's file), the starting set put back, within a bound
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(self._stop_jnd(), timeout=STOP_JND_S)
         if self.jnd is not None and self.jnd.task is not None:
             self.jnd.task.cancel()
         for task in self._tasks:
