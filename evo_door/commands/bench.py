@@ -28,7 +28,7 @@ def register(sub) -> None:
         "--only",
         metavar="SECTION[,SECTION]",
         help="only these sections: trial, ga, scaling, executors, device, startup, casestudy, "
-        "seeds, control, fmu",
+        "seeds, control, fmu, jnd",
     )
     p.add_argument(
         "--out", metavar="DIR", help="folder of the results (default benchmarks/results/)"

@@ -57,14 +57,19 @@ def register(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
+    from evo_door.errors import NotResultsFileError
     from evo_door.experiment.pipeline import pipeline_summary
     from evo_door.experiment.reader import read_results
     from evo_door.experiment.report import default_folder, pipeline_settings, write_report
     from evo_door.files import Output, claim_outputs
     from evo_door.perception.jnd_file import is_jnd_file
 
-    if is_jnd_file(args.results):
-        return _report_jnd(args)
+    try:
+        record = read_results(args.results)  # the one open of a results file
+    except NotResultsFileError:
+        if is_jnd_file(args.results):
+            return _report_jnd(args)
+        raise
 
     def log(text):
         if sys.stderr.isatty():
@@ -74,7 +79,6 @@ def run(args) -> int:
     # says so); the folder is made if need be, never where the results file is
     folder = Path(args.out) if args.out else default_folder(args.results)
     claim = claim_outputs([Output(folder / "report.html", makes_folder=True)], [args.results])
-    record = read_results(args.results)  # the one open of the file
     settings = pipeline_settings(
         record, pipeline_summary(record), args.jnd, args.force_floor, args.jnd_file
     )

@@ -44,11 +44,11 @@ def run(args) -> int:
     from evo_door.perception.jnd_file import is_jnd_file
     from evo_door.render.session import format_session, is_render_log, read_session
 
-    if is_jnd_file(args.results):
-        return _show_jnd(args)
     try:
         record = read_results(args.results)  # the one open of a results file
     except NotResultsFileError:
+        if is_jnd_file(args.results):
+            return _show_jnd(args)
         if not is_render_log(args.results):
             raise
         return _show_session(args, format_session, read_session)
