@@ -298,7 +298,7 @@ def test_a_session_over_the_emulated_hapticmaster(tmp_path):
         port = int(emulator.stdout.readline().split("127.0.0.1:")[1].split()[0])
         log = tmp_path / "log.h5"
         args = ["jnd", "--param", "viscous_damping", "--participant", "sim:0.2"]
-        args += ["--trials", "10", "--interval", "0.3", "--pause", "0.2", "--ramp", "0.05"]
+        args += ["--trials", "10", "--interval", "0.15", "--pause", "0.1", "--ramp", "0.05"]
         args += ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
         args += ["--rate", "1000", "--watchdog-misses", "50", "--supervisor-budget", "200"]
         args += ["--out", str(tmp_path / "j.h5"), "--log", str(log), "--json"]
