@@ -60,7 +60,7 @@ REQUIRED = (
     "control.flood.memory_growth",
     "control.flood.events_kept",
     "jnd.staircase.40.within",
-    "jnd.quest.160.coverage",
+    "jnd.quest.40.coverage",
     "jnd.quest.40.bias",
 )
 
