@@ -654,3 +654,33 @@ def test_a_set_refused_for_its_rate_is_a_refused_message(console, renderer):
     refused = _session(scenario)
     assert refused["ok"] is False and "messages of type 'set'" in refused["error"]
     assert refused["values"]["open_force"] in (20.0, 21.0)
+
+
+def test_a_task_that_swallows_a_cancellation_is_still_stopped():
+    """Python 3.11's asyncio.wait_for can swallow a cancellation that arrives with the
+    answer (the console's polling loops await it): one cancel then left the loop
+    running and the console's stop hung. cancel_and_wait cancels until it ends."""
+    from evo_door.render.console.client import cancel_and_wait
+
+    async def stubborn(swallow: int):
+        while True:
+            try:
+                await asyncio.sleep(0.01)
+            except asyncio.CancelledError:
+                if swallow == 0:
+                    raise
+                swallow -= 1  # as wait_for does when the answer came first
+
+    async def scenario():
+        once = asyncio.get_running_loop().create_task(stubborn(1))
+        await asyncio.sleep(0.02)
+        once.cancel()  # the old way: one cancel, then wait
+        done, _ = await asyncio.wait({once}, timeout=0.2)
+        assert not done  # still running: a stop awaiting it would hang
+        await asyncio.wait_for(cancel_and_wait(once), 2.0)
+        twice = asyncio.get_running_loop().create_task(stubborn(3))
+        await asyncio.sleep(0.02)
+        await asyncio.wait_for(cancel_and_wait(twice, every=0.01), 2.0)
+        return once.cancelled() and twice.cancelled()
+
+    assert asyncio.run(scenario())

@@ -49,6 +49,7 @@ from evo_door.models.haptic import PARAMS
 from evo_door.perception.jnd_file import write_jnd_file
 from evo_door.perception.procedures import METHODS, JndSession
 from evo_door.perception.psychometric import Fit
+from evo_door.render.console.client import cancel_and_wait
 from evo_door.render.console.page import error
 from evo_door.render.console.saving import safe_stem, unused_path
 from evo_door.render.console.sensations import sensation_names
@@ -389,12 +390,8 @@ class JndRun:
 
     async def stop(self) -> None:
         """The operator's stop (the caller holds the action lock)."""
-        if self.task is not None and not self.task.done():
-            self.task.cancel()
-            try:
-                await self.task
-            except asyncio.CancelledError:
-                pass
+        if self.task is not None:
+            await cancel_and_wait(self.task)
         await self.finish("stopped")
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
 from evo_door.render.console.actions import ACTIONS, PAGE_KINDS
-from evo_door.render.console.client import ControlClient
+from evo_door.render.console.client import ControlClient, cancel_and_wait
 from evo_door.render.console.jnd_mode import BLOCKED, JndRun
 from evo_door.render.console.page import Page, dumps, error, one_line, refused
 from evo_door.render.console.saving import MAX_ID
@@ -145,12 +145,9 @@ class Console:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self._stop_jnd(), timeout=STOP_JND_S)
         if self.jnd is not None and self.jnd.task is not None:
-            self.jnd.task.cancel()
+            await cancel_and_wait(self.jnd.task)
         for task in self._tasks:
-            task.cancel()
-        for task in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            await cancel_and_wait(task)
         for page in list(self.pages):
             page.task.cancel()
             with contextlib.suppress(Exception):
