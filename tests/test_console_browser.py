@@ -504,7 +504,7 @@ def test_every_value_the_page_sent_is_within_the_declaration(session, page):
 
 # -- a JND session -----------------------------------------------------------------------
 JND_PARAM = "friction_closing"  # N: 10 N in force since the slider test
-JND_TRIALS = 16  # enough for a fit and a track; each trial is about 1 s
+JND_TRIALS = 12  # enough for a fit and a track; each trial is about 1 s
 JND_WEBER = 0.15  # the simulated participant's
 
 

@@ -83,7 +83,6 @@ def _reference_fit(steps, correct):
     return best
 
 
-@pytest.mark.numerics
 def test_the_fit_is_the_maximum_likelihood_an_independent_solver_finds():
     rng = np.random.default_rng(4)
     truth = Psychometric(0.12, slope=0.45, lapse=0.0)
