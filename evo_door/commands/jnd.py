@@ -14,8 +14,8 @@ from evo_door.commands._common import (
     check_ranges,
     declare_ranges,
 )
+from evo_door.commands.render import WATCHDOG_RANGES, add_watchdog_arguments
 from evo_door.errors import UserError
-from evo_door.render.supervisor import BUDGET, BUDGET_RANGE
 
 ORDER = 61
 
@@ -30,8 +30,7 @@ RANGES = {
     "--rate": Range(100, 5000, "Hz"),
     "--log-rate": Range(1, "--rate", "Hz"),
     "--device-damping": DEVICE_DAMPING,
-    "--watchdog-misses": Range(1, 1000, "cycles", integer=True),
-    "--supervisor-budget": Range(BUDGET_RANGE[0] * 1e3, BUDGET_RANGE[1] * 1e3, "ms"),
+    **WATCHDOG_RANGES,
 }
 
 
@@ -98,20 +97,7 @@ def register(sub) -> None:
         action="store_true",
         help="pace the simulated device on the wall clock (implied by a person answering)",
     )
-    p.add_argument(
-        "--watchdog-misses",
-        type=int,
-        default=10,
-        metavar="N",
-        help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
-    )
-    p.add_argument(
-        "--supervisor-budget",
-        type=float,
-        metavar="MS",
-        help="a HapticMaster's supervisor takes the force off when the loop has not beaten "
-        f"for this long (ms; default {BUDGET * 1e3:g}); a session always has a supervisor",
-    )
+    add_watchdog_arguments(p, "a session always has a supervisor")
     p.add_argument("--json", action="store_true", help="print the estimate as one JSON object")
     p.add_argument("--out", required=True, metavar="J.h5", help="the JND file to write")
     p.add_argument(

@@ -36,11 +36,34 @@ RANGES = {
     "--log-rate": Range(1, "--rate", "Hz"),
     "--device-damping": DEVICE_DAMPING,
     "--console-port": PORT,
-    "--watchdog-misses": Range(1, 1000, "cycles", integer=True),
     "--seed": Range(0, 2**32 - 1, integer=True),  # numpy's seeds
     "--token": TOKEN,
+}
+#: the ranges of the watchdog's and the supervisor's flags (:func:`add_watchdog_arguments`)
+WATCHDOG_RANGES = {
+    "--watchdog-misses": Range(1, 1000, "cycles", integer=True),
     "--supervisor-budget": Range(BUDGET_RANGE[0] * 1e3, BUDGET_RANGE[1] * 1e3, "ms"),
 }
+RANGES.update(WATCHDOG_RANGES)
+
+
+def add_watchdog_arguments(p, budget_note: str) -> None:
+    """``--watchdog-misses`` and ``--supervisor-budget``, as ``render`` and ``jnd`` take
+    them; ``budget_note`` ends the budget's help."""
+    p.add_argument(
+        "--watchdog-misses",
+        type=int,
+        default=10,
+        metavar="N",
+        help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
+    )
+    p.add_argument(
+        "--supervisor-budget",
+        type=float,
+        metavar="MS",
+        help="a HapticMaster's supervisor takes the force off when the loop has not beaten "
+        f"for this long (ms; default {BUDGET * 1e3:g}; {budget_note})",
+    )
 
 
 def register(sub) -> None:
@@ -143,21 +166,7 @@ def register(sub) -> None:
         "without --duration; a real device always is); else --duration S of simulated "
         "time runs as fast as the machine allows",
     )
-    p.add_argument(
-        "--watchdog-misses",
-        type=int,
-        default=10,
-        metavar="N",
-        help="consecutive late cycles that trip the watchdog (default 10; 1..1000)",
-    )
-    p.add_argument(
-        "--supervisor-budget",
-        type=float,
-        metavar="MS",
-        help="a HapticMaster's supervisor takes the force off when the loop has not beaten "
-        f"for this long (ms; default {BUDGET * 1e3:g}; "
-        f"{BUDGET_RANGE[0] * 1e3:g}..{BUDGET_RANGE[1] * 1e3:g})",
-    )
+    add_watchdog_arguments(p, f"{BUDGET_RANGE[0] * 1e3:g}..{BUDGET_RANGE[1] * 1e3:g}")
     p.add_argument(
         "--no-supervisor",
         action="store_true",
