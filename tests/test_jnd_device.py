@@ -316,3 +316,12 @@ def test_a_session_over_the_emulated_hapticmaster(tmp_path):
     )
     run_simulated(plain, SimParticipant(0.2, seed=[0, 1]))
     np.testing.assert_array_equal(record.trials["step"], plain.table()["step"])
+
+
+def test_a_binary_parameter_file_is_one_line(tmp_path, capsys):
+    binary = tmp_path / "bin.yaml"
+    binary.write_bytes(bytes(range(256)) * 2)
+    assert jnd(tmp_path, "--param", "open_force", "--params", str(binary)) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not a parameter file" in err
+    assert not (tmp_path / "j.h5").exists()
