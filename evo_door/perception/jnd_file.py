@@ -279,12 +279,17 @@ def measured_jnd(base: JND, files=(), table: dict | None = None) -> tuple[JND, d
     return replace(base, **values), sources
 
 
-def fitted_curve(record: JndRecord, n: int = 200) -> tuple[np.ndarray, np.ndarray]:
-    """The fitted psychometric function over the session's steps: (step, P(correct))."""
-    steps = record.trials["step"]
-    fit = record.fit
+def curve_points(steps, fit: Fit | None, n: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted psychometric function from half the smallest step (or estimate) to
+    twice the largest, ``n`` log-spaced points: (step, P(correct))."""
+    steps = np.asarray(steps, dtype=float)
     lo = min(float(steps.min()), fit.weber if fit else 1.0) / 2.0
     hi = max(float(steps.max()), fit.weber if fit else 1.0) * 2.0
     x = np.geomspace(lo, hi, n)
     f = fit.function if fit else Psychometric(1.0)
     return x, f.p_correct(x)
+
+
+def fitted_curve(record: JndRecord, n: int = 200) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted psychometric function over a JND file's steps: (step, P(correct))."""
+    return curve_points(record.trials["step"], record.fit, n)

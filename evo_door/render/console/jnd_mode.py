@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING
 
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
-from evo_door.perception.jnd_file import write_jnd_file
+from evo_door.perception.jnd_file import curve_points, write_jnd_file
 from evo_door.perception.procedures import METHODS, JndSession
 from evo_door.perception.psychometric import Fit
 from evo_door.render.console.client import cancel_and_wait
@@ -213,14 +213,11 @@ class JndRun:
         }
         if self.fit is not None and not self.hidden:
             f = self.fit
-            steps = [st.step for st in self.session.stimuli]
-            lo = min(min(steps), f.weber) / 2.0
-            hi = max(max(steps), f.weber) * 2.0
-            x = [lo * (hi / lo) ** (k / (CURVE_POINTS - 1)) for k in range(CURVE_POINTS)]
+            x, p = curve_points([st.step for st in self.session.stimuli], f, CURVE_POINTS)
             out["fit"] = {
                 **f.as_dict(),
                 "jnd": f.weber * s.reference,
-                "curve": {"step": x, "p_correct": [float(v) for v in f.function.p_correct(x)]},
+                "curve": {"step": x.tolist(), "p_correct": p.tolist()},
             }
         return out
 
