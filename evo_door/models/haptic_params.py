@@ -24,6 +24,10 @@ DEVICE_OFFSET_Y = 0.158
 DEVICE_OFFSET_Z = 0.138
 
 _DEG = math.pi / 180.0
+#: Largest balance force (N) either way: half the weight of a heavy 10 kg door, its
+#: whole push at the handle with no spring at all (docs/haptic-model.md, "Bounds that
+#: keep a hand safe").
+BALANCE_LIMIT = 50.0
 
 PARAMS = ParamTable(
     "haptic",
@@ -78,8 +82,8 @@ PARAMS = ParamTable(
                 f"balance_{k}",
                 "N",
                 0.0,
-                -100.0,
-                100.0,
+                -BALANCE_LIMIT,
+                BALANCE_LIMIT,
                 "sensation",
                 f"the door's own push at rest at {(k - 1) * 90 / N_SECTIONS:g} deg, + toward "
                 "closing (weight and springs); linear between the nine angles",
