@@ -19,6 +19,7 @@ from evo_door.commands._common import (
 )
 from evo_door.errors import UserError
 from evo_door.render.console.process import start_console, stop_console
+from evo_door.render.hands_off import HANDS_OFF_RANGE, HANDS_OFF_SPEED
 from evo_door.render.stopping import STOPPED, stop_on_ctrl_c, write_interrupted
 from evo_door.render.summary import summary_lines
 from evo_door.render.supervisor import BUDGET, BUDGET_RANGE
@@ -37,6 +38,7 @@ RANGES = {
     "--device-damping": DEVICE_DAMPING,
     "--console-port": PORT,
     "--seed": Range(0, 2**32 - 1, integer=True),  # numpy's seeds
+    "--hands-off-speed": Range(*HANDS_OFF_RANGE, "rad/s"),
     "--token": TOKEN,
 }
 #: the ranges of the watchdog's and the supervisor's flags (:func:`add_watchdog_arguments`)
@@ -116,6 +118,16 @@ def register(sub) -> None:
         action="store_true",
         help="scale down a parameter set the device cannot render passively (logged) "
         "instead of refusing it",
+    )
+    p.add_argument(
+        "--hands-off-speed",
+        type=float,
+        default=HANDS_OFF_SPEED,
+        metavar="RAD_S",
+        help="refuse a parameter set (the first, and every change pushed) whose door, "
+        "released from rest anywhere in its stroke with no hand on it, moves faster than "
+        f"this (rad/s; default {HANDS_OFF_SPEED:g}; {HANDS_OFF_RANGE[0]:g}.."
+        f"{HANDS_OFF_RANGE[1]:g})",
     )
     p.add_argument(
         "--device-damping",
@@ -231,6 +243,7 @@ def run(args) -> int:
         device_name=name,
         friction=args.friction,
         watchdog_misses=args.watchdog_misses,
+        hands_off_speed=args.hands_off_speed,
     )
     loop.supervisor = _start_supervisor(args, device, loop)
     try:

@@ -23,7 +23,7 @@ A simulated device runs in simulated time, as fast as the machine allows, unless
 and the period statistics (:mod:`evo_door.render.timing`: mean period, p99 lateness,
 missed cycles) say how well it kept time.
 
-Size: a little over 600 lines, one class: its parameter changes, its statistics and
+Size: under 700 lines, one class: its parameter changes, its statistics and
 the cycle belong together (the cycle reads the set in force and feeds the statistics);
 the kernels, pacing, timing and log are already modules of their own.
 """
@@ -39,6 +39,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.models.haptic import FRICTION_CLOSING, FRICTION_OPENING, PARAMS
 from evo_door.params import param_vector
+from evo_door.render.hands_off import HANDS_OFF_RANGE, check_hands_off
 from evo_door.render.kernels import compute_command, compute_command_implicit
 from evo_door.render.log import N_COLUMNS, RenderLog
 from evo_door.render.priority import Pacing
@@ -97,6 +98,15 @@ def _check_settings(rate, params, log_rate, ramp_time, friction) -> None:
         raise UserError(f"--friction {friction!r}: choose one of {', '.join(FRICTION_LAWS)}")
 
 
+def _check_hands_off_speed(limit) -> None:
+    """A UserError unless ``limit`` is None or a speed within :data:`HANDS_OFF_RANGE`."""
+    if limit is None:
+        return
+    lo, hi = HANDS_OFF_RANGE
+    if not (math.isfinite(limit) and lo <= limit <= hi):
+        raise UserError(f"--hands-off-speed {limit:g}: give a speed in {lo:g}..{hi:g} rad/s")
+
+
 class ServoLoop:
     """Renders a haptic parameter set on ``device``.
 
@@ -105,7 +115,8 @@ class ServoLoop:
     device : Device
         Any object with the :class:`~evo_door.render.device.Device` methods.
     params : ParamSet
-        The haptic model's parameter set (checked for passivity at the loop period).
+        The haptic model's parameter set (checked for passivity at the loop period,
+        and against ``hands_off_speed``).
     rate : float
         Loop rate (Hz), default the HapticMaster's 2500.
     log_rate : float
@@ -124,6 +135,12 @@ class ServoLoop:
         The process that takes the force off a real device when the loop stops
         beating (:class:`~evo_door.render.supervisor.Supervisor`): armed before the
         first cycle, beaten every cycle, disarmed before the device is stopped.
+    hands_off_speed : float or None
+        Refuse a set (the first and every change) whose door, released from rest
+        anywhere with no hand on it, moves faster than this (rad/s;
+        :func:`~evo_door.render.hands_off.check_hands_off`); None: not checked.
+        ``evo-door render`` passes its ``--hands-off-speed`` (default
+        :data:`~evo_door.render.hands_off.HANDS_OFF_SPEED`).
     """
 
     def __init__(
@@ -140,8 +157,11 @@ class ServoLoop:
         device_name: str = "",
         friction: str = "implicit",
         supervisor=None,
+        hands_off_speed: float | None = None,
     ):
         _check_settings(rate, params, log_rate, ramp_time, friction)
+        _check_hands_off_speed(hands_off_speed)
+        self.hands_off_speed = None if hands_off_speed is None else float(hands_off_speed)
         self.friction = friction
         self.device = device
         self.device_name = device_name or type(device).__name__
@@ -166,6 +186,7 @@ class ServoLoop:
         self._native: tuple[str, ...] = ()
         self.timing = LoopTiming(self.period)
         self.params, changes = self._passive(renderable(params))
+        self._hands_off(self.params)
         self._clamp_note = changes
         self._set_vectors()
         self._mass = self.params["inertia"] / self.params["radius"]
@@ -189,10 +210,10 @@ class ServoLoop:
     def request_change(self, values: dict):
         """Validate ``values`` {name: SI value}; on success they apply between two cycles.
 
-        All or nothing: a value outside its declaration, an unknown name or a set that
-        is not passive at the loop period (unless the loop clamps) raises a UserError
-        with the reason, and the running set stays as it was. Returns the new set
-        (after any clamp).
+        All or nothing: a value outside its declaration, an unknown name, a set that
+        is not passive at the loop period (unless the loop clamps) or whose door moves
+        faster than ``hands_off_speed`` on its own raises a UserError with the reason,
+        and the running set stays as it was. Returns the new set (after any clamp).
         """
         with self._changing:  # concurrent callers (control port, keys) queue here
             with self._lock:
@@ -201,6 +222,7 @@ class ServoLoop:
             try:
                 new = base.replace(dict(values), source=CHANGE)
                 new, changes = self._passive(renderable(new))
+                self._hands_off(new)
             except UserError as exc:
                 self.log.client_event(self._now, "refused", str(exc), values=dict(values))
                 raise
@@ -255,6 +277,11 @@ class ServoLoop:
         """Colgate-Schenkel at the period in force, without what is not sampled explicitly."""
         exclude = self.exclude | frozenset(self._native)
         return check_passive(params, self.damping, self._check_period, self.clamp, exclude)
+
+    def _hands_off(self, params) -> None:
+        """A UserError if the door of ``params`` moves too fast with no hand on it."""
+        if self.hands_off_speed is not None:
+            check_hands_off(params, self.hands_off_speed)
 
     def _apply_pending(self, t: float) -> None:
         with self._lock:

@@ -9,6 +9,9 @@
   device units (N/m), ``B`` its most negative virtual damping (N s/m) and ``T`` the
   loop period (s). A set that fails is refused with the reason, or, when asked,
   clamped (its stiffnesses scaled down) and the clamp reported.
+- :func:`~evo_door.render.hands_off.check_hands_off` (its own module, light enough
+  for the command line's flags): the door a set describes, released from rest
+  anywhere in its stroke with no hand on it, must not move faster than a limit.
 - :class:`Watchdog`: after ``misses`` consecutive late cycles, or when the device
   connection drops, the force ramps to zero within ``ramp_time`` (10 ms) and the
   device is stopped.
