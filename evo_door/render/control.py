@@ -44,7 +44,8 @@ bounds. They go into the log's events and, through them, its session record
 (:mod:`evo_door.render.session`).
 
 A change goes through :meth:`ServoLoop.request_change`: it is checked against the
-declaration and the passivity condition at the measured loop period, and comes into
+declaration, the passivity condition at the measured loop period and the hands-off
+speed (:mod:`evo_door.render.hands_off`), and comes into
 force whole between two cycles, or is refused and the set in force stays as it was;
 ``in_force`` says whether the loop had applied it when the answer left (it waits up
 to 0.5 s; a loop that is not running yet applies it at its first cycle). The log

@@ -10,10 +10,10 @@ changed (``source`` ``"push"`` when no page caused it, ``evo-door push`` for one
 
 Every change a page asks for is checked here first (declared sensation names, finite
 numbers within their bounds), then sent as a control-port ``set``, which the renderer
-checks again (bounds, passivity) and applies between two cycles, or refuses: the
-page then gets ``refused`` with the reason and nothing changes. The undo stack (the
-whole sets in force before each accepted change), the A/B slots and the participant
-live here; each session step goes to the renderer's log as an ``event``.
+checks again (bounds, passivity, the hands-off speed) and applies between two cycles,
+or refuses: the page then gets ``refused`` with the reason and nothing changes. The
+undo stack (the whole sets in force before each accepted change), the A/B slots and
+the participant live here; each session step goes to the renderer's log as an ``event``.
 
 Security: the server binds 127.0.0.1 unless told otherwise, and any other address
 requires a token. With a token, every request needs it, in the query (``?token=T``)
