@@ -19,7 +19,8 @@ def register(sub) -> None:
         "only the values that differ from the running set are sent) and/or single "
         "values (--set NAME=VALUE, SI units) to a renderer's control port. The renderer "
         "checks them against the declaration, the passivity condition and its hands-off "
-        "speed (render --hands-off-speed) and applies them together between two cycles, or refuses them all and says why.",
+        "speed (render --hands-off-speed) and applies them together between two cycles, "
+        "or refuses them all and says why.",
     )
     p.add_argument("file", nargs="?", metavar="P.yaml", help="parameter file or preset name")
     p.add_argument(
