@@ -24,7 +24,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.files import ATTRS, Dataset
 from evo_door.perception import JND, FeelCurve, check_verdict, model_curve, perceptual_check
-from evo_door.perception.feel import DIRECTIONS, PASS_FRACTION
+from evo_door.perception.feel import DIRECTIONS
 
 #: the units of the settings and of the curves' datasets, as the file records them
 _CURVE_UNITS = {"theta": "rad", "opening": "N", "closing": "N"}
@@ -35,14 +35,17 @@ class FeelCheck:
     """A run's answer against the chosen feel: both curves and the JND they are judged by.
 
     ``mechanism`` is the answer's force-angle curve, ``chosen`` the chosen feel's (their
-    ``source`` says what each is), ``jnd`` the run's JND settings; ``recorded`` says
-    whether the file holds the group (False: computed when the file was read).
+    ``source`` says what each is), ``jnd`` the run's JND settings; ``dynamics`` the felt
+    inertia (kg m) and damping (N s/rad) of both, ``{"inertia": (mechanism, chosen)}``,
+    where the chosen feel has them (None: a bare curve, or a file written before they
+    were judged); ``recorded`` says whether the file holds the group (False: computed
+    when the file was read).
     """
 
     mechanism: FeelCurve
     chosen: FeelCurve
     jnd: JND
-    pass_fraction: float = PASS_FRACTION
+    dynamics: dict | None = None
     recorded: bool = True
 
     def check(self, jnd: JND | None = None) -> dict:
@@ -54,12 +57,19 @@ class FeelCheck:
         JND, the worst difference and the verdict; the JND settings and their units; the
         sources of both curves. ``jnd`` judges it under other settings than the run's."""
         jnd = jnd or self.jnd
-        out = check_verdict(self.check(jnd), jnd, self.pass_fraction)
+        out = check_verdict(self.check(jnd), jnd, self.judged_dynamics(jnd))
         out["jnd_units"] = dict(JND.UNITS)
         out["mechanism"] = self.mechanism.source
         out["chosen"] = self.chosen.source
         out["recorded"] = self.recorded
         return out
+
+    def judged_dynamics(self, jnd: JND) -> dict | None:
+        """The felt dynamics with their JNDs under ``jnd``, as check_verdict takes them."""
+        if not self.dynamics:
+            return None
+        limit = {"inertia": jnd.inertia_threshold, "damping": jnd.damping_threshold}
+        return {k: (m, c, limit[k](c)) for k, (m, c) in self.dynamics.items()}
 
     def to_tree(self) -> dict:
         """The ``perceptual_check`` group: the verdict and the JND as attributes, each
@@ -68,7 +78,7 @@ class FeelCheck:
         return {
             ATTRS: {
                 "jnd": json.dumps(self.jnd.as_dict()),
-                "pass_fraction": float(self.pass_fraction),
+                "dynamics": json.dumps(self.dynamics),
                 "passes": bool(verdict["passes"]),
                 "verdict": json.dumps({d: verdict[d] for d in DIRECTIONS}),
             },
@@ -84,7 +94,7 @@ class FeelCheck:
             mechanism=_curve_from_tree(node["mechanism"]),
             chosen=_curve_from_tree(node["chosen"]),
             jnd=JND.from_mapping(json.loads(a["jnd"])),
-            pass_fraction=float(a["pass_fraction"]),
+            dynamics=json.loads(a.get("dynamics") or "null"),
             recorded=True,
         )
 
@@ -126,10 +136,13 @@ def run_jnd(config: dict, feel=None) -> JND:
 
 def default_source(setting: str) -> str:
     """The source of a JND setting left at its default: a Weber fraction's is the
-    literature's; a floor's and a typical speed's, the project's choice."""
+    literature's, and so is the position JND's; a floor's, a typical speed's and the
+    handle's radius, the project's choice."""
     from evo_door.perception.jnd_file import LITERATURE, WEBER_SETTINGS
 
-    return LITERATURE if setting in WEBER_SETTINGS else "default (docs/perception.md)"
+    if setting in WEBER_SETTINGS or setting == "position":
+        return LITERATURE
+    return "default (docs/perception.md)"
 
 
 def run_jnd_sources(config: dict) -> dict[str, str]:
@@ -188,11 +201,14 @@ def feel_check(model, full, config: dict, feel=None, recorded: bool = True) -> F
     """
     if not fitted_to_feel(config):
         return None
-    mechanism = model_curve(
-        model, np.asarray(full, dtype=np.float64), source=f"{model.name} model (the answer)"
-    )
+    full = np.asarray(full, dtype=np.float64)
+    mechanism = model_curve(model, full, source=f"{model.name} model (the answer)")
+    dynamics = None
+    if feel is not None and feel.dynamics is not None:
+        got = feel.dynamics_check(model, full)
+        dynamics = {k: (float(m), float(c)) for k, (m, c, _) in got.items()}
     return FeelCheck(
-        mechanism, chosen_curve(config, feel), run_jnd(config, feel), recorded=recorded
+        mechanism, chosen_curve(config, feel), run_jnd(config, feel), dynamics, recorded=recorded
     )
 
 

@@ -6,6 +6,7 @@ header, each built from the JSON-able documents the views make (:meth:`Results.s
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from evo_door.experiment.feel_check import jnd_value
@@ -15,6 +16,7 @@ from evo_door.experiment.results import (
     fmt_number,
     objective_text,
 )
+from evo_door.perception import verdict_text
 
 
 def _preprocess_text(pre: dict) -> str:
@@ -108,7 +110,7 @@ def format_smallest_change(s: dict) -> list[str]:
         f"smallest change within the JND: front of {len(c['front'])} points "
         f"(perceptual error JND^2, change {c['measure']}: mean |x - AS-IS| / search range)",
     ]
-    if s["reachable"]:
+    if c.get("feel_reachable", s["reachable"]):
         start = f"front point {c['chosen']}" if c["chosen"] >= 0 else "the polished closest point"
         lines.append(
             f"  reachable: from {start}, error {c['error']:.4g} JND^2, change {c['change']:.4g}"
@@ -130,14 +132,7 @@ def format_smallest_change(s: dict) -> list[str]:
         lines.append(
             f"  {n:<{w}}  {v:>14.8g} {units.get(n, ''):<8} AS-IS {asis:.8g}  {mark}".rstrip()
         )
-    check = c["check"]
-    lines.append(
-        "  check: "
-        + "; ".join(
-            f"{d} {check[d]['verdict']} ({100 * check[d]['fraction_beyond_jnd']:.1f} % beyond)"
-            for d in ("opening", "closing")
-        )
-    )
+    lines.append(f"  check: {verdict_text(c['check'])}")
     return lines
 
 
@@ -317,25 +312,40 @@ def format_integration_error(entry: dict | None) -> list[str]:
 
 def format_perceptual_check(entry: dict) -> list[str]:
     """``show``'s lines of the perceptual check (``summary()``'s ``perceptual_check``):
-    the JND it is judged by, then per stroke the verdict, the share of the stroke beyond
-    the JND and the largest difference, with the angles where the JND is exceeded."""
+    the JNDs it is judged by and its verdict with the worst point in JND units, then per
+    stroke the largest difference outside the latch zone (with the angles where it is
+    beyond the JND), the latch peak and its angle, and the felt dynamics."""
     jnd = entry["jnd"]
-    pass_pct = 100 * entry["pass_fraction"]
+    angle = math.degrees(jnd["position"] / jnd["handle_radius"])
     lines = [
         f"perceptual check: {entry['mechanism']} against the chosen feel, {entry['chosen']}"
         + ("" if entry.get("recorded", True) else " (computed on reading: not in the file)"),
         f"  force JND {100 * jnd['force']:.3g} % of the chosen force, at least "
-        f"{jnd['force_floor']:g} N; a stroke passes with {pass_pct:g} % of it within the JND",
+        f"{jnd['force_floor']:g} N, at every angle outside the latch zone; position JND "
+        f"{1000 * jnd['position']:.3g} mm at the handle ({angle:.2f} deg at "
+        f"{jnd['handle_radius']:g} m)",
+        f"  {verdict_text(entry)}",
     ]
     for d in ("opening", "closing"):
         c = entry[d]
-        w = c["worst"]
+        w, p, a = c["worst"], c["latch_peak"], c["peak_angle"]
         bands = ", ".join(f"{a:.1f}..{b:.1f}" for a, b in c["bands_deg"][:6])
         more = f" (+{len(c['bands_deg']) - 6} more)" if len(c["bands_deg"]) > 6 else ""
         lines.append(
-            f"  {d:<8} {c['verdict']:<15} {100 * c['fraction_beyond_jnd']:5.1f} % of the stroke "
-            f"beyond the JND; largest {w['difference_N']:+.2f} N at {w['angle_deg']:.2f} deg "
-            f"(JND {w['jnd_N']:.2f} N)" + (f"; beyond at {bands}{more} deg" if bands else "")
+            f"  {d:<8} {c['verdict']:<15} stroke: largest {w['difference_N']:+.2f} N at "
+            f"{w['angle_deg']:.2f} deg (JND {w['jnd_N']:.2f} N, {w['jnd_units']:.2f} JND)"
+            + (f", beyond at {bands}{more} deg" if bands else "")
+        )
+        if math.isfinite(p["chosen_N"]):
+            lines.append(
+                f"  {'':<8} {'':<15} latch peak {p['mechanism_N']:.2f} N against "
+                f"{p['chosen_N']:.2f} N ({p['jnd_units']:.2f} JND) at {a['mechanism_deg']:.2f} "
+                f"against {a['chosen_deg']:.2f} deg ({a['jnd_units']:.2f} JND)"
+            )
+    for name, e in (entry.get("dynamics") or {}).items():
+        lines.append(
+            f"  felt {name}: {e['mechanism']:.4g} against {e['chosen']:.4g} {e['unit']} "
+            f"(JND {e['jnd']:.3g} {e['unit']}, {e['jnd_units']:.2f} JND), {e['verdict']}"
         )
     return lines
 
@@ -343,6 +353,7 @@ def format_perceptual_check(entry: dict) -> list[str]:
 def format_jnds(jnds: dict) -> list[str]:
     """``show``'s lines of the JNDs a run judges its feel by (``summary()``'s ``jnds``):
     each setting, its value with its unit (a Weber fraction in %) and where it came from."""
+    jnds = {k: e for k, e in jnds.items() if isinstance(e, dict)}  # (not position_m)
     w = max(len(k) for k in jnds)
     lines = ["JNDs used:"]
     for k, e in jnds.items():

@@ -26,7 +26,7 @@ from evo_door.experiment.feel_check import FeelCheck, try_feel_check
 from evo_door.experiment.integration_error import IntegrationError
 from evo_door.files import ATTRS, read_attrs, read_group
 from evo_door.optim.smallest_change import SmallestChange
-from evo_door.optim.tolerance import Tolerances
+from evo_door.optim.tolerance import Specification
 
 
 @dataclass(frozen=True)
@@ -179,7 +179,7 @@ class RunRecord:
     perceptual_check: FeelCheck | None = None
     #: the specifications' tolerances against a chosen feel (``tolerance/``), None where
     #: not recorded (no chosen feel, not finished, or read with ``arrays=False``)
-    tolerance: Tolerances | None = None
+    tolerance: Specification | None = None
 
     @property
     def complete(self) -> bool:
@@ -302,11 +302,11 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
     return record
 
 
-def _tolerance(tree: dict | None) -> Tolerances | None:
+def _tolerance(tree: dict | None) -> Specification | None:
     """``tolerance/``, None where the file has none or was read without arrays."""
     if tree is None or "tolerance" not in tree:
         return None
-    return Tolerances.from_tree(tree["tolerance"])
+    return Specification.from_tree(tree["tolerance"])
 
 
 def _integration_error(node) -> IntegrationError | None:

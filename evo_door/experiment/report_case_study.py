@@ -26,6 +26,7 @@ from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.report_feel import JNDChanges
 from evo_door.experiment.results import Results
 from evo_door.files import save_figure
+from evo_door.perception import verdict_text
 from evo_door.perception.feel import DIRECTIONS
 
 
@@ -85,10 +86,11 @@ def _perceptual_summary(page: _Page, results: list[Results], changes: JNDChanges
                 fc.mechanism.source,
                 fc.chosen.source,
                 *(
-                    f"{judged[d]['verdict']} ({100 * judged[d]['fraction_beyond_jnd']:.1f} %)"
+                    f"{judged[d]['verdict']} ({judged[d]['worst_jnd']:.2f} JND: "
+                    f"{judged[d]['worst_at']})"
                     for d in DIRECTIONS
                 ),
-                "passes" if judged["passes"] else "noticeable",
+                verdict_text(judged),
             ]
         )
     page.h(3, "Perceptual checks: each stage's answer against its chosen feel")
@@ -100,8 +102,8 @@ def _perceptual_summary(page: _Page, results: list[Results], changes: JNDChanges
             "stage",
             "answer",
             "chosen feel",
-            "opening (stroke beyond the JND)",
-            "closing (stroke beyond the JND)",
+            "opening (worst, JND)",
+            "closing (worst, JND)",
             "verdict",
         ],
         rows,

@@ -21,7 +21,7 @@ from evo_door.experiment.feel_check import jnd_value, jnds_used, run_jnd_sources
 from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.results import Results
 from evo_door.files import save_figure
-from evo_door.perception import JND
+from evo_door.perception import JND, verdict_text
 from evo_door.perception.feel import DIRECTIONS
 from evo_door.perception.jnd_file import (
     LITERATURE,
@@ -120,8 +120,11 @@ def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str)
         f"Force-angle curves (Coulomb level, latch peaks resolved) of {fc.mechanism.source} "
         f"of {label} and of the chosen feel ({fc.chosen.source}). A difference is noticeable "
         f"where it exceeds {100 * jnd.force:.3g} % of the chosen force, or {jnd.force_floor:g} N "
-        f"where that is larger{changed}; a stroke passes with "
-        f"{100 * fc.pass_fraction:g} % of it within the JND."
+        f"where that is larger{changed}, at any angle outside the latch zone (the last "
+        f"3 deg); the latch is judged by its peak forces and by where they are, within "
+        f"{1000 * jnd.position:.3g} mm at the handle ({jnd.handle_radius:g} m from the hinge); "
+        "where the chosen feel has dynamics, the felt inertia and damping within theirs. "
+        f"Verdict: {verdict_text(judged)}."
     )
     page.table(
         ["setting", "value", "source"],
@@ -133,8 +136,10 @@ def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str)
             "direction",
             "verdict",
             "stroke beyond the JND",
-            "largest difference",
+            "largest difference of the stroke",
             "angles beyond the JND [deg]",
+            "latch peak",
+            "peak's angle",
         ],
         perceptual_rows(judged),
         f"{label}: perceptual check",
@@ -173,13 +178,32 @@ def perceptual_rows(judged: dict) -> list[list[str]]:
         w = c["worst"]
         bands = ", ".join(f"{a:.1f}..{b:.1f}" for a, b in c["bands_deg"][:8])
         more = f" (+{len(c['bands_deg']) - 8} more)" if len(c["bands_deg"]) > 8 else ""
+        p, a = c["latch_peak"], c["peak_angle"]
         rows.append(
             [
                 d,
-                c["verdict"],
+                f"{c['verdict']} ({c['worst_jnd']:.2f} JND: {c['worst_at']})",
                 f"{100 * c['fraction_beyond_jnd']:.1f} %",
-                f"{w['difference_N']:+.2f} N at {w['angle_deg']:.2f} deg (JND {w['jnd_N']:.2f} N)",
+                f"{w['difference_N']:+.2f} N at {w['angle_deg']:.2f} deg (JND {w['jnd_N']:.2f} N, "
+                f"{w['jnd_units']:.2f} JND)",
                 (bands + more) or "-",
+                f"{p['mechanism_N']:.2f} N against {p['chosen_N']:.2f} N "
+                f"({p['jnd_units']:.2f} JND)",
+                f"{a['mechanism_deg']:.2f} deg against {a['chosen_deg']:.2f} deg "
+                f"({a['jnd_units']:.2f} JND)",
+            ]
+        )
+    for name, e in (judged.get("dynamics") or {}).items():
+        rows.append(
+            [
+                f"felt {name}",
+                f"{e['verdict']} ({e['jnd_units']:.2f} JND)",
+                "",
+                f"{e['mechanism']:.4g} against {e['chosen']:.4g} {e['unit']} "
+                f"(JND {e['jnd']:.3g} {e['unit']})",
+                "",
+                "",
+                "",
             ]
         )
     return rows

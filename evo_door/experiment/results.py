@@ -320,6 +320,7 @@ class Results:
             "reachable": front.reachable,
             "kept": list(front.kept),
             "smallest_change": {
+                "feel_reachable": front.reachable,
                 "measure": front.measure,
                 "change_unit": "1",
                 "error_unit": "JND^2",
@@ -413,9 +414,19 @@ class Results:
         if ident is not None:
             out["identifiability"] = ident.as_dict()
             out["identifiability_text"] = ident.format()
-        if self.record.tolerance is not None:
-            out["tolerance"] = self.record.tolerance.as_dict()
-            out["tolerance_text"] = self.record.tolerance.format()
+        spec = self.record.tolerance
+        if spec is not None:  # what a supplier builds: show, show --json and the table
+            d = spec.as_dict()
+            out["tolerance"] = d
+            out["process"] = d["process"]
+            out["distribution"] = d["distribution"]
+            out["yield"] = d["yield"]
+            # reachable: the feel by the mechanism (nsga2's front) and the yield's target
+            out["reachable"] = bool(out.get("reachable", True)) and spec.reachable
+            out["allocation"] = d["allocation"]
+            out["tolerance_text"] = "\n".join(spec.summary_lines())
+        if "jnds" in out and check is not None:
+            out["jnds"]["position_m"] = check.jnd.position
         return out
 
     def _per_trial(self) -> dict:

@@ -470,8 +470,11 @@ class ExperimentRun:
 
     def _results(self, progress: bool = False) -> dict:
         """Best parameters, per-trial table, responses, and against a chosen feel the
-        specifications' tolerances: filled when every job is done."""
-        from evo_door.experiment.tolerance import stage_tolerances
+        specification a supplier builds: filled when every job is done. Where that
+        specification centres the nominal (a higher yield than the fit's door), the
+        centred nominal is the run's answer; the fit's door stays its alternative."""
+        from evo_door.experiment.tolerance import stage_specification
+        from evo_door.optim.tolerance import full_nominal
 
         xs = np.array([j.best_x for j in self.trial_jobs])
         if self.pooled:
@@ -485,7 +488,13 @@ class ExperimentRun:
         else:
             best_x = xs[0]
             best_fitness = self.jobs[0].best_fitness
-        full = self.setup.problem().full(best_x)[0]
+        problem = self.setup.problem()
+        full = problem.full(best_x)[0]
+        spec = stage_specification(self.setup, self.config, full, progress)
+        if spec is not None and spec.design == "centred":
+            full = full_nominal(spec, self.setup.model, full)
+            best_x = full[problem.index].copy()
+            best_fitness = float(problem.evaluate(best_x[None, :])[0][0])
         if self.per_trial and not self.pooled:  # the mean of the fits, on every trial
             ident = identifiability_of(self.setup.problem(), best_x, self._measured)
         else:
@@ -507,7 +516,7 @@ class ExperimentRun:
             "integration_error": integration,
             "integration_error_s": integration_s,
             "perceptual_check": check,
-            "tolerance": stage_tolerances(self.setup, full, progress),
+            "tolerance": spec,
         }
 
     def _fit_vectors(self) -> np.ndarray:

@@ -11,10 +11,17 @@ and the renderer read back.
 Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
 every free parameter whatever its group (:func:`spec_names`); geometry and numerical
 settings stay out of the table (the YAML file has them all). A run against a chosen
-feel (the perceptual objective) adds two columns, the **tolerances**: the band
-``+-b`` within which the specification alone, and all of them together, may be built
-and the door still feels like the chosen one (:mod:`evo_door.optim.tolerance`; the
-YAML file has them as comments). ``status`` says where a value comes from:
+feel (the perceptual objective) on a mechanism a supplier builds adds what the
+supplier needs (:mod:`evo_door.optim.tolerance`, one computation that ``show``,
+``show --json``, every format here and the report all print): each specification's
+**process tolerance** (``+-t``, the supplier's, as used: ``process:`` or its kind's
+default) and distribution, whether the **feel determines** it, its **sensitivity**
+(JND of the check per unit change; "not judged" where the check does not see it),
+its **contribution to the yield loss** (the share of doors gained were it built
+exactly) and whether it was **changed** from the AS-IS door; the caption gives the
+yield with its interval and, where the target is out of reach, the allocation. Such a
+table has no statistical interval: a feel-fitted value's 1-JND interval would
+contradict its tolerance. ``status`` says where a value comes from:
 ``estimated`` (free in this fit), ``kept`` (free in a smallest-change fit, ``algorithm:
 {kind: nsga2}``, and left at its AS-IS value because the chosen feel does not need it
 changed), ``fixed`` (``fixed:`` of the experiment) or ``given`` (the base set: a preset,
@@ -52,9 +59,12 @@ class SpecRow:
     se: float = math.nan  # standard error, unit of the value
     note: str = ""
     meaning: str = ""
-    alone: float = math.nan  # tolerance +- alone (against a chosen feel), unit of the value
-    together: float = math.nan  # tolerance +- with every specification at once
-    capped: bool = False  # the alone band is its search range: the feel does not limit it
+    tolerance: float = math.nan  # the process's +- half-width (against a chosen feel), unit
+    tolerance_text: str = ""  # as given: "+-10 %", "+-0.0002 rad"
+    distribution: str = ""
+    sensitivity: float = math.nan  # JND of the check per unit change; 0: not judged
+    loss: float = math.nan  # share of doors gained were it built exactly
+    change: str = ""  # "kept", "changed -8.4 %" (from the AS-IS door)
 
     @property
     def has_range(self) -> bool:
@@ -80,7 +90,7 @@ class SpecTable:
 
     @property
     def has_tolerance(self) -> bool:
-        return any(math.isfinite(r.alone) for r in self.rows)
+        return any(math.isfinite(r.tolerance) for r in self.rows)
 
 
 def spec_names(model, free) -> list[str]:
@@ -143,8 +153,7 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
             if v["verdict"] != "identifiable":
                 row.note = v["reason"]
         if tol is not None and p.name in tol.names:
-            band = tol.row(p.name)
-            row.alone, row.together, row.capped = band["alone"], band["together"], band["capped"]
+            _supply(row, tol, p)
         if p.name in kept:
             row.note = "kept at its AS-IS value: the chosen feel does not need it changed"
         elif front is not None and not front.reachable and p.name in res.free:
@@ -169,6 +178,30 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
     )
 
 
+def _supply(row: SpecRow, spec, param) -> None:
+    """The supplier's columns of ``row`` from the stage's specification."""
+    from evo_door.optim.process import format_tolerance
+
+    d = spec.row(row.name)
+    row.tolerance = d["half_width"]
+    row.tolerance_text = format_tolerance(d["half_width"], row.unit) if d["half_width"] else "exact"
+    row.distribution = d["distribution"]
+    row.sensitivity = d["sensitivity_jnd_per_unit"]
+    row.loss = d["yield_loss"]
+    if d["changed"]:
+        i = spec.names.index(row.name)
+        asis = float(spec.asis[i])
+        rel = f" {100 * (row.value - asis) / asis:+.3g} %" if asis else ""
+        row.change = f"changed{rel} (AS-IS {asis:.6g})"
+    else:
+        row.change = "kept"
+    if not d["judged"]:
+        row.note = "not judged by the perceptual check: the feel does not limit it"
+    if row.verdict:  # the feel's identifiability: does the feel determine it?
+        row.verdict = "determined" if row.verdict == "identifiable" else "not determined"
+        row.se = math.nan  # a 1-JND interval would contradict the supplier's tolerance
+
+
 def _remark(front) -> str:
     """The caption's word on a smallest-change fit (module docstring); "" otherwise."""
     if front is None:
@@ -182,15 +215,9 @@ def _remark(front) -> str:
     )
 
 
-def _tolerance_caption(tol) -> str:
-    text = (
-        f"tolerances: the band alone, and together ({tol.factor:.3g} x alone: "
-        f"{tol.passed} of {tol.samples} doors drawn within every band at once, seed "
-        f"{tol.seed}, feel like the chosen one; {100 * tol.lower_bound:.1f} % at "
-        f"{100 * tol.confidence:.0f} % confidence); (cap) = the search range, the feel "
-        "does not limit it"
-    )
-    return text + (f"; {tol.note}" if tol.note else "")
+def _tolerance_caption(spec) -> str:
+    """The caption's word on what the supplier builds: the yield, the design, reachable."""
+    return "; ".join(line.strip() for line in spec.summary_lines())
 
 
 # -- rendering ----------------------------------------------------------------------------
@@ -220,15 +247,22 @@ def _columns(t: SpecTable, fmt: str = "md") -> list[tuple[str, callable]]:
     if t.has_tolerance:
         if fmt == "csv":  # numbers, in the unit column's unit
             cols += [
-                ("tolerance alone (+-)", lambda r: _num(r.alone)),
-                ("tolerance together (+-)", lambda r: _num(r.together)),
-                ("tolerance capped", lambda r: "yes" if r.capped else "no"),
+                ("process tolerance (+-)", lambda r: _num(r.tolerance)),
+                ("distribution", lambda r: r.distribution),
+                ("feel determines it", lambda r: r.verdict),
+                ("sensitivity (JND per unit)", lambda r: _num(r.sensitivity, 4)),
+                ("yield loss", lambda r: _num(r.loss, 4)),
+                ("change", lambda r: r.change),
             ]
         else:
             cols += [
-                ("tolerance alone", lambda r: _band(r, r.alone) + (" (cap)" if r.capped else "")),
-                ("tolerance together", lambda r: _band(r, r.together)),
+                ("process tolerance", lambda r: _process_cell(r)),
+                ("feel determines it", lambda r: r.verdict),
+                ("sensitivity", lambda r: _sensitivity_cell(r)),
+                ("yield loss", lambda r: _loss_cell(r)),
+                ("change", lambda r: r.change),
             ]
+        return cols + [("status", lambda r: r.status), ("note", lambda r: r.note)]
     cols += [
         ("status", lambda r: r.status),
         ("identifiability", lambda r: r.verdict),
@@ -236,6 +270,28 @@ def _columns(t: SpecTable, fmt: str = "md") -> list[tuple[str, callable]]:
         ("note", lambda r: r.note),
     ]
     return cols
+
+
+def _process_cell(r: SpecRow) -> str:
+    if not math.isfinite(r.tolerance):
+        return ""
+    band = _band(r, r.tolerance) if r.tolerance else "exact"
+    return band + (" uniform" if r.distribution == "uniform" else "")
+
+
+def _sensitivity_cell(r: SpecRow) -> str:
+    if not math.isfinite(r.sensitivity):
+        return ""
+    if r.sensitivity == 0.0:
+        return "not judged"
+    unit = "" if r.unit == "1" else f"/{r.unit}" if " " not in r.unit else f"/({r.unit})"
+    return f"{r.sensitivity:.3g} JND{unit}"
+
+
+def _loss_cell(r: SpecRow) -> str:
+    if not math.isfinite(r.loss):
+        return ""
+    return f"{100 * r.loss:.2g} %" if r.loss > 0 else "0"
 
 
 def _caption(t: SpecTable) -> str:
@@ -346,10 +402,10 @@ def _yaml(t: SpecTable) -> str:
     description = f"{t.title}, from {t.source}" + (f"; {t.remark}" if t.remark else "")
     values = {n: v for n, v in t.values.items() if n in model.params}
     notes = {
-        r.name: f"tolerance {_band(r, r.alone)}{' (cap)' if r.capped else ''} alone, "
-        f"{_band(r, r.together)} together"
+        r.name: f"process tolerance {_process_cell(r)}; sensitivity {_sensitivity_cell(r)}; "
+        f"yield loss {_loss_cell(r)}; {r.change}"
         for r in t.rows
-        if math.isfinite(r.alone)
+        if math.isfinite(r.tolerance)
     }
     if notes:
         description += f"; {t.tolerance_text}"

@@ -26,7 +26,7 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
                  error_refined, ok; @attrs: both settings, the overall values, units
                  (complete runs; :mod:`.integration_error`)
     perceptual_check/  a run fitted to a chosen feel: mechanism/ and chosen/ (theta rad,
-                 opening, closing N: both force-angle curves); @attrs: jnd, pass_fraction,
+                 opening, closing N: both force-angle curves); @attrs: jnd, dynamics,
                  passes, verdict (complete runs; :mod:`.feel_check`)
     tolerance/   against a chosen feel: each specification's band alone and together,
                  value, cap, capped; curves/ (the sampled doors' force band); @attrs:
@@ -293,6 +293,7 @@ def feel_tree(feel) -> dict:
             "closed": feel.closed,
             "latch_zone": feel.latch_zone,
             "peak_weight": feel.peak_weight,
+            "excess_weight": feel.excess_weight,
         },
         "theta": feel.curve.theta,
         "opening": feel.curve.opening,
@@ -319,6 +320,8 @@ def feel_from_tree(node: dict):
         closed=float(a["closed"]),
         latch_zone=float(a["latch_zone"]),
         peak_weight=float(a["peak_weight"]),
+        # (a file written before the excess term: none, so that it resumes as it ran)
+        excess_weight=float(a.get("excess_weight", 0.0)),
     )
 
 

@@ -1,11 +1,15 @@
-"""The specifications' tolerances of a run against its chosen feel, where the experiment
-layer meets :mod:`evo_door.optim.tolerance`.
+"""The specification a supplier builds, of a run against its chosen feel: where the
+experiment layer meets :mod:`evo_door.optim.tolerance` and :mod:`evo_door.optim.process`.
 
-A run with the perceptual objective (a chosen feel, ``Setup.feel``) computes them when
-it completes (:func:`stage_tolerances`) and its results file keeps them
-(``tolerance/``); :func:`tolerances_of` reads them back, or computes them for a file
-written before they were kept (``export-spec`` says so in a note). The specifications
-are the rows of the run's specification table (:func:`evo_door.experiment.spec.spec_names`).
+A run with the perceptual objective (a chosen feel, ``Setup.feel``) on a model with
+built specifications (a door: each parameter's declared process kind) computes it when
+it completes (:func:`stage_specification`): the supplier's process from the
+experiment's ``process:`` table and the kinds' defaults, the centred nominal, the
+yield on a fresh sample and, where the target is out of reach, the allocation. Its
+results file keeps it (``tolerance/``); :func:`tolerances_of` reads it back, or
+computes it for a file written before it was kept (``export-spec`` says so in a
+note). The specifications are the rows of the run's specification table
+(:func:`evo_door.experiment.spec.spec_names`).
 """
 
 from __future__ import annotations
@@ -15,27 +19,43 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.spec import spec_names
-from evo_door.optim.tolerance import Tolerances, tolerances
+from evo_door.optim.process import process_for
+from evo_door.optim.tolerance import Specification, specify
 
-#: the note of tolerances computed for a results file that has none
-COMPUTED_NOTE = "computed now: the results file has none (written before tolerances were kept)"
+#: the note of a specification computed for a results file that has none
+COMPUTED_NOTE = "computed now: the results file has none (written before it was kept)"
 
 
-def stage_tolerances(setup, full, progress: bool = False) -> Tolerances | None:
-    """The tolerances of a finished run's door ``full`` (its whole kernel vector), None
-    for a run without a chosen feel or where they cannot be made (a run's answer is never
-    lost to them)."""
+def stage_specification(setup, config: dict, full, progress: bool = False):
+    """The specification of a finished run's door ``full`` (its whole kernel vector),
+    None for a run without a chosen feel, a model with nothing a supplier builds, or
+    where it cannot be made (a run's answer is never lost to it)."""
     if setup.feel is None or not setup.objective.perceptual:
         return None
-    names = spec_names(setup.model, setup.free)
+    model = setup.model
+    names = spec_names(model, setup.free)
+    if not any(getattr(model.params[n], "process", "") for n in names):
+        return None  # a haptic model's sensations: nothing a supplier builds
     try:
-        return tolerances(setup.model, full, setup.feel, names, progress=progress)
+        process = process_for(model, names, config.get("process"))
+        return specify(
+            model,
+            full,
+            setup.feel,
+            names,
+            process,
+            list(setup.free),
+            setup.lower,
+            setup.upper,
+            asis=setup.base,
+            progress=progress,
+        )
     except (UserError, ValueError):
         return None
 
 
-def tolerances_of(res, compute: bool = True) -> Tolerances | None:
-    """The tolerances of the complete run ``res`` (a
+def tolerances_of(res, compute: bool = True) -> Specification | None:
+    """The specification of the complete run ``res`` (a
     :class:`~evo_door.experiment.results.Results`): as stored, else (``compute``)
     computed from its chosen feel with :data:`COMPUTED_NOTE`; None for a run without one."""
     if res.record.tolerance is not None:
@@ -45,48 +65,36 @@ def tolerances_of(res, compute: bool = True) -> Tolerances | None:
         return None
     setup = store.setup_from_tree(tree)
     full = np.asarray(tree["best"]["full"], dtype=np.float64)
-    out = stage_tolerances(setup, full)
+    out = stage_specification(setup, res.config, full)
     if out is not None:
         out.note = "; ".join(x for x in (out.note, COMPUTED_NOTE) if x)
         res.record.tolerance = out  # once a read: the table and the report share it
     return out
 
 
-def plot_tolerances(tol: Tolerances, label: str, path) -> None:
-    """The report's figure: each specification's bands as a share of its value (alone,
-    and together), and the force-angle band of the Monte-Carlo's doors against the chosen
-    feel's JND band, per stroke."""
-    import math
-
+def plot_tolerances(spec: Specification, label: str, path) -> None:
+    """The report's figure: each specification's contribution to the yield loss (the
+    yield gained were it built exactly), and the force-angle band of the yield's sampled
+    doors (2.5-97.5 %) against the chosen feel's JND band, per stroke."""
     from matplotlib.figure import Figure
 
     from evo_door.files import save_figure
 
-    n = len(tol.names)
+    n = len(spec.names)
     fig = Figure(figsize=(11.0, max(3.6, 0.9 + 0.24 * n)), layout="constrained")
-    bands, curves = fig.subplots(1, 2, width_ratios=(1.0, 1.4))
+    bars, curves = fig.subplots(1, 2, width_ratios=(1.0, 1.4))
     y = np.arange(n)[::-1]
-    for which, colour, shift in (("alone", "tab:blue", 0.15), ("together", "tab:orange", -0.15)):
-        rel = 100.0 * tol.relative(which)
-        ok = np.isfinite(rel)
-        bands.errorbar(
-            np.zeros(ok.sum()),
-            y[ok] + shift,
-            xerr=rel[ok],
-            fmt="o",
-            ms=3,
-            capsize=3,
-            color=colour,
-            label=f"{which}",
-        )
-    for i in np.flatnonzero(tol.capped):
-        bands.annotate("cap", (100.0 * tol.relative("alone")[i], y[i] + 0.15), fontsize=6)
-    bands.set_yticks(y, tol.names, fontsize=7)
-    bands.axvline(0.0, color="0.5", lw=0.8)
-    bands.set_xlabel("band, % of the value (+-)")
-    bands.set_title(f"{label}: tolerances", fontsize=10)
-    bands.legend(fontsize=8, loc="lower right")
-    c = tol.curves
+    colours = ["tab:red" if c else "tab:blue" for c in spec.changed]
+    bars.barh(y, 100.0 * spec.loss, color=colours, height=0.6)
+    labels = [
+        f"{name} +-{t:.3g}" + ("" if u == "1" else f" {u}")
+        for name, t, u in zip(spec.names, spec.half_width, spec.units)
+    ]
+    bars.set_yticks(y, labels, fontsize=7)
+    bars.set_xlabel("yield gained were it built exactly [% of doors]")
+    y_text = spec.yield_.text().split(" (")[0]
+    bars.set_title(f"{label}: yield {y_text}; red = changed from AS-IS", fontsize=10)
+    c = spec.curves
     if c:
         deg = np.degrees(c["theta"])
         for d, colour in (("opening", "tab:blue"), ("closing", "tab:red")):
@@ -94,7 +102,9 @@ def plot_tolerances(tol: Tolerances, label: str, path) -> None:
             curves.fill_between(deg, chosen - jnd, chosen + jnd, color=colour, alpha=0.18, lw=0)
             curves.plot(deg, chosen, color=colour, lw=1.0, label=f"{d}: chosen +- JND")
             curves.plot(deg, c[f"{d}_low"], color=colour, lw=0.6, ls="--")
-            curves.plot(deg, c[f"{d}_high"], color=colour, lw=0.6, ls="--", label=f"{d}: doors")
+            curves.plot(
+                deg, c[f"{d}_high"], color=colour, lw=0.6, ls="--", label=f"{d}: 95 % of doors"
+            )
         # the stroke sets the scale: the latch's peaks (the last 3 deg) would flatten it
         stroke = deg <= deg[-1] - 3.0
         parts = [c[f"{d}_{k}"][stroke] for d in ("opening", "closing") for k in ("low", "high")]
@@ -109,10 +119,8 @@ def plot_tolerances(tol: Tolerances, label: str, path) -> None:
         curves.set_xlabel("theta [deg] (0 open, 90 closed; the latch's peaks are off scale)")
         curves.set_ylabel("force [N] (+ toward closing)")
         curves.legend(fontsize=7)
-        lb = 100.0 * tol.lower_bound if math.isfinite(tol.lower_bound) else math.nan
         curves.set_title(
-            f"{tol.passed}/{tol.samples} doors within the together bands pass "
-            f"(>= {lb:.1f} %, seed {tol.seed})",
+            f"doors built to the process: {spec.yield_.samples} drawn, seed {spec.yield_.seed}",
             fontsize=10,
         )
     save_figure(fig, path, dpi=110)

@@ -17,8 +17,9 @@ objectives at once (:class:`ChangeObjectives`):
 :func:`choose_smallest_change` then turns the front into the answer:
 
 - **the smallest change within the JND**: of the front's points whose perceptual
-  check passes (:func:`~evo_door.perception.perceptual_check`, >= 95 % of each stroke
-  within the JND; :func:`~evo_door.perception.check_verdict`), the one of least change.
+  check passes (:func:`~evo_door.perception.perceptual_check`: every point of both
+  strokes, the latch peaks and their angles, the felt dynamics within their JNDs;
+  :func:`~evo_door.perception.check_verdict`), the one of least change.
   With none, the point of least perceptual error is polished (SLSQP on the perceptual
   objective) and checked again;
 - **kept specifications**: each changed specification, smallest change first, is set
@@ -45,7 +46,6 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.optim.local import LocalSettings, slsqp
-from evo_door.perception import check_verdict, perceptual_check
 
 #: the change measures an experiment may name (``algorithm.change``)
 CHANGE_MEASURES = ("normalised",)
@@ -210,23 +210,30 @@ def _plain(value):
 class _Judge:
     """The perceptual check of free vectors of ``problem`` against its chosen feel,
     counted, on the mechanism's curve sampled where the objective samples it; with a
-    ``margin`` below 1, every force JND (fraction and floor) taken at that share."""
+    ``margin`` below 1, every JND (force fraction and floor, position, felt inertia and
+    damping) taken at that share."""
 
     def __init__(self, problem, margin: float = 1.0):
         self.problem = problem
         self.feel = problem.feel
-        jnd = self.feel.jnd
-        self.jnd = replace(jnd, force=jnd.force * margin, force_floor=jnd.force_floor * margin)
+        self.jnd = scaled_jnd(self.feel.jnd, margin)
         self.count = 0
 
     def verdict(self, x) -> dict:
         self.count += 1
         p = self.problem.full(x)[0]
-        mech = self.feel.mechanism_curve(self.problem.model, p)
-        return check_verdict(perceptual_check(mech, self.feel.curve, self.jnd), self.jnd)
+        return self.feel.verdict(self.problem.model, p, self.jnd)
 
     def passes(self, x) -> bool:
         return bool(self.verdict(x)["passes"])
+
+
+def scaled_jnd(jnd, margin: float):
+    """``jnd`` with every difference threshold taken at ``margin`` of itself."""
+    if margin == 1.0:
+        return jnd
+    names = ("force", "force_floor", "position", "inertia", "viscosity")
+    return replace(jnd, **{n: getattr(jnd, n) * margin for n in names})
 
 
 def _polish_some(problem, x, names, settings: LocalSettings):

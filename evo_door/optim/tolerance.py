@@ -1,44 +1,49 @@
-"""Tolerances a supplier can build to: how far each specification may stray from its value
-before the door no longer feels like the chosen one.
+"""A specification a supplier can build: nominal values that doors made to the supplier's
+tolerances feel like the chosen feel, and how many of them will.
 
 A specification stage ends with one door that feels like the chosen feel (the
 perceptual objective, :class:`~evo_door.perception.FeelTarget`). A supplier cannot
-build one value; it builds within a band. Two bands per specification, both
-symmetric, ``value +- b`` in the specification's unit:
+build one value; it builds within the tolerances of its process (a spring's rate to
++-10 %, a friction to +-25 %: :mod:`evo_door.optim.process`). What the supplier needs
+is a nominal that most doors built to those tolerances still pass the perceptual check
+with, and the share that will: the **yield**.
 
-- **alone**: the widest band such that the door with only that specification moved
-  anywhere within it (the others at their values) still passes the perceptual check
-  (:func:`~evo_door.perception.perceptual_check` and
-  :func:`~evo_door.perception.check_verdict`: at least 95 % of each stroke within the
-  force JND). Found by a rising scan (``cap / 2^10``, ``cap / 2^9`` ... ``cap``) to the
-  first band whose ends fail, then a bisection between the last band that passed and
-  that one, so that every scanned band below the answer passed too.
-- **together**: the alone bands scaled down by one common factor until doors built
-  with every specification anywhere within its band at once (a Monte-Carlo: ``samples``
-  doors, each specification uniform in its band, drawn with the generator
-  ``numpy.random.default_rng(seed)``) pass the check often enough: the one-sided
-  Wilson lower bound of the pass rate at ``confidence`` is at least ``target`` (95 %
-  of doors pass, and a second sample of as many doors agrees). The factor is found by
-  bisection on one set of draws (common random numbers), largest first.
+:func:`specify` does it in five steps:
 
-Each band is capped at the specification's search range, ``cap``: 100 % of its value
-(half its declared range for a value of 0), and never beyond its declared bounds (a
-moved value is clipped to them: a friction is not built negative). A band at its cap
-(``capped``) is one the feel does not limit: a specification the feel does not
-determine (not identifiable, or kept from the product) gets a band too, and usually
-this one.
+1. **The check, for many doors at once** (:class:`FeelCheck`): every door's margins,
+   its differences from the chosen feel in units of their JNDs, signed: each point of
+   both strokes outside the latch zone, both latch peaks, both peaks' angles, and the
+   felt inertia and damping where the chosen feel has dynamics. A door passes when
+   every margin is within +-1, as :func:`~evo_door.perception.check_verdict` judges one
+   door (tests compare the two). One compiled call a batch of doors, across threads.
+2. **Sensitivities**: each specification's secant slope of every margin over its own
+   tolerance (JND per unit of the specification): a specification the check does not
+   see has none, and the table says "not judged" instead of giving it a band.
+3. **Design centring**: the free specifications' nominal that maximises the yield,
+   not the one on the boundary of the check. The doors are the margins' secant model
+   about the nominal with one set of standardised draws (common random numbers,
+   ``design_seed``), the yield smoothed, maximised by Nelder-Mead within a trust box of
+   a few tolerances, the model made again at the new nominal, twice. The centred
+   nominal is kept where the *model itself* (the compiled check of those doors) gives it
+   a higher yield than the smallest-change door the stage started from; that door stays
+   in the results as the alternative, with its own yield.
+4. **The yield**: a fresh sample of doors drawn after the design is fixed, with a seed
+   of its own (``yield_seed``), at least 2000 doors, each through the compiled check:
+   the share that passes with its 95 % Clopper-Pearson interval. Each specification's
+   **contribution to the yield loss** is the yield the sample would gain were that
+   specification built exactly (its deviation taken off every door's margins through
+   its secant slopes).
+5. **Reachable or not**: where the yield is below the target (95 %), the stage says so
+   and gives the **allocation**: the fewest tolerances, tightened by the least common
+   factor, that reach the target (searched on the yield sample's margins, verified on
+   another fresh sample, ``allocation_seed``).
 
-The check is made on one fixed grid of angles (the chosen curve's points, the
-perceptual objective's stroke and every fourth point of its latch zone) with the
-compiled Coulomb forces of many doors at once
-(:func:`~evo_door.sim.simulate.hold_forces_rows`), a millisecond or two a door, where
-:func:`~evo_door.perception.model_curve`'s adaptive grid takes a quarter of a second;
-tests compare the two at the bands' edges. The felt inertia and damping are not part
-of the check (it compares force-angle curves).
+Everything is in the specifications' own units; margins are in JND.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 import time
@@ -49,101 +54,232 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.files import ATTRS
 from evo_door.perception import FeelTarget
-from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE, PASS_FRACTION, fraction_beyond
-from evo_door.sim.simulate import COULOMB_SPEED, coulomb_vector, hold_forces, hold_forces_rows
+from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE
+from evo_door.sim.simulate import (
+    COULOMB_SPEED,
+    coulomb_vector,
+    hold_forces_rows,
+    inertia_rows,
+)
 
-#: Monte-Carlo doors per factor tried
-SAMPLES = 200
-#: the Monte-Carlo's generator seed
-SEED = 1
-#: share of the sampled doors that must pass
+#: doors of the yield's fresh sample (the issue's floor: 2000)
+SAMPLES = 2000
+#: doors of the common-random-number sample the nominal is centred on
+DESIGN_SAMPLES = 600
+#: the seeds: the centring's draws, the yield's fresh sample, the allocation's check
+DESIGN_SEED = 1
+YIELD_SEED = 2
+ALLOCATION_SEED = 3
+#: the yield a specification must reach to be called reachable
 TARGET = 0.95
-#: confidence of the one-sided Wilson lower bound of the pass rate
-CONFIDENCE = 0.95
-#: rising scan of the alone bands: cap / 2^SCAN_STEPS first
-SCAN_STEPS = 10
-#: bisection steps of an alone band (a bracket of a factor 2 to 2^-8 of it)
-BISECTIONS = 8
-#: bisection steps of the common factor (to 2^-8)
-FACTOR_BISECTIONS = 8
-#: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): the
-#: latch zone is 3 deg of 90, too little of a stroke to decide a check alone
+#: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): 8e-5
+#: rad, 0.005 deg, a hundredth of the position JND's angle at the handle
 LATCH_THIN = 4
-#: doors from which a batch is spread across threads
-ROWS_IN_THREADS = 8
-#: Monte-Carlo doors computed at once (the count stops once too many fail)
-BATCH = 50
+#: doors computed at once
+BATCH = 250
+#: centring: rounds of (secant model, Nelder-Mead), the trust box in tolerances, the
+#: smoothing of the yield (JND) and the Nelder-Mead's evaluations per free parameter
+ROUNDS = 2
+TRUST = 2.0
+SMOOTHING = 0.05
+EVALUATIONS_PER_FREE = 150
+#: allocation: the most specifications tightened together, among this many of the
+#: largest contributors; a tightened tolerance is never below this share of the process's
+MOST_TIGHTENED = 4
+CANDIDATES = 6
+LEAST_SHARE = 0.05
+#: margins of a door whose curve is not finite (it fails)
+BLOWN = 1e6
 
 
 class FeelCheck:
-    """The perceptual check of doors against a chosen feel, on one fixed grid.
+    """The perceptual check of many doors against a chosen feel, on one fixed grid.
 
-    :meth:`judge` takes one door a row of a kernel matrix and says which pass (as
-    :func:`check_verdict`'s ``passes`` would: at most ``1 - pass_fraction`` of each
-    stroke beyond the force JND, by :func:`fraction_beyond`, and each latch peak within
-    its JND), with their Coulomb curves
-    on :attr:`theta`; the doors are computed in one compiled call, across threads.
+    :meth:`margins` gives every door (a row of a kernel matrix) its signed differences
+    from the chosen feel in JND (module docstring, step 1), in the columns
+    :attr:`labels` names; :meth:`judge` says which pass (every margin within +-1).
     """
 
-    def __init__(self, model, feel: FeelTarget, pass_fraction: float = PASS_FRACTION):
+    def __init__(self, model, feel: FeelTarget):
         self.model = model
         self.feel = feel
-        self.pass_fraction = pass_fraction
         latch = feel.latch[::LATCH_THIN]
         self.theta = np.union1d(np.union1d(feel.stroke, latch), feel.curve.theta)
+        self.stroke = self.theta < feel.curve.theta[-1] - LATCH_ZONE
+        self.latch = ~self.stroke
+        if self.stroke.sum() < 2 or not self.latch.any():
+            raise UserError(f"{feel.curve.source}: the chosen feel's curve has no latch zone")
         self.chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
         self.threshold = {d: feel.jnd.force_threshold(self.chosen[d]) for d in DIRECTIONS}
-        # the latch peaks, judged as perceptual_check judges them (on this grid)
-        self.latch = self.theta >= feel.curve.theta[-1] - LATCH_ZONE
+        self.dyn_theta = feel.dyn_grid
+        deg = np.degrees(self.theta[self.stroke])
+        self.labels = [f"{d} stroke at {a:.2f} deg" for d in DIRECTIONS for a in deg]
+        self.labels += ["unlock peak force", "lock peak force"]
+        self.labels += ["unlock peak's angle", "lock peak's angle"]
+        if feel.dynamics is not None:
+            self.labels += ["felt inertia", "felt damping"]
         self.evaluations = 0
 
-    def judge(self, P) -> tuple[np.ndarray, dict]:
-        """Whether each door (row of ``P``) passes, and its forces (N) per stroke."""
-        P = np.atleast_2d(np.asarray(P, dtype=np.float64))
-        Q = np.array([coulomb_vector(self.model, p) for p in P])
-        self.evaluations += len(P)
-        ok = np.ones(len(P), dtype=bool)
-        forces = {}
-        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = self._forces(Q, sign * COULOMB_SPEED)
-            finite = np.all(np.isfinite(f), axis=1)
-            fails = ~(np.abs(f - self.chosen[d]) <= self.threshold[d])
-            ok &= finite & (fraction_beyond(self.theta, fails) <= 1.0 - self.pass_fraction)
-            if self.latch.any():
-                pick = np.min if d == "opening" else np.max
-                peak = pick(f[:, self.latch], axis=1)
-                ok &= ~(np.abs(peak - self.feel.peaks[d]) > self.feel.peak_threshold[d])
-            forces[d] = f
-        return ok, forces
+    @property
+    def columns(self) -> int:
+        return len(self.labels)
 
-    def _forces(self, Q, speed) -> np.ndarray:
-        if len(Q) < ROWS_IN_THREADS:  # a few doors: threads cost more than they give
-            return np.array([hold_forces(self.model, q, self.theta, speed) for q in Q])
-        return hold_forces_rows(self.model, Q, self.theta, speed)
+    def margins(self, P, forces: dict | None = None) -> np.ndarray:
+        """The signed margins (JND) of every door, a row of ``P`` (full kernel vectors):
+        an array (doors, :attr:`columns`). ``forces``, a dict, receives each stroke's
+        Coulomb forces (N, doors x :attr:`theta`)."""
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        out = np.empty((len(P), self.columns))
+        for start in range(0, len(P), BATCH):
+            rows = slice(start, start + BATCH)
+            out[rows] = self._margins(P[rows], forces)
+        self.evaluations += len(P)
+        return np.where(np.isfinite(out), out, BLOWN)
+
+    def _margins(self, P, forces) -> np.ndarray:
+        feel = self.feel
+        Q = np.array([coulomb_vector(self.model, p) for p in P])
+        parts, peaks, angles = [], [], []
+        zone = self.theta[self.latch]
+        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
+            f = hold_forces_rows(self.model, Q, self.theta, sign * COULOMB_SPEED)
+            if forces is not None:
+                forces.setdefault(d, []).append(f)
+            parts.append(((f - self.chosen[d]) / self.threshold[d])[:, self.stroke])
+            fl = f[:, self.latch]
+            k = np.argmin(fl, axis=1) if d == "opening" else np.argmax(fl, axis=1)
+            peak = fl[np.arange(len(P)), k]
+            peaks.append((peak - feel.peaks[d]) / feel.peak_threshold[d])
+            angles.append((zone[k] - feel.peak_angles[d]) / feel.angle_threshold)
+        parts += [np.array(peaks).T, np.array(angles).T]
+        if feel.dynamics is not None:
+            parts.append(self._dynamics(P))
+        return np.concatenate(parts, axis=1)
+
+    def _dynamics(self, P) -> np.ndarray:
+        """Felt inertia and damping margins, as :meth:`FeelTarget.felt_dynamics`."""
+        feel, theta, v = self.feel, self.dyn_theta, self.feel.jnd.speed
+        inertia = inertia_rows(self.model, P, theta, -0.5 * v).mean(axis=1)
+        damping = np.zeros(len(P))
+        for s in (-1.0, 1.0):
+            half = hold_forces_rows(self.model, P, theta, 0.5 * s * v)
+            full = hold_forces_rows(self.model, P, theta, s * v)
+            damping += np.mean((full - half) / (0.5 * s * v), axis=1)
+        ti, tc = feel.dynamics
+        return np.c_[
+            (inertia - ti) / feel.jnd.inertia_threshold(ti),
+            (0.5 * damping - tc) / feel.jnd.damping_threshold(tc),
+        ]
+
+    def judge(self, P) -> np.ndarray:
+        """Whether each door (row of ``P``) passes the check."""
+        return passing(self.margins(P))
 
     def passes(self, p) -> bool:
-        """Whether the one door ``p`` passes."""
-        return bool(self.judge(p)[0][0])
+        return bool(self.judge(p)[0])
+
+
+def band_text(band: float, unit: str, relative: float) -> str:
+    """``+-12.3 N/m (3.5 %)``: a band in its unit and as a share of its value.
+
+    >>> band_text(12.3, "N/m", 0.035), band_text(0.1, "1", float("inf"))
+    ('+-12.3 N/m (3.5 %)', '+-0.1')
+    """
+    unit = "" if unit == "1" else f" {unit}"
+    share = f" ({100 * relative:.3g} %)" if math.isfinite(relative) else ""
+    return f"+-{band:.3g}{unit}{share}"
+
+
+def passing(margins) -> np.ndarray:
+    """Whether each row of margins passes: every one within +-1 JND."""
+    return np.all(np.abs(margins) <= 1.0, axis=-1)
+
+
+# -- the result -----------------------------------------------------------------------
+@dataclass
+class YieldEstimate:
+    """The share of a fresh sample of doors that passes, with its 95 % interval."""
+
+    passed: int
+    samples: int
+    seed: int
+
+    @property
+    def estimate(self) -> float:
+        return self.passed / self.samples if self.samples else math.nan
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        return clopper_pearson(self.passed, self.samples)
+
+    def as_dict(self) -> dict:
+        lo, hi = self.ci95
+        return {
+            "estimate": self.estimate,
+            "ci95": [lo, hi],
+            "samples": self.samples,
+            "seed": self.seed,
+            "passed": self.passed,
+        }
+
+    def text(self) -> str:
+        lo, hi = self.ci95
+        return (
+            f"{100 * self.estimate:.1f} % (95 % interval {100 * lo:.1f}-{100 * hi:.1f} %, "
+            f"{self.passed} of {self.samples} doors, seed {self.seed})"
+        )
+
+    @classmethod
+    def from_dict(cls, d: dict) -> YieldEstimate:
+        return cls(int(d["passed"]), int(d["samples"]), int(d["seed"]))
+
+
+def clopper_pearson(passed: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The two-sided Clopper-Pearson interval of a share of ``passed`` in ``n``.
+
+    >>> [round(x, 4) for x in clopper_pearson(1900, 2000)]
+    [0.9397, 0.9591]
+    """
+    if n <= 0:
+        return (math.nan, math.nan)
+    from scipy.stats import beta
+
+    a = 1.0 - confidence
+    lo = 0.0 if passed == 0 else float(beta.ppf(a / 2, passed, n - passed + 1))
+    hi = 1.0 if passed == n else float(beta.ppf(1 - a / 2, passed + 1, n - passed))
+    return (lo, hi)
 
 
 @dataclass
-class Tolerances:
-    """The bands of a set of specifications (module docstring); every band in its unit."""
+class Specification:
+    """What :func:`specify` decided (module docstring); every value in its unit.
+
+    Per specification (``names``): ``nominal``, ``half_width`` (the process's +-t as
+    used), ``distribution``, ``source`` (of the tolerance), ``sensitivity`` (JND per
+    unit: the largest secant slope of any margin), ``loss`` (yield points lost to it),
+    ``changed`` (from the AS-IS door). ``design``: ``"centred"`` or ``"smallest
+    change"``, the nominal chosen; ``alternative`` the other one's nominal and yield.
+    """
 
     names: list[str]
     units: list[str]
-    value: np.ndarray
-    alone: np.ndarray  # +- half-width, alone
-    together: np.ndarray  # +- half-width, all at once
-    cap: np.ndarray  # the search range of each band
-    capped: np.ndarray  # bool: the alone band reached its cap
-    factor: float  # together = factor * alone
-    samples: int
-    seed: int
-    passed: int  # doors of the Monte-Carlo at ``factor`` that pass
+    nominal: np.ndarray
+    asis: np.ndarray
+    half_width: np.ndarray
+    distribution: list[str]
+    source: list[str]
+    sensitivity: np.ndarray
+    loss: np.ndarray
+    free: list[str]
+    design: str
+    yield_: YieldEstimate
     target: float
-    confidence: float
-    nominal_passes: bool
+    worst: str  # the margin that fails the most sampled doors
+    alternative: dict = field(default_factory=dict)  # {"design", "nominal", "yield"}
+    allocation: dict = field(default_factory=dict)  # name -> tightened half-width
+    allocation_yield: YieldEstimate | None = None
+    nominal_margin: float = math.nan  # the nominal door's worst margin, JND
+    design_seed: int = DESIGN_SEED
     evaluations: int = 0
     seconds: float = 0.0
     note: str = ""
@@ -152,351 +288,455 @@ class Tolerances:
     curves: dict = field(default_factory=dict)
 
     @property
-    def pass_rate(self) -> float:
-        return self.passed / self.samples if self.samples else math.nan
+    def reachable(self) -> bool:
+        return self.yield_.estimate >= self.target
 
     @property
-    def lower_bound(self) -> float:
-        return wilson_lower(self.passed, self.samples, self.confidence)
+    def changed(self) -> np.ndarray:
+        scale = np.maximum(np.abs(self.asis), 1e-300)
+        return np.abs(self.nominal - self.asis) > 1e-9 * scale
 
-    def relative(self, which: str = "alone") -> np.ndarray:
-        """A band as a fraction of its value (inf for a value of 0)."""
-        band = getattr(self, which)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(self.value != 0.0, band / np.abs(self.value), math.inf)
+    @property
+    def judged(self) -> np.ndarray:
+        """Whether the check sees each specification at all."""
+        return self.sensitivity > 0.0
 
     def row(self, name: str) -> dict:
         i = self.names.index(name)
         return {
             "unit": self.units[i],
-            "value": float(self.value[i]),
-            "alone": float(self.alone[i]),
-            "together": float(self.together[i]),
-            "cap": float(self.cap[i]),
-            "capped": bool(self.capped[i]),
+            "nominal": float(self.nominal[i]),
+            "half_width": float(self.half_width[i]),
+            "distribution": self.distribution[i],
+            "source": self.source[i],
+            "sensitivity_jnd_per_unit": float(self.sensitivity[i]),
+            "judged": bool(self.judged[i]),
+            "yield_loss": float(self.loss[i]),
+            "changed": bool(self.changed[i]),
+            "free": name in self.free,
         }
 
     def as_dict(self) -> dict:
         """What ``show --json`` prints (JSON-able)."""
         return {
+            "design": self.design,
+            "process": {n: float(t) for n, t in zip(self.names, self.half_width)},
+            "distribution": dict(zip(self.names, self.distribution)),
+            "yield": self.yield_.as_dict(),
+            "target": self.target,
+            "reachable": self.reachable,
+            "allocation": dict(self.allocation),
+            "allocation_yield": (
+                self.allocation_yield.as_dict() if self.allocation_yield is not None else None
+            ),
             "specifications": {n: self.row(n) for n in self.names},
-            "factor": self.factor,
-            "monte_carlo": {
-                "samples": self.samples,
-                "seed": self.seed,
-                "passed": self.passed,
-                "pass_rate": self.pass_rate,
-                "lower_bound": self.lower_bound,
-                "target": self.target,
-                "confidence": self.confidence,
-            },
-            "nominal_passes": self.nominal_passes,
+            "alternative": _plain_alternative(self.alternative),
+            "worst": self.worst,
+            "nominal_margin_jnd": self.nominal_margin,
+            "design_seed": self.design_seed,
             "evaluations": self.evaluations,
             "seconds": self.seconds,
             "note": self.note,
         }
 
-    def format(self) -> str:
-        """A few lines for a person: each band alone and together, and the Monte-Carlo."""
+    def summary_lines(self) -> list[str]:
+        """The lines under the table: the yield, the design, reachable or not."""
         lines = [
-            "tolerances (+- band within which the door still feels like the chosen one):",
-            f"{'parameter':<22} {'value':>12}  {'alone':>22}  {'together':>22}",
+            f"yield: {self.yield_.text()} pass the perceptual check when built to the "
+            f"process's tolerances (target {100 * self.target:g} %)",
+            f"design: {self.design} nominal (the nominal door's worst difference "
+            f"{self.nominal_margin:.2f} JND)",
         ]
-        rel_a, rel_t = self.relative("alone"), self.relative("together")
-        for i, n in enumerate(self.names):
-            u = self.units[i]
-            cap = " (cap)" if self.capped[i] else ""
+        alt = self.alternative
+        if alt:
+            lines.append(f"alternative: the {alt['design']} nominal, yield {alt['yield'].text()}")
+        if self.yield_.passed < self.yield_.samples:
+            lines.append(f"most doors fail at: {self.worst}")
+        if not self.reachable:
             lines.append(
-                f"{n:<22} {self.value[i]:>12.6g}  "
-                f"{band_text(self.alone[i], u, rel_a[i]) + cap:>22}  "
-                f"{band_text(self.together[i], u, rel_t[i]):>22}"
+                f"NOT REACHABLE: the process's tolerances give {100 * self.yield_.estimate:.1f} % "
+                f"< {100 * self.target:g} %"
             )
-        lines.append(
-            f"together = {self.factor:.3g} x alone: {self.passed}/{self.samples} sampled doors "
-            f"pass ({100 * self.pass_rate:.1f} %, lower bound {100 * self.lower_bound:.1f} % at "
-            f"{100 * self.confidence:.0f} % confidence), seed {self.seed}; "
-            f"{self.evaluations} doors checked in {self.seconds:.1f} s"
-        )
+            if self.allocation:
+                tight = ", ".join(
+                    f"{n} +-{t:.3g} {self.units[self.names.index(n)]}".replace(" 1", "")
+                    for n, t in self.allocation.items()
+                )
+                got = self.allocation_yield.text() if self.allocation_yield else "not verified"
+                lines.append(f"  tighten {tight}: yield {got}")
+            else:
+                lines.append("  no tightening of up to 4 tolerances reaches it")
         if self.note:
             lines.append(f"note: {self.note}")
-        return "\n".join(lines)
+        return lines
 
     def to_tree(self) -> dict:
+        import json
+
         attrs = {
+            "format": 2,
             "names": list(self.names),
             "units": list(self.units),
-            "factor": float(self.factor),
-            "samples": int(self.samples),
-            "seed": int(self.seed),
-            "passed": int(self.passed),
+            "distribution": list(self.distribution),
+            "source": list(self.source),
+            "free": list(self.free),
+            "design": self.design,
+            "yield": json.dumps(self.yield_.as_dict()),
             "target": float(self.target),
-            "confidence": float(self.confidence),
-            "nominal_passes": bool(self.nominal_passes),
+            "worst": self.worst,
+            "alternative": json.dumps(_plain_alternative(self.alternative)),
+            "allocation": json.dumps(self.allocation),
+            "allocation_yield": json.dumps(
+                self.allocation_yield.as_dict() if self.allocation_yield is not None else None
+            ),
+            "nominal_margin": float(self.nominal_margin),
+            "design_seed": int(self.design_seed),
             "evaluations": int(self.evaluations),
             "seconds": float(self.seconds),
             "note": self.note,
         }
         tree = {
             ATTRS: attrs,
-            "value": np.asarray(self.value, dtype=np.float64),
-            "alone": np.asarray(self.alone, dtype=np.float64),
-            "together": np.asarray(self.together, dtype=np.float64),
-            "cap": np.asarray(self.cap, dtype=np.float64),
-            "capped": np.asarray(self.capped, dtype=np.int8),
+            "nominal": np.asarray(self.nominal, dtype=np.float64),
+            "asis": np.asarray(self.asis, dtype=np.float64),
+            "half_width": np.asarray(self.half_width, dtype=np.float64),
+            "sensitivity": np.asarray(self.sensitivity, dtype=np.float64),
+            "loss": np.asarray(self.loss, dtype=np.float64),
         }
         if self.curves:
             tree["curves"] = {k: np.asarray(v, dtype=np.float64) for k, v in self.curves.items()}
         return tree
 
     @classmethod
-    def from_tree(cls, node: dict) -> Tolerances:
+    def from_tree(cls, node: dict) -> Specification | None:
+        """Read the group back; None for one written in the old form (bands alone and
+        together), which is then computed anew."""
+        import json
+
         a = node[ATTRS]
+        if int(a.get("format", 1)) < 2:
+            return None
+        alt = json.loads(a["alternative"])
+        if alt:
+            alt = {
+                "design": alt["design"],
+                "nominal": np.asarray(alt["nominal"], dtype=np.float64),
+                "yield": YieldEstimate.from_dict(alt["yield"]),
+            }
+        ay = json.loads(a["allocation_yield"])
         curves = node.get("curves") or {}
         return cls(
             names=list(a["names"]),
             units=list(a["units"]),
-            value=np.asarray(node["value"], dtype=np.float64),
-            alone=np.asarray(node["alone"], dtype=np.float64),
-            together=np.asarray(node["together"], dtype=np.float64),
-            cap=np.asarray(node["cap"], dtype=np.float64),
-            capped=np.asarray(node["capped"]).astype(bool),
-            factor=float(a["factor"]),
-            samples=int(a["samples"]),
-            seed=int(a["seed"]),
-            passed=int(a["passed"]),
+            nominal=np.asarray(node["nominal"], dtype=np.float64),
+            asis=np.asarray(node["asis"], dtype=np.float64),
+            half_width=np.asarray(node["half_width"], dtype=np.float64),
+            distribution=list(a["distribution"]),
+            source=list(a["source"]),
+            sensitivity=np.asarray(node["sensitivity"], dtype=np.float64),
+            loss=np.asarray(node["loss"], dtype=np.float64),
+            free=list(a["free"]),
+            design=str(a["design"]),
+            yield_=YieldEstimate.from_dict(json.loads(a["yield"])),
             target=float(a["target"]),
-            confidence=float(a["confidence"]),
-            nominal_passes=bool(a["nominal_passes"]),
-            evaluations=int(a.get("evaluations", 0)),
-            seconds=float(a.get("seconds", 0.0)),
-            note=str(a.get("note", "")),
+            worst=str(a["worst"]),
+            alternative=alt or {},
+            allocation={k: float(v) for k, v in json.loads(a["allocation"]).items()},
+            allocation_yield=YieldEstimate.from_dict(ay) if ay else None,
+            nominal_margin=float(a["nominal_margin"]),
+            design_seed=int(a["design_seed"]),
+            evaluations=int(a["evaluations"]),
+            seconds=float(a["seconds"]),
+            note=str(a["note"]),
             curves={k: np.asarray(v) for k, v in curves.items() if k != ATTRS},
         )
 
 
-def band_text(band: float, unit: str, relative: float) -> str:
-    """``+-12.3 N/m (3.5 %)``: a band in its unit and as a share of its value."""
-    unit = "" if unit == "1" else f" {unit}"
-    share = f" ({100 * relative:.3g} %)" if math.isfinite(relative) else ""
-    return f"+-{band:.3g}{unit}{share}"
+def _plain_alternative(alt: dict) -> dict:
+    if not alt:
+        return {}
+    return {
+        "design": alt["design"],
+        "nominal": [float(v) for v in alt["nominal"]],
+        "yield": alt["yield"].as_dict(),
+    }
 
 
-def wilson_lower(passed: int, n: int, confidence: float) -> float:
-    """The one-sided Wilson score lower bound of a pass rate of ``passed`` in ``n``.
+# -- the computation ------------------------------------------------------------------
+def standard_draws(distributions: list[str], n: int, rng) -> np.ndarray:
+    """Deviations of ``n`` doors in units of each tolerance: normal with 3 sigma = 1, or
+    uniform on [-1, 1]; one column per specification, drawn in that order.
 
-    >>> round(wilson_lower(200, 200, 0.95), 4), round(wilson_lower(190, 200, 0.95), 4)
-    (0.9867, 0.9181)
+    >>> u = standard_draws(["normal", "uniform"], 20000, np.random.default_rng(1))
+    >>> round(float(u[:, 0].std()), 2), bool(np.abs(u[:, 1]).max() <= 1.0)
+    (0.33, True)
     """
-    if n <= 0:
-        return math.nan
-    from statistics import NormalDist
-
-    z = NormalDist().inv_cdf(confidence)
-    p = passed / n
-    centre = p + z * z / (2 * n)
-    spread = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    return (centre - spread) / (1 + z * z / n)
+    out = np.empty((n, len(distributions)))
+    for j, kind in enumerate(distributions):
+        if kind == "uniform":
+            out[:, j] = rng.uniform(-1.0, 1.0, n)
+        else:
+            out[:, j] = rng.standard_normal(n) / 3.0
+    return out
 
 
-def allowed_failures(n: int, target: float, confidence: float) -> int:
-    """The most failing doors of ``n`` at which the Wilson lower bound still reaches
-    ``target`` (-1: none, ``n`` too small for the target)."""
-    k = -1
-    while k + 1 <= n and wilson_lower(n - (k + 1), n, confidence) >= target:
-        k += 1
-    return k
-
-
-def _caps(model, names: list[str], p0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each band's search range (module docstring) and the declared bounds."""
-    idx = np.array([model.params.index(n) for n in names], dtype=np.int64)
-    lo = np.array([model.params[n].lower for n in names], dtype=np.float64)
-    hi = np.array([model.params[n].upper for n in names], dtype=np.float64)
-    v = p0[idx]
-    cap = np.where(v != 0.0, np.abs(v), 0.5 * (hi - lo))
-    cap = np.minimum(cap, np.maximum(hi - v, v - lo))
-    return cap, lo, hi
-
-
-def tolerances(
+def specify(
     model,
     p0,
     feel: FeelTarget,
     names: list[str],
-    samples: int = SAMPLES,
-    seed: int = SEED,
+    process,
+    free: list[str],
+    lower,
+    upper,
+    asis=None,
     target: float = TARGET,
-    confidence: float = CONFIDENCE,
+    samples: int = SAMPLES,
+    design_seed: int = DESIGN_SEED,
+    yield_seed: int = YIELD_SEED,
+    allocation_seed: int = ALLOCATION_SEED,
+    centre: bool = True,
     progress: bool = False,
-) -> Tolerances:
-    """The alone and together bands of ``names`` about the door ``p0`` (a full kernel
-    vector of ``model``) against the chosen feel ``feel`` (module docstring)."""
+) -> Specification:
+    """The specification of ``names`` from the door ``p0`` (a full kernel vector of
+    ``model``, the smallest change that reaches the chosen ``feel``), built to
+    ``process`` (an :class:`~evo_door.optim.process.Process` of ``names``); ``free``
+    are the specifications the nominal may move (within ``lower``..``upper``, their
+    search ranges), ``asis`` the AS-IS door's full vector (the "changed" column). See
+    the module docstring."""
     t0 = time.perf_counter()
-    p0 = _check_inputs(model, p0, feel, names, samples, target, confidence)
+    p0 = _check_inputs(model, p0, feel, names, samples, target)
     idx = np.array([model.params.index(n) for n in names], dtype=np.int64)
-    cap, lo, hi = _caps(model, names, p0)
+    lo_decl = np.array([model.params[n].lower for n in names])
+    hi_decl = np.array([model.params[n].upper for n in names])
+    dist = [process.distribution[process.names.index(n)] for n in names]
+    source = [process.source[process.names.index(n)] for n in names]
     check = FeelCheck(model, feel)
-    bar = _bar(len(names) + FACTOR_BISECTIONS + 1, progress)
-    nominal = check.passes(p0)
-    alone = np.zeros(len(names))
-    capped = np.zeros(len(names), dtype=bool)
-    note = ""
-    for i in range(len(names)):
-        if nominal:
-            alone[i], capped[i] = _alone_band(check, p0, idx[i], cap[i], lo[i], hi[i])
-        bar.update(1)
-    if not nominal:
-        note = "the fitted door itself does not pass the perceptual check: no band"
-    factor, passed, curves = _together(
-        check, p0, idx, alone, lo, hi, samples, seed, target, confidence, bar
+    bar = _bar(ROUNDS + 4, progress)
+
+    def widths(p):
+        return np.asarray(process.half_widths(p[idx]), dtype=np.float64)
+
+    def doors(p, U, t):
+        P = np.repeat(p[None, :], len(U), axis=0)
+        P[:, idx] = np.clip(p[idx] + U * t, lo_decl, hi_decl)
+        return P
+
+    design_draws = standard_draws(dist, DESIGN_SAMPLES, np.random.default_rng(design_seed))
+    cols = np.array([names.index(n) for n in free if n in names], dtype=np.int64)
+    search_lo = np.asarray(lower, dtype=np.float64)
+    search_hi = np.asarray(upper, dtype=np.float64)
+    start = p0.copy()
+    p = p0.copy()
+    if centre and cols.size:
+        for _ in range(ROUNDS):
+            p = _centre_round(check, p, idx, cols, widths(p), design_draws, search_lo, search_hi)
+            bar.update(1)
+    else:
+        bar.update(ROUNDS)
+    # the centred nominal where the compiled check of the design doors says it is better
+    y_start = passing(check.margins(doors(start, design_draws, widths(start)))).mean()
+    y_centred = passing(check.margins(doors(p, design_draws, widths(p)))).mean()
+    bar.update(1)
+    if centre and y_centred > y_start and check.passes(p):
+        design, other, other_name = "centred", start, "smallest change"
+    else:
+        p, design, other, other_name = start, "smallest change", None, ""
+    # the yield: a fresh sample, drawn now that the design is fixed
+    t = widths(p)
+    U = standard_draws(dist, samples, np.random.default_rng(yield_seed))
+    forces: dict = {}
+    M = check.margins(doors(p, U, t), forces)
+    ok = passing(M)
+    estimate = YieldEstimate(int(ok.sum()), samples, yield_seed)
+    bar.update(1)
+    J = _secants(check, p, idx, t, lo_decl, hi_decl)
+    sensitivity = np.max(np.abs(J), axis=0) if J.size else np.zeros(len(names))
+    loss = np.array(
+        [
+            passing(M - np.outer(U[:, j] * t[j], J[:, j])).mean() - ok.mean() if t[j] else 0.0
+            for j in range(len(names))
+        ]
     )
+    fails = np.abs(M) > 1.0
+    worst = check.labels[int(np.argmax(fails.sum(axis=0)))] if fails.any() else ""
+    alternative = {}
+    if other is not None:
+        Ua = standard_draws(dist, samples, np.random.default_rng(yield_seed))
+        ya = passing(check.margins(doors(other, Ua, widths(other)))).mean()
+        alternative = {
+            "design": other_name,
+            "nominal": other[idx].copy(),
+            "yield": YieldEstimate(int(round(ya * samples)), samples, yield_seed),
+        }
+    bar.update(1)
+    allocation, allocation_yield = {}, None
+    if estimate.estimate < target:
+        allocation = _allocate(M, U, t, J, names, loss, target)
+        if allocation:
+            tightened = t.copy()
+            for n, w in allocation.items():
+                tightened[names.index(n)] = w
+            Uv = standard_draws(dist, samples, np.random.default_rng(allocation_seed))
+            okv = passing(check.margins(doors(p, Uv, tightened)))
+            allocation_yield = YieldEstimate(int(okv.sum()), samples, allocation_seed)
+    bar.update(1)
     bar.close()
-    return Tolerances(
+    nominal_margin = float(np.max(np.abs(check.margins(p))))
+    return Specification(
         names=list(names),
         units=[model.params[n].unit for n in names],
-        value=p0[idx].copy(),
-        alone=alone,
-        together=factor * alone,
-        cap=cap,
-        capped=capped,
-        factor=factor,
-        samples=samples,
-        seed=seed,
-        passed=passed,
+        nominal=p[idx].copy(),
+        asis=(np.asarray(asis, dtype=np.float64)[idx] if asis is not None else start[idx]).copy(),
+        half_width=t,
+        distribution=dist,
+        source=source,
+        sensitivity=sensitivity,
+        loss=loss,
+        free=[names[c] for c in cols],
+        design=design,
+        yield_=estimate,
         target=target,
-        confidence=confidence,
-        nominal_passes=nominal,
+        worst=worst,
+        alternative=alternative,
+        allocation=allocation,
+        allocation_yield=allocation_yield,
+        nominal_margin=nominal_margin,
+        design_seed=design_seed,
         evaluations=check.evaluations,
         seconds=time.perf_counter() - t0,
-        note=note,
-        curves=curves,
+        curves=_curves(check, forces),
     )
 
 
-def _check_inputs(model, p0, feel, names, samples, target, confidence) -> np.ndarray:
+def full_nominal(spec: Specification, model, p0) -> np.ndarray:
+    """The full kernel vector ``p0`` with the specification's nominal in it."""
+    p = np.array(p0, dtype=np.float64)
+    for n, v in zip(spec.names, spec.nominal):
+        p[model.params.index(n)] = v
+    return p
+
+
+def _check_inputs(model, p0, feel, names, samples, target) -> np.ndarray:
     """``p0`` as a kernel vector; every bad argument a one-line error."""
     if not isinstance(feel, FeelTarget):
-        raise UserError("tolerances: need a chosen feel (a run with the perceptual objective)")
+        raise UserError("specification: needs a chosen feel (a run with the perceptual objective)")
     p0 = np.array(p0, dtype=np.float64).ravel()
     if p0.shape != (len(model.params),) or not np.all(np.isfinite(p0)):
         raise UserError(
-            f"tolerances: the door needs {len(model.params)} finite values of model "
+            f"specification: the door needs {len(model.params)} finite values of model "
             f"{model.name!r}, got shape {p0.shape}"
         )
     if not names:
-        raise UserError("tolerances: no specification to give a band to")
+        raise UserError("specification: no specification to build")
     for n in names:
         if n not in model.params.names:
             model.params[n]  # the declaration's own did-you-mean error
     if len(set(names)) != len(names):
-        raise UserError("tolerances: a specification is named twice")
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 20:
-        raise UserError(f"tolerances: samples {samples!r}: a whole number of doors, at least 20")
-    for what, v in (("target", target), ("confidence", confidence)):
-        if not (isinstance(v, (int, float)) and 0.5 <= v < 1.0):
-            raise UserError(f"tolerances: {what} {v!r}: a share in [0.5, 1) (0.95 is 95 %)")
-    if allowed_failures(samples, target, confidence) < 0:
-        raise UserError(
-            f"tolerances: {samples} doors cannot show a pass rate of {100 * target:g} % at "
-            f"{100 * confidence:g} % confidence; sample more"
-        )
+        raise UserError("specification: a specification is named twice")
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 100:
+        raise UserError(f"specification: samples {samples!r}: a whole number of doors, >= 100")
+    if not (isinstance(target, (int, float)) and 0.5 <= target < 1.0):
+        raise UserError(f"specification: target {target!r}: a share in [0.5, 1) (0.95 is 95 %)")
     return p0
 
 
-def _moved(p0, i, value, lo, hi) -> np.ndarray:
-    p = p0.copy()
-    p[i] = min(max(value, lo), hi)
-    return p
+def _secants(check: FeelCheck, p, idx, t, lo, hi) -> np.ndarray:
+    """Each specification's secant slope of every margin over +-its tolerance (JND per
+    unit), columns in ``idx``'s order; a step of 1e-6 of its value where the tolerance
+    is 0 (a slope is still wanted for centring)."""
+    steps = np.where(t > 0.0, t, 1e-6 * np.maximum(np.abs(p[idx]), 1e-6))
+    P = np.repeat(p[None, :], 2 * len(idx), axis=0)
+    for j, i in enumerate(idx):
+        P[2 * j, i] = min(p[i] + steps[j], hi[j])
+        P[2 * j + 1, i] = max(p[i] - steps[j], lo[j])
+    M = check.margins(P)
+    width = P[0::2, idx].diagonal() - P[1::2, idx].diagonal()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        J = (M[0::2] - M[1::2]).T / np.where(width > 0.0, width, np.inf)
+    J[np.abs(J) > 0.1 * BLOWN] = 0.0  # a blown door at an end: no slope to trust
+    return J
 
 
-def _alone_band(check: FeelCheck, p0, i, cap, lo, hi) -> tuple[float, bool]:
-    """The widest band ``+-b`` of the specification at index ``i`` alone (module
-    docstring); True where it is the cap."""
-    v = p0[i]
+def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray:
+    """One round of centring (module docstring, step 3): the free specifications'
+    nominal that maximises the smoothed yield of the secant model about ``p``."""
+    from scipy.optimize import minimize
 
-    def ok(b):
-        ends = np.array([_moved(p0, i, v - b, lo, hi), _moved(p0, i, v + b, lo, hi)])
-        return bool(np.all(check.judge(ends)[0]))
+    lo = np.array([check.model.params[check.model.params.names[i]].lower for i in idx])
+    hi = np.array([check.model.params[check.model.params.names[i]].upper for i in idx])
+    J = _secants(check, p, idx, t, lo, hi)
+    m0 = check.margins(p)[0]
+    D = (U * t) @ J.T  # every design door's deviation of its margins
+    Jf = J[:, cols]
+    ref = np.maximum(t[cols], 1e-3 * (search_hi - search_lo))
+    box_lo = np.maximum(p[idx][cols] - TRUST * ref, search_lo)
+    box_hi = np.minimum(p[idx][cols] + TRUST * ref, search_hi)
+    if np.any(box_hi <= box_lo):
+        return p
 
-    if cap <= 0.0:
-        return 0.0, True
-    good, bad = 0.0, None
-    for j in range(SCAN_STEPS, -1, -1):
-        b = cap * 2.0**-j
-        if ok(b):
-            good = b
-        else:
-            bad = b
-            break
-    if bad is None:
-        return cap, True
-    for _ in range(BISECTIONS):
-        mid = 0.5 * (good + bad)
-        if ok(mid):
-            good = mid
-        else:
-            bad = mid
-    return good, False
+    def soft_yield(z):
+        worst = np.max(np.abs(m0 + Jf @ (z * ref) + D), axis=1)
+        return -np.mean(1.0 / (1.0 + np.exp(np.clip((worst - 1.0) / SMOOTHING, -50, 50))))
 
-
-def _together(check, p0, idx, alone, lo, hi, samples, seed, target, confidence, bar):
-    """The common factor of the together bands, the doors that pass at it, and their
-    force-angle band (module docstring)."""
-    draws = np.random.default_rng(seed).uniform(-1.0, 1.0, (samples, idx.size))
-    limit = allowed_failures(samples, target, confidence)
-
-    def trial(s):
-        """Doors passing at factor ``s`` and their force-angle band; None once more
-        fail than allowed."""
-        P = np.repeat(p0[None, :], samples, axis=0)
-        P[:, idx] = np.clip(p0[idx] + s * alone * draws, lo, hi)
-        fails, env = 0, None
-        for start in range(0, samples, BATCH):
-            ok, forces = check.judge(P[start : start + BATCH])
-            fails += int(np.sum(~ok))
-            if fails > limit:
-                return None
-            env = _envelope(env, forces)
-        return samples - fails, env
-
-    got = trial(1.0)
-    bar.update(1)
-    if got is not None or not np.any(alone > 0.0):  # all pass, or the door alone fails
-        bar.update(FACTOR_BISECTIONS)
-        passed, env = got if got is not None else (0, None)
-        return (1.0 if got is not None else 0.0), passed, _curves(check, env)
-    good, bad, best = 0.0, 1.0, None
-    for _ in range(FACTOR_BISECTIONS):
-        mid = 0.5 * (good + bad)
-        got = trial(mid)
-        if got is not None:
-            good, best = mid, got
-        else:
-            bad = mid
-        bar.update(1)
-    if best is None:  # even the smallest factor tried fails: the door alone
-        good, best = 0.0, trial(0.0) or (0, None)
-    passed, env = best
-    return good, passed, _curves(check, env)
+    z_lo = (box_lo - p[idx][cols]) / ref
+    z_hi = (box_hi - p[idx][cols]) / ref
+    res = minimize(
+        soft_yield,
+        np.zeros(cols.size),
+        method="Nelder-Mead",
+        bounds=list(zip(z_lo, z_hi)),
+        options={"maxfev": EVALUATIONS_PER_FREE * cols.size, "xatol": 1e-3, "fatol": 1e-5},
+    )
+    out = p.copy()
+    out[idx[cols]] = p[idx][cols] + np.clip(res.x, z_lo, z_hi) * ref
+    return out
 
 
-def _envelope(env, forces: dict) -> dict:
-    low = {d: f.min(axis=0) for d, f in forces.items()}
-    high = {d: f.max(axis=0) for d, f in forces.items()}
-    if env is None:
-        return {d: [low[d], high[d]] for d in forces}
-    return {d: [np.minimum(env[d][0], low[d]), np.maximum(env[d][1], high[d])] for d in forces}
+def _allocate(M, U, t, J, names, loss, target) -> dict:
+    """The fewest tolerances, tightened by the least common factor, whose doors reach
+    ``target`` on the sample's margins (first order in each tightened deviation);
+    {} when up to :data:`MOST_TIGHTENED` of the largest contributors cannot."""
+    order = [j for j in np.argsort(-loss) if t[j] > 0.0 and loss[j] > 0.0][:CANDIDATES]
+    aim = target + 0.005  # a little above: the fresh sample that verifies it varies
+
+    def reach(subset, share):
+        m = M.copy()
+        for j in subset:
+            m -= np.outer((1.0 - share) * U[:, j] * t[j], J[:, j])
+        return passing(m).mean()
+
+    for k in range(1, MOST_TIGHTENED + 1):
+        best = None
+        for subset in itertools.combinations(order, k):
+            if reach(subset, LEAST_SHARE) < aim:
+                continue
+            lo, hi = LEAST_SHARE, 1.0  # share kept: lo reaches, hi does not
+            for _ in range(12):
+                mid = 0.5 * (lo + hi)
+                if reach(subset, mid) >= aim:
+                    lo = mid
+                else:
+                    hi = mid
+            if best is None or lo > best[1]:
+                best = (subset, lo)
+        if best is not None:
+            subset, share = best
+            return {names[j]: float(share * t[j]) for j in subset}
+    return {}
 
 
-def _curves(check: FeelCheck, env) -> dict:
+def _curves(check: FeelCheck, forces: dict) -> dict:
     """The figure's arrays: the chosen curve, its JND, the sampled doors' low and high."""
-    if env is None:
+    if not forces:
         return {}
     out = {"theta": check.theta}
     for d in DIRECTIONS:
+        f = np.concatenate(forces[d], axis=0)
         out[f"{d}_chosen"] = check.chosen[d]
         out[f"{d}_jnd"] = check.threshold[d]
-        out[f"{d}_low"], out[f"{d}_high"] = env[d]
+        out[f"{d}_low"] = np.percentile(f, 2.5, axis=0)
+        out[f"{d}_high"] = np.percentile(f, 97.5, axis=0)
     return out
 
 
@@ -513,4 +753,4 @@ def _bar(total: int, progress: bool):
         return _NoBar()
     from tqdm import tqdm
 
-    return tqdm(total=total, desc="tolerances", unit="step", file=sys.stderr, dynamic_ncols=True)
+    return tqdm(total=total, desc="specification", unit="step", file=sys.stderr, dynamic_ncols=True)

@@ -19,6 +19,7 @@ from evo_door.perception.feel import (
     model_curve,
     perceptual_check,
     read_curve_csv,
+    verdict_text,
 )
 from evo_door.perception.jnd import JND
 from evo_door.perception.target import FeelTarget
@@ -28,6 +29,7 @@ __all__ = [
     "FeelCurve",
     "FeelTarget",
     "check_verdict",
+    "verdict_text",
     "model_curve",
     "perceptual_check",
     "read_curve_csv",

@@ -27,8 +27,8 @@ from evo_door.perception.jnd import JND
 DIRECTIONS = ("opening", "closing")
 #: the columns of a curve file (``evo-door curve``'s CSV)
 CURVE_COLUMNS = ("theta", "force", "direction", "speed")
-#: a share of the stroke within the JND at or above this passes the check
-PASS_FRACTION = 0.95
+#: the units of the felt dynamics a check judges
+DYNAMICS_UNITS = {"inertia": "kg m", "damping": "N s/rad"}
 #: rad before closed where the latch is, judged by its peaks (3 deg)
 LATCH_ZONE = math.radians(3.0)
 
@@ -145,17 +145,24 @@ def read_curve_csv(path) -> FeelCurve:
 
 
 def perceptual_check(mechanism: FeelCurve | dict, chosen: FeelCurve | dict, jnd: JND) -> dict:
-    """Where ``mechanism``'s curve differs from ``chosen``'s by more than a force JND.
+    """Where ``mechanism``'s curve differs from ``chosen``'s by more than its JND.
 
-    Both on the union of their grids (each linear between its points). Returns per
-    direction (``opening``, ``closing``): ``theta`` (rad), ``mechanism``, ``chosen``,
-    ``threshold`` (N, :meth:`JND.force_threshold` of the chosen force), ``fails`` (bool
-    per point), ``fraction`` (share of the stroke's angle range beyond the JND),
-    ``worst`` (angle rad, difference N, threshold N), ``bands`` (failing intervals) and
-    ``peak``: the latch's peak of the stroke (the largest pull opening, the largest push
-    closing, in the last :data:`LATCH_ZONE` rad of the chosen curve, each curve on its
-    own points) as ``(mechanism N, chosen N, threshold N)``. A latch is felt as one event:
-    a peak beyond its JND is noticeable however little of the stroke it spans.
+    Both on the union of their grids (each linear between its points). The stroke, the
+    angles below the latch zone (the last :data:`LATCH_ZONE` rad of the chosen curve),
+    is judged at every point against the force JND of the chosen force; the latch zone
+    by its two events, each curve on its own points: the peak force (the largest pull
+    opening, the largest push closing) against the force JND of the chosen peak, and
+    the angle of that peak against the position JND at the handle
+    (:meth:`JND.angle_threshold`). A latch is felt as one event: its peak and where it
+    catches, however little of the stroke it spans.
+
+    Returns per direction (``opening``, ``closing``): ``theta`` (rad), ``mechanism``,
+    ``chosen``, ``threshold`` (N), ``stroke`` (bool per point: below the latch zone),
+    ``ratio`` (|difference| / threshold, JND), ``fails`` (bool per point: a stroke point
+    beyond its JND), ``fraction`` (share of the stroke's angle range beyond it),
+    ``worst`` (angle rad, difference N, threshold N of the stroke's largest ratio),
+    ``bands`` (failing intervals), ``peak`` ``(mechanism N, chosen N, threshold N)`` and
+    ``peak_angle`` ``(mechanism rad, chosen rad, threshold rad)``.
 
     >>> import numpy as np
     >>> th = np.linspace(0.0, 1.5, 151)
@@ -163,43 +170,56 @@ def perceptual_check(mechanism: FeelCurve | dict, chosen: FeelCurve | dict, jnd:
     >>> mech = FeelCurve(th, -10.5 + 0 * th, np.where(th < 0.75, 2.0, 3.0))
     >>> c = perceptual_check(mech, chosen, JND())
     >>> round(c["opening"]["fraction"], 3), round(c["closing"]["fraction"], 3)
-    (0.0, 0.5)
+    (0.0, 0.479)
     """
     m = mechanism if isinstance(mechanism, FeelCurve) else FeelCurve(**_arrays(mechanism))
     c = chosen if isinstance(chosen, FeelCurve) else FeelCurve(**_arrays(chosen))
     theta = np.union1d(m.theta, c.theta)
+    stroke = theta < c.theta[-1] - LATCH_ZONE
+    if stroke.sum() < 2:
+        stroke = np.ones(theta.size, dtype=bool)  # a curve that is all latch zone
     out = {}
     for d in DIRECTIONS:
         fm = m.force(d, theta)
         fc = c.force(d, theta)
         threshold = jnd.force_threshold(fc)
         diff = fm - fc
-        fails = np.abs(diff) > threshold
-        k = int(np.argmax(np.abs(diff) / threshold))
+        ratio = np.abs(diff) / threshold
+        fails = (ratio > 1.0) & stroke
+        k = int(np.argmax(np.where(stroke, ratio, -1.0)))
+        peak, angle = _peak(m, c, d, jnd)
         out[d] = {
             "theta": theta,
             "mechanism": fm,
             "chosen": fc,
             "threshold": threshold,
+            "stroke": stroke,
+            "ratio": ratio,
             "fails": fails,
-            "fraction": float(fraction_beyond(theta, fails)),
+            "fraction": float(fraction_beyond(theta[stroke], fails[stroke])),
             "worst": (float(theta[k]), float(diff[k]), float(threshold[k])),
             "bands": _bands(theta, fails),
-            "peak": _peak(m, c, d, jnd),
+            "peak": peak,
+            "peak_angle": angle,
         }
     return out
 
 
-def _peak(m: FeelCurve, c: FeelCurve, direction: str, jnd: JND) -> tuple[float, float, float]:
-    """``(mechanism, chosen, threshold)`` (N) of the latch peak of ``direction``."""
+def _peak(m: FeelCurve, c: FeelCurve, direction: str, jnd: JND) -> tuple[tuple, tuple]:
+    """``(mechanism, chosen, threshold)`` of the latch peak of ``direction``: its force
+    (N) and its angle (rad)."""
     edge = c.theta[-1] - LATCH_ZONE
-    pick = np.min if direction == "opening" else np.max
-    fm = getattr(m, direction)[m.theta >= edge]
-    fc = getattr(c, direction)[c.theta >= edge]
-    if fm.size == 0 or fc.size == 0:
-        return (math.nan, math.nan, math.nan)
-    chosen = float(pick(fc))
-    return (float(pick(fm)), chosen, float(jnd.force_threshold(chosen)))
+    pick = np.argmin if direction == "opening" else np.argmax
+    zone_m, zone_c = m.theta >= edge, c.theta >= edge
+    if not zone_m.any() or not zone_c.any():
+        nan = (math.nan, math.nan, math.nan)
+        return nan, nan
+    fm, fc = getattr(m, direction)[zone_m], getattr(c, direction)[zone_c]
+    km, kc = int(pick(fm)), int(pick(fc))
+    chosen = float(fc[kc])
+    force = (float(fm[km]), chosen, float(jnd.force_threshold(chosen)))
+    angle = (float(m.theta[zone_m][km]), float(c.theta[zone_c][kc]), jnd.angle_threshold())
+    return force, angle
 
 
 def fraction_beyond(theta, fails):
@@ -228,36 +248,100 @@ def _bands(theta, fails) -> list[tuple[float, float]]:
     return [(float(theta[a]), float(theta[b])) for a, b in zip(starts, ends)]
 
 
-def check_verdict(check: dict, jnd: JND, pass_fraction: float = PASS_FRACTION) -> dict:
-    """What ``show --json`` prints of a :func:`perceptual_check`, per direction.
+def check_verdict(check: dict, jnd: JND, dynamics: dict | None = None) -> dict:
+    """What ``show --json`` prints of a :func:`perceptual_check`, per direction, and its
+    verdict.
 
-    ``fraction_beyond_jnd`` of the stroke, the ``worst`` difference (``angle_deg``,
-    ``difference_N``, ``jnd_N``) and a ``verdict``: ``"within the JND"`` where no point
-    of the stroke is beyond it, ``"passes"`` where at least ``pass_fraction`` of the
-    stroke is within it and its latch peak within its JND (``latch_peak``: mechanism,
-    chosen, JND in N), ``"noticeable"`` otherwise. ``jnd`` is recorded beside it.
+    A door feels like the chosen feel when every point of both strokes is within the
+    force JND, each latch peak within its force JND and each peak's angle within the
+    position JND at the handle, and, where the chosen feel has dynamics (``dynamics``:
+    ``{"inertia": (mechanism, chosen, jnd), "damping": (...)}``, kg m and N s/rad at the
+    handle), the felt inertia and damping within theirs. No share of the stroke is
+    allowed beyond.
+
+    Per direction: ``worst`` (the stroke's largest difference: ``angle_deg``,
+    ``difference_N``, ``jnd_N``, ``jnd_units``), ``latch_peak`` (``mechanism_N``,
+    ``chosen_N``, ``jnd_N``, ``jnd_units``), ``peak_angle`` (``mechanism_deg``,
+    ``chosen_deg``, ``jnd_deg``, ``jnd_units``), ``fraction_beyond_jnd`` (share of the
+    stroke), ``bands_deg``, ``worst_jnd`` (the largest of the three in JND units),
+    ``worst_at`` (which it is, in words) and ``verdict``: ``"within the JND"`` or
+    ``"noticeable"``. Beside them: ``dynamics`` (where given), ``worst_jnd`` and
+    ``worst`` (the worst of everything, in words), ``passes`` and ``jnd``.
     """
     out: dict = {}
+    items = []  # (JND units, words)
     for d in DIRECTIONS:
         c = check[d]
         angle, diff, thr = c["worst"]
-        fraction = c["fraction"]
-        mech, chosen, limit = c.get("peak", (math.nan, math.nan, math.nan))
-        peak_ok = not (abs(mech - chosen) > limit)  # (nan: no latch zone, nothing to judge)
-        if not c["fails"].any():
-            verdict = "within the JND"
-        elif fraction <= 1.0 - pass_fraction and peak_ok:
-            verdict = "passes"
-        else:
-            verdict = "noticeable"
+        mech, chosen, limit = c.get("peak", (math.nan,) * 3)
+        am, ac, alim = c.get("peak_angle", (math.nan,) * 3)
+        stroke = abs(diff) / thr
+        peak = abs(mech - chosen) / limit  # (nan: no latch zone, nothing to judge)
+        at = abs(am - ac) / alim
+        latch = "unlock" if d == "opening" else "lock"
+        mine = [
+            (stroke, f"{d} stroke at {math.degrees(angle):.2f} deg"),
+            (peak, f"{latch} peak force"),
+            (at, f"{latch} peak's angle"),
+        ]
+        mine = [(v, w) for v, w in mine if math.isfinite(v)]
+        worst_jnd, worst_at = max(mine) if mine else (0.0, "")
+        items += mine
         out[d] = {
-            "fraction_beyond_jnd": fraction,
-            "worst": {"angle_deg": math.degrees(angle), "difference_N": diff, "jnd_N": thr},
-            "verdict": verdict,
+            "fraction_beyond_jnd": c["fraction"],
+            "worst": {
+                "angle_deg": math.degrees(angle),
+                "difference_N": diff,
+                "jnd_N": thr,
+                "jnd_units": stroke,
+            },
+            "latch_peak": {
+                "mechanism_N": mech,
+                "chosen_N": chosen,
+                "jnd_N": limit,
+                "jnd_units": peak,
+            },
+            "peak_angle": {
+                "mechanism_deg": math.degrees(am),
+                "chosen_deg": math.degrees(ac),
+                "jnd_deg": math.degrees(alim),
+                "jnd_units": at,
+            },
             "bands_deg": [(math.degrees(a), math.degrees(b)) for a, b in c["bands"]],
-            "latch_peak": {"mechanism_N": mech, "chosen_N": chosen, "jnd_N": limit},
+            "worst_jnd": worst_jnd,
+            "worst_at": worst_at,
+            "verdict": "within the JND" if worst_jnd <= 1.0 else "noticeable",
         }
-    out["pass_fraction"] = pass_fraction
+    if dynamics:
+        out["dynamics"] = {}
+        for name, (mech, chosen, limit) in dynamics.items():
+            units = abs(mech - chosen) / limit
+            items.append((units, f"felt {name}"))
+            out["dynamics"][name] = {
+                "mechanism": mech,
+                "chosen": chosen,
+                "jnd": limit,
+                "unit": DYNAMICS_UNITS[name],
+                "jnd_units": units,
+                "verdict": "within the JND" if units <= 1.0 else "noticeable",
+            }
+    worst_jnd, worst = max(items) if items else (0.0, "")
+    out["worst_jnd"] = worst_jnd
+    out["worst"] = worst
     out["jnd"] = jnd.as_dict()
-    out["passes"] = all(out[d]["verdict"] != "noticeable" for d in DIRECTIONS)
+    out["passes"] = worst_jnd <= 1.0
     return out
+
+
+def verdict_text(verdict: dict) -> str:
+    """One line for a person: the verdict with its worst point in JND units.
+
+    >>> verdict_text({"passes": False, "worst_jnd": 1.5, "worst": "unlock peak force"})
+    'noticeable: unlock peak force off by 1.5 JND'
+    >>> verdict_text({"passes": True, "worst_jnd": 0.42, "worst": "opening stroke at 30 deg"})
+    'within the JND: at most 0.42 JND (opening stroke at 30 deg)'
+    """
+    w, at = verdict["worst_jnd"], verdict["worst"]
+    if verdict["passes"]:
+        return f"within the JND: at most {w:.2g} JND ({at})"
+    return f"noticeable: {at} off by {w:.3g} JND"

@@ -39,6 +39,14 @@ class JND:
     acceleration : float
         rad/s^2, a typical door acceleration: an inertia difference below
         ``force_floor / acceleration`` gives a force below the force floor.
+    position : float
+        m at the handle: where a latch catches (the angle of its peak force) is felt
+        differently beyond this distance (joint-angle JNDs of 0.8-2.5 deg, Tan,
+        Srinivasan, Eberman and Cheng 1994, over the arm and hand that move a handle:
+        3.5-8.4 mm; docs/perception.md).
+    handle_radius : float
+        m, the distance from the hinge to the handle: an angle difference of the door
+        moves the hand by ``handle_radius`` times it (0.6 m, the case study's door).
     """
 
     force: float = 0.10
@@ -48,6 +56,8 @@ class JND:
     inertia: float = 0.15
     speed: float = 1.0
     acceleration: float = 10.0
+    position: float = 0.005
+    handle_radius: float = 0.6
 
     #: the settings' units, for messages and files
     UNITS = {
@@ -58,6 +68,8 @@ class JND:
         "inertia": "1",
         "speed": "rad/s",
         "acceleration": "rad/s^2",
+        "position": "m",
+        "handle_radius": "m",
     }
 
     def __post_init__(self):
@@ -97,6 +109,14 @@ class JND:
     def inertia_threshold(self, reference: float) -> float:
         """The inertia JND (kg m at the handle) at a reference inertia."""
         return max(self.inertia * abs(reference), self.force_floor / self.acceleration)
+
+    def angle_threshold(self) -> float:
+        """The JND (rad of door angle) of where a latch catches: ``position`` at the handle.
+
+        >>> round(JND().angle_threshold(), 6)
+        0.008333
+        """
+        return self.position / self.handle_radius
 
     def damping_threshold(self, reference: float) -> float:
         """The viscous damping JND (N s/rad at the handle) at a reference damping."""

@@ -7,10 +7,14 @@ units of the just-noticeable difference (JND), as a user would judge it:
   force-angle curves (Coulomb level, :func:`~evo_door.sim.simulate.hold_forces`) of
   each stroke divided by the force JND of the chosen force, squared, averaged over the
   angle range and over both strokes;
+- **the worst of the stroke**: every point of a stroke beyond its force JND adds the
+  square of how far beyond (JND), times ``excess_weight``: the check judges every
+  point, so a fit may not buy a small mean with one stretch beyond the JND;
 - **the latch peaks**: in the latch zone (the last ``latch_zone`` rad before closed,
   sampled densely enough to resolve a catch a few thousandths of a radian wide), the
   largest pull of the opening stroke and the largest push of the closing stroke,
-  each against its own force JND, squared, times ``peak_weight``;
+  each against its own force JND, and the angle of each against the position JND at
+  the handle (:meth:`JND.angle_threshold`), squared, times ``peak_weight``;
 - **the dynamics**, where the chosen feel has them (a model, not a bare curve): the
   mean felt inertia (the force per angular acceleration at the handle) and viscous
   damping (the force per angular speed beyond the dry friction, between half and the
@@ -41,6 +45,9 @@ DYNAMICS_POINTS = 33
 #: weight of each latch peak's squared JND difference: a peak one JND off counts as the
 #: whole stroke one JND off (a latch is felt as one event)
 PEAK_WEIGHT = 1.0
+#: weight of each stroke point's squared excess beyond its JND (JND^2 a point): ten
+#: points 0.1 JND beyond add 1, as much as the whole stroke one JND off
+EXCESS_WEIGHT = 10.0
 
 
 @dataclass
@@ -54,6 +61,7 @@ class FeelTarget:
     closed: float = 0.5 * math.pi
     latch_zone: float = LATCH_ZONE
     peak_weight: float = PEAK_WEIGHT
+    excess_weight: float = EXCESS_WEIGHT
 
     def __post_init__(self):
         lo = float(self.curve.theta[0])
@@ -78,10 +86,11 @@ class FeelTarget:
         self.chosen = {d: self.curve.force(d, self.stroke) for d in DIRECTIONS}
         self.threshold = {d: self.jnd.force_threshold(self.chosen[d]) for d in DIRECTIONS}
         latch = {d: self.curve.force(d, self.latch) for d in DIRECTIONS}
-        self.peaks = {
-            "opening": float(latch["opening"].min()),
-            "closing": float(latch["closing"].max()),
-        }
+        at = {"opening": int(latch["opening"].argmin()), "closing": int(latch["closing"].argmax())}
+        self.peaks = {d: float(latch[d][k]) for d, k in at.items()}
+        #: the angle (rad) of each latch peak, and the JND it is judged by
+        self.peak_angles = {d: float(self.latch[k]) for d, k in at.items()}
+        self.angle_threshold = self.jnd.angle_threshold()
         self.peak_threshold = {d: self.jnd.force_threshold(v) for d, v in self.peaks.items()}
 
     # -- from a model ----------------------------------------------------------------
@@ -127,14 +136,20 @@ class FeelTarget:
 
         pc = coulomb_vector(model, p)
         parts = []
+        excess = math.sqrt(self.excess_weight)
         for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
             f = hold_forces(model, pc, self.stroke, s * COULOMB_SPEED)
-            parts.append(np.sqrt(0.5 * self.weights) * (f - self.chosen[d]) / self.threshold[d])
+            r = (f - self.chosen[d]) / self.threshold[d]
+            parts.append(np.sqrt(0.5 * self.weights) * r)
+            if excess > 0.0:
+                parts.append(excess * np.sign(r) * np.maximum(np.abs(r) - 1.0, 0.0))
         w = math.sqrt(self.peak_weight)
         for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
             f = hold_forces(model, pc, self.latch, s * COULOMB_SPEED)
-            peak = f.min() if d == "opening" else f.max()
-            parts.append(np.array([w * (peak - self.peaks[d]) / self.peak_threshold[d]]))
+            k = int(f.argmin() if d == "opening" else f.argmax())
+            parts.append(np.array([w * (f[k] - self.peaks[d]) / self.peak_threshold[d]]))
+            angle = (self.latch[k] - self.peak_angles[d]) / self.angle_threshold
+            parts.append(np.array([w * angle]))
         if self.dynamics is not None:
             inertia, damping = self.felt_dynamics(model, np.asarray(p, dtype=np.float64))
             ti, tc = self.dynamics
@@ -170,6 +185,32 @@ class FeelTarget:
             origin={"kind": "model", "model": model.name},
         )
 
+    def dynamics_check(self, model, p) -> dict | None:
+        """The felt inertia and damping of ``model`` at ``p`` against the chosen feel's,
+        as :func:`~evo_door.perception.check_verdict` takes them (None for a bare curve)."""
+        if self.dynamics is None:
+            return None
+        inertia, damping = self.felt_dynamics(model, np.asarray(p, dtype=np.float64))
+        ti, tc = self.dynamics
+        return {
+            "inertia": (inertia, ti, self.jnd.inertia_threshold(ti)),
+            "damping": (damping, tc, self.jnd.damping_threshold(tc)),
+        }
+
+    def verdict(self, model, p, jnd: JND | None = None) -> dict:
+        """The perceptual check of ``model`` at ``p`` against the chosen feel, judged
+        (:func:`~evo_door.perception.check_verdict`), under ``jnd`` (default its own)."""
+        from evo_door.perception.feel import check_verdict, perceptual_check
+
+        jnd = jnd or self.jnd
+        curve = self.mechanism_curve(model, p)
+        dynamics = self.dynamics_check(model, p)
+        if dynamics is not None and jnd is not self.jnd:
+            ti, tc = self.dynamics
+            dynamics["inertia"] = (*dynamics["inertia"][:2], jnd.inertia_threshold(ti))
+            dynamics["damping"] = (*dynamics["damping"][:2], jnd.damping_threshold(tc))
+        return check_verdict(perceptual_check(curve, self.curve, jnd), jnd, dynamics)
+
     def value(self, model, p) -> float:
         """The perceptual objective of one parameter vector (JND units, squared)."""
         r = self.residuals(model, p)
@@ -188,7 +229,9 @@ class FeelTarget:
             "jnd": self.jnd.as_dict(),
             "latch_zone_rad": self.latch_zone,
             "peak_weight": self.peak_weight,
+            "excess_weight": self.excess_weight,
             "peaks_N": dict(self.peaks),
+            "peak_angles_rad": dict(self.peak_angles),
         }
         if self.dynamics is not None:
             out["inertia_kg_m"], out["damping_N_s_per_rad"] = self.dynamics

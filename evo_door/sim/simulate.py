@@ -328,6 +328,28 @@ def _hold_rows(accel, P, theta, dtheta, out):
             out[r, i] = _hold(accel, P[r], theta[i], dtheta)
 
 
+@njit(_ROWS_SIGNATURE, cache=True, parallel=True)
+def _inertia_rows(accel, P, theta, dtheta, out):
+    for r in prange(P.shape[0]):
+        for i in range(theta.shape[0]):
+            a0 = accel(theta[i], dtheta, 0.0, P[r])
+            a1 = accel(theta[i], dtheta, 1.0, P[r])
+            out[r, i] = 1.0 / (a1 - a0)
+
+
+def inertia_rows(model, P, theta, dtheta) -> np.ndarray:
+    """The inertia felt at the handle (force per angular acceleration, N / (rad/s^2),
+    kg m for a door) of every row of the kernel matrix ``P`` at each ``theta`` and the
+    speed ``dtheta``: ``accel`` is affine in the force, its slope is 1 / inertia. An
+    array (rows, angles), in one compiled call with the rows across threads."""
+    require_accel(model, "the felt inertia")
+    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+    theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+    out = np.empty((P.shape[0], theta.size))
+    _inertia_rows(model.accel, P, theta, float(dtheta), out)
+    return out
+
+
 def speed_sensitivities(model) -> list[str]:
     """Names of ``model``'s speed sensitivities: parameters in s/m, s/rad or s/<theta unit>.
 
