@@ -317,3 +317,23 @@ def test_pipeline_table_errors_name_the_pipeline_line_and_need_a_stage_to_take_i
     path = write(tmp_path, none, "none.yaml")
     with pytest.raises(UserError, match=f"^{path}:2: process: .* no stage is one"):
         load_pipeline(path)
+
+
+def test_docs_table_of_defaults_is_the_data_and_the_declaration(door):
+    """docs/experiments.md's table says each kind's default and parameters as they are."""
+    text = (ROOT / "docs" / "experiments.md").read_text()
+    head = text.index("| kind | parameters (`door`) | default |")
+    rows = text[head:].split("\n\n")[0].splitlines()[2:]
+    documented = {}
+    for row in rows:
+        kind, names, default = (c.strip(" `") for c in row.split("|")[1:4])
+        documented[kind] = (names, default)
+    assert set(documented) == set(KINDS)
+    for kind, (names, default) in documented.items():
+        d = DEFAULTS[kind]
+        assert default == format_tolerance(d.tolerance, d.unit), kind
+        declared = [p.name for p in door.params if p.process == kind]
+        if kind == "section_scale":
+            assert names == "friction_scale_1` .. `_8" and len(declared) == 8
+        else:
+            assert names.split("`, `") == declared, kind
