@@ -194,13 +194,21 @@ def _check_folder(folder: Path) -> None:
         raise UserError(f"{folder}: cannot write in {existing}")
 
 
+def _provenance(key: str) -> bool:
+    """Whether a flattened configuration key only says where a setting came from."""
+    return key.startswith("perception_sources.") or (
+        key.startswith("process.entries.") and key.endswith(".source")
+    )
+
+
 def _same_settings(path: Path, exp: Experiment) -> None:
     """A run kept by ``resume`` must have been made from the very same settings."""
     res = Results(path)
     old, new = flatten(res.config), flatten(exp.resolved())
-    # the JNDs' sources are provenance (a file moved, a line added): their values count
-    old = {k: v for k, v in old.items() if not k.startswith("perception_sources.")}
-    new = {k: v for k, v in new.items() if not k.startswith("perception_sources.")}
+    # the JNDs' and the tolerances' sources are provenance (a file moved, a line added):
+    # their values count
+    old = {k: v for k, v in old.items() if not _provenance(k)}
+    new = {k: v for k, v in new.items() if not _provenance(k)}
     differ = [
         k for k in dict.fromkeys([*old, *new]) if json.dumps(old.get(k)) != json.dumps(new.get(k))
     ]

@@ -68,6 +68,7 @@ TOP_KEYS = (
     "executor",
     "perception",
     "channels",
+    "process",
 )
 SIMULATION_KEYS = ("method", "substeps", "tolerance", "time_limit")
 
@@ -101,6 +102,13 @@ class Experiment:
     #: where each setting of ``perception`` comes from (the file and line, a table's
     #: source, a JND file's session), by name; the others are the literature's defaults
     perception_sources: dict = field(default_factory=dict)
+    #: the supplier's process of a fit to a chosen feel: every built parameter of the
+    #: model -> ``{"tolerance": "10 %" or a half-width, "distribution", "source"}``
+    #: (:mod:`evo_door.optim.process`; the kinds' defaults where ``process:`` is silent);
+    #: {} for another fit
+    process: dict = field(default_factory=dict)
+    #: the entries ``process:`` itself sets (a pipeline's table gives the rest)
+    process_given: dict = field(default_factory=dict)
     #: where the GA's evaluations run (:mod:`evo_door.optim.executors`); provenance,
     #: not part of the result, so not in :meth:`resolved`
     executor: str = "local"
@@ -161,6 +169,9 @@ class Experiment:
             # provenance of the settings above (a resumed run compares the values only)
             "perception_sources": self.jnd_sources(),
         }
+        if self.objective.perceptual:
+            # the supplier's tolerances the yield of the answer is estimated with
+            out["process"] = {"entries": self.process}
         return json.loads(json.dumps(out))
 
 
@@ -344,6 +355,22 @@ def _check_perceptual(exp: Experiment) -> None:
             f"{t.locs['model']}: target.inputs: required key missing (the input forces the "
             "target model is driven by; only the perceptual objective needs none)"
         )
+
+
+def _process(exp: Experiment, r: _Reader, base_dir: Path, model) -> None:
+    """``process``: the supplier's tolerances, for a fit to a chosen feel only."""
+    from evo_door.experiment.config_process import process_given, process_table
+
+    if "process" in r.node and not exp.objective.perceptual:
+        raise r.fail(
+            "process",
+            "the supplier's tolerances serve a fit to a chosen feel (objective.kind "
+            f"perceptual), whose yield they estimate; objective.kind {exp.objective.kind} "
+            "would ignore them",
+        )
+    if exp.objective.perceptual:
+        exp.process_given = process_given(r, base_dir, model)
+        exp.process = process_table(model, exp.process_given)
 
 
 def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
@@ -551,6 +578,7 @@ def experiment_from_tree(
     exp.perception, exp.perception_sources = perception_setting(r, base_dir)
     _check_parameters(exp, r, model)
     _check_perceptual(exp)
+    _process(exp, r, base_dir, model)
     if exp.objective.perceptual and getattr(model, "runner", None) is not None:
         raise UserError(
             f"{tree.where('objective')}: objective perceptual: model {model.name!r} is an "

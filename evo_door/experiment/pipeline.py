@@ -51,7 +51,16 @@ from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
 from evo_door.params.declaration import suggest
 
-PIPELINE_KEYS = ("name", "description", "stages", "output", "report", "executor", "perception")
+PIPELINE_KEYS = (
+    "name",
+    "description",
+    "stages",
+    "output",
+    "report",
+    "executor",
+    "perception",
+    "process",
+)
 #: settings of ``evo-door report`` a pipeline file may give (the command line wins)
 REPORT_KEYS = ("jnd", "force_floor")
 FORMAT_VERSION = 1
@@ -175,8 +184,41 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
         exp.perception = {**perception, **exp.perception}
         exp.perception_sources = {**perception_sources, **exp.perception_sources}
         pipe.stages.append(Stage(name, exp, where))
+    _process(pipe, r, base_dir)
     _check_uses(pipe)
     return pipe
+
+
+def _process(pipe: Pipeline, r: _Reader, base_dir: Path) -> None:
+    """The pipeline's ``process``: the supplier's tolerances of every stage fitted to a
+    chosen feel whose model has built parameters (a haptic model's are sensations); a
+    stage's own entries win, name by name."""
+    from evo_door.experiment.config_process import has_built, process_given, process_table
+    from evo_door.models import get_model
+
+    if "process" not in r.node:
+        return
+    taken = False
+    for stage in pipe.stages:
+        exp = stage.experiment
+        if not exp.objective.perceptual:
+            continue
+        model = get_model(exp.model)
+        if not has_built(model):
+            continue
+        try:
+            given = process_given(r, base_dir, model)
+        except UserError as exc:
+            raise UserError(f"{exc} (in stage {stage.name})") from None
+        exp.process_given = {**given, **exp.process_given}
+        exp.process = process_table(model, exp.process_given)
+        taken = True
+    if not taken:
+        raise r.fail(
+            "process",
+            "the supplier's tolerances serve the stages fitted to a chosen feel "
+            "(objective.kind perceptual) of a model with built parameters; no stage is one",
+        )
 
 
 def _stage_experiment(name: str, value, where: str, base_dir: Path) -> Experiment:

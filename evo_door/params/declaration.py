@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # numpy is imported where a vector is built, not on import
     import numpy as np
 
 from evo_door.errors import ParameterError
+from evo_door.params.process import DEFAULTS as PROCESS_DEFAULTS
 
 #: The groups a parameter can belong to.
 GROUPS = ("geometry", "specification", "sensation", "device", "numerics")
@@ -46,6 +47,11 @@ class Param:
     symbol : str
         The symbol the seed writes it with, where it differs from ``name``
         (``c_at+``, ``A_3``); specification tables show it.
+    process : str
+        For a quantity a supplier builds, its kind of process (``spring_rate``,
+        ``mass``...: :data:`evo_door.params.process.KINDS`), which gives its default
+        tolerance; "" for anything not built (geometry the fit does not change,
+        sensations, settings).
     """
 
     name: str
@@ -56,10 +62,23 @@ class Param:
     group: str
     meaning: str
     symbol: str = ""
+    process: str = ""
 
     def __post_init__(self):
         if self.group not in GROUPS:
             raise ValueError(f"parameter {self.name!r}: group {self.group!r} not in {GROUPS}")
+        if self.process:
+            kind = PROCESS_DEFAULTS.get(self.process)
+            if kind is None:
+                raise ValueError(
+                    f"parameter {self.name!r}: process {self.process!r} not in "
+                    f"{tuple(PROCESS_DEFAULTS)}" + suggest(self.process, PROCESS_DEFAULTS)
+                )
+            if kind.unit and kind.unit != self.unit:
+                raise ValueError(
+                    f"parameter {self.name!r} in {self.unit}: process {self.process!r} gives "
+                    f"its default tolerance in {kind.unit}"
+                )
         if not (self.lower <= self.default <= self.upper):
             raise ValueError(
                 f"parameter {self.name!r}: default {self.default} outside "

@@ -80,7 +80,14 @@ _PARAMS = [
     ),
     # -- technical specifications (tables 5.3, 5.4) ------------------------------
     Param(
-        "K", "N/m", 400.64, 0.0, 2000.0, "specification", "stiffness of the vertical spring at C"
+        "K",
+        "N/m",
+        400.64,
+        0.0,
+        2000.0,
+        "specification",
+        "stiffness of the vertical spring at C",
+        process="spring_rate",
     ),
     Param(
         "F_load",
@@ -90,8 +97,9 @@ _PARAMS = [
         500.0,
         "specification",
         "spring pre-load at C with the door fully open (pushes C up, toward closing)",
+        process="spring_preload",
     ),
-    Param("M", "kg", 1.232, 0.05, 20.0, "specification", "door mass"),
+    Param("M", "kg", 1.232, 0.05, 20.0, "specification", "door mass", process="mass"),
     Param(
         "I_z",
         "kg m^2",
@@ -100,9 +108,17 @@ _PARAMS = [
         2.0,
         "specification",
         "door moment of inertia about its centre of mass",
+        process="inertia",
     ),
     Param(
-        "T_atO", "N m", 0.006145, 0.0, 1.0, "specification", "dry-friction torque at the hinge O"
+        "T_atO",
+        "N m",
+        0.006145,
+        0.0,
+        1.0,
+        "specification",
+        "dry-friction torque at the hinge O",
+        process="friction_torque",
     ),
     Param(
         "T_atA",
@@ -112,6 +128,7 @@ _PARAMS = [
         1.0,
         "specification",
         "dry-friction torque at the door-plate joint A",
+        process="friction_torque",
     ),
     Param(
         "T_atB",
@@ -121,6 +138,7 @@ _PARAMS = [
         1.0,
         "specification",
         "dry-friction torque of the plate's rotation at the slotted link B",
+        process="friction_torque",
     ),
     Param(
         "mu",
@@ -130,8 +148,18 @@ _PARAMS = [
         1.5,
         "specification",
         "friction coefficient of the vertical sliding at B (force = mu |normal force|)",
+        process="friction_coefficient",
     ),
-    Param("F_atC", "N", 28.92, 0.0, 300.0, "specification", "vertical dry friction at C"),
+    Param(
+        "F_atC",
+        "N",
+        28.92,
+        0.0,
+        300.0,
+        "specification",
+        "vertical dry friction at C",
+        process="friction_force",
+    ),
     Param(
         "F_atD",
         "N",
@@ -140,6 +168,7 @@ _PARAMS = [
         300.0,
         "specification",
         "dry friction of the fixed pad D rubbing the plate",
+        process="friction_force",
     ),
     Param(
         "unlock_force",
@@ -149,6 +178,7 @@ _PARAMS = [
         300.0,
         "specification",
         "latch: extra user pull at the handle needed to unlock the closed door",
+        process="latch_force",
     ),
     Param(
         "lock_force",
@@ -158,6 +188,7 @@ _PARAMS = [
         300.0,
         "specification",
         "latch: extra user push at the handle needed to lock the door",
+        process="latch_force",
     ),
     Param(
         "latch_loose_angle",
@@ -167,6 +198,7 @@ _PARAMS = [
         5.0 * _DEG,
         "specification",
         "latch: free play of the closed door before the catch engages",
+        process="latch_angle",
     ),
     Param(
         "latch_open_stiffness",
@@ -176,6 +208,7 @@ _PARAMS = [
         1.0e7,
         "specification",
         "latch: catch stiffness felt at the handle while unlocking",
+        process="spring_rate",
     ),
     Param(
         "latch_close_stiffness",
@@ -185,6 +218,7 @@ _PARAMS = [
         1.0e7,
         "specification",
         "latch: catch stiffness felt at the handle while locking",
+        process="spring_rate",
     ),
     Param(
         "latch_open_hold",
@@ -194,6 +228,7 @@ _PARAMS = [
         5.0 * _DEG,
         "specification",
         "latch: travel over which the catch holds unlock_force before it lets go",
+        process="latch_angle",
     ),
     Param(
         "latch_close_hold",
@@ -203,6 +238,7 @@ _PARAMS = [
         5.0 * _DEG,
         "specification",
         "latch: travel over which the lock ramp holds lock_force before the door snaps in",
+        process="latch_angle",
     ),
     Param(
         "latch_seat_force",
@@ -212,6 +248,7 @@ _PARAMS = [
         300.0,
         "specification",
         "latch: push of the door seal that holds the latched door out against its catch",
+        process="latch_force",
     ),
 ]
 _PARAMS += [
@@ -225,6 +262,7 @@ _PARAMS += [
         f"pad friction F_atD scale A_{k} on section {k} of {N_SECTIONS} of [0, 90] deg "
         f"(eq. 5.8-5.9)",
         symbol=f"A_{k}",
+        process="section_scale",
     )
     for k in range(1, N_SECTIONS + 1)
 ]
