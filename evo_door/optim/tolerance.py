@@ -83,9 +83,9 @@ ROUNDS = 2
 TRUST = 2.0
 SMOOTHING = 0.05
 EVALUATIONS_PER_FREE = 150
-#: allocation: the most specifications tightened together, among this many of the
-#: largest contributors; a tightened tolerance is never below this share of the process's
-MOST_TIGHTENED = 4
+#: allocation: every subset of up to this many of the largest contributors is tried
+#: (more are added one at a time, largest first); a tightened tolerance is never below
+#: this share of the process's
 CANDIDATES = 6
 LEAST_SHARE = 0.05
 #: margins of a door whose curve is not finite (it fails)
@@ -188,6 +188,13 @@ def band_text(band: float, unit: str, relative: float) -> str:
     unit = "" if unit == "1" else f" {unit}"
     share = f" ({100 * relative:.3g} %)" if math.isfinite(relative) else ""
     return f"+-{band:.3g}{unit}{share}"
+
+
+def soft_yield(margins, smoothing: float = SMOOTHING) -> float:
+    """The share of doors that pass, smoothed: each door counts
+    ``1 / (1 + exp((worst - 1) / smoothing))`` by its worst margin (JND)."""
+    worst = np.max(np.abs(np.atleast_2d(margins)), axis=1)
+    return float(np.mean(1.0 / (1.0 + np.exp(np.clip((worst - 1.0) / smoothing, -50, 50)))))
 
 
 def passing(margins) -> np.ndarray:
@@ -365,7 +372,7 @@ class Specification:
                 got = self.allocation_yield.text() if self.allocation_yield else "not verified"
                 lines.append(f"  tighten {tight}: yield {got}")
             else:
-                lines.append("  no tightening of up to 4 tolerances reaches it")
+                lines.append("  no tightening of the tolerances the check sees reaches it")
         if self.note:
             lines.append(f"note: {self.note}")
         return lines
@@ -535,8 +542,9 @@ def specify(
     else:
         bar.update(ROUNDS)
     # the centred nominal where the compiled check of the design doors says it is better
-    y_start = passing(check.margins(doors(start, design_draws, widths(start)))).mean()
-    y_centred = passing(check.margins(doors(p, design_draws, widths(p)))).mean()
+    # (their yield, smoothed: it still orders two designs that no door passes)
+    y_start = soft_yield(check.margins(doors(start, design_draws, widths(start))))
+    y_centred = soft_yield(check.margins(doors(p, design_draws, widths(p))))
     bar.update(1)
     if centre and y_centred > y_start and check.passes(p):
         design, other, other_name = "centred", start, "smallest change"
@@ -572,7 +580,7 @@ def specify(
     bar.update(1)
     allocation, allocation_yield = {}, None
     if estimate.estimate < target:
-        allocation = _allocate(M, U, t, J, names, loss, target)
+        allocation = _allocate(M, U, t, J, names, loss, sensitivity * t, target)
         if allocation:
             tightened = t.copy()
             for n, w in allocation.items():
@@ -675,14 +683,13 @@ def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray
     if np.any(box_hi <= box_lo):
         return p
 
-    def soft_yield(z):
-        worst = np.max(np.abs(m0 + Jf @ (z * ref) + D), axis=1)
-        return -np.mean(1.0 / (1.0 + np.exp(np.clip((worst - 1.0) / SMOOTHING, -50, 50))))
+    def objective(z):
+        return -soft_yield(m0 + Jf @ (z * ref) + D)
 
     z_lo = (box_lo - p[idx][cols]) / ref
     z_hi = (box_hi - p[idx][cols]) / ref
     res = minimize(
-        soft_yield,
+        objective,
         np.zeros(cols.size),
         method="Nelder-Mead",
         bounds=list(zip(z_lo, z_hi)),
@@ -693,35 +700,41 @@ def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray
     return out
 
 
-def _allocate(M, U, t, J, names, loss, target) -> dict:
+def _allocate(M, U, t, J, names, loss, swing, target) -> dict:
     """The fewest tolerances, tightened by the least common factor, whose doors reach
-    ``target`` on the sample's margins (first order in each tightened deviation);
-    {} when up to :data:`MOST_TIGHTENED` of the largest contributors cannot."""
-    order = [j for j in np.argsort(-loss) if t[j] > 0.0 and loss[j] > 0.0][:CANDIDATES]
+    ``target`` on the sample's margins (first order in each tightened deviation): every
+    subset of up to :data:`CANDIDATES` of the largest contributors (yield loss, then
+    swing: JND moved at the end of the tolerance), then more of them one at a time;
+    {} when even all of them at :data:`LEAST_SHARE` cannot."""
+    ranked = sorted(
+        (j for j in range(len(names)) if t[j] > 0.0 and swing[j] > 0.0),
+        key=lambda j: (-loss[j], -swing[j]),
+    )
     aim = target + 0.005  # a little above: the fresh sample that verifies it varies
+    shifts = [np.outer(U[:, j] * t[j], J[:, j]) for j in range(len(names))]
 
     def reach(subset, share):
         m = M.copy()
         for j in subset:
-            m -= np.outer((1.0 - share) * U[:, j] * t[j], J[:, j])
+            m -= (1.0 - share) * shifts[j]
         return passing(m).mean()
 
-    for k in range(1, MOST_TIGHTENED + 1):
-        best = None
-        for subset in itertools.combinations(order, k):
-            if reach(subset, LEAST_SHARE) < aim:
-                continue
-            lo, hi = LEAST_SHARE, 1.0  # share kept: lo reaches, hi does not
-            for _ in range(12):
-                mid = 0.5 * (lo + hi)
-                if reach(subset, mid) >= aim:
-                    lo = mid
-                else:
-                    hi = mid
-            if best is None or lo > best[1]:
-                best = (subset, lo)
-        if best is not None:
-            subset, share = best
+    def least(subset):
+        """The largest share of the process's tolerances kept that reaches ``aim``."""
+        if reach(subset, LEAST_SHARE) < aim:
+            return None
+        lo, hi = LEAST_SHARE, 1.0
+        for _ in range(10):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if reach(subset, mid) >= aim else (lo, mid)
+        return lo
+
+    top = ranked[:CANDIDATES]
+    for k in range(1, len(ranked) + 1):
+        subsets = itertools.combinations(top, k) if k <= len(top) else [tuple(ranked[:k])]
+        found = [(share, sub) for sub in subsets if (share := least(sub)) is not None]
+        if found:
+            share, subset = max(found)
             return {names[j]: float(share * t[j]) for j in subset}
     return {}
 
