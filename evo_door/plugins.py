@@ -9,7 +9,10 @@ works with the lower layers alone imports it once.
 
 - :func:`evo_door.params.sets.register_file_reader`: a render log (the web console's
   session record) is a parameter set: the participant's chosen set, else the last set in
-  force (:func:`render_log_params`).
+  force (:func:`render_log_params`); a results file whose specification could not reach
+  its yield is one too: the nearest feel the supplier's process can hold
+  (:func:`nearest_feel_params`), for ``render`` and ``push`` to put before a
+  participant.
 """
 
 from __future__ import annotations
@@ -35,4 +38,54 @@ def render_log_params(table, path: Path) -> ParamSet | None:
     return ParamSet.from_mapping(table, values, what, str(path))
 
 
+def nearest_feel_params(table, path: Path) -> ParamSet | None:
+    """The nearest feel a results file stores (``tolerance/nearest_feel`` of a run, or
+    of a pipeline's stage: the last stage that has one) as a set of ``table``'s model,
+    or None when ``path`` is not a results file. Read as data: names and numbers, no
+    model is loaded from the file."""
+    import numpy as np
+
+    from evo_door.files import open_h5
+
+    try:
+        with open_h5(path) as f:
+            groups = [f] if "tolerance" in f else []
+            if "stages" in f:
+                groups = [f["stages"][k] for k in f["stages"]]
+            found = [
+                (g.name, g["tolerance/nearest_feel"])
+                for g in groups
+                if "tolerance/nearest_feel" in g
+            ]
+            if not found:
+                if "stages" in f or "tolerance" in f or "setup" in f:
+                    raise UserError(
+                        f"{path}: a results file with no nearest feel (its specifications "
+                        "reach their yield, or it fits no chosen feel)"
+                    )
+                return None
+            where, node = found[-1]
+            model = str(node.attrs["model"])
+            names = [str(n) for n in node.attrs["names"]]
+            values = np.asarray(node["values"], dtype=np.float64)
+    except OSError:
+        return None
+    except (KeyError, ValueError, TypeError):
+        raise UserError(f"{path}: its nearest feel is damaged") from None
+    if model != table.model:
+        raise UserError(f"{path}: its nearest feel is a set of {model!r}, not of {table.model!r}")
+    if len(names) != values.size:
+        raise UserError(
+            f"{path}: its nearest feel is damaged ({len(names)} names, {values.size} values)"
+        )
+    stage = where.rsplit("/", 1)[-1] if where.startswith("/stages/") else "the run"
+    return ParamSet.from_mapping(
+        table,
+        dict(zip(names, map(float, values))),
+        f"the nearest feel the process can hold ({stage})",
+        str(path),
+    )
+
+
 register_file_reader(render_log_params)
+register_file_reader(nearest_feel_params)

@@ -302,6 +302,10 @@ class Results:
         front = self.smallest_change()
         if front is not None:
             out.update(self._smallest_change(front))
+        spec = self.record.tolerance
+        if spec is not None and self.record.best is not None:
+            # reachable: the feel by the mechanism (nsga2's front) and the yield's target
+            out["reachable"] = bool(out.get("reachable", True)) and spec.reachable
         return out
 
     def smallest_change(self):
@@ -421,8 +425,6 @@ class Results:
             out["process"] = d["process"]
             out["distribution"] = d["distribution"]
             out["yield"] = d["yield"]
-            # reachable: the feel by the mechanism (nsga2's front) and the yield's target
-            out["reachable"] = bool(out.get("reachable", True)) and spec.reachable
             out["allocation"] = d["allocation"]
             out["tolerance_text"] = "\n".join(spec.summary_lines())
         if "jnds" in out and check is not None:

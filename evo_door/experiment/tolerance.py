@@ -38,6 +38,7 @@ def stage_specification(setup, config: dict, full, progress: bool = False):
         return None  # a haptic model's sensations: nothing a supplier builds
     try:
         process = process_for(model, names, config.get("process"))
+        feel_model, feel_params = _feel_set(config)
         return specify(
             model,
             full,
@@ -48,10 +49,26 @@ def stage_specification(setup, config: dict, full, progress: bool = False):
             setup.lower,
             setup.upper,
             asis=setup.base,
+            feel_model=feel_model,
+            feel_params=feel_params,
             progress=progress,
         )
     except (UserError, ValueError):
         return None
+
+
+def _feel_set(config: dict):
+    """The chosen feel's model and parameter vector (a model target), else (None, None)."""
+    from evo_door.models import get_model
+
+    target = config.get("target") or {}
+    if target.get("kind") != "model":
+        return None, None
+    model = get_model(target["model"])
+    if getattr(model, "runner", None) is not None:
+        return None, None  # an FMU: no force-angle curve to move
+    params = model.load_params(target.get("params"), target.get("set") or {})
+    return model, np.array(params.vector, dtype=np.float64)
 
 
 def tolerances_of(res, compute: bool = True) -> Specification | None:

@@ -65,16 +65,17 @@ from evo_door.sim.simulate import (
 #: doors of the yield's fresh sample (the issue's floor: 2000)
 SAMPLES = 2000
 #: doors of the common-random-number sample the nominal is centred on
-DESIGN_SAMPLES = 600
+DESIGN_SAMPLES = 400
 #: the seeds: the centring's draws, the yield's fresh sample, the allocation's check
 DESIGN_SEED = 1
 YIELD_SEED = 2
 ALLOCATION_SEED = 3
 #: the yield a specification must reach to be called reachable
 TARGET = 0.95
-#: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): 8e-5
-#: rad, 0.005 deg, a hundredth of the position JND's angle at the handle
-LATCH_THIN = 4
+#: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): 1.6e-4
+#: rad, 0.009 deg, a fiftieth of the position JND's angle at the handle (a latch's peak
+#: is a plateau of its hold, some 6e-3 rad long)
+LATCH_THIN = 8
 #: doors computed at once
 BATCH = 250
 #: centring: rounds of (secant model, Nelder-Mead), the trust box in tolerances, the
@@ -82,7 +83,7 @@ BATCH = 250
 ROUNDS = 2
 TRUST = 2.0
 SMOOTHING = 0.05
-EVALUATIONS_PER_FREE = 150
+EVALUATIONS_PER_FREE = 60
 #: allocation: every subset of up to this many of the largest contributors is tried
 #: (more are added one at a time, largest first); a tightened tolerance is never below
 #: this share of the process's
@@ -92,12 +93,30 @@ LEAST_SHARE = 0.05
 BLOWN = 1e6
 
 
+@dataclass
+class Reference:
+    """What a feel is judged by on a :class:`FeelCheck`'s grid: its force (N) and force
+    JND (N) per stroke at every angle, its latch peaks (N) and their JNDs, their angles
+    (rad) and the position JND's angle, and its felt dynamics with their JNDs (None
+    for a bare curve)."""
+
+    chosen: dict
+    threshold: dict
+    peaks: dict
+    peak_threshold: dict
+    peak_angles: dict
+    angle_threshold: float
+    dynamics: tuple | None = None  # ((inertia, jnd), (damping, jnd))
+
+
 class FeelCheck:
     """The perceptual check of many doors against a chosen feel, on one fixed grid.
 
     :meth:`margins` gives every door (a row of a kernel matrix) its signed differences
     from the chosen feel in JND (module docstring, step 1), in the columns
     :attr:`labels` names; :meth:`judge` says which pass (every margin within +-1).
+    :meth:`measure` gives the doors' own quantities, which :meth:`against` judges
+    against any feel (:meth:`reference_of`).
     """
 
     def __init__(self, model, feel: FeelTarget):
@@ -109,8 +128,22 @@ class FeelCheck:
         self.latch = ~self.stroke
         if self.stroke.sum() < 2 or not self.latch.any():
             raise UserError(f"{feel.curve.source}: the chosen feel's curve has no latch zone")
-        self.chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
-        self.threshold = {d: feel.jnd.force_threshold(self.chosen[d]) for d in DIRECTIONS}
+        chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
+        dynamics = None
+        if feel.dynamics is not None:
+            ti, tc = feel.dynamics
+            jnd = feel.jnd
+            dynamics = ((ti, jnd.inertia_threshold(ti)), (tc, jnd.damping_threshold(tc)))
+        self.reference = Reference(
+            chosen,
+            {d: feel.jnd.force_threshold(chosen[d]) for d in DIRECTIONS},
+            dict(feel.peaks),
+            dict(feel.peak_threshold),
+            dict(feel.peak_angles),
+            feel.angle_threshold,
+            dynamics,
+        )
+        self.chosen, self.threshold = self.reference.chosen, self.reference.threshold
         self.dyn_theta = feel.dyn_grid
         deg = np.degrees(self.theta[self.stroke])
         self.labels = [f"{d} stroke at {a:.2f} deg" for d in DIRECTIONS for a in deg]
@@ -124,52 +157,99 @@ class FeelCheck:
     def columns(self) -> int:
         return len(self.labels)
 
-    def margins(self, P, forces: dict | None = None) -> np.ndarray:
+    def margins(self, P, forces: dict | None = None, measured: list | None = None):
         """The signed margins (JND) of every door, a row of ``P`` (full kernel vectors):
         an array (doors, :attr:`columns`). ``forces``, a dict, receives each stroke's
-        Coulomb forces (N, doors x :attr:`theta`)."""
+        Coulomb forces (N, doors x :attr:`theta`); ``measured``, a list, each batch's
+        :meth:`measure`."""
         P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
         out = np.empty((len(P), self.columns))
         for start in range(0, len(P), BATCH):
             rows = slice(start, start + BATCH)
-            out[rows] = self._margins(P[rows], forces)
+            got = self.measure(P[rows])
+            out[rows] = self.against(got, self.reference)
+            if forces is not None:
+                for d in DIRECTIONS:
+                    forces.setdefault(d, []).append(got[d])
+            if measured is not None:
+                measured.append(got)
         self.evaluations += len(P)
-        return np.where(np.isfinite(out), out, BLOWN)
+        return out
 
-    def _margins(self, P, forces) -> np.ndarray:
-        feel = self.feel
+    def measure(self, P) -> dict:
+        """The doors' own quantities: Coulomb forces (N) per stroke on :attr:`theta`,
+        latch peaks (N) and their angles (rad) per stroke, felt inertia and damping."""
         Q = np.array([coulomb_vector(self.model, p) for p in P])
-        parts, peaks, angles = [], [], []
         zone = self.theta[self.latch]
+        out: dict = {"peaks": {}, "angles": {}}
         for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
             f = hold_forces_rows(self.model, Q, self.theta, sign * COULOMB_SPEED)
-            if forces is not None:
-                forces.setdefault(d, []).append(f)
-            parts.append(((f - self.chosen[d]) / self.threshold[d])[:, self.stroke])
             fl = f[:, self.latch]
             k = np.argmin(fl, axis=1) if d == "opening" else np.argmax(fl, axis=1)
-            peak = fl[np.arange(len(P)), k]
-            peaks.append((peak - feel.peaks[d]) / feel.peak_threshold[d])
-            angles.append((zone[k] - feel.peak_angles[d]) / feel.angle_threshold)
-        parts += [np.array(peaks).T, np.array(angles).T]
-        if feel.dynamics is not None:
-            parts.append(self._dynamics(P))
-        return np.concatenate(parts, axis=1)
+            out[d] = f
+            out["peaks"][d] = fl[np.arange(len(P)), k]
+            out["angles"][d] = zone[k]
+        if self.feel.dynamics is not None:
+            out["dynamics"] = self._dynamics(P)
+        return out
+
+    def against(self, got: dict, ref: Reference) -> np.ndarray:
+        """The margins (JND) of measured doors (:meth:`measure`) against ``ref``."""
+        parts = [((got[d] - ref.chosen[d]) / ref.threshold[d])[:, self.stroke] for d in DIRECTIONS]
+        parts.append(
+            np.array(
+                [(got["peaks"][d] - ref.peaks[d]) / ref.peak_threshold[d] for d in DIRECTIONS]
+            ).T
+        )
+        parts.append(
+            np.array(
+                [(got["angles"][d] - ref.peak_angles[d]) / ref.angle_threshold for d in DIRECTIONS]
+            ).T
+        )
+        if "dynamics" in got:
+            (ti, ji), (tc, jc) = ref.dynamics
+            parts.append(
+                np.c_[(got["dynamics"][:, 0] - ti) / ji, (got["dynamics"][:, 1] - tc) / jc]
+            )
+        out = np.concatenate(parts, axis=1)
+        return np.where(np.isfinite(out), out, BLOWN)
+
+    def reference_of(self, model, p) -> Reference:
+        """The :class:`Reference` of the feel of ``model`` at ``p`` (a haptic set, say),
+        on this grid, under the chosen feel's JNDs."""
+        jnd = self.feel.jnd
+        pc = coulomb_vector(model, p)
+        zone = self.theta[self.latch]
+        chosen, peaks, angles = {}, {}, {}
+        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
+            f = hold_forces_rows(model, pc[None, :], self.theta, sign * COULOMB_SPEED)[0]
+            fl = f[self.latch]
+            k = int(np.argmin(fl) if d == "opening" else np.argmax(fl))
+            chosen[d], peaks[d], angles[d] = f, float(fl[k]), float(zone[k])
+        dynamics = None
+        if self.feel.dynamics is not None:
+            ti, tc = self.feel.felt_dynamics(model, np.asarray(p, dtype=np.float64))
+            dynamics = ((ti, jnd.inertia_threshold(ti)), (tc, jnd.damping_threshold(tc)))
+        return Reference(
+            chosen,
+            {d: jnd.force_threshold(chosen[d]) for d in DIRECTIONS},
+            peaks,
+            {d: jnd.force_threshold(v) for d, v in peaks.items()},
+            angles,
+            jnd.angle_threshold(),
+            dynamics,
+        )
 
     def _dynamics(self, P) -> np.ndarray:
-        """Felt inertia and damping margins, as :meth:`FeelTarget.felt_dynamics`."""
-        feel, theta, v = self.feel, self.dyn_theta, self.feel.jnd.speed
+        """Felt inertia (kg m) and damping (N s/rad), as :meth:`FeelTarget.felt_dynamics`."""
+        theta, v = self.dyn_theta, self.feel.jnd.speed
         inertia = inertia_rows(self.model, P, theta, -0.5 * v).mean(axis=1)
         damping = np.zeros(len(P))
         for s in (-1.0, 1.0):
             half = hold_forces_rows(self.model, P, theta, 0.5 * s * v)
             full = hold_forces_rows(self.model, P, theta, s * v)
             damping += np.mean((full - half) / (0.5 * s * v), axis=1)
-        ti, tc = feel.dynamics
-        return np.c_[
-            (inertia - ti) / feel.jnd.inertia_threshold(ti),
-            (0.5 * damping - tc) / feel.jnd.damping_threshold(tc),
-        ]
+        return np.c_[inertia, 0.5 * damping]
 
     def judge(self, P) -> np.ndarray:
         """Whether each door (row of ``P``) passes the check."""
@@ -258,6 +338,72 @@ def clopper_pearson(passed: int, n: int, confidence: float = 0.95) -> tuple[floa
 
 
 @dataclass
+class NearestFeel:
+    """The feel nearest the chosen one that doors built to the process hold: a set of
+    the chosen feel's model (``values``: every parameter), how far it is from the
+    chosen feel (``distance``, the perceptual objective's RMS in JND), the sensations
+    moved, and its yield on the specification's sample of doors."""
+
+    model: str
+    values: dict
+    moved: list
+    distance: float
+    yield_: YieldEstimate
+    target: float
+
+    @property
+    def holds(self) -> bool:
+        return self.yield_.estimate >= self.target
+
+    def as_dict(self) -> dict:
+        return {
+            "model": self.model,
+            "values": dict(self.values),
+            "moved": list(self.moved),
+            "distance_jnd": self.distance,
+            "yield": self.yield_.as_dict(),
+            "holds": self.holds,
+        }
+
+    def to_tree(self) -> dict:
+        import json
+
+        return {
+            ATTRS: {
+                "model": self.model,
+                "names": list(self.values),
+                "moved": list(self.moved),
+                "distance_jnd": float(self.distance),
+                "yield": json.dumps(self.yield_.as_dict()),
+                "target": float(self.target),
+            },
+            "values": np.array(list(self.values.values()), dtype=np.float64),
+        }
+
+    @classmethod
+    def from_tree(cls, node: dict) -> NearestFeel:
+        import json
+
+        a = node[ATTRS]
+        return cls(
+            model=str(a["model"]),
+            values=dict(zip(list(a["names"]), map(float, np.asarray(node["values"])))),
+            moved=list(a["moved"]),
+            distance=float(a["distance_jnd"]),
+            yield_=YieldEstimate.from_dict(json.loads(a["yield"])),
+            target=float(a["target"]),
+        )
+
+    def text(self) -> str:
+        moved = ", ".join(f"{n} {self.values[n]:.4g}" for n in self.moved)
+        verdict = "holds" if self.holds else "the nearest it comes: still short of the target"
+        return (
+            f"nearest feel the process can hold ({self.model} model, {self.distance:.2f} JND "
+            f"from the chosen feel; {moved}): yield {self.yield_.text()}; {verdict}"
+        )
+
+
+@dataclass
 class Specification:
     """What :func:`specify` decided (module docstring); every value in its unit.
 
@@ -285,6 +431,10 @@ class Specification:
     alternative: dict = field(default_factory=dict)  # {"design", "nominal", "yield"}
     allocation: dict = field(default_factory=dict)  # name -> tightened half-width
     allocation_yield: YieldEstimate | None = None
+    #: the nominal the allocation is built to (the robust one), None without allocation
+    allocation_nominal: np.ndarray | None = None
+    #: where the target is out of reach: the nearest feel the process can hold
+    nearest: NearestFeel | None = None
     nominal_margin: float = math.nan  # the nominal door's worst margin, JND
     design_seed: int = DESIGN_SEED
     evaluations: int = 0
@@ -336,6 +486,12 @@ class Specification:
             "allocation_yield": (
                 self.allocation_yield.as_dict() if self.allocation_yield is not None else None
             ),
+            "allocation_nominal": (
+                dict(zip(self.names, map(float, self.allocation_nominal)))
+                if self.allocation_nominal is not None
+                else None
+            ),
+            "nearest_feel": self.nearest.as_dict() if self.nearest is not None else None,
             "specifications": {n: self.row(n) for n in self.names},
             "alternative": _plain_alternative(self.alternative),
             "worst": self.worst,
@@ -371,8 +527,21 @@ class Specification:
                 )
                 got = self.allocation_yield.text() if self.allocation_yield else "not verified"
                 lines.append(f"  tighten {tight}: yield {got}")
+                if self.allocation_nominal is not None:
+                    moved = [
+                        f"{n} {v:.4g}"
+                        for n, v, w in zip(self.names, self.allocation_nominal, self.nominal)
+                        if abs(v - w) > 1e-9 * max(abs(w), 1e-300)
+                    ]
+                    if moved:
+                        lines.append(f"  built to the robust nominal: {', '.join(moved)}")
             else:
                 lines.append("  no tightening of the tolerances the check sees reaches it")
+        if self.nearest is not None:
+            lines.append("  " + self.nearest.text())
+            lines.append(
+                "  (evo-door push RUN.h5 --to HOST:PORT renders it for a participant to confirm)"
+            )
         if self.note:
             lines.append(f"note: {self.note}")
         return lines
@@ -410,6 +579,10 @@ class Specification:
             "sensitivity": np.asarray(self.sensitivity, dtype=np.float64),
             "loss": np.asarray(self.loss, dtype=np.float64),
         }
+        if self.nearest is not None:
+            tree["nearest_feel"] = self.nearest.to_tree()
+        if self.allocation_nominal is not None:
+            tree["allocation_nominal"] = np.asarray(self.allocation_nominal, dtype=np.float64)
         if self.curves:
             tree["curves"] = {k: np.asarray(v, dtype=np.float64) for k, v in self.curves.items()}
         return tree
@@ -450,6 +623,12 @@ class Specification:
             alternative=alt or {},
             allocation={k: float(v) for k, v in json.loads(a["allocation"]).items()},
             allocation_yield=YieldEstimate.from_dict(ay) if ay else None,
+            nearest=NearestFeel.from_tree(node["nearest_feel"]) if "nearest_feel" in node else None,
+            allocation_nominal=(
+                np.asarray(node["allocation_nominal"], dtype=np.float64)
+                if "allocation_nominal" in node
+                else None
+            ),
             nominal_margin=float(a["nominal_margin"]),
             design_seed=int(a["design_seed"]),
             evaluations=int(a["evaluations"]),
@@ -503,14 +682,18 @@ def specify(
     yield_seed: int = YIELD_SEED,
     allocation_seed: int = ALLOCATION_SEED,
     centre: bool = True,
+    feel_model=None,
+    feel_params=None,
     progress: bool = False,
 ) -> Specification:
     """The specification of ``names`` from the door ``p0`` (a full kernel vector of
     ``model``, the smallest change that reaches the chosen ``feel``), built to
     ``process`` (an :class:`~evo_door.optim.process.Process` of ``names``); ``free``
     are the specifications the nominal may move (within ``lower``..``upper``, their
-    search ranges), ``asis`` the AS-IS door's full vector (the "changed" column). See
-    the module docstring."""
+    search ranges), ``asis`` the AS-IS door's full vector (the "changed" column);
+    ``feel_model`` and ``feel_params`` the chosen feel's model and set (a haptic set:
+    where the target is out of reach, the nearest feel is one of that model). See the
+    module docstring."""
     t0 = time.perf_counter()
     p0 = _check_inputs(model, p0, feel, names, samples, target)
     idx = np.array([model.params.index(n) for n in names], dtype=np.int64)
@@ -554,7 +737,8 @@ def specify(
     t = widths(p)
     U = standard_draws(dist, samples, np.random.default_rng(yield_seed))
     forces: dict = {}
-    M = check.margins(doors(p, U, t), forces)
+    measured: list = []
+    M = check.margins(doors(p, U, t), forces, measured)
     ok = passing(M)
     estimate = YieldEstimate(int(ok.sum()), samples, yield_seed)
     bar.update(1)
@@ -578,16 +762,28 @@ def specify(
             "yield": YieldEstimate(int(round(ya * samples)), samples, yield_seed),
         }
     bar.update(1)
-    allocation, allocation_yield = {}, None
+    allocation, allocation_yield, allocation_nominal = {}, None, None
+    nearest = None
+    if estimate.estimate < target and feel_model is not None:
+        nearest = nearest_feel(
+            check, _joined(measured), feel_model, feel_params, target, yield_seed
+        )
     if estimate.estimate < target:
-        allocation = _allocate(M, U, t, J, names, loss, sensitivity * t, target)
+        # tightened tolerances want the door with the most room, not the one centred
+        # on the process's spread: the allocation is made about the robust nominal
+        robust = _robust_nominal(check, p, idx, cols, search_lo, search_hi)
+        tr = widths(robust)
+        Jr = _secants(check, robust, idx, tr, lo_decl, hi_decl)
+        Ml = check.margins(robust)[0] + (U * tr) @ Jr.T  # the yield's doors, first order
+        allocation = _allocate(Ml, U, tr, Jr, names, loss, np.max(np.abs(Jr), axis=0) * tr, target)
         if allocation:
-            tightened = t.copy()
+            tightened = tr.copy()
             for n, w in allocation.items():
                 tightened[names.index(n)] = w
             Uv = standard_draws(dist, samples, np.random.default_rng(allocation_seed))
-            okv = passing(check.margins(doors(p, Uv, tightened)))
+            okv = passing(check.margins(doors(robust, Uv, tightened)))
             allocation_yield = YieldEstimate(int(okv.sum()), samples, allocation_seed)
+            allocation_nominal = robust[idx].copy()
     bar.update(1)
     bar.close()
     nominal_margin = float(np.max(np.abs(check.margins(p))))
@@ -609,6 +805,8 @@ def specify(
         alternative=alternative,
         allocation=allocation,
         allocation_yield=allocation_yield,
+        allocation_nominal=allocation_nominal,
+        nearest=nearest,
         nominal_margin=nominal_margin,
         design_seed=design_seed,
         evaluations=check.evaluations,
@@ -700,6 +898,116 @@ def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray
     return out
 
 
+def _joined(measured: list) -> dict:
+    """One :meth:`FeelCheck.measure` of the batches of a sample."""
+    out: dict = {d: np.concatenate([m[d] for m in measured]) for d in DIRECTIONS}
+    for key in ("peaks", "angles"):
+        out[key] = {d: np.concatenate([m[key][d] for m in measured]) for d in DIRECTIONS}
+    if "dynamics" in measured[0]:
+        out["dynamics"] = np.concatenate([m["dynamics"] for m in measured])
+    return out
+
+
+def _subset(got: dict, rows) -> dict:
+    out: dict = {d: got[d][rows] for d in DIRECTIONS}
+    for key in ("peaks", "angles"):
+        out[key] = {d: got[key][d][rows] for d in DIRECTIONS}
+    if "dynamics" in got:
+        out["dynamics"] = got["dynamics"][rows]
+    return out
+
+
+#: the units of the sensations the nearest feel moves: levels of force, dynamics
+LEVEL_UNITS = ("N", "N s/rad", "kg m")
+#: doors of the sample the nearest feel is searched on (all of them check it)
+NEAREST_DOORS = 500
+
+
+def nearest_feel(
+    check: FeelCheck, got: dict, model, params, target: float, seed: int = YIELD_SEED
+) -> NearestFeel:
+    """The set of ``model`` (the chosen feel's, at ``params``) nearest the chosen feel
+    whose feel the measured doors ``got`` pass at ``target`` (module docstring, step 5).
+
+    The sensations moved are the model's levels (group ``sensation``, a force, a
+    damping or an inertia; each within its declared bounds); nearest is the perceptual
+    objective of the chosen feel (:meth:`FeelTarget.value`, JND^2); the doors' smoothed
+    yield must reach ``target``, a penalty otherwise. Nelder-Mead on the first
+    :data:`NEAREST_DOORS` doors, the yield counted on all of them.
+    """
+    from scipy.optimize import minimize
+
+    p0 = np.array(params, dtype=np.float64)
+    cols = [
+        i
+        for i, q in enumerate(model.params)
+        if q.group == "sensation" and q.unit in LEVEL_UNITS and q.lower < q.upper
+    ]
+    lo = np.array([model.params[model.params.names[i]].lower for i in cols])
+    hi = np.array([model.params[model.params.names[i]].upper for i in cols])
+    scale = np.maximum(np.abs(p0[cols]), 0.05 * (hi - lo))
+    n = min(NEAREST_DOORS, len(got["peaks"]["opening"]))
+    some = _subset(got, slice(0, n))
+    aim = target + 0.01
+
+    def feel_of(z):
+        p = p0.copy()
+        p[cols] = np.clip(p0[cols] + z * scale, lo, hi)
+        return p
+
+    def cost(z):
+        p = feel_of(z)
+        shortfall = max(0.0, aim - soft_yield(check.against(some, check.reference_of(model, p))))
+        return check.feel.value(model, p) + 1e4 * shortfall**2
+
+    res = minimize(
+        cost,
+        np.zeros(len(cols)),
+        method="Nelder-Mead",
+        options={"maxfev": 20 * len(cols), "xatol": 1e-3, "fatol": 1e-4},
+    )
+    p = feel_of(res.x)
+    ok = passing(check.against(got, check.reference_of(model, p)))
+    names = model.params.names
+    moved = [names[i] for i in cols if abs(p[i] - p0[i]) > 1e-9 * max(abs(p0[i]), 1.0)]
+    return NearestFeel(
+        model=model.name,
+        values={nm: float(v) for nm, v in zip(names, p)},
+        moved=moved,
+        distance=math.sqrt(max(check.feel.value(model, p), 0.0)),
+        yield_=YieldEstimate(int(ok.sum()), len(ok), seed),
+        target=target,
+    )
+
+
+def _robust_nominal(check, p, idx, cols, search_lo, search_hi) -> np.ndarray:
+    """The free specifications' nominal with the most room: the least worst margin
+    (JND) of the door itself, by Nelder-Mead on the compiled check from ``p``."""
+    from scipy.optimize import minimize
+
+    if not cols.size:
+        return p
+    width = search_hi - search_lo
+
+    def door(z):
+        q = p.copy()
+        q[idx[cols]] = search_lo + np.clip(z, 0.0, 1.0) * width
+        return q
+
+    def worst(z):
+        return float(np.max(np.abs(check.margins(door(z))[0])))
+
+    z0 = (p[idx][cols] - search_lo) / width
+    res = minimize(
+        worst,
+        z0,
+        method="Nelder-Mead",
+        bounds=[(0.0, 1.0)] * cols.size,
+        options={"maxfev": 40 * cols.size, "xatol": 1e-4, "fatol": 1e-4},
+    )
+    return door(res.x) if res.fun < worst(z0) else p
+
+
 def _allocate(M, U, t, J, names, loss, swing, target) -> dict:
     """The fewest tolerances, tightened by the least common factor, whose doors reach
     ``target`` on the sample's margins (first order in each tightened deviation): every
@@ -711,7 +1019,13 @@ def _allocate(M, U, t, J, names, loss, swing, target) -> dict:
         key=lambda j: (-loss[j], -swing[j]),
     )
     aim = target + 0.005  # a little above: the fresh sample that verifies it varies
-    shifts = [np.outer(U[:, j] * t[j], J[:, j]) for j in range(len(names))]
+    if not ranked:
+        return {}
+    # a margin that no tightening can take beyond 1 JND is left out of the search
+    reach_of = np.abs(M) + sum(np.abs(np.outer(U[:, j] * t[j], J[:, j])) for j in ranked)
+    keep = np.max(reach_of, axis=0) > 1.0
+    M = np.ascontiguousarray(M[:, keep], dtype=np.float32)
+    shifts = {j: np.outer(U[:, j] * t[j], J[keep, j]).astype(np.float32) for j in ranked}
 
     def reach(subset, share):
         m = M.copy()

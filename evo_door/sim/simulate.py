@@ -328,6 +328,13 @@ def _hold_rows(accel, P, theta, dtheta, out):
             out[r, i] = _hold(accel, P[r], theta[i], dtheta)
 
 
+@njit(_ROWS_SIGNATURE, cache=True, nogil=True)
+def _hold_rows_serial(accel, P, theta, dtheta, out):
+    for r in range(P.shape[0]):
+        for i in range(theta.shape[0]):
+            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
+
+
 @njit(_ROWS_SIGNATURE, cache=True, parallel=True)
 def _inertia_rows(accel, P, theta, dtheta, out):
     for r in prange(P.shape[0]):
@@ -335,6 +342,19 @@ def _inertia_rows(accel, P, theta, dtheta, out):
             a0 = accel(theta[i], dtheta, 0.0, P[r])
             a1 = accel(theta[i], dtheta, 1.0, P[r])
             out[r, i] = 1.0 / (a1 - a0)
+
+
+@njit(_ROWS_SIGNATURE, cache=True, nogil=True)
+def _inertia_rows_serial(accel, P, theta, dtheta, out):
+    for r in range(P.shape[0]):
+        for i in range(theta.shape[0]):
+            a0 = accel(theta[i], dtheta, 0.0, P[r])
+            a1 = accel(theta[i], dtheta, 1.0, P[r])
+            out[r, i] = 1.0 / (a1 - a0)
+
+
+#: rows below which the row kernels run on one thread (threads cost more than they give)
+ROWS_IN_THREADS = 8
 
 
 def inertia_rows(model, P, theta, dtheta) -> np.ndarray:
@@ -346,7 +366,8 @@ def inertia_rows(model, P, theta, dtheta) -> np.ndarray:
     P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
     theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
     out = np.empty((P.shape[0], theta.size))
-    _inertia_rows(model.accel, P, theta, float(dtheta), out)
+    kernel = _inertia_rows if P.shape[0] >= ROWS_IN_THREADS else _inertia_rows_serial
+    kernel(model.accel, P, theta, float(dtheta), out)
     return out
 
 
@@ -401,7 +422,8 @@ def hold_forces_rows(model, P, theta, dtheta) -> np.ndarray:
     P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
     theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
     out = np.empty((P.shape[0], theta.size))
-    _hold_rows(model.accel, P, theta, float(dtheta), out)
+    kernel = _hold_rows if P.shape[0] >= ROWS_IN_THREADS else _hold_rows_serial
+    kernel(model.accel, P, theta, float(dtheta), out)
     return out
 
 
