@@ -25,6 +25,7 @@ from evo_door.perception import (
     model_curve,
     perceptual_check,
     read_curve_csv,
+    verdict_text,
 )
 from evo_door.sim.simulate import force_angle_curve
 from tests.test_cli import cli
@@ -102,8 +103,9 @@ def test_the_feel_scores_zero_against_itself_and_a_uniform_offset_its_size_in_jn
     target = FeelTarget.from_model(DOOR, params)
     p = param_vector(params, DOOR.params)
     assert target.value(DOOR, p) < 1e-9
-    # a curve shifted by 2 JND of its own force everywhere (and its peaks by as much):
-    # the stroke's mean square is 4 in each direction, each peak adds 4 (weight 1)
+    # a curve shifted by 2 JND of its own force everywhere (its peaks by as much, at the
+    # same angles): scored against it, the door is off by -2 t(F) / t(F + 2 t(F)) JND at
+    # each point, between -2.5 (10 % of a pull: -10 N against -8 N) and -5/3 (a push)
     jnd = JND()
     c = target.curve
     shifted = FeelCurve(
@@ -111,13 +113,26 @@ def test_the_feel_scores_zero_against_itself_and_a_uniform_offset_its_size_in_jn
         c.opening + 2 * jnd.force_threshold(c.opening),
         c.closing + 2 * jnd.force_threshold(c.closing),
     )
-    # the thresholds are the shifted curve's: solve F + 2 t(F) = G for the door's F
-    # by scoring the door against the shifted curve with its own thresholds
     bare = FeelTarget(shifted, jnd)
     r = bare.residuals(DOOR, p)
-    stroke = r[:-2]
-    assert np.all(np.abs(stroke[np.abs(stroke) > 0]) < 2.0 / math.sqrt(2) * 1.0001)
-    assert bare.value(DOOR, p) > 1.0
+    n = bare.stroke.size
+    # per stroke: its points weighted by their share of the angle range, then each
+    # point's excess beyond 1 JND times sqrt(10); then each peak's force and angle
+    assert r.size == 4 * n + 4
+    total = 0.0
+    for k in (0, 2):
+        weighted, excess = r[k * n : (k + 1) * n], r[(k + 1) * n : (k + 2) * n]
+        ratio = weighted / np.sqrt(0.5 * bare.weights)
+        # (to the linear interpolation of the curve between its points)
+        assert np.all((ratio > -2.5 * 1.001) & (ratio < -5 / 3 * 0.999)), ratio
+        np.testing.assert_allclose(excess, -math.sqrt(10.0) * (np.abs(ratio) - 1.0), rtol=1e-12)
+        # the stroke's mean square, half of it per stroke: between (5/3)^2 and 2.5^2
+        assert 0.5 * (5 / 3) ** 2 * 0.999 < np.sum(weighted**2) < 0.5 * 2.5**2 * 1.001
+        total += np.sum(weighted**2) + np.sum(excess**2)
+    force_o, angle_o, force_c, angle_c = r[-4:]
+    assert -2.5 - 1e-3 < force_o < -5 / 3 + 1e-3 and -2.5 - 1e-3 < force_c < -5 / 3 + 1e-3
+    assert abs(angle_o) < 0.05 and abs(angle_c) < 0.05  # the peaks did not move
+    assert bare.value(DOOR, p) == pytest.approx(total + np.sum(r[-4:] ** 2), rel=1e-12)
 
 
 @pytest.mark.numerics
@@ -136,18 +151,24 @@ def test_balance_shifts_both_strokes_alike_and_is_linear_between_its_angles():
         np.testing.assert_allclose(a - b, expected, atol=1e-9)
 
 
-def test_the_check_names_the_worst_angle_and_passes_at_95_percent():
+def test_the_check_names_the_worst_angle_and_the_share_of_the_stroke_beyond():
     th = np.linspace(0.0, 1.5, 301)
     chosen = FeelCurve(th, -10.0 + 0 * th, 3.0 + 0 * th)
-    # the closing stroke 2 N off from 0.975 to 1.025 rad: 0.05 rad of the 1.5 rad stroke
+    # the closing stroke 2 N off from 0.975 to 1.025 rad: 0.05 rad of the 1.5 rad stroke,
+    # 4 JND (the floor, 0.5 N): noticeable, however little of the stroke it spans
     closing = np.where(np.abs(th - 1.0) < 0.026, 5.0, 3.0)
     mech = FeelCurve(th, -10.0 + 0 * th, closing)
     v = check_verdict(perceptual_check(mech, chosen, JND()), JND())
-    assert v["opening"]["verdict"] == "within the JND"
-    assert v["closing"]["verdict"] == "passes" and v["passes"]
-    assert v["closing"]["fraction_beyond_jnd"] == pytest.approx(0.05 / 1.5, abs=1e-9)
+    assert v["opening"]["verdict"] == "within the JND" and v["opening"]["worst_jnd"] == 0.0
+    assert v["closing"]["verdict"] == "noticeable" and not v["passes"]
+    end = th[th < 1.5 - math.radians(3.0)][-1]  # the stroke ends at the latch zone
+    assert v["closing"]["fraction_beyond_jnd"] == pytest.approx(0.05 / end, rel=1e-9)
     assert abs(v["closing"]["worst"]["angle_deg"] - math.degrees(1.0)) < 2.0
     assert v["closing"]["worst"]["difference_N"] == pytest.approx(2.0)
+    assert v["closing"]["worst"]["jnd_units"] == pytest.approx(4.0)
+    assert v["worst_jnd"] == pytest.approx(4.0) and v["worst"].startswith("closing stroke at ")
+    (band,) = v["closing"]["bands_deg"]
+    assert math.degrees(0.975) <= band[0] < band[1] <= math.degrees(1.025)
 
 
 # -- the method's two ends ------------------------------------------------------------------
@@ -191,14 +212,33 @@ def _run(tmp_path, text, name="exp.yaml"):
     return ExperimentRun.create(exp, tmp_path / "run.h5").run()
 
 
-@pytest.mark.slow
-def test_the_haptic_model_holds_the_bundled_doors_feel_within_the_jnd(tmp_path):
-    run = _run(tmp_path, HAPTIC_STAGE)
+@pytest.fixture(scope="module")
+def haptic_check(tmp_path_factory):
+    """The check of the haptic model fitted to the bundled door's feel (HAPTIC_STAGE)."""
+    run = _run(tmp_path_factory.mktemp("haptic"), HAPTIC_STAGE)
     values = run.setup.problem().full(run.result["best_x"])[0]
     door = model_curve(DOOR, DOOR.load_params("default"))
-    check = check_verdict(perceptual_check(model_curve(HAPTIC, values), door, JND()), JND())
+    return check_verdict(perceptual_check(model_curve(HAPTIC, values), door, JND()), JND())
+
+
+@pytest.mark.slow
+def test_the_haptic_model_holds_the_bundled_doors_stroke_and_latch_forces(haptic_check):
+    check = haptic_check
     for d in ("opening", "closing"):
+        # (the old rule's 95 % of the stroke within the JND)
         assert check[d]["fraction_beyond_jnd"] <= 0.05, (d, check[d])
+        assert check[d]["latch_peak"]["jnd_units"] <= 1.0, (d, check[d]["latch_peak"])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="under the every-point rule this one-stage fit misses: a stroke point 1.03 JND "
+    "off (opening, 66.5 deg) and the unlock peak's angle 1.85 JND off (the latch "
+    "geometry is not free here; experiments/case_study.yaml fits it in haptic_latch)",
+)
+def test_the_haptic_model_holds_the_bundled_doors_feel_within_the_jnd(haptic_check):
+    assert haptic_check["passes"], verdict_text(haptic_check)
 
 
 SPEC_STAGE = """
