@@ -46,6 +46,7 @@ def nearest_feel_params(table, path: Path) -> ParamSet | None:
     import numpy as np
 
     from evo_door.files import open_h5
+    from evo_door.files.metadata import read_attrs
 
     try:
         with open_h5(path) as f:
@@ -65,8 +66,9 @@ def nearest_feel_params(table, path: Path) -> ParamSet | None:
                     )
                 return None
             where, node = found[-1]
-            model = str(node.attrs["model"])
-            names = [str(n) for n in node.attrs["names"]]
+            attrs = read_attrs(node)
+            model = str(attrs["model"])
+            names = [str(n) for n in attrs["names"]]
             values = np.asarray(node["values"], dtype=np.float64)
     except OSError:
         return None

@@ -182,12 +182,6 @@ def pipeline_file(ws):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    raises=AttributeError,
-    strict=True,
-    reason="library: evo_door/experiment/report.py calls Specification.format(), which "
-    "optim/tolerance.py's Specification does not have (summary_lines())",
-)
 def test_the_report_shows_each_stage_its_own_check(pipeline_file, tmp_path, capsys):
     # the pipeline's perception: reaches every stage, and is what the check is judged by
     shown = json.loads(cli(capsys, "show", pipeline_file, "--json").stdout)

@@ -201,8 +201,25 @@ free:
   balance_9: [-30.0, 30.0]
   open_force: [10.0, 80.0]
   close_force: [5.0, 80.0]
+fixed: {window_slope: 20.0}
 objective: {kind: perceptual}
-algorithm: {population: 40, generations: 5, seed: 1, polish: slsqp, max_iterations: 60}
+algorithm: {population: 100, generations: 20, seed: 1, polish: slsqp, max_iterations: 60}
+"""
+
+#: the second step, as experiments/case_study.yaml's haptic_latch: the latch's geometry
+#: and forces, so that the haptic model catches where the door does
+LATCH_STAGE = """
+name: haptic-latch
+model: haptic
+params: {values}
+target: {{model: door, params: default}}
+free:
+  open_force: [10.0, 80.0]
+  close_force: [5.0, 80.0]
+  loose_angle: [0.0, 0.02]
+  transition_angle: [0.0, 0.02]
+objective: {{kind: perceptual}}
+algorithm: {{population: 20, generations: 5, seed: 1, polish: slsqp, scan: 21, max_iterations: 30}}
 """
 
 
@@ -214,31 +231,28 @@ def _run(tmp_path, text, name="exp.yaml"):
 
 @pytest.fixture(scope="module")
 def haptic_check(tmp_path_factory):
-    """The check of the haptic model fitted to the bundled door's feel (HAPTIC_STAGE)."""
+    """The check of the haptic model fitted to the bundled door's feel (HAPTIC_STAGE,
+    then LATCH_STAGE from its answer)."""
     run = _run(tmp_path_factory.mktemp("haptic"), HAPTIC_STAGE)
+    values = run.setup.problem().full(run.result["best_x"])[0]
+    inline = (
+        "{" + ", ".join(f"{n}: {float(v)!r}" for n, v in zip(HAPTIC.params.names, values)) + "}"
+    )
+    run = _run(tmp_path_factory.mktemp("latch"), LATCH_STAGE.format(values=inline))
     values = run.setup.problem().full(run.result["best_x"])[0]
     door = model_curve(DOOR, DOOR.load_params("default"))
     return check_verdict(perceptual_check(model_curve(HAPTIC, values), door, JND()), JND())
 
 
 @pytest.mark.slow
-def test_the_haptic_model_holds_the_bundled_doors_stroke_and_latch_forces(haptic_check):
+def test_the_haptic_model_holds_the_bundled_doors_feel_within_the_jnd(haptic_check):
+    """Every point of both strokes, both latch peaks and their angles."""
     check = haptic_check
     for d in ("opening", "closing"):
-        # (the old rule's 95 % of the stroke within the JND)
-        assert check[d]["fraction_beyond_jnd"] <= 0.05, (d, check[d])
+        assert check[d]["fraction_beyond_jnd"] == 0.0, (d, check[d])
         assert check[d]["latch_peak"]["jnd_units"] <= 1.0, (d, check[d]["latch_peak"])
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="under the every-point rule this one-stage fit misses: a stroke point 1.03 JND "
-    "off (opening, 66.5 deg) and the unlock peak's angle 1.85 JND off (the latch "
-    "geometry is not free here; experiments/case_study.yaml fits it in haptic_latch)",
-)
-def test_the_haptic_model_holds_the_bundled_doors_feel_within_the_jnd(haptic_check):
-    assert haptic_check["passes"], verdict_text(haptic_check)
+        assert check[d]["peak_angle"]["jnd_units"] <= 1.0, (d, check[d]["peak_angle"])
+    assert check["passes"], verdict_text(check)
 
 
 SPEC_STAGE = """

@@ -263,12 +263,6 @@ def test_nsga2_needs_a_chosen_feel_and_one_front(folder):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    raises=AttributeError,
-    strict=True,
-    reason="library: evo_door/experiment/report.py calls Specification.format(), which "
-    "optim/tolerance.py's Specification does not have (summary_lines())",
-)
 def test_the_report_draws_the_front_with_the_answer(reached, tmp_path):
     from evo_door.experiment.report import write_report
 

@@ -196,20 +196,21 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
     page.raw(table_html(spec_table(res)))
     tol = tolerances_of(res)
     if tol is not None:
-        page.pre(tol.format())
+        page.pre("\n".join(tol.summary_lines()))
         fc = res.record.perceptual_check
         if fc is not None and changes.apply(fc.jnd) != fc.jnd:
             page.p(
-                f"{label}: the tolerances are the run's, found with its own JNDs when it ran, "
+                f"{label}: the yield is the run's, found with its own JNDs when it ran, "
                 "not with this report's changes",
                 "small",
             )
         page.figure(
             f"{key}-tolerance",
             lambda p: plot_tolerances(tol, label, p),
-            f"{label}: each specification's band alone and together, as a share of its "
-            "value; the force-angle curves of doors built within the together bands "
-            "(dashed: their lowest and highest) against the chosen feel's JND band",
+            f"{label}: the yield each specification's process tolerance costs (the doors "
+            "gained were it built exactly; red: changed from the AS-IS door); the "
+            "force-angle curves of the doors built to the process (dashed: 95 % of them) "
+            "against the chosen feel's JND band",
         )
     ident = res.identifiability()
     if ident is not None:
