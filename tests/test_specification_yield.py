@@ -227,11 +227,8 @@ def test_a_results_file_gives_its_nearest_feel_to_render_and_push(tmp_path):
         text=True,
     )
     assert out.returncode == 0, out.stderr
-    assert (
-        json.loads(out.stdout)["values"]["friction_opening"] == 7.5
-        if "values" in json.loads(out.stdout)
-        else "7.5" in out.stdout
-    )
+    value = {p["name"]: p["value"] for p in json.loads(out.stdout)["params"]}
+    assert value["friction_opening"] == 7.5
 
 
 def res_names(fitted) -> list[str]:
