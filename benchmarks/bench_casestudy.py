@@ -124,21 +124,80 @@ def perceptual(path: Path, stages: list[str]) -> list[dict]:
         if check is None or not res.complete:
             continue
         judged = check.judged()
-        row: dict = {"stage": stage, "chosen": judged["chosen"], "jnd": judged["jnd"]}
+        row: dict = {
+            "stage": stage,
+            "chosen": judged["chosen"],
+            "jnd": judged["jnd"],
+            "worst_jnd": judged["worst_jnd"],
+            "worst": judged["worst"],
+            "passes": judged["passes"],
+        }
         for d in ("opening", "closing"):
             c = judged[d]
             row[d] = {
-                "fraction_pct": 100.0 * c["fraction_beyond_jnd"],
+                "worst_jnd": c["worst_jnd"],
                 "worst_n": c["worst"]["difference_N"],
                 "worst_deg": c["worst"]["angle_deg"],
                 "jnd_n": c["worst"]["jnd_N"],
+                "stroke_jnd": c["worst"]["jnd_units"],
+                "peak_jnd": c["latch_peak"]["jnd_units"],
+                "angle_jnd": c["peak_angle"]["jnd_units"],
                 "verdict": c["verdict"],
             }
         out.append(row)
     return out
 
 
-def figures(path: Path, wall: float) -> dict:
+def specification(path: Path, stages: list[str], quick: bool = False) -> list[dict]:
+    """What each stage with a specification a supplier builds states (its yield, the
+    design, the allocation and the nearest feel where out of reach, the largest
+    contributors to the yield loss) and the independent check of its yield on fresh
+    doors (:mod:`benchmarks.yield_check`)."""
+    from benchmarks.yield_check import check_file
+    from evo_door.experiment import Results
+
+    out = []
+    for stage in stages:
+        res = Results(path, stage)
+        spec = res.record.tolerance
+        if spec is None or not res.complete:
+            continue
+        got = check_file(path, stage, 500 if quick else 2000, seed=7)
+        loss = sorted(zip(spec.loss, spec.names), reverse=True)[:5]
+        t = dict(zip(spec.names, spec.half_width))
+        out.append(
+            {
+                "stage": stage,
+                "yield": spec.yield_.as_dict(),
+                "independent": got["independent"],
+                "difference_points": got["difference_points"],
+                "reachable": spec.reachable,
+                "design": spec.design,
+                "nominal_margin": spec.nominal_margin,
+                "alternative": (
+                    {
+                        "design": spec.alternative["design"],
+                        "yield": spec.alternative["yield"].as_dict(),
+                    }
+                    if spec.alternative
+                    else None
+                ),
+                "worst": spec.worst,
+                "losses": [(n, float(v)) for v, n in loss if v > 0.0],
+                "allocation": {
+                    n: {"process": float(t[n]), "tightened": w} for n, w in spec.allocation.items()
+                },
+                "allocation_yield": (
+                    spec.allocation_yield.as_dict() if spec.allocation_yield else None
+                ),
+                "nearest": spec.nearest.as_dict() if spec.nearest is not None else None,
+                "units": dict(zip(spec.names, spec.units)),
+            }
+        )
+    return out
+
+
+def figures(path: Path, wall: float, quick: bool = False) -> dict:
     """Everything the section reports, from the main job's results file."""
     from evo_door.experiment.pipeline import pipeline_summary
 
@@ -149,6 +208,7 @@ def figures(path: Path, wall: float) -> dict:
         "total": summary["total_s"],
         "stages": [stage_figures(path, s) for s in stages],
         "perceptual": perceptual(path, stages),
+        "specification": specification(path, stages, quick),
     }
 
 
@@ -226,21 +286,75 @@ def markdown(fig: dict) -> str:
         lines += [
             "",
             "The perceptual check of every stage fitted to a chosen feel: its answer's "
-            "force-angle curve against the feel it was fitted to (force JND "
-            f"{100 * jnd['force']:g} % of the chosen force, at least {jnd['force_floor']:g} N; "
-            "it passes where at least 95 % of each stroke is within it and its latch peak within "
-            "the peak's JND):",
+            "force-angle curve against the feel it was fitted to, at every angle outside the "
+            f"latch zone within the force JND ({100 * jnd['force']:g} % of the chosen force, "
+            f"at least {jnd['force_floor']:g} N), each latch peak within its force JND and "
+            f"its angle within {1000 * jnd['position']:g} mm at the handle "
+            f"({math.degrees(jnd['position'] / jnd['handle_radius']):.2f} deg at "
+            f"{jnd['handle_radius']:g} m), the felt inertia and damping within theirs; the "
+            "largest of each in JND:",
             "",
-            "| stage | fitted to | direction | stroke beyond the JND | largest difference "
-            "| verdict |",
-            "|---|---|---|---:|---|---|",
+            "| stage | fitted to | direction | stroke: largest difference | latch peak "
+            "| peak's angle | verdict |",
+            "|---|---|---|---|---:|---:|---|",
         ]
         for pc in checks:
             for d in ("opening", "closing"):
                 c = pc[d]
                 lines.append(
-                    f"| {pc['stage']} | {pc['chosen']} | {d} | {c['fraction_pct']:.1f} % | "
-                    f"{c['worst_n']:+.1f} N at {c['worst_deg']:.2f} deg (JND {c['jnd_n']:.2f} N) "
-                    f"| {c['verdict']} |"
+                    f"| {pc['stage']} | {pc['chosen']} | {d} | {c['worst_n']:+.2f} N at "
+                    f"{c['worst_deg']:.2f} deg ({c['stroke_jnd']:.2f} JND) | "
+                    f"{c['peak_jnd']:.2f} JND | {c['angle_jnd']:.2f} JND | {c['verdict']} |"
                 )
+    for sp in fig.get("specification", []):
+        y, i = sp["yield"], sp["independent"]
+        lines += [
+            "",
+            f"Stage {sp['stage']}, what the supplier builds (the default process of each "
+            f"kind of specification, docs/experiments.md): the {sp['design']} nominal, its "
+            f"own worst difference from the chosen feel {sp['nominal_margin']:.2f} JND. "
+            f"Yield: **{100 * y['estimate']:.1f} %** of {y['samples']} doors built to the "
+            f"process pass the check (95 % interval {100 * y['ci95'][0]:.1f}-"
+            f"{100 * y['ci95'][1]:.1f} %, seed {y['seed']}); an independent check of "
+            f"{i['samples']} other doors (`benchmarks/yield_check.py`, seed {i['seed']}): "
+            f"{100 * i['estimate']:.1f} % ({sp['difference_points']:+.1f} points). "
+            + ("Reachable." if sp["reachable"] else "**Not reachable** (target 95 %).")
+            + (f" Most doors fail at: {sp['worst']}." if sp["worst"] else ""),
+        ]
+        if sp["alternative"]:
+            a = sp["alternative"]
+            lines.append(
+                f"The {a['design']} nominal would give {100 * a['yield']['estimate']:.1f} %."
+            )
+        if sp["losses"]:
+            lines.append(
+                "The yield each tolerance costs (doors gained were it built exactly): "
+                + ", ".join(f"{n} {100 * v:.1f} %" for n, v in sp["losses"])
+                + "."
+            )
+        if sp["allocation"]:
+            ay = sp["allocation_yield"]
+            shares = [v["tightened"] / v["process"] for v in sp["allocation"].values()]
+            lines.append(
+                f"Allocation: {len(sp['allocation'])} tolerances tightened to "
+                f"{100 * min(shares):.0f}-{100 * max(shares):.0f} % of the process's ("
+                + ", ".join(
+                    f"{n} +-{v['tightened']:.3g}"
+                    + ("" if sp["units"][n] == "1" else f" {sp['units'][n]}")
+                    for n, v in list(sp["allocation"].items())[:4]
+                )
+                + (", ..." if len(sp["allocation"]) > 4 else "")
+                + f"): {100 * ay['estimate']:.1f} % of {ay['samples']} fresh doors pass "
+                f"(seed {ay['seed']})."
+            )
+        elif not sp["reachable"]:
+            lines.append("No tightening of the tolerances the check sees reaches the target.")
+        if sp["nearest"]:
+            n = sp["nearest"]
+            lines.append(
+                f"The nearest feel (the chosen feel's model, {len(n['moved'])} sensations "
+                f"moved, {n['distance_jnd']:.2f} JND from the chosen feel): "
+                f"{100 * n['yield']['estimate']:.1f} % of the doors pass it"
+                + ("." if n["holds"] else ": the process holds no feel this near.")
+            )
     return "\n".join(lines)

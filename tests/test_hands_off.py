@@ -342,3 +342,17 @@ def test_a_set_that_round_trips_keeps_its_balance(tmp_path):
     ps.to_yaml(tmp_path / "p.yaml")
     back = HAPTIC.load_params(str(tmp_path / "p.yaml"))
     assert isinstance(back, ParamSet) and back["balance_9"] == BALANCE_LIMIT
+
+
+def test_a_jnd_session_whose_comparison_would_move_too_fast_is_refused(capsys, tmp_path):
+    """A JND session renders its reference and comparisons up to the reference times
+    (1 + the largest step): each is checked before the device is touched. A balance of
+    20 N at 45 deg is safe (2.3 rad/s); the session's comparison at 40 N would not be
+    (3.4 rad/s), so the session is refused in one line and no file is written."""
+    out = tmp_path / "j.h5"
+    args = ["jnd", "--param", "balance_5", "--params", "seed_trial", "--set", "balance_5=20",
+            "--device", "sim", "--participant", "sim:0.2", "--trials", "10", "--out", str(out)]  # fmt: skip
+    assert main(args) == 2
+    err = _one_line(capsys.readouterr().err)
+    assert "hands-off limit of 3 rad/s" in err and "35 deg" in err
+    assert not out.exists()

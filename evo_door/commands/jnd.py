@@ -190,11 +190,25 @@ def run(args) -> int:
         seed=[args.seed, 0],
         upper=declared.upper,
     )
+    _hands_off(params, neutral, args.param, reference * (1.0 + session.max_step))
     participant = _participant(args.participant, args.seed)
     try:
         return _run_session(args, params, neutral, session, participant, timing, claim)
     finally:
         participant.close()
+
+
+def _hands_off(params, neutral, name: str, largest: float) -> None:
+    """Every set the session can render (the reference, the largest comparison, the
+    neutral set of the pauses) stays within the hands-off limit (docs/haptic-model.md,
+    "Bounds that keep a hand safe"); else one line, before the device is touched."""
+    from evo_door.render.hands_off import check_hands_off
+
+    sets = [params, params.replace({name: largest}, source=params.source)]
+    if neutral is not None:
+        sets.append(params.replace(neutral, source="neutral"))
+    for candidate in sets:
+        check_hands_off(candidate)
 
 
 def _run_session(args, params, neutral, session, participant, timing, claim) -> int:

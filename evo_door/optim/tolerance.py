@@ -47,605 +47,64 @@ import itertools
 import math
 import sys
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.files import ATTRS
-from evo_door.perception import FeelTarget
-from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE
-from evo_door.sim.simulate import (
-    COULOMB_SPEED,
-    coulomb_vector,
-    hold_forces_rows,
-    inertia_rows,
+from evo_door.optim.feel_doors import (
+    BLOWN,
+    FeelCheck,
+    Reference,
+    band_text,
+    passing,
+    soft_yield,
 )
+from evo_door.optim.specification import (
+    DESIGN_SEED,
+    NearestFeel,
+    Specification,
+    YieldEstimate,
+    clopper_pearson,
+)
+from evo_door.perception import FeelTarget
+from evo_door.perception.feel import DIRECTIONS
+
+__all__ = [
+    "FeelCheck",
+    "NearestFeel",
+    "Reference",
+    "Specification",
+    "YieldEstimate",
+    "band_text",
+    "clopper_pearson",
+    "full_nominal",
+    "nearest_feel",
+    "passing",
+    "soft_yield",
+    "specify",
+    "standard_draws",
+]
 
 #: doors of the yield's fresh sample (the issue's floor: 2000)
 SAMPLES = 2000
 #: doors of the common-random-number sample the nominal is centred on
 DESIGN_SAMPLES = 400
-#: the seeds: the centring's draws, the yield's fresh sample, the allocation's check
-DESIGN_SEED = 1
+#: the seeds: the centring's draws (DESIGN_SEED, 1), the yield's fresh sample, the
+#: allocation's check
 YIELD_SEED = 2
 ALLOCATION_SEED = 3
 #: the yield a specification must reach to be called reachable
 TARGET = 0.95
-#: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): 1.6e-4
-#: rad, 0.009 deg, a fiftieth of the position JND's angle at the handle (a latch's peak
-#: is a plateau of its hold, some 6e-3 rad long)
-LATCH_THIN = 8
-#: doors computed at once
-BATCH = 250
-#: centring: rounds of (secant model, Nelder-Mead), the trust box in tolerances, the
-#: smoothing of the yield (JND) and the Nelder-Mead's evaluations per free parameter
+#: centring: rounds of (secant model, Nelder-Mead), the trust box in tolerances and the
+#: Nelder-Mead's evaluations per free parameter (the yield smoothed by SMOOTHING)
 ROUNDS = 2
 TRUST = 2.0
-SMOOTHING = 0.05
 EVALUATIONS_PER_FREE = 60
 #: allocation: every subset of up to this many of the largest contributors is tried
 #: (more are added one at a time, largest first); a tightened tolerance is never below
 #: this share of the process's
 CANDIDATES = 6
 LEAST_SHARE = 0.05
-#: margins of a door whose curve is not finite (it fails)
-BLOWN = 1e6
-
-
-@dataclass
-class Reference:
-    """What a feel is judged by on a :class:`FeelCheck`'s grid: its force (N) and force
-    JND (N) per stroke at every angle, its latch peaks (N) and their JNDs, their angles
-    (rad) and the position JND's angle, and its felt dynamics with their JNDs (None
-    for a bare curve)."""
-
-    chosen: dict
-    threshold: dict
-    peaks: dict
-    peak_threshold: dict
-    peak_angles: dict
-    angle_threshold: float
-    dynamics: tuple | None = None  # ((inertia, jnd), (damping, jnd))
-
-
-class FeelCheck:
-    """The perceptual check of many doors against a chosen feel, on one fixed grid.
-
-    :meth:`margins` gives every door (a row of a kernel matrix) its signed differences
-    from the chosen feel in JND (module docstring, step 1), in the columns
-    :attr:`labels` names; :meth:`judge` says which pass (every margin within +-1).
-    :meth:`measure` gives the doors' own quantities, which :meth:`against` judges
-    against any feel (:meth:`reference_of`).
-    """
-
-    def __init__(self, model, feel: FeelTarget):
-        self.model = model
-        self.feel = feel
-        latch = feel.latch[::LATCH_THIN]
-        self.theta = np.union1d(np.union1d(feel.stroke, latch), feel.curve.theta)
-        self.stroke = self.theta < feel.curve.theta[-1] - LATCH_ZONE
-        self.latch = ~self.stroke
-        if self.stroke.sum() < 2 or not self.latch.any():
-            raise UserError(f"{feel.curve.source}: the chosen feel's curve has no latch zone")
-        chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
-        dynamics = None
-        if feel.dynamics is not None:
-            ti, tc = feel.dynamics
-            jnd = feel.jnd
-            dynamics = ((ti, jnd.inertia_threshold(ti)), (tc, jnd.damping_threshold(tc)))
-        self.reference = Reference(
-            chosen,
-            {d: feel.jnd.force_threshold(chosen[d]) for d in DIRECTIONS},
-            dict(feel.peaks),
-            dict(feel.peak_threshold),
-            dict(feel.peak_angles),
-            feel.angle_threshold,
-            dynamics,
-        )
-        self.chosen, self.threshold = self.reference.chosen, self.reference.threshold
-        self.dyn_theta = feel.dyn_grid
-        deg = np.degrees(self.theta[self.stroke])
-        self.labels = [f"{d} stroke at {a:.2f} deg" for d in DIRECTIONS for a in deg]
-        self.labels += ["unlock peak force", "lock peak force"]
-        self.labels += ["unlock peak's angle", "lock peak's angle"]
-        if feel.dynamics is not None:
-            self.labels += ["felt inertia", "felt damping"]
-        self.evaluations = 0
-
-    @property
-    def columns(self) -> int:
-        return len(self.labels)
-
-    def margins(self, P, forces: dict | None = None, measured: list | None = None):
-        """The signed margins (JND) of every door, a row of ``P`` (full kernel vectors):
-        an array (doors, :attr:`columns`). ``forces``, a dict, receives each stroke's
-        Coulomb forces (N, doors x :attr:`theta`); ``measured``, a list, each batch's
-        :meth:`measure`."""
-        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
-        out = np.empty((len(P), self.columns))
-        for start in range(0, len(P), BATCH):
-            rows = slice(start, start + BATCH)
-            got = self.measure(P[rows])
-            out[rows] = self.against(got, self.reference)
-            if forces is not None:
-                for d in DIRECTIONS:
-                    forces.setdefault(d, []).append(got[d])
-            if measured is not None:
-                measured.append(got)
-        self.evaluations += len(P)
-        return out
-
-    def measure(self, P) -> dict:
-        """The doors' own quantities: Coulomb forces (N) per stroke on :attr:`theta`,
-        latch peaks (N) and their angles (rad) per stroke, felt inertia and damping."""
-        Q = np.array([coulomb_vector(self.model, p) for p in P])
-        zone = self.theta[self.latch]
-        out: dict = {"peaks": {}, "angles": {}}
-        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = hold_forces_rows(self.model, Q, self.theta, sign * COULOMB_SPEED)
-            fl = f[:, self.latch]
-            k = np.argmin(fl, axis=1) if d == "opening" else np.argmax(fl, axis=1)
-            out[d] = f
-            out["peaks"][d] = fl[np.arange(len(P)), k]
-            out["angles"][d] = zone[k]
-        if self.feel.dynamics is not None:
-            out["dynamics"] = self._dynamics(P)
-        return out
-
-    def against(self, got: dict, ref: Reference) -> np.ndarray:
-        """The margins (JND) of measured doors (:meth:`measure`) against ``ref``."""
-        parts = [((got[d] - ref.chosen[d]) / ref.threshold[d])[:, self.stroke] for d in DIRECTIONS]
-        parts.append(
-            np.array(
-                [(got["peaks"][d] - ref.peaks[d]) / ref.peak_threshold[d] for d in DIRECTIONS]
-            ).T
-        )
-        parts.append(
-            np.array(
-                [(got["angles"][d] - ref.peak_angles[d]) / ref.angle_threshold for d in DIRECTIONS]
-            ).T
-        )
-        if "dynamics" in got:
-            (ti, ji), (tc, jc) = ref.dynamics
-            parts.append(
-                np.c_[(got["dynamics"][:, 0] - ti) / ji, (got["dynamics"][:, 1] - tc) / jc]
-            )
-        out = np.concatenate(parts, axis=1)
-        return np.where(np.isfinite(out), out, BLOWN)
-
-    def reference_of(self, model, p) -> Reference:
-        """The :class:`Reference` of the feel of ``model`` at ``p`` (a haptic set, say),
-        on this grid, under the chosen feel's JNDs."""
-        jnd = self.feel.jnd
-        pc = coulomb_vector(model, p)
-        zone = self.theta[self.latch]
-        chosen, peaks, angles = {}, {}, {}
-        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = hold_forces_rows(model, pc[None, :], self.theta, sign * COULOMB_SPEED)[0]
-            fl = f[self.latch]
-            k = int(np.argmin(fl) if d == "opening" else np.argmax(fl))
-            chosen[d], peaks[d], angles[d] = f, float(fl[k]), float(zone[k])
-        dynamics = None
-        if self.feel.dynamics is not None:
-            ti, tc = self.feel.felt_dynamics(model, np.asarray(p, dtype=np.float64))
-            dynamics = ((ti, jnd.inertia_threshold(ti)), (tc, jnd.damping_threshold(tc)))
-        return Reference(
-            chosen,
-            {d: jnd.force_threshold(chosen[d]) for d in DIRECTIONS},
-            peaks,
-            {d: jnd.force_threshold(v) for d, v in peaks.items()},
-            angles,
-            jnd.angle_threshold(),
-            dynamics,
-        )
-
-    def _dynamics(self, P) -> np.ndarray:
-        """Felt inertia (kg m) and damping (N s/rad), as :meth:`FeelTarget.felt_dynamics`."""
-        theta, v = self.dyn_theta, self.feel.jnd.speed
-        inertia = inertia_rows(self.model, P, theta, -0.5 * v).mean(axis=1)
-        damping = np.zeros(len(P))
-        for s in (-1.0, 1.0):
-            half = hold_forces_rows(self.model, P, theta, 0.5 * s * v)
-            full = hold_forces_rows(self.model, P, theta, s * v)
-            damping += np.mean((full - half) / (0.5 * s * v), axis=1)
-        return np.c_[inertia, 0.5 * damping]
-
-    def judge(self, P) -> np.ndarray:
-        """Whether each door (row of ``P``) passes the check."""
-        return passing(self.margins(P))
-
-    def passes(self, p) -> bool:
-        return bool(self.judge(p)[0])
-
-
-def band_text(band: float, unit: str, relative: float) -> str:
-    """``+-12.3 N/m (3.5 %)``: a band in its unit and as a share of its value.
-
-    >>> band_text(12.3, "N/m", 0.035), band_text(0.1, "1", float("inf"))
-    ('+-12.3 N/m (3.5 %)', '+-0.1')
-    """
-    unit = "" if unit == "1" else f" {unit}"
-    share = f" ({100 * relative:.3g} %)" if math.isfinite(relative) else ""
-    return f"+-{band:.3g}{unit}{share}"
-
-
-def soft_yield(margins, smoothing: float = SMOOTHING) -> float:
-    """The share of doors that pass, smoothed: each door counts
-    ``1 / (1 + exp((worst - 1) / smoothing))`` by its worst margin (JND)."""
-    worst = np.max(np.abs(np.atleast_2d(margins)), axis=1)
-    return float(np.mean(1.0 / (1.0 + np.exp(np.clip((worst - 1.0) / smoothing, -50, 50)))))
-
-
-def passing(margins) -> np.ndarray:
-    """Whether each row of margins passes: every one within +-1 JND."""
-    return np.all(np.abs(margins) <= 1.0, axis=-1)
-
-
-# -- the result -----------------------------------------------------------------------
-@dataclass
-class YieldEstimate:
-    """The share of a fresh sample of doors that passes, with its 95 % interval."""
-
-    passed: int
-    samples: int
-    seed: int
-
-    @property
-    def estimate(self) -> float:
-        return self.passed / self.samples if self.samples else math.nan
-
-    @property
-    def ci95(self) -> tuple[float, float]:
-        return clopper_pearson(self.passed, self.samples)
-
-    def as_dict(self) -> dict:
-        lo, hi = self.ci95
-        return {
-            "estimate": self.estimate,
-            "ci95": [lo, hi],
-            "samples": self.samples,
-            "seed": self.seed,
-            "passed": self.passed,
-        }
-
-    def text(self) -> str:
-        lo, hi = self.ci95
-        return (
-            f"{100 * self.estimate:.1f} % (95 % interval {100 * lo:.1f}-{100 * hi:.1f} %, "
-            f"{self.passed} of {self.samples} doors, seed {self.seed})"
-        )
-
-    @classmethod
-    def from_dict(cls, d: dict) -> YieldEstimate:
-        return cls(int(d["passed"]), int(d["samples"]), int(d["seed"]))
-
-
-def clopper_pearson(passed: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """The two-sided Clopper-Pearson interval of a share of ``passed`` in ``n``.
-
-    >>> [round(x, 4) for x in clopper_pearson(1900, 2000)]
-    [0.9397, 0.9591]
-    """
-    if n <= 0:
-        return (math.nan, math.nan)
-    from scipy.stats import beta
-
-    a = 1.0 - confidence
-    lo = 0.0 if passed == 0 else float(beta.ppf(a / 2, passed, n - passed + 1))
-    hi = 1.0 if passed == n else float(beta.ppf(1 - a / 2, passed + 1, n - passed))
-    return (lo, hi)
-
-
-@dataclass
-class NearestFeel:
-    """The feel nearest the chosen one that doors built to the process hold: a set of
-    the chosen feel's model (``values``: every parameter), how far it is from the
-    chosen feel (``distance``, the perceptual objective's RMS in JND), the sensations
-    moved, and its yield on the specification's sample of doors."""
-
-    model: str
-    values: dict
-    moved: list
-    distance: float
-    yield_: YieldEstimate
-    target: float
-
-    @property
-    def holds(self) -> bool:
-        return self.yield_.estimate >= self.target
-
-    def as_dict(self) -> dict:
-        return {
-            "model": self.model,
-            "values": dict(self.values),
-            "moved": list(self.moved),
-            "distance_jnd": self.distance,
-            "yield": self.yield_.as_dict(),
-            "holds": self.holds,
-        }
-
-    def to_tree(self) -> dict:
-        import json
-
-        return {
-            ATTRS: {
-                "model": self.model,
-                "names": list(self.values),
-                "moved": list(self.moved),
-                "distance_jnd": float(self.distance),
-                "yield": json.dumps(self.yield_.as_dict()),
-                "target": float(self.target),
-            },
-            "values": np.array(list(self.values.values()), dtype=np.float64),
-        }
-
-    @classmethod
-    def from_tree(cls, node: dict) -> NearestFeel:
-        import json
-
-        a = node[ATTRS]
-        return cls(
-            model=str(a["model"]),
-            values=dict(zip(list(a["names"]), map(float, np.asarray(node["values"])))),
-            moved=list(a["moved"]),
-            distance=float(a["distance_jnd"]),
-            yield_=YieldEstimate.from_dict(json.loads(a["yield"])),
-            target=float(a["target"]),
-        )
-
-    def text(self) -> str:
-        moved = ", ".join(f"{n} {self.values[n]:.4g}" for n in self.moved)
-        verdict = "holds" if self.holds else "the nearest it comes: still short of the target"
-        return (
-            f"nearest feel the process can hold ({self.model} model, {self.distance:.2f} JND "
-            f"from the chosen feel; {moved}): yield {self.yield_.text()}; {verdict}"
-        )
-
-
-@dataclass
-class Specification:
-    """What :func:`specify` decided (module docstring); every value in its unit.
-
-    Per specification (``names``): ``nominal``, ``half_width`` (the process's +-t as
-    used), ``distribution``, ``source`` (of the tolerance), ``sensitivity`` (JND per
-    unit: the largest secant slope of any margin), ``loss`` (yield points lost to it),
-    ``changed`` (from the AS-IS door). ``design``: ``"centred"`` or ``"smallest
-    change"``, the nominal chosen; ``alternative`` the other one's nominal and yield.
-    """
-
-    names: list[str]
-    units: list[str]
-    nominal: np.ndarray
-    asis: np.ndarray
-    half_width: np.ndarray
-    distribution: list[str]
-    source: list[str]
-    sensitivity: np.ndarray
-    loss: np.ndarray
-    free: list[str]
-    design: str
-    yield_: YieldEstimate
-    target: float
-    worst: str  # the margin that fails the most sampled doors
-    alternative: dict = field(default_factory=dict)  # {"design", "nominal", "yield"}
-    allocation: dict = field(default_factory=dict)  # name -> tightened half-width
-    allocation_yield: YieldEstimate | None = None
-    #: the nominal the allocation is built to (the robust one), None without allocation
-    allocation_nominal: np.ndarray | None = None
-    #: where the target is out of reach: the nearest feel the process can hold
-    nearest: NearestFeel | None = None
-    nominal_margin: float = math.nan  # the nominal door's worst margin, JND
-    design_seed: int = DESIGN_SEED
-    evaluations: int = 0
-    seconds: float = 0.0
-    note: str = ""
-    #: the force-angle band of the sampled doors against the chosen feel's JND band
-    #: (theta rad; chosen, jnd, low, high per stroke, N)
-    curves: dict = field(default_factory=dict)
-
-    @property
-    def reachable(self) -> bool:
-        return self.yield_.estimate >= self.target
-
-    @property
-    def changed(self) -> np.ndarray:
-        scale = np.maximum(np.abs(self.asis), 1e-300)
-        return np.abs(self.nominal - self.asis) > 1e-9 * scale
-
-    @property
-    def judged(self) -> np.ndarray:
-        """Whether the check sees each specification at all."""
-        return self.sensitivity > 0.0
-
-    def row(self, name: str) -> dict:
-        i = self.names.index(name)
-        return {
-            "unit": self.units[i],
-            "nominal": float(self.nominal[i]),
-            "half_width": float(self.half_width[i]),
-            "distribution": self.distribution[i],
-            "source": self.source[i],
-            "sensitivity_jnd_per_unit": float(self.sensitivity[i]),
-            "judged": bool(self.judged[i]),
-            "yield_loss": float(self.loss[i]),
-            "changed": bool(self.changed[i]),
-            "free": name in self.free,
-        }
-
-    def as_dict(self) -> dict:
-        """What ``show --json`` prints (JSON-able)."""
-        return {
-            "design": self.design,
-            "process": {n: float(t) for n, t in zip(self.names, self.half_width)},
-            "distribution": dict(zip(self.names, self.distribution)),
-            "yield": self.yield_.as_dict(),
-            "target": self.target,
-            "reachable": self.reachable,
-            "allocation": dict(self.allocation),
-            "allocation_yield": (
-                self.allocation_yield.as_dict() if self.allocation_yield is not None else None
-            ),
-            "allocation_nominal": (
-                dict(zip(self.names, map(float, self.allocation_nominal)))
-                if self.allocation_nominal is not None
-                else None
-            ),
-            "nearest_feel": self.nearest.as_dict() if self.nearest is not None else None,
-            "specifications": {n: self.row(n) for n in self.names},
-            "alternative": _plain_alternative(self.alternative),
-            "worst": self.worst,
-            "nominal_margin_jnd": self.nominal_margin,
-            "design_seed": self.design_seed,
-            "evaluations": self.evaluations,
-            "seconds": self.seconds,
-            "note": self.note,
-        }
-
-    def summary_lines(self) -> list[str]:
-        """The lines under the table: the yield, the design, reachable or not."""
-        lines = [
-            f"yield: {self.yield_.text()} pass the perceptual check when built to the "
-            f"process's tolerances (target {100 * self.target:g} %)",
-            f"design: {self.design} nominal (the nominal door's worst difference "
-            f"{self.nominal_margin:.2f} JND)",
-        ]
-        alt = self.alternative
-        if alt:
-            lines.append(f"alternative: the {alt['design']} nominal, yield {alt['yield'].text()}")
-        if self.yield_.passed < self.yield_.samples:
-            lines.append(f"most doors fail at: {self.worst}")
-        if not self.reachable:
-            lines.append(
-                f"NOT REACHABLE: the process's tolerances give {100 * self.yield_.estimate:.1f} % "
-                f"< {100 * self.target:g} %"
-            )
-            if self.allocation:
-                tight = ", ".join(
-                    f"{n} +-{t:.3g} {self.units[self.names.index(n)]}".replace(" 1", "")
-                    for n, t in self.allocation.items()
-                )
-                got = self.allocation_yield.text() if self.allocation_yield else "not verified"
-                lines.append(f"  tighten {tight}: yield {got}")
-                if self.allocation_nominal is not None:
-                    moved = [
-                        f"{n} {v:.4g}"
-                        for n, v, w in zip(self.names, self.allocation_nominal, self.nominal)
-                        if abs(v - w) > 1e-9 * max(abs(w), 1e-300)
-                    ]
-                    if moved:
-                        lines.append(f"  built to the robust nominal: {', '.join(moved)}")
-            else:
-                lines.append("  no tightening of the tolerances the check sees reaches it")
-        if self.nearest is not None:
-            lines.append("  " + self.nearest.text())
-            lines.append(
-                "  (evo-door push RUN.h5 --to HOST:PORT renders it for a participant to confirm)"
-            )
-        if self.note:
-            lines.append(f"note: {self.note}")
-        return lines
-
-    def to_tree(self) -> dict:
-        import json
-
-        attrs = {
-            "format": 2,
-            "names": list(self.names),
-            "units": list(self.units),
-            "distribution": list(self.distribution),
-            "source": list(self.source),
-            "free": list(self.free),
-            "design": self.design,
-            "yield": json.dumps(self.yield_.as_dict()),
-            "target": float(self.target),
-            "worst": self.worst,
-            "alternative": json.dumps(_plain_alternative(self.alternative)),
-            "allocation": json.dumps(self.allocation),
-            "allocation_yield": json.dumps(
-                self.allocation_yield.as_dict() if self.allocation_yield is not None else None
-            ),
-            "nominal_margin": float(self.nominal_margin),
-            "design_seed": int(self.design_seed),
-            "evaluations": int(self.evaluations),
-            "seconds": float(self.seconds),
-            "note": self.note,
-        }
-        tree = {
-            ATTRS: attrs,
-            "nominal": np.asarray(self.nominal, dtype=np.float64),
-            "asis": np.asarray(self.asis, dtype=np.float64),
-            "half_width": np.asarray(self.half_width, dtype=np.float64),
-            "sensitivity": np.asarray(self.sensitivity, dtype=np.float64),
-            "loss": np.asarray(self.loss, dtype=np.float64),
-        }
-        if self.nearest is not None:
-            tree["nearest_feel"] = self.nearest.to_tree()
-        if self.allocation_nominal is not None:
-            tree["allocation_nominal"] = np.asarray(self.allocation_nominal, dtype=np.float64)
-        if self.curves:
-            tree["curves"] = {k: np.asarray(v, dtype=np.float64) for k, v in self.curves.items()}
-        return tree
-
-    @classmethod
-    def from_tree(cls, node: dict) -> Specification | None:
-        """Read the group back; None for one written in the old form (bands alone and
-        together), which is then computed anew."""
-        import json
-
-        a = node[ATTRS]
-        if int(a.get("format", 1)) < 2:
-            return None
-        alt = json.loads(a["alternative"])
-        if alt:
-            alt = {
-                "design": alt["design"],
-                "nominal": np.asarray(alt["nominal"], dtype=np.float64),
-                "yield": YieldEstimate.from_dict(alt["yield"]),
-            }
-        ay = json.loads(a["allocation_yield"])
-        curves = node.get("curves") or {}
-        return cls(
-            names=list(a["names"]),
-            units=list(a["units"]),
-            nominal=np.asarray(node["nominal"], dtype=np.float64),
-            asis=np.asarray(node["asis"], dtype=np.float64),
-            half_width=np.asarray(node["half_width"], dtype=np.float64),
-            distribution=list(a["distribution"]),
-            source=list(a["source"]),
-            sensitivity=np.asarray(node["sensitivity"], dtype=np.float64),
-            loss=np.asarray(node["loss"], dtype=np.float64),
-            free=list(a["free"]),
-            design=str(a["design"]),
-            yield_=YieldEstimate.from_dict(json.loads(a["yield"])),
-            target=float(a["target"]),
-            worst=str(a["worst"]),
-            alternative=alt or {},
-            allocation={k: float(v) for k, v in json.loads(a["allocation"]).items()},
-            allocation_yield=YieldEstimate.from_dict(ay) if ay else None,
-            nearest=NearestFeel.from_tree(node["nearest_feel"]) if "nearest_feel" in node else None,
-            allocation_nominal=(
-                np.asarray(node["allocation_nominal"], dtype=np.float64)
-                if "allocation_nominal" in node
-                else None
-            ),
-            nominal_margin=float(a["nominal_margin"]),
-            design_seed=int(a["design_seed"]),
-            evaluations=int(a["evaluations"]),
-            seconds=float(a["seconds"]),
-            note=str(a["note"]),
-            curves={k: np.asarray(v) for k, v in curves.items() if k != ATTRS},
-        )
-
-
-def _plain_alternative(alt: dict) -> dict:
-    if not alt:
-        return {}
-    return {
-        "design": alt["design"],
-        "nominal": [float(v) for v in alt["nominal"]],
-        "yield": alt["yield"].as_dict(),
-    }
 
 
 # -- the computation ------------------------------------------------------------------
@@ -666,7 +125,7 @@ def standard_draws(distributions: list[str], n: int, rng) -> np.ndarray:
     return out
 
 
-def specify(
+def specify(  # long: the five steps in order, each a few lines, and the order is the point
     model,
     p0,
     feel: FeelTarget,
@@ -724,10 +183,10 @@ def specify(
             bar.update(1)
     else:
         bar.update(ROUNDS)
-    # the centred nominal where the compiled check of the design doors says it is better
-    # (their yield, smoothed: it still orders two designs that no door passes)
-    y_start = soft_yield(check.margins(doors(start, design_draws, widths(start))))
-    y_centred = soft_yield(check.margins(doors(p, design_draws, widths(p))))
+    # the centred nominal where more of the design doors pass with it (the compiled
+    # check, not the secant model); a tie keeps the smallest change, the method's answer
+    y_start = passing(check.margins(doors(start, design_draws, widths(start)))).sum()
+    y_centred = passing(check.margins(doors(p, design_draws, widths(p)))).sum()
     bar.update(1)
     if centre and y_centred > y_start and check.passes(p):
         design, other, other_name = "centred", start, "smallest change"
@@ -763,7 +222,7 @@ def specify(
         }
     bar.update(1)
     allocation, allocation_yield, allocation_nominal = {}, None, None
-    nearest = None
+    nearest, note, room = None, "", 0.0
     if estimate.estimate < target and feel_model is not None:
         nearest = nearest_feel(
             check, _joined(measured), feel_model, feel_params, target, yield_seed
@@ -772,6 +231,13 @@ def specify(
         # tightened tolerances want the door with the most room, not the one centred
         # on the process's spread: the allocation is made about the robust nominal
         robust = _robust_nominal(check, p, idx, cols, search_lo, search_hi)
+        room = float(np.max(np.abs(check.margins(robust)[0])))
+    if estimate.estimate < target and room > 1.0:
+        note = (
+            f"no tightening reaches the target: the door itself, at its most robust "
+            f"nominal, is {room:.2f} JND from the chosen feel"
+        )
+    elif estimate.estimate < target:
         tr = widths(robust)
         Jr = _secants(check, robust, idx, tr, lo_decl, hi_decl)
         Ml = check.margins(robust)[0] + (U * tr) @ Jr.T  # the yield's doors, first order
@@ -811,6 +277,7 @@ def specify(
         design_seed=design_seed,
         evaluations=check.evaluations,
         seconds=time.perf_counter() - t0,
+        note=note,
         curves=_curves(check, forces),
     )
 

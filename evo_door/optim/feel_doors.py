@@ -1,0 +1,228 @@
+"""The perceptual check of many doors at once, compiled: what a yield is counted with.
+
+:class:`FeelCheck` gives every door (a row of full kernel vectors) its signed
+differences from a chosen feel in units of their JNDs (its *margins*): each point of
+both strokes outside the latch zone, both latch peaks, both peaks' angles, and the
+felt inertia and damping where the chosen feel has dynamics. A door passes when every
+margin is within +-1, as :func:`~evo_door.perception.check_verdict` judges one door
+(``tests/test_tolerance.py`` compares the two door by door). The doors' own quantities
+(:meth:`FeelCheck.measure`) can be judged against another feel (:meth:`FeelCheck.against`,
+:meth:`FeelCheck.reference_of`): the nearest feel a process can hold is searched so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.perception import FeelTarget
+from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE
+from evo_door.sim.simulate import (
+    COULOMB_SPEED,
+    coulomb_vector,
+    hold_forces_rows,
+    inertia_rows,
+)
+
+#: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): 1.6e-4
+#: rad, 0.009 deg, a fiftieth of the position JND's angle at the handle (a latch's peak
+#: is a plateau of its hold, some 6e-3 rad long)
+LATCH_THIN = 8
+#: doors computed at once
+BATCH = 250
+#: the smoothing of the yield (JND) where an optimiser needs a slope
+SMOOTHING = 0.05
+#: margins of a door whose curve is not finite (it fails)
+BLOWN = 1e6
+
+
+@dataclass
+class Reference:
+    """What a feel is judged by on a :class:`FeelCheck`'s grid: its force (N) and force
+    JND (N) per stroke at every angle, its latch peaks (N) and their JNDs, their angles
+    (rad) and the position JND's angle, and its felt dynamics with their JNDs (None
+    for a bare curve)."""
+
+    chosen: dict
+    threshold: dict
+    peaks: dict
+    peak_threshold: dict
+    peak_angles: dict
+    angle_threshold: float
+    dynamics: tuple | None = None  # ((inertia, jnd), (damping, jnd))
+
+
+class FeelCheck:
+    """The perceptual check of many doors against a chosen feel, on one fixed grid.
+
+    :meth:`margins` gives every door (a row of a kernel matrix) its signed differences
+    from the chosen feel in JND (module docstring, step 1), in the columns
+    :attr:`labels` names; :meth:`judge` says which pass (every margin within +-1).
+    :meth:`measure` gives the doors' own quantities, which :meth:`against` judges
+    against any feel (:meth:`reference_of`).
+    """
+
+    def __init__(self, model, feel: FeelTarget):
+        self.model = model
+        self.feel = feel
+        latch = feel.latch[::LATCH_THIN]
+        self.theta = np.union1d(np.union1d(feel.stroke, latch), feel.curve.theta)
+        self.stroke = self.theta < feel.curve.theta[-1] - LATCH_ZONE
+        self.latch = ~self.stroke
+        if self.stroke.sum() < 2 or not self.latch.any():
+            raise UserError(f"{feel.curve.source}: the chosen feel's curve has no latch zone")
+        chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
+        dynamics = None
+        if feel.dynamics is not None:
+            ti, tc = feel.dynamics
+            jnd = feel.jnd
+            dynamics = ((ti, jnd.inertia_threshold(ti)), (tc, jnd.damping_threshold(tc)))
+        self.reference = Reference(
+            chosen,
+            {d: feel.jnd.force_threshold(chosen[d]) for d in DIRECTIONS},
+            dict(feel.peaks),
+            dict(feel.peak_threshold),
+            dict(feel.peak_angles),
+            feel.angle_threshold,
+            dynamics,
+        )
+        self.chosen, self.threshold = self.reference.chosen, self.reference.threshold
+        self.dyn_theta = feel.dyn_grid
+        deg = np.degrees(self.theta[self.stroke])
+        self.labels = [f"{d} stroke at {a:.2f} deg" for d in DIRECTIONS for a in deg]
+        self.labels += ["unlock peak force", "lock peak force"]
+        self.labels += ["unlock peak's angle", "lock peak's angle"]
+        if feel.dynamics is not None:
+            self.labels += ["felt inertia", "felt damping"]
+        self.evaluations = 0
+
+    @property
+    def columns(self) -> int:
+        return len(self.labels)
+
+    def margins(self, P, forces: dict | None = None, measured: list | None = None):
+        """The signed margins (JND) of every door, a row of ``P`` (full kernel vectors):
+        an array (doors, :attr:`columns`). ``forces``, a dict, receives each stroke's
+        Coulomb forces (N, doors x :attr:`theta`); ``measured``, a list, each batch's
+        :meth:`measure`."""
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        out = np.empty((len(P), self.columns))
+        for start in range(0, len(P), BATCH):
+            rows = slice(start, start + BATCH)
+            got = self.measure(P[rows])
+            out[rows] = self.against(got, self.reference)
+            if forces is not None:
+                for d in DIRECTIONS:
+                    forces.setdefault(d, []).append(got[d])
+            if measured is not None:
+                measured.append(got)
+        self.evaluations += len(P)
+        return out
+
+    def measure(self, P) -> dict:
+        """The doors' own quantities: Coulomb forces (N) per stroke on :attr:`theta`,
+        latch peaks (N) and their angles (rad) per stroke, felt inertia and damping."""
+        Q = np.array([coulomb_vector(self.model, p) for p in P])
+        zone = self.theta[self.latch]
+        out: dict = {"peaks": {}, "angles": {}}
+        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
+            f = hold_forces_rows(self.model, Q, self.theta, sign * COULOMB_SPEED)
+            fl = f[:, self.latch]
+            k = np.argmin(fl, axis=1) if d == "opening" else np.argmax(fl, axis=1)
+            out[d] = f
+            out["peaks"][d] = fl[np.arange(len(P)), k]
+            out["angles"][d] = zone[k]
+        if self.feel.dynamics is not None:
+            out["dynamics"] = self._dynamics(P)
+        return out
+
+    def against(self, got: dict, ref: Reference) -> np.ndarray:
+        """The margins (JND) of measured doors (:meth:`measure`) against ``ref``."""
+        parts = [((got[d] - ref.chosen[d]) / ref.threshold[d])[:, self.stroke] for d in DIRECTIONS]
+        parts.append(
+            np.array(
+                [(got["peaks"][d] - ref.peaks[d]) / ref.peak_threshold[d] for d in DIRECTIONS]
+            ).T
+        )
+        parts.append(
+            np.array(
+                [(got["angles"][d] - ref.peak_angles[d]) / ref.angle_threshold for d in DIRECTIONS]
+            ).T
+        )
+        if "dynamics" in got:
+            (ti, ji), (tc, jc) = ref.dynamics
+            parts.append(
+                np.c_[(got["dynamics"][:, 0] - ti) / ji, (got["dynamics"][:, 1] - tc) / jc]
+            )
+        out = np.concatenate(parts, axis=1)
+        return np.where(np.isfinite(out), out, BLOWN)
+
+    def reference_of(self, model, p) -> Reference:
+        """The :class:`Reference` of the feel of ``model`` at ``p`` (a haptic set, say),
+        on this grid, under the chosen feel's JNDs."""
+        jnd = self.feel.jnd
+        pc = coulomb_vector(model, p)
+        zone = self.theta[self.latch]
+        chosen, peaks, angles = {}, {}, {}
+        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
+            f = hold_forces_rows(model, pc[None, :], self.theta, sign * COULOMB_SPEED)[0]
+            fl = f[self.latch]
+            k = int(np.argmin(fl) if d == "opening" else np.argmax(fl))
+            chosen[d], peaks[d], angles[d] = f, float(fl[k]), float(zone[k])
+        dynamics = None
+        if self.feel.dynamics is not None:
+            ti, tc = self.feel.felt_dynamics(model, np.asarray(p, dtype=np.float64))
+            dynamics = ((ti, jnd.inertia_threshold(ti)), (tc, jnd.damping_threshold(tc)))
+        return Reference(
+            chosen,
+            {d: jnd.force_threshold(chosen[d]) for d in DIRECTIONS},
+            peaks,
+            {d: jnd.force_threshold(v) for d, v in peaks.items()},
+            angles,
+            jnd.angle_threshold(),
+            dynamics,
+        )
+
+    def _dynamics(self, P) -> np.ndarray:
+        """Felt inertia (kg m) and damping (N s/rad), as :meth:`FeelTarget.felt_dynamics`."""
+        theta, v = self.dyn_theta, self.feel.jnd.speed
+        inertia = inertia_rows(self.model, P, theta, -0.5 * v).mean(axis=1)
+        damping = np.zeros(len(P))
+        for s in (-1.0, 1.0):
+            half = hold_forces_rows(self.model, P, theta, 0.5 * s * v)
+            full = hold_forces_rows(self.model, P, theta, s * v)
+            damping += np.mean((full - half) / (0.5 * s * v), axis=1)
+        return np.c_[inertia, 0.5 * damping]
+
+    def judge(self, P) -> np.ndarray:
+        """Whether each door (row of ``P``) passes the check."""
+        return passing(self.margins(P))
+
+    def passes(self, p) -> bool:
+        return bool(self.judge(p)[0])
+
+
+def band_text(band: float, unit: str, relative: float) -> str:
+    """``+-12.3 N/m (3.5 %)``: a band in its unit and as a share of its value.
+
+    >>> band_text(12.3, "N/m", 0.035), band_text(0.1, "1", float("inf"))
+    ('+-12.3 N/m (3.5 %)', '+-0.1')
+    """
+    unit = "" if unit == "1" else f" {unit}"
+    share = f" ({100 * relative:.3g} %)" if math.isfinite(relative) else ""
+    return f"+-{band:.3g}{unit}{share}"
+
+
+def soft_yield(margins, smoothing: float = SMOOTHING) -> float:
+    """The share of doors that pass, smoothed: each door counts
+    ``1 / (1 + exp((worst - 1) / smoothing))`` by its worst margin (JND)."""
+    worst = np.max(np.abs(np.atleast_2d(margins)), axis=1)
+    return float(np.mean(1.0 / (1.0 + np.exp(np.clip((worst - 1.0) / smoothing, -50, 50)))))
+
+
+def passing(margins) -> np.ndarray:
+    """Whether each row of margins passes: every one within +-1 JND."""
+    return np.all(np.abs(margins) <= 1.0, axis=-1)
