@@ -28,10 +28,11 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
     perceptual_check/  a run fitted to a chosen feel: mechanism/ and chosen/ (theta rad,
                  opening, closing N: both force-angle curves); @attrs: jnd, dynamics,
                  passes, verdict (complete runs; :mod:`.feel_check`)
-    tolerance/   against a chosen feel: each specification's band alone and together,
-                 value, cap, capped; curves/ (the sampled doors' force band); @attrs:
-                 names, units, factor, samples, seed, passed, target, confidence
-                 (complete perceptual runs; :mod:`evo_door.optim.tolerance`)
+    tolerance/   against a chosen feel, what a supplier builds (format 2): nominal, asis,
+                 half_width, sensitivity, loss, curves/ (the sampled doors' force band),
+                 nearest_feel/, allocation_nominal; @attrs: names, units, distribution,
+                 source, free, design, yield, target, worst, alternative, allocation, ...
+                 (complete perceptual runs of a built mechanism; :mod:`evo_door.optim.tolerance`)
 
 :func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
 file; the ``*_from_tree`` functions rebuild what a resumed run needs.
@@ -294,6 +295,7 @@ def feel_tree(feel) -> dict:
             "latch_zone": feel.latch_zone,
             "peak_weight": feel.peak_weight,
             "excess_weight": feel.excess_weight,
+            "angle_weight": feel.angle_weight,
         },
         "theta": feel.curve.theta,
         "opening": feel.curve.opening,
@@ -320,8 +322,10 @@ def feel_from_tree(node: dict):
         closed=float(a["closed"]),
         latch_zone=float(a["latch_zone"]),
         peak_weight=float(a["peak_weight"]),
-        # (a file written before the excess term: none, so that it resumes as it ran)
+        # (a file written before the excess and angle terms: none, so that it resumes
+        # as it ran)
         excess_weight=float(a.get("excess_weight", 0.0)),
+        angle_weight=float(a.get("angle_weight", 0.0)),
     )
 
 

@@ -23,7 +23,10 @@ from evo_door.optim.process import process_for
 from evo_door.optim.tolerance import Specification, specify
 
 #: the note of a specification computed for a results file that has none
-COMPUTED_NOTE = "computed now: the results file has none (written before it was kept)"
+COMPUTED_NOTE = (
+    "computed now: the results file has none in this form (written before it was kept, "
+    "or with the old tolerance bands alone and together, which it replaces)"
+)
 
 
 def stage_specification(setup, config: dict, full, progress: bool = False):

@@ -22,11 +22,12 @@ with, and the share that will: the **yield**.
 3. **Design centring**: the free specifications' nominal that maximises the yield,
    not the one on the boundary of the check. The doors are the margins' secant model
    about the nominal with one set of standardised draws (common random numbers,
-   ``design_seed``), the yield smoothed, maximised by Nelder-Mead within a trust box of
-   a few tolerances, the model made again at the new nominal, twice. The centred
-   nominal is kept where the *model itself* (the compiled check of those doors) gives it
-   a higher yield than the smallest-change door the stage started from; that door stays
-   in the results as the alternative, with its own yield.
+   :data:`DESIGN_SAMPLES` doors, seed ``design_seed``), the yield smoothed, maximised by
+   Nelder-Mead within a trust box of :data:`TRUST` tolerances, the model made again at
+   the new nominal (:data:`ROUNDS` rounds). The centred nominal is kept where more of
+   those doors pass with it, by the compiled check itself, than with the
+   smallest-change door the stage started from; that door stays in the results as the
+   alternative, with its own yield.
 4. **The yield**: a fresh sample of doors drawn after the design is fixed, with a seed
    of its own (``yield_seed``), at least 2000 doors, each through the compiled check:
    the share that passes with its 95 % Clopper-Pearson interval. Each specification's
@@ -34,9 +35,16 @@ with, and the share that will: the **yield**.
    specification built exactly (its deviation taken off every door's margins through
    its secant slopes).
 5. **Reachable or not**: where the yield is below the target (95 %), the stage says so
-   and gives the **allocation**: the fewest tolerances, tightened by the least common
-   factor, that reach the target (searched on the yield sample's margins, verified on
-   another fresh sample, ``allocation_seed``).
+   and gives (a) the **allocation**: the fewest tolerances, tightened by the least
+   common factor, that reach the target, searched on the yield sample's draws through
+   the secant model about the most *robust* nominal (the door with the most room: the
+   least worst margin of its own, Nelder-Mead on the compiled check; tight tolerances
+   want room, not a centre on the process's spread), and verified by the compiled
+   check on another fresh sample (``allocation_seed``); none where even that door is
+   beyond the JND; and (b) the **nearest feel** the process can hold
+   (:func:`nearest_feel`): a set of the chosen feel's model (a haptic set) whose feel
+   the sampled doors pass at the target, as near the chosen feel as it can be, for a
+   participant to confirm on the renderer.
 
 Everything is in the specifications' own units; margins are in JND.
 """
@@ -125,7 +133,7 @@ def standard_draws(distributions: list[str], n: int, rng) -> np.ndarray:
     return out
 
 
-def specify(  # long: the five steps in order, each a few lines, and the order is the point
+def specify(
     model,
     p0,
     feel: FeelTarget,
@@ -153,6 +161,7 @@ def specify(  # long: the five steps in order, each a few lines, and the order i
     ``feel_model`` and ``feel_params`` the chosen feel's model and set (a haptic set:
     where the target is out of reach, the nearest feel is one of that model). See the
     module docstring."""
+    # long: the five steps in order (module docstring), each a few lines; the order is the point
     t0 = time.perf_counter()
     p0 = _check_inputs(model, p0, feel, names, samples, target)
     idx = np.array([model.params.index(n) for n in names], dtype=np.int64)

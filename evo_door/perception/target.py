@@ -62,6 +62,8 @@ class FeelTarget:
     latch_zone: float = LATCH_ZONE
     peak_weight: float = PEAK_WEIGHT
     excess_weight: float = EXCESS_WEIGHT
+    #: weight of each peak's squared angle difference (JND^2), as a peak force's
+    angle_weight: float = PEAK_WEIGHT
 
     def __post_init__(self):
         lo = float(self.curve.theta[0])
@@ -143,13 +145,14 @@ class FeelTarget:
             parts.append(np.sqrt(0.5 * self.weights) * r)
             if excess > 0.0:
                 parts.append(excess * np.sign(r) * np.maximum(np.abs(r) - 1.0, 0.0))
-        w = math.sqrt(self.peak_weight)
+        w, wa = math.sqrt(self.peak_weight), math.sqrt(self.angle_weight)
         for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
             f = hold_forces(model, pc, self.latch, s * COULOMB_SPEED)
             k = int(f.argmin() if d == "opening" else f.argmax())
             parts.append(np.array([w * (f[k] - self.peaks[d]) / self.peak_threshold[d]]))
-            angle = (self.latch[k] - self.peak_angles[d]) / self.angle_threshold
-            parts.append(np.array([w * angle]))
+            if wa > 0.0:
+                angle = (self.latch[k] - self.peak_angles[d]) / self.angle_threshold
+                parts.append(np.array([wa * angle]))
         if self.dynamics is not None:
             inertia, damping = self.felt_dynamics(model, np.asarray(p, dtype=np.float64))
             ti, tc = self.dynamics
@@ -230,6 +233,7 @@ class FeelTarget:
             "latch_zone_rad": self.latch_zone,
             "peak_weight": self.peak_weight,
             "excess_weight": self.excess_weight,
+            "angle_weight": self.angle_weight,
             "peaks_N": dict(self.peaks),
             "peak_angles_rad": dict(self.peak_angles),
         }
