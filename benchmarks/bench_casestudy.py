@@ -31,6 +31,11 @@ BUDGET_S = 120.0
 #: every stage's GA in a --quick run: enough to exercise the code, nothing more (the
 #: polish and the scans stay, each cut to two SLSQP iterations)
 QUICK_SETTINGS = ("population=8", "generations=1", "max_iterations=2")
+#: the tests' hook: further ``--set`` overrides of a --quick run (whole paths, separated
+#: by white space), e.g. shorter scans and fewer input trials, so that the tests' smoke
+#: run of the section takes every stage of the main job through the same code in less
+#: time; a measured run (not --quick) ignores it
+QUICK_EXTRA_ENV = "EVO_DOOR_BENCH_QUICK_SET"
 
 
 def stage_names(pipeline: Path = PIPELINE) -> list[str]:
@@ -49,6 +54,8 @@ def run_pipeline(out: Path, quick: bool, settings=(), env=None) -> float:
     for stage in stage_names():
         for setting in (*(QUICK_SETTINGS if quick else ()), *settings):
             cmd += ["--set", f"stages.{stage}.algorithm.{setting}"]
+    for setting in os.environ.get(QUICK_EXTRA_ENV, "").split() if quick else ():
+        cmd += ["--set", setting]
     # the checkout's evo_door, also when another one is installed
     env = {
         **os.environ,

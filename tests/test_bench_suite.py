@@ -2,6 +2,7 @@
 figure, ``--compare`` prints new / old per metric, bad options are one-line errors."""
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -66,13 +67,29 @@ REQUIRED = (
 )
 
 
-def bench(*args, timeout=600):
+#: the main job of the casestudy section's smoke run, smaller still than --quick makes it
+#: (benchmarks.bench_casestudy.QUICK_EXTRA_ENV): the same five stages and checks, the
+#: latch and redesign scans on 3 points polished from one start, the haptic stage on 3
+#: of the users' trials
+SMALLER_MAIN_JOB = " ".join(
+    (
+        "stages.latch.algorithm.scan=3",
+        "stages.latch.algorithm.starts=1",
+        "stages.redesign.algorithm.scan=3",
+        "stages.redesign.algorithm.starts=1",
+        "stages.haptic.target.inputs.trials=3",
+    )
+)
+
+
+def bench(*args, timeout=600, env=None):
     return subprocess.run(
         [sys.executable, "-m", "benchmarks", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,
         timeout=timeout,
+        env=None if env is None else {**os.environ, **env},
     )
 
 
@@ -203,7 +220,10 @@ def test_casestudy_section_runs_the_main_job_and_leaves_the_quoted_figures_alone
     pages = [ROOT / "benchmarks" / "casestudy.md", ROOT / "benchmarks" / "seeds.md"]
     pages.append(ROOT / "docs" / "case-study.md")
     before = [p.read_bytes() if p.exists() else None for p in pages]
-    done = bench("--quick", "--only", "casestudy", "--out", str(tmp_path), timeout=900)
+    from benchmarks.bench_casestudy import QUICK_EXTRA_ENV
+
+    small = {QUICK_EXTRA_ENV: SMALLER_MAIN_JOB}
+    done = bench("--quick", "--only", "casestudy", "--out", str(tmp_path), timeout=900, env=small)
     assert done.returncode == 0, done.stderr[-2000:]
     (js,) = tmp_path.glob("suite-*.json")
     doc = json.loads(js.read_text())
@@ -394,7 +414,12 @@ def test_trial_points_keep_the_earlier_names_and_are_judged_as_printed():
 def test_quick_trial_section_measures_every_trial_and_draws_the_work_precision(tmp_path):
     latest = [ROOT / "benchmarks" / n for n in ("suite.md", "trial.md", "work-precision.png")]
     before = [p.read_bytes() if p.exists() else None for p in latest]
-    done = bench("--quick", "--only", "trial", "--out", str(tmp_path), timeout=600)
+    from benchmarks.precision import QUICK_LIMIT_ENV
+
+    # solve_ivp stopped after 1 s of CPU, not 2: the haptic trials' runs all reach the
+    # limit (a lower bound either way), the door's take under half of it
+    short = {QUICK_LIMIT_ENV: "1.0"}
+    done = bench("--quick", "--only", "trial", "--out", str(tmp_path), timeout=600, env=short)
     assert done.returncode == 0, done.stderr[-2000:]
     (js,) = tmp_path.glob("suite-*.json")
     (png,) = tmp_path.glob("suite-*-work-precision.png")
