@@ -28,6 +28,9 @@ MAIN_JOB_REQUIRED = (
     "casestudy.redesign.fitness",
     "casestudy.specification.perceptual.opening",
     "casestudy.haptic.perceptual.closing",
+    "casestudy.haptic_latch.perceptual.closing",
+    "casestudy.specification.yield",
+    "casestudy.specification.yield.independent",
 )
 #: metrics the trial section's quick run has (its own test)
 REQUIRED_TRIAL = (
@@ -68,8 +71,8 @@ REQUIRED = (
 
 
 #: the main job of the casestudy section's smoke run, smaller still than --quick makes it
-#: (benchmarks.bench_casestudy.QUICK_EXTRA_ENV): the same five stages and checks, the
-#: latch and redesign scans on 3 points polished from one start, the haptic stage on 3
+#: (benchmarks.bench_casestudy.QUICK_EXTRA_ENV): the same six stages and checks, the
+#: latch and redesign scans on 3 points polished from one start, the haptic stages on 3
 #: of the users' trials
 SMALLER_MAIN_JOB = " ".join(
     (
@@ -78,6 +81,8 @@ SMALLER_MAIN_JOB = " ".join(
         "stages.redesign.algorithm.scan=3",
         "stages.redesign.algorithm.starts=1",
         "stages.haptic.target.inputs.trials=3",
+        "stages.haptic_latch.algorithm.scan=3",
+        "stages.haptic_latch.target.inputs.trials=3",
     )
 )
 
@@ -230,7 +235,7 @@ def test_casestudy_section_runs_the_main_job_and_leaves_the_quoted_figures_alone
     metrics = {m["name"]: m for m in doc["metrics"]}
     missing = [n for n in MAIN_JOB_REQUIRED if n not in metrics]
     assert not missing, missing
-    stages = ("physical", "latch", "haptic", "specification", "redesign")
+    stages = ("physical", "latch", "haptic", "haptic_latch", "specification", "redesign")
     for stage in stages:
         assert metrics[f"casestudy.{stage}.seconds"]["value"] > 0
         assert metrics[f"casestudy.{stage}.evaluations"]["value"] > 0

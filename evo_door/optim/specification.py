@@ -57,7 +57,7 @@ def clopper_pearson(passed: int, n: int, confidence: float = 0.95) -> tuple[floa
     """The two-sided Clopper-Pearson interval of a share of ``passed`` in ``n``.
 
     >>> [round(x, 4) for x in clopper_pearson(1900, 2000)]
-    [0.9397, 0.9591]
+    [0.9395, 0.9591]
     """
     if n <= 0:
         return (math.nan, math.nan)
