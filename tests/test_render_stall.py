@@ -35,8 +35,17 @@ from evo_door.render.loop import ServoLoop
 #: the probe's question: the device's state, and the host's bias force and whether it is on
 PROBE = f"get state;get {BIAS_NAME} force;get {BIAS_NAME} enabled"
 #: a return spring toward closed that the emulator's "hold" hand (46 deg) resists: the
-#: host commands a steady force of tens of newtons (about 60 N)
-STRONG = ["--set", "return_stiffness=100", "--set", "return_onset=0"]
+#: host commands a steady force of tens of newtons (about 60 N). Released, that door
+#: would reach 14 rad/s: the hands-off limit is raised for it, as an operator would for
+#: a session where the hand never lets go
+STRONG = [
+    "--set",
+    "return_stiffness=100",
+    "--set",
+    "return_onset=0",
+    "--hands-off-speed",
+    "20",
+]
 
 
 class Probe:
