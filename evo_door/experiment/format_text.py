@@ -94,7 +94,14 @@ def format_show(res: Results) -> str:
     if s.get("identifiability_text"):
         lines += ["", s["identifiability_text"]]
     if s.get("tolerance_text"):
-        lines += ["", s["tolerance_text"]]
+        from evo_door.experiment.spec import render_text, spec_table
+
+        lines += [
+            "",
+            "specification (what a supplier builds; export-spec writes the same table):",
+            render_text(spec_table(res, tolerance=False)),
+            s["tolerance_text"],
+        ]
     return "\n".join(lines)
 
 

@@ -124,6 +124,8 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
     verdicts = ident.as_dict() if ident is not None else {}
     rows = []
     tol = tolerances_of(res, compute=tolerance)
+    if tol is not None and front is not None:  # the nominal stated: kept where unchanged
+        kept = {n for n, c in zip(tol.names, tol.changed) if not c and n in res.free}
     listed = spec_names(model, res.free)
     for p in model.params:
         if p.name not in listed or p.name not in values:
@@ -173,7 +175,7 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
         rows=rows,
         values=values,
         form=form,
-        remark=_remark(front),
+        remark=_remark(front, tol),
         tolerance_text=_tolerance_caption(tol) if tol is not None else "",
     )
 
@@ -195,18 +197,25 @@ def _supply(row: SpecRow, spec, param) -> None:
         row.change = f"changed{rel} (AS-IS {asis:.6g})"
     else:
         row.change = "kept"
-    if not d["judged"]:
-        row.note = "not judged by the perceptual check: the feel does not limit it"
     if row.verdict:  # the feel's identifiability: does the feel determine it?
         row.verdict = "determined" if row.verdict == "identifiable" else "not determined"
-        row.se = math.nan  # a 1-JND interval would contradict the supplier's tolerance
+        # neither the standard error nor a 1-JND interval: it would contradict the
+        # supplier's tolerance (the sensitivity and the yield loss say what matters)
+        row.se, row.note = math.nan, ""
+    if not d["judged"]:
+        row.note = "not judged by the perceptual check: the feel does not limit it"
 
 
-def _remark(front) -> str:
+def _remark(front, spec=None) -> str:
     """The caption's word on a smallest-change fit (module docstring); "" otherwise."""
     if front is None:
         return ""
     kept = f"; kept at AS-IS: {', '.join(front.kept)}" if front.kept else ""
+    if front.reachable and spec is not None and spec.design == "centred":
+        return (
+            "the nominal centred for the yield; the smallest change within the JND (change "
+            f"{front.change:.3g}{kept}) is its alternative"
+        )
     if front.reachable:
         return f"smallest change within the JND (change {front.change:.3g}){kept}"
     return (
@@ -284,7 +293,7 @@ def _sensitivity_cell(r: SpecRow) -> str:
         return ""
     if r.sensitivity == 0.0:
         return "not judged"
-    unit = "" if r.unit == "1" else f"/{r.unit}" if " " not in r.unit else f"/({r.unit})"
+    unit = "" if r.unit == "1" else f" per {r.unit}"
     return f"{r.sensitivity:.3g} JND{unit}"
 
 
@@ -331,6 +340,18 @@ def render(t: SpecTable, fmt: str) -> str:
     if fmt == "tex":
         return _tex(t, header, body)
     return _html(t, header, body)
+
+
+def render_text(t: SpecTable) -> str:
+    """The table for a terminal (``show``): the columns of :func:`render`'s, aligned;
+    the caption is ``show``'s own lines."""
+    cols = _columns(t)
+    rows = [[c for c, _ in cols]] + [[f(r) for _, f in cols] for r in t.rows]
+    keep = [j for j in range(len(cols)) if any(row[j] for row in rows[1:])]
+    width = [max(len(row[j]) for row in rows) for j in keep]
+    lines = ["  ".join(row[j].ljust(w) for j, w in zip(keep, width)).rstrip() for row in rows]
+    lines.insert(1, "  ".join("-" * w for w in width))
+    return "\n".join(lines)
 
 
 def _md_cell(text: str) -> str:
