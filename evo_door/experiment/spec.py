@@ -176,7 +176,7 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
         values=values,
         form=form,
         remark=_remark(front, tol),
-        tolerance_text=_tolerance_caption(tol) if tol is not None else "",
+        tolerance_text=_tolerance_caption(tol, res) if tol is not None else "",
     )
 
 
@@ -224,9 +224,22 @@ def _remark(front, spec=None) -> str:
     )
 
 
-def _tolerance_caption(spec) -> str:
-    """The caption's word on what the supplier builds: the yield, the design, reachable."""
-    return "; ".join(line.strip() for line in spec.summary_lines())
+def _tolerance_caption(spec, res=None) -> str:
+    """The caption's word on what the supplier builds: the yield, the design, reachable;
+    and the latch peaks the hand feels (a latch force is the catch's alone: the hand
+    also meets the door's friction and spring at the catch)."""
+    text = "; ".join(line.strip() for line in spec.summary_lines())
+    check = res.record.perceptual_check if res is not None else None
+    if check is not None:
+        judged = check.judged()
+        felt = [
+            f"{word} {abs(judged[d]['latch_peak']['mechanism_N']):.3g} N"
+            for d, word in (("opening", "unlock"), ("closing", "lock"))
+            if math.isfinite(judged[d]["latch_peak"]["mechanism_N"])
+        ]
+        if felt:
+            text += "; at the handle the nominal door's latch peaks are " + " and ".join(felt)
+    return text
 
 
 # -- rendering ----------------------------------------------------------------------------
