@@ -229,6 +229,15 @@ def test_a_results_file_gives_its_nearest_feel_to_render_and_push(tmp_path):
     assert out.returncode == 0, out.stderr
     value = {p["name"]: p["value"] for p in json.loads(out.stdout)["params"]}
     assert value["friction_opening"] == 7.5
+    # the renderer takes it as it takes a parameter file (push reads sets the same way)
+    shown = subprocess.run(
+        [sys.executable, "-m", "evo_door", "render", "--params", str(path), "--device", "sim",
+         "--user", "hold", "--duration", "0.2"],
+        capture_output=True,
+        text=True,
+    )  # fmt: skip
+    assert shown.returncode == 0, shown.stderr
+    assert "rendered" in shown.stdout
 
 
 def res_names(fitted) -> list[str]:
