@@ -61,8 +61,8 @@ def nearest_feel_params(table, path: Path) -> ParamSet | None:
             if not found:
                 if "stages" in f or "tolerance" in f or "setup" in f:
                     raise UserError(
-                        f"{path}: a results file with no nearest feel (its specifications "
-                        "reach their yield, or it fits no chosen feel)"
+                        f"{path}: a results file, not a parameter file (it holds no nearest "
+                        "feel: its specification reaches its yield, or it fits no chosen feel)"
                     )
                 return None
             where, node = found[-1]

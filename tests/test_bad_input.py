@@ -141,7 +141,10 @@ _RENDER = "render --params seed_trial --user hold --log {w}/new.h5 "
 CASES = {
     # params
     "params: missing file": ("params door --params {w}/missing.yaml", "missing.yaml"),
-    "params: binary (results file)": ("params door --params {w}/run.h5", "run.h5: binary"),
+    "params: a results file": (
+        "params door --params {w}/run.h5",
+        "run.h5: a results file, not a parameter file",
+    ),
     "params: binary (picture)": ("params door --params {w}/picture.png", "picture.png: binary"),
     "params: truncated YAML": ("params door --params {w}/truncated.yaml", "truncated.yaml"),
     "params: out of range": ("params door --set M=1e9", "'M'"),

@@ -142,4 +142,6 @@ def test_every_way_in_reads_a_render_log_as_a_parameter_file(way_in):
     )
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "['evo_door.plugins.render_log_params']"
+    assert done.stdout.strip() == (
+        "['evo_door.plugins.render_log_params', 'evo_door.plugins.nearest_feel_params']"
+    )
