@@ -413,7 +413,6 @@ class Results:
         check = self.record.perceptual_check
         if check is not None:  # a run fitted to a chosen feel
             out["perceptual_check"] = check.judged()
-            out["jnds"] = jnds_used(check.jnd, run_jnd_sources(self.config))
         ident = self.identifiability()
         if ident is not None:
             out["identifiability"] = ident.as_dict()
@@ -427,8 +426,11 @@ class Results:
             out["yield"] = d["yield"]
             out["allocation"] = d["allocation"]
             out["tolerance_text"] = "\n".join(spec.summary_lines())
-        if "jnds" in out and check is not None:
-            out["jnds"]["position_m"] = check.jnd.position
+        if check is not None:  # the position JND at the handle, in m, beside the settings
+            out["jnds"] = {
+                **jnds_used(check.jnd, run_jnd_sources(self.config)),
+                "position_m": check.jnd.position,
+            }
         return out
 
     def _per_trial(self) -> dict:

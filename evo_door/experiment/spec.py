@@ -35,6 +35,7 @@ import csv
 import html
 import io
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from evo_door.errors import UserError
@@ -255,7 +256,7 @@ def _band(r: SpecRow, band: float) -> str:
     return band_text(band, r.unit, band / abs(r.value) if r.value != 0.0 else math.inf)
 
 
-def _columns(t: SpecTable, fmt: str = "md") -> list[tuple[str, callable]]:
+def _columns(t: SpecTable, fmt: str = "md") -> list[tuple[str, Callable[[SpecRow], str]]]:
     cols = [
         ("parameter", lambda r: r.name),
         ("symbol", lambda r: r.symbol),

@@ -152,7 +152,7 @@ class FeelCheck:
                 [(got["angles"][d] - ref.peak_angles[d]) / ref.angle_threshold for d in DIRECTIONS]
             ).T
         )
-        if "dynamics" in got:
+        if "dynamics" in got and ref.dynamics is not None:
             (ti, ji), (tc, jc) = ref.dynamics
             parts.append(
                 np.c_[(got["dynamics"][:, 0] - ti) / ji, (got["dynamics"][:, 1] - tc) / jc]

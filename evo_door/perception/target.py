@@ -208,7 +208,7 @@ class FeelTarget:
         jnd = jnd or self.jnd
         curve = self.mechanism_curve(model, p)
         dynamics = self.dynamics_check(model, p)
-        if dynamics is not None and jnd is not self.jnd:
+        if dynamics is not None and self.dynamics is not None and jnd is not self.jnd:
             ti, tc = self.dynamics
             dynamics["inertia"] = (*dynamics["inertia"][:2], jnd.inertia_threshold(ti))
             dynamics["damping"] = (*dynamics["damping"][:2], jnd.damping_threshold(tc))
