@@ -5,7 +5,8 @@ One fit of a door to a feel that is not in the repository (a door with K = 350 N
 F_atD = 12 N, as a curve file) is made once for the module, with a process table of its
 own; its stored specification is then held against doors drawn afresh from what it
 states and judged by ``benchmarks.yield_check`` (its own grid, its own peak search, the
-rule as the docs state it), not by the code that made it.
+rule as the docs state it), not by the code that made it; and the fast check of many
+doors the stage counts with is held against the perceptual check of one door.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from evo_door.files import write_h5
 from evo_door.models import get_model
 from evo_door.optim.process import process_for
 from evo_door.optim.tolerance import (
+    FeelCheck,
     NearestFeel,
     YieldEstimate,
     clopper_pearson,
@@ -238,6 +240,58 @@ def test_a_results_file_gives_its_nearest_feel_to_render_and_push(tmp_path):
     )  # fmt: skip
     assert shown.returncode == 0, shown.stderr
     assert "rendered" in shown.stdout
+
+
+def _verdict(setup, p) -> dict:
+    """The perceptual check itself of one door (FeelTarget.verdict)."""
+    return setup.feel.verdict(setup.model, p)
+
+
+def _moved(setup, full, name, value):
+    p = full.copy()
+    i = setup.model.params.index(name)
+    decl = setup.model.params[name]
+    p[i] = min(max(value, decl.lower), decl.upper)
+    return p
+
+
+@pytest.mark.slow
+@pytest.mark.numerics
+def test_fast_check_agrees_with_the_perceptual_check(fitted):
+    """Doors with one specification moved to several values, on both sides of where the
+    check's verdict turns: the fast check's margins give the slow check's verdict and its
+    worst JND, door by door."""
+    res, setup, full = fitted
+    check = FeelCheck(setup.model, setup.feel)
+    assert check.columns == len(check.labels)
+    moves = {
+        "K": (-0.2, -0.1, -0.05, -0.02, 0.02, 0.05, 0.1, 0.3, 0.9),
+        "F_load": (-0.1, -0.03, -0.01, 0.01, 0.03, 0.05, 0.2),
+        "F_atD": (-0.3, -0.1, -0.03, 0.03, 0.1, 0.3),
+        "M": (-0.2, 0.2),
+    }
+    doors = [full] + [
+        _moved(setup, full, n, full[setup.model.params.index(n)] * (1 + s))
+        for n, scales in moves.items()
+        for s in scales
+    ]
+    margins = check.margins(np.array(doors))
+    assert margins.shape == (len(doors), check.columns)
+    judged = check.judge(np.array(doors))
+    np.testing.assert_array_equal(judged, np.all(np.abs(margins) <= 1.0, axis=1))
+    verdicts = [_verdict(setup, p) for p in doors]
+    slow = np.array([v["passes"] for v in verdicts])
+    worst = np.array([v["worst_jnd"] for v in verdicts])
+    fast_worst = np.max(np.abs(margins), axis=1)
+    # both verdicts, so that the agreement says something
+    assert slow[0] and slow.sum() >= 3 and (~slow).sum() >= 3, worst
+    assert np.all(judged == slow), list(zip(worst, fast_worst))
+    np.testing.assert_allclose(fast_worst, worst, rtol=0.02, atol=0.02)
+    # and the worst margin is the one the verdict names
+    for v, row in zip(verdicts, margins):
+        if v["worst_jnd"] > 0.05:
+            assert check.labels[int(np.argmax(np.abs(row)))] == v["worst"], (v["worst"], row)
+    assert check.passes(doors[0])
 
 
 def res_names(fitted) -> list[str]:

@@ -5,7 +5,7 @@ differences from a chosen feel in units of their JNDs (its *margins*): each poin
 both strokes outside the latch zone, both latch peaks, both peaks' angles, and the
 felt inertia and damping where the chosen feel has dynamics. A door passes when every
 margin is within +-1, as :func:`~evo_door.perception.check_verdict` judges one door
-(``tests/test_tolerance.py`` compares the two door by door). The doors' own quantities
+(``tests/test_specification_yield.py`` compares the two door by door). The doors' own quantities
 (:meth:`FeelCheck.measure`) can be judged against another feel (:meth:`FeelCheck.against`,
 :meth:`FeelCheck.reference_of`): the nearest feel a process can hold is searched so.
 """
