@@ -355,4 +355,5 @@ def test_a_jnd_session_whose_comparison_would_move_too_fast_is_refused(capsys, t
     assert main(args) == 2
     err = _one_line(capsys.readouterr().err)
     assert "hands-off limit of 3 rad/s" in err and "35 deg" in err
+    assert "a JND session keeps the default limit" in err
     assert not out.exists()

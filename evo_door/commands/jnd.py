@@ -208,7 +208,9 @@ def _hands_off(params, neutral, name: str, largest: float) -> None:
     if neutral is not None:
         sets.append(params.replace(neutral, source="neutral"))
     for candidate in sets:
-        check_hands_off(candidate)
+        check_hands_off(
+            candidate, how="a JND session keeps the default limit: choose a gentler set"
+        )
 
 
 def _run_session(args, params, neutral, session, participant, timing, claim) -> int:

@@ -115,14 +115,15 @@ def hands_off_motion(params, limit: float = HANDS_OFF_SPEED, duration: float | N
     return dict(ok=ok, speed=speed, start=start, limit=limit, duration=duration, reason=reason)
 
 
-def check_hands_off(params, limit: float = HANDS_OFF_SPEED):
+def check_hands_off(
+    params,
+    limit: float = HANDS_OFF_SPEED,
+    how: str = "the renderer's --hands-off-speed RAD_S sets the limit",
+):
     """``params`` if its door, released anywhere with no hand, stays within ``limit``
     (rad/s, :func:`hands_off_motion`); else a UserError with the reason, in one line,
-    saying how to change the limit."""
+    saying ``how`` to change the limit."""
     check = hands_off_motion(params, limit)
     if not check["ok"]:
-        raise UserError(
-            f"parameter set refused: {check['reason']} (the renderer's --hands-off-speed "
-            "RAD_S sets the limit)"
-        )
+        raise UserError(f"parameter set refused: {check['reason']} ({how})")
     return params
