@@ -91,7 +91,9 @@ def format_show(res: Results) -> str:
         lines += format_jnds(s["jnds"])
     if "smallest_change" in s:
         lines += format_smallest_change(s)
-    if s.get("identifiability_text"):
+    if s.get("identifiability_text") and not s.get("tolerance_text"):
+        # (a specification a supplier builds: the table says whether the feel determines
+        # each one; an interval beside its tolerance would contradict it)
         lines += ["", s["identifiability_text"]]
     if s.get("tolerance_text"):
         from evo_door.experiment.spec import render_text, spec_table

@@ -214,7 +214,14 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
         )
     ident = res.identifiability()
     if ident is not None:
-        page.pre(ident.format())
+        if tol is None:
+            page.pre(ident.format())
+        else:  # the table's "feel determines it": no interval beside a tolerance
+            page.p(
+                f"{label}: whether the feel determines each specification is the table's "
+                "column; the correlations of the estimates at the smallest change:",
+                "small",
+            )
         if len(ident.names) > 1:
             page.figure(
                 f"{key}-correlation",
