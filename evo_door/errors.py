@@ -60,3 +60,25 @@ class MissingChannelError(UserError):
         self.where = where
         self.reason = reason
         super().__init__(f"{where}: objective.derivative: {reason}")
+
+
+def plain_text(text: str, what: str, error=None) -> str:
+    """``text`` if it is Unicode a file can hold (UTF-8 encodable: no lone surrogate;
+    no NUL character); else ``error`` (a UserError by default) naming ``what``.
+
+    >>> plain_text("Ana", "--participant")
+    'Ana'
+    >>> plain_text("\\ud800", "--participant")
+    Traceback (most recent call last):
+    ...
+    evo_door.errors.UserError: --participant: not Unicode text (a lone surrogate, U+D800); refused
+    """
+    error = error or UserError
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        code = ord(text[exc.start])
+        raise error(f"{what}: not Unicode text (a lone surrogate, U+{code:04X}); refused") from None
+    if "\x00" in text:
+        raise error(f"{what}: holds a NUL character; refused")
+    return text

@@ -143,6 +143,10 @@ def check_ranges(args) -> None:
         value = getattr(args, _dest(flag))
         if value is None:
             continue
+        if r.length:  # a text: Unicode a file and a socket can carry, or refused here
+            from evo_door.errors import plain_text
+
+            plain_text(value, flag)
         size = len(value) if r.length else value
         upper = getattr(args, _dest(r.upper)) if isinstance(r.upper, str) else r.upper
         low_ok = size > r.lower if r.above else size >= r.lower

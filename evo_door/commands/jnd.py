@@ -15,7 +15,7 @@ from evo_door.commands._common import (
     declare_ranges,
 )
 from evo_door.commands.render import WATCHDOG_RANGES, add_watchdog_arguments
-from evo_door.errors import UserError
+from evo_door.errors import UserError, plain_text
 
 ORDER = 61
 
@@ -121,6 +121,7 @@ def _participant(spec: str, seed: int):
         raise UserError(
             f"--participant {spec!r}: expected sim:WEBER[,SLOPE[,LAPSE]] or person[:ID]"
         )
+    plain_text(who, "--participant person:ID")
     if not sys.stdin.isatty():
         raise UserError("--participant person: answers come from the terminal; stdin is not one")
     return TerminalPerson(who)

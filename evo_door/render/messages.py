@@ -17,7 +17,7 @@ import math
 import threading
 import time
 
-from evo_door.errors import UserError
+from evo_door.errors import UserError, plain_text
 from evo_door.models.haptic import PARAMS
 
 #: the longest message: a request line, a page's WebSocket message (bytes)
@@ -110,7 +110,24 @@ def parse_message(data: bytes | str) -> dict:
         raise BadMessage("nested too deep") from None
     if not isinstance(message, dict):
         raise BadMessage("not a JSON object on one line")
+    _check_texts(message)
     return message
+
+
+def _check_texts(value) -> None:
+    """Every text of a parsed message (keys and values, at any depth) is Unicode that a
+    file can hold: no lone surrogate (JSON's ``\\ud800`` escapes one) and no NUL. Such
+    text is refused here, at entry, so that it never reaches a log's writer (which
+    could not encode it, and would lose the whole session's log)."""
+    if isinstance(value, str):
+        plain_text(value, "a text in the message", BadMessage)
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_texts(k)
+            _check_texts(v)
+    elif isinstance(value, list):
+        for v in value:
+            _check_texts(v)
 
 
 class RateLimit:
