@@ -50,6 +50,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     try:
+        if getattr(args, "allow_model", None):
+            from evo_door.commands._common import allow_models
+
+            allow_models(args)
         return int(args.func(args) or 0)
     except UserError as exc:
         print(error_line(exc), file=sys.stderr)

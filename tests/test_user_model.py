@@ -119,8 +119,11 @@ def test_drawer_example_round_trip(tmp_path, monkeypatch):
     )
     assert Results(out).attrs["model"] == f"{EXAMPLE / 'drawer.py'}:MODEL"
 
-    # a new process in the example's folder reads the run back
-    shown = _cli("show", str(out), "--json", cwd=EXAMPLE)
+    # a new process in the example's folder reads the run back: the file names code, so
+    # the reader names it too (a results file alone never runs a model file)
+    refused = _cli("show", str(out), "--json", cwd=EXAMPLE)
+    assert refused.returncode == 2 and "--allow-model" in refused.stderr
+    shown = _cli("show", str(out), "--json", "--allow-model", "drawer.py:MODEL", cwd=EXAMPLE)
     assert shown.returncode == 0, shown.stderr
     summary = json.loads(shown.stdout)
     best = summary["best"]

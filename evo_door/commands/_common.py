@@ -62,6 +62,29 @@ def add_channels_argument(parser) -> None:
     )
 
 
+def add_allow_model(p) -> None:
+    """``--allow-model SPEC``: a command that reads results files loads a model that is
+    code (a Python file, a module path, an FMU) only when the user names it too."""
+    p.add_argument(
+        "--allow-model",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="run the model a results file names (path/file.py:MODEL, module:MODEL, "
+        "model.fmu): only for files you trust, since loading it runs its code; "
+        "repeatable (docs/trust.md)",
+    )
+
+
+def allow_models(args) -> None:
+    """Trust the models ``--allow-model`` names (:func:`evo_door.models.allow_model`)."""
+    from evo_door.errors import plain_text
+    from evo_door.models.base import allow_model
+
+    for spec in getattr(args, "allow_model", None) or []:
+        allow_model(plain_text(spec, "--allow-model"))
+
+
 def model_name(args) -> str:
     """``args.model`` with ``--channels`` added to an FMU's name (``x.fmu?force=F``)."""
     channels = getattr(args, "channels", None) or []

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from evo_door.commands._common import add_allow_model
 from evo_door.errors import UserError
 
 ORDER = 44
@@ -39,6 +40,7 @@ def register(sub) -> None:
         help="one JSON object: 'runs' (one entry per file, in order), 'differences' "
         "(dotted setting -> value per run)",
     )
+    add_allow_model(p)
     p.set_defaults(func=run)
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from evo_door.commands._common import add_allow_model
+
 ORDER = 46
 
 #: ``evo_door.experiment.spec.FORMATS``, written out so that the parser does not import
@@ -26,6 +28,7 @@ def register(sub) -> None:
         "--params, experiments and the renderer read back",
     )
     p.add_argument("--out", metavar="FILE", help="write here (default: print)")
+    add_allow_model(p)
     p.set_defaults(func=run)
 
 

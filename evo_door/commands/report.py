@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from evo_door.commands._common import add_allow_model
+
 ORDER = 47
 
 #: The force JND's defaults (``DEFAULT_JND``, ``FORCE_FLOOR`` N of
@@ -51,6 +53,7 @@ def register(sub) -> None:
         "perceptual check instead of the run's (repeatable; several on one setting: "
         "their geometric mean); not with --jnd on the force JND",
     )
+    add_allow_model(p)
     p.set_defaults(func=run)
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from evo_door.commands._common import add_progress_arguments, show_progress
+from evo_door.commands._common import add_allow_model, add_progress_arguments, show_progress
 from evo_door.commands.run import add_executor_argument
 
 ORDER = 41
@@ -21,18 +21,21 @@ def register(sub) -> None:
         "default: the one the run used; the result does not depend on it",
     )
     add_progress_arguments(p)
+    add_allow_model(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from evo_door.experiment import Results, store
     from evo_door.experiment.format_text import format_show
+    from evo_door.experiment.reader import check_file_models
     from evo_door.experiment.runner import ExperimentRun
 
     if args.executor is not None:
         from evo_door.optim.executors import preflight
 
         preflight(args.executor)
+    check_file_models(args.results)  # a file is data: it names no code to run
     if store.pipeline_attrs(args.results) is not None:
         return resume_pipeline(args)
     job = ExperimentRun.open(args.results)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from evo_door.commands._common import add_allow_model
+
 ORDER = 43
 
 
@@ -21,6 +23,7 @@ def register(sub) -> None:
         help="folder of results files (default results)",
     )
     p.add_argument("--json", action="store_true", help="one JSON list, a row per run")
+    add_allow_model(p)
     p.set_defaults(func=run)
 
 

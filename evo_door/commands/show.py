@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from evo_door.commands._common import add_allow_model
 from evo_door.errors import UserError
 
 ORDER = 42
@@ -35,6 +36,7 @@ def register(sub) -> None:
         metavar="CONV.png",
         help="draw the best and mean fitness per generation (an interrupted run: so far)",
     )
+    add_allow_model(p)
     p.set_defaults(func=run)
 
 

@@ -238,6 +238,38 @@ def pick(record: RunRecord | PipelineRecord, stage: str | None) -> RunRecord:
 
 
 # -- reading the groups ----------------------------------------------------------------
+def check_file_models(path) -> None:
+    """Every model a results file names (a run's, each started stage's) is installed or
+    named by the user; else one line, before anything from the file is built or run
+    (``resume`` calls it first: it builds its run from the file)."""
+    with store._open(path) as f:
+        if read_attrs(f).get("format") != store.PIPELINE_FORMAT:
+            _check_models(f, Path(path), None)
+            return
+        stages = f["stages"] if "stages" in f else {}
+        for name in stages:
+            _check_models(stages[name], Path(path), name)
+
+
+def _check_models(g, path: Path, stage) -> None:
+    """Every model the run's group names (its own, its target's, its inputs') is
+    installed or named by the user (:func:`~evo_door.models.base.check_named_in_file`):
+    a results file is data, and reading it never runs code it names."""
+    from evo_door.models.base import check_named_in_file
+
+    where = f"{path}" + (f", stage {stage}," if stage else "")
+    names = [read_attrs(g).get("model")]
+    try:
+        config = json.loads(_text(g["experiment"]["resolved"][()]))
+        target = config.get("target") or {}
+        names += [target.get("model"), (target.get("inputs") or {}).get("model")]
+    except (KeyError, ValueError, TypeError, AttributeError):
+        pass  # (a damaged configuration: its reader says so in its own line)
+    for name in names:
+        if isinstance(name, str) and name:
+            check_named_in_file(name, where)
+
+
 def _sources(f) -> dict[str, dict[str, str]]:
     """Stage -> its ``{from: STAGE}`` sources, from ``pipeline/resolved`` ({} if none)."""
     if "pipeline/resolved" not in f:
@@ -272,6 +304,7 @@ def _pipeline(f, path, arrays: bool) -> PipelineRecord:
 
 def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
     """A run's group: everything with ``arrays``, else attributes and small arrays only."""
+    _check_models(g, path, stage)  # before anything is built from the file
     tree = read_group(g) if arrays else None
     node = tree if arrays else _Light(g)
     experiment = node["experiment"]

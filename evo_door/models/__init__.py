@@ -8,10 +8,13 @@ from evo_door.models.base import (
     REGISTRY,
     Declaration,
     Model,
+    allow_model,
     available_models,
     check_model,
     get_declaration,
     get_model,
+    is_code_spec,
+    model_in_file,
     resolve_model_name,
 )
 
@@ -19,9 +22,12 @@ __all__ = [
     "Declaration",
     "Model",
     "REGISTRY",
+    "allow_model",
     "available_models",
     "check_model",
     "get_declaration",
     "get_model",
+    "is_code_spec",
+    "model_in_file",
     "resolve_model_name",
 ]

@@ -389,6 +389,7 @@ def get_model(name: str) -> Model:
     name = str(name).strip()
     fmu = is_fmu_spec(name)
     key = resolve_model_name(name) if is_file_spec(name) or fmu else name
+    _NAMED_BY_USER.add(key)  # (named by the caller: see model_in_file for a file's names)
     if key in _MODELS:
         return _MODELS[key]
     if fmu:
@@ -406,6 +407,62 @@ def get_model(name: str) -> Model:
         model = replace(model, preset_dirs=model.preset_dirs + (presets,))
     _MODELS[key] = model
     return model
+
+
+#: the model names that are code (a file, a module path, an FMU) the user has named in
+#: this process: on the command line, in an experiment they run, with ``--allow-model``;
+#: a name read from a file is loaded only when it is one of them (:func:`model_in_file`)
+_NAMED_BY_USER: set[str] = set()
+
+
+def is_code_spec(name: str) -> bool:
+    """Whether loading the model ``name`` runs code that is not installed: a Python
+    file, a module path or an FMU (a registered name is installed code).
+
+    >>> is_code_spec("door"), is_code_spec("x/drawer.py:MODEL"), is_code_spec("m.fmu")
+    (False, True, True)
+    """
+    from evo_door.models.fmu import is_fmu_spec
+
+    name = str(name).strip()
+    if is_fmu_spec(name) or is_file_spec(name):
+        return True
+    return ":" in name and name not in REGISTRY
+
+
+def _trust_key(name: str) -> str:
+    from evo_door.models.fmu import is_fmu_spec
+
+    name = str(name).strip()
+    if is_file_spec(name) or is_fmu_spec(name):
+        return resolve_model_name(name)
+    return name
+
+
+def allow_model(name: str) -> None:
+    """Let a model that is code be loaded when a file names it (``--allow-model``; an
+    experiment the user runs names its own models through :func:`get_model`)."""
+    _NAMED_BY_USER.add(_trust_key(name))
+
+
+def model_in_file(name: str, where: str = "a file") -> Model:
+    """The model a file names (a results file, a trial file, a log), loaded only if it
+    is installed (a registered name, an entry point) or the user named it too
+    (:func:`allow_model`, :func:`get_model`); otherwise refused in one line, without
+    running it: a file someone sent you is data, never code."""
+    check_named_in_file(name, where)
+    return get_model(name)
+
+
+def check_named_in_file(name: str, where: str = "a file") -> None:
+    """Refuse, in one line and without loading it, a model that a file names and that
+    is code the user has not named (:func:`model_in_file`)."""
+    if is_code_spec(name) and _trust_key(name) not in _NAMED_BY_USER:
+        raise UserError(
+            f"{where} names model {name!r}, code that evo-door would run to read it; a "
+            "model a file names runs only when you name it too: --allow-model "
+            f"{name!r} (only for files you trust: docs/trust.md)"
+        )
 
 
 def get_declaration(name: str) -> Declaration | Model:
