@@ -75,7 +75,9 @@ def claim_outputs(outputs, inputs=(), *, force: bool = False, append=None) -> Cl
       (the command adds to it; None: the command has no ``--append``).
 
     An existing :data:`DERIVED` output is replaced: the returned :class:`Claim` lists
-    it, and its :meth:`Claim.note` says so once the command has written. ``force``
+    it, and its :meth:`Claim.note` says so once the command has written; never an
+    HDF5 file there (a trial, results, log or JND file: :func:`is_data_file`), unless
+    ``force``. ``force``
     replacing a trial file is said the same way.
     """
     outputs = [o for o in outputs if o.path is not None]
@@ -106,9 +108,29 @@ def claim_outputs(outputs, inputs=(), *, force: bool = False, append=None) -> Cl
                 f"{out.option} {path}: a file is there already; give --force to replace "
                 f"it{extend}, or another {out.option}"
             )
+        if out.kind == DERIVED and not force and is_data_file(path):
+            raise UserError(
+                f"{out.option} {path}: an evo-door data file is there (trials, a results "
+                "file, a render log or a JND session: HDF5); a table, figure or parameter "
+                f"file never replaces it: give another {out.option}"
+            )
         if not (out.kind == TRIALS and append):
             claim.replaced.append(path)
     return claim
+
+
+#: the first bytes of every HDF5 file: every file evo-door keeps data in (trials,
+#: results, render logs, JND sessions) is one, and none of its derived outputs is
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_data_file(path) -> bool:
+    """Whether ``path`` is an HDF5 file (what a derived output never replaces)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+    except OSError:
+        return False
 
 
 def _existing_folder(path: Path) -> Path:

@@ -58,9 +58,14 @@ class FileLock:
             self._key = key
             return self
         while True:
-            try:
-                fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:  # never through a link: a lock file that points elsewhere is refused
+                fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
             except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    raise UserError(
+                        f"{self.lock_path}: a symbolic link where evo-door keeps the lock of "
+                        f"{self.path.name}; evo-door never writes through it: remove it"
+                    ) from None
                 raise UserError(
                     f"{self.path}: cannot write in {self.path.parent} ({exc.strerror})"
                 ) from None
@@ -78,7 +83,7 @@ class FileLock:
             # the holder before us may have removed the lock file after we opened it:
             # then we hold a lock on a file nobody else can see; take the new one
             try:
-                same = os.stat(self.lock_path).st_ino == os.fstat(fd).st_ino
+                same = os.lstat(self.lock_path).st_ino == os.fstat(fd).st_ino
             except FileNotFoundError:
                 same = False
             if same:
@@ -113,7 +118,7 @@ class FileLock:
         path = Path(path)
         lock_path = path.with_name(f".{path.name}.lock")
         try:
-            fd = os.open(lock_path, os.O_RDONLY)
+            fd = os.open(lock_path, os.O_RDONLY | os.O_NOFOLLOW)
         except OSError:
             return None
         try:

@@ -1,0 +1,104 @@
+"""What may be written over: a table, a figure or a parameter file never replaces an
+evo-door data file (trials, results, a log: HDF5), and a lock file is never written
+through a symbolic link (part of issue 37).
+
+Before, ``params door --write measured.h5`` replaced a trial file with YAML and said
+"replaced"; ``curve``, ``simulate`` and ``export-spec --out`` did the same; and a
+``.R.h5.lock`` that linked to another file had that file overwritten with a PID.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "experiments" / "data" / "default.h5"
+
+EXPERIMENT = f"""\
+name: tiny
+model: door
+params: default
+target: {{data: {DATA}, kinds: [impulse]}}
+free: {{F_atD: [5.0, 70.0]}}
+objective: {{kind: ise, derivative: 1}}
+algorithm: {{population: 6, generations: 1, seed: 1}}
+"""
+
+
+def _cli(*args, cwd):
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+    return subprocess.run(
+        [sys.executable, "-m", "evo_door", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=env,
+        timeout=300,
+    )
+
+
+def _one_line(done) -> str:
+    assert done.returncode == 2, (done.stdout, done.stderr)
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("evo-door: error:")
+    return done.stderr
+
+
+@pytest.fixture
+def measured(tmp_path):
+    """An HDF5 data file (what a trial, results or log file is) and its bytes."""
+    path = tmp_path / "measured.h5"
+    with h5py.File(path, "w") as f:
+        f["t"] = np.linspace(0.0, 1.0, 11)
+    return path, path.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ("params", "door", "--write", "{out}"),
+        ("curve", "door", "--out", "{out}"),
+        ("simulate", "door", "--input", "{force}", "--out", "{out}"),
+    ],
+)
+def test_a_derived_output_never_replaces_a_data_file(measured, tmp_path, command):
+    path, before = measured
+    force = tmp_path / "force.csv"
+    force.write_text("t,force\n0,0\n0.1,1\n0.2,0\n")
+    args = [a.format(out=path, force=force) for a in command]
+    err = _one_line(_cli(*args, cwd=tmp_path))
+    assert "data file" in err and str(path.name) in err
+    assert path.read_bytes() == before
+    # another name works, and a derived file of its own is replaced as before
+    other = [a.format(out=tmp_path / "table.out", force=force) for a in command]
+    for _ in range(2):
+        done = _cli(*other, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr
+
+
+@pytest.mark.slow
+def test_export_spec_never_replaces_a_results_file(tmp_path):
+    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
+    assert _cli("run", "exp.yaml", "--out", "a.h5", "--quiet", cwd=tmp_path).returncode == 0
+    assert _cli("run", "exp.yaml", "--out", "b.h5", "--quiet", cwd=tmp_path).returncode == 0
+    before = (tmp_path / "b.h5").read_bytes()
+    err = _one_line(_cli("export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
+    assert "data file" in err
+    assert (tmp_path / "b.h5").read_bytes() == before
+
+
+def test_a_lock_file_is_never_written_through_a_link(tmp_path):
+    precious = tmp_path / "precious.txt"
+    precious.write_text("a user's notes\n")
+    (tmp_path / ".R.h5.lock").symlink_to(precious)
+    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
+    err = _one_line(_cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path))
+    assert "symbolic link" in err
+    assert precious.read_text() == "a user's notes\n"
+    assert not (tmp_path / "R.h5").exists()
