@@ -129,6 +129,10 @@ def _read(path, args, **fields):
     )
 
 
+#: s an import waits for another one writing the same trial file
+LOCK_WAIT = 60.0
+
+
 def run_import(args) -> int:
     # long: the import's steps in the order they run: claim the output, check
     # the options, read every input, preprocess, write, each refusal before any writing
@@ -136,6 +140,7 @@ def run_import(args) -> int:
     from evo_door.data.io import file_format, read_trials, write_trials
     from evo_door.data.trial import check_theta0
     from evo_door.files import TRIALS, Output, claim_outputs
+    from evo_door.files.locks import FileLock
 
     if file_format(args.out) != "h5":
         raise UserError(f"--out {args.out}: write an HDF5 trial file (.h5)")
@@ -181,15 +186,23 @@ def run_import(args) -> int:
             f"trial id(s) {', '.join(sorted(dup))} appear twice among the inputs; "
             "import them separately with --id or --append"
         )
-    kept = read_trials(args.out) if args.append and Path(args.out).exists() else []
-    clash = sorted(set(ids) & {t.trial_id for t in kept})
-    if clash:
-        raise UserError(
-            f"{args.out} already holds trial(s) {', '.join(clash)}; "
-            "give the new one another id (--id), or --force instead of --append to replace "
-            "the file"
-        )
-    write_trials(args.out, kept + out)
+    # the file's lock over read, check and write: two imports at once both land (the
+    # second waits) or one is refused, never one lost
+    with FileLock(args.out).acquire("being written by another import", wait=LOCK_WAIT):
+        if not (args.append or args.force) and Path(args.out).exists():
+            raise UserError(
+                f"--out {args.out}: a file is there already (another import made it just "
+                "now); give --force to replace it or --append to add to its trials"
+            )
+        kept = read_trials(args.out) if args.append and Path(args.out).exists() else []
+        clash = sorted(set(ids) & {t.trial_id for t in kept})
+        if clash:
+            raise UserError(
+                f"{args.out} already holds trial(s) {', '.join(clash)}; "
+                "give the new one another id (--id), or --force instead of --append to "
+                "replace the file"
+            )
+        write_trials(args.out, kept + out)
     claim.note()
     if args.append:
         held = [t.trial_id for t in kept + out]

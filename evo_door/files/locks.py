@@ -16,6 +16,10 @@ from evo_door.files.atomic import check_folder
 _HELD: dict[str, list] = {}
 
 
+class _Busy(Exception):
+    """Another process holds the lock (the message says which)."""
+
+
 class FileLock:
     """An advisory, exclusive lock on ``path`` for as long as this object holds it.
 
@@ -45,8 +49,21 @@ class FileLock:
     def held(self) -> bool:
         return self._key is not None
 
-    def acquire(self, what: str = "in use") -> FileLock:
-        """Take the lock, or raise ``PATH: WHAT (process N); wait for it ...``."""
+    def acquire(self, what: str = "in use", wait: float = 0.0) -> FileLock:
+        """Take the lock, or raise ``PATH: WHAT (process N); wait for it ...``; with
+        ``wait`` (s), another holder is waited for that long first (polled)."""
+        import time
+
+        deadline = time.monotonic() + wait
+        while True:
+            try:
+                return self._acquire(what)
+            except _Busy as busy:
+                if time.monotonic() >= deadline:
+                    raise UserError(str(busy)) from None
+                time.sleep(0.02)
+
+    def _acquire(self, what: str) -> FileLock:
         import fcntl
 
         if self._key is not None:
@@ -77,7 +94,7 @@ class FileLock:
                     raise
                 pid = self.holder(self.path)
                 by = f"process {pid}" if pid and pid > 0 else "another process"
-                raise UserError(
+                raise _Busy(
                     f"{self.path}: {what} ({by}); wait for it to finish or stop it first"
                 ) from None
             # the holder before us may have removed the lock file after we opened it:
