@@ -156,3 +156,66 @@ def test_two_imports_creating_one_file_never_replace_each_other(tmp_path):
     held = [t.trial_id for t in read_trials(tmp_path / "new.h5")]
     winner = "AB"[[code for code, _ in done].index(0)]
     assert held == [winner]
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rpartition(")")[2].split()[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl is Linux's")
+def test_a_runs_pool_workers_end_with_it_when_it_is_killed(tmp_path):
+    """SIGKILL to a run on ``--executor processes:2``: nothing of it runs to stop its
+    pool, and its workers end with it all the same (before: they ran on a minute)."""
+    import signal
+    import time
+
+    (tmp_path / "exp.yaml").write_text(
+        EXPERIMENT.replace("population: 6, generations: 1", "population: 60, generations: 30")
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-m", "evo_door", "run", "exp.yaml", "--out", "r.h5", "--quiet",
+           "--executor", "processes:2"]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stderr=subprocess.DEVNULL)
+    try:
+        workers = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(workers) < 2 and proc.poll() is None:
+            time.sleep(0.2)
+            workers = [c for c in _children(proc.pid) if b"evo_door" not in _cmdline(c)]
+        assert len(workers) >= 2, "the pool's workers did not start"
+        time.sleep(1.0)  # they work
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(_alive(w) for w in workers):
+            time.sleep(0.1)
+        assert not any(_alive(w) for w in workers), workers
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""

@@ -226,4 +226,32 @@ def _start_worker(threads: int | None) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    _end_with_parent()
     _set_threads(threads)
+
+
+def _end_with_parent() -> None:
+    """Have the kernel end this worker when the process that started it dies, however
+    it dies (SIGKILL too: nothing of the parent runs then to stop its pool). Linux's
+    ``prctl(PR_SET_PDEATHSIG)``; elsewhere the pool's own shutdown is all there is. A
+    parent already gone by now (the worker's parent is then init): end at once."""
+    import os
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):  # no prctl here: the pool's shutdown only
+        return
+    if parent == 1 or os.getppid() != parent:
+        os._exit(1)
+
+
+#: prctl's option that sends a signal to a process when its parent dies (linux/prctl.h)
+PR_SET_PDEATHSIG = 1
