@@ -219,3 +219,17 @@ def _cmdline(pid: int) -> bytes:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
     except OSError:
         return b""
+
+
+@pytest.mark.slow
+def test_run_cleans_its_own_stale_temporary_files(tmp_path):
+    """A killed run leaves ``.R.h5.tmp-PID-N`` behind (its process gone): a new run to
+    ``R.h5`` cleans it, as resume does; a temporary of a live process stays."""
+    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
+    stale = tmp_path / ".R.h5.tmp-999999999-0"
+    stale.write_bytes(b"half a file")
+    live = tmp_path / f".R.h5.tmp-{os.getpid()}-0"
+    live.write_bytes(b"being written")
+    done = _cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert not stale.exists() and live.exists()

@@ -16,7 +16,7 @@ from pathlib import Path
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.config_algorithm import AlgorithmSpec
-from evo_door.files import ATTRS, FileLock
+from evo_door.files import ATTRS, FileLock, remove_stale_temporaries
 
 #: what a locked results file says to another process
 _LOCKED = "a run is writing it"
@@ -106,6 +106,9 @@ def claim_output(path: Path, overwrite: bool, start):
     try:
         if path.exists():
             _refuse_to_replace(path, overwrite)
+        # a killed run's half-written copies of this file (their process is gone):
+        # the new run owns the name now, and cleans them as resume does
+        remove_stale_temporaries(path)
         return start(path, lock)
     except BaseException:
         lock.release()
