@@ -248,11 +248,28 @@ CASES = {
     ),
     "run: simulation tolerance 0": (
         "run {w}/exp.yaml --set simulation.tolerance=0 --out {w}/r.h5",
-        "--set simulation.tolerance=0: simulation.tolerance: must be a number in (0, 1)",
+        "--set simulation.tolerance=0: simulation.tolerance: must be a number in [1e-13, 1)",
+    ),
+    "run: simulation tolerance 1e-300 (would never end)": (
+        "run {w}/exp.yaml --set simulation.tolerance=1e-300 --out {w}/r.h5",
+        "simulation.tolerance: must be a number in [1e-13, 1)",
+    ),
+    "simulate: tolerance 1e-300": (
+        "simulate door --input {w}/force.csv --out {w}/o.csv --tolerance 1e-300",
+        "--tolerance",
+    ),
+    "simulate: a billion substeps": (
+        "simulate door --input {w}/force.csv --out {w}/o.csv --substeps 1000000000",
+        "--substeps",
+    ),
+    "curve: a billion points": ("curve door --out {w}/c.csv --points 1000000000", "--points"),
+    "rig: a billion users": (
+        "rig generate --model door --users 1000000000 --out {w}/t.h5",
+        "--users",
     ),
     "run: simulation tolerance 1": (
         "run {w}/exp.yaml --set simulation.tolerance=1 --out {w}/r.h5",
-        "simulation.tolerance: must be a number in (0, 1) (dopri5's per step), got 1",
+        "simulation.tolerance: must be a number in [1e-13, 1) (dopri5's per step",
     ),
     "run: simulation tolerance not a number": (
         "run {w}/exp.yaml --set simulation.tolerance=tight --out {w}/r.h5",

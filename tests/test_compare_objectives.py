@@ -261,7 +261,8 @@ def test_cli_prints_the_table_and_writes_the_files(tmp_path, capsys):
         (parse_kinds, "ise,", r"--kinds 'ise,': expected a comma-separated list"),
         (parse_derivatives, "0,3", r"--derivatives 0,3: '3' is not a derivative"),
         (parse_derivatives, "-1", r"'-1' is not a derivative"),
-        (parse_seeds, "0", r"--seeds 0: at least 1"),
+        (parse_seeds, "0", r"--seeds 0: from 1 to 100"),
+        (parse_seeds, "1000000000", r"--seeds 1000000000: from 1 to 100"),
         (parse_seeds, "two", r"--seeds two: expected a whole number"),
     ],
 )

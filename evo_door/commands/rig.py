@@ -13,6 +13,11 @@ from evo_door.errors import UserError
 ORDER = 45
 
 
+#: the largest campaign the virtual rig makes (each trial some seconds at 1 kHz)
+MAX_USERS = 1000
+MAX_TRIALS = 10_000
+
+
 def register(sub) -> None:
     p = sub.add_parser("rig", help="virtual test rig: generate realistic trials from a model")
     rsub = p.add_subparsers(dest="rig_command", metavar="ACTION")
@@ -83,8 +88,11 @@ def run_generate(args) -> int:
     from evo_door.params import parse_assignments
 
     file_format(args.out)
-    if args.users < 1 or args.trials < 1:
-        raise UserError("--users and --trials must be at least 1")
+    if not (1 <= args.users <= MAX_USERS and 1 <= args.trials <= MAX_TRIALS):
+        raise UserError(
+            f"--users {args.users} --trials {args.trials}: from 1 to {MAX_USERS} users and "
+            f"{MAX_TRIALS} trials (a campaign larger than any lab's)"
+        )
     if args.rate <= 0:
         raise UserError("--rate must be positive")
     if args.seed < 0:

@@ -20,7 +20,10 @@ ORDER = 20
 
 #: the numeric flags' ranges, checked before any work (dopri5's tolerance per step,
 #: rad and rad/s; 1 itself is refused by the integrators: no error is allowed that big)
-RANGES = {"--tolerance": Range(0, 1, above=True)}
+RANGES = {
+    "--tolerance": Range(1e-13, 0.5),  # (evo_door.sim.simulate.TOLERANCE_FLOOR and up)
+    "--substeps": Range(1, 1000, integer=True),
+}
 
 #: How far (a fraction of the model's range: 4.5 deg for a door) a response may pass an
 #: end of the range before it is pointed out. The end stops are stiff springs that a
@@ -94,8 +97,6 @@ def run(args) -> int:
     check_ranges(args)
     model, params = model_and_params(args)
     claim = claim_outputs([Output(args.out)], [args.input, params.source])
-    if args.substeps is not None and args.substeps < 1:
-        raise UserError(f"--substeps {args.substeps}: must be at least 1")
     check_positive(args.rate, "--rate")
     check_finite(args.dtheta0, "--dtheta0")
     if args.theta0 is not None:

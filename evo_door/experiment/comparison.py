@@ -104,11 +104,16 @@ def parse_seeds(text) -> int:
         n = int(str(text).strip())
     except ValueError:
         raise UserError(f"--seeds {text}: expected a whole number of GA seeds, e.g. 3") from None
-    if n < 1:
+    if not 1 <= n <= MAX_SEEDS:
         raise UserError(
-            f"--seeds {n}: at least 1 (the GA seeds are the experiment's algorithm.seed + 0 .. N-1)"
+            f"--seeds {n}: from 1 to {MAX_SEEDS} (the GA seeds are the experiment's "
+            "algorithm.seed + 0 .. N-1, a results file each)"
         )
     return n
+
+
+#: the most GA seeds a comparison runs (each a GA run and a results file per objective)
+MAX_SEEDS = 100
 
 
 # -- the plan --------------------------------------------------------------------------

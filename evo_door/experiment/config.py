@@ -467,10 +467,14 @@ def _check_start(exp: Experiment, reader: _Reader) -> None:
 def _tolerance(sim: _Reader, model) -> float:
     """``simulation.tolerance``: ``dopri5``'s tolerance, a number in (0, 1) (default the
     model's)."""
+    from evo_door.sim.simulate import TOLERANCE_FLOOR
+
     value = sim.number("tolerance", tolerance_of(model))
-    if not 0.0 < value < 1.0:
+    if not TOLERANCE_FLOOR <= value < 1.0:
         raise sim.fail(
-            "tolerance", f"must be a number in (0, 1) (dopri5's per step), got {value:g}"
+            "tolerance",
+            f"must be a number in [{TOLERANCE_FLOOR:g}, 1) (dopri5's per step: below it, "
+            f"double precision cannot meet it and the run would not end), got {value:g}",
         )
     return value
 

@@ -280,6 +280,10 @@ def quasi_static_curve(model, params, n=721, speed=0.02, lo=0.0, hi=np.pi / 2):
 # -- the force-angle curve a specification reader expects ----------------------------
 #: Speed (theta unit / s) of the Coulomb curve's evaluation: a term affine in the
 #: speed (viscous, latch damping up to 1e5 N s/rad) adds at most 1e-10 N there.
+#: the least per-step tolerance dopri5 is asked for: a few hundred times the double
+#: precision's epsilon (2.2e-16) on values of order one; below it no step meets it and
+#: the step size shrinks without end
+TOLERANCE_FLOOR = 1e-13
 COULOMB_SPEED = 1e-15
 #: Value every speed sensitivity takes for the Coulomb curve: sensitivity x speed
 #: = 1e12, so a tanh law or speed gate is exactly +-1 (or 0 / 1) in double precision
