@@ -12,9 +12,51 @@ import re
 
 import yaml
 
+#: the bounds of a YAML document a file may hold: nesting, values, aliases (an alias is
+#: a reference that expands where it is used: a few can make billions of values)
+MAX_DEPTH = 64
+MAX_NODES = 100_000
+MAX_ALIASES = 100
+
 
 class Loader(yaml.SafeLoader):
-    """PyYAML's safe loader, reading ``1e-3`` and ``5e8`` as numbers."""
+    """PyYAML's safe loader, reading ``1e-3`` and ``5e8`` as numbers, within bounds:
+    at most :data:`MAX_DEPTH` levels of nesting, :data:`MAX_NODES` values and
+    :data:`MAX_ALIASES` aliases, none of them recursive (a ``yaml.YAMLError`` with the
+    line otherwise: the readers make it one line)."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+        self._nodes = 0
+        self._aliases = 0
+        self._open: list = []  # the anchors of the nodes being composed
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_ALIASES:
+                raise _bounds(event, f"more than {MAX_ALIASES} aliases")
+            if event.anchor in self._open:
+                raise _bounds(event, f"a recursive alias (*{event.anchor} inside &{event.anchor})")
+            return super().compose_node(parent, index)
+        self._nodes += 1
+        if self._nodes > MAX_NODES:
+            raise _bounds(event, f"more than {MAX_NODES} values")
+        self._depth += 1
+        if self._depth > MAX_DEPTH:
+            raise _bounds(event, f"nested more than {MAX_DEPTH} levels deep")
+        self._open.append(getattr(event, "anchor", None))
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._open.pop()
+            self._depth -= 1
+
+
+def _bounds(event, problem: str) -> yaml.YAMLError:
+    return yaml.composer.ComposerError(None, None, problem, event.start_mark)
 
 
 Loader.add_implicit_resolver(

@@ -45,7 +45,19 @@ def _loc(source: str, node) -> str:
     return f"{source}:{node.start_mark.line + 1}"
 
 
-def _convert(node, source: str, constructor: SafeConstructor):
+#: the most values a document may expand to, aliases followed (each use of an alias
+#: is converted again: aliases inside aliases multiply)
+MAX_EXPANDED = 200_000
+
+
+def _convert(node, source: str, constructor: SafeConstructor, budget=None):
+    budget = budget if budget is not None else [MAX_EXPANDED]
+    budget[0] -= 1
+    if budget[0] < 0:
+        raise UserError(
+            f"{source}: expands to more than {MAX_EXPANDED} values (aliases used inside "
+            "aliases); write the values out"
+        )
     if isinstance(node, yaml.MappingNode):
         out = LinedMap(loc=_loc(source, node))
         constructor.flatten_mapping(node)
@@ -58,12 +70,13 @@ def _convert(node, source: str, constructor: SafeConstructor):
                     f"{_loc(source, key_node)}: duplicate key {key!r} "
                     f"(first at {out.key_locs[key]})"
                 )
-            out[key] = _convert(value_node, source, constructor)
+            out[key] = _convert(value_node, source, constructor, budget)
             out.key_locs[key] = _loc(source, key_node)
         return out
     if isinstance(node, yaml.SequenceNode):
         return LinedList(
-            [_convert(n, source, constructor) for n in node.value], loc=_loc(source, node)
+            [_convert(n, source, constructor, budget) for n in node.value],
+            loc=_loc(source, node),
         )
     return constructor.construct_object(node, deep=True)
 
