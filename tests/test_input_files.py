@@ -285,7 +285,7 @@ def test_errors_quote_little_of_a_file(tmp_path, capsys):
 @pytest.mark.parametrize("points", ["0", "1", "-5"])
 def test_curve_needs_two_points(points, tmp_path, capsys):
     res = cli(capsys, "curve", OSC, "--points", points, "--out", tmp_path / "c.csv")
-    one_line_error(res, f"--points {points}", "at least 2")
+    one_line_error(res, f"--points {points}", "from 2 (both ends of the range)")
     assert list(tmp_path.iterdir()) == []
 
 
