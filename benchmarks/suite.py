@@ -453,8 +453,14 @@ def run_experiment_cli(exp: Path, out: Path, executor: str | None) -> dict:
     if done.returncode != 0:
         last = (done.stderr.strip().splitlines() or ["no output"])[-1]
         raise RuntimeError(last)
+    # the run is the suite's own: the model it names (an FMU, say) is the one it ran
+    from evo_door.files import open_h5
+    from evo_door.files.metadata import read_attrs
+
+    with open_h5(out) as f:
+        model = str(read_attrs(f).get("model", ""))
     shown = subprocess.run(
-        [sys.executable, "-m", "evo_door", "show", str(out), "--json"],
+        [sys.executable, "-m", "evo_door", "show", str(out), "--json", "--allow-model", model],
         capture_output=True,
         text=True,
         env=env,

@@ -50,10 +50,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     try:
-        if getattr(args, "allow_model", None):
-            from evo_door.commands._common import allow_models
+        for spec in getattr(args, "allow_model", None) or []:  # --allow-model (reading)
+            from evo_door.errors import plain_text
+            from evo_door.models import allow_model
 
-            allow_models(args)
+            allow_model(plain_text(spec, "--allow-model"))
         return int(args.func(args) or 0)
     except UserError as exc:
         print(error_line(exc), file=sys.stderr)

@@ -76,15 +76,6 @@ def add_allow_model(p) -> None:
     )
 
 
-def allow_models(args) -> None:
-    """Trust the models ``--allow-model`` names (:func:`evo_door.models.allow_model`)."""
-    from evo_door.errors import plain_text
-    from evo_door.models.base import allow_model
-
-    for spec in getattr(args, "allow_model", None) or []:
-        allow_model(plain_text(spec, "--allow-model"))
-
-
 def model_name(args) -> str:
     """``args.model`` with ``--channels`` added to an FMU's name (``x.fmu?force=F``)."""
     channels = getattr(args, "channels", None) or []

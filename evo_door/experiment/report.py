@@ -146,6 +146,8 @@ def _made_by(v: dict, seconds: float) -> str:
 
 # -- one run -----------------------------------------------------------------------------
 def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
+    # long: a run's section in the order a reader meets it (fit, errors, the feel's
+    # check, the front, the specification and its yield, identifiability)
     label = res.stage or res.attrs.get("name", "run")
     key = res.stage or "run"
     page.h(2, f"{'Stage ' if res.stage else 'Run '}{label}", f"stage-{key}")
