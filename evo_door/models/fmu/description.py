@@ -152,6 +152,39 @@ def is_fmu_spec(spec) -> bool:
     return text.lower().endswith(".fmu") or (bool(sep) and head.lower().endswith(".fmu"))
 
 
+#: the most an FMU may unpack to (its binaries, sources and resources; a real one is a
+#: few MiB): checked on the archive's own table before anything is extracted
+MAX_UNPACKED = 512 * 2**20
+#: the most its model description may be (read into memory whole)
+MAX_DESCRIPTION = 16 * 2**20
+
+
+def _check_archive(archive: zipfile.ZipFile, shown: str) -> None:
+    """An FMU's archive before anything is read or extracted from it: its entries stay
+    inside the folder it unpacks to (no absolute path, no ``..``), and they unpack to at
+    most :data:`MAX_UNPACKED` bytes (a zip bomb of a megabyte can claim gigabytes)."""
+    total = 0
+    for info in archive.infolist():
+        name = info.filename.replace("\\", "/")
+        parts = name.split("/")
+        if name.startswith("/") or ".." in parts or (len(name) > 1 and name[1] == ":"):
+            raise UserError(
+                f"FMU {shown}: its entry {info.filename!r} would unpack outside its folder; "
+                "refused (a damaged or hostile archive)"
+            )
+        if name == "modelDescription.xml" and info.file_size > MAX_DESCRIPTION:
+            raise UserError(
+                f"FMU {shown}: its modelDescription.xml is {info.file_size / 2**20:.0f} MiB, "
+                f"more than {MAX_DESCRIPTION // 2**20} MiB; refused"
+            )
+        total += info.file_size
+        if total > MAX_UNPACKED:
+            raise UserError(
+                f"FMU {shown}: it unpacks to more than {MAX_UNPACKED // 2**20} MiB; refused "
+                "before extracting (an FMU is a few MiB: a damaged or hostile archive)"
+            )
+
+
 def read_info(path: Path, interface: str | None = None, mapping=None) -> FmuInfo:
     """Read and check the FMU at ``path``; every defect is one :class:`UserError` line."""
     from fmpy import platform as fmi2_platform
@@ -163,6 +196,7 @@ def read_info(path: Path, interface: str | None = None, mapping=None) -> FmuInfo
     if not zipfile.is_zipfile(path):
         raise UserError(f"FMU {shown} is not an FMU: not a zip archive")
     with zipfile.ZipFile(path) as archive:
+        _check_archive(archive, shown)
         names = archive.namelist()
         if "modelDescription.xml" not in names:
             raise UserError(f"FMU {shown} has no modelDescription.xml")
