@@ -18,30 +18,9 @@ import h5py
 import numpy as np
 import pytest
 
+from tests.tiny_run import EXPERIMENT, cli
+
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "experiments" / "data" / "default.h5"
-
-EXPERIMENT = f"""\
-name: tiny
-model: door
-params: default
-target: {{data: {DATA}, kinds: [impulse]}}
-free: {{F_atD: [5.0, 70.0]}}
-objective: {{kind: ise, derivative: 1}}
-algorithm: {{population: 6, generations: 1, seed: 1}}
-"""
-
-
-def _cli(*args, cwd):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    return subprocess.run(
-        [sys.executable, "-m", "evo_door", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=300,
-    )
 
 
 def _one_line(done) -> str:
@@ -72,23 +51,23 @@ def test_a_derived_output_never_replaces_a_data_file(measured, tmp_path, command
     force = tmp_path / "force.csv"
     force.write_text("t,force\n0,0\n0.1,1\n0.2,0\n")
     args = [a.format(out=path, force=force) for a in command]
-    err = _one_line(_cli(*args, cwd=tmp_path))
+    err = _one_line(cli(*args, cwd=tmp_path))
     assert "data file" in err and str(path.name) in err
     assert path.read_bytes() == before
     # another name works, and a derived file of its own is replaced as before
     other = [a.format(out=tmp_path / "table.out", force=force) for a in command]
     for _ in range(2):
-        done = _cli(*other, cwd=tmp_path)
+        done = cli(*other, cwd=tmp_path)
         assert done.returncode == 0, done.stderr
 
 
 @pytest.mark.slow
 def test_export_spec_never_replaces_a_results_file(tmp_path):
     (tmp_path / "exp.yaml").write_text(EXPERIMENT)
-    assert _cli("run", "exp.yaml", "--out", "a.h5", "--quiet", cwd=tmp_path).returncode == 0
-    assert _cli("run", "exp.yaml", "--out", "b.h5", "--quiet", cwd=tmp_path).returncode == 0
+    assert cli("run", "exp.yaml", "--out", "a.h5", "--quiet", cwd=tmp_path).returncode == 0
+    assert cli("run", "exp.yaml", "--out", "b.h5", "--quiet", cwd=tmp_path).returncode == 0
     before = (tmp_path / "b.h5").read_bytes()
-    err = _one_line(_cli("export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
+    err = _one_line(cli("export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
     assert "data file" in err
     assert (tmp_path / "b.h5").read_bytes() == before
 
@@ -98,7 +77,7 @@ def test_a_lock_file_is_never_written_through_a_link(tmp_path):
     precious.write_text("a user's notes\n")
     (tmp_path / ".R.h5.lock").symlink_to(precious)
     (tmp_path / "exp.yaml").write_text(EXPERIMENT)
-    err = _one_line(_cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path))
+    err = _one_line(cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path))
     assert "symbolic link" in err
     assert precious.read_text() == "a user's notes\n"
     assert not (tmp_path / "R.h5").exists()
@@ -230,6 +209,6 @@ def test_run_cleans_its_own_stale_temporary_files(tmp_path):
     stale.write_bytes(b"half a file")
     live = tmp_path / f".R.h5.tmp-{os.getpid()}-0"
     live.write_bytes(b"being written")
-    done = _cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path)
+    done = cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert not stale.exists() and live.exists()

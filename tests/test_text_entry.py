@@ -8,10 +8,8 @@ exited 1 with UnicodeEncodeError and wrote no log: a whole session lost to one m
 
 from __future__ import annotations
 
-import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -21,6 +19,7 @@ import pytest
 
 from evo_door.cli import main
 from evo_door.errors import UserError, plain_text
+from evo_door.render.control import request
 from evo_door.render.messages import BadMessage, parse_message
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,18 +69,6 @@ def test_a_surrogate_token_or_participant_on_the_command_line_is_one_line(capsys
     assert "--participant person:ID: not Unicode text" in _one_line(capsys.readouterr().err)
 
 
-def _ask(port: int, line: str) -> dict:
-    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
-        sock.sendall(line.encode() + b"\n")
-        data = b""
-        while not data.endswith(b"\n"):
-            chunk = sock.recv(65536)
-            if not chunk:
-                break
-            data += chunk
-    return json.loads(data)
-
-
 def test_a_surrogate_event_and_token_leave_the_session_and_its_log_whole(tmp_path):
     """Over real TCP to a running ``render --control``: the participant-id surrogate is
     refused with the reason, so is the token surrogate (the server thread lives on and
@@ -104,16 +91,17 @@ def test_a_surrogate_event_and_token_leave_the_session_and_its_log_whole(tmp_pat
         assert line.startswith("control port "), (line, proc.stderr.read() if not line else "")
         port = int(line.split()[2].rpartition(":")[2])
         for _ in range(200):  # until the loop has run its first cycles
-            if "theta" in _ask(port, json.dumps({"token": TOKEN, "get": "state"})):
+            if "theta" in request("127.0.0.1", port, {"token": TOKEN, "get": "state"}):
                 break
             time.sleep(0.05)
-        bad = '{"token": "' + TOKEN + '", "event": {"kind": "participant", "id": ' + SURROGATE
-        answer = _ask(port, bad + "}}")
+        # (json.dumps writes a lone surrogate as the escape \ud800, as a client would)
+        bad = {"token": TOKEN, "event": {"kind": "participant", "id": "\ud800"}}
+        answer = request("127.0.0.1", port, bad)
         assert answer["ok"] is False and "not Unicode text" in answer["error"]
-        answer = _ask(port, '{"token": ' + SURROGATE + ', "get": "params"}')
+        answer = request("127.0.0.1", port, {"token": "\ud800", "get": "params"})
         assert answer["ok"] is False and "not Unicode text" in answer["error"]
         good = {"token": TOKEN, "event": {"kind": "participant", "id": "Zoë"}}
-        assert _ask(port, json.dumps(good))["ok"] is True  # the server still answers
+        assert request("127.0.0.1", port, good)["ok"] is True  # the server still answers
     finally:
         proc.send_signal(signal.SIGINT)
         try:

@@ -10,10 +10,7 @@ in the current folder): a results file someone mailed you could run anything.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -23,19 +20,9 @@ from evo_door.errors import UserError
 from evo_door.experiment import load_experiment, run_experiment
 from evo_door.files.metadata import encode_attr
 from evo_door.models import allow_model, is_code_spec, model_in_file
+from tests.tiny_run import EXPERIMENT, cli
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "experiments" / "data" / "default.h5"
-
-EXPERIMENT = f"""\
-name: tiny
-model: door
-params: default
-target: {{data: {DATA}, kinds: [impulse]}}
-free: {{F_atD: [5.0, 70.0]}}
-objective: {{kind: ise, derivative: 1}}
-algorithm: {{population: 6, generations: 1, seed: 1}}
-"""
 
 #: a "model" that, once imported, leaves a mark: the proof that reading ran it
 EVIL = """\
@@ -64,18 +51,6 @@ def hostile(tmp_path_factory):
     return folder, shown
 
 
-def _cli(*args, cwd):
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
-    return subprocess.run(
-        [sys.executable, "-m", "evo_door", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=300,
-    )
-
-
 @pytest.mark.parametrize("which", ["file", "module"])
 def test_every_reading_command_refuses_a_file_naming_code_without_running_it(hostile, which):
     folder, shown = hostile
@@ -89,14 +64,14 @@ def test_every_reading_command_refuses_a_file_naming_code_without_running_it(hos
         ("resume", path),
     ]
     for args in commands:
-        done = _cli(*args, cwd=folder)
+        done = cli(*args, cwd=folder)
         assert done.returncode == 2, (args, done.stdout, done.stderr)
         err = done.stderr
         assert err.count("\n") == 1 and err.startswith("evo-door: error:"), (args, err)
         assert "names model" in err and "--allow-model" in err, (args, err)
         assert not (folder / "ran.txt").exists(), args
     # a folder of them: each one listed as unreadable, with the reason, none run
-    listed = _cli("runs", shown, "--json", cwd=folder)
+    listed = cli("runs", shown, "--json", cwd=folder)
     assert listed.returncode == 0, listed.stderr
     rows = {r["file"]: r for r in json.loads(listed.stdout)}
     assert rows[path.name]["status"] == "unreadable"
@@ -107,7 +82,7 @@ def test_every_reading_command_refuses_a_file_naming_code_without_running_it(hos
 def test_allow_model_runs_the_named_model_for_a_file_the_user_trusts(hostile):
     folder, shown = hostile
     spec = f"{folder / 'evil.py'}:MODEL"
-    done = _cli("show", shown / "file.h5", "--allow-model", spec, cwd=folder)
+    done = cli("show", shown / "file.h5", "--allow-model", spec, cwd=folder)
     assert (folder / "ran.txt").exists(), done.stderr  # the user said so: it ran
     (folder / "ran.txt").unlink()
 
