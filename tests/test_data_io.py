@@ -10,7 +10,7 @@ import pytest
 from evo_door.cli import main
 from evo_door.data import Trial, read_trial, read_trials, write_trials
 from evo_door.errors import UserError
-from evo_door.files import h5tree
+from evo_door.files import h5tree, reseal
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
 
@@ -99,6 +99,7 @@ def test_hdf5_dataset_in_other_units_is_converted(tmp_path):
         del f["trials/A/theta"]
         f["trials/A/theta"] = np.degrees(theta)
         f["trials/A/theta"].attrs["unit"] = "deg"
+        reseal(f)  # as written so (its checksums right)
     np.testing.assert_allclose(read_trial(path).theta, theta, rtol=1e-14)
 
 
@@ -284,6 +285,7 @@ def test_bad_hdf5_trial_names_group_channel_row(tmp_path, capsys):
     write_trials(src, [make_trial("A"), make_trial("B")])
     with h5py.File(src, "r+") as f:
         f["trials/B/dtheta"][7] = np.nan
+        reseal(f)  # a NaN as written (its checksums right)
     assert main(["data", "import", str(src), "--out", str(tmp_path / "out.h5")]) == 2
     err = capsys.readouterr().err
     assert "in.h5:/trials/B: channel 'dtheta'" in err and "row 7" in err

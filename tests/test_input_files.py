@@ -19,6 +19,7 @@ from evo_door.data import Trial, read_trial, read_trials, write_trials
 from evo_door.data.forcecsv import read_force, read_force_csv
 from evo_door.data.trial import STEP_TOLERANCE, check_theta0
 from evo_door.errors import UserError
+from evo_door.files import reseal
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
 from tests.test_cli import OSC, cli
@@ -404,6 +405,7 @@ def fake_run(path: Path) -> Path:
     write_trials(path, [Trial(T, FORCE, trial_id="A")])
     with h5py.File(path, "r+") as f:
         f.attrs["format"] = "evo-door run"
+        reseal(f)  # made so on purpose: its checksums right
     return path
 
 

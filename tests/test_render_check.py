@@ -20,6 +20,7 @@ import pytest
 
 from evo_door.cli import main
 from evo_door.errors import UserError
+from evo_door.files import reseal
 from evo_door.models import get_model
 from evo_door.models.haptic import CLOSED, PARAMS
 from evo_door.params import param_vector
@@ -225,6 +226,7 @@ def test_a_log_whose_time_is_not_uniform_is_refused_in_one_line(tmp_path):
     log = _model_log(tmp_path / "j.h5", [(_params("seed_trial"), _push(200))])
     with h5py.File(log, "r+") as f:  # a stamp a fifth of a step off its grid
         f["trials/render/t"][100] += 2e-4
+        reseal(f)
     with pytest.raises(UserError, match="not the uniform grid of a render log"):
         render_agreement(log)
 
@@ -234,6 +236,7 @@ def test_a_fault_row_restarts_the_simulation_after_it(tmp_path):
     log = _model_log(tmp_path / "f.h5", [(seed, _push(2000))])
     with h5py.File(log, "r+") as f:
         f["trials/render/theta"][800] = np.nan
+        reseal(f)
     a = render_agreement(log)
     assert a.starts == [0.0, 0.801] and np.isnan(a.theta_sim[800])
     assert a.errors()["samples"] == 1999

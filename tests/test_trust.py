@@ -18,6 +18,7 @@ import pytest
 
 from evo_door.errors import UserError
 from evo_door.experiment import load_experiment, run_experiment
+from evo_door.files import reseal
 from evo_door.files.metadata import encode_attr
 from evo_door.models import allow_model, is_code_spec, model_in_file
 from tests.tiny_run import EXPERIMENT, cli
@@ -48,6 +49,7 @@ def hostile(tmp_path_factory):
         shutil.copy(run.path, path)
         with h5py.File(path, "r+") as f:
             f.attrs["model"] = encode_attr(spec)
+            reseal(f)  # a hostile sender writes the checksums right
     return folder, shown
 
 

@@ -165,7 +165,16 @@ def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
         meta_fields.update({k: v for k, v in (fields or {}).items() if v is not None})
         # the file's own channels only: no foreign-column guessing, no import record
         own = {k: c for k, c in columns.items() if k in UNITS}
-        out.append(trial_from_columns(own, where, mapping, rate, meta_fields, record_import=False))
+        tr = trial_from_columns(own, where, mapping, rate, meta_fields, record_import=False)
+        stored = attrs.get("data_digest")
+        as_stored = (
+            mapping is None
+            and rate is None
+            and all(c.unit in (None, UNITS[k]) for k, c in own.items())
+        )
+        if stored is not None and as_stored and tr.digest() != stored:
+            raise UserError(f"{where}: damaged: its signals do not match their checksum")
+        out.append(tr)
     return out
 
 
@@ -250,7 +259,7 @@ def trial_tree(tr: Trial) -> dict:
     for key in ("theta0", "dtheta0"):
         if getattr(tr, key) is not None:
             attrs[key] = float(getattr(tr, key))
-    attrs.update(source=tr.source, sensors=tr.sensors, meta=tr.meta)
+    attrs.update(source=tr.source, sensors=tr.sensors, meta=tr.meta, data_digest=tr.digest())
     node = {ATTRS: attrs}
     for name in ("t", "force", *RESPONSE_CHANNELS):
         values = getattr(tr, name)

@@ -176,6 +176,19 @@ class Trial:
         self._make_time_uniform()
         self.validate()
 
+    def digest(self) -> str:
+        """A checksum of the trial's signals (BLAKE2b of their float64 bytes): stored
+        beside them in trial, results and log files, and checked when they are read
+        back, so that a copy is known to hold the numbers of its source."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=16)
+        for name in ("t", "force", *RESPONSE_CHANNELS):
+            value = getattr(self, name)
+            if value is not None:
+                h.update(name.encode() + b"\0" + value.tobytes())
+        return "blake2b:" + h.hexdigest()
+
     def _make_time_uniform(self) -> None:
         """Rounded time stamps (within :data:`STEP_TOLERANCE`) onto the exact grid, noted."""
         t = self.t

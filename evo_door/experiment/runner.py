@@ -237,11 +237,19 @@ class ExperimentRun:
         """Rebuild a run from its results tree (a file's root, or a pipeline stage's group)."""
         config = json.loads(tree["experiment"]["resolved"])
         algorithm = AlgorithmSpec.from_resolved(config["algorithm"])
+        setup = store.setup_from_tree(tree)
+        # the stored sizes, before anything of their size is allocated (a file is data)
+        try:
+            check_memory(algorithm, len(setup.free))
+        except UserError as exc:
+            raise UserError(f"{path}: {exc}") from None
+        except (TypeError, ValueError):
+            raise UserError(f"{path}: damaged results file: its algorithm settings") from None
         root = tree[ATTRS]
         run = cls(
             config,
             algorithm,
-            store.setup_from_tree(tree),
+            setup,
             path,
             {
                 "text": tree["experiment"]["text"],

@@ -346,8 +346,10 @@ def trials_tree(setup) -> dict:
     out = {}
     for role, trials in (("fit", setup.fit), ("validate", setup.validation)):
         for k, tr in enumerate(trials):
+            fields = {name: getattr(tr, name) for name in _TRIAL_FIELDS}
+            # the trial's checksum: its source file's own where the trial is as read there
             node = {
-                ATTRS: {"role": role, **{name: getattr(tr, name) for name in _TRIAL_FIELDS}},
+                ATTRS: {"role": role, **fields, "data_digest": tr.digest()},
                 "t": tr.t,
                 "force": tr.force,
             }
@@ -363,7 +365,11 @@ def trial_from_tree(node: dict) -> Trial:
     for ch in RESPONSE_CHANNELS:
         if ch in node:
             kwargs[ch] = np.array(node[ch])
-    return Trial(np.array(node["t"]), np.array(node["force"]), **kwargs)
+    tr = Trial(np.array(node["t"]), np.array(node["force"]), **kwargs)
+    stored = a.get("data_digest")
+    if stored is not None and tr.digest() != stored:
+        raise UserError(f"trial {tr.trial_id!r}: damaged: its signals do not match their checksum")
+    return tr
 
 
 def _stored_base(attrs: dict, base: np.ndarray) -> np.ndarray:

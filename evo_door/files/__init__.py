@@ -35,6 +35,7 @@ One module per question, all imported here (``from evo_door.files import ...``):
 - :mod:`~evo_door.files.locks`: who owns this file while a run writes it?
 - :mod:`~evo_door.files.metadata`: how is metadata (attributes) stored in HDF5?
 - :mod:`~evo_door.files.h5tree`: how is a nested dict written to and read from HDF5?
+- :mod:`~evo_door.files.integrity`: is this HDF5 file as evo-door wrote it? (checksums)
 """
 
 from evo_door.files.atomic import (
@@ -48,6 +49,7 @@ from evo_door.files.atomic import (
 )
 from evo_door.files.claims import DERIVED, TRIALS, Claim, Output, claim_outputs, same_file
 from evo_door.files.h5tree import Dataset, Keep, h5py, open_h5, read_group, write_group, write_h5
+from evo_door.files.integrity import DamagedFile, reseal, seal, verify
 from evo_door.files.locks import FileLock
 from evo_door.files.metadata import (
     ATTRS,
@@ -68,6 +70,7 @@ __all__ = [
     "JSON_PREFIX",
     "TRIALS",
     "Claim",
+    "DamagedFile",
     "Dataset",
     "FileLock",
     "Keep",
@@ -85,11 +88,14 @@ __all__ = [
     "read_attrs",
     "read_group",
     "read_text",
+    "reseal",
     "remove_stale_temporaries",
     "same_file",
     "save_figure",
+    "seal",
     "to_json",
     "tree_attrs",
+    "verify",
     "write_attrs",
     "write_group",
     "write_h5",

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.files.atomic import atomic_write
+from evo_door.files.integrity import seal, verify
 from evo_door.files.metadata import ATTRS, read_attrs, write_attrs
 
 
@@ -126,28 +127,50 @@ def write_h5(
                 for name, placeholder in keep:
                     parent, _, key = name.rpartition("/")
                     target = f[parent or "/"]
-                    if old is not None and name in old:
-                        old.copy(old[name], target, name=key)
-                    else:
-                        write_group(
-                            target.create_group(key, track_order=True),
-                            placeholder.build(),
-                            compression,
-                            compress_above,
-                        )
+                    if old is not None and _copied(old, name, target, key):
+                        continue
+                    write_group(
+                        target.create_group(key, track_order=True),
+                        placeholder.build(),
+                        compression,
+                        compress_above,
+                    )
             finally:
                 if old is not None:
                     old.close()
+            seal(f)
+
+
+def _copied(old, name: str, target, key: str) -> bool:
+    """Copy ``old[name]`` into ``target`` as ``key``; False (nothing left behind) where
+    the old file lacks it or HDF5 cannot copy it (damage a read does not meet): the
+    caller then builds the group from what it holds in memory."""
+    try:
+        if name not in old:
+            return False
+        old.copy(old[name], target, name=key)
+        return True
+    except Exception:  # noqa: BLE001 - whatever HDF5 raises on a damaged object
+        if key in target:
+            del target[key]
+        return False
 
 
 def open_h5(path, what: str = "HDF5 file"):
-    """Open an HDF5 file for reading, or raise a one-line error naming it."""
+    """Open an HDF5 file for reading, its checksums checked
+    (:func:`evo_door.files.integrity.verify`), or raise a one-line error naming it."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: {what} not found")
     if path.stat().st_size == 0:
         raise UserError(f"{path}: empty file")
     try:
-        return h5py().File(path, "r")
+        f = h5py().File(path, "r")
     except OSError as exc:
         raise UserError(f"{path}: not a readable HDF5 file ({exc})") from None
+    try:
+        verify(f, path)
+    except BaseException:
+        f.close()
+        raise
+    return f

@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 
 ATTRS = "@attrs"
+#: the attribute holding a group's checksum (:mod:`evo_door.files.integrity`), not metadata
+DIGEST = "_digest"
 JSON_PREFIX = "json:"
 #: flag attribute of the encoding used before this module (trial files, format 1)
 _LEGACY_JSON_FLAG = ".__json__"
@@ -90,7 +92,7 @@ def read_attrs(obj) -> dict:
     raw = obj.attrs
     out = {}
     for name, value in raw.items():
-        if name.endswith(_LEGACY_JSON_FLAG):
+        if name.endswith(_LEGACY_JSON_FLAG) or name == DIGEST:
             continue
         if name + _LEGACY_JSON_FLAG in raw:
             out[name] = json.loads(decode_attr(value))

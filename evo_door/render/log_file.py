@@ -88,7 +88,7 @@ def write_log(
     of the parameter sets ``param_sets`` in force from ``param_times`` (s); ``events``
     the log's (the session record is gathered from them)."""
     from evo_door.data.h5io import FORMAT, FORMAT_VERSION, trial_tree
-    from evo_door.files import atomic_write, h5py, write_group
+    from evo_door.files import atomic_write, h5py, seal, write_group
 
     chunks = iter(chunks)
     lead: list[np.ndarray] = []  # the chunks up to the second row
@@ -98,6 +98,7 @@ def write_log(
     tr = trial_of(two, rate, device)  # the trial's attributes (and the two-row minimum)
     trial = trial_tree(tr)
     trial[ATTRS]["n_samples"] = n
+    del trial[ATTRS]["data_digest"]  # of the two rows only: the file's checksums cover all
     channels = {name: trial.pop(name).attrs for name in ("t", "force", "theta", "dtheta")}
     render = {
         ATTRS: {
@@ -138,6 +139,7 @@ def write_log(
         if k != n:
             raise UserError(f"render log: {k} rows to write, expected {n}")
         f["render/t"] = f["trials/render/t"]  # the same times: one dataset, two names
+        seal(f)
 
 
 def _row_datasets(f, n: int, channels: dict) -> list:

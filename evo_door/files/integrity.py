@@ -1,0 +1,197 @@
+"""Checksums of HDF5 files: every group carries a digest of its content, checked on read.
+
+A file evo-door writes is *sealed* (:func:`seal`) before it is renamed into place: each
+group gets an attribute ``_digest``, a BLAKE2b digest of its attributes, the names of
+its members, and the type, shape and bytes of each of its datasets (with their
+attributes). A subgroup is covered by its own digest; its parent's covers its name, so
+that a group that disappears or is renamed is noticed too. Groups copied unchanged from
+the file being replaced (:class:`~evo_door.files.h5tree.Keep`) keep the digest they were
+sealed with, so a damaged copy is still noticed.
+
+:func:`verify` reads a whole file once and checks every digest, before any of its values
+is used: a flipped bit in a value, an attribute or a name is one line that names the
+object; damage to HDF5's own structures is one line too. It also bounds what a file may
+make a reader allocate (:data:`MAX_DATASET_BYTES`, :data:`MAX_FILE_BYTES`) and refuses
+links to other files. Files written before checksums existed have none anywhere and are
+read as they are; a file with some digests but not all is damaged.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+from evo_door.errors import UserError
+from evo_door.files.metadata import DIGEST
+
+#: how a digest is written: the algorithm, then the hex digest
+_PREFIX = "blake2b:"
+#: the largest dataset a file may hold, in bytes once read (512 MiB: a render log of
+#: hours holds a few tens of MiB per column, results files a few MiB in all)
+MAX_DATASET_BYTES = 512 * 2**20
+#: the most a file may make a reader read in all, in bytes (1 GiB)
+MAX_FILE_BYTES = 2**30
+#: bytes hashed at a time, so that checking a file needs little memory
+_SLICE_BYTES = 8 * 2**20
+
+
+class DamagedFile(UserError):
+    """An HDF5 file whose content does not match its checksums, or that HDF5 cannot read."""
+
+
+def _h5py():
+    import h5py
+
+    return h5py
+
+
+def _canon(value) -> bytes:
+    """The bytes a value is digested as: its type, then its content."""
+    import numpy as np
+
+    if isinstance(value, str):
+        return b"s" + value.encode("utf-8", "surrogatepass")
+    if isinstance(value, bytes):
+        return b"b" + value
+    if isinstance(value, np.ndarray):
+        head = f"a{value.dtype.str}{value.shape}".encode()
+        if value.dtype.kind == "O":
+            return head + b"".join(_canon(v) for v in value.ravel())
+        return head + np.ascontiguousarray(value).tobytes()
+    if isinstance(value, np.generic):
+        return f"g{value.dtype.str}".encode() + value.tobytes()
+    return b"r" + repr(value).encode()
+
+
+def _attrs_digest(h, obj) -> None:
+    attrs = obj.attrs
+    for name in sorted(attrs.keys()):
+        if name == DIGEST:
+            continue
+        h.update(b"@" + name.encode("utf-8", "surrogatepass") + b"\0")
+        h.update(_canon(attrs[name]))
+        h.update(b"\0")
+
+
+def _dataset_digest(h, ds, budget: list, path) -> None:
+    import numpy as np
+
+    nbytes = int(np.prod(ds.shape, dtype=np.float64) * ds.dtype.itemsize) if ds.shape else 0
+    if nbytes > MAX_DATASET_BYTES:
+        raise DamagedFile(
+            f"{path}: {ds.name} would take {nbytes / 2**20:.0f} MiB to read, "
+            f"more than the {MAX_DATASET_BYTES / 2**20:.0f} MiB a dataset may hold"
+        )
+    budget[0] += nbytes
+    if budget[0] > MAX_FILE_BYTES:
+        raise DamagedFile(f"{path}: would take more than {MAX_FILE_BYTES / 2**30:.0f} GiB to read")
+    h.update(f"d{ds.dtype.str}{ds.shape}".encode())
+    _attrs_digest(h, ds)
+    if ds.shape is None:  # an empty dataspace
+        return
+    try:
+        if not ds.shape or ds.dtype.kind == "O" or ds.shape[0] == 0:
+            h.update(_canon(ds[()]))
+            return
+        row = max(1, nbytes // ds.shape[0])
+        step = max(1, _SLICE_BYTES // row)
+        for i in range(0, ds.shape[0], step):
+            h.update(np.ascontiguousarray(ds[i : i + step]).tobytes())
+    except Exception as exc:  # noqa: BLE001 - whatever HDF5 raises on a damaged chunk
+        raise DamagedFile(f"{path}: corrupt HDF5 data in {ds.name} ({_first_line(exc)})") from None
+
+
+def group_digest(group, budget: list | None = None, path=None) -> str:
+    """The digest of ``group`` (see the module docstring): its attributes, its members'
+    names and kinds, and its datasets' content."""
+    h5 = _h5py()
+    budget = [0] if budget is None else budget
+    path = group.file.filename if path is None else path
+    h = hashlib.blake2b(digest_size=16)
+    _attrs_digest(h, group)
+    for name in sorted(group.keys()):
+        link = group.get(name, getlink=True)
+        if not isinstance(link, h5.HardLink):
+            raise DamagedFile(
+                f"{path}: {group.name.rstrip('/')}/{name} is a link "
+                "(evo-door files hold none; a link could read another file)"
+            )
+        item = group[name]
+        h.update(b"/" + name.encode("utf-8", "surrogatepass") + b"\0")
+        if isinstance(item, h5.Group):
+            h.update(b"g")
+        else:
+            _dataset_digest(h, item, budget, path)
+    return _PREFIX + h.hexdigest()
+
+
+def _groups(group, seen=None):
+    """``group`` and every group below it, each once."""
+    h5 = _h5py()
+    seen = set() if seen is None else seen
+    key = hash(group.id)  # the file's and the object's numbers: one per object
+    if key in seen:
+        return
+    seen.add(key)
+    yield group
+    for name in group.keys():
+        if isinstance(group.get(name, getlink=True), h5.HardLink):
+            item = group[name]
+            if isinstance(item, h5.Group):
+                yield from _groups(item, seen)
+
+
+def seal(f) -> None:
+    """Give every group of the open file ``f`` that has none its digest (the last step
+    of writing a file; groups copied from an earlier version keep theirs)."""
+    for group in list(_groups(f)):
+        if DIGEST not in group.attrs:
+            group.attrs[DIGEST] = group_digest(group)
+
+
+def reseal(f) -> None:
+    """Seal the open file ``f`` afresh, every group's digest recomputed: for a file
+    changed on purpose with h5py (tests make damaged or hostile files this way). Its
+    checksums then vouch for the changed content, so use it only on a file you trust."""
+    for group in list(_groups(f)):
+        if DIGEST in group.attrs:
+            del group.attrs[DIGEST]
+    seal(f)
+
+
+def _damaged(path, exc: Exception) -> DamagedFile:
+    return DamagedFile(f"{path}: damaged HDF5 file ({_first_line(exc)})")
+
+
+def _first_line(exc: Exception) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def verify(f, path) -> None:
+    """Check every digest of the open file ``f`` (named ``path`` in messages), or raise
+    one line (:class:`DamagedFile`) naming what does not match."""
+    budget = [0]
+    sealed, unsealed = [], []
+    try:
+        for group in _groups(f):
+            stored = group.attrs.get(DIGEST)
+            found = group_digest(group, budget, path)  # read all the same: damage shows here
+            if stored is None:
+                unsealed.append(group.name)
+                continue
+            if isinstance(stored, bytes):
+                stored = stored.decode("utf-8", "replace")
+            sealed.append(group.name)
+            if found != stored:
+                raise DamagedFile(
+                    f"{path}: damaged: {group.name} does not match its checksum "
+                    "(the file changed after evo-door wrote it)"
+                )
+    except UserError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever HDF5 or numpy raise on damage
+        raise _damaged(path, exc) from None
+    if sealed and unsealed:
+        raise DamagedFile(
+            f"{path}: damaged: {unsealed[0]} has no checksum where the rest of the file has"
+        )
