@@ -72,6 +72,17 @@ def check_memory(algorithm: AlgorithmSpec, n_free: int, available=None) -> int:
     return need
 
 
+def check_stored_memory(algorithm: AlgorithmSpec, n_free: int, path) -> int:
+    """:func:`check_memory` of a run read back from ``path``, before anything of the
+    sizes it states is allocated (a file is data: its numbers may be anything)."""
+    try:
+        return check_memory(algorithm, n_free)
+    except UserError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    except (TypeError, ValueError):
+        raise UserError(f"{path}: damaged results file: its algorithm settings") from None
+
+
 def _gib(n: float) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 

@@ -43,6 +43,7 @@ from evo_door.experiment.feel_check import try_feel_check
 from evo_door.experiment.run_preflight import (
     _LOCKED,
     check_memory,
+    check_stored_memory,
     claim_output,
     default_output,
 )
@@ -238,13 +239,7 @@ class ExperimentRun:
         config = json.loads(tree["experiment"]["resolved"])
         algorithm = AlgorithmSpec.from_resolved(config["algorithm"])
         setup = store.setup_from_tree(tree)
-        # the stored sizes, before anything of their size is allocated (a file is data)
-        try:
-            check_memory(algorithm, len(setup.free))
-        except UserError as exc:
-            raise UserError(f"{path}: {exc}") from None
-        except (TypeError, ValueError):
-            raise UserError(f"{path}: damaged results file: its algorithm settings") from None
+        check_stored_memory(algorithm, len(setup.free), path)
         root = tree[ATTRS]
         run = cls(
             config,
