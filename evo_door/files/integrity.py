@@ -63,12 +63,11 @@ def _canon(value) -> bytes:
 
 
 def _attrs_digest(h, obj) -> None:
-    attrs = obj.attrs
-    for name in sorted(attrs.keys()):
+    for name, value in sorted(obj.attrs.items(), key=lambda item: item[0]):
         if name == DIGEST:
             continue
         h.update(b"@" + name.encode("utf-8", "surrogatepass") + b"\0")
-        h.update(_canon(attrs[name]))
+        h.update(_canon(value))
         h.update(b"\0")
 
 
@@ -167,9 +166,37 @@ def _first_line(exc: Exception) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+#: files this process checked already, by device, inode, size and change times: a
+#: command that opens one file several times checks it once (a file replaced or
+#: changed since has another inode or time)
+_CHECKED: dict[tuple, None] = {}
+_CHECKED_MAX = 256
+
+
+def _identity(path) -> tuple | None:
+    import os
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
 def verify(f, path) -> None:
     """Check every digest of the open file ``f`` (named ``path`` in messages), or raise
     one line (:class:`DamagedFile`) naming what does not match."""
+    identity = _identity(path)
+    if identity is not None and identity in _CHECKED:
+        return
+    _check(f, path)
+    if identity is not None and identity == _identity(path):
+        if len(_CHECKED) >= _CHECKED_MAX:
+            _CHECKED.clear()
+        _CHECKED[identity] = None
+
+
+def _check(f, path) -> None:
     budget = [0]
     sealed, unsealed = [], []
     try:
