@@ -65,12 +65,29 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         # the file system said no (missing, read-only, full, a folder for a file...):
         # the user's to fix, whichever command met it
-        name = getattr(exc, "filename", None)
-        print(error_line(f"{name}: {exc.strerror or exc}" if name else exc), file=sys.stderr)
+        from evo_door.files.atomic import write_reason
+
+        name = getattr(exc, "filename", None) or _numba_cache(exc)
+        reason = write_reason(exc)
+        print(error_line(f"{name}: {reason}" if name else reason), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("evo-door: interrupted", file=sys.stderr)
         return 130
+
+
+def _numba_cache(exc: BaseException) -> str | None:
+    """The folder of numba's compiled-code cache if saving to it raised ``exc`` (its
+    errors name no file; a full disk there stops the first compile of a function)."""
+    tb = exc.__traceback__
+    while tb is not None:
+        frame = tb.tb_frame
+        if frame.f_globals.get("__name__") == "numba.core.caching":
+            folder = getattr(frame.f_locals.get("self"), "_cache_path", None)
+            if folder:
+                return f"{folder} (numba's cache of compiled code; NUMBA_CACHE_DIR moves it)"
+        tb = tb.tb_next
+    return None
 
 
 if __name__ == "__main__":  # pragma: no cover

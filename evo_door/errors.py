@@ -5,6 +5,8 @@ any layer that reports a user error in its own output (a batch's summary table) 
 it exactly as the command line does, without importing the command line.
 """
 
+from __future__ import annotations
+
 
 class UserError(Exception):
     """Bad input from the user (file, option, parameter value...).
@@ -45,6 +47,26 @@ class NotResultsFileError(UserError):
     A folder listing (``evo-door runs``) skips such files by this type, where a damaged
     results file gets a row that says so.
     """
+
+
+class WriteError(UserError):
+    """The file system refused to write ``path`` (full, read-only, no permission...).
+
+    ``reason`` is what it said, in a few words ("no space left on device"); ``left``
+    what is on the disk after it, from the writer's point of view: by default "nothing
+    was written" (the target, if any, is as it was), or what a caller that knows more
+    says through :meth:`leaving` (a run: its last checkpoint, kept to resume from).
+    """
+
+    def __init__(self, path, reason: str, left: str = "nothing was written"):
+        self.path = path
+        self.reason = reason
+        self.left = left
+        super().__init__(f"{path}: cannot write ({reason}); {left}")
+
+    def leaving(self, left: str) -> WriteError:
+        """The same failure, with what is left said otherwise."""
+        return WriteError(self.path, self.reason, left)
 
 
 class MissingChannelError(UserError):

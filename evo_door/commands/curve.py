@@ -20,7 +20,7 @@ from evo_door.commands._common import (
     add_params_arguments,
     model_and_params,
 )
-from evo_door.errors import UserError
+from evo_door.errors import UserError, WriteError
 
 ORDER = 30
 #: Least width (deg) of the panel next to closed in the plot.
@@ -116,13 +116,18 @@ def run(args) -> int:
         print(f"  {line}")
     if args.plot:
         zoom = zoom_near_closed(curve, model.theta_range[1]) if model.theta_unit == "rad" else None
-        plot_curve(
-            curve,
-            args.plot,
-            title=f"{model.title}: force-angle curve\n{describe(curve, model.theta_unit)}",
-            zoom=zoom,
-            unit=model.theta_unit,
-        )
+        try:
+            plot_curve(
+                curve,
+                args.plot,
+                title=f"{model.title}: force-angle curve\n{describe(curve, model.theta_unit)}",
+                zoom=zoom,
+                unit=model.theta_unit,
+            )
+        except WriteError as exc:  # a full disk: the table is whole, and stays
+            raise exc.leaving(
+                f"nothing was written to it; {args.out}, written before, is kept"
+            ) from None
         print(f"wrote {args.plot}")
     claim.note()
     return 0

@@ -64,7 +64,7 @@ def run(args) -> int:
     from evo_door.experiment.pipeline import pipeline_summary
     from evo_door.experiment.reader import read_results
     from evo_door.experiment.report import default_folder, pipeline_settings, write_report
-    from evo_door.files import Output, claim_outputs
+    from evo_door.files import Output, claim_outputs, partial_output
     from evo_door.perception.jnd_file import is_jnd_file
 
     try:
@@ -85,7 +85,8 @@ def run(args) -> int:
     settings = pipeline_settings(
         record, pipeline_summary(record), args.jnd, args.force_floor, args.jnd_file
     )
-    page = write_report(record, args.out, settings, log)
+    with partial_output(folder):  # a full disk: no half report left behind
+        page = write_report(record, args.out, settings, log)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
     claim.note()
     return 0
@@ -97,7 +98,7 @@ def _report_jnd(args) -> int:
 
     from evo_door.errors import UserError
     from evo_door.experiment.report_jnd import default_jnd_folder, write_jnd_report
-    from evo_door.files import Output, claim_outputs
+    from evo_door.files import Output, claim_outputs, partial_output
     from evo_door.perception.jnd_file import read_jnd_file
 
     if args.jnd is not None or args.force_floor is not None:
@@ -106,7 +107,8 @@ def _report_jnd(args) -> int:
         )
     folder = Path(args.out) if args.out else default_jnd_folder(args.results)
     claim = claim_outputs([Output(folder / "report.html", makes_folder=True)], [args.results])
-    page = write_jnd_report(read_jnd_file(args.results), folder)
+    with partial_output(folder):
+        page = write_jnd_report(read_jnd_file(args.results), folder)
     print(f"wrote {page} (and its figures as PNG in {page.parent})")
     claim.note()
     return 0

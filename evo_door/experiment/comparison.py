@@ -37,12 +37,13 @@ from datetime import datetime
 from pathlib import Path
 
 from evo_door.channels import RESPONSE_CHANNELS
-from evo_door.errors import MissingChannelError, UserError
+from evo_door.errors import MissingChannelError, UserError, WriteError
 from evo_door.experiment.config import Experiment, load_experiment
 from evo_door.experiment.format_json import flatten
 from evo_door.experiment.objectives import DERIVATIVES, KINDS
 from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun
+from evo_door.files import folder_reason
 from evo_door.params.declaration import suggest
 
 
@@ -196,7 +197,7 @@ def _check_folder(folder: Path) -> None:
     if not existing.is_dir():
         raise UserError(f"{folder}: {existing} is a file, not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
-        raise UserError(f"{folder}: cannot write in {existing}")
+        raise WriteError(folder, folder_reason(existing))
 
 
 def _provenance(key: str) -> bool:

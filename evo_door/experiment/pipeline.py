@@ -38,6 +38,7 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
+from evo_door.experiment.checkpoint import stage_position, write_checkpoint
 from evo_door.experiment.config import (
     Experiment,
     _safe_name,
@@ -48,7 +49,7 @@ from evo_door.experiment.config_reader import _Reader, _resolve_path, executor_s
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
 from evo_door.experiment.runner import ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
-from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries, write_h5
+from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries
 from evo_door.params.declaration import suggest
 
 PIPELINE_KEYS = (
@@ -332,6 +333,7 @@ class PipelineRun:
         #: the executor of every stage (``--executor``, the file's ``executor``), or
         #: None: each stage's own
         self.executor: str | None = pipeline.executor
+        self.on_disk: str | None = None  # where the file's last checkpoint stands, if any
 
     @property
     def stage_names(self) -> list[str]:
@@ -384,6 +386,7 @@ class PipelineRun:
             if len(run.done) == len(pipeline.stages) and attrs.get("status") == "complete":
                 run.status = "complete"
             run._lock = lock
+            run.on_disk = stage_position(run.stage_names, run.done, run.current)
             remove_stale_temporaries(path)
         except BaseException:
             lock.release()
@@ -480,7 +483,7 @@ class PipelineRun:
         stages = {name: Keep(_must_exist) for name in self.done if name not in trees}
         stages.update(trees)
         current = next(iter(trees), None)
-        write_h5(
+        write_checkpoint(
             self.path,
             {
                 ATTRS: {
@@ -509,9 +512,9 @@ class PipelineRun:
                 "versions": {ATTRS: dict(self.versions)},
                 "stages": stages,
             },
-            compression=store.COMPRESSION,
-            make_folder=True,
+            self.on_disk,
         )
+        self.on_disk = stage_position(self.stage_names, self.done, self.current)
 
 
 def _must_exist():

@@ -13,10 +13,10 @@ import os
 from datetime import datetime
 from pathlib import Path
 
-from evo_door.errors import UserError
+from evo_door.errors import UserError, WriteError
 from evo_door.experiment import store
 from evo_door.experiment.config_algorithm import AlgorithmSpec
-from evo_door.files import ATTRS, FileLock, remove_stale_temporaries
+from evo_door.files import ATTRS, FileLock, remove_stale_temporaries, write_reason
 
 #: what a locked results file says to another process
 _LOCKED = "a run is writing it"
@@ -112,8 +112,15 @@ def claim_output(path: Path, overwrite: bool, start):
     if path.suffix.lower() not in (".h5", ".hdf5"):
         raise UserError(f"{path}: results files are HDF5, name them .h5")
     made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]  # deepest first
-    path.parent.mkdir(parents=True, exist_ok=True)
-    lock = FileLock(path).acquire(_LOCKED)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(path).acquire(_LOCKED)
+    except OSError as exc:  # a read-only or full file system
+        _remove_empty(made)
+        raise WriteError(path, write_reason(exc) or str(exc)) from None
+    except BaseException:
+        _remove_empty(made)
+        raise
     try:
         if path.exists():
             _refuse_to_replace(path, overwrite)
@@ -123,12 +130,18 @@ def claim_output(path: Path, overwrite: bool, start):
         return start(path, lock)
     except BaseException:
         lock.release()
-        for folder in made:
-            try:
-                folder.rmdir()
-            except OSError:
-                break
+        _remove_empty(made)
         raise
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove ``folders`` (deepest first), each only if empty: never what someone else
+    put there."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            break
 
 
 def default_output(exp) -> Path:

@@ -38,6 +38,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.answer_checks import identifiability_of, integration_error_of
+from evo_door.experiment.checkpoint import position, write_checkpoint
 from evo_door.experiment.config import AlgorithmSpec
 from evo_door.experiment.feel_check import try_feel_check
 from evo_door.experiment.run_preflight import (
@@ -48,7 +49,7 @@ from evo_door.experiment.run_preflight import (
     default_output,
 )
 from evo_door.experiment.setup import Setup, users_trials
-from evo_door.files import ATTRS, FileLock, remove_stale_temporaries, write_h5
+from evo_door.files import ATTRS, FileLock, remove_stale_temporaries
 from evo_door.optim.bounds import bound_hits
 from evo_door.optim.executors import DEFAULT as DEFAULT_EXECUTOR
 from evo_door.optim.executors import Executor, check_executor, open_executor
@@ -172,6 +173,7 @@ class ExperimentRun:
         #: where the GA's evaluations run (an executor's name); provenance only
         self.executor = DEFAULT_EXECUTOR
         self._ex: Executor | None = None
+        self.on_disk: str | None = None  # where the file's last checkpoint stands, if any
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -291,6 +293,7 @@ class ExperimentRun:
         )
         run._trials_on_disk = True
         run.executor = str(root.get("executor", DEFAULT_EXECUTOR))
+        run.on_disk = position(run.jobs)
         return run
 
     # -- running -----------------------------------------------------------------------
@@ -585,12 +588,13 @@ class ExperimentRun:
         return self.elapsed_before + (time.perf_counter() - self._t0)
 
     def checkpoint(self) -> None:
-        """Write the whole run to its results file (atomically), or hand it to
-        :attr:`writer`."""
+        """Write the whole run to its results file (atomically; refused: the last
+        checkpoint is kept, :mod:`.checkpoint`), or hand it to :attr:`writer`."""
         tree = store.run_tree(self, self._trials_on_disk)
         tree[ATTRS]["executor"] = self.executor
         if self.writer is not None:
             self.writer(tree)
         else:
-            write_h5(self.path, tree, compression=store.COMPRESSION, make_folder=True)
+            write_checkpoint(self.path, tree, self.on_disk)
         self._trials_on_disk = True
+        self.on_disk = position(self.jobs)

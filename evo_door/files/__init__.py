@@ -39,16 +39,30 @@ One module per question, all imported here (``from evo_door.files import ...``):
 """
 
 from evo_door.files.atomic import (
+    WRITE_REASONS,
     atomic_write,
     check_folder,
     check_image_path,
+    folder_reason,
+    partial_output,
     read_text,
     remove_stale_temporaries,
     save_figure,
+    write_bytes,
+    write_reason,
     write_text,
 )
 from evo_door.files.claims import DERIVED, TRIALS, Claim, Output, claim_outputs, same_file
-from evo_door.files.h5tree import Dataset, Keep, h5py, open_h5, read_group, write_group, write_h5
+from evo_door.files.h5tree import (
+    Dataset,
+    Keep,
+    h5py,
+    new_h5,
+    open_h5,
+    read_group,
+    write_group,
+    write_h5,
+)
 from evo_door.files.integrity import DamagedFile, reseal, seal, verify
 from evo_door.files.locks import FileLock
 from evo_door.files.metadata import (
@@ -69,6 +83,7 @@ __all__ = [
     "DERIVED",
     "JSON_PREFIX",
     "TRIALS",
+    "WRITE_REASONS",
     "Claim",
     "DamagedFile",
     "Dataset",
@@ -82,9 +97,12 @@ __all__ = [
     "claim_outputs",
     "decode_attr",
     "encode_attr",
+    "folder_reason",
     "h5py",
     "jsonable",
+    "new_h5",
     "open_h5",
+    "partial_output",
     "read_attrs",
     "read_group",
     "read_text",
@@ -97,7 +115,9 @@ __all__ = [
     "tree_attrs",
     "verify",
     "write_attrs",
+    "write_bytes",
     "write_group",
     "write_h5",
+    "write_reason",
     "write_text",
 ]

@@ -2,19 +2,23 @@
 
 Every file evo-door writes goes through :func:`atomic_write`: the content is written
 under a temporary name in the target's folder, flushed to the disk (``fsync``) and
-renamed over the target (``os.replace``, atomic on POSIX and Windows). Reading text
-(:func:`read_text`) is here too, with the one-line errors of a file that is not text.
+renamed over the target (``os.replace``, atomic on POSIX and Windows). What the file
+system refuses (a full disk, a read-only folder) is one line,
+:class:`~evo_door.errors.WriteError`, that names the target and what is left: the
+temporary is removed. Reading text (:func:`read_text`) is here too, with the one-line
+errors of a file that is not text.
 """
 
 from __future__ import annotations
 
+import errno
 import itertools
 import os
 import re
 from contextlib import contextmanager
 from pathlib import Path
 
-from evo_door.errors import UserError
+from evo_door.errors import UserError, WriteError
 
 #: a counter that tells apart the temporaries of one process (several writers of one
 #: file in one process, threads included, each get their own name): a plain counter is
@@ -62,6 +66,11 @@ def atomic_write(path, make_folder: bool = False):
     an exception (or a kill) leaves ``path`` as it was and no temporary behind (a kill
     leaves one that :func:`remove_stale_temporaries` clears).
 
+    What the file system refuses (a full disk, a read-only folder, no permission: an
+    ``OSError``, or the error text of HDF5 that carries its errno) is a
+    :class:`~evo_door.errors.WriteError` naming ``path`` and the reason: the temporary
+    is removed, and so are the folders ``make_folder`` made for it.
+
     >>> import tempfile
     >>> folder = Path(tempfile.mkdtemp())
     >>> with atomic_write(folder / "a.txt") as tmp:
@@ -70,8 +79,13 @@ def atomic_write(path, make_folder: bool = False):
     ('hello', ['a.txt'])
     """
     path = Path(path)
+    made: list[Path] = []
     if make_folder and not path.parent.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
+        made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise WriteError(path, write_reason(exc) or str(exc)) from None
     path = check_folder(path)
     tmp = _temporary_name(path)
     try:
@@ -82,24 +96,162 @@ def atomic_write(path, make_folder: bool = False):
             os.fsync(fh.fileno())
         os.replace(tmp, path)
         _fsync_folder(path.parent)
-    except OSError as exc:
-        # a read-only or full file system, no permission...: say which file, not the
-        # temporary's hidden name
-        raise UserError(f"{path}: cannot write ({_reason(exc)})") from None
+    except (OSError, RuntimeError) as exc:
+        # a full or read-only file system, no permission...: say which file, not the
+        # temporary's hidden name (a RuntimeError only when HDF5's text names an errno)
+        reason = write_reason(exc)
+        if reason is None:
+            raise
+        _remove(tmp)  # before the folders it is in
+        _remove_folders(made)
+        raise WriteError(path, reason) from None
     finally:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
+        _remove(tmp)
 
 
-def _reason(exc: OSError) -> str:
-    """What an OSError says, in a few words (h5py's messages hide errno in the text)."""
-    if exc.strerror:
-        return exc.strerror
+#: errno -> what a refused write says (the rest: the system's own words)
+WRITE_REASONS = {
+    number: reason
+    for name, reason in (
+        ("ENOSPC", "no space left on device"),
+        ("EDQUOT", "disk quota exceeded"),
+        ("EROFS", "read-only file system"),
+        ("EACCES", "permission denied"),
+        ("EPERM", "permission denied"),
+        ("EFBIG", "file too large"),
+    )
+    if (number := getattr(errno, name, None)) is not None
+}
+
+
+def write_reason(exc: BaseException) -> str | None:
+    """Why a write failed, in a few words, or None when ``exc`` is no file system error.
+
+    An ``OSError`` says it by its errno (:data:`WRITE_REASONS`), else by its text; h5py
+    hides the errno in its message (``errno = 28, error message = '...'``), in an
+    ``OSError`` or a ``RuntimeError``: that is read too. A ``RuntimeError`` without an
+    errno is not a file system error (None).
+
+    >>> write_reason(OSError(errno.ENOSPC, "No space left on device"))
+    'no space left on device'
+    >>> write_reason(RuntimeError("Can't close file (file write failed: errno = 30, "
+    ...                           "error message = 'Read-only file system')"))
+    'read-only file system'
+    >>> write_reason(RuntimeError("not a file system error")) is None
+    True
+    """
     text = str(exc)
-    found = re.search(r"error message = '([^']+)'", text)
-    return found.group(1) if found else text.splitlines()[0][:120]
+    number = exc.errno if isinstance(exc, OSError) else None
+    if not number:
+        found = re.search(r"errno = (\d+)", text)
+        number = int(found.group(1)) if found else None
+    if number in WRITE_REASONS:
+        return WRITE_REASONS[number]
+    said = re.search(r"error message = '([^']+)'", text)
+    if said:
+        words = said.group(1)
+    elif isinstance(exc, OSError):
+        words = exc.strerror or (text.splitlines() or [type(exc).__name__])[0][:120]
+    else:
+        return None
+    return words[:1].lower() + words[1:]
+
+
+def folder_reason(folder) -> str:
+    """Why ``folder`` cannot be written in: a read-only file system, or no permission."""
+    try:
+        if os.statvfs(folder).f_flag & os.ST_RDONLY:
+            return WRITE_REASONS[errno.EROFS]
+    except (OSError, AttributeError):  # pragma: no cover - Windows: no statvfs
+        pass
+    return WRITE_REASONS[errno.EACCES]
+
+
+def write_bytes(path, data) -> None:
+    """Write ``data`` (bytes, or a buffer) as the new file ``path``, with plain writes.
+
+    The room for it is claimed first where the system can (``posix_fallocate``), so a
+    full disk says so before a byte is written; either way it is an ``OSError``
+    (ENOSPC), which :func:`atomic_write` turns into one line.
+    """
+    view = memoryview(data).cast("B")
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    try:
+        if len(view) and hasattr(os, "posix_fallocate"):
+            try:
+                os.posix_fallocate(fd, 0, len(view))
+            except OSError as exc:
+                if exc.errno in WRITE_REASONS:
+                    raise
+                # a file system that cannot preallocate (EOPNOTSUPP, EINVAL): the
+                # writes themselves say whether there is room
+        while view:
+            view = view[os.write(fd, view) :]
+    finally:
+        os.close(fd)
+
+
+def _remove(path: Path) -> None:
+    try:
+        path.unlink()
+    except OSError:  # gone already (or never made: a read-only folder)
+        pass
+
+
+def _remove_folders(made: list[Path]) -> None:
+    """Remove the folders in ``made`` (deepest first), each only if still empty."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            break
+
+
+@contextmanager
+def partial_output(folder):
+    """A block that writes several files into ``folder`` (made if need be): when the
+    file system refuses one (:class:`~evo_door.errors.WriteError`, or an ``OSError``
+    such as a folder that cannot be made), the files the block added and the folder,
+    if the block made it, are removed, and the error says so.
+
+    Files that were there before and that the block had already replaced cannot be
+    taken back: the error counts them.
+    """
+    folder = Path(folder)
+    existed = folder.is_dir()
+    before = {p: _stamp(p) for p in folder.iterdir()} if existed else {}
+    try:
+        yield folder
+    except (WriteError, OSError) as exc:
+        if not isinstance(exc, WriteError):
+            exc = WriteError(exc.filename or folder, write_reason(exc) or str(exc))
+        added = [p for p in folder.iterdir() if p not in before] if folder.is_dir() else []
+        added = [p for p in added if p.is_file()]
+        for p in added:
+            _remove(p)
+        if not existed:
+            _remove_folders([folder])
+        replaced = sum(_stamp(p) != stamp for p, stamp in before.items())
+        parts = [f"its new files ({_files(len(added))}) were removed"] if added else []
+        if replaced:
+            parts.append(
+                f"{_files(replaced)} in {folder} already replaced by new ones, the rest as "
+                "they were"
+            )
+        raise exc.leaving("; ".join(parts) or exc.left) from None
+
+
+def _files(n: int) -> str:
+    return f"{n} file{'s' * (n != 1)}"
+
+
+def _stamp(path: Path) -> tuple:
+    """What changes when a file is replaced (an atomic write: a new inode)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return ()
+    return (st.st_ino, st.st_mtime_ns, st.st_size)
 
 
 def read_text(path, what: str = "text file") -> str:

@@ -7,8 +7,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from evo_door.errors import UserError
-from evo_door.files.atomic import check_folder
+from evo_door.errors import UserError, WriteError
+from evo_door.files.atomic import check_folder, folder_reason
 
 #: An output that holds trials (``data import``, ``rig generate``, a render's log): what
 #: was measured or generated, a participant's session. Replaced only with ``--force``
@@ -99,7 +99,7 @@ def claim_outputs(outputs, inputs=(), *, force: bool = False, append=None) -> Cl
                 raise UserError(f"{path}: given to both {other.option} and {out.option}")
         folder = _existing_folder(path) if out.makes_folder else check_folder(path).parent
         if not os.access(folder, os.W_OK):
-            raise UserError(f"{path}: cannot write in {folder}")
+            raise WriteError(path, folder_reason(folder))
         if not path.exists():
             continue
         if out.kind == TRIALS and not (force or append):

@@ -8,11 +8,13 @@ A dict is a group and its ``"@attrs"`` entry the group's attributes
 
 from __future__ import annotations
 
+import io
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from evo_door.errors import UserError
-from evo_door.files.atomic import atomic_write
+from evo_door.files.atomic import atomic_write, write_bytes
 from evo_door.files.integrity import seal, verify
 from evo_door.files.metadata import ATTRS, read_attrs, write_attrs
 
@@ -115,7 +117,7 @@ def write_h5(
     path = Path(path)
     keep: list = []
     with atomic_write(path, make_folder=make_folder) as tmp:
-        with h5.File(tmp, "w", track_order=True) as f:
+        with new_h5(tmp) as f:
             write_group(f, tree, compression, compress_above, keep)
             old = None
             if keep and path.is_file():
@@ -154,6 +156,23 @@ def _copied(old, name: str, target, key: str) -> bool:
         if key in target:
             del target[key]
         return False
+
+
+@contextmanager
+def new_h5(tmp):
+    """A new HDF5 file to fill, made in memory and written to ``tmp`` when the block ends.
+
+    HDF5 never writes to the disk itself: a write it cannot finish (a full disk) leaves
+    the library in a state that crashes the process at exit (SIGSEGV, SIGBUS). The
+    file's image is built in memory and written by :func:`~.atomic.write_bytes`,
+    where a full disk is an ordinary ``OSError``; an error inside the block writes
+    nothing. ``tmp`` is :func:`~.atomic.atomic_write`'s temporary.
+    """
+    image = io.BytesIO()
+    with h5py().File(image, "w", track_order=True) as f:
+        yield f
+    with image.getbuffer() as data:
+        write_bytes(tmp, data)
 
 
 def open_h5(path, what: str = "HDF5 file"):

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 from pathlib import Path
 
-from evo_door.errors import UserError
-from evo_door.files.atomic import check_folder
+from evo_door.errors import UserError, WriteError
+from evo_door.files.atomic import check_folder, write_reason
 
 #: lock file -> [descriptor, holders]: the locks this process holds (see FileLock).
 #: Module-level on purpose: ``flock`` locks belong to the process, so every FileLock of
@@ -83,9 +84,7 @@ class FileLock:
                         f"{self.lock_path}: a symbolic link where evo-door keeps the lock of "
                         f"{self.path.name}; evo-door never writes through it: remove it"
                     ) from None
-                raise UserError(
-                    f"{self.path}: cannot write in {self.path.parent} ({exc.strerror})"
-                ) from None
+                raise WriteError(self.path, write_reason(exc) or str(exc)) from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
@@ -106,8 +105,14 @@ class FileLock:
             if same:
                 break
             os.close(fd)
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError as exc:  # a full disk: no room even for the process id
+            with contextlib.suppress(OSError):
+                os.unlink(self.lock_path)
+            os.close(fd)
+            raise WriteError(self.path, write_reason(exc) or str(exc)) from None
         _HELD[key] = [fd, 1]
         self._key = key
         return self

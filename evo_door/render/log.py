@@ -26,7 +26,7 @@ from numba import njit
 
 from evo_door import __version__
 from evo_door.data.trial import Trial
-from evo_door.errors import UserError
+from evo_door.errors import UserError, WriteError
 from evo_door.files import check_folder, to_json
 from evo_door.render.columns import COLUMNS, N_COLUMNS, ROW_DTYPE
 from evo_door.render.log_file import trial_of, write_log
@@ -342,7 +342,18 @@ class RenderLog:
         self.close()
         if self._recent_only and self._freed:
             raise UserError("render log: its early rows were not kept (keep_recent)")
-        self._write(path, self.chunks(), self._k, loop_rate, device, statistics)
+        try:
+            self._write(path, self.chunks(), self._k, loop_rate, device, statistics)
+        except WriteError as exc:  # the side file (if any) holds the rows: say so
+            spill = self._spill
+            if spill is None or not spill.path.is_file():
+                raise
+            side = spill.path
+            rows = "the rows up to the side file's own failure" if spill.error else "the rows"
+            raise exc.leaving(
+                f"{rows} are kept in {side}: `evo-door render --recover {side}` writes the "
+                "log once there is room"
+            ) from None
         if self._spill is not None:
             self._spill.path.unlink(missing_ok=True)
 

@@ -88,7 +88,7 @@ def write_log(
     of the parameter sets ``param_sets`` in force from ``param_times`` (s); ``events``
     the log's (the session record is gathered from them)."""
     from evo_door.data.h5io import FORMAT, FORMAT_VERSION, trial_tree
-    from evo_door.files import atomic_write, h5py, seal, write_group
+    from evo_door.files import atomic_write, new_h5, seal, write_group
 
     chunks = iter(chunks)
     lead: list[np.ndarray] = []  # the chunks up to the second row
@@ -127,7 +127,7 @@ def write_log(
     session = session_tree(events, names, units)
     if session is not None:
         tree["session"] = session
-    with atomic_write(path) as tmp, h5py().File(tmp, "w", track_order=True) as f:
+    with atomic_write(path) as tmp, new_h5(tmp) as f:  # HDF5 writes in memory: see new_h5
         write_group(f, tree, compression=4, compress_above=1)
         sinks = _row_datasets(f, n, channels)
         k = 0
