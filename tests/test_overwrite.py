@@ -212,3 +212,28 @@ def test_run_cleans_its_own_stale_temporary_files(tmp_path):
     done = cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert not stale.exists() and live.exists()
+
+
+def test_a_file_another_command_creates_meanwhile_is_never_replaced(tmp_path):
+    """A command claims a new file, another creates it while the first works: the
+    first's write is refused in one line and the other's file stays (both at once:
+    one lands, one is refused)."""
+    from evo_door.errors import UserError
+    from evo_door.files import Output, claim_outputs, write_text
+
+    path = tmp_path / "p.yaml"
+    claim_outputs([Output(path, "--write")])
+    path.write_text("the other command's file\n")
+    with pytest.raises(UserError, match="another command created this file"):
+        write_text(path, "this command's file\n")
+    assert path.read_text() == "the other command's file\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["p.yaml"]  # no temporary left
+    # claimed with --force, or existing when claimed: replaced, as the claim said
+    claim_outputs([Output(path, "--write")], force=True)
+    write_text(path, "replaced\n")
+    assert path.read_text() == "replaced\n"
+    fresh = tmp_path / "q.yaml"
+    claim_outputs([Output(fresh, "--write")])
+    write_text(fresh, "first\n")
+    write_text(fresh, "second\n")  # the command's own file, written again
+    assert fresh.read_text() == "second\n"

@@ -94,7 +94,7 @@ def atomic_write(path, make_folder: bool = False):
             raise RuntimeError(f"atomic_write: nothing was written to {tmp}")
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        _publish(tmp, path)
         _fsync_folder(path.parent)
     except (OSError, RuntimeError) as exc:
         # a full or read-only file system, no permission...: say which file, not the
@@ -107,6 +107,51 @@ def atomic_write(path, make_folder: bool = False):
         raise WriteError(path, reason) from None
     finally:
         _remove(tmp)
+
+
+#: the files this process claimed as new (:func:`expect_new`): the first write of each
+#: creates it, and never replaces a file another command made there meanwhile
+_NEW: set[Path] = set()
+
+
+def expect_new(path, new: bool = True) -> None:
+    """Note that ``path`` did not exist when this command claimed it
+    (:func:`~evo_door.files.claims.claim_outputs`): its first :func:`atomic_write`
+    creates it, and refuses in one line if another command created it since.
+    ``new=False``: the command may replace it (claimed with ``--force`` or ``--append``)."""
+    if new:
+        _NEW.add(Path(path).absolute())
+    else:
+        _NEW.discard(Path(path).absolute())
+
+
+def _publish(tmp: Path, path: Path) -> None:
+    """Rename the finished temporary onto ``path``: a new file by a hard link, which
+    fails where a file is there already (two commands creating one file: the second
+    is refused, nothing is lost); a file this command may replace by ``os.replace``."""
+    key = path.absolute()
+    if key not in _NEW:
+        os.replace(tmp, path)
+        return
+    created_meanwhile = UserError(
+        f"{path}: another command created this file while this one ran; it was not "
+        "replaced: give another name, or --force to replace it"
+    )
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise created_meanwhile from None
+    except OSError as exc:  # a file system without hard links: the check, then the rename
+        if exc.errno not in _NO_LINKS:
+            raise
+        if path.exists():
+            raise created_meanwhile from None
+        os.replace(tmp, path)
+    _NEW.discard(key)
+
+
+#: what ``os.link`` raises on a file system without hard links
+_NO_LINKS = {errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EXDEV}
 
 
 #: errno -> what a refused write says (the rest: the system's own words)

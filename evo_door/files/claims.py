@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from evo_door.errors import UserError, WriteError
-from evo_door.files.atomic import check_folder, folder_reason
+from evo_door.files.atomic import check_folder, expect_new, folder_reason
 
 #: An output that holds trials (``data import``, ``rig generate``, a render's log): what
 #: was measured or generated, a participant's session. Replaced only with ``--force``
@@ -100,6 +100,9 @@ def claim_outputs(outputs, inputs=(), *, force: bool = False, append=None) -> Cl
         folder = _existing_folder(path) if out.makes_folder else check_folder(path).parent
         if not os.access(folder, os.W_OK):
             raise WriteError(path, folder_reason(folder))
+        # a new file is created, never replacing one another command makes meanwhile;
+        # one the command may replace (--force, --append under the file's lock) is not
+        expect_new(path, not (path.exists() or force or append or out.makes_folder))
         if not path.exists():
             continue
         if out.kind == TRIALS and not (force or append):
