@@ -21,6 +21,11 @@ What is simulated:
   log already holds what the device added, unless ``device_damping`` or
   ``device_friction`` are given.
 
+A log that did not keep every set (changes past its cap,
+:data:`~evo_door.render.log.MAX_PARAM_SETS`: its ``changes_dropped`` event) does not
+know the set in force from the first set it left out to the last: with the log's sets
+that span is not simulated.
+
 Each simulation starts from the logged angle and speed: at the start, at each change
 of the parameter set, at every ``window`` seconds if one is given (an open-loop
 simulation of a long session drifts), and after samples that are not finite (a
@@ -147,7 +152,8 @@ def render_agreement(
     theta_sim = np.full_like(theta, np.nan)
     dtheta_sim = np.full_like(theta, np.nan)
     starts = []
-    for i0, i1, k in _runs(t, [s for s, _ in sets], force, theta, dtheta, window):
+    unknown = log["unknown"] if params is None else None
+    for i0, i1, k in _runs(t, [s for s, _ in sets], force, theta, dtheta, window, unknown):
         r = simulate(MODEL, vectors[k], force[i0:i1], dt, theta0=theta[i0], dtheta0=dtheta[i0])
         theta_sim[i0:i1] = r.theta
         dtheta_sim[i0:i1] = r.dtheta
@@ -187,7 +193,17 @@ def _read(path) -> dict:
         "events": attrs.get("events", []),
         "statistics": attrs.get("statistics", {}),
         "device": attrs.get("device", ""),
+        "unknown": _unknown_span(attrs.get("events", [])),
     }
+
+
+def _unknown_span(events) -> tuple[float, float] | None:
+    """When (s, from and to) the log does not know the set in force: from the first
+    set it did not keep to the last (its ``changes_dropped`` event), or None."""
+    for e in events:
+        if e.get("kind") == "changes_dropped":
+            return float(e["t"]), float(e.get("last_t", e["t"]))
+    return None
 
 
 def _check_grid(path, t: np.ndarray) -> None:
@@ -219,15 +235,19 @@ def _device_term(given, log: dict, name: str, params, unit: str) -> float:
     return float(logged) if logged is not None else 0.0
 
 
-def _runs(t, set_times, force, theta, dtheta, window):
+def _runs(t, set_times, force, theta, dtheta, window, unknown=None):
     """``(i0, i1, k)`` of each simulation: samples ``i0:i1``, the set ``k`` in force.
 
     A run starts at the first sample, at each set's time, every ``window`` seconds
     (if given) and after each sample that is not finite; it holds at least two
-    samples and only finite ones.
+    samples and only finite ones. ``unknown`` (s, from and to): no run there, the set
+    in force is not known.
     """
     finite = np.isfinite(force) & np.isfinite(theta) & np.isfinite(dtheta)
-    cuts = {0}
+    skip = (0, 0)  # samples not simulated
+    if unknown is not None:
+        skip = tuple(int(i) for i in np.searchsorted(t, np.asarray(unknown) - 1e-9))
+    cuts = {0, *skip}
     cuts.update(int(np.searchsorted(t, s - 1e-9)) for s in set_times)
     if window is not None:
         cuts.update(int(np.searchsorted(t, t[0] + j * window - 1e-9))
@@ -238,7 +258,7 @@ def _runs(t, set_times, force, theta, dtheta, window):
     edges = sorted(c for c in cuts if 0 <= c < t.size) + [t.size]
     set_index = np.searchsorted(np.asarray(set_times), t, side="right") - 1
     for i0, i1 in zip(edges[:-1], edges[1:], strict=True):
-        if i1 - i0 >= 2 and finite[i0]:
+        if i1 - i0 >= 2 and finite[i0] and not skip[0] <= i0 < skip[1]:
             yield i0, i1, max(int(set_index[i0]), 0)
 
 
@@ -265,7 +285,14 @@ def _model_note(sets, params, device: dict, log: dict) -> str:
         terms.append("c_energy's push along the motion")
     if params is None and not any(e.get("kind") == "device" for e in log["events"]):
         terms.append("(the log does not record the device's own damping: --device-damping)")
-    return f"haptic, {what}" + (" + " + ", ".join(terms) if terms else "")
+    note = f"haptic, {what}" + (" + " + ", ".join(terms) if terms else "")
+    if params is None and log["unknown"] is not None:
+        first, last = log["unknown"]
+        note += (
+            f"; not from {first:.2f} to {last:.2f} s, where the log did not keep the sets "
+            "in force (changes past its cap)"
+        )
+    return note
 
 
 def format_agreement(a: Agreement, path="") -> str:

@@ -49,8 +49,9 @@ speed (:mod:`evo_door.render.hands_off`), and comes into
 force whole between two cycles, or is refused and the set in force stays as it was;
 ``in_force`` says whether the loop had applied it when the answer left (it waits up
 to 0.5 s; a loop that is not running yet applies it at its first cycle). The log
-records every set with its time. ``applied`` holds the values after any clamp
-(``--clamp``). Changes are serialised: two clients never interleave one.
+records each set with its time, up to its cap (see Limits). ``applied`` holds the
+values after any clamp (``--clamp``). Changes are serialised: two clients never
+interleave one.
 
 Limits. The renderer's process runs the servo loop; whatever a client sends must cost
 it little and bounded time and memory. Every refusal below is an answer
@@ -71,7 +72,11 @@ it little and bounded time and memory. Every refusal below is an answer
   reason and closed; a connection idle for :data:`IDLE_TIMEOUT` s is closed;
 * the log keeps the session events and refused changes up to a cap
   (:data:`~evo_door.render.log.MAX_CLIENT_EVENTS`, :data:`~evo_door.render.log.MAX_CLIENT_BYTES`);
-  one past it is answered ``ok: false`` and counted in the log's ``dropped`` event.
+  one past it is answered ``ok: false`` and counted in the log's ``dropped`` event;
+* the log keeps :data:`~evo_door.render.log.MAX_PARAM_SETS` parameter sets with their
+  changes; a valid change past that still comes into force and is answered ``ok:
+  true``, and the log counts it (its ``changes_dropped`` event) and keeps the set in
+  force at each choice and at the end.
 """
 
 from __future__ import annotations

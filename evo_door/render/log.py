@@ -6,7 +6,8 @@ rate by linear interpolation between the two cycles around each tick, so a log i
 trial file (:mod:`evo_door.render.log_file` writes it). Besides the rows (the columns
 of :data:`~evo_door.render.columns.COLUMNS`) it keeps the events (faults, clamps,
 the watchdog, changes, the console's session: :mod:`evo_door.render.session`) and the
-parameter sets in force.
+parameter sets in force, up to :data:`MAX_PARAM_SETS` (past it a change still comes
+into force; the log counts it, and keeps the set in force at each choice and at the end).
 
 Rows live in preallocated float64 blocks of :data:`BLOCK_ROWS` rows; a cycle writes
 its rows in place (:func:`_resample`, compiled), so :meth:`RenderLog.add` allocates
@@ -54,6 +55,15 @@ MAX_CLIENT_BYTES = 4 * 2**20
 #: its own (each event is at most 16 KiB: 1.6 MiB)
 RECORD_KINDS = ("participant", "chosen")
 RECORD_RESERVE = 100
+#: parameter sets a log keeps at most, each with its "change" event. A participant's
+#: session changes the set hundreds of times (keys, the console's sliders at 15 changes
+#: a second while dragged, a JND session's switches); a client flooding valid changes
+#: at the control port's 400 requests a second reached 24,001 sets in a minute. 5,000
+#: sets of 48 float64 values are 1.9 MB, their change events about as much again.
+#: Past the cap a change still comes into force: the log counts it in one event
+#: "changes_dropped" and keeps the set in force at each choice (up to RECORD_RESERVE)
+#: and at the end (:meth:`RenderLog.close`), so the set the session stands for is kept
+MAX_PARAM_SETS = 5_000
 
 
 @njit(cache=True)
@@ -110,6 +120,15 @@ class RenderLog:
         self.client_bytes = 0
         self.dropped = 0  # past the cap
         self._dropped_event: dict | None = None
+        self.changes_dropped = 0  # parameter sets past MAX_PARAM_SETS
+        self._changes_event: dict | None = None
+        # the last set in force that was not kept (t, vector); choices kept (counted by
+        # the control port's threads) and those the loop's thread has seen: a choice
+        # since keeps the set it was made on
+        self._unkept: tuple[float, np.ndarray] | None = None
+        self._choices = 0
+        self._choices_seen = 0
+        self._kept_at_choices = 0
         self._names = list(table.names) if table is not None else []
         self._units = [p.unit for p in table] if table is not None else []
         # load the kernel now (numba's cache: milliseconds), not in a servo cycle
@@ -178,10 +197,65 @@ class RenderLog:
         if spill is not None and self._k - spill.rows >= SPILL_ROWS:
             spill.send_rows(self)
 
-    def params(self, t: float, vector) -> None:
-        """The parameter set in force from time ``t`` (s)."""
-        self.param_times.append(float(t))
-        self.param_sets.append(np.array(vector, dtype=np.float64))
+    def params(self, t: float, vector) -> bool:
+        """The parameter set in force from time ``t`` (s); returns whether it was kept.
+
+        The log keeps :data:`MAX_PARAM_SETS` sets; past that it counts them (the event
+        ``changes_dropped``: ``count``, from ``t`` to ``last_t``) and holds the last one
+        back, to keep it if a choice is made on it or the log ends with it in force. The
+        loop's thread only: the spill reads these lists from it.
+        """
+        vector = np.array(vector, dtype=np.float64)
+        choices = self._choices
+        if choices != self._choices_seen:  # a choice was made on the set in force until now
+            self._choices_seen = choices
+            self._keep_unkept(at_choice=True)
+        if len(self.param_times) < MAX_PARAM_SETS:
+            self.param_times.append(float(t))
+            self.param_sets.append(vector)
+            return True
+        self._unkept = (float(t), vector)
+        self.changes_dropped += 1
+        if self._changes_event is None:  # said once; count and last_t follow in place
+            self._changes_event = {
+                "t": float(t),
+                "kind": "changes_dropped",
+                "message": f"parameter sets past the log's cap of {MAX_PARAM_SETS} came into "
+                "force but are not kept, nor their change events; count: how many; the sets "
+                "in force from t to last_t are not known but at a choice and at the end",
+                "count": 0,
+                "last_t": float(t),
+            }
+            self.events.append(self._changes_event)
+        self._changes_event["count"] = self.changes_dropped
+        self._changes_event["last_t"] = float(t)
+        return False
+
+    def _keep_unkept(self, at_choice: bool) -> None:
+        """Keep the set in force that was held back (past the cap), if any: at a choice
+        (up to :data:`RECORD_RESERVE` of them) or at the end."""
+        if self._unkept is None or (at_choice and self._kept_at_choices >= RECORD_RESERVE):
+            return
+        t, vector = self._unkept
+        self._unkept = None
+        self._kept_at_choices += at_choice
+        self.param_times.append(t)
+        self.param_sets.append(vector)
+
+    def tally(self) -> dict:
+        """What the log changes in place rather than appends, for the side file: the
+        events that count (``dropped``, ``changes_dropped``; copies) and the set in force
+        held back ``[t, values]`` (or None)."""
+        counting = [e for e in (self._dropped_event, self._changes_event) if e is not None]
+        held = self._unkept
+        return {
+            "events": [dict(e) for e in counting],
+            "in_force": None if held is None else [held[0], held[1].tolist()],
+        }
+
+    def tally_mark(self) -> tuple:
+        """Changes whenever :meth:`tally` does (cheap: the spill asks every second)."""
+        return (self.dropped, self.changes_dropped, self._unkept is None)
 
     def event(self, t: float, kind: str, message: str, **extra) -> None:
         self.events.append({"t": float(t), "kind": kind, "message": message, **extra})
@@ -194,20 +268,22 @@ class RenderLog:
         ``dropped`` that says so, whose ``count`` follows. The session's record
         (:data:`RECORD_KINDS`) has an allowance of its own, :data:`RECORD_RESERVE`
         events, so that a flood cannot cost the participant's choice. Returns whether
-        it was kept.
+        it was kept. A choice kept (``chosen``) keeps the set in force it was made on
+        too, past :data:`MAX_PARAM_SETS`.
         """
         if size is None:
             size = len(to_json(extra)) + len(message)
         if kind in RECORD_KINDS and self.record_events < RECORD_RESERVE:
             self.record_events += 1
-            self.event(t, kind, message, **extra)
-            return True
-        if self.client_events >= MAX_CLIENT_EVENTS or self.client_bytes + size > MAX_CLIENT_BYTES:
+        elif self.client_events >= MAX_CLIENT_EVENTS or self.client_bytes + size > MAX_CLIENT_BYTES:
             self._drop(t)
             return False
-        self.client_events += 1
-        self.client_bytes += size
+        else:
+            self.client_events += 1
+            self.client_bytes += size
         self.event(t, kind, message, **extra)
+        if kind == "chosen":  # the set it was made on is kept, past the cap of sets too
+            self._choices += 1
         return True
 
     def client_cap(self) -> str:
@@ -331,8 +407,10 @@ class RenderLog:
         return self._spill.error if self._spill is not None else None
 
     def close(self) -> None:
-        """Write the rows not yet spilled and stop the side file's writer (idempotent;
-        the side file stays until :meth:`write` has written the log)."""
+        """The log ends: the set in force kept (held back past :data:`MAX_PARAM_SETS`);
+        write the rows not yet spilled and stop the side file's writer (idempotent; the
+        side file stays until :meth:`write` has written the log)."""
+        self._keep_unkept(at_choice=False)
         if self._spill is not None:
             self._spill.close(self)
 

@@ -293,7 +293,8 @@ class ServoLoop:
         self._set_native()
         self._set_vectors()
         self._set_mass()
-        self.log.params(t, self._set_vector())
+        if not self.log.params(t, self._set_vector()):
+            return  # past the log's cap of sets: in force, counted, not recorded
         self.log.event(t, "change", "parameters changed", values=values)
         if changes:
             self.log.event(t, "clamp", "clamped to be passive", changes=changes)

@@ -61,10 +61,14 @@ def read_session(path) -> dict:
 
     Returns ``{"participant", "duration_s", "device", "sets": [(t, {name: value})],
     "changes", "choices", "chosen": {name: value} or None, "chosen_t", "events",
-    "statistics", "stopped"}`` (``stopped``: who ended the render, as its ``stopped``
-    event says, e.g. "stopped by the operator"; else ""); a log without a session
-    record has an empty participant, no choice and the session events list empty. A file that is not a render log is a
-    UserError.
+    "statistics", "stopped", "changes_not_kept", "not_kept_span", "events_not_kept"}``
+    (``stopped``: who ended the render, as its ``stopped`` event says, e.g. "stopped by
+    the operator"; else ""; ``changes_not_kept``: the parameter changes in force but
+    not kept, past the log's cap of sets, ``not_kept_span`` [first, last] (s) when
+    they came into force, else None; ``events_not_kept``: the session events and
+    refused changes past the log's cap); a log without a session record has an empty
+    participant, no choice and the session events list empty. A file that is not a
+    render log is a UserError.
     """
     from evo_door.files import open_h5, read_attrs
 
@@ -83,6 +87,8 @@ def read_session(path) -> dict:
             chosen = dict(zip(read_attrs(ds)["names"], ds[()].tolist(), strict=True))
     events = render.get("events", [])
     ended = [e.get("message", "") for e in events if e.get("kind") == "stopped"]
+    counting = {e.get("kind"): e for e in events if e.get("kind") in ("dropped", "changes_dropped")}
+    unkept = counting.get("changes_dropped")
     return {
         "participant": session.get("participant", ""),
         "duration_s": duration,
@@ -98,6 +104,9 @@ def read_session(path) -> dict:
         "events": session.get("events", []),
         "statistics": render.get("statistics", {}),
         "stopped": ended[-1] if ended else "",
+        "changes_not_kept": int(unkept.get("count", 0)) if unkept else 0,
+        "not_kept_span": [unkept.get("t"), unkept.get("last_t")] if unkept else None,
+        "events_not_kept": int(counting.get("dropped", {}).get("count", 0)),
     }
 
 
@@ -123,10 +132,23 @@ def format_session(s: dict, path="") -> str:
     stats = s["statistics"]
     lines = [f"render log {path}".rstrip()]
     who = s["participant"] or "(no participant id)"
+    unkept = s.get("changes_not_kept", 0)
     lines.append(
         f"  participant {who}, {s['duration_s']:.1f} s on {s['device'] or '?'}, "
-        f"{len(s['changes'])} parameter changes, {len(s['choices'])} A/B choices"
+        f"{len(s['changes']) + unkept} parameter changes, {len(s['choices'])} A/B choices"
     )
+    if unkept:
+        first, last = s["not_kept_span"]
+        lines.append(
+            f"  {unkept} of the changes not kept in the log (past its cap of sets), from "
+            f"{first:.1f} to {last:.1f} s;\n    it keeps the set in force at each choice and "
+            "at the end"
+        )
+    if s.get("events_not_kept"):
+        lines.append(
+            f"  {s['events_not_kept']} session events and refused changes not kept in the "
+            "log (past its cap)"
+        )
     status = s.get("stopped") or stats.get("status", "?")
     if stats.get("realtime") is False:  # simulated time: it kept no clock to be on time for
         lines.append(

@@ -13,7 +13,21 @@ ignored::
     HEAD     JSON: columns, rate (log, Hz), loop_rate (Hz), device, names, units
     ROWS     float64 little-endian, m x N_COLUMNS, the next m rows of the log
     EVTS     JSON: a list of further events
-    PARS     JSON: {"t": [...], "values": [[...], ...]}, further parameter sets
+    PARB     uint64 little-endian w, then float64 little-endian, m x (1 + w): further
+             parameter sets, each its time (s) and its w values
+    TALY     JSON: {"events": [...], "in_force": [t, [values]] or null}, what the log
+             changes in place (:meth:`~evo_door.render.log.RenderLog.tally`): its
+             counting events and the set in force it holds back past its cap of sets;
+             the last such record holds
+    PARS     JSON: {"t": [...], "values": [[...], ...]}, further parameter sets (read
+             only: written by earlier versions)
+
+The side file holds what the log in memory holds, its caps included (the sets up to
+:data:`~evo_door.render.log.MAX_PARAM_SETS`, the counts of what was not kept), so that
+:func:`scan_partial` gives the content :meth:`~evo_door.render.log.RenderLog.write`
+would have written. The parameter sets are binary: the JSON of a second of changes
+under a flood (400 sets) held the interpreter lock, which the servo loop waits for, for
+milliseconds.
 """
 
 from __future__ import annotations
@@ -37,6 +51,8 @@ SPILL_ROWS = 1024
 PARTIAL_SUFFIX = ".partial"
 _MAGIC = b"EVO-DOOR RENDER LOG PARTIAL 1\n"
 _RECORD = struct.Struct("<4sQ")
+_WIDTH = struct.Struct("<Q")
+_TAGS = (b"HEAD", b"ROWS", b"EVTS", b"PARB", b"TALY", b"PARS")
 
 
 def partial_path(path) -> Path:
@@ -58,6 +74,7 @@ class Spill:
         self.written = 0  # rows written and synced to the disk (the writer's count)
         self._events = 0  # events sent
         self._params = 0  # parameter sets sent
+        self._tally = None  # the log's tally_mark() when its tally was last sent
         self.error: str | None = None
         self._closed = False
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
@@ -72,7 +89,9 @@ class Spill:
         self._thread.start()
 
     def send_rows(self, log) -> None:
-        """Queue what the side file lacks: finished rows, events, parameter sets."""
+        """Queue what the side file lacks: finished rows, events, parameter sets, and the
+        log's tally when it changed (after the sets: a tally never names a set in force
+        that a later record of sets holds)."""
         if self._closed:
             return
         n_ev, n_par = len(log.events), len(log.param_times)
@@ -81,8 +100,12 @@ class Spill:
             self._events = n_ev
         if n_par > self._params:
             sets = (log.param_times[self._params : n_par], log.param_sets[self._params : n_par])
-            self._queue.put((b"PARS", sets))
+            self._queue.put((b"PARB", sets))
             self._params = n_par
+        mark = log.tally_mark()
+        if mark != self._tally:
+            self._queue.put((b"TALY", log.tally()))
+            self._tally = mark
         b = log.block_rows
         while self.rows < log.n:  # one view per block touched
             start = self.rows
@@ -117,10 +140,10 @@ class Spill:
                 try:
                     if tag == b"ROWS":
                         self._record(tag, np.ascontiguousarray(payload, dtype=ROW_DTYPE))
-                    elif tag == b"PARS":
-                        times, sets = payload
-                        text = to_json({"t": times, "values": [list(v) for v in sets]})
-                        self._record(tag, text.encode())
+                    elif tag == b"PARB":
+                        self._record(tag, _sets_payload(*payload))
+                    elif tag == b"TALY":
+                        self._record(tag, to_json(payload).encode())
                     else:  # events one by one: one json.dumps of a list of many
                         # session events (16 kB each) held the interpreter lock, which
                         # the servo loop waits for, for milliseconds
@@ -134,6 +157,22 @@ class Spill:
                     self.error = f"{self.path}: cannot write ({exc.strerror or exc})"
         finally:
             self._file.close()
+
+
+def _sets_payload(times, sets) -> bytes:
+    """A PARB record's payload: the width, then each set's time and values."""
+    table = np.column_stack([np.asarray(times, dtype="<f8"), np.asarray(sets, dtype="<f8")])
+    return _WIDTH.pack(table.shape[1] - 1) + table.astype("<f8", copy=False).tobytes()
+
+
+def _sets_of(data: bytes) -> tuple[list[float], list[list[float]]]:
+    """The times and sets of a PARB record's payload (a ValueError if it is damaged)."""
+    (width,) = _WIDTH.unpack_from(data)
+    body = np.frombuffer(data, dtype="<f8", offset=_WIDTH.size)
+    if body.size % (width + 1):
+        raise ValueError("a parameter record cut inside a set")
+    table = body.reshape(-1, width + 1)
+    return table[:, 0].tolist(), table[:, 1:].tolist()
 
 
 def read_partial(path) -> tuple[dict, np.ndarray, list[dict], list[float], list[list[float]]]:
@@ -157,7 +196,7 @@ def _records(fh):
         fh.seek(pos)
         tag, size = _RECORD.unpack(fh.read(_RECORD.size))
         body = pos + _RECORD.size
-        if body + size > end or tag not in (b"HEAD", b"ROWS", b"EVTS", b"PARS"):
+        if body + size > end or tag not in _TAGS:
             return  # cut short by the crash, or not a record
         yield tag, body, size
         pos = body + size
@@ -182,12 +221,14 @@ _ROW_BYTES = N_COLUMNS * ROW_DTYPE.itemsize
 
 def scan_partial(path) -> tuple[dict, int, list[dict], list[float], list[list[float]]]:
     """A side file's header, number of whole rows, events, parameter times and sets,
-    read without its rows."""
+    read without its rows; the last tally applied (the counting events' counts, the
+    set in force held back kept as the last set), as the log would have been written."""
     header = None
     n = 0
     events: list[dict] = []
     times: list[float] = []
     sets: list[list[float]] = []
+    tally = None
     with _open_partial(path) as fh:
         for tag, offset, size in _records(fh):
             if tag == b"ROWS":
@@ -197,19 +238,54 @@ def scan_partial(path) -> tuple[dict, int, list[dict], list[float], list[list[fl
                 continue
             fh.seek(offset)
             try:
-                item = json.loads(fh.read(size))
+                data = fh.read(size)
+                if tag == b"PARB":
+                    more_t, more_v = _sets_of(data)
+                    times.extend(more_t)
+                    sets.extend(more_v)
+                    continue
+                item = json.loads(data)
                 if tag == b"HEAD":
                     header = item
                 elif tag == b"EVTS":
                     events.extend(item)
+                elif tag == b"TALY":
+                    tally = _tally_of(item)
                 else:
                     times.extend(item["t"])
                     sets.extend(item["values"])
-            except (ValueError, KeyError, TypeError):
-                break
+            except (ValueError, KeyError, IndexError, TypeError, OverflowError, struct.error):
+                break  # damaged: what follows is not read
     if header is None:
         raise UserError(f"{path}: render log side file without its header")
+    if tally is not None:
+        _apply_tally(tally, events, times, sets)
     return header, n, events, times, sets
+
+
+def _tally_of(item) -> dict:
+    """A TALY record's content, checked: a TypeError, ValueError, KeyError or IndexError
+    if it is not one."""
+    counting, held = item["events"], item["in_force"]
+    if not (isinstance(counting, list) and all(isinstance(e, dict) for e in counting)):
+        raise TypeError("not the events of a tally")
+    if held is not None:
+        held = (float(held[0]), [float(v) for v in held[1]])
+    return {"events": counting, "in_force": held}
+
+
+def _apply_tally(tally: dict, events: list[dict], times: list, sets: list) -> None:
+    """The side file's last tally into what it read: each counting event (by kind)
+    takes the tally's fields; the set in force held back is the last set."""
+    counted = {e.get("kind"): e for e in tally["events"]}
+    for i, e in enumerate(events):
+        if isinstance(e, dict) and e.get("kind") in counted:
+            events[i] = {**e, **counted.pop(e["kind"])}
+    if tally["in_force"] is not None:
+        t, values = tally["in_force"]
+        if not (times and times[-1] == t and sets[-1] == values):  # not sent twice
+            times.append(t)
+            sets.append(values)
 
 
 def side_rows(path, limit: int):
