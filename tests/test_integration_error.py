@@ -15,6 +15,7 @@ from evo_door.experiment.format_text import format_show
 from evo_door.experiment.integration_error import estimate
 from evo_door.experiment.reader import read_run
 from evo_door.experiment.setup import resolve
+from evo_door.files import reseal
 from tests.conftest import OSCILLATOR_MODEL
 from tests.test_cli import cli
 from tests.test_experiment import EXPERIMENT
@@ -217,6 +218,7 @@ def test_a_file_without_the_estimate_shows_not_recorded(folder, capsys, tmp_path
     with h5py.File(out, "r+") as f:  # as a file written before the estimate existed
         del f["integration_error"]
         del f["setup"].attrs["tolerance"]
+        reseal(f)
     record = read_run(out)
     assert record.integration_error is None and record.settings.tolerance is None
     shown = cli(capsys, "show", out)
