@@ -53,12 +53,7 @@ def read_csv(path, mapping=None, rate=None, fields=None, channels=tuple(CHANNELS
             continue
         if stripped.startswith("#"):
             if stripped.startswith(META_PREFIX):
-                try:
-                    meta = json.loads(stripped[len(META_PREFIX) :])
-                except json.JSONDecodeError as exc:
-                    raise UserError(
-                        f"{path}: line {i + 1}: metadata is not JSON ({exc.msg})"
-                    ) from None
+                meta = _metadata(stripped[len(META_PREFIX) :], f"{path}: line {i + 1}")
             continue
         header_idx = i
         break
@@ -97,6 +92,27 @@ def read_csv(path, mapping=None, rate=None, fields=None, channels=tuple(CHANNELS
         record_import=not meta or bool(mapping),
         channels=channels,
     )
+
+
+def _metadata(text: str, where: str) -> dict:
+    """The metadata line's JSON: a mapping whose ``meta``, ``sensors`` (and ``truth``,
+    where given) are mappings too; else one line naming the file and line."""
+    try:
+        meta = json.loads(text)
+    except RecursionError:
+        raise UserError(f"{where}: metadata nested too deeply") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{where}: metadata is not JSON ({exc.msg})") from None
+    if not isinstance(meta, dict):
+        raise UserError(f"{where}: metadata is not a JSON mapping")
+    for key in ("meta", "sensors", "truth"):
+        if (
+            key in meta
+            and not isinstance(meta[key], dict)
+            and not (key == "truth" and meta[key] is None)
+        ):
+            raise UserError(f"{where}: metadata {key!r} is not a mapping")
+    return meta
 
 
 def _is_number(text: str) -> bool:

@@ -46,6 +46,7 @@ from evo_door.files import (
     tree_attrs,
     write_h5,
 )
+from evo_door.files import fields as typed
 
 FORMAT = "evo-door trials"
 FORMAT_VERSION = 1
@@ -64,9 +65,21 @@ def _text(value) -> str:
     return str(value)
 
 
-def _json_field(value):
-    """A metadata dict: decoded already, or JSON text as format 1 stored it."""
-    return json.loads(value) if isinstance(value, str) else value
+def _json_field(attrs, key: str) -> dict:
+    """A metadata dict: decoded already, or JSON text as format 1 stored it; a mapping,
+    or one line naming the attribute."""
+    value = attrs.get(key, {})
+    where = typed.place_of(attrs, key)
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except RecursionError:
+            raise UserError(f"{where}: JSON nested too deeply") from None
+        except ValueError:
+            raise UserError(
+                f"{where}: expected a mapping (JSON), got {typed.show(value)}"
+            ) from None
+    return typed.as_mapping(value, where)
 
 
 # -- reading --------------------------------------------------------------------------
@@ -96,6 +109,8 @@ def _first_line(exc: Exception) -> str:
 
 def _values(path, ds) -> np.ndarray:
     """A dataset's numbers, or one line naming the file and the dataset."""
+    if ds.dtype.kind not in "biuf":  # text, complex, compound...: not a signal
+        raise UserError(f"{path}: dataset {ds.name} is not numeric ({ds.dtype})")
     try:
         return np.asarray(ds[()], dtype=np.float64)
     except OSError as exc:  # h5py: a damaged compressed chunk fails its filter
@@ -127,16 +142,18 @@ def _select(path, available: list[str], trials) -> list[str]:
     return out
 
 
-def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
-    version = int(f.attrs.get("format_version", FORMAT_VERSION))
+def _read_layout(path, f, trials, mapping, rate, given) -> list[Trial]:
+    version = typed.integer(read_attrs(f), "format_version", FORMAT_VERSION)
     if version > FORMAT_VERSION:
         raise UserError(
             f"{path}: trial format version {version} is newer than this "
             f"evo-door reads ({FORMAT_VERSION}); upgrade evo-door"
         )
-    if "trials" not in f:
+    if "trials" not in f or not hasattr(f["trials"], "keys"):
         raise UserError(f"{path}: no 'trials' group")
     root = f["trials"]
+    if not len(root):
+        raise UserError(f"{path}: no trials: its 'trials' group is empty")
     out = []
     for name in _select(path, list(root.keys()), trials):
         g = root[name]
@@ -145,28 +162,34 @@ def _read_layout(path, f, trials, mapping, rate, fields) -> list[Trial]:
             raise UserError(f"{where}: is a dataset, expected a trial group")
         columns = {}
         for key, ds in g.items():
-            if hasattr(ds, "shape"):
-                unit = ds.attrs.get("unit")
+            if hasattr(ds, "shape") and key in UNITS:
+                if len(ds.shape) != 1:
+                    raise UserError(
+                        f"{path}: {ds.name}: expected a 1-D array, got shape {ds.shape}"
+                    )
                 columns[key] = Column(
-                    key, _values(path, ds), _text(unit) if unit is not None else None
+                    key, _values(path, ds), typed.text(read_attrs(ds), "unit", None)
                 )
         attrs = read_attrs(g)
+        truth = g["truth"] if "truth" in g else None
+        if truth is not None and not hasattr(truth, "keys"):
+            raise UserError(f"{path}: {truth.name}: expected a group, got a dataset")
         meta_fields = {
-            "trial_id": _text(attrs.get("trial_id", name)),
-            "user_id": _text(attrs.get("user_id", "")),
-            "kind": _text(attrs.get("kind", "")),
-            "theta0": float(attrs["theta0"]) if "theta0" in attrs else None,
-            "dtheta0": float(attrs["dtheta0"]) if "dtheta0" in attrs else None,
-            "sensors": _json_field(attrs.get("sensors", {})),
-            "meta": _json_field(attrs.get("meta", {})),
-            "truth": tree_attrs(read_group(g["truth"])) if "truth" in g else None,
+            "trial_id": typed.text(attrs, "trial_id", name),
+            "user_id": typed.text(attrs, "user_id", ""),
+            "kind": typed.text(attrs, "kind", ""),
+            "theta0": typed.number(attrs, "theta0", None),
+            "dtheta0": typed.number(attrs, "dtheta0", None),
+            "sensors": _json_field(attrs, "sensors"),
+            "meta": _json_field(attrs, "meta"),
+            "truth": tree_attrs(read_group(truth)) if truth is not None else None,
             "source": where,
         }
-        meta_fields.update({k: v for k, v in (fields or {}).items() if v is not None})
+        meta_fields.update({k: v for k, v in (given or {}).items() if v is not None})
         # the file's own channels only: no foreign-column guessing, no import record
         own = {k: c for k, c in columns.items() if k in UNITS}
         tr = trial_from_columns(own, where, mapping, rate, meta_fields, record_import=False)
-        stored = attrs.get("data_digest")
+        stored = typed.text(attrs, "data_digest", None)
         as_stored = (
             mapping is None
             and rate is None

@@ -67,7 +67,7 @@ def format_summary(trials: list[Trial], path="") -> str:
     lines += ["  ".join(r[c].ljust(width[c]) for c in cols) for r in rows]
     users = sorted({t.user_id for t in trials if t.user_id})
     head = f"{path}: {len(trials)} trial(s)" + (f", users {', '.join(users)}" if users else "")
-    truths = {t.truth.get("model") for t in trials if t.truth}
+    truths = {t.truth["model"] for t in trials if t.truth and "model" in t.truth}
     if truths:
         src = {t.truth.get("params_source", "") for t in trials if t.truth} - {""}
         head += f"; generated from model {', '.join(sorted(truths))}"

@@ -332,3 +332,60 @@ class Trial:
         if problem is not None:
             row, what, detail = problem
             raise UserError(f"{where}: channel 't' {what} at row {row}: {detail}")
+        _check_fields(self, where)
+
+
+def _check_fields(trial: Trial, where: str) -> None:
+    """The trial's fields beyond its signals have the types the code reads them as (a
+    trial read from a file is data): texts, finite initial states, the sensors' metadata
+    and the truth as mappings, a sensor's range two rising numbers; else one line."""
+    from evo_door.files.fields import as_mapping, as_number, as_text
+
+    for key in ("trial_id", "user_id", "kind", "source"):
+        as_text(getattr(trial, key), f"{where}: {key}")
+    for key in ("theta0", "dtheta0"):
+        if getattr(trial, key) is not None:
+            as_number(getattr(trial, key), f"{where}: {key}", finite=True)
+    as_mapping(trial.meta, f"{where}: meta")
+    for channel, info in as_mapping(trial.sensors, f"{where}: sensors").items():
+        if not isinstance(info, dict):
+            continue  # not a sensor's record: Trial.sensor reads it as none
+        span = info.get("range")
+        if span is None:
+            continue
+        what = f"{where}: sensors.{channel}.range"
+        if not isinstance(span, (list, tuple)) or len(span) != 2:
+            raise UserError(f"{what}: expected [low, high], got {str(span)[:40]}")
+        lo, hi = (as_number(v, what, finite=True) for v in span)
+        if not lo < hi:
+            raise UserError(f"{what}: expected low < high, got [{lo:g}, {hi:g}]")
+    if trial.truth is not None:
+        truth = as_mapping(trial.truth, f"{where}: truth")
+        _check_truth(truth, f"{where}: truth")
+        if "params" in truth:
+            as_mapping(truth["params"], f"{where}: truth.params", as_number)
+        for key in ("model", "params_source"):
+            if key in truth:
+                as_text(truth[key], f"{where}: truth.{key}")
+
+
+def _check_truth(tree: dict, where: str, depth: int = 0) -> None:
+    """The truth can be written as it is (as groups of attributes): every key names a
+    group or an attribute (not empty, no '/'), every text is one a file holds, every
+    whole number fits 64 bits; at most 8 levels deep."""
+    from evo_door.errors import plain_text
+
+    if depth > 8:
+        raise UserError(f"{where}: nested more than 8 levels deep")
+    for key, value in tree.items():
+        if not key or "/" in key or key in (".", ".."):
+            raise UserError(f"{where}: {key!r} cannot name a stored value")
+        plain_text(key, where)
+        at = f"{where}.{key}"
+        if isinstance(value, dict):
+            _check_truth(value, at, depth + 1)
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, str):
+                plain_text(v, at)
+            elif isinstance(v, int) and not -(2**63) <= v < 2**63:
+                raise UserError(f"{at}: a whole number beyond 64 bits")

@@ -88,19 +88,20 @@ class AlgorithmSpec:
     @classmethod
     def from_resolved(cls, data: dict) -> AlgorithmSpec:
         """The inverse of :meth:`resolved` (keys added since a file was written take
-        their defaults)."""
+        their defaults); each setting checked for its type (a results file is data:
+        :mod:`evo_door.files.fields`), out of range a ValueError."""
+        from evo_door.files import fields as f
+
         return cls(
-            kind=data["kind"],
-            ga=GASettings(**{k: data[k] for k in GA_KEYS if k in data}),
-            polish=data["polish"],
-            local=LocalSettings(
-                **{f.name: data[f.name] for f in fields(LocalSettings) if f.name in data}
-            ),
-            start=dict(data.get("start") or {}),
-            change=str(data.get("change", "normalised")),
-            margin=float(data.get("margin", 1.0)),
+            kind=f.text(data, "kind", choices=ALGORITHM_KINDS),
+            ga=f.stored(GASettings, data),
+            polish=f.text(data, "polish", choices=POLISH),
+            local=f.stored(LocalSettings, data),
+            start=f.mapping(data, "start", {}, f.as_number),
+            change=f.text(data, "change", "normalised", choices=CHANGE_MEASURES),
+            margin=f.number(data, "margin", 1.0),
             scan=ScanSettings(
-                points=int(data.get("scan", 0)), starts=int(data.get("starts", STARTS))
+                points=f.integer(data, "scan", 0, lo=0), starts=f.integer(data, "starts", STARTS)
             ),
         )
 

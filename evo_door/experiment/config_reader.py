@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from evo_door.errors import UserError
+from evo_door.errors import UserError, plain_text
 from evo_door.experiment.yamltree import LinedList, LinedMap
 from evo_door.params.declaration import suggest
 
@@ -119,6 +119,7 @@ def _resolve_path(text: str, base_dir: Path, where: str, key: str) -> str:
 
     ``where`` (file:line) and ``key`` (its dotted path) locate the entry in messages.
     """
+    plain_text(text, f"{where}: {key}")  # no NUL, no lone surrogate: no path holds one
     p = Path(text).expanduser()
     candidates = [p] if p.is_absolute() else [base_dir / p, Path.cwd() / p]
     for c in candidates:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.files import ATTRS, Dataset
+from evo_door.files import ATTRS, DamagedFile, Dataset, fields
 from evo_door.perception import JND, FeelCurve, check_verdict, model_curve, perceptual_check
 from evo_door.perception.feel import DIRECTIONS
 
@@ -88,15 +88,36 @@ class FeelCheck:
 
     @classmethod
     def from_tree(cls, node) -> FeelCheck:
-        """Read the group back (a tree, or a group read on demand)."""
+        """Read the group back (a tree, or a group read on demand), each value checked (a
+        results file is data: :mod:`evo_door.files.fields`)."""
         a = node[ATTRS]
+        dynamics = _json(a, "dynamics", "null")
+        if dynamics is not None:
+            where = fields.place_of(a, "dynamics")
+            dynamics = fields.as_mapping(dynamics, where, fields.as_numbers)
+            for k, pair in dynamics.items():
+                if k not in ("inertia", "damping") or len(pair) != 2:
+                    raise DamagedFile(f"{where}: expected inertia and damping, each [m, c]")
         return cls(
-            mechanism=_curve_from_tree(node["mechanism"]),
-            chosen=_curve_from_tree(node["chosen"]),
-            jnd=JND.from_mapping(json.loads(a["jnd"])),
-            dynamics=json.loads(a.get("dynamics") or "null"),
+            mechanism=_curve_from_tree(fields.group(node, "mechanism")),
+            chosen=_curve_from_tree(fields.group(node, "chosen")),
+            jnd=JND.from_mapping(_json(a, "jnd"), fields.place_of(a, "jnd")),
+            dynamics=dynamics,
             recorded=True,
         )
+
+
+def _json(a, key: str, default=None):
+    """An attribute holding JSON text, decoded; ``default`` (JSON) where missing."""
+    text = fields.text(a, key, default)
+    if text is None:
+        raise DamagedFile(f"{fields.place_of(a, key)}: missing")
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise DamagedFile(f"{fields.place_of(a, key)}: JSON nested too deeply") from None
+    except ValueError as exc:
+        raise DamagedFile(f"{fields.place_of(a, key)}: not valid JSON ({str(exc)[:80]})") from None
 
 
 def _curve_tree(curve: FeelCurve) -> dict:
@@ -111,12 +132,13 @@ def _curve_tree(curve: FeelCurve) -> dict:
 
 def _curve_from_tree(node) -> FeelCurve:
     a = node[ATTRS]
+    theta = fields.array(node, "theta", shape=(None,))
     return FeelCurve(
-        np.asarray(node["theta"]),
-        np.asarray(node["opening"]),
-        np.asarray(node["closing"]),
-        source=str(a.get("source", "")),
-        origin=json.loads(a.get("origin") or "{}"),
+        theta,
+        fields.array(node, "opening", shape=theta.shape),
+        fields.array(node, "closing", shape=theta.shape),
+        source=fields.text(a, "source", ""),
+        origin=fields.as_mapping(_json(a, "origin", "{}"), fields.place_of(a, "origin")),
     )
 
 

@@ -251,25 +251,24 @@ class IntegrationError:
 
     @classmethod
     def from_tree(cls, node) -> IntegrationError:
-        """Read the group back (a tree, or a group read on demand)."""
+        """Read the group back (a tree, or a group read on demand), each value checked
+        (:mod:`evo_door.files.fields`: a results file is data)."""
+        from evo_door.channels import RESPONSE_CHANNELS
+        from evo_door.files import fields
+
         a = node[ATTRS]
-        units = a["units"]
-        return cls(
-            method=a["method"],
-            substeps=int(a["substeps"]),
-            tolerance=float(a["tolerance"]),
-            refined_method=a["refined_method"],
-            refined_substeps=int(a["refined_substeps"]),
-            refined_tolerance=float(a["refined_tolerance"]),
-            channel=a["channel"],
-            theta_unit=units["theta_max"],
-            fitness_unit=units["objective"],
-            trial_ids=list(a["trial_ids"]),
-            roles=list(a["roles"]),
-            objective=float(a["objective"]),
-            objective_refined=float(a["objective_refined"]),
-            ok=np.asarray(node["ok"], dtype=bool),
-            **{name: np.asarray(node[name], dtype=float) for name in _PER_TRIAL},
+        units = fields.mapping(a, "units", None, fields.as_text)
+        fields.text(a, "channel", choices=RESPONSE_CHANNELS)
+        per = {name: ("t",) for name in (*_PER_TRIAL, "trial_ids", "roles")}
+        return fields.stored(
+            cls,
+            node,
+            a,
+            shapes=per,
+            sizes={"t": "trial_ids"},
+            theta_unit=fields.text(units, "theta_max"),
+            fitness_unit=fields.text(units, "objective"),
+            ok=fields.array(node, "ok", kind="b", shape=(len(fields.texts(a, "trial_ids")),)),
         )
 
 

@@ -21,8 +21,8 @@ import math
 import numpy as np
 
 from evo_door.channels import unit
-from evo_door.experiment import store
 from evo_door.experiment.results import Results
+from evo_door.experiment.stored import setup_from_tree
 from evo_door.optim.kernels import KINDS as _KINDS
 
 #: objective kinds, in the order the seed writes them (eq. 5.3, eq. 5.4)
@@ -45,7 +45,7 @@ def yardstick(res: Results) -> dict:
     validation trials, inf where a simulation blew up). The RMS is ISE's measure and the
     max max-square's: both are given so that neither objective is judged on its own.
     """
-    setup = store.setup_from_tree(res.tree)
+    setup = setup_from_tree(res.tree)
     trials = setup.fit + setup.validation
     channel = next(
         c for c in YARDSTICK_CHANNELS if all(getattr(tr, c) is not None for tr in trials)

@@ -49,7 +49,7 @@ from evo_door.experiment.config_reader import _Reader, _resolve_path, executor_s
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
 from evo_door.experiment.runner import ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
-from evo_door.files import ATTRS, FileLock, Keep, read_text, remove_stale_temporaries
+from evo_door.files import ATTRS, FileLock, Keep, fields, read_text, remove_stale_temporaries
 from evo_door.params.declaration import suggest
 
 PIPELINE_KEYS = (
@@ -363,20 +363,20 @@ class PipelineRun:
                 raise UserError(f"{path}: holds one run, not a pipeline")
             tree = _read_head(path)
             head = tree["pipeline"][ATTRS]
+            text = fields.text(tree["pipeline"], "text")
+            source, base_dir = fields.text(head, "source"), fields.text(head, "base_dir")
+            overrides = fields.texts(head, "overrides")
             try:
                 pipeline = load_pipeline(
-                    text=tree["pipeline"]["text"],
-                    source=head["source"],
-                    base_dir=head["base_dir"],
-                    overrides=head["overrides"],
+                    text=text, source=source, base_dir=base_dir, overrides=overrides
                 )
             except UserError as exc:
                 raise UserError(
                     f"{path}: cannot resume: the pipeline's stages no longer load ({exc})"
                 ) from None
-            run = cls(pipeline, path, attrs["created"], tree["versions"][ATTRS])
-            run.elapsed_before = float(attrs.get("total_s", 0.0))
-            run.executor = attrs.get("executor") or pipeline.executor
+            run = cls(pipeline, path, fields.text(attrs, "created"), tree["versions"][ATTRS])
+            run.elapsed_before = fields.number(attrs, "total_s", 0.0)
+            run.executor = fields.text(attrs, "executor", "") or pipeline.executor
             for name in attrs["started"]:
                 stage = store.peek(path, name)
                 if stage[ATTRS].get("status") == "complete" and stage["best"] is not None:
@@ -526,6 +526,9 @@ def _read_head(path) -> dict:
     from evo_door.files import open_h5, read_group
 
     with open_h5(path, "results file") as f:
+        for name in ("pipeline", "versions"):
+            if name not in f or not hasattr(f[name], "keys"):
+                raise UserError(f"{path}: /{name}: missing, or not a group")
         return {"pipeline": read_group(f["pipeline"]), "versions": read_group(f["versions"])}
 
 

@@ -15,16 +15,28 @@ folder of large files. The layout read is :mod:`.store`'s.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from evo_door.channels import RESPONSE_CHANNELS
 from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.feel_check import FeelCheck, try_feel_check
 from evo_door.experiment.integration_error import IntegrationError
-from evo_door.files import ATTRS, read_attrs, read_group
+from evo_door.experiment.stored import (
+    PIPELINE_ATTRS,
+    checked,
+    config_of,
+    feel_from_tree,
+    job_keys,
+    numbers_of,
+    root_attrs,
+    trial_from_tree,
+)
+from evo_door.files import ATTRS, MissingInFile, Node, fields, read_attrs, read_group
 from evo_door.optim.smallest_change import SmallestChange
 from evo_door.optim.tolerance import Specification
 
@@ -132,7 +144,7 @@ class StoredTrial:
 
     def trial(self):
         """The :class:`~evo_door.data.trial.Trial` itself (its arrays, its sensors)."""
-        return store.trial_from_tree(self.node)
+        return trial_from_tree(self.node)
 
 
 @dataclass(frozen=True)
@@ -158,7 +170,7 @@ class RunRecord:
     (``perceptual_check/``; for a file written before the group existed, computed on a
     full read), None for a run not fitted to a chosen feel or not finished. ``tree`` is the raw
     layout, kept for code that rebuilds a run's setup from it
-    (:func:`store.setup_from_tree`); None when read with ``arrays=False``.
+    (:func:`.stored.setup_from_tree`); None when read with ``arrays=False``.
     """
 
     path: Path
@@ -214,7 +226,8 @@ def read_results(path, *, arrays: bool = True) -> RunRecord | PipelineRecord:
                 return _run(f, Path(path), None, {}, arrays)
             return _pipeline(f, path, arrays)
         except (OSError, KeyError) as exc:  # a damaged file, read as peek says it
-            raise UserError(f"{path}: not a readable results file ({exc})") from None
+            detail = str(exc).removeprefix(f"{path}: ") if isinstance(exc, MissingInFile) else exc
+            raise UserError(f"{path}: not a readable results file ({detail})") from None
 
 
 def read_run(path, stage: str | None = None) -> RunRecord:
@@ -246,9 +259,8 @@ def check_file_models(path) -> None:
         if read_attrs(f).get("format") != store.PIPELINE_FORMAT:
             _check_models(f, Path(path), None)
             return
-        stages = f["stages"] if "stages" in f else {}
-        for name in stages:
-            _check_models(stages[name], Path(path), name)
+        for name in store.started_stages(f, path):
+            _check_models(f["stages"][name], Path(path), name)
 
 
 def _check_models(g, path: Path, stage) -> None:
@@ -263,7 +275,7 @@ def _check_models(g, path: Path, stage) -> None:
         config = json.loads(_text(g["experiment"]["resolved"][()]))
         target = config.get("target") or {}
         names += [target.get("model"), (target.get("inputs") or {}).get("model")]
-    except (KeyError, ValueError, TypeError, AttributeError):
+    except (KeyError, ValueError, TypeError, AttributeError, RecursionError):
         pass  # (a damaged configuration: its reader says so in its own line)
     for name in names:
         if isinstance(name, str) and name:
@@ -272,25 +284,31 @@ def _check_models(g, path: Path, stage) -> None:
 
 def _sources(f) -> dict[str, dict[str, str]]:
     """Stage -> its ``{from: STAGE}`` sources, from ``pipeline/resolved`` ({} if none)."""
+    return store.sources_of(_pipeline_resolved(f))
+
+
+def _pipeline_resolved(f) -> dict:
+    """``pipeline/resolved``: the pipeline's configuration ({} where the file has none)."""
     if "pipeline/resolved" not in f:
         return {}
-    stages = json.loads(f["pipeline/resolved"][()]).get("stages") or {}
-    return {name: dict(entry.get("from") or {}) for name, entry in stages.items()}
+    return store.pipeline_resolved(f["pipeline/resolved"][()], f"{f.filename}: /pipeline/resolved")
 
 
 def _pipeline(f, path, arrays: bool) -> PipelineRecord:
-    attrs = read_attrs(f)
-    started = list(f["stages"]) if "stages" in f else []
-    resolved = json.loads(f["pipeline/resolved"][()]) if "pipeline/resolved" in f else {}
+    attrs = checked(read_attrs(f), PIPELINE_ATTRS)
+    started = store.started_stages(f, path)
+    resolved = _pipeline_resolved(f)
     sources = _sources(f)
-    declared = list(attrs.get("stages") or [])
+    declared = fields.texts(attrs, "stages", [])
     # the stages in the pipeline's order (a file may list a later stage's group first)
     order = [name for name in declared if name in started]
     order += [name for name in started if name not in order]
-    runs = {
-        name: _run(f["stages"][name], Path(path), name, sources.get(name, {}), arrays)
-        for name in order
-    }
+    runs = {}
+    for name in order:
+        group = f["stages"][name]
+        if not hasattr(group, "keys"):
+            raise UserError(f"{path}: /stages/{name}: expected a group, got a dataset")
+        runs[name] = _run(group, Path(path), name, sources.get(name, {}), arrays)
     return PipelineRecord(
         path=path,
         attrs=attrs,
@@ -298,7 +316,9 @@ def _pipeline(f, path, arrays: bool) -> PipelineRecord:
         started=started,
         runs=runs,
         sources=sources,
-        report=resolved.get("report") or {},
+        report=fields.mapping(
+            Node(resolved, place=f"{path}: /pipeline/resolved:", style="key"), "report", {}
+        ),
     )
 
 
@@ -307,22 +327,26 @@ def _run(g, path: Path, stage, sources: dict, arrays: bool) -> RunRecord:
     _check_models(g, path, stage)  # before anything is built from the file
     tree = read_group(g) if arrays else None
     node = tree if arrays else _Light(g)
-    experiment = node["experiment"]
+    experiment = fields.group(node, "experiment")
+    settings = _settings(fields.group(node, "setup"))
+    jobs_node = fields.group(node, "jobs")
     record = RunRecord(
         path=path,
         stage=stage,
-        attrs=node[ATTRS],
-        config=json.loads(_text(experiment["resolved"])),
-        settings=_settings(node["setup"]),
-        jobs=[_job(node["jobs"][k], arrays) for k in _keys(node["jobs"])],
-        best=_best(node["best"], arrays) if "best" in node else None,
-        per_trial=_per_trial(node["summary"]) if arrays and "summary" in node else None,
-        timings=node["timings"][ATTRS],
+        attrs=root_attrs(node[ATTRS]),
+        config=config_of(experiment["resolved"], fields.place_of(experiment, "resolved")),
+        settings=settings,
+        jobs=[_job(fields.group(jobs_node, k), arrays, settings) for k in job_keys(jobs_node)],
+        best=_best(fields.group(node, "best"), arrays, settings) if "best" in node else None,
+        per_trial=_per_trial(fields.group(node, "summary"), settings)
+        if arrays and "summary" in node
+        else None,
+        timings=numbers_of(fields.group(node, "timings")[ATTRS]),
         provenance=Provenance(
-            source=experiment[ATTRS].get("source", ""),
-            overrides=list(experiment[ATTRS].get("overrides") or []),
-            text=_text(experiment["text"]) if arrays else "",
-            versions=node["versions"][ATTRS],
+            source=fields.text(experiment[ATTRS], "source", ""),
+            overrides=fields.texts(experiment[ATTRS], "overrides", []),
+            text=fields.text(experiment, "text") if arrays else "",
+            versions=fields.group(node, "versions")[ATTRS],
         ),
         sources=sources,
         responses=_responses(tree) if arrays else [],
@@ -339,21 +363,21 @@ def _tolerance(tree: dict | None) -> Specification | None:
     """``tolerance/``, None where the file has none or was read without arrays."""
     if tree is None or "tolerance" not in tree:
         return None
-    return Specification.from_tree(tree["tolerance"])
+    return Specification.from_tree(fields.group(tree, "tolerance"))
 
 
 def _integration_error(node) -> IntegrationError | None:
     """``integration_error/``, None where the file has none (written before it existed)."""
     if "integration_error" not in node:
         return None
-    return IntegrationError.from_tree(node["integration_error"])
+    return IntegrationError.from_tree(fields.group(node, "integration_error"))
 
 
 def _perceptual_check(node, record: RunRecord) -> FeelCheck | None:
     """``perceptual_check/``; where the file has none, computed for a complete run fitted
     to a chosen feel when the arrays are read (``arrays=False`` reads stay cheap)."""
     if "perceptual_check" in node:
-        return FeelCheck.from_tree(node["perceptual_check"])
+        return FeelCheck.from_tree(fields.group(node, "perceptual_check"))
     if record.tree is None or not record.complete or "best" not in node:
         return None
     from evo_door.experiment.feel_check import fitted_to_feel
@@ -366,26 +390,35 @@ def _perceptual_check(node, record: RunRecord) -> FeelCheck | None:
     except UserError:  # a user model file moved away: nothing to compute with
         return None
     setup = node["setup"]
-    feel = store.feel_from_tree(setup["feel"]) if "feel" in setup else None
+    feel = feel_from_tree(fields.group(setup, "feel")) if "feel" in setup else None
     return try_feel_check(model, node["best"]["full"], record.config, feel, recorded=False)
 
 
-class _Light:
+class _Light(Mapping):
     """An open group read on demand, as :func:`read_group` would give it: attributes of
     every group, datasets read only when asked for (``arrays=False`` reads)."""
 
     def __init__(self, group):
         self._g = group
+        self.place = f"{group.file.filename}: {group.name}"
+
+    def name(self, key) -> str:
+        return f"{self.place.rstrip('/')}/{key}"
 
     def __contains__(self, key) -> bool:
-        return key in self._g
+        return key == ATTRS or key in self._g
 
     def __iter__(self):
         return iter(self._g)
 
+    def __len__(self) -> int:
+        return len(self._g)
+
     def __getitem__(self, key):
         if key == ATTRS:
             return read_attrs(self._g)
+        if key not in self._g:
+            raise MissingInFile(f"{self.name(key)}: missing")
         item = self._g[key]
         return item[()] if hasattr(item, "dtype") else _Light(item)
 
@@ -394,98 +427,133 @@ def _text(value) -> str:
     return value.decode() if isinstance(value, bytes) else str(value)
 
 
-def _keys(jobs) -> list[str]:
-    return sorted((k for k in jobs if k != ATTRS), key=int)
-
-
 def _settings(s) -> RunSettings:
     a = s[ATTRS]
-    return RunSettings(
-        model=a["model"],
-        free=list(a["free"]),
-        param_names=list(a["param_names"]),
-        objective=dict(a["objective"]),
-        method=a.get("method", ""),
-        substeps=int(a.get("substeps", 1)),
-        fit_ids=list(a.get("fit_ids") or []),
-        validation_ids=list(a.get("validation_ids") or []),
-        base=np.asarray(s["base"]),
-        lower=np.asarray(s["lower"]),
-        upper=np.asarray(s["upper"]),
-        tolerance=float(a["tolerance"]) if a.get("tolerance") is not None else None,
+    free = fields.texts(a, "free")
+    names = fields.texts(a, "param_names")
+    n = len(free)
+    settings = RunSettings(
+        model=fields.text(a, "model"),
+        free=free,
+        param_names=names,
+        objective=fields.mapping(a, "objective"),
+        method=fields.text(a, "method", ""),
+        substeps=fields.integer(a, "substeps", 1, lo=1),
+        fit_ids=fields.texts(a, "fit_ids", []),
+        validation_ids=fields.texts(a, "validation_ids", []),
+        base=fields.array(s, "base", shape=(None,)),
+        lower=fields.array(s, "lower", shape=(n,)),
+        upper=fields.array(s, "upper", shape=(n,)),
+        tolerance=fields.number(a, "tolerance", None),
     )
+    if not set(free) <= set(names) and names:
+        raise UserError(f"{fields.place_of(a, 'free')}: names a parameter not in param_names")
+    return settings
 
 
-def _job(j, arrays: bool) -> Job:
+def _job(j, arrays: bool, settings: RunSettings) -> Job:
     a = j[ATTRS]
     ga = None
+    n = len(settings.free)
     if "ga" in j:
-        g = j["ga"]
+        g = fields.group(j, "ga")
         ga_attrs = g[ATTRS]
+        hof_f = np.zeros(0)
+        if "hof_x" in g and "hof_fitness" in g:
+            hof_f = _first_objective(fields.array(g, "hof_fitness"))
+            if hof_f.ndim != 1:
+                raise UserError(
+                    f"{fields.place_of(g, 'hof_fitness')}: expected 1-D or 2-D numbers, "
+                    f"got shape {hof_f.shape}"
+                )
         ga = GAState(
-            generation=int(ga_attrs["generation"]),
-            evaluations=int(ga_attrs["evaluations"]),
-            blowups=int(ga_attrs["blowups"]),
-            best_fitness=float(ga_attrs["best_fitness"]),
-            hof_x=np.asarray(g["hof_x"]) if "hof_x" in g else np.zeros((0, 0)),
-            hof_fitness=_first_objective(g["hof_fitness"]) if "hof_fitness" in g else np.zeros(0),
-            logbook={k: v for k, v in g["logbook"].items() if k != ATTRS} if arrays else None,
+            generation=fields.integer(ga_attrs, "generation", lo=0),
+            evaluations=fields.integer(ga_attrs, "evaluations", lo=0),
+            blowups=fields.integer(ga_attrs, "blowups", lo=0),
+            best_fitness=fields.number(ga_attrs, "best_fitness"),
+            hof_x=fields.array(g, "hof_x", np.zeros((0, n)), shape=(hof_f.size, n)),
+            hof_fitness=hof_f,
+            logbook=_logbook(fields.group(g, "logbook")) if arrays else None,
         )
     local = None
     if "local" in j:
-        local = float(j["local"][ATTRS]["fitness"])
+        local = fields.number(fields.group(j, "local")[ATTRS], "fitness")
     return Job(
-        name=a.get("name", ""),
-        done=bool(a.get("done")),
-        ga_stop=a.get("ga_stop") or "",
+        name=fields.text(a, "name", ""),
+        done=fields.flag(a, "done", False),
+        ga_stop=fields.text(a, "ga_stop", ""),
         ga=ga,
         local_fitness=local,
-        front=SmallestChange.from_tree(j["front"]) if arrays and "front" in j else None,
+        front=SmallestChange.from_tree(fields.group(j, "front"))
+        if arrays and "front" in j
+        else None,
     )
+
+
+def _logbook(log) -> dict:
+    """A GA's logbook: column -> 1-D array, every column as long."""
+    out = {k: fields.array(log, k, shape=(None,), kind="n") for k in log if k != ATTRS}
+    lengths = {len(v) for v in out.values()}
+    if len(lengths) > 1:
+        raise UserError(f"{fields.node_place(log)}: columns of different lengths")
+    return out
 
 
 def _first_objective(values) -> np.ndarray:
     """A hall of fame's fitness; NSGA-II's archive keeps two objectives a point: its
     first, the perceptual error, is the fitness a run is listed and compared by."""
     values = np.asarray(values)
-    return values[:, 0] if values.ndim == 2 else values
+    return values[:, 0] if values.ndim == 2 and values.shape[1] else values
 
 
-def _best(b, arrays: bool) -> Best:
+def _best(b, arrays: bool, settings: RunSettings) -> Best:
     a = b[ATTRS]
+    values = fields.mapping(a, "values", {}, fields.as_number)
+    if not set(values) <= set(settings.free):
+        raise UserError(f"{fields.place_of(a, 'values')}: names a parameter that is not free")
     return Best(
-        fitness=float(a["fitness"]),
-        values=dict(a.get("values") or {}),
-        fit_errors=dict(a.get("fit_errors") or {}),
-        validation_errors=dict(a.get("validation_errors") or {}),
-        meaning=a.get("meaning"),
-        at_bound=dict(a["at_bound"]) if "at_bound" in a else None,
-        identifiability=b["identifiability"] if arrays and "identifiability" in b else None,
+        fitness=fields.number(a, "fitness"),
+        values=values,
+        fit_errors=fields.mapping(a, "fit_errors", {}, fields.as_number),
+        validation_errors=fields.mapping(a, "validation_errors", {}, fields.as_number),
+        meaning=fields.text(a, "meaning", None),
+        at_bound=fields.mapping(a, "at_bound", None, fields.as_text),
+        identifiability=fields.group(b, "identifiability")
+        if arrays and "identifiability" in b
+        else None,
     )
 
 
-def _per_trial(s: dict) -> PerTrialFits:
+def _per_trial(s: dict, settings: RunSettings) -> PerTrialFits:
+    trials = fields.texts(s[ATTRS], "trials")
+    n = len(settings.free)
     return PerTrialFits(
-        trials=list(s[ATTRS]["trials"]), x=s["x"], min=s["min"], max=s["max"], mean=s["mean"]
+        trials=trials,
+        x=fields.array(s, "x", shape=(len(trials), n)),
+        min=fields.array(s, "min", shape=(n,)),
+        max=fields.array(s, "max", shape=(n,)),
+        mean=fields.array(s, "mean", shape=(n,)),
     )
 
 
 def _responses(tree: dict) -> list[Response]:
-    groups = tree.get("response", {})
+    groups = fields.group(tree, "response", {})
     out = []
-    for k in _keys(groups):
-        r = groups[k]
+    for k in job_keys(groups):
+        r = fields.group(groups, k)
         a = r[ATTRS]
+        t = fields.array(r, "t", shape=(None,))
+        shape = t.shape
         out.append(
             Response(
-                trial_id=a["trial_id"],
-                role=a["role"],
-                channel=a["channel"],
-                error=a["error"],
-                t=r["t"],
-                force=r["force"],
-                target=r["target"],
-                model=r["model"],
+                trial_id=fields.text(a, "trial_id"),
+                role=fields.text(a, "role"),
+                channel=fields.text(a, "channel", choices=RESPONSE_CHANNELS),
+                error=fields.number(a, "error"),
+                t=t,
+                force=fields.array(r, "force", shape=shape),
+                target=fields.array(r, "target", shape=shape),
+                model=fields.array(r, "model", shape=shape),
             )
         )
     return out
@@ -494,9 +562,13 @@ def _responses(tree: dict) -> list[Response]:
 def _trials(tree: dict) -> list[StoredTrial]:
     """The stored trials in the file's order (fitted ones, then validation ones)."""
     out = []
-    for key, node in tree.get("trials", {}).items():
-        if key == ATTRS or not isinstance(node, dict):
+    for key, node in fields.group(tree, "trials", {}).items():
+        if key == ATTRS:
             continue
+        node = fields.group(tree["trials"], key)
         a = node[ATTRS]
-        out.append(StoredTrial(key, a["trial_id"], a.get("truth") or {}, node))
+        truth = Node(fields.mapping(a, "truth", {}), place=fields.place_of(a, "truth"), style="key")
+        fields.mapping(truth, "params", None, fields.as_number)
+        fields.text(truth, "model", None)
+        out.append(StoredTrial(key, fields.text(a, "trial_id"), truth, node))
     return out

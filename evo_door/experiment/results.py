@@ -24,10 +24,10 @@ import numpy as np
 
 from evo_door.channels import unit as channel_unit
 from evo_door.errors import UserError
-from evo_door.experiment import store
 from evo_door.experiment.config_algorithm import POPULATION_KINDS
 from evo_door.experiment.feel_check import jnds_used, run_jnd_sources
 from evo_door.experiment.reader import Response, RunRecord, read_run
+from evo_door.experiment.stored import identifiability_from_tree, job_keys
 from evo_door.files import FileLock
 from evo_door.optim.bounds import bound_hits
 from evo_door.optim.problem import Objective
@@ -228,7 +228,7 @@ class Results:
 
     def jobs(self) -> list[dict]:
         """Each job's stored group whole (populations included), in job order."""
-        keys = sorted((k for k in self.tree["jobs"] if k != store.ATTRS), key=int)
+        keys = job_keys(self.tree["jobs"])
         return [self.tree["jobs"][k] for k in keys]
 
     def best(self) -> dict[str, float]:
@@ -467,7 +467,7 @@ class Results:
         best = self.record.best
         if best is None or best.identifiability is None:
             return None
-        return store.identifiability_from_tree(best.identifiability)
+        return identifiability_from_tree(best.identifiability)
 
     def channel_errors(self) -> dict[str, dict]:
         """Each trial's fit error as a person reads it: the RMS and the largest absolute

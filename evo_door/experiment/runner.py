@@ -25,7 +25,6 @@ What is checked and claimed before a run starts (its results file, its memory) i
 from __future__ import annotations
 
 import contextlib
-import json
 import signal
 import sys
 import time
@@ -35,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.answer_checks import identifiability_of, integration_error_of
 from evo_door.experiment.checkpoint import position, write_checkpoint
@@ -49,7 +47,8 @@ from evo_door.experiment.run_preflight import (
     default_output,
 )
 from evo_door.experiment.setup import Setup, users_trials
-from evo_door.files import ATTRS, FileLock, remove_stale_temporaries
+from evo_door.experiment.stored import config_of, restore_jobs, root_attrs, setup_from_tree
+from evo_door.files import ATTRS, FileLock, fields, remove_stale_temporaries
 from evo_door.optim.bounds import bound_hits
 from evo_door.optim.executors import DEFAULT as DEFAULT_EXECUTOR
 from evo_door.optim.executors import Executor, check_executor, open_executor
@@ -237,50 +236,30 @@ class ExperimentRun:
 
     @classmethod
     def from_tree(cls, tree: dict, path) -> ExperimentRun:
-        """Rebuild a run from its results tree (a file's root, or a pipeline stage's group)."""
-        config = json.loads(tree["experiment"]["resolved"])
+        """Rebuild a run from its results tree (a file's root, or a pipeline stage's group);
+        every value it takes is checked (:mod:`evo_door.files.fields`): a results file is
+        data, and a resumed run never starts from a state that does not fit together."""
+        experiment = fields.group(tree, "experiment")
+        config = config_of(experiment["resolved"], fields.place_of(experiment, "resolved"))
         algorithm = AlgorithmSpec.from_resolved(config["algorithm"])
-        setup = store.setup_from_tree(tree)
+        setup = setup_from_tree(tree)
         check_stored_memory(algorithm, len(setup.free), path)
-        root = tree[ATTRS]
+        root = root_attrs(tree[ATTRS])
         run = cls(
             config,
             algorithm,
             setup,
             path,
             {
-                "text": tree["experiment"]["text"],
-                "source": tree["experiment"][ATTRS]["source"],
-                "overrides": tree["experiment"][ATTRS]["overrides"],
+                "text": fields.text(experiment, "text"),
+                "source": fields.text(experiment[ATTRS], "source", ""),
+                "overrides": fields.texts(experiment[ATTRS], "overrides", []),
             },
-            tree["versions"][ATTRS],
-            root["created"],
-            elapsed=float(tree["timings"][ATTRS].get("total_s", 0.0)),
+            dict(fields.group(tree, "versions")[ATTRS]),
+            fields.text(root, "created"),
+            elapsed=fields.number(fields.group(tree, "timings")[ATTRS], "total_s", 0.0),
         )
-        ga = algorithm.search()
-        stored = sorted(
-            ((k, v) for k, v in tree["jobs"].items() if k != ATTRS), key=lambda kv: int(kv[0])
-        )
-        for job, (key, node) in zip(run.jobs, stored):
-            a = node[ATTRS]
-            if a["name"] != job.name:
-                raise UserError(f"{path}: job {key} is {a['name']!r}, expected {job.name!r}")
-            job.seconds = float(a.get("seconds", 0.0))
-            if "ga" in node:
-                job.ga = ga.restore(store.snapshot_from_tree(node["ga"]))
-                job.ga_stop = a.get("ga_stop", "")
-            if a.get("done"):
-                job.done = True
-                job.best_x = np.array(node["best_x"])
-                job.best_fitness = float(a["best_fitness"])
-                job.fit_errors = np.array(node["fit_errors"])
-                job.validation_errors = np.array(node["validation_errors"])
-                if "local" in node:
-                    job.local = store.local_from_tree(node["local"])
-                if "identifiability" in node:
-                    job.identifiability = store.identifiability_from_tree(node["identifiability"])
-                if "front" in node:
-                    job.front = SmallestChange.from_tree(node["front"])
+        restore_jobs(run.jobs, fields.group(tree, "jobs"), algorithm, setup, path)
         # every job done but the final write (best, responses) missing: still running
         run.status = (
             "complete"
@@ -292,7 +271,7 @@ class ExperimentRun:
             else "running"
         )
         run._trials_on_disk = True
-        run.executor = str(root.get("executor", DEFAULT_EXECUTOR))
+        run.executor = fields.text(root, "executor", DEFAULT_EXECUTOR)
         run.on_disk = position(run.jobs)
         return run
 

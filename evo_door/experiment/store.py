@@ -46,15 +46,11 @@ import os
 
 import numpy as np
 
-from evo_door.channels import RESPONSE_CHANNELS
-from evo_door.data.trial import Trial
 from evo_door.errors import NotResultsFileError, UserError
-from evo_door.files import ATTRS, Keep, decode_attr, open_h5, read_attrs, read_group
+from evo_door.files import ATTRS, DamagedFile, Keep, Node, fields, open_h5, read_attrs, read_group
 from evo_door.optim.bounds import bound_hits
 from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
-from evo_door.optim.local import LocalResult
 from evo_door.optim.nsga2 import NSGA2, FrontState
-from evo_door.optim.problem import Objective
 from evo_door.params.declaration import suggest
 from evo_door.sim.simulate import tolerance_of
 
@@ -71,22 +67,39 @@ PIPELINE_FORMAT = "evo-door pipeline"
 
 def _open(path):
     f = open_h5(path, "results file")
-    found = decode_attr(f.attrs.get("format"))
+    try:
+        found = read_attrs(f).get("format")
+    except BaseException:
+        f.close()
+        raise
     if found not in (FORMAT, PIPELINE_FORMAT):
         f.close()
         raise NotResultsFileError(f"{path}: not an evo-door results file (format {found!r})")
     return f
 
 
+def started_stages(f, path) -> list[str]:
+    """The stages a pipeline's file holds runs of (``/stages``' groups), in its order."""
+    if "stages" not in f:
+        return []
+    if not hasattr(f["stages"], "keys"):
+        raise DamagedFile(f"{path}: /stages: expected a group, got a dataset")
+    return list(f["stages"])
+
+
 def _run_group(f, path, stage):
     """The group holding one run: the root of a run's file, a stage's group of a pipeline's."""
-    if decode_attr(f.attrs.get("format")) != PIPELINE_FORMAT:
+    attrs = read_attrs(f)
+    if attrs.get("format") != PIPELINE_FORMAT:
         check_stage(path, stage)
         return f
-    declared = list(decode_attr(f.attrs.get("stages")) or [])
-    started = list(f["stages"]) if "stages" in f else []
+    declared = fields.texts(attrs, "stages", [])
+    started = started_stages(f, path)
     check_stage(path, stage, declared, started)
-    return f["stages"][stage]
+    group = f["stages"][stage]
+    if not hasattr(group, "keys"):
+        raise DamagedFile(f"{path}: /stages/{stage}: expected a group, got a dataset")
+    return group
 
 
 def check_stage(path, stage, declared=None, started=None) -> None:
@@ -119,10 +132,13 @@ def read_tree(path, stage: str | None = None) -> dict:
 def pipeline_attrs(path) -> dict | None:
     """The root attributes of a pipeline's file (``stages``, ``status``...), None for a run's."""
     with _open(path) as f:
+        from evo_door.experiment.stored import PIPELINE_ATTRS, checked
+
         attrs = read_attrs(f)
         if attrs.get("format") != PIPELINE_FORMAT:
             return None
-        attrs["started"] = list(f["stages"]) if "stages" in f else []
+        checked(attrs, PIPELINE_ATTRS)
+        attrs["started"] = started_stages(f, path)
         return attrs
 
 
@@ -134,22 +150,65 @@ def stage_sources(path) -> dict[str, dict[str, str]]:
     with _open(path) as f:
         if "pipeline/resolved" not in f:
             return {}
-        stages = json.loads(f["pipeline/resolved"][()]).get("stages") or {}
+        resolved = pipeline_resolved(f["pipeline/resolved"][()], f"{path}: /pipeline/resolved")
+    return sources_of(resolved)
+
+
+def pipeline_resolved(value, where: str) -> dict:
+    """``pipeline/resolved``: a pipeline's configuration (JSON text), its ``stages``
+    (name -> ``uses``, ``from``, ``where``) and ``report`` checked for their types."""
+    text = fields.as_text(value, where)
+    try:
+        resolved = json.loads(text)
+    except RecursionError:
+        raise DamagedFile(f"{where}: JSON nested too deeply") from None
+    except ValueError as exc:
+        raise DamagedFile(f"{where}: not valid JSON ({str(exc)[:80]})") from None
+    node = Node(fields.as_mapping(resolved, where), place=f"{where}:", style="key")
+    stages = fields.mapping(node, "stages", {})
+    for name, entry in stages.items():
+        entry = Node(
+            fields.as_mapping(entry, f"{where}: stages.{name}"),
+            place=f"{where}: stages.{name}",
+            style="key",
+        )
+        fields.mapping(entry, "from", {}, fields.as_text)
+        fields.texts(entry, "uses", [])
+    fields.mapping(node, "report", {})
+    return dict(node)
+
+
+def sources_of(resolved: dict) -> dict[str, dict[str, str]]:
+    """Stage -> its ``{from: STAGE}`` sources, of a checked :func:`pipeline_resolved`."""
+    stages = resolved.get("stages") or {}
     return {name: dict(entry.get("from") or {}) for name, entry in stages.items()}
 
 
 def peek(path, stage: str | None = None) -> dict:
     """Root attributes, the resolved configuration and each job's GA attributes, cheaply."""
+    from evo_door.experiment.stored import config_of, root_attrs
+
     try:
         with _open(path) as f:
             g = _run_group(f, path, stage)
             jobs = g["jobs"]
+            if not hasattr(jobs, "keys") or not hasattr(g["experiment"], "keys"):
+                raise DamagedFile(f"{path}: {g.name}: jobs and experiment must be groups")
             return {
-                ATTRS: read_attrs(g),
-                "resolved": json.loads(g["experiment/resolved"][()]),
-                "jobs": {k: read_attrs(jobs[k]["ga"]) if "ga" in jobs[k] else {} for k in jobs},
+                ATTRS: root_attrs(read_attrs(g)),
+                "resolved": config_of(
+                    g["experiment/resolved"][()], f"{path}: {g['experiment'].name}/resolved"
+                ),
+                "jobs": {
+                    k: read_attrs(jobs[k]["ga"])
+                    if hasattr(jobs[k], "keys") and "ga" in jobs[k]
+                    else {}
+                    for k in jobs
+                },
                 "best": read_attrs(g["best"]) if "best" in g else None,
             }
+    except DamagedFile:
+        raise
     except (OSError, KeyError) as exc:
         raise UserError(f"{path}: not a readable results file ({exc})") from None
 
@@ -303,32 +362,6 @@ def feel_tree(feel) -> dict:
     }
 
 
-def feel_from_tree(node: dict):
-    from evo_door.perception import JND, FeelCurve, FeelTarget
-
-    a = node[ATTRS]
-    curve = FeelCurve(
-        np.array(node["theta"]),
-        np.array(node["opening"]),
-        np.array(node["closing"]),
-        source=str(a["source"]),
-        origin=json.loads(a["origin"]),
-    )
-    dynamics = json.loads(a["dynamics"])
-    return FeelTarget(
-        curve,
-        JND.from_mapping(json.loads(a["jnd"])),
-        dynamics=tuple(dynamics) if dynamics is not None else None,
-        closed=float(a["closed"]),
-        latch_zone=float(a["latch_zone"]),
-        peak_weight=float(a["peak_weight"]),
-        # (a file written before the excess and angle terms: none, so that it resumes
-        # as it ran)
-        excess_weight=float(a.get("excess_weight", 0.0)),
-        angle_weight=float(a.get("angle_weight", 0.0)),
-    )
-
-
 _TRIAL_FIELDS = (
     "trial_id",
     "user_id",
@@ -357,72 +390,6 @@ def trials_tree(setup) -> dict:
                 node[ch] = getattr(tr, ch)
             out[f"{role}_{k}"] = node
     return out
-
-
-def trial_from_tree(node: dict) -> Trial:
-    a = node[ATTRS]
-    kwargs = {k: a[k] for k in _TRIAL_FIELDS if k in a}
-    for ch in RESPONSE_CHANNELS:
-        if ch in node:
-            kwargs[ch] = np.array(node[ch])
-    tr = Trial(np.array(node["t"]), np.array(node["force"]), **kwargs)
-    stored = a.get("data_digest")
-    if stored is not None and tr.digest() != stored:
-        raise UserError(f"trial {tr.trial_id!r}: damaged: its signals do not match their checksum")
-    return tr
-
-
-def _stored_base(attrs: dict, base: np.ndarray) -> np.ndarray:
-    """A run's base vector in its model's declaration order of today.
-
-    A run written before a parameter was added to its model stored fewer values: they
-    are matched by name, and each parameter added since takes its declared default.
-    """
-    names = attrs.get("param_names")
-    if names is None:
-        return base
-    from evo_door.models import get_model
-
-    try:
-        params = get_model(attrs["model"]).params
-    except UserError:
-        return base  # the model cannot be loaded here: the run says so when it starts
-    if list(names) == list(params.names):
-        return base
-    out = np.array(params.defaults, dtype=np.float64)
-    for name, value in zip(names, base):
-        if name in params.names:
-            out[params.index(name)] = value
-    return out
-
-
-def setup_from_tree(tree: dict):
-    from evo_door.experiment.setup import Setup
-
-    s = tree["setup"]
-    a = s[ATTRS]
-    trials = {"fit": [], "validate": []}
-    for role in trials:
-        keys = sorted(
-            (k for k in tree["trials"] if k.startswith(role + "_")),
-            key=lambda k: int(k.rsplit("_", 1)[1]),
-        )
-        trials[role] = [trial_from_tree(tree["trials"][k]) for k in keys]
-    return Setup(
-        model_name=a["model"],
-        base=_stored_base(a, np.array(s["base"])),
-        free=list(a["free"]),
-        lower=np.array(s["lower"]),
-        upper=np.array(s["upper"]),
-        fit=trials["fit"],
-        validation=trials["validate"],
-        objective=Objective(**a["objective"]),
-        method=a["method"],
-        substeps=int(a["substeps"]),
-        start=dict(a.get("start") or {}),
-        tolerance=a.get("tolerance"),  # None: written before it was kept (the model's)
-        feel=feel_from_tree(s["feel"]) if "feel" in s else None,
-    )
 
 
 def job_tree(job, free=()) -> dict:
@@ -468,46 +435,6 @@ def job_tree(job, free=()) -> dict:
         if job.front is not None:
             node["front"] = job.front.to_tree(free)
     return node
-
-
-def identifiability_from_tree(node: dict):
-    from evo_door.optim.identifiability import Identifiability
-
-    return Identifiability.from_tree(node)
-
-
-def snapshot_from_tree(node: dict) -> dict:
-    """The :meth:`GeneticAlgorithm.snapshot` stored in a job's ``ga`` group."""
-    a = node[ATTRS]
-    snap = {k: v for k, v in node.items() if k not in (ATTRS, "logbook")}
-    snap.update(
-        generation=a["generation"],
-        evaluations=a["evaluations"],
-        blowups=a["blowups"],
-        logbook={k: np.array(node["logbook"][k]) for k in LOG_FIELDS},
-    )
-    return snap
-
-
-def local_from_tree(node: dict) -> LocalResult:
-    a = node[ATTRS]
-    return LocalResult(
-        x0=np.array(node["x0"]),
-        x=np.array(node["x"]),
-        **{
-            k: a[k]
-            for k in (
-                "fitness0",
-                "fitness",
-                "iterations",
-                "evaluations",
-                "blowups",
-                "success",
-                "message",
-                "seconds",
-            )
-        },
-    )
 
 
 def best_tree(run) -> dict:

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.experiment import store
 from evo_door.experiment.spec import spec_names
+from evo_door.experiment.stored import setup_from_tree
 from evo_door.optim.process import process_for
 from evo_door.optim.tolerance import Specification, specify
 
@@ -83,7 +83,7 @@ def tolerances_of(res, compute: bool = True) -> Specification | None:
     tree = res.tree
     if not compute or tree is None or "feel" not in tree["setup"] or "best" not in tree:
         return None
-    setup = store.setup_from_tree(tree)
+    setup = setup_from_tree(tree)
     full = np.asarray(tree["best"]["full"], dtype=np.float64)
     out = stage_specification(setup, res.config, full)
     if out is not None:

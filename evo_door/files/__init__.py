@@ -36,8 +36,12 @@ One module per question, all imported here (``from evo_door.files import ...``):
 - :mod:`~evo_door.files.metadata`: how is metadata (attributes) stored in HDF5?
 - :mod:`~evo_door.files.h5tree`: how is a nested dict written to and read from HDF5?
 - :mod:`~evo_door.files.integrity`: is this HDF5 file as evo-door wrote it? (checksums)
+- :mod:`~evo_door.files.heaps`: would HDF5's reader loop for ever on this file's damage?
+- :mod:`~evo_door.files.fields`: does a value read from a file have the type a reader
+  expects? (typed reading, each value named by its place)
 """
 
+from evo_door.files import fields
 from evo_door.files.atomic import (
     WRITE_REASONS,
     atomic_write,
@@ -53,6 +57,7 @@ from evo_door.files.atomic import (
     write_text,
 )
 from evo_door.files.claims import DERIVED, TRIALS, Claim, Output, claim_outputs, same_file
+from evo_door.files.fields import MissingInFile, Node
 from evo_door.files.h5tree import (
     Dataset,
     Keep,
@@ -89,6 +94,8 @@ __all__ = [
     "Dataset",
     "FileLock",
     "Keep",
+    "MissingInFile",
+    "Node",
     "Output",
     "atomic_write",
     "attrs_tree",
@@ -98,6 +105,7 @@ __all__ = [
     "decode_attr",
     "encode_attr",
     "folder_reason",
+    "fields",
     "h5py",
     "jsonable",
     "new_h5",

@@ -307,6 +307,8 @@ def read_text(path, what: str = "text file") -> str:
     """
     path = Path(path)
     a_what = f"{'an' if what[:1] in 'aeiou' else 'a'} {what}"
+    if "\0" in str(path):  # a name from a file (YAML): no file has it
+        raise UserError(f"{str(path)!r}: a file name with a NUL character; not {a_what}")
     if path.is_dir():
         raise UserError(f"{path}: is a folder, not {a_what}")
     if not path.is_file():

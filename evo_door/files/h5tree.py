@@ -15,6 +15,7 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.files.atomic import atomic_write, write_bytes
+from evo_door.files.heaps import check_global_heaps
 from evo_door.files.integrity import seal, verify
 from evo_door.files.metadata import ATTRS, read_attrs, write_attrs
 
@@ -90,15 +91,17 @@ def write_group(
 
 
 def read_group(group) -> dict:
-    """An open HDF5 group as a tree: groups as dicts, datasets as arrays or str."""
+    """An open HDF5 group as a tree: groups as dicts, datasets as arrays or str; each
+    dict a :class:`~evo_door.files.fields.Node`, which names the file and the group."""
+    from evo_door.files.fields import Node, as_text
+
     h5 = h5py()
-    out = {ATTRS: read_attrs(group)}
+    out = Node({ATTRS: read_attrs(group)}, place=f"{group.file.filename}: {group.name}")
     for key, item in group.items():
         if isinstance(item, h5.Group):
             out[key] = read_group(item)
         elif h5.check_string_dtype(item.dtype) is not None and item.shape == ():
-            v = item[()]
-            out[key] = v.decode() if isinstance(v, bytes) else str(v)
+            out[key] = as_text(item[()], out.name(key))
         else:
             out[key] = item[()]
     return out
@@ -183,6 +186,7 @@ def open_h5(path, what: str = "HDF5 file"):
         raise UserError(f"{path}: {what} not found")
     if path.stat().st_size == 0:
         raise UserError(f"{path}: empty file")
+    check_global_heaps(path)  # damage HDF5's reader would loop on for ever
     try:
         f = h5py().File(path, "r")
     except OSError as exc:

@@ -88,17 +88,59 @@ def write_attrs(obj, attrs: dict) -> None:
 
 
 def read_attrs(obj) -> dict:
-    """The attributes of an HDF5 group or dataset, decoded (both encodings)."""
+    """The attributes of an HDF5 group or dataset, decoded (both encodings), as a
+    :class:`~evo_door.files.fields.Node` that names the file and the object: JSON that
+    does not parse, or a text no file can hold, is one line naming the attribute."""
+    from evo_door.files.fields import Node
+
     raw = obj.attrs
-    out = {}
+    out = Node(place=f"{obj.file.filename}: {obj.name}", style="attribute")
     for name, value in raw.items():
         if name.endswith(_LEGACY_JSON_FLAG) or name == DIGEST:
             continue
-        if name + _LEGACY_JSON_FLAG in raw:
-            out[name] = json.loads(decode_attr(value))
-        else:
-            out[name] = decode_attr(value)
+        out[name] = _decoded(obj, name, value, name + _LEGACY_JSON_FLAG in raw, out.name(name))
     return out
+
+
+def _decoded(obj, name: str, value, legacy: bool, where: str):
+    """One attribute's value, decoded and checked (see :func:`read_attrs`)."""
+    from evo_door.files.integrity import DamagedFile
+
+    try:
+        value = decode_attr(value)
+        if legacy:
+            value = json.loads(value)
+        _check_values(value, where)
+    except UnicodeDecodeError:
+        raise DamagedFile(f"{where}: not UTF-8 text") from None
+    except RecursionError:
+        raise DamagedFile(f"{where}: JSON nested too deeply") from None
+    except (ValueError, TypeError) as exc:
+        if isinstance(exc, DamagedFile):
+            raise
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DamagedFile(f"{where}: not valid JSON ({first[:80]})") from None
+    return value
+
+
+def _check_values(value, where: str) -> None:
+    """Every value in ``value`` (a decoded attribute, at any depth) one a file can hold
+    again: a text a file and a terminal can hold (:func:`~evo_door.errors.plain_text`),
+    a whole number of 64 bits (JSON has no limit, HDF5 has)."""
+    from evo_door.errors import plain_text
+    from evo_door.files.integrity import DamagedFile
+
+    if isinstance(value, str):
+        plain_text(value, where, DamagedFile)
+    elif isinstance(value, int) and not -(2**63) <= value < 2**63:
+        raise DamagedFile(f"{where}: a whole number beyond 64 bits")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_values(k, where)
+            _check_values(v, where)
+    elif isinstance(value, list):
+        for v in value:
+            _check_values(v, where)
 
 
 def attrs_tree(data: dict) -> dict:

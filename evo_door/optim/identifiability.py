@@ -197,14 +197,30 @@ class Identifiability:
     @classmethod
     def from_tree(cls, tree: dict) -> Identifiability:
         """The inverse of :meth:`to_tree` (from a tree read back by ``read_group``)."""
-        attrs = dict(tree[ATTRS])
-        attrs.pop("format", None)
-        values = {k: np.asarray(tree[k], dtype=np.float64) for k in _ARRAYS if k in tree}
-        for k in ("names", "units", "verdicts", "reasons", "partners", "trial_ids"):
-            values[k] = list(attrs.pop(k))
-        values.update(attrs)
-        values["n_samples"] = int(values["n_samples"])
-        return cls(**values)
+        from evo_door.files import fields
+
+        attrs = tree[ATTRS]
+        settings = fields.mapping(attrs, "settings")
+        fields.number(settings, "confidence", None, lo=0.0, hi=1.0)
+        fields.flag(settings, "mismatch", True)
+        per: tuple = ("p",)
+        shapes = {k: per for k in (*_ARRAYS, "names", "units", "verdicts", "reasons", "partners")}
+        shapes.update(
+            correlation=("p", "p"),
+            cosine=("p", "p"),
+            tau=("t",),
+            trial_ids=("t",),
+            se_local=(None,),
+            trial_se=(None,),
+        )
+        return fields.stored(
+            cls,
+            attrs,
+            tree,
+            shapes=shapes,
+            sizes={"p": "names", "t": "trial_ids"},
+            settings=settings,
+        )
 
     def format(self) -> str:
         """A compact table with units: value, SE, 95 % CI, verdict, most correlated partner."""

@@ -172,28 +172,41 @@ class SmallestChange:
 
     @classmethod
     def from_tree(cls, node: dict) -> SmallestChange:
-        from evo_door.files import ATTRS
+        """The inverse of :meth:`to_tree`, each value checked (a results file is data:
+        :mod:`evo_door.files.fields`)."""
+        import json
+
+        from evo_door.files import ATTRS, DamagedFile, fields
 
         a = node[ATTRS]
-        return cls(
-            front_x=np.array(node["front_x"]),
-            front_f=np.array(node["front_f"]),
-            asis=np.array(node["asis"]),
-            chosen=int(a["chosen"]),
-            closest=int(a["closest"]),
-            x=np.array(node["x"]),
-            error=float(a["error"]),
-            change=float(a["change"]),
-            kept=list(a.get("kept") or []),
-            reachable=bool(a["reachable"]),
-            check=json.loads(a["check"]),
-            measure=str(a.get("measure", "normalised")),
-            margin=float(a.get("margin", 1.0)),
-            polished=bool(a.get("polished", False)),
-            checks=int(a.get("checks", 0)),
-            seconds=float(a.get("seconds", 0.0)),
-            steps=list(a.get("steps") or []),
+        where = fields.place_of(a, "check")
+        try:
+            check = fields.as_mapping(json.loads(fields.text(a, "check")), where)
+        except RecursionError:
+            raise DamagedFile(f"{where}: JSON nested too deeply") from None
+        except ValueError as exc:
+            raise DamagedFile(f"{where}: not valid JSON ({str(exc)[:80]})") from None
+        for d in ("opening", "closing"):
+            if d in check:
+                stroke = fields.as_mapping(check[d], f"{where}[{d!r}]")
+                fields.text(stroke, "verdict", "")
+                fields.number(stroke, "fraction_beyond_jnd", None)
+                fields.mapping(stroke, "worst", {})
+                for band in fields.group(stroke, "bands_deg", None) or []:
+                    fields.as_numbers(band, f"{where}[{d!r}]['bands_deg']")
+        front_x = fields.array(node, "front_x", shape=("k", "n"))
+        k, n = front_x.shape
+        out = fields.stored(
+            cls,
+            a,
+            node,
+            shapes={"front_f": (k, 2), "asis": (n,), "x": (n,)},
+            check=check,
+            front_x=front_x,
         )
+        if not (-1 <= out.chosen < k and 0 <= out.closest < max(k, 1)):
+            raise DamagedFile(f"{fields.node_place(node)}: chosen or closest not on the front")
+        return out
 
 
 def _plain(value):

@@ -50,7 +50,18 @@ class YieldEstimate:
 
     @classmethod
     def from_dict(cls, d: dict) -> YieldEstimate:
-        return cls(int(d["passed"]), int(d["samples"]), int(d["seed"]))
+        """The inverse of :meth:`as_dict`; counts checked (a results file is data)."""
+        from evo_door.files import DamagedFile, fields
+
+        d = fields.as_mapping(d, fields.node_place(d))
+        out = cls(
+            fields.integer(d, "passed", lo=0),
+            fields.integer(d, "samples", lo=0),
+            fields.integer(d, "seed"),
+        )
+        if out.passed > out.samples:
+            raise DamagedFile(f"{fields.node_place(d)}: more doors passed than sampled")
+        return out
 
 
 def clopper_pearson(passed: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -114,16 +125,18 @@ class NearestFeel:
 
     @classmethod
     def from_tree(cls, node: dict) -> NearestFeel:
-        import json
+        from evo_door.files import fields
 
         a = node[ATTRS]
+        names = fields.texts(a, "names")
+        values = fields.array(node, "values", shape=(len(names),))
         return cls(
-            model=str(a["model"]),
-            values=dict(zip(list(a["names"]), map(float, np.asarray(node["values"])))),
-            moved=list(a["moved"]),
-            distance=float(a["distance_jnd"]),
-            yield_=YieldEstimate.from_dict(json.loads(a["yield"])),
-            target=float(a["target"]),
+            model=fields.text(a, "model"),
+            values=dict(zip(names, map(float, values))),
+            moved=fields.texts(a, "moved"),
+            distance=fields.number(a, "distance_jnd"),
+            yield_=_yield_attr(a, "yield"),
+            target=fields.number(a, "target"),
         )
 
     def text(self) -> str:
@@ -323,51 +336,82 @@ class Specification:
     def from_tree(cls, node: dict) -> Specification | None:
         """Read the group back; None for one written in the old form (bands alone and
         together), which is then computed anew."""
-        import json
+        from evo_door.files import Node, fields
 
         a = node[ATTRS]
-        if int(a.get("format", 1)) < 2:
+        if fields.integer(a, "format", 1) < 2:
             return None
-        alt = json.loads(a["alternative"])
+        names = fields.texts(a, "names")
+        n = len(names)
+        alt = _json_attr(a, "alternative") or {}
         if alt:
+            alt = Node(
+                fields.as_mapping(alt, fields.place_of(a, "alternative")),
+                place=fields.place_of(a, "alternative") + ":",
+                style="key",
+            )
             alt = {
-                "design": alt["design"],
-                "nominal": np.asarray(alt["nominal"], dtype=np.float64),
-                "yield": YieldEstimate.from_dict(alt["yield"]),
+                "design": fields.text(alt, "design"),
+                "nominal": fields.array(alt, "nominal", shape=(n,)),
+                "yield": YieldEstimate.from_dict(fields.group(alt, "yield")),
             }
-        ay = json.loads(a["allocation_yield"])
-        curves = node.get("curves") or {}
-        return cls(
-            names=list(a["names"]),
-            units=list(a["units"]),
-            nominal=np.asarray(node["nominal"], dtype=np.float64),
-            asis=np.asarray(node["asis"], dtype=np.float64),
-            half_width=np.asarray(node["half_width"], dtype=np.float64),
-            distribution=list(a["distribution"]),
-            source=list(a["source"]),
-            sensitivity=np.asarray(node["sensitivity"], dtype=np.float64),
-            loss=np.asarray(node["loss"], dtype=np.float64),
-            free=list(a["free"]),
-            design=str(a["design"]),
-            yield_=YieldEstimate.from_dict(json.loads(a["yield"])),
-            target=float(a["target"]),
-            worst=str(a["worst"]),
-            alternative=alt or {},
-            allocation={k: float(v) for k, v in json.loads(a["allocation"]).items()},
-            allocation_yield=YieldEstimate.from_dict(ay) if ay else None,
-            nearest=NearestFeel.from_tree(node["nearest_feel"]) if "nearest_feel" in node else None,
-            allocation_nominal=(
-                np.asarray(node["allocation_nominal"], dtype=np.float64)
-                if "allocation_nominal" in node
-                else None
-            ),
-            nominal_margin=float(a["nominal_margin"]),
-            design_seed=int(a["design_seed"]),
-            evaluations=int(a["evaluations"]),
-            seconds=float(a["seconds"]),
-            note=str(a["note"]),
-            curves={k: np.asarray(v) for k, v in curves.items() if k != ATTRS},
+        ay = _json_attr(a, "allocation_yield")
+        curves = fields.group(node, "curves", {})
+        allocation = fields.as_mapping(
+            _json_attr(a, "allocation") or {}, fields.place_of(a, "allocation"), fields.as_number
         )
+        return fields.stored(
+            cls,
+            a,
+            node,
+            shapes={
+                k: (n,)
+                for k in (
+                    "units",
+                    "nominal",
+                    "asis",
+                    "half_width",
+                    "distribution",
+                    "source",
+                    "sensitivity",
+                    "loss",
+                    "allocation_nominal",
+                )
+            },
+            yield_=_yield_attr(a, "yield"),
+            alternative=alt,
+            allocation=allocation,
+            allocation_yield=YieldEstimate.from_dict(ay) if ay else None,
+            nearest=NearestFeel.from_tree(fields.group(node, "nearest_feel"))
+            if "nearest_feel" in node
+            else None,
+            curves={k: fields.array(curves, k) for k in curves if k != ATTRS},
+        )
+
+
+def _json_attr(a, key):
+    """An attribute holding JSON text, decoded (None where missing)."""
+    import json
+
+    from evo_door.files import DamagedFile, fields
+
+    text = fields.text(a, key, None)
+    if text is None:
+        return None
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise DamagedFile(f"{fields.place_of(a, key)}: JSON nested too deeply") from None
+    except ValueError as exc:
+        raise DamagedFile(f"{fields.place_of(a, key)}: not valid JSON ({str(exc)[:80]})") from None
+
+
+def _yield_attr(a, key) -> YieldEstimate:
+    from evo_door.files import Node, fields
+
+    where = fields.place_of(a, key)
+    d = fields.as_mapping(_json_attr(a, key), where)
+    return YieldEstimate.from_dict(Node(d, place=where + ":", style="key"))
 
 
 def _plain_alternative(alt: dict) -> dict:

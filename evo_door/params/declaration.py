@@ -104,8 +104,9 @@ class Param:
 
 
 def suggest(name: str, candidates: Iterable[str]) -> str:
-    """A ``" (did you mean 'x'?)"`` hint, or an empty string."""
-    close = difflib.get_close_matches(name, list(candidates), n=3, cutoff=0.5)
+    """A ``" (did you mean 'x'?)"`` hint, or an empty string (``name`` as a file gave
+    it: a number or a date is compared as its text)."""
+    close = difflib.get_close_matches(str(name), [str(c) for c in candidates], n=3, cutoff=0.5)
     if not close:
         return ""
     return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"

@@ -307,7 +307,7 @@ def params_from_document(table: ParamTable, doc, source: str) -> ParamSet:
         raise UserError(f"{source}: a parameter file is a mapping with 'model' and 'values'")
     unknown = set(doc) - {"model", "description", "values"}
     if unknown:
-        key = sorted(unknown)[0]
+        key = sorted(unknown, key=str)[0]
         raise UserError(
             f"{source}: unknown key {key!r}" + suggest(key, ["model", "description", "values"])
         )

@@ -85,12 +85,14 @@ class JND:
     @classmethod
     def from_mapping(cls, values: dict | None, where: str = "perception") -> JND:
         """From ``{name: value}`` (the ``perception:`` section); unknown names refused."""
-        values = dict(values or {})
+        from evo_door.files.fields import as_mapping, as_number
+
+        values = as_mapping(values or {}, where, as_number)
         names = [f.name for f in fields(cls)]
         for k in values:
             if k not in names:
                 raise UserError(f"{where}: unknown setting {k!r}; settings: {', '.join(names)}")
-        return cls(**{k: float(v) for k, v in values.items()})
+        return cls(**values)
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)

@@ -168,35 +168,77 @@ def read_jnd_file(path) -> JndRecord:
             raise UserError(
                 f"{path}: not a JND file (format {top.get('format')!r}; `evo-door jnd` writes them)"
             )
+        if not hasattr(f["jnd"], "keys"):
+            raise UserError(f"{path}: /jnd: expected a group, got a dataset")
         tree = read_group(f["jnd"])
+    return _record(path, top, tree)
+
+
+#: the trial table of a session: each column's name and how it is read (one row a trial)
+_TRIAL_KINDS = {
+    "step": "f",
+    "comparison": "f",
+    "order": "i",
+    "answer": "i",
+    "correct": "b",
+    "time": "f",
+}
+
+
+def _record(path: Path, top: dict, tree: dict) -> JndRecord:
+    """A JND file's record from its root attributes and ``/jnd`` group, each value
+    checked (a file is data: :mod:`evo_door.files.fields`)."""
+    from evo_door.files import fields
+
     a = tree[ATTRS]
     fit = None
     if "weber" in a:
+        ci95 = fields.numbers(a, "ci95")
+        ends = a["open_ended"]
+        if len(ci95) != 2 or not isinstance(ends, list) or len(ends) != 2:
+            raise UserError(f"{fields.place_of(a, 'ci95')}: expected [low, high] and two ends")
         fit = Fit(
-            weber=float(a["weber"]),
-            slope=float(a["slope"]),
-            lapse=float(a["lapse"]),
-            ci95=(float(a["ci95"][0]), float(a["ci95"][1])),
-            open_ended=(bool(a["open_ended"][0]), bool(a["open_ended"][1])),
-            trials=int(a["trials_fitted"]),
-            log_likelihood=float(a["log_likelihood"]),
+            weber=fields.number(a, "weber", finite=True, lo=0.0),
+            slope=fields.number(a, "slope"),
+            lapse=fields.number(a, "lapse"),
+            ci95=(ci95[0], ci95[1]),
+            open_ended=(
+                fields.as_flag(ends[0], fields.place_of(a, "open_ended")),
+                fields.as_flag(ends[1], fields.place_of(a, "open_ended")),
+            ),
+            trials=fields.integer(a, "trials_fitted", lo=0),
+            log_likelihood=fields.number(a, "log_likelihood"),
         )
-    trials = {k: np.asarray(v) for k, v in tree["trials"].items() if k != ATTRS}
+    table = fields.group(tree, "trials")
+    trials: dict[str, np.ndarray] = {}
+    for k in table:
+        if k != ATTRS:
+            kind = _TRIAL_KINDS.get(k, "f")
+            shape = (None,) if not trials else (next(iter(trials.values())).size,)
+            trials[k] = fields.array(table, k, shape=shape, kind=kind)
+    steps = trials.get("step", np.ones(0))
+    if not np.all(np.isfinite(steps) & (steps > 0)):
+        raise UserError(f"{fields.place_of(table, 'step')}: a step not a number above 0")
+    for k in ("comparison", "time"):
+        if k in trials and not np.all(np.isfinite(trials[k])):
+            raise UserError(f"{fields.place_of(table, k)}: a value that is not finite")
     return JndRecord(
         path=path,
-        param=str(a["param"]),
-        unit=str(a["unit"]),
-        word=str(a["word"]),
-        reference=float(a["reference"]),
-        method=str(a["method"]),
-        status=str(a["status"]),
-        participant=str(a["participant"]),
-        device=str(a["device"]),
-        model=str(a["model"]),
+        param=fields.text(a, "param"),
+        unit=fields.text(a, "unit"),
+        word=fields.text(a, "word"),
+        reference=fields.number(a, "reference", finite=True),
+        method=fields.text(a, "method"),
+        status=fields.text(a, "status"),
+        participant=fields.text(a, "participant"),
+        device=fields.text(a, "device"),
+        model=fields.text(a, "model"),
         fit=fit,
         trials=trials,
-        reference_params=dict(tree["reference"][ATTRS]),
-        attrs={**top, **a},
+        reference_params=fields.mapping(
+            fields.group(tree, "reference"), ATTRS, None, fields.as_number
+        ),
+        attrs={**top, **a, "trials_planned": fields.integer(a, "trials_planned", len(steps), lo=0)},
     )
 
 

@@ -169,31 +169,29 @@ def _read(path) -> dict:
     """The parts of a render log the check reads: its time and channels (read as they
     are: a fault's row is NaN, which a trial reader refuses), the sets in force with
     their times, the events, the statistics, the device's name."""
-    from evo_door.files import open_h5, read_attrs
+    from evo_door.files import fields, open_h5
+    from evo_door.render.session import read_log
 
     with open_h5(path, "render log") as f:  # a missing or binary file says so
         if "render/params" not in f or "trials/render/theta" not in f:
             raise UserError(f"{path}: not a render log (no /render group with its sets)")
-        attrs = read_attrs(f["render"])
-        names = list(read_attrs(f["render/params"])["names"])
-        times = f["render/params/t"][()]
-        values = f["render/params/values"][()]
-        trial = tuple(
-            np.asarray(f[f"trials/render/{c}"][()], dtype=np.float64)
-            for c in ("t", "force", "theta", "dtheta")
-        )
+        log = read_log(f, path)
+        trial: list[np.ndarray] = []
+        for c in ("t", "force", "theta", "dtheta"):
+            name = f"trials/render/{c}"
+            if name not in f or not hasattr(f[name], "dtype"):
+                raise UserError(f"{path}: /{name}: missing, or not a dataset")
+            shape = (None,) if not trial else trial[0].shape
+            trial.append(fields.as_array(f[name][()], f"{path}: /{name}", shape))
     _check_grid(path, trial[0])
-    sets = [
-        (float(ti), ParamSet.from_mapping(PARAMS, dict(zip(names, v.tolist(), strict=True))))
-        for ti, v in zip(times, values, strict=True)
-    ]
+    sets = [(ti, ParamSet.from_mapping(PARAMS, values)) for ti, values in log["sets"]]
     return {
-        "trial": trial,
+        "trial": tuple(trial),
         "sets": sets,
-        "events": attrs.get("events", []),
-        "statistics": attrs.get("statistics", {}),
-        "device": attrs.get("device", ""),
-        "unknown": _unknown_span(attrs.get("events", [])),
+        "events": log["events"],
+        "statistics": log["statistics"],
+        "device": log["device"],
+        "unknown": _unknown_span(log["events"]),
     }
 
 

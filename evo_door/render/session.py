@@ -70,44 +70,122 @@ def read_session(path) -> dict:
     participant, no choice and the session events list empty. A file that is not a
     render log is a UserError.
     """
-    from evo_door.files import open_h5, read_attrs
+    from evo_door.files import fields, open_h5, read_attrs
 
     with open_h5(path) as f:
         if "render" not in f:
             raise UserError(f"{path}: not a render log (no /render group)")
-        render = read_attrs(f["render"])
-        names = list(read_attrs(f["render/params"])["names"])
-        times = f["render/params/t"][()]
-        values = f["render/params/values"][()]
-        duration = float(f["render/t"][-1]) if f["render/t"].shape[0] else 0.0
+        log = read_log(f, path)
         session = read_attrs(f["session"]) if "session" in f else {}
         chosen = None
         if "session/chosen" in f:
             ds = f["session/chosen"]
-            chosen = dict(zip(read_attrs(ds)["names"], ds[()].tolist(), strict=True))
-    events = render.get("events", [])
+            names = fields.texts(read_attrs(ds), "names")
+            chosen = dict(zip(names, fields.as_array(ds[()], ds.name, (len(names),)).tolist()))
+    events = log["events"]
     ended = [e.get("message", "") for e in events if e.get("kind") == "stopped"]
     counting = {e.get("kind"): e for e in events if e.get("kind") in ("dropped", "changes_dropped")}
     unkept = counting.get("changes_dropped")
     return {
-        "participant": session.get("participant", ""),
-        "duration_s": duration,
-        "device": render.get("device", ""),
-        "sets": [
-            (float(t), dict(zip(names, v.tolist(), strict=True)))
-            for t, v in zip(times, values, strict=True)
-        ],
+        "participant": fields.text(session, "participant", ""),
+        "duration_s": log["duration"],
+        "device": log["device"],
+        "sets": log["sets"],
         "changes": [e for e in events if e.get("kind") == "change"],
-        "choices": session.get("choices", []),
+        "choices": events_of(session.get("choices", []), fields.place_of(session, "choices")),
         "chosen": chosen,
-        "chosen_t": session.get("chosen_t", -1.0),
-        "events": session.get("events", []),
-        "statistics": render.get("statistics", {}),
+        "chosen_t": fields.number(session, "chosen_t", -1.0),
+        "events": events_of(session.get("events", []), fields.place_of(session, "events")),
+        "statistics": log["statistics"],
         "stopped": ended[-1] if ended else "",
         "changes_not_kept": int(unkept.get("count", 0)) if unkept else 0,
         "not_kept_span": [unkept.get("t"), unkept.get("last_t")] if unkept else None,
         "events_not_kept": int(counting.get("dropped", {}).get("count", 0)),
     }
+
+
+def read_log(f, path) -> dict:
+    """What every reader of a render log takes from its open file ``f``, each value
+    checked (a log is data: :mod:`evo_door.files.fields`): the sets in force
+    (``sets``: [(t, {name: value})]), ``events``, ``statistics``, ``device`` and the
+    ``duration`` (s)."""
+    from evo_door.files import DamagedFile, fields, read_attrs
+
+    if not hasattr(f["render"], "keys") or "params" not in f["render"]:
+        raise UserError(f"{path}: not a render log (no /render group with its sets)")
+    render = read_attrs(f["render"])
+    group = f["render/params"]
+    if not hasattr(group, "keys"):
+        raise DamagedFile(f"{path}: /render/params: expected a group, got a dataset")
+    names = fields.texts(read_attrs(group), "names")
+    times = fields.as_array(
+        _dataset(f, "render/params/t", path), f"{path}: /render/params/t", (None,)
+    )
+    values = fields.as_array(
+        _dataset(f, "render/params/values", path),
+        f"{path}: /render/params/values",
+        (times.size, len(names)),
+    )
+    t = fields.as_array(_dataset(f, "render/t", path), f"{path}: /render/t", (None,))
+    statistics = fields.mapping(render, "statistics", {})
+    for key in ("rate_hz", "faults", "on_time_fraction"):
+        fields.number(statistics, key, None)
+    fields.text(statistics, "status", "")
+    fields.flag(statistics, "realtime", True)
+    return {
+        "sets": [(float(ti), dict(zip(names, v.tolist()))) for ti, v in zip(times, values)],
+        "events": events_of(render.get("events", []), fields.place_of(render, "events")),
+        "statistics": statistics,
+        "device": fields.text(render, "device", ""),
+        "duration": float(t[-1]) if t.size else 0.0,
+    }
+
+
+def _dataset(f, name: str, path):
+    from evo_door.files import DamagedFile
+
+    if name not in f or not hasattr(f[name], "dtype"):
+        raise DamagedFile(f"{path}: /{name}: missing, or not a dataset")
+    return f[name][()]
+
+
+#: the numbers of an event a reader takes, by kind
+_EVENT_NUMBERS = {
+    "device": ("damping", "friction", "max_force"),
+    "jnd_end": ("weber",),
+    "changes_dropped": ("last_t",),
+}
+#: the counts of an event a reader takes, by kind
+_EVENT_COUNTS = {"jnd_end": ("answers",), "dropped": ("count",), "changes_dropped": ("count",)}
+
+
+def events_of(value, where: str) -> list[dict]:
+    """A log's events (a list of mappings, each with a time ``t`` and a ``kind``), each
+    value a reader formats checked; or one line naming ``where``."""
+    from evo_door.files import DamagedFile, Node, fields
+
+    if not isinstance(value, list):
+        raise DamagedFile(f"{where}: expected a list of events, got {fields.show(value)}")
+    out = []
+    for i, e in enumerate(value):
+        e = Node(fields.as_mapping(e, f"{where}[{i}]"), place=f"{where}[{i}]:", style="key")
+        fields.number(e, "t", None)
+        kind = fields.text(e, "kind", "")
+        for key in _EVENT_NUMBERS.get(kind, ()):
+            fields.number(e, key, None)
+        for key in _EVENT_COUNTS.get(kind, ()):
+            fields.integer(e, key, None, lo=0)
+        if kind == "changes_dropped":  # when the sets not kept began
+            fields.number(e, "t")
+        for key in ("message", "slot", "param", "status"):
+            fields.text(e, key, None)
+        ci = e.get("ci95")
+        if ci is not None and len(fields.as_numbers(ci, e.name("ci95"))) != 2:
+            raise DamagedFile(f"{e.name('ci95')}: expected [low, high]")
+        if "params" in e:
+            fields.mapping(e, "params", None, fields.as_number)
+        out.append(dict(e))
+    return out
 
 
 def is_render_log(path) -> bool:
