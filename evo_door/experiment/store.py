@@ -35,7 +35,8 @@ killed at any moment leaves the previous checkpoint or the new one. The layout
                  (complete perceptual runs of a built mechanism; :mod:`evo_door.optim.tolerance`)
 
 :func:`run_tree` builds the tree of a run; :func:`read_tree` / :func:`peek` read a
-file; the ``*_from_tree`` functions rebuild what a resumed run needs.
+file; :mod:`.stored`'s ``*_from_tree`` functions rebuild what a resumed run needs, each
+value checked.
 """
 
 from __future__ import annotations

@@ -245,7 +245,7 @@ def feel_from_tree(node: dict):
     from evo_door.perception import JND, FeelCurve, FeelTarget
 
     a = node[ATTRS]
-    theta = fields.array(node, "theta", shape=("n",))
+    theta = fields.array(node, "theta", shape=(None,))
     where = fields.node_place(node)
     curve = FeelCurve(
         theta,

@@ -176,7 +176,7 @@ class SmallestChange:
         :mod:`evo_door.files.fields`)."""
         import json
 
-        from evo_door.files import ATTRS, DamagedFile, fields
+        from evo_door.files import ATTRS, DamagedFile, Node, fields
 
         a = node[ATTRS]
         where = fields.place_of(a, "check")
@@ -188,13 +188,17 @@ class SmallestChange:
             raise DamagedFile(f"{where}: not valid JSON ({str(exc)[:80]})") from None
         for d in ("opening", "closing"):
             if d in check:
-                stroke = fields.as_mapping(check[d], f"{where}[{d!r}]")
+                at = f"{where}: {d}"
+                stroke = Node(fields.as_mapping(check[d], at), place=at, style="key")
                 fields.text(stroke, "verdict", "")
                 fields.number(stroke, "fraction_beyond_jnd", None)
                 fields.mapping(stroke, "worst", {})
-                for band in fields.group(stroke, "bands_deg", None) or []:
-                    fields.as_numbers(band, f"{where}[{d!r}]['bands_deg']")
-        front_x = fields.array(node, "front_x", shape=("k", "n"))
+                bands = stroke.get("bands_deg") or []
+                if not isinstance(bands, list):
+                    raise DamagedFile(f"{at}.bands_deg: expected a list of [from, to] angles")
+                for band in bands:
+                    fields.as_numbers(band, f"{at}.bands_deg")
+        front_x = fields.array(node, "front_x", shape=(None, None))
         k, n = front_x.shape
         out = fields.stored(
             cls,
