@@ -1,9 +1,10 @@
 """The fuzz suite (issue 37, "files are data"): damaged and hostile files through every
 command that reads them.
 
-Every file kind evo-door reads (a run's and a pipeline's results files, an interrupted
-run, trial files in HDF5 and CSV, a render log, a JND file, parameter files in YAML, an
-experiment and a pipeline in YAML) is damaged and given to each command that reads it
+Every file kind evo-door reads (a run's and a pipeline's results files, a run fitted to a
+chosen feel, an interrupted run, trial files in HDF5 and CSV, a render log, a JND file,
+parameter files in YAML, an experiment and a pipeline in YAML) is damaged and given to
+each command that reads it
 (``show``, ``compare``, ``runs``, ``export-spec``, ``report``, ``resume``, ``data show``,
 ``data import``, ``simulate --input``, ``params --params``, ``render --params``,
 ``render-check``, ``push``, ``run``). A command must either do its work (exit 0; the
@@ -88,6 +89,18 @@ stages:
     algorithm: {{population: 4, generations: 1, seed: 2}}
 """
 
+#: a run fitted to a chosen feel (NSGA-II, a sharp judge): its file holds a front, a
+#: perceptual check and the specification's tolerances
+FEEL = """\
+name: feel
+model: door
+params: default
+target: {curve: feel.csv}
+perception: {force: 0.01, force_floor: 0.02}
+free: {K: [200, 800], F_atD: [0, 100]}
+algorithm: {kind: nsga2, population: 8, generations: 1, seed: 1}
+"""
+
 #: a JND session on the simulated device, short (10 trials of 0.2 s intervals)
 JND = [
     "jnd", "--param", "friction_closing", "--participant", "sim:0.1", "--trials", "10",
@@ -105,6 +118,7 @@ def build_corpus(folder: Path) -> Path:
 
     (folder / "exp.yaml").write_text(EXPERIMENT)
     (folder / "pipe.yaml").write_text(PIPELINE)
+    (folder / "feel.yaml").write_text(FEEL)
     quiet = ["--quiet"]
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         assert main(["run", str(folder / "exp.yaml"), "--out", str(folder / "run.h5"), *quiet]) == 0
@@ -118,6 +132,11 @@ def build_corpus(folder: Path) -> Path:
             run_experiment(exp, folder / "cut.h5", on_checkpoint=stop)
         assert (
             main(["run", str(folder / "pipe.yaml"), "--out", str(folder / "pipe.h5"), *quiet]) == 0
+        )
+        curve = ["curve", "door", "--set", "K=350", "--set", "F_atD=12", "--points", "31"]
+        assert main([*curve, "--out", str(folder / "feel.csv")]) == 0
+        assert (
+            main(["run", str(folder / "feel.yaml"), "--out", str(folder / "feel.h5"), *quiet]) == 0
         )
         trials = ["--trial", "T01", "--trial", "T02"]
         assert main(["data", "import", str(DATA), *trials, "--out", str(folder / "trials.h5")]) == 0
@@ -149,6 +168,10 @@ KINDS = {
         "report {f} --out {o}/rep", "show {f} --plot {o}/fit.png --convergence {o}/c.png",
     ]),
     "cut": ("cut.h5", ["resume {f} --quiet", "show {f} --json", "runs {d}"]),
+    "feel": ("feel.h5", [
+        "show {f}", "show {f} --json", "export-spec {f}", "resume {f} --quiet",
+        "compare {c}/feel.h5 {f}", "export-spec {f} --format yaml",
+    ]),
     "pipe": ("pipe.h5", [
         "show {f}", "show {f} --stage second", "show {f} --json", "compare {f}:first {c}/run.h5",
         "export-spec {f} --stage second", "runs {d} --json", "resume {f} --quiet",
@@ -660,6 +683,7 @@ HOSTILE = {
     "pipe": ["show {f}", "show {f} --stage second --json", "compare {f}:first {c}/run.h5",
              "resume {f} --quiet"],
     "cut": ["resume {f} --quiet", "show {f}"],
+    "feel": ["show {f} --json", "export-spec {f}", "resume {f} --quiet"],
     "trials": ["data show {f}", "data import {f} --out {o}/x.h5",
                "simulate door --input {f} --trial T01 --out {o}/o.csv"],
     "log": ["show {f}", "render-check {f}", "params haptic --params {f}", "data show {f}"],
@@ -698,7 +722,7 @@ def _targets(path: Path) -> list:
     return _TARGETS[path]
 
 
-@pytest.mark.parametrize("kind", ["run", "pipe", "log", "trials"])
+@pytest.mark.parametrize("kind", ["run", "pipe", "feel", "log", "trials"])
 @FUZZ
 @given(data=st.data())
 def test_hostile_json_in_a_file_is_one_line(kind, data, corpus, tmp_path):

@@ -25,7 +25,7 @@ from evo_door.commands.curve import curve_csv
 from evo_door.errors import UserError
 from evo_door.experiment import Results, load_experiment, run_experiment
 from evo_door.experiment.spec import render, spec_table
-from evo_door.experiment.store import setup_from_tree
+from evo_door.experiment.stored import setup_from_tree
 from evo_door.experiment.tolerance import plot_tolerances
 from evo_door.files import write_h5
 from evo_door.models import get_model
