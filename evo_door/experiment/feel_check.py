@@ -91,7 +91,7 @@ class FeelCheck:
         """Read the group back (a tree, or a group read on demand), each value checked (a
         results file is data: :mod:`evo_door.files.fields`)."""
         a = node[ATTRS]
-        dynamics = _json(a, "dynamics", "null")
+        dynamics = fields.json_value(a, "dynamics", None)
         if dynamics is not None:
             where = fields.place_of(a, "dynamics")
             dynamics = fields.as_mapping(dynamics, where, fields.as_numbers)
@@ -101,23 +101,10 @@ class FeelCheck:
         return cls(
             mechanism=_curve_from_tree(fields.group(node, "mechanism")),
             chosen=_curve_from_tree(fields.group(node, "chosen")),
-            jnd=JND.from_mapping(_json(a, "jnd"), fields.place_of(a, "jnd")),
+            jnd=JND.from_mapping(fields.json_value(a, "jnd"), fields.place_of(a, "jnd")),
             dynamics=dynamics,
             recorded=True,
         )
-
-
-def _json(a, key: str, default=None):
-    """An attribute holding JSON text, decoded; ``default`` (JSON) where missing."""
-    text = fields.text(a, key, default)
-    if text is None:
-        raise DamagedFile(f"{fields.place_of(a, key)}: missing")
-    try:
-        return json.loads(text)
-    except RecursionError:
-        raise DamagedFile(f"{fields.place_of(a, key)}: JSON nested too deeply") from None
-    except ValueError as exc:
-        raise DamagedFile(f"{fields.place_of(a, key)}: not valid JSON ({str(exc)[:80]})") from None
 
 
 def _curve_tree(curve: FeelCurve) -> dict:
@@ -138,7 +125,7 @@ def _curve_from_tree(node) -> FeelCurve:
         fields.array(node, "opening", shape=theta.shape),
         fields.array(node, "closing", shape=theta.shape),
         source=fields.text(a, "source", ""),
-        origin=fields.as_mapping(_json(a, "origin", "{}"), fields.place_of(a, "origin")),
+        origin=fields.as_mapping(fields.json_value(a, "origin", {}), fields.place_of(a, "origin")),
     )
 
 

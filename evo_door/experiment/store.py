@@ -158,13 +158,7 @@ def stage_sources(path) -> dict[str, dict[str, str]]:
 def pipeline_resolved(value, where: str) -> dict:
     """``pipeline/resolved``: a pipeline's configuration (JSON text), its ``stages``
     (name -> ``uses``, ``from``, ``where``) and ``report`` checked for their types."""
-    text = fields.as_text(value, where)
-    try:
-        resolved = json.loads(text)
-    except RecursionError:
-        raise DamagedFile(f"{where}: JSON nested too deeply") from None
-    except ValueError as exc:
-        raise DamagedFile(f"{where}: not valid JSON ({str(exc)[:80]})") from None
+    resolved = fields.as_json(value, where)
     node = Node(fields.as_mapping(resolved, where), place=f"{where}:", style="key")
     stages = fields.mapping(node, "stages", {})
     for name, entry in stages.items():

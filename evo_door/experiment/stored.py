@@ -11,7 +11,6 @@ others say, or one line naming the file, the object and what was expected
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict
 
 import numpy as np
@@ -115,14 +114,7 @@ def numbers_of(node) -> dict:
 def config_of(value, where: str) -> dict:
     """``experiment/resolved``: the run's configuration (JSON text), every section the
     commands read checked for its types (``where`` names the dataset)."""
-    text = fields.as_text(value, where)
-    try:
-        config = json.loads(text)
-    except RecursionError:
-        raise DamagedFile(f"{where}: JSON nested too deeply") from None
-    except ValueError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DamagedFile(f"{where}: not valid JSON ({first[:80]})") from None
+    config = fields.as_json(value, where)
     if not isinstance(config, dict):
         raise DamagedFile(f"{where}: expected a mapping, got {fields.show(config)}")
     return check_config(config, where)
@@ -252,17 +244,17 @@ def feel_from_tree(node: dict):
         fields.array(node, "opening", shape=theta.shape),
         fields.array(node, "closing", shape=theta.shape),
         source=where,
-        origin=fields.as_mapping(json_attr(a, "origin"), fields.place_of(a, "origin")),
+        origin=fields.as_mapping(fields.json_value(a, "origin"), fields.place_of(a, "origin")),
     )
     curve.source = fields.text(a, "source")
-    dynamics = json_attr(a, "dynamics")
+    dynamics = fields.json_value(a, "dynamics")
     if dynamics is not None:
         dynamics = fields.as_numbers(dynamics, fields.place_of(a, "dynamics"))
         if len(dynamics) != 2:
             raise DamagedFile(f"{fields.place_of(a, 'dynamics')}: expected [inertia, damping]")
     return FeelTarget(
         curve,
-        JND.from_mapping(json_attr(a, "jnd"), fields.place_of(a, "jnd")),
+        JND.from_mapping(fields.json_value(a, "jnd"), fields.place_of(a, "jnd")),
         dynamics=tuple(dynamics) if dynamics is not None else None,
         closed=fields.number(a, "closed", finite=True),
         latch_zone=fields.number(a, "latch_zone", finite=True),
@@ -272,18 +264,6 @@ def feel_from_tree(node: dict):
         excess_weight=fields.number(a, "excess_weight", 0.0, finite=True),
         angle_weight=fields.number(a, "angle_weight", 0.0, finite=True),
     )
-
-
-def json_attr(a, key):
-    """An attribute holding JSON text (as :func:`feel_tree` writes ``origin``...), decoded;
-    text that is not JSON is one line naming it."""
-    text = fields.text(a, key)
-    try:
-        return json.loads(text)
-    except RecursionError:
-        raise DamagedFile(f"{fields.place_of(a, key)}: JSON nested too deeply") from None
-    except ValueError as exc:
-        raise DamagedFile(f"{fields.place_of(a, key)}: not valid JSON ({str(exc)[:80]})") from None
 
 
 def trial_from_tree(node: dict) -> Trial:

@@ -21,6 +21,7 @@ annotation, the arrays against the shapes given.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import types
 import typing
@@ -285,6 +286,25 @@ def text(node, key, default=REQUIRED, choices=None) -> str:
     """``node[key]`` as a text (:func:`as_text`)."""
     missing, value = _get(node, key, default)
     return value if missing else as_text(value, place_of(node, key), choices=choices)
+
+
+def json_value(node, key, default=REQUIRED):
+    """``node[key]``, a text holding JSON, decoded; ``default`` (a value, not JSON text)
+    where missing. Text that is not JSON, or nests too deeply, is one line naming it."""
+    missing, value = _get(node, key, default)
+    return value if missing else as_json(value, place_of(node, key))
+
+
+def as_json(value, where: str):
+    """``value``, a text holding JSON, decoded; text that is not JSON, or nests too
+    deeply, is one line naming ``where``."""
+    try:
+        return json.loads(as_text(value, where))
+    except RecursionError:
+        raise DamagedFile(f"{where}: JSON nested too deeply") from None
+    except ValueError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DamagedFile(f"{where}: not valid JSON ({first[:80]})") from None
 
 
 def texts(node, key, default=REQUIRED) -> list[str]:

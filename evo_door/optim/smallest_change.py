@@ -174,18 +174,11 @@ class SmallestChange:
     def from_tree(cls, node: dict) -> SmallestChange:
         """The inverse of :meth:`to_tree`, each value checked (a results file is data:
         :mod:`evo_door.files.fields`)."""
-        import json
-
         from evo_door.files import ATTRS, DamagedFile, Node, fields
 
         a = node[ATTRS]
         where = fields.place_of(a, "check")
-        try:
-            check = fields.as_mapping(json.loads(fields.text(a, "check")), where)
-        except RecursionError:
-            raise DamagedFile(f"{where}: JSON nested too deeply") from None
-        except ValueError as exc:
-            raise DamagedFile(f"{where}: not valid JSON ({str(exc)[:80]})") from None
+        check = fields.as_mapping(fields.json_value(a, "check"), where)
         for d in ("opening", "closing"):
             if d in check:
                 at = f"{where}: {d}"

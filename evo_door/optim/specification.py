@@ -343,7 +343,7 @@ class Specification:
             return None
         names = fields.texts(a, "names")
         n = len(names)
-        alt = _json_attr(a, "alternative") or {}
+        alt = fields.json_value(a, "alternative", None) or {}
         if alt:
             alt = Node(
                 fields.as_mapping(alt, fields.place_of(a, "alternative")),
@@ -355,10 +355,12 @@ class Specification:
                 "nominal": fields.array(alt, "nominal", shape=(n,)),
                 "yield": YieldEstimate.from_dict(fields.group(alt, "yield")),
             }
-        ay = _json_attr(a, "allocation_yield")
+        ay = fields.json_value(a, "allocation_yield", None)
         curves = fields.group(node, "curves", {})
         allocation = fields.as_mapping(
-            _json_attr(a, "allocation") or {}, fields.place_of(a, "allocation"), fields.as_number
+            fields.json_value(a, "allocation", None) or {},
+            fields.place_of(a, "allocation"),
+            fields.as_number,
         )
         return fields.stored(
             cls,
@@ -389,28 +391,11 @@ class Specification:
         )
 
 
-def _json_attr(a, key):
-    """An attribute holding JSON text, decoded (None where missing)."""
-    import json
-
-    from evo_door.files import DamagedFile, fields
-
-    text = fields.text(a, key, None)
-    if text is None:
-        return None
-    try:
-        return json.loads(text)
-    except RecursionError:
-        raise DamagedFile(f"{fields.place_of(a, key)}: JSON nested too deeply") from None
-    except ValueError as exc:
-        raise DamagedFile(f"{fields.place_of(a, key)}: not valid JSON ({str(exc)[:80]})") from None
-
-
 def _yield_attr(a, key) -> YieldEstimate:
     from evo_door.files import Node, fields
 
     where = fields.place_of(a, key)
-    d = fields.as_mapping(_json_attr(a, key), where)
+    d = fields.as_mapping(fields.json_value(a, key, None), where)
     return YieldEstimate.from_dict(Node(d, place=where + ":", style="key"))
 
 
