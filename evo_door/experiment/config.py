@@ -583,12 +583,14 @@ def experiment_from_tree(
     _check_parameters(exp, r, model)
     _check_perceptual(exp)
     _process(exp, r, base_dir, model)
-    if exp.objective.perceptual and getattr(model, "runner", None) is not None:
-        raise UserError(
-            f"{tree.where('objective')}: objective perceptual: model {model.name!r} is an "
-            "FMU, whose force-angle curve evo-door cannot compute (it needs the "
-            "acceleration at any state); fit it to trials (ise, max_square)"
-        )
+    if exp.objective.perceptual:
+        try:
+            model.plant.check_curve("the perceptual objective")
+        except UserError as exc:
+            raise UserError(
+                f"{tree.where('objective')}: objective perceptual: {exc}; fit it to trials "
+                "(ise, max_square)"
+            ) from None
     if exp.target.kind == "model":
         try:
             get_model(exp.target.model)

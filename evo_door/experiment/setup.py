@@ -295,9 +295,7 @@ def resolve(exp, trials: list[Trial] | None = None) -> Setup:
             raise MissingChannelError(exp.locs["objective"], f"{exc} in {source}") from None
         try:
             theta0, dtheta0 = tr.initial_state()
-            runner = getattr(model, "runner", None)  # an FMU: can it start where the trial does?
-            if runner is not None:
-                runner.check_start(theta0, dtheta0, f"trial {tr.trial_id}")
+            model.plant.check_start(theta0, dtheta0, f"trial {tr.trial_id}")
         except UserError as exc:
             raise UserError(f"{spec.locs['trials']}: target: {exc}") from None
     try:

@@ -68,8 +68,10 @@ def _feel_set(config: dict):
     if target.get("kind") != "model":
         return None, None
     model = get_model(target["model"])
-    if getattr(model, "runner", None) is not None:
-        return None, None  # an FMU: no force-angle curve to move
+    try:
+        model.plant.check_curve("the tolerances")
+    except UserError:
+        return None, None  # a plant without a force-angle curve (an FMU): none to move
     params = model.load_params(target.get("params"), target.get("set") or {})
     return model, np.array(params.vector, dtype=np.float64)
 

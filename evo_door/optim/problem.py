@@ -187,7 +187,7 @@ class Problem:
         self.model = model
         #: a model that runs native code of its own (an FMU) is evaluated in a sandbox
         #: process, each candidate within ``time_limit`` seconds (:mod:`.sandbox`)
-        self.sandboxed = getattr(model, "runner", None) is not None
+        self.sandboxed = bool(model.plant.contained)
         self.time_limit = time_limit
         self.model_name = model_name
         self.free = tuple(free)

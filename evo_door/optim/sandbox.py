@@ -74,11 +74,9 @@ def _die_with_parent(parent: int) -> None:  # pragma: no cover - runs in the chi
 
 
 def _prepare(problem) -> None:  # pragma: no cover - runs in the child
-    """Load what the model's runner loads on first use (an FMU: its library, one
+    """Load what the model's plant loads on first use (an FMU: its library, one
     instance, the compiled kernels), without running a candidate."""
-    prepare = getattr(getattr(problem.model, "runner", None), "prepare", None)
-    if prepare is not None:
-        prepare()
+    problem.model.plant.prepare()
 
 
 def _serve(conn, parent: int) -> None:  # pragma: no cover - runs in the child

@@ -14,19 +14,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange, types
 
 from evo_door.channels import CHANNELS
 from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
 from evo_door.sim.integrators import (
-    ACCEL_TYPE,
     DEFAULT_TOLERANCE,
     METHODS,
-    integrate,
-    integrate_batch,
-    kernel_form,
-    prepared_form,
 )
 from evo_door.sim.located import no_switches
 
@@ -62,7 +56,7 @@ class Response:
             )
 
 
-def _method_code(method: str) -> int:
+def method_code(method: str) -> int:
     try:
         return METHODS[method]
     except KeyError:
@@ -150,40 +144,10 @@ def simulate(
     >>> r.ok, f"{np.degrees(r.theta[-1]):.0f} deg", f"{r.dtheta[-1]:.3f} rad/s"
     (True, '62 deg', '0.009 rad/s')
     """
-    force = check_force(force, dt)
-    p = param_vector(params, model.params)
-    theta0 = model.theta0 if theta0 is None else float(theta0)
-    n = force.size
-    t = t0 + dt * np.arange(n)
-    runner = getattr(model, "runner", None)
-    if runner is not None:  # a model that runs itself (an FMU)
-        steps = int(substeps or model.substeps)
-        th, w, a, ok = runner.simulate(p, force, float(dt), theta0, float(dtheta0), t0, steps)
-        return Response(t, force, th, w, a, bool(ok))
-    out = np.empty((3, n))
-    accel = model.accel
-    fast = prepared_form(accel)
-    if fast is not None:
-        accel, p = fast.accel, fast.vector(p)
-    switches, n_sw, stick = events_of(model)
-    ok = integrate(
-        accel,
-        switches,
-        p,
-        force,
-        float(dt),
-        int(substeps or model.substeps),
-        theta0,
-        float(dtheta0),
-        _method_code(method or model.method),
-        tolerance_of(model, tolerance),
-        n_sw,
-        stick,
-        out[0],
-        out[1],
-        out[2],
-    )
-    return Response(t, force, out[0], out[1], out[2], bool(ok))
+    return model.plant.simulate(
+        params, force, dt, theta0, dtheta0, t0, method=method, substeps=substeps,
+        tolerance=tolerance,
+    )  # fmt: skip
 
 
 def simulate_batch(
@@ -195,66 +159,23 @@ def simulate_batch(
     and a boolean array that is False where a simulation blew up. A model with a fast
     form (see :func:`simulate`) is prepared row by row inside the compiled loop.
     """
-    force = check_force(force, dt)
-    P = np.ascontiguousarray(P, dtype=np.float64)
-    if P.ndim != 2 or P.shape[1] != len(model.params):
-        raise UserError(f"model {model.name!r}: parameter matrix must be (n, {len(model.params)})")
-    theta0 = model.theta0 if theta0 is None else float(theta0)
-    n_ind, n = P.shape[0], force.size
-    theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
-    ok = np.zeros(n_ind, dtype=np.bool_)
-    if getattr(model, "runner", None) is not None:  # an FMU: one run per row
-        steps = int(substeps or model.substeps)
-        for i, p in enumerate(P):
-            r = simulate(model, p, force, dt, theta0, dtheta0, substeps=steps)
-            theta[i], dtheta[i], ddtheta[i], ok[i] = r.theta, r.dtheta, r.ddtheta, r.ok
-        return theta, dtheta, ddtheta, ok
-    switches, n_sw, stick = events_of(model)
-    args = (
-        P,
-        force,
-        float(dt),
-        int(substeps or model.substeps),
-        theta0,
-        float(dtheta0),
-        _method_code(method or model.method),
-        tolerance_of(model, tolerance),
-        n_sw,
-        stick,
-        theta,
-        dtheta,
-        ddtheta,
-        ok,
+    return model.plant.simulate_batch(
+        P, force, dt, theta0, dtheta0, method=method, substeps=substeps, tolerance=tolerance
     )
-    form = kernel_form(model.accel, P.shape[1])
-    integrate_batch(form.accel, form.prepare, switches, form.size, *args)
-    return theta, dtheta, ddtheta, ok
-
-
-def require_accel(model, what: str) -> None:
-    """Refuse, in one line, ``what`` for a model that runs itself (an FMU): it gives its
-    derivatives along a run, not its acceleration at any state."""
-    if getattr(model, "runner", None) is not None:
-        raise UserError(
-            f"model {model.name!r} is an FMU: {what} needs the model's acceleration at "
-            "any state, which an FMU gives only along a simulation"
-        )
 
 
 def quasi_static_force(model, params, theta, dtheta) -> np.ndarray:
     """User force (N, + toward closing) that holds ``ddtheta = 0`` at each (theta, dtheta).
 
-    Uses that ``accel`` is affine in the force: F = -a(F=0) / (a(F=1) - a(F=0)).
+    The plant's static equilibrium at the handle (:meth:`~evo_door.sim.plant.Plant.hold_forces`).
     """
-    require_accel(model, "the quasi-static force")
     p = param_vector(params, model.params)
     theta = np.atleast_1d(np.asarray(theta, dtype=np.float64))
     dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
     out = np.empty(theta.shape)
-    for i, (th, w) in enumerate(zip(theta, dtheta)):
-        a0 = model.accel(th, w, 0.0, p)
-        a1 = model.accel(th, w, 1.0, p)
-        out[i] = -a0 / (a1 - a0)
+    for w in np.unique(dtheta):
+        at = dtheta == w
+        out[at] = hold_forces(model, p, theta[at], float(w))
     return out
 
 
@@ -296,83 +217,12 @@ SCAN_POINTS = 2**18
 #: Tolerance of the written curve, as a fraction of the force range.
 CURVE_RTOL = 1e-3
 
-_vec = types.float64[::1]
-_SCAN_SIGNATURE = types.void(ACCEL_TYPE, _vec, _vec, types.float64, _vec)
-
-
-@njit(cache=True, nogil=True)
-def _hold(accel, p, theta, dtheta):
-    """Force (N) holding ddtheta = 0 at (theta, dtheta): accel is affine in the force."""
-    a0 = accel(theta, dtheta, 0.0, p)
-    a1 = accel(theta, dtheta, 1.0, p)
-    return -a0 / (a1 - a0)
-
-
-@njit(_SCAN_SIGNATURE, cache=True, nogil=True)
-def _hold_serial(accel, p, theta, dtheta, out):
-    for i in range(theta.shape[0]):
-        out[i] = _hold(accel, p, theta[i], dtheta)
-
-
-@njit(_SCAN_SIGNATURE, cache=True, parallel=True)
-def _hold_parallel(accel, p, theta, dtheta, out):
-    for i in prange(theta.shape[0]):
-        out[i] = _hold(accel, p, theta[i], dtheta)
-
-
-_ROWS_SIGNATURE = types.void(
-    ACCEL_TYPE, types.float64[:, ::1], _vec, types.float64, types.float64[:, ::1]
-)
-
-
-@njit(_ROWS_SIGNATURE, cache=True, parallel=True)
-def _hold_rows(accel, P, theta, dtheta, out):
-    for r in prange(P.shape[0]):
-        for i in range(theta.shape[0]):
-            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
-
-
-@njit(_ROWS_SIGNATURE, cache=True, nogil=True)
-def _hold_rows_serial(accel, P, theta, dtheta, out):
-    for r in range(P.shape[0]):
-        for i in range(theta.shape[0]):
-            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
-
-
-@njit(_ROWS_SIGNATURE, cache=True, parallel=True)
-def _inertia_rows(accel, P, theta, dtheta, out):
-    for r in prange(P.shape[0]):
-        for i in range(theta.shape[0]):
-            a0 = accel(theta[i], dtheta, 0.0, P[r])
-            a1 = accel(theta[i], dtheta, 1.0, P[r])
-            out[r, i] = 1.0 / (a1 - a0)
-
-
-@njit(_ROWS_SIGNATURE, cache=True, nogil=True)
-def _inertia_rows_serial(accel, P, theta, dtheta, out):
-    for r in range(P.shape[0]):
-        for i in range(theta.shape[0]):
-            a0 = accel(theta[i], dtheta, 0.0, P[r])
-            a1 = accel(theta[i], dtheta, 1.0, P[r])
-            out[r, i] = 1.0 / (a1 - a0)
-
-
-#: rows below which the row kernels run on one thread (threads cost more than they give)
-ROWS_IN_THREADS = 8
-
 
 def inertia_rows(model, P, theta, dtheta) -> np.ndarray:
     """The inertia felt at the handle (force per angular acceleration, N / (rad/s^2),
     kg m for a door) of every row of the kernel matrix ``P`` at each ``theta`` and the
-    speed ``dtheta``: ``accel`` is affine in the force, its slope is 1 / inertia. An
-    array (rows, angles), in one compiled call with the rows across threads."""
-    require_accel(model, "the felt inertia")
-    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
-    theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
-    out = np.empty((P.shape[0], theta.size))
-    kernel = _inertia_rows if P.shape[0] >= ROWS_IN_THREADS else _inertia_rows_serial
-    kernel(model.accel, P, theta, float(dtheta), out)
-    return out
+    speed ``dtheta``: an array (rows, angles), from the model's plant."""
+    return model.plant.inertia_rows(P, theta, dtheta)
 
 
 def speed_sensitivities(model) -> list[str]:
@@ -395,7 +245,6 @@ def coulomb_vector(model, params) -> np.ndarray:
     (dry friction at its full level, a speed gate shut or open) wherever the slip speed
     is not zero. A zero sensitivity stays zero (a law switched off stays off).
     """
-    require_accel(model, "the Coulomb-level curve")
     p = param_vector(params, model.params).copy()
     for name in speed_sensitivities(model):
         i = model.params.index(name)
@@ -407,28 +256,17 @@ def coulomb_vector(model, params) -> np.ndarray:
 def hold_forces(model, p, theta, dtheta) -> np.ndarray:
     """Force (N, + toward closing) holding ``ddtheta = 0`` at every ``theta``, compiled.
 
-    ``p`` is a kernel vector, ``dtheta`` one speed; :func:`quasi_static_force` in one
-    compiled (for many angles, multi-threaded) call.
+    ``p`` is a kernel vector, ``dtheta`` one speed: the plant's static equilibrium at the
+    handle (:meth:`~evo_door.sim.plant.Plant.hold_forces`; one compiled, multi-threaded
+    call for a model given by ``accel``).
     """
-    require_accel(model, "the force that holds the door")
-    theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
-    p = np.ascontiguousarray(p, dtype=np.float64)
-    out = np.empty(theta.shape)
-    kernel = _hold_parallel if theta.size > 4096 else _hold_serial
-    kernel(model.accel, p, theta, float(dtheta), out)
-    return out
+    return model.plant.hold_forces(p, theta, dtheta)
 
 
 def hold_forces_rows(model, P, theta, dtheta) -> np.ndarray:
     """:func:`hold_forces` of every row of the kernel matrix ``P`` (one door a row):
-    an array (rows, angles), in one compiled call with the rows across threads."""
-    require_accel(model, "the force that holds the door")
-    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
-    theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
-    out = np.empty((P.shape[0], theta.size))
-    kernel = _hold_rows if P.shape[0] >= ROWS_IN_THREADS else _hold_rows_serial
-    kernel(model.accel, P, theta, float(dtheta), out)
-    return out
+    an array (rows, angles)."""
+    return model.plant.hold_forces_rows(P, theta, dtheta)
 
 
 def force_angle_curve(
@@ -476,7 +314,6 @@ def force_angle_curve(
     >>> f"{c['closing'].max():.2f} N", f"{-c['opening'].min():.2f} N", c["speed"]
     ('13.00 N', '27.00 N', 0.0)
     """
-    require_accel(model, "the force-angle curve")
     # long: four steps of one grid, marked below (the checks, the dense scan,
     # the refinement, the extremes); they share the scan's arrays and tolerance
     lo = float(model.theta_range[0] if lo is None else lo)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -21,6 +22,7 @@ from evo_door.models.base import Model
 from evo_door.models.fmu import kernels
 from evo_door.models.fmu.description import FmuInfo, is_fmu_spec, read_info, split_spec
 from evo_door.models.fmu.instance import instance
+from evo_door.models.fmu.plant import FmuPlant
 
 #: objective kinds, as :mod:`evo_door.optim.kernels` codes them
 MAX_SQUARE, ISE = 0, 1
@@ -48,6 +50,11 @@ class FmuModel(Model):
     def runner(self) -> FmuRunner:
         assert self.info is not None, "an FmuModel is made by load_fmu"
         return FmuRunner(self.info)
+
+    @cached_property
+    def plant(self) -> FmuPlant:
+        """The FMU as a :class:`~evo_door.sim.plant.Plant`: it runs itself, contained."""
+        return FmuPlant(self)
 
 
 class FmuRunner:

@@ -1,0 +1,104 @@
+"""An FMU as a :class:`~evo_door.sim.plant.Plant`: the FMU runs itself.
+
+It integrates its own equations (:class:`~evo_door.models.fmu.model.FmuRunner`), so the
+plant hands every run to the runner. It is ``contained``: a fit runs it in a sandbox
+process (:mod:`evo_door.optim.sandbox`), since its native code may crash or hang. What
+needs the force at the handle at any state (the force-angle curve, the perceptual
+objective) it gives where the runner can, else refuses in one line.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.params import ParamTable
+from evo_door.params.sets import param_vector
+from evo_door.sim.simulate import Response, check_force
+
+
+class FmuPlant:
+    """The plant of an :class:`~evo_door.models.fmu.model.FmuModel` (``model``)."""
+
+    n_states = 2
+    position = 0
+    speed = 1
+    state_names = ("theta", "dtheta")
+    contained = True
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.runner = model.runner
+
+    @property
+    def params(self) -> ParamTable:
+        return self.model.params
+
+    def prepare(self) -> None:
+        """Load the FMU and its kernels in this process, running no trial."""
+        self.runner.prepare()
+
+    def check_start(self, theta0, dtheta0, where: str = "") -> None:
+        """Refuse an initial state the FMU cannot be given (one line naming ``where``)."""
+        self.runner.check_start(theta0, dtheta0, where)
+
+    def simulate(
+        self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
+        substeps=None, tolerance=None,
+    ) -> Response:  # fmt: skip
+        """One run of the FMU (``method`` and ``tolerance`` are the FMU's own)."""
+        force = check_force(force, dt)
+        p = param_vector(params, self.model.params)
+        theta0 = self.model.theta0 if theta0 is None else float(theta0)
+        dtheta0 = 0.0 if dtheta0 is None else float(dtheta0)
+        steps = int(substeps or self.model.substeps)
+        t = t0 + dt * np.arange(force.size)
+        th, w, a, ok = self.runner.simulate(p, force, float(dt), theta0, dtheta0, t0, steps)
+        return Response(t, force, th, w, a, bool(ok))
+
+    def simulate_batch(
+        self, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None,
+        tolerance=None,
+    ):  # fmt: skip
+        """One run per row of ``P`` (an FMU instance is not shared between threads)."""
+        force = check_force(force, dt)
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        n_ind, n = P.shape[0], force.size
+        theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
+        ok = np.zeros(n_ind, dtype=np.bool_)
+        for i, p in enumerate(P):
+            r = self.simulate(p, force, dt, theta0, dtheta0, substeps=substeps)
+            theta[i], dtheta[i], ddtheta[i], ok[i] = r.theta, r.dtheta, r.ddtheta, r.ok
+        return theta, dtheta, ddtheta, ok
+
+    def population_errors(
+        self, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, method, tol,
+        derivative, kind, err_out, ok_out,
+    ) -> None:  # fmt: skip
+        """The runner's own loop (the FMU's own method and tolerance)."""
+        self.runner.population_errors(
+            P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, derivative,
+            kind, err_out, ok_out,
+        )  # fmt: skip
+
+    def _refuse(self, what: str):
+        raise UserError(
+            f"model {self.model.name!r} is an FMU: {what} needs the model's acceleration "
+            "at any state, which an FMU gives only along a simulation"
+        )
+
+    def check_curve(self, what: str) -> None:
+        """Refused: see :meth:`_refuse`."""
+        self._refuse(what)
+
+    def hold_forces(self, p, theta, dtheta) -> np.ndarray:
+        """Refused: see :meth:`_refuse`."""
+        self._refuse("the force-angle curve")
+
+    def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
+        """Refused: see :meth:`_refuse`."""
+        self._refuse("the force-angle curve")
+
+    def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
+        """Refused: see :meth:`_refuse`."""
+        self._refuse("the felt inertia")

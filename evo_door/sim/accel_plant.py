@@ -1,0 +1,214 @@
+"""A model given by one compiled ``accel(theta, dtheta, force, p)``, as a plant.
+
+The bundled door and haptic model, and any model file that declares an ``accel``, are one
+coordinate: the state is ``(theta, dtheta)`` and the model gives the acceleration. This
+module is their :class:`~evo_door.sim.plant.Plant`: the compiled integrators of
+:mod:`.integrators` (with the model's fast form where it registered one), the objective
+kernels of :mod:`.objective`, and the quasi-static force from ``accel`` being affine in
+the force, ``F = -a(F=0) / (a(F=1) - a(F=0))``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange, types
+
+from evo_door.errors import UserError
+from evo_door.params import ParamTable
+from evo_door.params.sets import param_vector
+from evo_door.sim.integrators import (
+    ACCEL_TYPE,
+    integrate,
+    integrate_batch,
+    kernel_form,
+    prepared_form,
+)
+from evo_door.sim.objective import accel_population_errors
+from evo_door.sim.simulate import (
+    Response,
+    check_force,
+    events_of,
+    method_code,
+    tolerance_of,
+)
+
+#: rows below which the row kernels run on one thread (threads cost more than they give)
+ROWS_IN_THREADS = 8
+
+_vec = types.float64[::1]
+_SCAN_SIGNATURE = types.void(ACCEL_TYPE, _vec, _vec, types.float64, _vec)
+
+
+@njit(cache=True, nogil=True)
+def _hold(accel, p, theta, dtheta):
+    """Force (N) holding ddtheta = 0 at (theta, dtheta): accel is affine in the force."""
+    a0 = accel(theta, dtheta, 0.0, p)
+    a1 = accel(theta, dtheta, 1.0, p)
+    return -a0 / (a1 - a0)
+
+
+@njit(_SCAN_SIGNATURE, cache=True, nogil=True)
+def _hold_serial(accel, p, theta, dtheta, out):
+    for i in range(theta.shape[0]):
+        out[i] = _hold(accel, p, theta[i], dtheta)
+
+
+@njit(_SCAN_SIGNATURE, cache=True, parallel=True)
+def _hold_parallel(accel, p, theta, dtheta, out):
+    for i in prange(theta.shape[0]):
+        out[i] = _hold(accel, p, theta[i], dtheta)
+
+
+_ROWS_SIGNATURE = types.void(
+    ACCEL_TYPE, types.float64[:, ::1], _vec, types.float64, types.float64[:, ::1]
+)
+
+
+@njit(_ROWS_SIGNATURE, cache=True, parallel=True)
+def _hold_rows(accel, P, theta, dtheta, out):
+    for r in prange(P.shape[0]):
+        for i in range(theta.shape[0]):
+            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
+
+
+@njit(_ROWS_SIGNATURE, cache=True, nogil=True)
+def _hold_rows_serial(accel, P, theta, dtheta, out):
+    for r in range(P.shape[0]):
+        for i in range(theta.shape[0]):
+            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
+
+
+@njit(_ROWS_SIGNATURE, cache=True, parallel=True)
+def _inertia_rows(accel, P, theta, dtheta, out):
+    for r in prange(P.shape[0]):
+        for i in range(theta.shape[0]):
+            a0 = accel(theta[i], dtheta, 0.0, P[r])
+            a1 = accel(theta[i], dtheta, 1.0, P[r])
+            out[r, i] = 1.0 / (a1 - a0)
+
+
+@njit(_ROWS_SIGNATURE, cache=True, nogil=True)
+def _inertia_rows_serial(accel, P, theta, dtheta, out):
+    for r in range(P.shape[0]):
+        for i in range(theta.shape[0]):
+            a0 = accel(theta[i], dtheta, 0.0, P[r])
+            a1 = accel(theta[i], dtheta, 1.0, P[r])
+            out[r, i] = 1.0 / (a1 - a0)
+
+
+class AccelPlant:
+    """The :class:`~evo_door.sim.plant.Plant` of a model given by ``accel`` (``model``:
+    its :class:`~evo_door.models.Model`, or anything with the same attributes)."""
+
+    n_states = 2
+    position = 0
+    speed = 1
+    state_names = ("theta", "dtheta")
+    contained = False
+
+    def __init__(self, model) -> None:
+        self.model = model
+
+    @property
+    def params(self) -> ParamTable:
+        return self.model.params
+
+    def prepare(self) -> None:
+        """Nothing to load: the kernels are compiled on import."""
+
+    def check_start(self, theta0, dtheta0, where: str = "") -> None:
+        """Any initial state will do."""
+
+    def simulate(
+        self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
+        substeps=None, tolerance=None,
+    ) -> Response:  # fmt: skip
+        """One trial (:meth:`~evo_door.sim.plant.Plant.simulate`)."""
+        model = self.model
+        force = check_force(force, dt)
+        p = param_vector(params, model.params)
+        theta0 = model.theta0 if theta0 is None else float(theta0)
+        dtheta0 = 0.0 if dtheta0 is None else float(dtheta0)
+        n = force.size
+        t = t0 + dt * np.arange(n)
+        out = np.empty((3, n))
+        accel = model.accel
+        fast = prepared_form(accel)
+        if fast is not None:
+            accel, p = fast.accel, fast.vector(p)
+        switches, n_sw, stick = events_of(model)
+        ok = integrate(
+            accel, switches, p, force, float(dt), int(substeps or model.substeps), theta0,
+            dtheta0, method_code(method or model.method), tolerance_of(model, tolerance),
+            n_sw, stick, out[0], out[1], out[2],
+        )  # fmt: skip
+        return Response(t, force, out[0], out[1], out[2], bool(ok))
+
+    def simulate_batch(
+        self, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None,
+        tolerance=None,
+    ):  # fmt: skip
+        """One input for every row of ``P``, in one compiled parallel call; a model
+        with a fast form is prepared row by row inside the compiled loop."""
+        model = self.model
+        force = check_force(force, dt)
+        P = np.ascontiguousarray(P, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != len(model.params):
+            raise UserError(
+                f"model {model.name!r}: parameter matrix must be (n, {len(model.params)})"
+            )
+        theta0 = model.theta0 if theta0 is None else float(theta0)
+        dtheta0 = 0.0 if dtheta0 is None else float(dtheta0)
+        n_ind, n = P.shape[0], force.size
+        theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
+        ok = np.zeros(n_ind, dtype=np.bool_)
+        switches, n_sw, stick = events_of(model)
+        form = kernel_form(model.accel, P.shape[1])
+        integrate_batch(
+            form.accel, form.prepare, switches, form.size, P, force, float(dt),
+            int(substeps or model.substeps), theta0, dtheta0,
+            method_code(method or model.method), tolerance_of(model, tolerance), n_sw, stick,
+            theta, dtheta, ddtheta, ok,
+        )  # fmt: skip
+        return theta, dtheta, ddtheta, ok
+
+    def population_errors(
+        self, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, method, tol,
+        derivative, kind, err_out, ok_out,
+    ) -> None:  # fmt: skip
+        """The compiled objective kernels of :mod:`.objective`."""
+        accel_population_errors(
+            self.model, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps,
+            method, tol, derivative, kind, err_out, ok_out,
+        )  # fmt: skip
+
+    def check_curve(self, what: str) -> None:
+        """``accel`` gives the force at any state."""
+
+    def hold_forces(self, p, theta, dtheta) -> np.ndarray:
+        """Force (N, + toward closing) holding ``ddtheta = 0`` at every ``theta``, in one
+        compiled (for many angles, multi-threaded) call."""
+        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        p = np.ascontiguousarray(p, dtype=np.float64)
+        out = np.empty(theta.shape)
+        kernel = _hold_parallel if theta.size > 4096 else _hold_serial
+        kernel(self.model.accel, p, theta, float(dtheta), out)
+        return out
+
+    def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
+        """:meth:`hold_forces` of every row of ``P``, the rows across threads."""
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        out = np.empty((P.shape[0], theta.size))
+        kernel = _hold_rows if P.shape[0] >= ROWS_IN_THREADS else _hold_rows_serial
+        kernel(self.model.accel, P, theta, float(dtheta), out)
+        return out
+
+    def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
+        """Felt inertia: ``accel`` is affine in the force, its slope is 1 / inertia."""
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        out = np.empty((P.shape[0], theta.size))
+        kernel = _inertia_rows if P.shape[0] >= ROWS_IN_THREADS else _inertia_rows_serial
+        kernel(self.model.accel, P, theta, float(dtheta), out)
+        return out

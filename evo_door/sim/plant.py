@@ -1,0 +1,127 @@
+"""The one contract every kind of model offers the layers above: :class:`Plant`.
+
+A *plant* is what the simulator, the objective kernels, the force-angle curve, the
+perceptual objective and the GA's sandbox need of a model, whatever computes it:
+
+- :class:`~evo_door.sim.accel_plant.AccelPlant`: a one-coordinate model given by a
+  compiled ``accel(theta, dtheta, force, p)`` (the bundled door and haptic model);
+- :class:`~evo_door.sim.state_plant.StatePlant`: a model on a vector of states given by a
+  compiled right-hand side ``rhs(x, force, p, dx)`` (an engineer's own mechanism with
+  an elastic cable, a soft-close damper's fluid, two coupled bodies);
+- an FMU (:mod:`evo_door.models.fmu`), which runs itself.
+
+Every model has one: ``model.plant``. The layers above call its methods and never ask
+which kind a model is.
+
+The state is a vector of ``n_states`` floats named ``state_names``; the user's hand holds
+the coordinate ``x[position]`` (``theta``, in the model's ``theta_unit``) whose speed is
+``x[speed]`` (``dtheta``). The force is the user's, at the handle, + toward closing (N).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from evo_door.params import ParamTable
+from evo_door.sim.simulate import Response
+
+
+@runtime_checkable
+class Plant(Protocol):
+    """What every kind of model offers (see the module docstring).
+
+    Attributes
+    ----------
+    params : ParamTable
+        The model's declaration; parameter vectors follow its order.
+    n_states, position, speed : int
+        Length of the state vector; indices of the handle's coordinate and speed in it.
+    state_names : tuple of str
+        One name per state (``theta``, ``dtheta`` and the model's own).
+    contained : bool
+        The plant runs native code nobody here compiled (an FMU): a fit evaluates it in a
+        sandbox process (:mod:`evo_door.optim.sandbox`).
+    """
+
+    params: ParamTable
+    n_states: int
+    position: int
+    speed: int
+    state_names: tuple[str, ...]
+    contained: bool
+
+    def prepare(self) -> None:
+        """Load what the first run would load (a sandbox's child does before a time limit
+        counts): compiled kernels, a shared library."""
+
+    def check_start(self, theta0: float | None, dtheta0: float | None, where: str = "") -> None:
+        """Refuse, in one line naming ``where``, an initial handle state the plant cannot
+        be given."""
+
+    def simulate(
+        self,
+        params,
+        force,
+        dt: float,
+        theta0: float | None = None,
+        dtheta0: float | None = None,
+        t0: float = 0.0,
+        method: str | None = None,
+        substeps: int | None = None,
+        tolerance: float | None = None,
+    ) -> Response:
+        """One trial: the force sampled every ``dt`` s in, the handle's channels out (and
+        the plant's other states in ``Response.states``). ``theta0`` / ``dtheta0`` None:
+        the plant's own initial state."""
+
+    def simulate_batch(
+        self,
+        P: np.ndarray,
+        force,
+        dt: float,
+        theta0: float | None = None,
+        dtheta0: float | None = None,
+        method: str | None = None,
+        substeps: int | None = None,
+        tolerance: float | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One input for every row of ``P``: ``(theta, dtheta, ddtheta, ok)``."""
+
+    def population_errors(
+        self,
+        P: np.ndarray,
+        force: np.ndarray,
+        target: np.ndarray,
+        mask: np.ndarray,
+        offsets: np.ndarray,
+        dt: np.ndarray,
+        theta0: np.ndarray,
+        dtheta0: np.ndarray,
+        substeps: int,
+        method: int,
+        tol: float,
+        derivative: int,
+        kind: int,
+        err_out: np.ndarray,
+        ok_out: np.ndarray,
+    ) -> None:
+        """The objective of every row of ``P`` on every trial (packed as
+        :mod:`evo_door.sim.objective` describes) into ``err_out`` / ``ok_out``."""
+
+    def check_curve(self, what: str) -> None:
+        """Refuse, in one line, ``what`` (the force-angle curve, the perceptual
+        objective) for a plant that cannot give the force at the handle at any state."""
+
+    def hold_forces(self, p: np.ndarray, theta, dtheta: float) -> np.ndarray:
+        """The force at the handle (N) that holds it in static equilibrium at each
+        ``theta`` while it moves at ``dtheta``: the quasi-static force-angle curve.
+        A plant that cannot compute it refuses in one line."""
+
+    def hold_forces_rows(self, P: np.ndarray, theta, dtheta: float) -> np.ndarray:
+        """:meth:`hold_forces` of every row of ``P``: an array (rows, angles)."""
+
+    def inertia_rows(self, P: np.ndarray, theta, dtheta: float) -> np.ndarray:
+        """The inertia felt at the handle (force per acceleration) of every row of ``P``
+        at each ``theta``: an array (rows, angles)."""
