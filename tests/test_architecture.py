@@ -446,3 +446,63 @@ def test_the_size_checks_catch_what_they_are_for(tmp_path, monkeypatch):
     assert long_functions(f) == ["f.py:f"]
     f.write_text("def f(\n    a=1,\n):\n" + body[: -len("    x80 = 80\n")])  # 80 lines: fine
     assert long_functions(f) == []
+
+
+# -- one model contract: no layer above the models asks which kind a model is ---------
+#: Attributes that only one kind of model has (an FMU's runner and description, the
+#: FMU model class): asking for them is asking which kind a model is.
+KIND_MARKERS = {"runner", "info", "FmuModel", "FmuRunner", "FmuPlant", "StatePlant", "AccelPlant"}
+#: The units where the kinds are made: the plants and the models.
+KIND_HOME = {"sim", "models"}
+
+
+def kind_tests(path: Path, root: Path = ROOT) -> list[str]:
+    """Every place in a file that tests a model's kind: ``getattr`` / ``hasattr`` with
+    a kind marker, ``isinstance`` with a kind class, ``x.runner`` / ``x.info``."""
+    found = []
+    rel = path.relative_to(root)
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
+            args = node.args
+            if node.func.id in ("getattr", "hasattr") and len(args) >= 2:
+                if isinstance(args[1], ast.Constant) and args[1].value in KIND_MARKERS:
+                    found.append(f"{rel}:{node.lineno}: {node.func.id}(..., {args[1].value!r})")
+            if node.func.id == "isinstance" and len(args) == 2:
+                names = {n.id for n in ast.walk(args[1]) if isinstance(n, ast.Name)}
+                names |= {n.attr for n in ast.walk(args[1]) if isinstance(n, ast.Attribute)}
+                names.discard("model")
+                if names & KIND_MARKERS:
+                    found.append(f"{rel}:{node.lineno}: isinstance(..., {sorted(names)})")
+        if isinstance(node, ast.Attribute) and node.attr in ("runner",):
+            if isinstance(node.value, ast.Name) and node.value.id in ("model", "m"):
+                found.append(f"{rel}:{node.lineno}: {node.value.id}.{node.attr}")
+    return found
+
+
+def test_no_layer_above_the_models_asks_which_kind_a_model_is():
+    """The layers above ``sim`` and ``models`` ask a model's plant
+    (:class:`evo_door.sim.plant.Plant`) and never test for an FMU's runner."""
+    found = [
+        f
+        for path in sorted(PACKAGE.rglob("*.py"))
+        if unit(module_name(path)) not in KIND_HOME
+        for f in kind_tests(path)
+    ]
+    assert not found, "a model's kind tested above the models:\n" + "\n".join(found)
+
+
+def test_the_kind_scan_catches_what_it_is_for(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text(
+        "def f(model):\n"
+        "    if getattr(model, 'runner', None) is not None:\n"
+        "        return model.runner\n"
+        "    return isinstance(model, fmu.FmuModel) or hasattr(model, 'info')\n"
+    )
+    found = sorted(f.split(": ", 1)[1] for f in kind_tests(bad, tmp_path))
+    assert found == [
+        "getattr(..., 'runner')",
+        "hasattr(..., 'info')",
+        "isinstance(..., ['FmuModel', 'fmu'])",
+        "model.runner",
+    ]

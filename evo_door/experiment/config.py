@@ -197,16 +197,10 @@ def _with_channels(r: _Reader, tree: LinedMap) -> str:
 
 
 def _require_declared(where: str, name, model) -> None:
-    info = getattr(model, "info", None)
-    if name not in model.params and info is not None:
-        var = next((v for v in info.description.modelVariables if v.name == name), None)
-        if var is not None:  # an FMU variable that is no real, settable parameter
-            raise UserError(
-                f"{where}: {name!r} of FMU {info.path.name} cannot be set (causality "
-                f"{var.causality}, variability {var.variability}, type {var.type}): only "
-                "real parameters (causality parameter, fixed or tunable) can be fitted"
-            )
     if name not in model.params:
+        why = model.plant.not_a_parameter(str(name))
+        if why:  # a variable of the model that is no real, settable parameter (an FMU's)
+            raise UserError(f"{where}: {why}")
         raise UserError(
             f"{where}: model {model.name!r} has no parameter {name!r}"
             + suggest(str(name), model.params.names)
@@ -540,9 +534,7 @@ def experiment_from_tree(
     model_name = resolve_model_name(_with_channels(r, tree), base_dir)
     try:
         model = get_model(model_name)
-        info = getattr(model, "info", None)
-        if info is not None:  # an FMU: its channels must match before anything runs
-            info.check_channels()
+        model.plant.check_ready()  # an FMU: its channels must match before anything runs
     except UserError as exc:
         raise UserError(f"{tree.where('model')}: model: {exc}") from None
     default_name = Path(source).stem if source and not source.startswith("<") else "experiment"

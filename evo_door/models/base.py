@@ -99,12 +99,30 @@ class Model:
         hold the door at rest while the friction can, as the renderer does.
     tolerance : float
         Tolerance of the adaptive ``dopri5`` method (per step, rad and rad/s).
+    rhs : numba function or None
+        A model on a **state vector** gives ``rhs(x, force, p, dx)`` instead of
+        ``accel``: it writes the derivative ``dx`` of the state ``x`` (both float64
+        arrays of ``len(states)``), affine in ``force`` (:mod:`evo_door.sim.states`).
+    states : tuple of str
+        Names of the states of an ``rhs`` model, in the order of ``x``.
+    handle : (int, int)
+        Indices in ``x`` of the coordinate the hand holds (``theta``) and of its speed.
+    x0 : tuple of float
+        Initial state of an ``rhs`` model (default all 0.0); ``theta0`` and the trial's
+        own start replace the handle's entries.
+    start : numba function or None
+        ``start(x, p)``: completes the initial state from the parameters (an elastic
+        element at rest, say), after the handle's entries are set.
+    contacts : tuple of int
+        Indices in ``x`` of the speeds of an ``rhs`` model's dry-friction contacts whose
+        law is a sign (``sgn(0) = 0``): each sticks and slips on its own, as
+        ``stick_slip`` does for a one-coordinate model.
     """
 
     name: str
     title: str
     params: ParamTable
-    accel: Callable
+    accel: Callable | None = None
     method: str = "semi_implicit"
     substeps: int = 2
     theta0: float = 0.0
@@ -117,12 +135,24 @@ class Model:
     n_switches: int = 0
     stick_slip: bool = False
     tolerance: float = 1e-7
+    rhs: Callable | None = None
+    states: tuple[str, ...] = ()
+    handle: tuple[int, int] = (0, 1)
+    x0: tuple[float, ...] = ()
+    start: Callable | None = None
+    contacts: tuple[int, ...] = ()
 
     @cached_property
     def plant(self) -> Plant:
         """What the simulator, the objectives and the curves run
-        (:class:`~evo_door.sim.plant.Plant`): the compiled integrators on ``accel``."""
-        from evo_door.sim.accel_plant import AccelPlant  # numba: only when a model runs
+        (:class:`~evo_door.sim.plant.Plant`): the compiled integrators on ``accel``, or
+        on the state vector of ``rhs``."""
+        # numba is imported only when a model runs
+        if self.rhs is not None:
+            from evo_door.sim.state_plant import StatePlant
+
+            return StatePlant(self)
+        from evo_door.sim.accel_plant import AccelPlant
 
         return AccelPlant(self)
 

@@ -9,6 +9,7 @@ exact type the integrators call it with.
 from __future__ import annotations
 
 import inspect
+import math
 import re
 
 from evo_door.errors import UserError
@@ -57,9 +58,87 @@ def check_model(model, source: str = ""):
         raise UserError(
             f"{name}: theta_range {model.theta_range} must go from open (lower) to closed (upper)"
         )
+    if model.rhs is not None:
+        _check_states(model)
+        return model
     _check_accel(model)
     _check_switches(model)
     return model
+
+
+_WANT_RHS = "a numba @njit function rhs(x, force, p, dx) writing dx"
+_WANT_START = "a numba @njit function start(x, p) completing the initial state x"
+_WANT_STATE_SWITCHES = "a numba @njit function switches(x, force, p, g) writing g"
+
+
+def _check_states(model) -> None:
+    """A model on a state vector: its states, handle, contacts and compiled functions."""
+    # long: one check after the other, each a line of its own; read top to bottom
+    name = f"model {model.name!r}"
+    states = model.states
+    if not (isinstance(states, tuple) and len(states) >= 2 and all(
+        isinstance(s, str) and s.isidentifier() for s in states
+    )):  # fmt: skip
+        raise UserError(f"{name}: states must be a tuple of at least two names, got {states!r}")
+    if len(set(states)) != len(states):
+        raise UserError(f"{name}: states {states!r} name one state twice")
+    n = len(states)
+
+    def index(value, what) -> int:
+        if not (isinstance(value, int) and 0 <= value < n):
+            raise UserError(
+                f"{name}: {what} must be an index into states (0 to {n - 1}), got {value!r}"
+            )
+        return value
+
+    if not (isinstance(model.handle, tuple) and len(model.handle) == 2):
+        raise UserError(f"{name}: handle must be (position, speed) indices, got {model.handle!r}")
+    position = index(model.handle[0], "handle's position")
+    speed = index(model.handle[1], "handle's speed")
+    if position == speed:
+        raise UserError(f"{name}: the handle's position and speed must be two states")
+    for k in model.contacts:
+        if index(k, "a contact") == position:
+            raise UserError(f"{name}: contact {k} is the handle's position, not a speed")
+    if model.x0 and len(model.x0) != n:
+        raise UserError(f"{name}: x0 has {len(model.x0)} values for {n} states")
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in model.x0):
+        raise UserError(f"{name}: x0 must be finite numbers, got {model.x0!r}")
+    if not (isinstance(model.n_switches, int) and 0 <= model.n_switches <= 64):
+        raise UserError(f"{name}: n_switches must be a whole number from 0 to 64")
+    if (model.switches is None) != (model.n_switches == 0):
+        raise UserError(f"{name}: give switches and n_switches together (or neither)")
+    if not (isinstance(model.tolerance, float) and 0.0 < model.tolerance < 1.0):
+        raise UserError(f"{name}: tolerance must be a number in (0, 1), got {model.tolerance!r}")
+    from evo_door.sim.states import RHS_SIGNATURE, START_SIGNATURE, STATE_SWITCHES_SIGNATURE
+
+    _check_compiled(name, "rhs", model.rhs, RHS_SIGNATURE, _WANT_RHS)
+    if model.start is not None:
+        _check_compiled(name, "start", model.start, START_SIGNATURE, _WANT_START)
+    if model.switches is not None:
+        _check_compiled(
+            name, "switches", model.switches, STATE_SWITCHES_SIGNATURE, _WANT_STATE_SWITCHES
+        )
+
+
+def _check_compiled(name: str, what: str, func, sig, want: str) -> None:
+    """Refuse ``func`` unless it is an @njit function that compiles for ``sig``."""
+    from numba import config
+    from numba.core.dispatcher import Dispatcher
+
+    if config.DISABLE_JIT:
+        if not callable(func):
+            raise UserError(f"{name}: {what} must be {want}; got {_describe(func)}")
+        return
+    if not isinstance(func, Dispatcher):
+        raise UserError(f"{name}: {what} must be {want}; got {_describe(func)}")
+    try:
+        func.get_compile_result(sig)
+    except Exception as exc:  # numba raises TypingError, TypeError, NameError...
+        raise UserError(
+            f"{name}: {what} must be {want}; it does not compile for "
+            f"{_signature_text(sig)}: {_numba_reason(exc)}"
+        ) from None
 
 
 def _check_switches(model) -> None:

@@ -116,6 +116,13 @@ class AccelPlant:
     def prepare(self) -> None:
         """Nothing to load: the kernels are compiled on import."""
 
+    def check_ready(self) -> None:
+        """Always ready."""
+
+    def not_a_parameter(self, name: str) -> str:
+        """Every variable of the model is a declared parameter."""
+        return ""
+
     def check_start(self, theta0, dtheta0, where: str = "") -> None:
         """Any initial state will do."""
 

@@ -56,6 +56,14 @@ class Plant(Protocol):
         """Load what the first run would load (a sandbox's child does before a time limit
         counts): compiled kernels, a shared library."""
 
+    def check_ready(self) -> None:
+        """Refuse, in one line, a plant that cannot run at all (an FMU whose variables do
+        not match the handle's channels)."""
+
+    def not_a_parameter(self, name: str) -> str:
+        """Why ``name``, which is not in ``params``, cannot be set (a variable of the plant
+        that is no settable parameter), or "" when the plant knows no such name."""
+
     def check_start(self, theta0: float | None, dtheta0: float | None, where: str = "") -> None:
         """Refuse, in one line naming ``where``, an initial handle state the plant cannot
         be given."""

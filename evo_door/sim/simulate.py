@@ -11,7 +11,7 @@ force trace; ``quasi_static_curve`` is the plain uniform-grid curve at a finite 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,14 +35,19 @@ class Response:
     dtheta: np.ndarray  # rad/s
     ddtheta: np.ndarray  # rad/s^2
     ok: bool = True  # False when the simulation blew up (NaN tail)
+    #: the model's other states by name (a model on a state vector), each like ``theta``
+    states: dict[str, np.ndarray] = field(default_factory=dict)
 
     COLUMNS = tuple(CHANNELS)
 
     def table(self) -> np.ndarray:
-        return np.column_stack([getattr(self, c) for c in self.COLUMNS])
+        """The columns ``COLUMNS`` then the other states', one row per sample."""
+        cols = [getattr(self, c) for c in self.COLUMNS] + list(self.states.values())
+        return np.column_stack(cols)
 
     def to_csv(self, path) -> None:
-        """Write ``t, force, theta, dtheta, ddtheta`` (SI) with a header line."""
+        """Write ``t, force, theta, dtheta, ddtheta`` (SI), then the other states of a
+        model on a state vector, with a header line."""
         from evo_door.files import atomic_write
 
         with atomic_write(path) as tmp:
@@ -50,7 +55,7 @@ class Response:
                 tmp,
                 self.table(),
                 delimiter=",",
-                header=",".join(self.COLUMNS),
+                header=",".join((*self.COLUMNS, *self.states)),
                 comments="",
                 fmt="%.10g",
             )

@@ -38,6 +38,22 @@ class FmuPlant:
         """Load the FMU and its kernels in this process, running no trial."""
         self.runner.prepare()
 
+    def check_ready(self) -> None:
+        """Refuse an FMU whose variables do not match the handle's channels."""
+        self.model.info.check_channels()
+
+    def not_a_parameter(self, name: str) -> str:
+        """Why the FMU's variable ``name`` cannot be set, or "" if it has none."""
+        info = self.model.info
+        var = next((v for v in info.description.modelVariables if v.name == name), None)
+        if var is None:
+            return ""
+        return (
+            f"{name!r} of FMU {info.path.name} cannot be set (causality {var.causality}, "
+            f"variability {var.variability}, type {var.type}): only real parameters "
+            "(causality parameter, fixed or tunable) can be fitted"
+        )
+
     def check_start(self, theta0, dtheta0, where: str = "") -> None:
         """Refuse an initial state the FMU cannot be given (one line naming ``where``)."""
         self.runner.check_start(theta0, dtheta0, where)

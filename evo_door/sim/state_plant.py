@@ -1,0 +1,209 @@
+"""A model on a vector of states, as a plant: :class:`StatePlant`.
+
+An engineer's mechanism often has more than the handle's position and speed: an elastic
+cable between the door and its spring (the cable's far end has a state of its own), a
+soft-close damper whose fluid has a pressure, two bodies coupled by a spring. Its model
+file gives a compiled right-hand side ``rhs(x, force, p, dx)`` on the state vector ``x``
+(:mod:`evo_door.sim.states` states the contract) and says which two states are the
+handle's position and speed (``Model.handle``). This module makes it a
+:class:`~evo_door.sim.plant.Plant`:
+
+- trials and populations run in the compiled state-vector integrators
+  (:mod:`evo_door.sim.states`, :mod:`evo_door.sim.state_objective`), with the model's
+  switching functions located in the step and stick-slip per contact;
+- the initial state is the model's ``x0`` with the handle's entries replaced by the
+  trial's start, then completed by the model's ``start(x, p)`` if it has one (an
+  elastic element at rest, which depends on the parameters);
+- the quasi-static force is a static equilibrium (:mod:`evo_door.sim.equilibrium`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evo_door.errors import UserError
+from evo_door.params import ParamTable
+from evo_door.params.sets import param_vector
+from evo_door.sim.equilibrium import hold_states
+from evo_door.sim.simulate import Response, check_force, method_code, tolerance_of
+from evo_door.sim.state_objective import population_errors_states
+from evo_door.sim.states import (
+    integrate_states,
+    integrate_states_batch,
+    no_state_switches,
+    settings,
+)
+
+
+class StatePlant:
+    """The :class:`~evo_door.sim.plant.Plant` of a model given by ``rhs`` (``model``)."""
+
+    contained = False
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.state_names = tuple(model.states)
+        self.n_states = len(self.state_names)
+        self.position, self.speed = (int(i) for i in model.handle)
+        self.contacts = np.array(model.contacts, dtype=np.int64)
+        self.switches = model.switches or no_state_switches
+        self.n_switches = int(model.n_switches) if model.switches is not None else 0
+
+    @property
+    def params(self) -> ParamTable:
+        return self.model.params
+
+    def prepare(self) -> None:
+        """Nothing to load: the kernels are compiled on import."""
+
+    def check_ready(self) -> None:
+        """Always ready."""
+
+    def not_a_parameter(self, name: str) -> str:
+        """Every variable of the model is a declared parameter."""
+        return ""
+
+    def check_start(self, theta0, dtheta0, where: str = "") -> None:
+        """Any initial handle state will do."""
+
+    def check_curve(self, what: str) -> None:
+        """The equilibrium solve gives the force at any state."""
+
+    # -- the initial state ---------------------------------------------------------
+    def initial_state(self, p, theta0=None, dtheta0=None) -> np.ndarray:
+        """The state a trial starts from (see the module docstring)."""
+        model = self.model
+        x = np.zeros(self.n_states)
+        if len(model.x0):
+            x[:] = np.asarray(model.x0, dtype=np.float64)
+        x[self.position] = model.theta0 if theta0 is None else float(theta0)
+        x[self.speed] = 0.0 if dtheta0 is None else float(dtheta0)
+        if model.start is not None:
+            model.start(x, np.ascontiguousarray(p, dtype=np.float64))
+        if not np.all(np.isfinite(x)):
+            raise UserError(f"model {model.name!r}: its initial state is not finite: {x}")
+        return x
+
+    def _settings(self, dt, method, substeps, tolerance) -> np.ndarray:
+        model = self.model
+        return settings(
+            float(dt),
+            int(substeps or model.substeps),
+            method_code(method or model.method),
+            tolerance_of(model, tolerance),
+            self.n_switches,
+        )
+
+    # -- runs ------------------------------------------------------------------------
+    def simulate(
+        self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
+        substeps=None, tolerance=None,
+    ) -> Response:  # fmt: skip
+        """One trial; the states besides the handle's are in ``Response.states``."""
+        force = check_force(force, dt)
+        p = param_vector(params, self.model.params)
+        x0 = self.initial_state(p, theta0, dtheta0)
+        n = force.size
+        x_out = np.empty((self.n_states, n))
+        dx_out = np.empty((self.n_states, n))
+        ok = integrate_states(
+            self.model.rhs, self.switches, p, force, x0,
+            self._settings(dt, method, substeps, tolerance), self.contacts, x_out, dx_out,
+        )  # fmt: skip
+        i, j = self.position, self.speed
+        others = {name: x_out[k] for k, name in enumerate(self.state_names) if k not in (i, j)}
+        t = t0 + dt * np.arange(n)
+        return Response(t, force, x_out[i], x_out[j], dx_out[j], bool(ok), others)
+
+    def simulate_batch(
+        self, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None,
+        tolerance=None,
+    ):  # fmt: skip
+        """One input for every row of ``P``, in one compiled parallel call."""
+        force = check_force(force, dt)
+        P = np.ascontiguousarray(P, dtype=np.float64)
+        if P.ndim != 2 or P.shape[1] != len(self.params):
+            raise UserError(
+                f"model {self.model.name!r}: parameter matrix must be (n, {len(self.params)})"
+            )
+        X0 = np.array([self.initial_state(p, theta0, dtheta0) for p in P])
+        n_ind, n = P.shape[0], force.size
+        x_out = np.empty((n_ind, self.n_states, n))
+        dx_out = np.empty((n_ind, self.n_states, n))
+        ok = np.zeros(n_ind, dtype=np.bool_)
+        integrate_states_batch(
+            self.model.rhs, self.switches, P, force, X0,
+            self._settings(dt, method, substeps, tolerance), self.contacts, x_out, dx_out, ok,
+        )  # fmt: skip
+        i, j = self.position, self.speed
+        return (
+            np.ascontiguousarray(x_out[:, i]),
+            np.ascontiguousarray(x_out[:, j]),
+            np.ascontiguousarray(dx_out[:, j]),
+            ok,
+        )
+
+    def population_errors(
+        self, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps, method, tol,
+        derivative, kind, err_out, ok_out,
+    ) -> None:  # fmt: skip
+        """The compiled objective kernels on state vectors; where the initial state
+        depends on the parameters (``start``), one compiled call per individual."""
+        n_trials = offsets.size - 1
+
+        def starts(p):
+            return np.array([self.initial_state(p, theta0[j], dtheta0[j]) for j in range(n_trials)])
+
+        args = (substeps, method, tol, self.n_switches)
+        if self.model.start is None:
+            X0 = starts(P[0]) if P.shape[0] else np.zeros((n_trials, self.n_states))
+            self._errors(P, force, target, mask, offsets, dt, X0, args, derivative, kind,
+                         err_out, ok_out)  # fmt: skip
+            return
+        for r in range(P.shape[0]):
+            self._errors(
+                P[r : r + 1], force, target, mask, offsets, dt, starts(P[r]), args,
+                derivative, kind, err_out[r : r + 1], ok_out[r : r + 1],
+            )  # fmt: skip
+
+    def _errors(self, P, force, target, mask, offsets, dt, X0, args, derivative, kind,
+                err_out, ok_out) -> None:  # fmt: skip
+        population_errors_states(
+            self.model.rhs, self.switches, np.ascontiguousarray(P), force, target, mask,
+            offsets, dt, np.ascontiguousarray(X0), *args, self.contacts, self.position,
+            self.speed, derivative, kind, err_out, ok_out,
+        )  # fmt: skip
+
+    # -- the force at the handle -----------------------------------------------------
+    def _hold(self, p, theta, dtheta) -> tuple[np.ndarray, np.ndarray]:
+        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        p = np.ascontiguousarray(p, dtype=np.float64)
+        out = np.empty(theta.shape)
+        slope = np.empty(theta.shape)
+        if theta.size == 0:
+            return out, slope
+        x0 = self.initial_state(p, theta[0], dtheta)
+        hold_states(
+            self.model.rhs, p, theta, float(dtheta), x0, self.position, self.speed, out, slope
+        )
+        return out, slope
+
+    def hold_forces(self, p, theta, dtheta) -> np.ndarray:
+        """The force holding the handle at each ``theta`` (in order: each angle starts
+        from the last one's equilibrium), the other states at rest."""
+        return self._hold(p, theta, dtheta)[0]
+
+    def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
+        """:meth:`hold_forces` of every row of ``P``."""
+        P = np.atleast_2d(P)
+        return np.array([self.hold_forces(p, theta, dtheta) for p in P]).reshape(
+            P.shape[0], np.size(theta)
+        )
+
+    def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
+        """The inertia felt at the handle at equilibrium: 1 / (d ddtheta / d force), the
+        other states held."""
+        P = np.atleast_2d(P)
+        return np.array([1.0 / self._hold(p, theta, dtheta)[1] for p in P]).reshape(
+            P.shape[0], np.size(theta)
+        )
