@@ -373,6 +373,7 @@ def measure(trial: BenchTrial, quick: bool, say=lambda text: None):
     say(f"trial {trial.model} {trial.key}: reference")
     theta, dtheta, resolution = reference(model, p, trial, quick)
     ref = (theta, dtheta)
+    assert model.accel is not None, "the precision benchmark runs models given by accel"
     model.accel(trial.theta0, 0.0, 0.0, p)  # the dispatcher's Python entry, compiled
     say(f"trial {trial.model} {trial.key}: evo-door")
     points = workbench_points(model, p, trial, ref, quick)

@@ -126,7 +126,7 @@ def _check_compiled(name: str, what: str, func, sig, want: str) -> None:
     from numba import config
     from numba.core.dispatcher import Dispatcher
 
-    if config.DISABLE_JIT:
+    if getattr(config, "DISABLE_JIT", False):
         if not callable(func):
             raise UserError(f"{name}: {what} must be {want}; got {_describe(func)}")
         return

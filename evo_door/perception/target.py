@@ -116,15 +116,11 @@ class FeelTarget:
     def felt_dynamics(self, model, p) -> tuple[float, float]:
         """Mean felt inertia (kg m) and viscous damping (N s/rad) of ``model`` at ``p``
         over the stroke (module docstring)."""
-        from evo_door.sim.simulate import hold_forces
+        from evo_door.sim.simulate import hold_forces, inertia_rows
 
         theta = self.dyn_grid
         v = self.jnd.speed
-        inertia = []
-        for th in theta:
-            a0 = model.accel(float(th), -0.5 * v, 0.0, p)
-            a1 = model.accel(float(th), -0.5 * v, 1.0, p)
-            inertia.append(1.0 / (a1 - a0))
+        inertia = inertia_rows(model, p, theta, -0.5 * v)[0]
         damping = 0.0
         for s in (-1.0, 1.0):
             half = hold_forces(model, p, theta, 0.5 * s * v)

@@ -103,7 +103,7 @@ class AccelPlant:
     n_states = 2
     position = 0
     speed = 1
-    state_names = ("theta", "dtheta")
+    state_names: tuple[str, ...] = ("theta", "dtheta")
     contained = False
 
     def __init__(self, model) -> None:

@@ -45,7 +45,10 @@ class Plant(Protocol):
         sandbox process (:mod:`evo_door.optim.sandbox`).
     """
 
-    params: ParamTable
+    @property
+    def params(self) -> ParamTable:
+        """The model's declaration."""
+
     n_states: int
     position: int
     speed: int

@@ -23,6 +23,7 @@ from evo_door.models.fmu import kernels
 from evo_door.models.fmu.description import FmuInfo, is_fmu_spec, read_info, split_spec
 from evo_door.models.fmu.instance import instance
 from evo_door.models.fmu.plant import FmuPlant
+from evo_door.sim.plant import Plant
 
 #: objective kinds, as :mod:`evo_door.optim.kernels` codes them
 MAX_SQUARE, ISE = 0, 1
@@ -52,7 +53,7 @@ class FmuModel(Model):
         return FmuRunner(self.info)
 
     @cached_property
-    def plant(self) -> FmuPlant:
+    def plant(self) -> Plant:
         """The FMU as a :class:`~evo_door.sim.plant.Plant`: it runs itself, contained."""
         return FmuPlant(self)
 

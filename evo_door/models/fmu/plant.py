@@ -9,6 +9,8 @@ objective) it gives where the runner can, else refuses in one line.
 
 from __future__ import annotations
 
+from typing import NoReturn
+
 import numpy as np
 
 from evo_door.errors import UserError
@@ -23,7 +25,7 @@ class FmuPlant:
     n_states = 2
     position = 0
     speed = 1
-    state_names = ("theta", "dtheta")
+    state_names: tuple[str, ...] = ("theta", "dtheta")
     contained = True
 
     def __init__(self, model) -> None:
@@ -97,7 +99,7 @@ class FmuPlant:
             kind, err_out, ok_out,
         )  # fmt: skip
 
-    def _refuse(self, what: str):
+    def _refuse(self, what: str) -> NoReturn:
         raise UserError(
             f"model {self.model.name!r} is an FMU: {what} needs the model's acceleration "
             "at any state, which an FMU gives only along a simulation"
