@@ -27,6 +27,7 @@ from evo_door.sim.objective import accel_population_errors
 from evo_door.sim.simulate import (
     Response,
     check_force,
+    check_state,
     events_of,
     method_code,
     tolerance_of,
@@ -128,11 +129,13 @@ class AccelPlant:
 
     def simulate(
         self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
-        substeps=None, tolerance=None,
+        substeps=None, tolerance=None, state=None,
     ) -> Response:  # fmt: skip
         """One trial (:meth:`~evo_door.sim.plant.Plant.simulate`)."""
         model = self.model
         force = check_force(force, dt)
+        if state is not None:
+            theta0, dtheta0 = check_state(state, 2, model.name)
         p = param_vector(params, model.params)
         theta0 = model.theta0 if theta0 is None else float(theta0)
         dtheta0 = 0.0 if dtheta0 is None else float(dtheta0)
@@ -149,7 +152,8 @@ class AccelPlant:
             dtheta0, method_code(method or model.method), tolerance_of(model, tolerance),
             n_sw, stick, out[0], out[1], out[2],
         )  # fmt: skip
-        return Response(t, force, out[0], out[1], out[2], bool(ok))
+        final = np.array([out[0, -1], out[1, -1]])
+        return Response(t, force, out[0], out[1], out[2], bool(ok), final=final)
 
     def simulate_batch(
         self, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None,

@@ -82,10 +82,12 @@ class Plant(Protocol):
         method: str | None = None,
         substeps: int | None = None,
         tolerance: float | None = None,
+        state: np.ndarray | None = None,
     ) -> Response:
         """One trial: the force sampled every ``dt`` s in, the handle's channels out (and
-        the plant's other states in ``Response.states``). ``theta0`` / ``dtheta0`` None:
-        the plant's own initial state."""
+        the plant's other states in ``Response.states``, the last sample's whole state in
+        ``Response.final``). ``theta0`` / ``dtheta0`` None: the plant's own initial
+        state; ``state``: the whole initial state instead (a previous ``final``)."""
 
     def simulate_batch(
         self,

@@ -37,6 +37,9 @@ class Response:
     ok: bool = True  # False when the simulation blew up (NaN tail)
     #: the model's other states by name (a model on a state vector), each like ``theta``
     states: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the whole state at the last sample (the plant's order): where a next call, given
+    #: it as ``state``, goes on from
+    final: np.ndarray | None = None
 
     COLUMNS = tuple(CHANNELS)
 
@@ -84,6 +87,16 @@ def check_force(force, dt) -> np.ndarray:
     return force
 
 
+def check_state(state, n_states: int, name: str) -> np.ndarray:
+    """The whole initial state ``state`` as a float vector of ``n_states``, or one line."""
+    x = np.array(state, dtype=np.float64).reshape(-1)
+    if x.size != n_states or not np.all(np.isfinite(x)):
+        raise UserError(
+            f"model {name!r}: an initial state is {n_states} finite numbers, got {state!r}"
+        )
+    return x
+
+
 def events_of(model) -> tuple:
     """``(switches, n_switches, stick_slip)`` of a model, as the kernels take them."""
     switches = getattr(model, "switches", None)
@@ -118,6 +131,7 @@ def simulate(
     method=None,
     substeps=None,
     tolerance=None,
+    state=None,
 ) -> Response:
     """Simulate ``model`` with a :class:`~evo_door.params.ParamSet` (or vector).
 
@@ -130,6 +144,9 @@ def simulate(
         User force (N) sampled every ``dt`` seconds.
     theta0, dtheta0 : float
         Initial angle (rad; default the model's) and angular speed (rad/s).
+    state : array_like, optional
+        The whole initial state instead (a previous response's ``final``), for a model
+        on a state vector the states of its own too.
     method, substeps, tolerance :
         Override the model's integration defaults (``tolerance``: ``dopri5`` only).
 
@@ -151,7 +168,7 @@ def simulate(
     """
     return model.plant.simulate(
         params, force, dt, theta0, dtheta0, t0, method=method, substeps=substeps,
-        tolerance=tolerance,
+        tolerance=tolerance, state=state,
     )  # fmt: skip
 
 

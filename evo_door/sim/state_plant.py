@@ -25,7 +25,13 @@ from evo_door.errors import UserError
 from evo_door.params import ParamTable
 from evo_door.params.sets import param_vector
 from evo_door.sim.equilibrium import hold_states
-from evo_door.sim.simulate import Response, check_force, method_code, tolerance_of
+from evo_door.sim.simulate import (
+    Response,
+    check_force,
+    check_state,
+    method_code,
+    tolerance_of,
+)
 from evo_door.sim.state_objective import population_errors_states
 from evo_door.sim.states import (
     integrate_states,
@@ -97,12 +103,15 @@ class StatePlant:
     # -- runs ------------------------------------------------------------------------
     def simulate(
         self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
-        substeps=None, tolerance=None,
+        substeps=None, tolerance=None, state=None,
     ) -> Response:  # fmt: skip
         """One trial; the states besides the handle's are in ``Response.states``."""
         force = check_force(force, dt)
         p = param_vector(params, self.model.params)
-        x0 = self.initial_state(p, theta0, dtheta0)
+        if state is not None:
+            x0 = check_state(state, self.n_states, self.model.name)
+        else:
+            x0 = self.initial_state(p, theta0, dtheta0)
         n = force.size
         x_out = np.empty((self.n_states, n))
         dx_out = np.empty((self.n_states, n))
@@ -113,7 +122,8 @@ class StatePlant:
         i, j = self.position, self.speed
         others = {name: x_out[k] for k, name in enumerate(self.state_names) if k not in (i, j)}
         t = t0 + dt * np.arange(n)
-        return Response(t, force, x_out[i], x_out[j], dx_out[j], bool(ok), others)
+        final = x_out[:, -1].copy()
+        return Response(t, force, x_out[i], x_out[j], dx_out[j], bool(ok), others, final)
 
     def simulate_batch(
         self, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None,

@@ -24,9 +24,10 @@ cable and the spring (a first-order state)::
                               - weight_moment * cos(angle)        the leaf's weight opens it
                               + drum_radius * tension             the spring closes it
                               - hinge_friction * tanh(friction_slope * rate)
+                              + stops                             rubber, at 0 and pi/2
 
-The slack cable's kink is a switching function (``switches``), which the integrators
-locate within the step. ``start`` puts the carriage where the spring and the cable
+The slack cable's kink and the two stops are switching functions (``switches``), which
+the integrators locate within the step. ``start`` puts the carriage where the spring and the cable
 balance at the trial's first angle. The handle (where the hand pushes) is the angle.
 """
 
@@ -42,7 +43,7 @@ PARAMS = ParamTable(
     [
         Param("leaf_inertia", "kg m^2", 1.2, 0.1, 10.0, "specification",
               "moment of inertia of the door leaf about its hinge"),
-        Param("weight_moment", "N m", 24.0, 0.0, 100.0, "specification",
+        Param("weight_moment", "N m", 30.0, 0.0, 100.0, "specification",
               "the leaf's weight times its centre's distance from the hinge"),
         Param("hand_lever", "m", 0.5, 0.1, 1.0, "geometry",
               "distance from the hinge to where the hand pushes"),
@@ -60,6 +61,10 @@ PARAMS = ParamTable(
               "dry friction torque of the hinges, against the motion"),
         Param("friction_slope", "s/rad", 50.0, 1.0, 1000.0, "numerics",
               "slope of the tanh that smooths the hinge friction's sign"),
+        Param("stop_stiffness", "N m/rad", 3000.0, 10.0, 1.0e5, "numerics",
+              "stiffness of the rubber stops, fully open and closed"),
+        Param("stop_damping", "N m s/rad", 30.0, 0.0, 1000.0, "numerics",
+              "damping of the rubber stops"),
     ],
 )  # fmt: skip
 
@@ -71,6 +76,8 @@ J, WEIGHT, LEVER, RADIUS, K_CABLE, K_SPRING, PRELOAD, DAMPING, FRICTION, SLOPE =
         "friction_slope",
     )
 )  # fmt: skip
+K_STOP, C_STOP = PARAMS.index("stop_stiffness"), PARAMS.index("stop_damping")
+CLOSED = 0.5 * math.pi
 ANGLE, RATE, CARRIAGE = 0, 1, 2
 
 
@@ -78,6 +85,16 @@ ANGLE, RATE, CARRIAGE = 0, 1, 2
 def stretch(x, p):
     """The cable's elongation (m); it is slack where this is negative."""
     return p[RADIUS] * (0.5 * math.pi - x[ANGLE]) - x[CARRIAGE]
+
+
+@njit(cache=True)
+def stops(x, p):
+    """Torque of the rubber stops (N m): they push the leaf back, never pull."""
+    if x[ANGLE] < 0.0:
+        return max(-p[K_STOP] * x[ANGLE] - p[C_STOP] * x[RATE], 0.0)
+    if x[ANGLE] > CLOSED:
+        return min(-p[K_STOP] * (x[ANGLE] - CLOSED) - p[C_STOP] * x[RATE], 0.0)
+    return 0.0
 
 
 @njit(cache=True)
@@ -89,6 +106,7 @@ def rhs(x, force, p, dx):
         - p[WEIGHT] * math.cos(x[ANGLE])
         + p[RADIUS] * tension
         - p[FRICTION] * math.tanh(p[SLOPE] * x[RATE])
+        + stops(x, p)
     )
     dx[ANGLE] = x[RATE]
     dx[RATE] = torque / p[J]
@@ -98,6 +116,8 @@ def rhs(x, force, p, dx):
 @njit(cache=True)
 def switches(x, force, p, g):
     g[0] = stretch(x, p)  # the cable goes slack
+    g[1] = x[ANGLE]  # the open stop
+    g[2] = x[ANGLE] - CLOSED  # the closed stop
 
 
 @njit(cache=True)
@@ -116,7 +136,7 @@ MODEL = Model(
     handle=(ANGLE, RATE),
     start=start,
     switches=switches,
-    n_switches=1,
+    n_switches=3,
     method="semi_implicit",
     substeps=2,
     theta0=0.0,

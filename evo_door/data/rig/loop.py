@@ -46,12 +46,15 @@ def run_closed_loop(
     ddtheta = np.empty(n_max)
     theta[0], dtheta[0] = theta0, dtheta0
     k = 0
+    state = None  # the model's whole state (its own states too), carried chunk to chunk
     while k < n_max - 1 and not policy.finished:
         k1 = min(k + chunk, n_max - 1)
         force[k + 1 : k1 + 1] = policy.plan(t[k + 1 : k1 + 1], t[k], theta[k], dtheta[k])
         r = _simulate_chunk(
-            model, params, force[k : k1 + 1], dt, t[k], theta[k], dtheta[k], method, substeps
-        )
+            model, params, force[k : k1 + 1], dt, t[k], theta[k], dtheta[k], method, substeps,
+            state,
+        )  # fmt: skip
+        state = r.final
         theta[k : k1 + 1], dtheta[k : k1 + 1], ddtheta[k : k1 + 1] = r.theta, r.dtheta, r.ddtheta
         policy.observe(t[k : k1 + 1], r.theta, r.dtheta)
         k = k1
@@ -65,9 +68,10 @@ def run_closed_loop(
     }
 
 
-def _simulate_chunk(model, params, force, dt, t0, theta0, dtheta0, method, substeps):
-    """One chunk of the loop from its first sample's state (a one-line error if the
-    simulation blows up, naming the time ``t0`` it started at)."""
+def _simulate_chunk(model, params, force, dt, t0, theta0, dtheta0, method, substeps, state=None):
+    """One chunk of the loop from its first sample's state (``state``: the whole state
+    the last chunk ended in; a one-line error if the simulation blows up, naming the
+    time ``t0`` it started at)."""
     r = simulate(
         model,
         params,
@@ -77,6 +81,7 @@ def _simulate_chunk(model, params, force, dt, t0, theta0, dtheta0, method, subst
         dtheta0=dtheta0,
         method=method,
         substeps=substeps,
+        state=state,
     )
     if not r.ok:
         raise UserError(

@@ -16,7 +16,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.params import ParamTable
 from evo_door.params.sets import param_vector
-from evo_door.sim.simulate import Response, check_force
+from evo_door.sim.simulate import Response, check_force, check_state
 
 
 class FmuPlant:
@@ -62,17 +62,20 @@ class FmuPlant:
 
     def simulate(
         self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
-        substeps=None, tolerance=None,
+        substeps=None, tolerance=None, state=None,
     ) -> Response:  # fmt: skip
-        """One run of the FMU (``method`` and ``tolerance`` are the FMU's own)."""
+        """One run of the FMU (``method`` and ``tolerance`` are the FMU's own; a
+        ``state`` sets the handle's position and speed)."""
         force = check_force(force, dt)
+        if state is not None:
+            theta0, dtheta0 = check_state(state, 2, self.model.name)
         p = param_vector(params, self.model.params)
         theta0 = self.model.theta0 if theta0 is None else float(theta0)
         dtheta0 = 0.0 if dtheta0 is None else float(dtheta0)
         steps = int(substeps or self.model.substeps)
         t = t0 + dt * np.arange(force.size)
         th, w, a, ok = self.runner.simulate(p, force, float(dt), theta0, dtheta0, t0, steps)
-        return Response(t, force, th, w, a, bool(ok))
+        return Response(t, force, th, w, a, bool(ok), final=np.array([th[-1], w[-1]]))
 
     def simulate_batch(
         self, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None,
