@@ -125,10 +125,11 @@ def _arguments_tree(loc: str, key_loc: str, given: Mapping[str, Any]) -> LinedMa
 
 
 def _yaml_text(tree: LinedMap) -> str:
-    """The YAML of a tree, as a results file keeps an experiment's text."""
+    """The YAML of a tree, as a results file keeps an experiment's text (made before the
+    checks: a value no file could hold is written as its repr, and then refused)."""
     import yaml
 
-    return yaml.safe_dump(json.loads(json.dumps(tree)), sort_keys=False)
+    return yaml.safe_dump(json.loads(json.dumps(tree, default=repr)), sort_keys=False)
 
 
 class Experiment:
@@ -186,11 +187,13 @@ class Experiment:
             "process": process,
         }
         given = {k: v for k, v in {**known, **unknown}.items() if v is not None}
-        self.tree = _arguments_tree("Experiment(...)", "Experiment({key}=...)", given)
+        tree = _arguments_tree("Experiment(...)", "Experiment({key}=...)", given)
+        #: the arguments as the tree a file parses into (None: read from a file)
+        self.tree: LinedMap | None = tree
         self.base_dir = Path.cwd()
         self.file: Path | None = None
         self.config: config.Experiment = config.experiment_from_tree(
-            self.tree, _yaml_text(self.tree), PYTHON_SOURCE, self.base_dir
+            tree, _yaml_text(tree), PYTHON_SOURCE, self.base_dir
         )
 
     @classmethod
@@ -291,13 +294,15 @@ class Pipeline:
         }
         given = {k: v for k, v in {**known, **unknown}.items() if v is not None}
         plain = {k: v for k, v in given.items() if k != "stages"}
-        self.tree = _arguments_tree("Pipeline(...)", "Pipeline({key}=...)", plain)
+        tree = _arguments_tree("Pipeline(...)", "Pipeline({key}=...)", plain)
         if stages is not None:
-            self.tree["stages"] = _stages_tree(stages)
-            self.tree.key_locs["stages"] = "Pipeline(stages=...)"
+            tree["stages"] = _stages_tree(stages)
+            tree.key_locs["stages"] = "Pipeline(stages=...)"
+        #: the arguments as the tree a file parses into (None: read from a file)
+        self.tree: LinedMap | None = tree
         self.base_dir = Path.cwd()
         self.config: PipelineSpec = pipeline_from_tree(
-            self.tree, _yaml_text(self.tree), "<python pipeline>", self.base_dir
+            tree, _yaml_text(tree), "<python pipeline>", self.base_dir
         )
 
     @classmethod

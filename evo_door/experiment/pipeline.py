@@ -236,7 +236,7 @@ def _stage_experiment(name: str, value, where: str, base_dir: Path) -> Experimen
     elif isinstance(value, LinedMap):
         import yaml
 
-        text = yaml.safe_dump(json.loads(json.dumps(value)), sort_keys=False)
+        text = yaml.safe_dump(json.loads(json.dumps(value, default=repr)), sort_keys=False)
         exp = experiment_from_tree(value, text, where, base_dir)
         if "name" not in value:
             exp.name = name
