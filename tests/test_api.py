@@ -158,6 +158,8 @@ def test_a_run_reads_back_typed_with_units_checks_and_its_table(tmp_path, monkey
     assert list(run.validation_errors) == ["T09"]
     again = evo_door.load(run.path)
     assert again.estimates == run.estimates and again.checks == run.checks
+    with pytest.raises(UserError, match=r"complete run; give another out, or overwrite=True to"):
+        exp.run(run.path)
 
 
 def test_python_and_yaml_share_one_validation_and_its_messages(tmp_path):
@@ -297,3 +299,38 @@ def test_load_refuses_what_is_not_a_results_file_in_one_line(tmp_path):
     assert str(caught.value).startswith(str(bad)) and "\n" not in str(caught.value)
     with pytest.raises(UserError, match="file not found|No such file|does not exist"):
         evo_door.load(tmp_path / "none.h5")
+
+
+def test_the_files_and_outputs_of_python_calls_are_checked_in_python_s_words(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    case_study = ROOT / "experiments" / "case_study.yaml"
+    cases = [
+        (lambda: evo_door.load(123), "load(path=...): expected a results file's path"),
+        (
+            lambda: evo_door.Experiment.from_yaml(case_study),
+            f"{case_study}: a pipeline (it has stages): evo_door.Pipeline.from_yaml reads it",
+        ),
+        (
+            lambda: evo_door.Pipeline.from_yaml(MAIN_JOB),
+            f"{MAIN_JOB}: an experiment: evo_door.Experiment.from_yaml reads it",
+        ),
+        (lambda: evo_door.Experiment.from_yaml(3), "Experiment.from_yaml(path=...): expected"),
+        (lambda: evo_door.Experiment.from_yaml(MAIN_JOB, 3), "from_yaml(overrides=...): expected"),
+        (
+            lambda: evo_door.Experiment.from_yaml(MAIN_JOB).run(out=3),
+            "Experiment.run(out=...): expected the results file's path (.h5), got 3",
+        ),
+        (lambda: evo_door.Experiment.from_yaml(MAIN_JOB).run(out="r.txt"), "r.txt: results files"),
+    ]
+    for call, message in cases:
+        with pytest.raises(UserError) as caught:
+            call()
+        assert str(caught.value).startswith(message), str(caught.value)
+    # one override as a text is one assignment
+    assert evo_door.Experiment.from_yaml(MAIN_JOB, "algorithm.seed=3").config.algorithm.ga.seed == 3
+    # an existing results file is replaced only with overwrite=True (said so, not --force)
+    exp = evo_door.Experiment.from_yaml(MAIN_JOB, QUICK)
+    (tmp_path / "done.h5").write_bytes(b"mine")
+    with pytest.raises(UserError, match="is not an evo-door results file; .* give another out$"):
+        exp.run("done.h5", overwrite=True)
+    assert (tmp_path / "done.h5").read_bytes() == b"mine"

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any
@@ -124,6 +124,56 @@ def _arguments_tree(loc: str, key_loc: str, given: Mapping[str, Any]) -> LinedMa
     return tree
 
 
+#: the command line's words in the messages of a new run's output, and Python's
+_PYTHON_WORDS = (("give another --out", "give another out"), ("--force", "overwrite=True"))
+
+
+def _output(call: str, out: object) -> Path | None:
+    """A run's ``out``: a path (or None, the default file), else one line naming it."""
+    if out is None or isinstance(out, (str, PurePath)):
+        return None if out is None else Path(out)
+    raise UserError(f"{call}(out=...): expected the results file's path (.h5), got {out!r}")
+
+
+def _claim(start: Callable[[], Any]) -> Any:
+    """``start()`` (a run's creation, which claims its output), its refusals in Python's
+    words (``overwrite=True`` for ``--force``)."""
+    try:
+        return start()
+    except UserError as exc:
+        text = str(exc)
+        for cli, python in _PYTHON_WORDS:
+            text = text.replace(cli, python)
+        raise UserError(text) from None
+
+
+def _overrides(overrides: object) -> list[str]:
+    """``--set`` assignments: one text, or a list of them."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, str):
+        return [overrides]
+    if isinstance(overrides, (list, tuple)) and all(isinstance(o, str) for o in overrides):
+        return list(overrides)
+    raise UserError(
+        f"from_yaml(overrides=...): expected KEY.PATH=VALUE texts (algorithm.seed=3), got "
+        f"{overrides!r}"
+    )
+
+
+def _file_of(kind: str, path: object) -> Path:
+    """The YAML file of ``from_yaml``: a path to an experiment (``kind``) or a pipeline."""
+    from evo_door.experiment.pipeline import is_pipeline
+
+    if not isinstance(path, (str, PurePath)):
+        raise UserError(f"{kind}.from_yaml(path=...): expected a YAML file's path, got {path!r}")
+    if (kind == "Experiment") == is_pipeline(path):
+        other = "Pipeline" if kind == "Experiment" else "Experiment"
+        what = "a pipeline (it has stages)" if kind == "Experiment" else "an experiment"
+        raise UserError(f"{path}: {what}: evo_door.{other}.from_yaml reads it")
+    return Path(path)
+
+
 def _yaml_text(tree: LinedMap) -> str:
     """The YAML of a tree, as a results file keeps an experiment's text (made before the
     checks: a value no file could hold is written as its repr, and then refused)."""
@@ -200,8 +250,9 @@ class Experiment:
     def from_yaml(cls, path: str | PurePath, overrides: Sequence[str] | None = None) -> Experiment:
         """An experiment file, checked as ``evo-door run`` checks it (``overrides``:
         ``--set`` assignments, ``"algorithm.seed=3"``)."""
+        path = _file_of("Experiment", path)
         exp = cls.__new__(cls)
-        exp.config = config.load_experiment(path, list(overrides or ()))
+        exp.config = config.load_experiment(path, _overrides(overrides))
         exp.tree = None
         exp.base_dir = Path(path).resolve().parent
         exp.file = Path(path).resolve()
@@ -244,7 +295,8 @@ class Experiment:
                 f"{where}: {{from: {stage}}} takes an earlier stage's best parameters: run "
                 "the experiment as a stage of a Pipeline"
             )
-        run = ExperimentRun.create(self.config, out, overwrite=overwrite)
+        path = _output("Experiment.run", out)
+        run = _claim(lambda: ExperimentRun.create(self.config, path, overwrite=overwrite))
         run.run(progress=progress)
         return load_run(run.path)
 
@@ -310,8 +362,9 @@ class Pipeline:
         """A pipeline file, checked as ``evo-door run`` checks it."""
         from evo_door.experiment.pipeline import load_pipeline
 
+        path = _file_of("Pipeline", path)
         pipe = cls.__new__(cls)
-        pipe.config = load_pipeline(path, list(overrides or ()))
+        pipe.config = load_pipeline(path, _overrides(overrides))
         pipe.tree = None
         pipe.base_dir = Path(path).resolve().parent
         return pipe
@@ -337,7 +390,8 @@ class Pipeline:
         """Run every stage, writing the results file ``out``; the stages as read back."""
         from evo_door.api.outcome import load_pipeline_result
 
-        run = PipelineRunner.create(self.config, out, overwrite=overwrite)
+        path = _output("Pipeline.run", out)
+        run = _claim(lambda: PipelineRunner.create(self.config, path, overwrite=overwrite))
         run.run(progress=progress)
         return load_pipeline_result(run.path)
 

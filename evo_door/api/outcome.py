@@ -149,6 +149,8 @@ class PipelineResult:
 def load(path: str | PurePath, stage: str | None = None) -> Run | PipelineResult:
     """A results file: a :class:`Run`, or a pipeline's :class:`PipelineResult` (one of
     its stages as a :class:`Run` with ``stage``)."""
+    if not isinstance(path, (str, PurePath)):
+        raise UserError(f"load(path=...): expected a results file's path (.h5), got {path!r}")
     if stage is not None:
         return load_run(path, stage)
     record = read_results(path)
