@@ -345,3 +345,19 @@ def test_the_files_and_outputs_of_python_calls_are_checked_in_python_s_words(tmp
     with pytest.raises(UserError, match="is not an evo-door results file; .* give another out$"):
         exp.run("done.h5", overwrite=True)
     assert (tmp_path / "done.h5").read_bytes() == b"mine"
+
+
+def test_an_interrupted_run_reads_with_its_best_so_far(tmp_path):
+    """A file an older version left interrupted: the estimates are the GA's best so far,
+    with their units; nothing that needs a finished answer is made up."""
+    import shutil
+
+    from evo_door.experiment.results import Results
+
+    path = tmp_path / "old.h5"
+    shutil.copy(ROOT / "tests" / "data" / "run-0.1-interrupted.h5", path)
+    run = evo_door.load(path)
+    assert run.status == "interrupted" and run.spec is None and run.identifiability == {}
+    assert run.values() == Results(path).best()
+    assert [e.unit for e in run.estimates.values()] == ["N", "kg", "N"]
+    assert not run.checks.integration_recorded and run.fit_errors == {}
