@@ -361,3 +361,19 @@ def test_an_interrupted_run_reads_with_its_best_so_far(tmp_path):
     assert run.values() == Results(path).best()
     assert [e.unit for e in run.estimates.values()] == ["N", "kg", "N"]
     assert not run.checks.integration_recorded and run.fit_errors == {}
+
+
+def test_checks_that_need_the_data_name_the_argument_too(tmp_path, monkeypatch):
+    """Trial ids are checked when the data is read (at run), named like the rest."""
+    monkeypatch.chdir(tmp_path)
+    exp = evo_door.Experiment(
+        model="door",
+        target=evo_door.trial_file(DATA, kinds=["impulse"], validate=["T99"]),
+        free={"M": [0.5, 3.0]},
+    )
+    with pytest.raises(UserError) as caught:
+        exp.run("v.h5")
+    assert str(caught.value).startswith(
+        f"Experiment(target=...): target.validate: {DATA} has no trial 'T99' (did you mean 'T09'?)"
+    )
+    assert not (tmp_path / "v.h5").exists()
