@@ -36,7 +36,15 @@ LAYERS: list[set[str]] = [
     {"commands"},
     {"cli"},
     {"__main__"},
+    {"api"},
 ]
+
+#: The one import that goes up: the package's own ``__init__`` (the bottom unit
+#: ``evo_door``) offers the public face's names, ``evo_door.Experiment`` and the like, by
+#: importing the module ``evo_door.api`` (nothing else, not ``evo_door.api.build``)
+#: inside its PEP 562 ``__getattr__`` only, so that ``import evo_door`` imports none of
+#: the layers above (:func:`test_the_facade_reaches_up_only_lazily_and_only_to_api`).
+FACADE = ("evo_door", "evo_door.api")
 
 #: The renderer's files, changed by other work while this test was written: an
 #: offender there is allowed below until that work lands, then fixed and removed.
@@ -148,6 +156,8 @@ def upward(imports: list[Import]) -> list[Import]:
     bad = []
     for i in imports:
         a, b = unit(i.module), unit(i.target)
+        if (i.module, i.target) == FACADE:
+            continue  # the root's lazy facade, checked on its own below
         if a != b and ranks.get(b, -1) >= ranks.get(a, -1):
             bad.append(i)
     return bad
@@ -160,7 +170,7 @@ def cycles(imports: list[Import]) -> list[list[Import]]:
     edges: dict[str, dict[str, Import]] = defaultdict(dict)
     for i in imports:
         a, b = unit(i.module), unit(i.target)
-        if a != b:
+        if a != b and (i.module, i.target) != FACADE:  # the facade is run-time only
             edges[a].setdefault(b, i)
     return [shortest_circle(sorted(g)[0], g, edges) for g in components(edges)]
 
@@ -284,6 +294,34 @@ def test_the_documented_layers_are_the_tested_ones():
     documented = [set(re.findall(r"`([\w.]+)`", units)) for _, units in rows]
     assert [int(k) for k, _ in rows] == list(range(len(rows)))
     assert documented == LAYERS
+
+
+def test_the_facade_reaches_up_only_lazily_and_only_to_api():
+    """The root ``__init__`` imports ``evo_door.api`` inside ``__getattr__`` and nowhere
+    else: at its top it would make ``import evo_door`` import every layer."""
+    path = PACKAGE / "__init__.py"
+    tree = ast.parse(path.read_text(), str(path))
+    lazy = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.name == "__getattr__"]
+    inside = {id(n) for f in lazy for n in ast.walk(f)}
+    found = [i for i in imports_of(path) if i.target == "evo_door.api"]
+    assert found, "evo_door/__init__.py no longer offers the API: update FACADE"
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in inside:
+            names = [a.name for a in node.names]
+            module = getattr(node, "module", None) or ""
+            assert not any(n.startswith("evo_door") for n in [module, *names]), (
+                f"evo_door/__init__.py:{node.lineno}: imports evo_door outside __getattr__"
+            )
+
+
+def test_the_facade_is_no_licence_for_other_upward_imports():
+    made = [
+        _imp("evo_door", "evo_door.api", ""),  # the facade: fine
+        _imp("evo_door", "evo_door.api.build", "Experiment", 9),
+        _imp("evo_door", "evo_door.experiment", "load_experiment", 11),
+        _imp("evo_door.experiment.config", "evo_door.api", "", 13),
+    ]
+    assert [i.line for i in upward(made)] == [9, 11, 13]
 
 
 def test_the_scan_sees_lazy_imports_and_the_offenders_it_should():

@@ -66,6 +66,36 @@ except SystemExit as exc:
     assert "usage: evo-door" in printed
 
 
+def test_import_evo_door_imports_nothing_heavy_and_offers_the_api_lazily():
+    """``import evo_door`` holds the version; the API's names (docs/api.md) are there,
+    imported when first asked for (PEP 562), and only then."""
+    printed, heavy = _probe(
+        """
+import sys
+import evo_door
+print(evo_door.__version__, "Experiment" in dir(evo_door), "evo_door.api" in sys.modules)
+try:
+    evo_door.Experimentt
+except AttributeError as exc:
+    print(exc)
+"""
+    )
+    assert heavy == []
+    assert printed.splitlines()[0].endswith(" True False")
+    assert printed.splitlines()[1] == "module 'evo_door' has no attribute 'Experimentt'"
+    _, heavy = _probe("import evo_door\nprint(evo_door.Experiment.__module__)")
+    assert "numba" in heavy  # the probe sees the API's import when it happens
+
+
+def test_the_api_names_are_the_package_s():
+    import evo_door
+    import evo_door.api
+
+    assert set(evo_door.API) == set(evo_door.api.__all__)
+    assert evo_door.Experiment is evo_door.api.Experiment
+    assert evo_door.load is evo_door.api.load
+
+
 @pytest.mark.parametrize(
     "extra", [[], ["--json"], ["--params", "seed_trial", "--set", "inertia=2.5", "--json"]]
 )

@@ -7,6 +7,9 @@ The library entry points::
     exp = load_experiment("experiments/default.yaml", overrides=["algorithm.seed=3"])
     run = run_experiment(exp, out="results/a.h5")
     run.result["best_x"], run.path
+
+The same from keyword arguments, with typed results: :mod:`evo_door.api`
+(``evo_door.Experiment``, ``docs/api.md``).
 """
 
 from __future__ import annotations

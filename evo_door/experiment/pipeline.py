@@ -145,11 +145,17 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
     source = source or "<pipeline>"
     base_dir = Path(base_dir) if base_dir is not None else Path.cwd()
     tree = parse(text, source)
+    overrides = list(overrides)
+    for item in overrides if isinstance(tree, LinedMap) else ():
+        apply_override(tree, item)
+    return pipeline_from_tree(tree, text, source, base_dir, overrides)
+
+
+def pipeline_from_tree(tree, text: str, source: str, base_dir: Path, overrides=()) -> Pipeline:
+    """The checked pipeline of a parsed tree (a file's, or the Python API's arguments)."""
     if not isinstance(tree, LinedMap):
         raise UserError(f"{source}:1: a pipeline is a mapping of keys ({', '.join(PIPELINE_KEYS)})")
     overrides = list(overrides)
-    for item in overrides:
-        apply_override(tree, item)
     r = _Reader(tree, "", tree.loc)
     r.check_keys(PIPELINE_KEYS, required=("stages",))
     node = tree["stages"]
@@ -230,7 +236,7 @@ def _stage_experiment(name: str, value, where: str, base_dir: Path) -> Experimen
     elif isinstance(value, LinedMap):
         import yaml
 
-        text = yaml.safe_dump(json.loads(json.dumps(value)), sort_keys=False)
+        text = yaml.safe_dump(json.loads(json.dumps(value, default=repr)), sort_keys=False)
         exp = experiment_from_tree(value, text, where, base_dir)
         if "name" not in value:
             exp.name = name
