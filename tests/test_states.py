@@ -353,6 +353,32 @@ def test_the_objective_kernel_reduces_what_integrate_states_gives(derivative, ki
     np.testing.assert_allclose(err[:2], expected[:2], rtol=1e-12, atol=0)
 
 
+def test_the_objective_kernel_on_contacts_and_rates():
+    """Two blocks with their contacts (stuck, then slipping), the speed's rate of
+    block 2 (derivative 2, its stuck zeros included) under ISE and max_square: the
+    kernel's errors equal those from integrate_states' output to 1e-12."""
+    P = np.array([[1.0, 0.5, 1.0, 2.0, 50.0, 0.0], [1.0, 0.5, 0.5, 1.0, 20.0, 0.3]])
+    force = 3.0 * np.arange(900) * DT
+    target = np.linspace(0.0, 4.0, 900)
+    mask = np.arange(900) % 7 != 3
+    trial = (force, target, mask, DT, np.zeros(4))
+    contacts = np.array([1, 3])
+    for kind in (MAX_SQUARE, ISE):
+        err = np.empty((2, 1))
+        ok = np.empty((2, 1), dtype=bool)
+        population_errors_states(
+            two_blocks, no_state_switches, P, force, target, mask, np.array([0, 900]),
+            np.array([DT]), np.zeros((1, 4)), settings(None, 1, "dopri5", 1e-9), contacts,
+            2, 3, 2, kind, err, ok,
+        )  # fmt: skip
+        expected = errors_from_output(
+            two_blocks, P, [trial], lambda dt: settings(dt, 1, "dopri5", 1e-9), contacts,
+            2, 3, 2, kind,
+        )  # fmt: skip
+        assert ok.all()
+        np.testing.assert_allclose(err, expected, rtol=1e-12, atol=0)
+
+
 def test_the_batch_gives_each_row_its_own_simulation():
     P = np.array([CABLE, CABLE * [1, 1, 1, 1, 1, -1, 1, 1, 1]])
     force = cable_force(300)
