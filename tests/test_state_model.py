@@ -89,7 +89,7 @@ def test_cable_door_matches_scipy_and_keeps_its_carriage_state():
     assert np.max(np.abs(r.theta - ref[0])) < 1e-6  # rad
     assert np.max(np.abs(r.dtheta - ref[1])) < 1e-5  # rad/s
     assert np.max(np.abs(r.states["carriage"] - ref[2])) < 1e-7  # m
-    assert r.theta.max() > 0.2  # the push lifted the door: the carriage moved
+    assert r.theta.max() > 0.1  # the push lifted the door: the carriage moved
     assert np.ptp(r.states["carriage"]) > 1e-3
     # the default method (semi-implicit, 2 steps a sample) at its own accuracy
     d = simulate(model, ps, force, DT, theta0=0.0)
@@ -266,8 +266,10 @@ def test_rig_fit_and_curve_from_the_command_line(tmp_path):
         assert abs(best[name] / truth[name] - 1.0) < 0.02, (name, best[name], truth[name])
     curve = _cli("curve", "cable_door.py:MODEL", "--out", "curve.csv", cwd=work)
     assert curve.returncode == 0, curve.stderr
-    table = np.genfromtxt(work / "curve.csv", delimiter=",", names=True)
-    assert np.all(np.isfinite(table["closing"])) and table.size >= 721
+    table = np.genfromtxt(work / "curve.csv", delimiter=",", names=True, dtype=None,
+                          encoding="utf-8")  # fmt: skip
+    assert np.all(np.isfinite(table["force"])) and table.size >= 2 * 721
+    assert set(table["direction"]) == {"opening", "closing"}
     (work / "push.csv").write_text(
         "t,force\n" + "".join(f"{k * DT},{f}\n" for k, f in enumerate(push(1024)))
     )

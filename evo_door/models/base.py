@@ -443,9 +443,14 @@ def _from_file(name: str, path: Path, attr: str):
 
 
 def _exec_file(path: Path, shown: str):
-    # A unique module name per file: two drawer.py in two folders do not collide,
-    # and the module is in sys.modules while it runs (dataclasses, pickling need it).
-    digest = hashlib.sha1(str(path).encode()).hexdigest()[:10]
+    # A module name per file's text: two different drawer.py do not collide, and the
+    # module is in sys.modules while it runs (dataclasses, pickling need it). Not per
+    # path: numba's cache beside the file names the module its functions were compiled
+    # in, so a folder copied with its __pycache__ must give the same name.
+    try:
+        digest = hashlib.sha1(path.read_bytes()).hexdigest()[:10]
+    except OSError as exc:
+        raise UserError(f"model file {shown}: {exc.strerror or exc}") from None
     module_name = f"evo_door_user_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest}"
     spec = importlib.util.spec_from_file_location(module_name, path)
     if spec is None or spec.loader is None:

@@ -93,7 +93,7 @@ class StatePlant:
     def _settings(self, dt, method, substeps, tolerance) -> np.ndarray:
         model = self.model
         return settings(
-            float(dt),
+            None if dt is None else float(dt),
             int(substeps or model.substeps),
             method_code(method or model.method),
             tolerance_of(model, tolerance),
@@ -164,23 +164,23 @@ class StatePlant:
         def starts(p):
             return np.array([self.initial_state(p, theta0[j], dtheta0[j]) for j in range(n_trials)])
 
-        args = (substeps, method, tol, self.n_switches)
+        setup = settings(None, int(substeps), int(method), float(tol), self.n_switches)
         if self.model.start is None:
             X0 = starts(P[0]) if P.shape[0] else np.zeros((n_trials, self.n_states))
-            self._errors(P, force, target, mask, offsets, dt, X0, args, derivative, kind,
+            self._errors(P, force, target, mask, offsets, dt, X0, setup, derivative, kind,
                          err_out, ok_out)  # fmt: skip
             return
         for r in range(P.shape[0]):
             self._errors(
-                P[r : r + 1], force, target, mask, offsets, dt, starts(P[r]), args,
+                P[r : r + 1], force, target, mask, offsets, dt, starts(P[r]), setup,
                 derivative, kind, err_out[r : r + 1], ok_out[r : r + 1],
             )  # fmt: skip
 
-    def _errors(self, P, force, target, mask, offsets, dt, X0, args, derivative, kind,
+    def _errors(self, P, force, target, mask, offsets, dt, X0, setup, derivative, kind,
                 err_out, ok_out) -> None:  # fmt: skip
         population_errors_states(
             self.model.rhs, self.switches, np.ascontiguousarray(P), force, target, mask,
-            offsets, dt, np.ascontiguousarray(X0), *args, self.contacts, self.position,
+            offsets, dt, np.ascontiguousarray(X0), setup, self.contacts, self.position,
             self.speed, derivative, kind, err_out, ok_out,
         )  # fmt: skip
 
