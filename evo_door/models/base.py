@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import importlib.abc
 import importlib.metadata
 import importlib.util
 import math
@@ -442,21 +443,55 @@ def _from_file(name: str, path: Path, attr: str):
     return _attribute(module, attr, f"model file {shown}", name), path.parent
 
 
+#: The model file last run for each file name (its stem): where a module name that numba's
+#: cache beside the file recorded is found again (:class:`_CacheNames`).
+_BY_STEM: dict[str, object] = {}
+_USER_MODULE = re.compile(r"evo_door_user_(\w+)_[0-9a-f]{10}")
+
+
+class _CacheNames(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Finds a model file's module under a name its numba cache recorded.
+
+    numba's cache beside a model file refers to the module its functions were compiled
+    in by name, and reads that reference before it checks that the cache is fresh. The
+    name depends on where the file was when compiled: a folder copied or moved with its
+    ``__pycache__``, or a cache written by another evo-door, names a module this process
+    never made, and the import failed. The name is the file's: it is found again as the
+    module last run from a file of that name (a stale cache is then found stale and
+    compiled afresh; a fresh one is this file's own code, by numba's checks).
+    """
+
+    def find_spec(self, name, path=None, target=None):
+        found = _USER_MODULE.fullmatch(name)
+        if found is None or found.group(1) not in _BY_STEM:
+            return None
+        return importlib.util.spec_from_loader(name, self)
+
+    def create_module(self, spec):
+        return _BY_STEM[_USER_MODULE.fullmatch(spec.name).group(1)]
+
+    def exec_module(self, module):
+        """The module has run already."""
+
+
+def _install_aliases() -> None:
+    if not any(isinstance(f, _CacheNames) for f in sys.meta_path):
+        sys.meta_path.append(_CacheNames())
+
+
 def _exec_file(path: Path, shown: str):
-    # A module name per file's text: two different drawer.py do not collide, and the
-    # module is in sys.modules while it runs (dataclasses, pickling need it). Not per
-    # path: numba's cache beside the file names the module its functions were compiled
-    # in, so a folder copied with its __pycache__ must give the same name.
-    try:
-        digest = hashlib.sha1(path.read_bytes()).hexdigest()[:10]
-    except OSError as exc:
-        raise UserError(f"model file {shown}: {exc.strerror or exc}") from None
-    module_name = f"evo_door_user_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest}"
+    # A unique module name per file: two drawer.py in two folders do not collide,
+    # and the module is in sys.modules while it runs (dataclasses, pickling need it).
+    digest = hashlib.sha1(str(path).encode()).hexdigest()[:10]
+    stem = re.sub(r"[^0-9A-Za-z_]", "_", path.stem)
+    module_name = f"evo_door_user_{stem}_{digest}"
     spec = importlib.util.spec_from_file_location(module_name, path)
     if spec is None or spec.loader is None:
         raise UserError(f"model file {shown}: not a Python file")
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module
+    _install_aliases()
+    _BY_STEM[stem] = module
     # like `python file.py`, the file may import modules that sit beside it
     sys.path.insert(0, str(path.parent))
     try:
