@@ -339,12 +339,12 @@ def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, fresh, k1, k2, 
 
 
 @njit(cache=True)
-def run_me(  # long: one loop
-    api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, vr_out, out
-):
+def run_me(api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, vr_out, out):
     """Integrate a model-exchange FMU over the samples of ``force`` (see the module
     docstring); ``x`` holds the initial states (after initialisation) and is advanced;
     ``next_event`` is the time event the initialisation set (inf if none)."""
+    # long: one compiled loop over the samples, their steps and the pieces an event cuts
+    # a step into, sharing the work arrays and the FMU's event state
     n, nx = force.size, x.size
     out[:] = np.nan
     u = np.zeros(1)

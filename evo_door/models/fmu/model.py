@@ -104,7 +104,7 @@ class FmuRunner:
         (theta, dtheta) after it is initialised at ``p`` (its discrete states, a latch's
         say, stay as the initialisation left them). Refused in one line where that
         cannot be done (:meth:`check_hold`)."""
-        layout = state_layout(self.info, "the force that holds the door")
+        layout = state_layout(self.info, "the force-angle curve")
         theta = np.atleast_1d(np.asarray(theta, dtype=np.float64))
         dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
         return instance(self.info).hold_forces(
