@@ -318,9 +318,10 @@ def test_an_experiment_that_does_not_fit_its_fmu_is_refused_in_one_line(
     assert not (tmp_path / "r.h5").exists()
 
 
-def test_what_needs_the_acceleration_at_any_state_refuses_an_fmu(fmus, tmp_path, capsys):
-    assert main(["curve", str(fmus[2, "tuned"]), "--out", str(tmp_path / "c.csv")]) == 2
-    assert "is an FMU: the force-angle curve needs" in capsys.readouterr().err
+def test_what_needs_the_state_set_at_will_refuses_a_co_simulation_fmu(fmus, tmp_path, capsys):
+    # a model-exchange FMU gives its curve (tests/test_fmu_plant.py)
+    assert main(["curve", f"{fmus[2, 'tuned']}:cs", "--out", str(tmp_path / "c.csv")]) == 2
+    assert "is run by co-simulation: the force-angle curve needs" in capsys.readouterr().err
 
 
 def test_a_trial_that_starts_where_the_fmu_cannot_be_put_is_refused(fmus, tmp_path, capsys):

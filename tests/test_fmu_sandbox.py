@@ -304,6 +304,32 @@ def test_a_python_error_in_the_child_is_raised_here_as_in_process(fmus):
     assert box.lost == {"crashed": 0, "timed out": 0}
 
 
+def test_the_analysis_of_an_answer_runs_the_fmu_contained(fmus):
+    """Per-trial errors, validation errors, stored responses and identifiability (what
+    a run computes of its answer after the search) run the FMU in the sandbox too: a
+    crash there marks the result, never this process (which would die with it)."""
+    from evo_door.experiment.answer_checks import identifiability_of
+
+    problem = faulty_problem(fmus, str(fmus[2]))
+    good, crash = np.array([GOOD, FRICTION]), np.array([CRASH, FRICTION])
+    err, ok = problem.trial_errors(rows(GOOD, CRASH, HANG, GOOD))
+    assert ok[0].all() and ok[3].all() and not ok[1:3].any()
+    assert np.isinf(err[1:3]).all() and np.array_equal(err[0], err[3])
+    problem.sandboxed = False
+    assert np.array_equal(problem.trial_errors(rows(GOOD))[0][0], err[0])  # the same numbers
+    problem.sandboxed = True
+    box = sandbox.current()
+    assert box.lost == {"crashed": 1, "timed out": 1}
+    lost = problem.responses(crash)
+    assert [r.ok for r in lost] == [False, False] and np.isnan(lost[0].theta).all()
+    kept = problem.responses(good)
+    assert all(r.ok for r in kept) and np.allclose(kept[0].theta, fmus["trials"][0].theta)
+    assert identifiability_of(problem, crash) is None  # the model blows up there: no answer
+    assert identifiability_of(problem, good) is not None
+    assert box.lost["crashed"] > 3  # responses: 2, identifiability: one or more
+    assert sandbox.current() is box  # the search's sandbox served the analysis
+
+
 # -- runs ---------------------------------------------------------------------------
 def experiment(fmus) -> str:
     return textwrap.dedent(f"""\

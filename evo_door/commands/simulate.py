@@ -58,14 +58,15 @@ def register(sub) -> None:
         default=None,
         metavar="RAD",
         help="initial angle in rad (0 open, pi/2 closed; a model's own unit otherwise); "
-        "default: the input file's theta0, else the model's",
+        "default: the input file's theta0, else the model's (an FMU's own start value)",
     )
     p.add_argument(
         "--dtheta0",
         type=float,
         default=None,
         metavar="RAD_S",
-        help="initial angular speed in rad/s (default: the input file's dtheta0, else 0)",
+        help="initial angular speed in rad/s (default: the input file's dtheta0, else 0; "
+        "an FMU's own start value)",
     )
     p.add_argument(
         "--method", choices=METHOD_NAMES, help="integration scheme (default: the model's)"
@@ -108,8 +109,8 @@ def run(args) -> int:
         theta0 = check_theta0(
             inp.theta0, model.theta_range, model.theta_unit, f"{args.input}: theta0"
         )
-    if dtheta0 is None:
-        dtheta0 = inp.dtheta0 if inp.dtheta0 is not None else 0.0
+    if dtheta0 is None:  # else the model's own (0 at rest; an FMU's start value)
+        dtheta0 = inp.dtheta0
     response = simulate(
         model,
         params,

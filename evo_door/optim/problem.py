@@ -19,7 +19,7 @@ from evo_door.data.trial import Trial
 from evo_door.errors import UserError
 from evo_door.optim.kernels import KINDS, population_errors
 from evo_door.sim.integrators import METHODS
-from evo_door.sim.simulate import Response, simulate, tolerance_of
+from evo_door.sim.simulate import Response, simulate, simulate_batch, tolerance_of
 
 #: How the per-trial objectives of one candidate are combined into its fitness.
 COMBINE = ("sum", "max", "mean")
@@ -255,10 +255,24 @@ class Problem:
 
     # -- evaluation -----------------------------------------------------------
     def trial_errors(self, X, pack: TrialPack | None = None):
-        """``(errors, ok)``, both (n_candidates, n_trials), on the fit trials by default."""
+        """``(errors, ok)``, both (n_candidates, n_trials), on the fit trials by default.
+
+        Sandboxed (a model that runs native code), each candidate is run in the sandbox's
+        child (:func:`~evo_door.optim.sandbox.contained`): one that crashes it or overruns
+        the time limit is a blow-up (errors inf, ok False)."""
         pack = self.fit if pack is None else pack
         X = np.atleast_2d(np.asarray(X, dtype=np.float64))
         self.check_bounds(X)
+        if self.sandboxed:
+            from evo_door.optim.sandbox import contained
+
+            err = np.full((X.shape[0], len(pack)), np.inf)
+            ok = np.zeros((X.shape[0], len(pack)), dtype=np.bool_)
+            for i in range(X.shape[0]):
+                done, got = contained(self, "trial_errors", X[i : i + 1], pack)
+                if done:
+                    err[i], ok[i] = got[0][0], got[1][0]
+            return err, ok
         P = self.full(X)
         err = np.empty((P.shape[0], len(pack)))
         ok = np.zeros((P.shape[0], len(pack)), dtype=np.bool_)
@@ -314,13 +328,23 @@ class Problem:
         """Full simulated responses of one candidate on the trials of ``pack``.
 
         ``pack`` is the fit trials by default (or ``self.validation``); ``indices``
-        picks some of its trials.
+        picks some of its trials. Sandboxed, each trial is run in the sandbox's child: one
+        that crashes it or overruns the time limit is a response of NaN, not ok.
         """
         pack = self.fit if pack is None else pack
         p = self.full(x)[0]
         out = []
         for i in range(len(pack)) if indices is None else indices:
             tr = pack.trials[i]
+            if self.sandboxed:
+                from evo_door.optim.sandbox import contained
+
+                done, got = contained(self, "responses", x, pack, [i])
+                if not done:
+                    nan = np.full(tr.force.shape, np.nan)
+                    got = [Response(tr.t, tr.force, nan, nan.copy(), nan.copy(), False)]
+                out.append(got[0])
+                continue
             out.append(
                 simulate(
                     self.model,
@@ -336,6 +360,39 @@ class Problem:
                 )
             )
         return out
+
+    def trial_runs(self, X, j: int):
+        """``(theta, dtheta, ddtheta, ok)`` of every row of the candidates ``X`` on the
+        fitted trial ``j``, as :func:`~evo_door.sim.simulate.simulate_batch` gives them
+        (the sensitivities of :mod:`evo_door.optim.sensitivity`). Sandboxed, each row is
+        run in the sandbox's child: one that crashes it or overruns the time limit is
+        NaN, not ok."""
+        pack = self.fit
+        a, b = pack.offsets[j], pack.offsets[j + 1]
+        P = self.full(X)
+        if self.sandboxed:
+            from evo_door.optim.sandbox import contained
+
+            X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+            runs = [np.full((X.shape[0], b - a), np.nan) for _ in range(3)]
+            ok = np.zeros(X.shape[0], dtype=np.bool_)
+            for i in range(X.shape[0]):
+                done, got = contained(self, "trial_runs", X[i : i + 1], j)
+                if done:
+                    for k in range(3):
+                        runs[k][i] = got[k][0]
+                    ok[i] = got[3][0]
+            return runs[0], runs[1], runs[2], ok
+        return simulate_batch(
+            self.model,
+            P,
+            pack.force[a:b],
+            pack.dt[j],
+            theta0=pack.theta0[j],
+            dtheta0=pack.dtheta0[j],
+            method=self.method,
+            substeps=self.substeps,
+        )
 
     def with_objective(self, objective: Objective) -> Problem:
         """The same problem under another objective (the max-square polish's ISE stage)."""

@@ -96,6 +96,7 @@ def _serve(conn, parent: int) -> None:  # pragma: no cover - runs in the child
         conn.send(("failed", f"{type(exc).__name__}: {exc}"))
         return
     conn.send(("ready", None))
+    known: dict = {}  # the problems of calls (:func:`contained`), by their pickle's digest
     while True:
         try:
             msg = conn.recv()
@@ -103,6 +104,9 @@ def _serve(conn, parent: int) -> None:  # pragma: no cover - runs in the child
             return
         if msg is None:
             return
+        if isinstance(msg, tuple):  # ("call", digest, pickled problem, method, args)
+            _call(conn, known, *msg[1:])
+            continue
         for row in msg:
             try:
                 f, blown = problem.evaluate(row[None, :])
@@ -110,6 +114,23 @@ def _serve(conn, parent: int) -> None:  # pragma: no cover - runs in the child
                 conn.send(("raised", _portable(exc)))
                 break
             conn.send(("done", (float(f[0]), bool(blown[0]))))
+
+
+def _call(conn, known: dict, digest, blob, name, args) -> None:  # pragma: no cover - child
+    """Run ``problem.<name>(*args)`` here, for :func:`contained`; send ``("done", result)``
+    or ``("raised", exception)``."""
+    try:
+        problem = known.get(digest)
+        if problem is None:
+            problem = pickle.loads(blob)
+            problem.sandboxed = False
+            known.clear()  # one problem at a time: a run's analysis takes them in turn
+            known[digest] = problem
+        result = getattr(problem, name)(*args)
+    except Exception as exc:
+        conn.send(("raised", _portable(exc)))
+        return
+    conn.send(("done", result))
 
 
 def _portable(exc: BaseException) -> BaseException:  # pragma: no cover - in the child
@@ -321,6 +342,48 @@ class Sandbox:
                 fit[i], blown[i] = value
                 i += 1
 
+    def call(self, problem_blob: bytes, name: str, args: tuple, weight: int = 1):
+        """``(True, problem.<name>(*args))`` run in the child, ``problem`` the pickled
+        ``problem_blob`` (any problem of this model), or ``(False, None)`` if the child
+        crashed or overran ``weight`` times the time limit (then counted and said as a
+        candidate's evaluation is). A Python exception in the child is raised here."""
+        import hashlib
+
+        digest = hashlib.sha1(problem_blob).hexdigest()
+        with self._lock:
+            finished = False
+            try:
+                for attempt in range(MAX_FAILED_STARTS + 1):
+                    if self.conn is None or self.proc.poll() is not None:
+                        self._kill()
+                        self._start()
+                    try:
+                        self.conn.send(("call", digest, problem_blob, name, args))
+                        break
+                    except OSError as exc:  # it died between the check and the send
+                        self._kill()
+                        if attempt == MAX_FAILED_STARTS:
+                            raise RuntimeError(
+                                f"the sandbox for model {self.name!r} dies as soon as it starts"
+                            ) from exc
+                limit, self.time_limit = self.time_limit, self.time_limit * max(1, int(weight))
+                try:
+                    why, answer = self._answer()
+                finally:
+                    self.time_limit = limit
+                finished = True
+            finally:
+                if not finished:
+                    self._kill()
+                    self.proc = None
+        if why:
+            self._lose(why, "an analysis run of the answer")
+            return False, None
+        kind, value = answer
+        if kind == "raised":
+            raise value
+        return True, value
+
     def _answer(self) -> tuple[str, Any]:
         """``("", message)`` with the child's next message, or ``(why, None)``: why
         there is none (``"crashed"``, ``"timed out"``)."""
@@ -331,7 +394,7 @@ class Sandbox:
             return "crashed", None
         return ("crashed" if self.proc.poll() is not None else "timed out"), None
 
-    def _lose(self, why: str) -> None:
+    def _lose(self, why: str, what: str = "a candidate's evaluation") -> None:
         """The child crashed or overran: count it, stop the child, say it once."""
         self.lost[why] += 1
         self._kill()
@@ -339,7 +402,7 @@ class Sandbox:
         if not self._said:
             self._said = True
             print(
-                f"evo-door: warning: model {self.name!r}: a candidate's evaluation "
+                f"evo-door: warning: model {self.name!r}: {what} "
                 f"{why}{how} (time limit {self.time_limit:g} s); it is scored as a blow-up "
                 "and the run goes on in a new sandbox process (said once)",
                 file=sys.stderr,
@@ -446,6 +509,29 @@ def sandbox_for(problem, time_limit: float | None = None):
 def current():
     """This process's sandbox (the last problem's), or None if it has made none."""
     return _CURRENT[1]
+
+
+#: pickles of the problems :func:`contained` ran, by problem (made once per problem)
+_BLOBS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def contained(problem, name: str, *args, weight: int = 1):
+    """``(True, problem.<name>(*args))`` computed in a sandbox child, or ``(False,
+    None)`` if the run crashed the child or overran ``weight`` times the problem's time
+    limit: what a fit's analysis (its errors per trial, identifiability, stored
+    responses) runs of a model that runs native code, so that the FMU is contained
+    after the search as during it. The child of this process's sandbox serves it if it
+    runs the same model (the search's, whichever problem of it); else one is made."""
+    box = current()
+    key = problem.model_name or problem.model.name
+    if box is None or getattr(box, "key", None) != key:
+        box = sandbox_for(problem, problem.time_limit)
+    box.key = key
+    one = box.boxes[0] if isinstance(box, SandboxGroup) else box
+    blob = _BLOBS.get(problem)
+    if blob is None:
+        blob = _BLOBS[problem] = pickle.dumps(problem)
+    return one.call(blob, name, args, weight)
 
 
 if __name__ == "__main__":  # pragma: no cover - the child: python -m evo_door.optim.sandbox FD PID

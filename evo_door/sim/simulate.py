@@ -126,7 +126,7 @@ def simulate(
     force,
     dt,
     theta0=None,
-    dtheta0=0.0,
+    dtheta0=None,
     t0=0.0,
     method=None,
     substeps=None,
@@ -143,7 +143,8 @@ def simulate(
     force : array_like
         User force (N) sampled every ``dt`` seconds.
     theta0, dtheta0 : float
-        Initial angle (rad; default the model's) and angular speed (rad/s).
+        Initial angle (rad) and angular speed (rad/s); None (not given): the plant's
+        own (the model's ``theta0`` at rest; an FMU's start values).
     state : array_like, optional
         The whole initial state instead (a previous response's ``final``), for a model
         on a state vector the states of its own too.
@@ -173,7 +174,7 @@ def simulate(
 
 
 def simulate_batch(
-    model, P, force, dt, theta0=None, dtheta0=0.0, method=None, substeps=None, tolerance=None
+    model, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None, tolerance=None
 ):
     """Simulate one input for every row of ``P`` in one compiled parallel call.
 

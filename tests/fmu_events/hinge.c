@@ -19,7 +19,8 @@ Hinge *hinge_new(size_t size, const char *token) {
 }
 
 void hinge_reset(Hinge *h) {
-    h->time = h->theta = h->omega = h->force = 0.0;
+    h->time = h->omega = h->force = 0.0;
+    h->theta = HINGE_THETA_START;
     for (int i = 0; i < HINGE_N_PARAMETERS; i++) h->p[i] = PARAMETERS[i].start;
     h->latched = h->damping_boost = 0;
     h->mode = H_INSTANTIATED;

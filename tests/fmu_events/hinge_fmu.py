@@ -17,7 +17,7 @@ import sys
 import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -135,37 +135,53 @@ UNITS = {  # name: SI base-unit exponents
 }
 
 
-def token(fmi: int) -> str:
+def variant(theta_start: float | None = None, rename=None) -> tuple[tuple, tuple]:
+    """``(parameters, variables)`` of a variant of the hinge: the angle's start value
+    ``theta_start`` (rad, the C's too), parameters renamed (``{"latch_angle":
+    "theta0"}``: the XML's and the C table's name; the C code keeps its macros)."""
+    rename = dict(rename or {})
+    parameters = tuple(replace(p, name=rename.get(p.name, p.name)) for p in PARAMETERS)
+    variables = VARIABLES
+    if theta_start is not None:
+        variables = tuple(
+            replace(v, start=float(theta_start)) if v.name == "theta" else v for v in VARIABLES
+        )
+    return parameters, variables
+
+
+def token(fmi: int, parameters=PARAMETERS, variables=VARIABLES) -> str:
     """The guid / instantiationToken: a hash of the declaration."""
     import uuid
 
-    return "{" + str(uuid.uuid5(uuid.NAMESPACE_OID, repr((fmi, PARAMETERS, VARIABLES)))) + "}"
+    return "{" + str(uuid.uuid5(uuid.NAMESPACE_OID, repr((fmi, parameters, variables)))) + "}"
 
 
-def variables_header(fmi: int) -> str:
+def variables_header(fmi: int, parameters=PARAMETERS, variables=VARIABLES) -> str:
     """``hinge_variables.h``: value references, parameter indices and the parameter table."""
     lines = ["/* Written by tests/fmu_events/hinge_fmu.py: do not edit. */", "#pragma once", ""]
     lines += [f"#define HINGE_VR_{v.name.upper()} {v.vr}" for v in VARIABLES]
+    theta = next(v for v in variables if v.name == "theta")
+    lines += [f"#define HINGE_THETA_START {float(theta.start or 0.0)!r}"]
     lines += [f"#define HINGE_VR_FIRST_PARAMETER {FIRST_PARAMETER_VR}"]
     lines += [f"#define HINGE_N_PARAMETERS {len(PARAMETERS)}"]
     lines += [f"#define HINGE_N_EVENT_INDICATORS {len(EVENT_INDICATORS)}"]
-    lines += [f'#define HINGE_TOKEN "{token(fmi)}"']
+    lines += [f'#define HINGE_TOKEN "{token(fmi, parameters, variables)}"']
     lines += [f"#define HINGE_P_{p.name.upper()} {i}" for i, p in enumerate(PARAMETERS)]
     lines += ["typedef struct { const char *name; double start, min, max; int fixed; } "
               "HingeParameter;", "#define HINGE_PARAMETER_TABLE { \\"]  # fmt: skip
     lines += [
         f'    {{"{p.name}", {p.start!r}, {p.min!r}, {p.max!r}, {int(p.variability == "fixed")}}}, \\'
-        for p in PARAMETERS
+        for p in parameters
     ]
     return "\n".join([*lines, "}", ""])
 
 
-def _variable_elements(fmi: int, parent: ET.Element) -> dict[str, int]:
+def _variable_elements(fmi: int, parent: ET.Element, parameters, variables) -> dict[str, int]:
     """The <ModelVariables> children; FMI 2's index (1-based) of each name."""
-    by_name = {v.name: v for v in VARIABLES}
+    by_name = {v.name: v for v in variables}
     index = {}
-    rows = [(v.vr, v) for v in VARIABLES] + [
-        (FIRST_PARAMETER_VR + i, p) for i, p in enumerate(PARAMETERS)
+    rows = [(v.vr, v) for v in variables] + [
+        (FIRST_PARAMETER_VR + i, p) for i, p in enumerate(parameters)
     ]
     for n, (vr, v) in enumerate(rows, start=1):
         index[v.name] = n
@@ -192,12 +208,12 @@ def _variable_elements(fmi: int, parent: ET.Element) -> dict[str, int]:
     return index
 
 
-def model_description(fmi: int) -> bytes:
+def model_description(fmi: int, parameters=PARAMETERS, variables=VARIABLES) -> bytes:
     """The modelDescription.xml (UTF-8) of the FMI ``fmi`` build."""
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": f"{fmi}.0",
         "modelName": "hinge",
-        ("guid" if fmi == 2 else "instantiationToken"): token(fmi),
+        ("guid" if fmi == 2 else "instantiationToken"): token(fmi, parameters, variables),
         "description": "a door on a hinge with a latch, a timed damping boost and a "
         "bouncing open stop (evo-door's event tests)",
         "generationTool": "evo-door tests/fmu_events/hinge_fmu.py",
@@ -210,16 +226,16 @@ def model_description(fmi: int) -> bytes:
     else:
         me["needsCompletedIntegratorStep"] = "true"
     ET.SubElement(root, "ModelExchange", me)
-    used = {p.unit for p in PARAMETERS} | {v.unit for v in VARIABLES if v.unit}
+    used = {p.unit for p in parameters} | {v.unit for v in variables if v.unit}
     units = ET.SubElement(root, "UnitDefinitions")
     for name in (u for u in UNITS if u in used):
         ET.SubElement(ET.SubElement(units, "Unit", name=name), "BaseUnit",
                       {k: str(e) for k, e in UNITS[name].items()})  # fmt: skip
     ET.SubElement(root, "DefaultExperiment", startTime="0", stopTime="2")
-    index = _variable_elements(fmi, ET.SubElement(root, "ModelVariables"))
-    outputs = [v for v in VARIABLES if v.causality == "output"]
-    derivatives = [v for v in VARIABLES if v.derivative_of]
-    initial = [v for v in VARIABLES if v.initial == "calculated" and v.causality == "output"]
+    index = _variable_elements(fmi, ET.SubElement(root, "ModelVariables"), parameters, variables)
+    outputs = [v for v in variables if v.causality == "output"]
+    derivatives = [v for v in variables if v.derivative_of]
+    initial = [v for v in variables if v.initial == "calculated" and v.causality == "output"]
     structure = ET.SubElement(root, "ModelStructure")
     if fmi == 2:
         for group, members in (("Outputs", outputs), ("Derivatives", derivatives),
@@ -228,7 +244,7 @@ def model_description(fmi: int) -> bytes:
             for v in members:
                 ET.SubElement(parent, "Unknown", index=str(index[v.name]))
     else:
-        by_name = {v.name: v for v in VARIABLES}
+        by_name = {v.name: v for v in variables}
         indicators = [by_name[n] for n in EVENT_INDICATORS]
         for element, members in (("Output", outputs), ("ContinuousStateDerivative", derivatives),
                                  ("InitialUnknown", initial), ("EventIndicator", indicators)):  # fmt: skip
@@ -238,8 +254,10 @@ def model_description(fmi: int) -> bytes:
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True) + b"\n"
 
 
-def build_hinge_fmu(out: Path, fmi: int = 2) -> Path:
-    """Build the hybrid hinge FMU (model exchange, FMI ``fmi``) into ``out``; its path."""
+def build_hinge_fmu(out: Path, fmi: int = 2, theta_start=None, rename=None) -> Path:
+    """Build the hybrid hinge FMU (model exchange, FMI ``fmi``) into ``out``; its path.
+    ``theta_start`` and ``rename`` make a :func:`variant`."""
+    parameters, variables = variant(theta_start, rename)
     example = _example_builder()
     cmake = shutil.which("cmake")
     if cmake is None:
@@ -250,7 +268,7 @@ def build_hinge_fmu(out: Path, fmi: int = 2) -> Path:
     with tempfile.TemporaryDirectory(prefix="hinge-fmu-") as tmp:
         generated, build = Path(tmp, "generated"), Path(tmp, "build")
         generated.mkdir()
-        (generated / "hinge_variables.h").write_text(variables_header(fmi))
+        (generated / "hinge_variables.h").write_text(variables_header(fmi, parameters, variables))
         configure = [cmake, "-S", str(HERE), "-B", str(build), "-DCMAKE_BUILD_TYPE=Release"]
         configure += [f"-DFMI_VERSION={fmi}", f"-DFMI_INCLUDE_DIR={example.fmi_headers()}"]
         configure += [f"-DHINGE_GENERATED_DIR={generated}"]
@@ -258,6 +276,6 @@ def build_hinge_fmu(out: Path, fmi: int = 2) -> Path:
         example._run([cmake, "--build", str(build)], "cmake --build")
         out = Path(out)
         with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zf:
-            zf.writestr("modelDescription.xml", model_description(fmi))
+            zf.writestr("modelDescription.xml", model_description(fmi, parameters, variables))
             zf.write(build / library_name, f"binaries/{folder}/{library_name}")
     return out

@@ -261,6 +261,25 @@ def _number(text, default: float) -> float:
         return default
 
 
+def is_parameter(var) -> bool:
+    """A parameter of the FMU (causality ``parameter`` or ``calculatedParameter``): never
+    a channel, whatever its name (an FMU's ``theta0`` is often a spring's rest angle)."""
+    return var.causality in ("parameter", "calculatedParameter")
+
+
+def start_value(md, channel: Channel) -> float | None:
+    """The start value the FMU declares for ``channel``'s variable, in SI (None if it
+    declares none)."""
+    var = next((v for v in md.modelVariables if v.name == channel.name), None)
+    start = None if var is None else var.start
+    if start is None:
+        return None
+    try:
+        return float(start) * channel.factor + channel.offset
+    except (TypeError, ValueError):
+        return None
+
+
 def unit_of(var) -> str:
     """The unit a variable declares (its own, else its type's), or ``""``."""
     unit = var.unit or (var.declaredType.unit if var.declaredType is not None else None)
@@ -330,6 +349,10 @@ def resolve_channels(md, shown: str, mapping=None) -> dict:
     and ``ddtheta`` are optional outputs. ``theta0`` / ``dtheta0`` are the variables
     the trial's initial angle and speed are written to before initialisation: the
     mapped ones, else ``theta`` / ``dtheta`` themselves where they may be set.
+
+    A parameter of the FMU (:func:`is_parameter`) is never taken for a channel: not by
+    its name (a parameter called ``theta`` or ``theta0`` stays a parameter and keeps its
+    value), and a mapping that names one is refused.
     """
     mapping = dict(mapping or {})
     bad = [k for k in mapping if k not in CHANNEL_KEYS]
@@ -345,12 +368,20 @@ def resolve_channels(md, shown: str, mapping=None) -> dict:
     reals = [v.name for v in md.modelVariables if v.type in _REAL_TYPES]
     out: dict[str, Channel] = {}
     for key in CHANNEL_KEYS:
-        name = mapping.get(key)
+        name = mapped_name = mapping.get(key)
         if name is None and key.endswith("0"):
             continue
         mapped = name is not None
         name = str(name) if mapped else key
         var = by_name.get(name)
+        if var is not None and key != "force" and is_parameter(var):
+            if mapped:
+                raise UserError(
+                    f"FMU {shown}: {mapped_name!r} is a parameter of the FMU (declared, "
+                    f"kept at its value or fitted), not a state or an output: it cannot be "
+                    f"the {key} channel (map a state or an output: channels: {{{key}: VARIABLE}})"
+                )
+            var = None  # a parameter is never a channel by its name (a rest angle 'theta')
         if var is None:
             if not mapped and key in ("dtheta", "ddtheta"):
                 continue
@@ -388,3 +419,62 @@ def resolve_channels(md, shown: str, mapping=None) -> dict:
         if start not in out and var is not None and var.initial in ("exact", "approx"):
             out[start] = out[key]
     return out
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where the handle's angle and speed are in a model-exchange FMU's continuous
+    states, and how each converts to SI (``si = factor * value + offset``)."""
+
+    angle: int
+    speed: int
+    angle_si: tuple[float, float]
+    speed_si: tuple[float, float]
+
+
+def state_layout(info: FmuInfo, what: str) -> StateLayout:
+    """The :class:`StateLayout` of ``info``'s FMU, or the one-line :class:`UserError`
+    saying why ``what`` (which sets the state to any angle and speed) cannot be had:
+    a co-simulation FMU (its states are its own), more states than the angle and the
+    speed (the others would have to be chosen too), or states not told apart."""
+    shown = info.path.name
+    if info.interface != "me":
+        raise UserError(
+            f"FMU {shown} is run by co-simulation: {what} needs the derivatives at any "
+            "angle and speed, which only a model-exchange FMU gives"
+            + (" (use its model exchange: model.fmu:me)" if info.description.modelExchange else "")
+        )
+    info.check_channels()
+    states = [d.variable.derivative for d in info.description.derivatives]
+    names = [s.name if s is not None else "?" for s in states]
+    if len(states) != 2:
+        raise UserError(
+            f"FMU {shown} has {len(states)} continuous state(s) ({', '.join(names) or 'none'}): "
+            f"{what} sets the handle's angle and speed alone, so it needs exactly those two"
+        )
+    ch = info.channels
+
+    def find(keys) -> int:
+        for key in keys:
+            if key in ch and ch[key].name in names:
+                return names.index(ch[key].name)
+        return -1
+
+    angle = find(("theta0", "theta"))
+    speed = find(("dtheta0", "dtheta"))
+    if angle >= 0 and speed < 0:  # the state whose derivative the angle's is
+        der = next((d.variable.name for d in info.description.derivatives
+                    if d.variable.derivative is states[angle]), None)  # fmt: skip
+        speed = names.index(der) if der in names and names.index(der) != angle else -1
+    if angle < 0 or speed < 0 or angle == speed:
+        raise UserError(
+            f"FMU {shown}: {what} needs to know which of its states ({', '.join(names)}) are "
+            "the angle and the speed: map them (channels: {theta0: STATE, dtheta0: STATE})"
+        )
+    md = info.description
+    return StateLayout(
+        angle,
+        speed,
+        _si_factor(md, unit_of(states[angle]), "theta", names[angle], shown),
+        _si_factor(md, unit_of(states[speed]), "dtheta", names[speed], shown),
+    )

@@ -80,9 +80,10 @@ class Instance:
         else:
             self.fmu.setFloat64(list(vrs), list(values))
 
-    def initialise(self, p, theta0: float, dtheta0: float, t0: float) -> None:
+    def initialise(self, p, theta0: float | None, dtheta0: float | None, t0: float) -> None:
         """Reset, set the parameters ``p`` (declaration order) and the initial state
-        (SI), and initialise; raise :class:`FmuRunError` if the FMU refuses."""
+        (SI; None leaves the FMU's own start value), and initialise; raise
+        :class:`FmuRunError` if the FMU refuses."""
         info, fmu = self.info, self.fmu
         ch = info.channels
         try:
@@ -93,7 +94,7 @@ class Instance:
                 fmu.setupExperiment(startTime=t0)
             self._set([vr for _, (vr, _) in self.params], np.asarray(p, dtype=np.float64))
             for key, value in (("theta0", theta0), ("dtheta0", dtheta0)):
-                if key in ch:
+                if key in ch and value is not None:
                     c = ch[key]
                     self._set([c.vr], [(value - c.offset) / c.factor])
             if info.version == 2:
@@ -122,7 +123,8 @@ class Instance:
         raise FmuRunError("the FMU's discrete states do not settle at initialisation")
 
     def run(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
-        """One run: ``(outputs, status)``, ``outputs`` (n, len(self.outputs)) in SI."""
+        """One run: ``(outputs, status)``, ``outputs`` (n, len(self.outputs)) in SI;
+        ``theta0`` / ``dtheta0`` None start where the FMU starts by itself."""
         ch = self.info.channels
         f = (np.asarray(force, dtype=np.float64) - ch["force"].offset) / ch["force"].factor
         f = np.ascontiguousarray(f)
@@ -138,6 +140,33 @@ class Instance:
         for j, key in enumerate(self.outputs):
             out[:, j] = out[:, j] * ch[key].factor + ch[key].offset
         return out, int(status)
+
+    def hold_forces(self, p, theta, dtheta, layout) -> np.ndarray:
+        """The force (N) that holds the speed still at each angle ``theta`` and speed
+        ``dtheta`` (rad, rad/s; arrays of one shape), at the parameters ``p``: the FMU
+        initialised at its start, its states then set to each (angle, speed), the
+        ``layout`` (:class:`~evo_door.models.fmu.description.StateLayout`) saying where
+        they are. NaN where the FMU refuses."""
+        ch = self.info.channels
+        theta = np.ascontiguousarray(theta, dtype=np.float64)
+        dtheta = np.ascontiguousarray(dtheta, dtype=np.float64)
+        (fa, oa), (fs, os_) = layout.angle_si, layout.speed_si
+        out = np.full(theta.size, np.nan)
+        try:
+            self.initialise(p, None, None, 0.0)
+        except FmuRunError:
+            return out
+        x = np.zeros(self.info.n_states)
+        self.fmu.getContinuousStates(x.ctypes.data_as(_double_p()), x.size)
+        args = (
+            self.api, self.comp, x, int(layout.angle), int(layout.speed), 0.0,
+            np.ascontiguousarray((theta.ravel() - oa) / fa),
+            np.ascontiguousarray((dtheta.ravel() - os_) / fs), self.vr_in, out,
+        )  # fmt: skip
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+            self._call(kernels.hold_me, args)
+        return (out * ch["force"].factor + ch["force"].offset).reshape(theta.shape)
 
     def _run(self, f, out, t0, dt, substeps) -> int:
         if self.info.interface == "me":

@@ -5,10 +5,14 @@ method at a fixed step (``substeps`` steps per sample period), the force going l
 from one sample to the next, as the workbench's own integrators do
 (:mod:`evo_door.sim.integrators`). Each stage sets the time, the states and the input
 and asks the FMU for the derivatives; after each step it reports the completed step and
-reads the event indicators. Where an indicator changes sign or the FMU asks for an
-event, the event is handled at the end of that step (event mode, discrete-state updates
-until the FMU is done, continuous-time mode, states read back): state events are located
-to within one step, not within it. A time event (the next event time the FMU gave at
+reads the event indicators. Where an indicator changes sign, the crossing is located
+within the step (:func:`locate`: the Illinois method on the step length, each trial a
+fresh RK4 step from the same start, as :mod:`evo_door.sim.located` does for the
+workbench's own switching surfaces, to :data:`LOCATE_TOL` of the sample period); the
+step is cut just past it and the event handled there (event mode, discrete-state updates
+until the FMU is done, continuous-time mode, states read back), and the step's rest
+follows. Where the FMU asks for an event when a step is completed, the event is handled
+at the end of that step. A time event (the next event time the FMU gave at
 initialisation or at its last event) ends a shorter step at its very time, as the
 standard asks, and the step's rest follows.
 
@@ -194,6 +198,88 @@ def handle_event(api, comp, x, nx, flags, times):
     return OK
 
 
+# -- state events: located within the step -------------------------------------------------
+#: width of a located crossing's bracket, as a fraction of the sample period
+LOCATE_TOL = 1e-10
+#: most Illinois iterations of one location
+LOCATE_ITER = 100
+#: crossings located in one step before the rest of it is handled at its end (a chatter)
+MAX_LOCATED = 64
+
+
+@njit(cache=True, inline="always")
+def crossed(a, b):
+    """An event indicator's sign changed from ``a`` to ``b`` (0 counts as negative)."""
+    return (a > 0.0) != (b > 0.0)
+
+
+@njit(cache=True)
+def first_crossing(z0, z1, skip):
+    """The indicator that changed sign between ``z0`` and ``z1`` with the earliest
+    linear estimate of its time (``skip`` left out), -1 if none."""
+    best, best_u = -1, 2.0
+    for i in range(z0.size):
+        if i != skip and crossed(z0[i], z1[i]):
+            u = z0[i] / (z0[i] - z1[i]) if z0[i] != z1[i] else 0.0
+            if u < best_u:
+                best, best_u = i, u
+    return best
+
+
+@njit(cache=True)
+def locate(api, comp, ts, hh, x0, x, force, dforce, vr_in, u, k1, k2, k3, k4, xs, z0, z1, c, tol):
+    """The step from ``(ts, x0)`` to just past the first sign change of the event
+    indicators inside the step of length ``hh`` (which changed ``z0`` to ``z1``, ``c``
+    first by the linear estimate): the Illinois method on the step length, each trial
+    a fresh RK4 step from the same start, to a bracket of ``tol`` s; another indicator
+    that changed sign before the bracket's far end takes its place. Returns ``(length,
+    status)``: ``x`` holds the state at the far end (the indicator crossed, by at most
+    the bracket), ``k1`` its derivatives, ``z1`` its indicators."""
+    lo, hi = 0.0, hh
+    v_lo, v_hi = z0[c], z1[c]
+    for _ in range(z0.size + 1):
+        last = 0  # the bracket's end that moved last (Illinois)
+        for _ in range(LOCATE_ITER):
+            if hi - lo <= tol:
+                break
+            s = (lo * v_hi - hi * v_lo) / (v_hi - v_lo) if v_hi != v_lo else 0.5 * (lo + hi)
+            if not (lo < s < hi):
+                s = 0.5 * (lo + hi)
+            x[:] = x0
+            st = rk4_step(api, comp, ts, s, ts + s, x, force, dforce * (s / hh), vr_in, u,
+                          False, k1, k2, k3, k4, xs)  # fmt: skip
+            if st == _NOT_FINITE_STEP or st > _GOOD:
+                return s, st
+            if api[GET_EVENT_INDICATORS](comp, at(z1, 0), z1.size) > _GOOD:
+                return s, FMU_ERROR
+            v = z1[c]
+            if crossed(v_lo, v):
+                hi, v_hi = s, v
+                if last == 1:
+                    v_lo *= 0.5
+                last = 1
+            else:
+                lo, v_lo = s, v
+                if last == -1:
+                    v_hi *= 0.5
+                last = -1
+        # the step to the bracket's far end: the state the event is handled at
+        x[:] = x0
+        st = rk4_step(api, comp, ts, hi, ts + hi, x, force, dforce * (hi / hh), vr_in, u,
+                      False, k1, k2, k3, k4, xs)  # fmt: skip
+        if st == _NOT_FINITE_STEP or st > _GOOD:
+            return hi, st
+        if api[GET_EVENT_INDICATORS](comp, at(z1, 0), z1.size) > _GOOD:
+            return hi, FMU_ERROR
+        earlier = first_crossing(z0, z1, c)
+        if earlier < 0 or hi <= tol:
+            break
+        # another indicator changed sign within the kept step: it may come first
+        c, lo = earlier, 0.0
+        v_lo, v_hi = z0[c], z1[c]
+    return hi, OK
+
+
 # -- model exchange ----------------------------------------------------------------------
 @njit(cache=True)
 def derivatives(api, comp, t, x, force, vr_in, u, dx):
@@ -253,17 +339,19 @@ def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, fresh, k1, k2, 
 
 
 @njit(cache=True)
-def run_me(  # long: one loop
-    api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, vr_out, out
-):
+def run_me(api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, vr_out, out):
     """Integrate a model-exchange FMU over the samples of ``force`` (see the module
     docstring); ``x`` holds the initial states (after initialisation) and is advanced;
     ``next_event`` is the time event the initialisation set (inf if none)."""
+    # long: one compiled loop over the samples, their steps and the pieces an event cuts
+    # a step into, sharing the work arrays and the FMU's event state
     n, nx = force.size, x.size
     out[:] = np.nan
     u = np.zeros(1)
     k1, k2, k3, k4, xs = np.empty(nx), np.empty(nx), np.empty(nx), np.empty(nx), np.empty(nx)
     z0, z1 = np.empty(n_events), np.empty(n_events)
+    x0 = np.empty(nx)  # a step's start, which the location of an event steps from again
+    tol = LOCATE_TOL * dt
     flags = np.zeros(10, dtype=np.int32)
     times = np.array([math.inf, math.inf])
     if n_events and api[GET_EVENT_INDICATORS](comp, at(z0, 0), n_events) > _GOOD:
@@ -284,6 +372,7 @@ def run_me(  # long: one loop
         for s in range(substeps):
             ts, fs, end = t + s * h, f0 + s * df, t + s * h + h
             hs, dfs = h, df
+            located = 0
             while True:
                 # a time event inside the step ends a shorter step at its time (the
                 # standard: integrate at most until the next event time), the rest of
@@ -292,10 +381,25 @@ def run_me(  # long: one loop
                 te = next_event if split else end
                 hh = te - ts if split else hs
                 dff = dfs * (hh / hs) if split else dfs
+                x0[:] = x
                 st = rk4_step(
                     api, comp, ts, hh, te, x, fs, dff, vr_in, u, fresh, k1, k2, k3, k4, xs
                 )
                 fresh = True
+                # a state event inside the step: the step is cut just past it (its
+                # completion is reported only for the step kept)
+                c = -1
+                if n_events and st <= _GOOD and st != _NOT_FINITE_STEP:
+                    if api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events) > _GOOD:
+                        return FMU_ERROR
+                    if located < MAX_LOCATED:
+                        c = first_crossing(z0, z1, -1)
+                if c >= 0 and hh > tol:
+                    located += 1
+                    cut, st = locate(api, comp, ts, hh, x0, x, fs, dff, vr_in, u,
+                                     k1, k2, k3, k4, xs, z0, z1, c, tol)  # fmt: skip
+                    if cut < hh:
+                        split, te, dff, hh = True, ts + cut, dff * (cut / hh), cut
                 if st == _NOT_FINITE_STEP or st > _GOOD:
                     out[k + 1 :] = np.nan
                     return NOT_FINITE if st == _NOT_FINITE_STEP else FMU_ERROR
@@ -307,14 +411,11 @@ def run_me(  # long: one loop
                 if terminate:
                     out[k + 1 :] = np.nan
                     return TERMINATED
-                crossed = False
-                if n_events:
-                    if api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events) > _GOOD:
-                        return FMU_ERROR
-                    for i in range(n_events):
-                        if (z0[i] > 0.0) != (z1[i] > 0.0):
-                            crossed = True
-                if enter or crossed or te >= next_event:
+                changed = False
+                for i in range(n_events):
+                    if crossed(z0[i], z1[i]):
+                        changed = True
+                if enter or changed or te >= next_event:
                     r = handle_event(api, comp, x, nx, flags, times)
                     if r != OK:
                         out[k + 1 :] = np.nan
@@ -327,6 +428,30 @@ def run_me(  # long: one loop
                 if not split:
                     break
                 ts, fs, hs, dfs = te, fs + dff, end - te, dfs - dff
+    return OK
+
+
+@njit(cache=True)
+def hold_me(api, comp, x, angle, speed, t, theta, dtheta, vr_in, out):
+    """The input (the FMU's force, in its unit) that holds the speed state still at each
+    ``(theta[i], dtheta[i])`` (the FMU's units), written to ``out[i]``: the derivative
+    of the speed state at the inputs 0 and 1, ``a0`` and ``a1``, and ``-a0 / (a1 - a0)``
+    (the derivative is affine in the force). ``x`` holds the states, ``angle`` and
+    ``speed`` their positions. The FMU's worst status (> 1: failed, ``out`` NaN on)."""
+    u = np.zeros(1)
+    dx = np.empty(x.size)
+    out[:] = np.nan
+    for i in range(theta.size):
+        x[angle] = theta[i]
+        x[speed] = dtheta[i]
+        s = derivatives(api, comp, t, x, 0.0, vr_in, u, dx)
+        if s > _GOOD:
+            return s
+        a0 = dx[speed]
+        s = derivatives(api, comp, t, x, 1.0, vr_in, u, dx)
+        if s > _GOOD:
+            return s
+        out[i] = -a0 / (dx[speed] - a0)
     return OK
 
 

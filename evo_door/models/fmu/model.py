@@ -4,8 +4,10 @@ An :class:`FmuModel` is a :class:`~evo_door.models.Model` whose response is not 
 by a compiled ``accel`` but by the FMU itself: it carries a ``runner``
 (:class:`FmuRunner`) that :func:`evo_door.sim.simulate` and the objective kernels
 (:func:`evo_door.optim.kernels.population_errors`) hand the run to. What needs the
-acceleration at any state (the quasi-static force-angle curve, the perceptual
-objective) refuses an FMU in one line: an FMU gives its derivatives only along a run.
+acceleration at any state as a compiled function (the perceptual objective, the felt
+inertia) refuses an FMU in one line; the force-angle curve asks the runner for the
+force that holds the door (:meth:`FmuRunner.hold_force`), which a model-exchange FMU
+whose states are the angle and the speed gives.
 """
 
 from __future__ import annotations
@@ -20,7 +22,14 @@ from numba import njit
 from evo_door.errors import UserError
 from evo_door.models.base import Model
 from evo_door.models.fmu import kernels
-from evo_door.models.fmu.description import FmuInfo, is_fmu_spec, read_info, split_spec
+from evo_door.models.fmu.description import (
+    FmuInfo,
+    is_fmu_spec,
+    read_info,
+    split_spec,
+    start_value,
+    state_layout,
+)
 from evo_door.models.fmu.instance import instance
 from evo_door.models.fmu.plant import FmuPlant
 from evo_door.sim.plant import Plant
@@ -71,21 +80,47 @@ class FmuRunner:
         inst = instance(self.info)
         inst.run(self.info.declaration.defaults, np.zeros(0), 1.0, 0.0, 0.0)
 
-    def simulate(self, p, force, dt, theta0, dtheta0, t0=0.0, substeps=4):
-        """``(theta, dtheta, ddtheta, ok)``, each (n,) in SI: one run of the FMU."""
+    def simulate(self, p, force, dt, theta0=None, dtheta0=None, t0=0.0, substeps=4):
+        """``(theta, dtheta, ddtheta, ok)``, each (n,) in SI: one run of the FMU.
+
+        ``theta0`` / ``dtheta0`` None (not given) leave the state at the FMU's own start
+        values, after the parameters are set and the FMU initialised."""
         self.check_start(theta0, dtheta0)
         inst = instance(self.info)
         out, status = inst.run(p, force, dt, theta0, dtheta0, t0, substeps)
         theta, dtheta, ddtheta = channels_of(out, inst.outputs, dt)
         return theta, dtheta, ddtheta, status == kernels.OK
 
-    def check_start(self, theta0: float, dtheta0: float, where: str = "", p=None) -> None:
+    def check_hold(self, what: str = "the force that holds the door") -> None:
+        """Refuse, in one line, ``what`` (which sets the state to any angle and speed)
+        for an FMU that cannot be put there: co-simulation, or states other than the
+        angle and the speed (:func:`~evo_door.models.fmu.description.state_layout`)."""
+        state_layout(self.info, what)
+
+    def hold_force(self, p, theta, dtheta) -> np.ndarray:
+        """The force (N, + toward closing) that holds ``ddtheta = 0`` at each angle
+        ``theta`` (rad) and speed ``dtheta`` (rad/s, one value or one per angle): the
+        model-exchange FMU's derivatives at the forces 0 and 1, with its states set to
+        (theta, dtheta) after it is initialised at ``p`` (its discrete states, a latch's
+        say, stay as the initialisation left them). Refused in one line where that
+        cannot be done (:meth:`check_hold`)."""
+        layout = state_layout(self.info, "the force-angle curve")
+        theta = np.atleast_1d(np.asarray(theta, dtype=np.float64))
+        dtheta = np.broadcast_to(np.asarray(dtheta, dtype=np.float64), theta.shape)
+        return instance(self.info).hold_forces(
+            np.asarray(p, dtype=np.float64), theta, dtheta, layout
+        )
+
+    def check_start(
+        self, theta0: float | None, dtheta0: float | None, where: str = "", p=None
+    ) -> None:
         """Refuse an initial state the FMU cannot be given: no variable takes it (the
         ``theta0`` / ``dtheta0`` channels) and the FMU starts elsewhere by itself (at
-        the parameters ``p``, default the declared ones)."""
+        the parameters ``p``, default the declared ones). None is the FMU's own start."""
         ch = self.info.channels
         self.info.check_channels()
-        if ("theta0" in ch or "theta" not in ch) and ("dtheta0" in ch or "dtheta" not in ch):
+        free_theta = theta0 is None or "theta0" in ch or "theta" not in ch
+        if free_theta and (dtheta0 is None or "dtheta0" in ch or "dtheta" not in ch):
             return
         p = self.info.declaration.defaults if p is None else p
         inst = instance(self.info)
@@ -169,6 +204,11 @@ def load_fmu(spec: str, mapping=None) -> FmuModel:
         channels = f"channels: {mapped}"
     else:
         channels = f"channels not matched: {info.channel_problem}"
+    # the FMU's own start angle (what a run that gives none starts at), for display
+    start = None
+    for key in ("theta0", "theta"):
+        if start is None and key in ch:
+            start = start_value(md, ch[key])
     notes = (
         f"FMU {info.path.name}: FMI {md.fmiVersion}, {kinds}, generated by "
         f"{md.generationTool or 'an unnamed tool'}.\n{channels}\nLoading an FMU runs "
@@ -183,6 +223,7 @@ def load_fmu(spec: str, mapping=None) -> FmuModel:
         substeps=4,
         notes=notes,
         theta_unit="rad",
+        theta0=0.0 if start is None or not math.isfinite(start) else start,
         info=info,
     )
 

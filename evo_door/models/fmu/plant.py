@@ -3,8 +3,10 @@
 It integrates its own equations (:class:`~evo_door.models.fmu.model.FmuRunner`), so the
 plant hands every run to the runner. It is ``contained``: a fit runs it in a sandbox
 process (:mod:`evo_door.optim.sandbox`), since its native code may crash or hang. What
-needs the force at the handle at any state (the force-angle curve, the perceptual
-objective) it gives where the runner can, else refuses in one line.
+needs the force at the handle at any state (the force-angle curve) it gives where the
+runner can (a model-exchange FMU whose states are the angle and the speed), else refuses
+in one line; the perceptual objective and the tolerances, which need the felt inertia
+too, are refused.
 """
 
 from __future__ import annotations
@@ -65,13 +67,14 @@ class FmuPlant:
         substeps=None, tolerance=None, state=None,
     ) -> Response:  # fmt: skip
         """One run of the FMU (``method`` and ``tolerance`` are the FMU's own; a
-        ``state`` sets the handle's position and speed)."""
+        ``state`` sets the handle's position and speed); ``theta0`` / ``dtheta0`` None:
+        the FMU's own start values."""
         force = check_force(force, dt)
         if state is not None:
             theta0, dtheta0 = check_state(state, 2, self.model.name)
         p = param_vector(params, self.model.params)
-        theta0 = self.model.theta0 if theta0 is None else float(theta0)
-        dtheta0 = 0.0 if dtheta0 is None else float(dtheta0)
+        theta0 = None if theta0 is None else float(theta0)
+        dtheta0 = None if dtheta0 is None else float(dtheta0)
         steps = int(substeps or self.model.substeps)
         t = t0 + dt * np.arange(force.size)
         th, w, a, ok = self.runner.simulate(p, force, float(dt), theta0, dtheta0, t0, steps)
@@ -109,16 +112,21 @@ class FmuPlant:
         )
 
     def check_curve(self, what: str) -> None:
-        """Refused: see :meth:`_refuse`."""
+        """Refused (the perceptual objective, the tolerances: they need the felt inertia
+        too, and run inside a fit's compiled loops): see :meth:`_refuse`."""
         self._refuse(what)
 
     def hold_forces(self, p, theta, dtheta) -> np.ndarray:
-        """Refused: see :meth:`_refuse`."""
-        self._refuse("the force-angle curve")
+        """The force that holds the door at each ``theta`` moving at ``dtheta``, from the
+        FMU's derivatives with its states set there (a model-exchange FMU whose states
+        are the angle and the speed: :meth:`FmuRunner.hold_force`), else refused in one
+        line saying why."""
+        return self.runner.hold_force(p, theta, float(dtheta))
 
     def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
-        """Refused: see :meth:`_refuse`."""
-        self._refuse("the force-angle curve")
+        """:meth:`hold_forces` of every row of ``P``."""
+        P = np.atleast_2d(np.asarray(P, dtype=np.float64))
+        return np.array([self.hold_forces(p, theta, dtheta) for p in P])
 
     def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
         """Refused: see :meth:`_refuse`."""
