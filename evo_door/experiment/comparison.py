@@ -9,13 +9,13 @@ says; :func:`run_comparison` runs them, each into a normal results file of one f
 (so ``evo-door show``, ``runs`` and ``compare`` work on each). Reading the runs back into
 one row per (kind, derivative) is :mod:`.comparison_summary`; the tables and the figure
 (``compare.csv``, ``compare.md``, ``compare.png``, ``runs.csv``) are
-:mod:`.comparison_outputs`; the common yardstick every run is scored on is
+:mod:`evo_door.reporting.comparison_outputs`; the common yardstick every run is scored on is
 :func:`evo_door.experiment.objectives.yardstick`.
 
 The library call behind ``evo-door compare-objectives``::
 
     from evo_door.experiment.comparison import plan_comparison, run_comparison
-    from evo_door.experiment.comparison_outputs import write_outputs
+    from evo_door.reporting.comparison_outputs import write_outputs
     from evo_door.experiment.comparison_summary import run_records, summarise
 
     comp = plan_comparison("experiments/default.yaml", seeds=3)
@@ -23,8 +23,6 @@ The library call behind ``evo-door compare-objectives``::
     records = run_records(comp)
     rows = summarise(records)
     write_outputs(comp, records, rows)
-
-(:func:`evo_door.experiment.comparison_outputs.compare_objectives` does the five in one call.)
 """
 
 from __future__ import annotations
@@ -39,10 +37,10 @@ from pathlib import Path
 from evo_door.channels import RESPONSE_CHANNELS
 from evo_door.errors import MissingChannelError, UserError, WriteError
 from evo_door.experiment.config import Experiment, load_experiment
-from evo_door.experiment.format_json import flatten
 from evo_door.experiment.objectives import DERIVATIVES, KINDS
 from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun
+from evo_door.experiment.yamltree import flatten
 from evo_door.files import folder_reason
 from evo_door.params.declaration import suggest
 

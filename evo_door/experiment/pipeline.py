@@ -45,7 +45,7 @@ from evo_door.experiment.config import (
     experiment_from_tree,
     perception_setting,
 )
-from evo_door.experiment.config_reader import _Reader, _resolve_path, executor_setting
+from evo_door.experiment.config_reader import KeyReader, _resolve_path, executor_setting
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
 from evo_door.experiment.runner import ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
@@ -150,13 +150,13 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
     overrides = list(overrides)
     for item in overrides:
         apply_override(tree, item)
-    r = _Reader(tree, "", tree.loc)
+    r = KeyReader(tree, "", tree.loc)
     r.check_keys(PIPELINE_KEYS, required=("stages",))
     node = tree["stages"]
     if not isinstance(node, LinedMap) or not node:
         raise r.fail("stages", "expected a mapping of stage names to experiments (inline or files)")
     default_name = Path(source).stem if not source.startswith("<") else "pipeline"
-    rep = _Reader(r.get("report"), "report", tree.where("report"))
+    rep = KeyReader(r.get("report"), "report", tree.where("report"))
     rep.check_keys(REPORT_KEYS)
     report = {}
     if "jnd" in rep.node:
@@ -190,7 +190,7 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
     return pipe
 
 
-def _process(pipe: Pipeline, r: _Reader, base_dir: Path) -> None:
+def _process(pipe: Pipeline, r: KeyReader, base_dir: Path) -> None:
     """The pipeline's ``process``: the supplier's tolerances of every stage fitted to a
     chosen feel whose model has built parameters (a haptic model's are sensations); a
     stage's own entries win, name by name."""

@@ -104,7 +104,7 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
     """The specification table of a finished run or stage (see the module docstring);
     ``tolerance`` False leaves out tolerances that the file does not store (they would be
     computed, a few seconds)."""
-    from evo_door.experiment.tolerance import tolerances_of
+    from evo_door.experiment.run_specification import tolerances_of
 
     if not res.complete:
         raise UserError(
@@ -450,7 +450,7 @@ def _yaml(t: SpecTable) -> str:
 def export(res: Results, fmt: str, out=None, log=None) -> str:
     """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically).
     ``log(line)`` hears that tolerances were computed because the file had none."""
-    from evo_door.experiment.tolerance import COMPUTED_NOTE
+    from evo_door.experiment.run_specification import COMPUTED_NOTE
     from evo_door.files import write_text
 
     table = spec_table(res)

@@ -1,13 +1,13 @@
 """The perceptual check of many doors at once, compiled: what a yield is counted with.
 
-:class:`FeelCheck` gives every door (a row of full kernel vectors) its signed
+:class:`BatchFeelCheck` gives every door (a row of full kernel vectors) its signed
 differences from a chosen feel in units of their JNDs (its *margins*): each point of
 both strokes outside the latch zone, both latch peaks, both peaks' angles, and the
 felt inertia and damping where the chosen feel has dynamics. A door passes when every
 margin is within +-1, as :func:`~evo_door.perception.check_verdict` judges one door
 (``tests/test_specification_yield.py`` compares the two door by door). The doors' own quantities
-(:meth:`FeelCheck.measure`) can be judged against another feel (:meth:`FeelCheck.against`,
-:meth:`FeelCheck.reference_of`): the nearest feel a process can hold is searched so.
+(:meth:`BatchFeelCheck.measure`) can be judged against another feel (:meth:`BatchFeelCheck.against`,
+:meth:`BatchFeelCheck.reference_of`): the nearest feel a process can hold is searched so.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ BLOWN = 1e6
 
 @dataclass
 class Reference:
-    """What a feel is judged by on a :class:`FeelCheck`'s grid: its force (N) and force
+    """What a feel is judged by on a :class:`BatchFeelCheck`'s grid: its force (N) and force
     JND (N) per stroke at every angle, its latch peaks (N) and their JNDs, their angles
     (rad) and the position JND's angle, and its felt dynamics with their JNDs (None
     for a bare curve)."""
@@ -55,7 +55,7 @@ class Reference:
     dynamics: tuple | None = None  # ((inertia, jnd), (damping, jnd))
 
 
-class FeelCheck:
+class BatchFeelCheck:
     """The perceptual check of many doors against a chosen feel, on one fixed grid.
 
     :meth:`margins` gives every door (a row of a kernel matrix) its signed differences
