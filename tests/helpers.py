@@ -3,8 +3,9 @@
 - a tiny experiment on the bundled trials (one door parameter, a 6 x 1 GA: a results
   file in a few seconds) and the command line in a fresh process (:func:`cli_process`),
   for the tests of what a command may read and write;
-- devices for loops run in a thread (:func:`yielding_sim`) and a HapticMaster client
-  started on the emulator (:func:`started`);
+- devices for loops run in a thread (:func:`yielding_sim`), a HapticMaster client
+  started on the emulator (:func:`started`) and haptic parameter vectors drawn within
+  their bounds (:func:`random_kernel_vectors`);
 - a servo loop served on its control port in a thread (:func:`served_loop`) and the
   answers read back from a connection to it (:func:`answer_lines`).
 
@@ -73,6 +74,14 @@ def started(emu, **kwargs):
     device = HapticMasterDevice("127.0.0.1", emu.port, init_wait=0.0, timeout=2.0, **kwargs)
     device.start()
     return device
+
+
+def random_kernel_vectors(n: int, rng):
+    """``n`` haptic parameter vectors drawn uniformly within the declared bounds."""
+    from evo_door.models.haptic import PARAMS
+
+    lo, hi = PARAMS.lower, PARAMS.upper
+    return lo + (hi - lo) * rng.random((n, len(PARAMS)))
 
 
 # -- a loop served on its control port ----------------------------------------------------

@@ -32,8 +32,8 @@ from evo_door.render.safety import (
     Watchdog,
     limit_force,
     passivity,
-    random_kernel_vectors,
 )
+from tests.helpers import random_kernel_vectors
 
 LIMIT = 200.0
 
