@@ -295,7 +295,7 @@ def test_fast_check_agrees_with_the_perceptual_check(fitted):
 
 
 def res_names(fitted) -> list[str]:
-    from evo_door.experiment.spec import spec_names
+    from evo_door.optim.specification import spec_names
 
     _, setup, _ = fitted
     return spec_names(setup.model, setup.free)

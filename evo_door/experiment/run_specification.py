@@ -9,7 +9,7 @@ yield on a fresh sample and, where the target is out of reach, the allocation. I
 results file keeps it (``tolerance/``); :func:`tolerances_of` reads it back, or
 computes it for a file written before it was kept (``export-spec`` says so in a
 note). The specifications are the rows of the run's specification table
-(:func:`evo_door.experiment.spec.spec_names`); the report's figure of it is
+(:func:`evo_door.optim.specification.spec_names`); the report's figure of it is
 :func:`evo_door.reporting.figures.plot_tolerances`.
 """
 
@@ -18,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.experiment.spec import spec_names
 from evo_door.experiment.stored import setup_from_tree
 from evo_door.optim.process import process_for
+from evo_door.optim.specification import spec_names
 from evo_door.optim.tolerance import Specification, specify
 
 #: the note of a specification computed for a results file that has none

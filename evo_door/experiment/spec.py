@@ -9,8 +9,9 @@ as CSV, Markdown, LaTeX, HTML or a parameter file (YAML) that ``--params``, expe
 and the renderer read back.
 
 Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
-every free parameter whatever its group (:func:`spec_names`); geometry and numerical
-settings stay out of the table (the YAML file has them all). A run against a chosen
+every free parameter whatever its group
+(:func:`~evo_door.optim.specification.spec_names`); geometry and numerical settings stay
+out of the table (the YAML file has them all). A run against a chosen
 feel (the perceptual objective) on a mechanism a supplier builds adds what the
 supplier needs (:mod:`evo_door.optim.tolerance`, one computation that ``show``,
 ``show --json``, every format here and the report all print): each specification's
@@ -40,10 +41,9 @@ from dataclasses import dataclass
 
 from evo_door.errors import UserError
 from evo_door.experiment.results import Results
+from evo_door.optim.specification import spec_names
 
 FORMATS = ("csv", "md", "tex", "html", "yaml")
-#: the groups a specification table lists (besides the free parameters)
-SPEC_GROUPS = ("specification", "sensation")
 
 
 @dataclass
@@ -92,12 +92,6 @@ class SpecTable:
     @property
     def has_tolerance(self) -> bool:
         return any(math.isfinite(r.tolerance) for r in self.rows)
-
-
-def spec_names(model, free) -> list[str]:
-    """The parameters a specification table lists: the model's ``specification`` and
-    ``sensation`` groups and the free ones, in declaration order."""
-    return [p.name for p in model.params if p.group in SPEC_GROUPS or p.name in free]
 
 
 def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
