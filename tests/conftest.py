@@ -1,5 +1,6 @@
 """Shared fixtures: small analytic test models that need no door physics; the bundled
-models' usual parameter sets; the HapticMaster emulator and a client started on it."""
+models' usual parameter sets; the HapticMaster emulator. What tests share that is not a
+fixture is in ``helpers.py``."""
 
 import pytest
 from numba import njit
@@ -71,29 +72,3 @@ def emulator():
     emu = HapticMasterEmulator(port=0, clock="query", steps_per_query=0)
     yield emu
     emu.close()
-
-
-def started(emu, **kwargs):
-    """A HapticMasterDevice connected to ``emu`` and through its start-up sequence."""
-    from evo_door.render.hapticmaster import HapticMasterDevice
-
-    device = HapticMasterDevice("127.0.0.1", emu.port, init_wait=0.0, timeout=2.0, **kwargs)
-    device.start()
-    return device
-
-
-# -- a simulated device for loops run in a thread ---------------------------------------
-def yielding_sim(*args, **kwargs):
-    """A SimDevice that gives up the GIL each cycle, as a paced loop does while it
-    waits (an unpaced simulated loop in a thread never blocks and would starve the
-    test's own thread)."""
-    import time
-
-    from evo_door.render.device import SimDevice
-
-    class YieldingSim(SimDevice):
-        def step(self, dt):
-            super().step(dt)
-            time.sleep(0)
-
-    return YieldingSim(*args, **kwargs)

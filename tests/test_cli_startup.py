@@ -156,8 +156,8 @@ def test_constants_written_out_for_the_parser_agree_with_the_library():
     """The commands spell out a few library constants so as not to import the library
     at start-up; they must not drift from it."""
     from evo_door.commands import export_spec, report, simulate
-    from evo_door.experiment import report as report_lib
     from evo_door.experiment.spec import FORMATS
+    from evo_door.reporting import report as report_lib
     from evo_door.sim import METHODS
 
     assert simulate.METHOD_NAMES == tuple(sorted(METHODS))

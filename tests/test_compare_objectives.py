@@ -16,9 +16,9 @@ from evo_door.experiment.comparison import (
     plan_comparison,
     run_comparison,
 )
-from evo_door.experiment.comparison_outputs import write_outputs
 from evo_door.experiment.comparison_summary import run_records, summarise
-from evo_door.experiment.format_json import compare
+from evo_door.reporting.comparison_outputs import write_outputs
+from evo_door.reporting.format_json import compare
 from evo_door.sim import simulate
 from tests.conftest import OSCILLATOR_MODEL
 from tests.test_cli import cli

@@ -36,7 +36,7 @@ from evo_door.render.control import ControlServer, request  # noqa: E402
 from evo_door.render.keys import key_map  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.conftest import yielding_sim  # noqa: E402
+from tests.helpers import yielding_sim  # noqa: E402
 
 TOKEN = "s3cret-token"
 SENSATIONS = [p.name for p in PARAMS if p.group == "sensation"]

@@ -12,8 +12,8 @@ import pytest
 
 from evo_door.experiment.pipeline import PipelineRun, load_pipeline
 from evo_door.experiment.reader import read_results, read_run
-from evo_door.experiment.report import JNDChanges, write_report
 from evo_door.files import reseal
+from evo_door.reporting.report import JNDChanges, write_report
 from tests.test_cli import cli
 
 #: the chosen feel: the door with a stiffer spring and a lighter pad friction

@@ -27,7 +27,7 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.tiny_run import EXPERIMENT, cli
+from tests.helpers import TINY_EXPERIMENT, cli_process
 
 PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
@@ -85,7 +85,7 @@ def disk(mountable, tmp_path):
 @pytest.fixture
 def work(tmp_path):
     """The inputs: the tiny experiment and a force table."""
-    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
+    (tmp_path / "exp.yaml").write_text(TINY_EXPERIMENT)
     (tmp_path / "force.csv").write_text(FORCE_CSV)
     return tmp_path
 
@@ -132,8 +132,8 @@ COMMANDS = {
 def results(mountable, tmp_path_factory):
     """A complete results file of the tiny experiment (export-spec's and report's input)."""
     folder = tmp_path_factory.mktemp("results")
-    (folder / "exp.yaml").write_text(EXPERIMENT)
-    done = cli("run", "exp.yaml", "--out", "run.h5", "--quiet", cwd=folder)
+    (folder / "exp.yaml").write_text(TINY_EXPERIMENT)
+    done = cli_process("run", "exp.yaml", "--out", "run.h5", "--quiet", cwd=folder)
     assert done.returncode == 0, done.stderr
     return folder / "run.h5"
 
@@ -148,7 +148,7 @@ def test_a_full_disk_is_one_line_and_leaves_nothing(name, disk, work, results):
     d = disk("size=8k")
     if fill:
         _fill(d)
-    err = _one_line(cli(*_args(command, d, work, results), cwd=work))
+    err = _one_line(cli_process(*_args(command, d, work, results), cwd=work))
     assert f"{d}/{out}" in err and "cannot write (no space left on device)" in err, err
     assert err.endswith("nothing was written"), err
     assert _left(d) == []  # the temporary, the lock, a report's folder: all gone
@@ -158,7 +158,7 @@ def test_a_full_disk_is_one_line_and_leaves_nothing(name, disk, work, results):
 def test_a_read_only_target_is_one_line(name, disk, work, results):
     command, out, _ = COMMANDS[name]
     d = disk("ro,size=64k")
-    err = _one_line(cli(*_args(command, d, work, results), cwd=work))
+    err = _one_line(cli_process(*_args(command, d, work, results), cwd=work))
     assert f"{d}/{out}" in err and "cannot write (read-only file system)" in err, err
     assert err.endswith("nothing was written"), err
     assert _left(d) == []
@@ -166,7 +166,7 @@ def test_a_read_only_target_is_one_line(name, disk, work, results):
 
 def test_a_report_that_fills_the_disk_removes_the_files_it_added(disk, work, results):
     d = disk("size=128k")  # room for the first figure, not for the next
-    err = _one_line(cli("report", results, "--out", d / "rep", cwd=work))
+    err = _one_line(cli_process("report", results, "--out", d / "rep", cwd=work))
     assert "cannot write (no space left on device)" in err, err
     assert re.search(r"; its new files \(\d+ files?\) were removed$", err), err
     assert _left(d) == []  # the folder it made, too
@@ -190,7 +190,7 @@ def test_a_refused_checkpoint_keeps_the_last_and_resume_ends_as_an_uninterrupted
     from evo_door.experiment.runner import ExperimentRun
 
     exp = work / "exp4.yaml"
-    exp.write_text(EXPERIMENT.replace("generations: 1", "generations: 4"))
+    exp.write_text(TINY_EXPERIMENT.replace("generations: 1", "generations: 4"))
     d = disk("size=4m")
     out = d / "R.h5"
     # the uninterrupted run, on the same path (so the same sizes): each checkpoint's size
@@ -206,18 +206,18 @@ def test_a_refused_checkpoint_keeps_the_last_and_resume_ends_as_an_uninterrupted
     k = next(i for i in range(3, len(need)) if need[i] > max(need[:i]))
     _remount(d, f"size={max(need[:k]) * PAGE}")
 
-    err = _one_line(cli("run", exp, "--out", out, "--quiet", cwd=work))
+    err = _one_line(cli_process("run", exp, "--out", out, "--quiet", cwd=work))
     kept = re.search(r"the last checkpoint \(generation (\d+)\) is kept: resume with `(.*)`$", err)
     assert kept and f"{out}: cannot write (no space left on device)" in err, err
     assert int(kept.group(1)) >= 1 and kept.group(2) == f"evo-door resume {out}"
     assert _left(d) == ["R.h5"]
     # the disk still full: resume says the same, and keeps the same checkpoint
-    again = _one_line(cli("resume", out, "--quiet", cwd=work))
+    again = _one_line(cli_process("resume", out, "--quiet", cwd=work))
     assert again == err, again
     assert _left(d) == ["R.h5"]
     # room again: resume ends as the uninterrupted run did
     _remount(d, "size=4m")
-    done = cli("resume", out, "--quiet", cwd=work)
+    done = cli_process("resume", out, "--quiet", cwd=work)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert np.array_equal(_best_x(out), best)
     assert _left(d) == ["R.h5"]

@@ -51,7 +51,7 @@ from hypothesis import strategies as st
 
 from evo_door.cli import main
 from evo_door.files import reseal
-from tests.tiny_run import DATA, EXPERIMENT
+from tests.helpers import DATA, TINY_EXPERIMENT
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -116,7 +116,7 @@ def build_corpus(folder: Path) -> Path:
     """One good file of each kind in ``folder`` (about 8 s)."""
     from evo_door.experiment import load_experiment, run_experiment
 
-    (folder / "exp.yaml").write_text(EXPERIMENT)
+    (folder / "exp.yaml").write_text(TINY_EXPERIMENT)
     (folder / "pipe.yaml").write_text(PIPELINE)
     (folder / "feel.yaml").write_text(FEEL)
     quiet = ["--quiet"]
@@ -433,6 +433,21 @@ JSON_VALUES = [
 ]  # fmt: skip
 
 
+def edited(doc, where: tuple, value):
+    """``doc`` with the value at the path ``where`` replaced by ``value`` ("DEL":
+    removed; the whole document where ``where`` is empty, None for "DEL")."""
+    if not where:
+        return None if value == "DEL" else value
+    parent = doc
+    for k in where[:-1]:
+        parent = parent[k]
+    if value == "DEL":
+        del parent[where[-1]]
+    else:
+        parent[where[-1]] = value
+    return doc
+
+
 def json_edit(path: Path, place, where: tuple, value) -> None:
     """Replace the JSON value at ``where`` of the JSON text at ``place`` and reseal."""
     name, attr = place
@@ -440,17 +455,7 @@ def json_edit(path: Path, place, where: tuple, value) -> None:
         obj = f[name]
         raw = obj.attrs[attr] if attr else obj[()]
         raw = raw.decode() if isinstance(raw, bytes) else str(raw)
-        doc = json.loads(raw[5:] if attr else raw)
-        if not where:
-            doc = None if value == "DEL" else value
-        else:
-            parent = doc
-            for k in where[:-1]:
-                parent = parent[k]
-            if value == "DEL":
-                del parent[where[-1]]
-            else:
-                parent[where[-1]] = value
+        doc = edited(json.loads(raw[5:] if attr else raw), where, value)
         text = json.dumps(doc, allow_nan=True)  # ASCII: a lone surrogate as its escape
         if attr:
             obj.attrs[attr] = "json:" + text
@@ -770,17 +775,8 @@ def test_hostile_metadata_of_a_csv_trial_is_one_line(data, corpus, tmp_path):
     doc = json.loads(text)
     where = data.draw(st.sampled_from(json_paths(doc)), label="where")
     value = data.draw(st.sampled_from(JSON_VALUES), label="value")
-    if not where:
-        assume(value != "DEL")
-        doc = value
-    else:
-        parent = doc
-        for k in where[:-1]:
-            parent = parent[k]
-        if value == "DEL":
-            del parent[where[-1]]
-        else:
-            parent[where[-1]] = value
+    assume(where or value != "DEL")
+    doc = edited(doc, where, value)
     damaged = _fresh(tmp_path, "trial.csv")
     damaged.write_text(f"{prefix}: {json.dumps(doc, allow_nan=True)}\n{rest}")
     command = data.draw(st.sampled_from(TEXT["csv"]), label="command")
@@ -818,7 +814,7 @@ def test_a_global_heap_that_would_loop_for_ever_is_one_line(corpus, tmp_path):
     """Zeroed bytes where a global heap's first object begins (index 0, size 0): HDF5's
     reader walks that collection for ever (found by this suite: ``data import`` hung);
     checked before HDF5 reads it. In a fresh process, under a timeout."""
-    from tests.tiny_run import cli
+    from tests.helpers import cli_process
 
     data = bytearray((corpus / "trials.h5").read_bytes())
     at = data.find(b"GCOL\x01\x00\x00\x00")
@@ -826,6 +822,6 @@ def test_a_global_heap_that_would_loop_for_ever_is_one_line(corpus, tmp_path):
     data[at + 16 : at + 32] = bytes(16)  # the first object's header: index 0, size 0
     damaged = tmp_path / "trials.h5"
     damaged.write_bytes(bytes(data))
-    res = cli("data", "import", damaged, "--out", tmp_path / "x.h5", cwd=tmp_path)
+    res = cli_process("data", "import", damaged, "--out", tmp_path / "x.h5", cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert f"{damaged}: damaged HDF5 file (the global heap at byte {at}" in res.stderr

@@ -39,7 +39,7 @@ from evo_door.render.hands_off import (
     hands_off_motion,
 )
 from evo_door.render.loop import ServoLoop
-from tests.conftest import yielding_sim
+from tests.helpers import yielding_sim
 
 ROOT = Path(__file__).resolve().parents[1]
 BALANCES = [f"balance_{k}" for k in range(1, 10)]

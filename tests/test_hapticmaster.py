@@ -31,7 +31,7 @@ from evo_door.render.hm_protocol import (
     parse_vector,
     split_answers,
 )
-from tests.conftest import started
+from tests.helpers import started
 
 
 def exchange(sock: socket.socket, reader: FrameReader, n: int) -> list[str]:

@@ -67,7 +67,7 @@ def test_settings_out_of_a_physical_range_are_refused(emulator, command):
 
 
 def test_the_client_reads_a_refusal_as_one_line(emulator):
-    from tests.conftest import started
+    from tests.helpers import started
 
     device = started(emulator)
     with pytest.raises(HapticMasterError, match="device refused 'set inertia inf'") as info:

@@ -293,7 +293,7 @@ def test_stall_timeout_has_a_floor_and_can_be_fixed():
 
 def test_close_takes_the_force_off_too(emulator):
     """close() is stop(): no way to close the connection without the fail-safe first."""
-    from tests.conftest import started
+    from tests.helpers import started
 
     device = started(emulator)
     device.command([0.0, 30.0, 0.0])

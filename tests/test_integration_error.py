@@ -11,11 +11,11 @@ from scipy.integrate import solve_ivp
 
 from evo_door.data.io import write_trials
 from evo_door.experiment import ExperimentRun, Results, load_experiment, run_experiment
-from evo_door.experiment.format_text import format_show
 from evo_door.experiment.integration_error import estimate
 from evo_door.experiment.reader import read_run
 from evo_door.experiment.setup import resolve
 from evo_door.files import reseal
+from evo_door.reporting.format_text import format_show
 from tests.conftest import OSCILLATOR_MODEL
 from tests.test_cli import cli
 from tests.test_experiment import EXPERIMENT

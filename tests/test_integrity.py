@@ -19,7 +19,7 @@ from evo_door.errors import UserError
 from evo_door.experiment import load_experiment, run_experiment
 from evo_door.files import DamagedFile, open_h5, reseal, seal, write_h5
 from evo_door.files.integrity import DIGEST, MAX_DATASET_BYTES, group_digest
-from tests.tiny_run import EXPERIMENT
+from tests.helpers import TINY_EXPERIMENT
 
 
 class Interrupted(Exception):
@@ -36,7 +36,7 @@ def _one_line(err: str) -> str:
 def runs(tmp_path_factory):
     """A tiny run killed after its first generation (cut.h5) and the same run whole."""
     folder = tmp_path_factory.mktemp("integrity")
-    text = EXPERIMENT.replace("generations: 1", "generations: 3")
+    text = TINY_EXPERIMENT.replace("generations: 1", "generations: 3")
     (folder / "exp.yaml").write_text(text)
     whole = run_experiment(load_experiment(folder / "exp.yaml"), out=folder / "whole.h5")
 

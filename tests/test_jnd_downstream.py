@@ -19,9 +19,9 @@ import pytest
 
 from evo_door.errors import UserError
 from evo_door.experiment import Results, load_experiment, run_experiment
-from evo_door.experiment.report import pipeline_settings
 from evo_door.perception.jnd_file import read_jnd_file, write_jnd_file
 from evo_door.perception.procedures import JndSession, SimParticipant, run_simulated
+from evo_door.reporting.report import pipeline_settings
 from tests.test_cli import cli
 
 #: the simulated participants' Weber fractions of force: one below the feel pair's
@@ -256,8 +256,8 @@ def test_a_pipelines_files_reach_its_stages_and_a_stages_own_setting_wins(lab):
 def test_the_objective_and_the_tolerances_follow_the_file(lab):
     # a door target (its curve and its felt dynamics): the perceptual objective, the
     # chosen feel's JND and the specification's yield all take the measured settings
+    from evo_door.experiment.run_specification import stage_specification
     from evo_door.experiment.setup import resolve
-    from evo_door.experiment.tolerance import stage_specification
 
     body = (
         "model: door\nparams: default\ntarget: {model: door, params: default}\n"

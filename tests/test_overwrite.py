@@ -18,7 +18,7 @@ import h5py
 import numpy as np
 import pytest
 
-from tests.tiny_run import EXPERIMENT, cli
+from tests.helpers import TINY_EXPERIMENT, cli_process
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,23 +51,23 @@ def test_a_derived_output_never_replaces_a_data_file(measured, tmp_path, command
     force = tmp_path / "force.csv"
     force.write_text("t,force\n0,0\n0.1,1\n0.2,0\n")
     args = [a.format(out=path, force=force) for a in command]
-    err = _one_line(cli(*args, cwd=tmp_path))
+    err = _one_line(cli_process(*args, cwd=tmp_path))
     assert "data file" in err and str(path.name) in err
     assert path.read_bytes() == before
     # another name works, and a derived file of its own is replaced as before
     other = [a.format(out=tmp_path / "table.out", force=force) for a in command]
     for _ in range(2):
-        done = cli(*other, cwd=tmp_path)
+        done = cli_process(*other, cwd=tmp_path)
         assert done.returncode == 0, done.stderr
 
 
 @pytest.mark.slow
 def test_export_spec_never_replaces_a_results_file(tmp_path):
-    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
-    assert cli("run", "exp.yaml", "--out", "a.h5", "--quiet", cwd=tmp_path).returncode == 0
-    assert cli("run", "exp.yaml", "--out", "b.h5", "--quiet", cwd=tmp_path).returncode == 0
+    (tmp_path / "exp.yaml").write_text(TINY_EXPERIMENT)
+    assert cli_process("run", "exp.yaml", "--out", "a.h5", "--quiet", cwd=tmp_path).returncode == 0
+    assert cli_process("run", "exp.yaml", "--out", "b.h5", "--quiet", cwd=tmp_path).returncode == 0
     before = (tmp_path / "b.h5").read_bytes()
-    err = _one_line(cli("export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
+    err = _one_line(cli_process("export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
     assert "data file" in err
     assert (tmp_path / "b.h5").read_bytes() == before
 
@@ -76,8 +76,8 @@ def test_a_lock_file_is_never_written_through_a_link(tmp_path):
     precious = tmp_path / "precious.txt"
     precious.write_text("a user's notes\n")
     (tmp_path / ".R.h5.lock").symlink_to(precious)
-    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
-    err = _one_line(cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path))
+    (tmp_path / "exp.yaml").write_text(TINY_EXPERIMENT)
+    err = _one_line(cli_process("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path))
     assert "symbolic link" in err
     assert precious.read_text() == "a user's notes\n"
     assert not (tmp_path / "R.h5").exists()
@@ -168,7 +168,7 @@ def test_a_runs_pool_workers_end_with_it_when_it_is_killed(tmp_path):
     import time
 
     (tmp_path / "exp.yaml").write_text(
-        EXPERIMENT.replace("population: 6, generations: 1", "population: 60, generations: 30")
+        TINY_EXPERIMENT.replace("population: 6, generations: 1", "population: 60, generations: 30")
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     cmd = [sys.executable, "-m", "evo_door", "run", "exp.yaml", "--out", "r.h5", "--quiet",
@@ -204,12 +204,12 @@ def _cmdline(pid: int) -> bytes:
 def test_run_cleans_its_own_stale_temporary_files(tmp_path):
     """A killed run leaves ``.R.h5.tmp-PID-N`` behind (its process gone): a new run to
     ``R.h5`` cleans it, as resume does; a temporary of a live process stays."""
-    (tmp_path / "exp.yaml").write_text(EXPERIMENT)
+    (tmp_path / "exp.yaml").write_text(TINY_EXPERIMENT)
     stale = tmp_path / ".R.h5.tmp-999999999-0"
     stale.write_bytes(b"half a file")
     live = tmp_path / f".R.h5.tmp-{os.getpid()}-0"
     live.write_bytes(b"being written")
-    done = cli("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path)
+    done = cli_process("run", "exp.yaml", "--out", "R.h5", "--quiet", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert not stale.exists() and live.exists()
 

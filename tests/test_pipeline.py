@@ -9,7 +9,6 @@ import pytest
 from evo_door.data.io import write_trials
 from evo_door.errors import UserError
 from evo_door.experiment import Interrupted, Results
-from evo_door.experiment.format_text import format_pipeline
 from evo_door.experiment.pipeline import (
     PipelineRun,
     is_pipeline,
@@ -17,6 +16,7 @@ from evo_door.experiment.pipeline import (
     pipeline_summary,
     resume_pipeline,
 )
+from evo_door.reporting.format_text import format_pipeline
 from tests.test_cli import cli
 from tests.test_optim import make_trial
 

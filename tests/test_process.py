@@ -11,10 +11,10 @@ import pytest
 from evo_door.errors import UserError
 from evo_door.experiment.config import load_experiment
 from evo_door.experiment.pipeline import load_pipeline
-from evo_door.experiment.spec import spec_names
 from evo_door.models import get_model
 from evo_door.models.haptic_params import PARAMS as HAPTIC
 from evo_door.optim.process import NOT_BUILT, Process, format_tolerance, process_for
+from evo_door.optim.specification import spec_names
 from evo_door.params import Param
 from evo_door.params.process import DEFAULTS, DEFAULTS_FILE, KINDS
 

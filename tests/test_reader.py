@@ -99,9 +99,10 @@ def _imports(module: str) -> set[str]:
 def test_the_store_imports_none_of_the_views_and_the_bound_is_defined_once():
     views = {
         "evo_door.experiment.results",
-        "evo_door.experiment.format_text",
-        "evo_door.experiment.format_json",
-        "evo_door.experiment.figures",
+        "evo_door.reporting.format_text",
+        "evo_door.reporting.format_json",
+        "evo_door.reporting.format_tables",
+        "evo_door.reporting.figures",
     }
     assert not _imports("experiment.store") & views
     assert not _imports("experiment.reader") & views

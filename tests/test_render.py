@@ -19,6 +19,7 @@ from evo_door.errors import UserError
 from evo_door.files import open_h5, read_attrs
 from evo_door.models.haptic import PARAMS, device_force, on_path
 from evo_door.params import param_vector
+from evo_door.render.columns import COMMAND
 from evo_door.render.device import SimDevice, UserScript
 from evo_door.render.kernels import compute_command
 from evo_door.render.log import N_COLUMNS, RenderLog
@@ -31,8 +32,8 @@ from evo_door.render.safety import (
     Watchdog,
     limit_force,
     passivity,
-    random_kernel_vectors,
 )
+from tests.helpers import random_kernel_vectors
 
 LIMIT = 200.0
 
@@ -510,7 +511,9 @@ def test_render_over_the_emulator_then_a_pulled_cable(seed_trial):
         loop = ServoLoop(dev, seed_trial, rate=2000.0, watchdog_misses=1000)
         loop.run(0.2)
         assert loop.status == "done" and loop.statistics["round_trip_mean_s"] > 0
-        assert np.abs(loop.log.array()[:, 9:12]).max() > 1.0  # it did command forces
+        assert (
+            np.abs(loop.log.array()[:, COMMAND : COMMAND + 3]).max() > 1.0
+        )  # it did command forces
         np.testing.assert_array_equal(emu.bias_force(), 0.0)  # cleared by stop()
 
         dev = hapticmaster.HapticMasterDevice("127.0.0.1", emu.port, damping=2.0, init_wait=0.0)

@@ -9,33 +9,23 @@ import time
 
 import pytest
 
-from evo_door.cli import build_parser, main
+from evo_door.cli import main
 from evo_door.errors import UserError
 from evo_door.models.haptic import PARAMS
+from evo_door.render.columns import DTHETA, THETA
 from evo_door.render.control import ControlServer, parse_control, request
 from evo_door.render.device import SimDevice
 from evo_door.render.keys import KEY_PAIRS, key_change, key_map, nice_step
 from evo_door.render.loop import ServoLoop
 from evo_door.render.session import format_session, read_session, session_params
-from tests.conftest import yielding_sim
+from tests.helpers import answer_lines, served_loop, yielding_sim
 
 
 @pytest.fixture
 def running(seed_trial):
     """A ServoLoop on the simulated device in its own thread, with its control server."""
-    build_parser()  # import every command before the loop competes for the GIL
-    loop = ServoLoop(yielding_sim("open", radius=seed_trial["radius"], seed=3), seed_trial)
-    stop = threading.Event()
-    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
-    server = ControlServer(loop, "127.0.0.1", 0, token="s3cret").start()
-    thread.start()
-    deadline = time.monotonic() + 10.0
-    while loop.log.n < 10 and time.monotonic() < deadline:  # some cycles have run
-        time.sleep(0.001)
-    yield loop, server
-    stop.set()
-    thread.join(10.0)
-    server.close()
+    with served_loop(seed_trial, "s3cret") as (loop, server, _end):
+        yield loop, server
 
 
 def _ask(server, message, token="s3cret"):
@@ -314,7 +304,9 @@ def test_snapshot_is_the_last_cycle_and_nan_before_the_first(seed_trial):
     last = loop.log.array()[-1]
     assert snap["status"] == "done" and snap["params"] is loop.params
     # the log's last row: within its last 10 ms whatever its source
-    assert abs(snap["theta"] - last[12]) < 10e-3 * abs(loop.log.array()[-10:, 13]).max() + 1e-9
+    assert (
+        abs(snap["theta"] - last[THETA]) < 10e-3 * abs(loop.log.array()[-10:, DTHETA]).max() + 1e-9
+    )
     assert snap["t"] == pytest.approx(0.5 - loop.period)
 
 
@@ -347,18 +339,6 @@ def test_a_paced_loop_leaves_the_control_port_served(seed_trial):
 
 
 # -- bounded input (the control port's limits) ------------------------------------------
-def _lines(sock, n, timeout=30.0):
-    """The next ``n`` answer lines on ``sock`` (JSON objects)."""
-    sock.settimeout(timeout)
-    data = b""
-    while data.count(b"\n") < n:
-        chunk = sock.recv(65536)
-        if not chunk:
-            break
-        data += chunk
-    return [json.loads(x) for x in data.splitlines()]
-
-
 PARAMS_REQUEST = b'{"token": "s3cret", "get": "params"}\n'
 
 
@@ -395,7 +375,7 @@ def test_absurd_input_is_answered_and_the_connection_goes_on(running, line, reas
     before = loop.params.as_dict()
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(line + b"\n" + PARAMS_REQUEST)
-        refused, answered = _lines(sock, 2)
+        refused, answered = answer_lines(sock, 2)
     assert refused["ok"] is False and reason in refused["error"], refused
     assert "\n" not in refused["error"] and len(refused["error"]) < 200
     assert answered["ok"] and answered["params"] == before
@@ -408,10 +388,10 @@ def test_a_long_line_is_answered_at_once_and_the_stream_resynchronised(running):
     loop, server = running
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b"{" + b" " * 200_000)
-        (refused,) = _lines(sock, 1)
+        (refused,) = answer_lines(sock, 1)
         assert not refused["ok"] and "at most 65536 bytes" in refused["error"]
         sock.sendall(b'"still": "the same line"}\n' + PARAMS_REQUEST)  # the newline
-        (answered,) = _lines(sock, 1)
+        (answered,) = answer_lines(sock, 1)
     assert answered["ok"] and "friction_closing" in answered["params"]
 
 
@@ -440,10 +420,10 @@ def test_a_connection_over_the_cap_is_told_why_and_closed(running):
             sock = socket.create_connection(server.address, timeout=30)
             held.append(sock)
             sock.sendall(PARAMS_REQUEST)
-            assert _lines(sock, 1)[0]["ok"]  # served: counted
+            assert answer_lines(sock, 1)[0]["ok"]  # served: counted
         with socket.create_connection(server.address, timeout=30) as extra:
             extra.sendall(PARAMS_REQUEST)  # sent before the refusal: still told why
-            answers = _lines(extra, 2)
+            answers = answer_lines(extra, 2)
             assert extra.recv(1) == b""  # then closed
         (refused,) = answers
         assert refused == {
@@ -452,13 +432,13 @@ def test_a_connection_over_the_cap_is_told_why_and_closed(running):
             "try again when one has closed",
         }
         held[0].sendall(PARAMS_REQUEST)  # the ones served go on
-        assert _lines(held[0], 1)[0]["ok"]
+        assert answer_lines(held[0], 1)[0]["ok"]
         held.pop().close()  # one leaves: a new one is served
         deadline = time.monotonic() + 10.0
         while True:
             with socket.create_connection(server.address, timeout=30) as again:
                 again.sendall(PARAMS_REQUEST)
-                answer = _lines(again, 1)[0]
+                answer = answer_lines(again, 1)[0]
             if answer["ok"] or time.monotonic() > deadline:
                 break
             time.sleep(0.05)
@@ -477,7 +457,7 @@ def test_requests_past_the_rate_are_refused_and_the_connection_slowed(running):
     n = REQUESTS_BURST + 150
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b'{"token": "s3cret", "get": "health"}\n' * n)
-        answers = _lines(sock, n)
+        answers = answer_lines(sock, n)
         refused = [a for a in answers if not a["ok"]]
         assert len(answers) == n and all(a["ok"] for a in answers[:REQUESTS_BURST])
         assert refused, "a burst of 350 requests at once was all served"
@@ -487,7 +467,7 @@ def test_requests_past_the_rate_are_refused_and_the_connection_slowed(running):
         )
         time.sleep(0.5)
         sock.sendall(PARAMS_REQUEST)
-        assert _lines(sock, 1)[0]["ok"]  # the same connection, later
+        assert answer_lines(sock, 1)[0]["ok"]  # the same connection, later
 
 
 def _note(i) -> bytes:
@@ -502,11 +482,11 @@ def test_events_past_the_rate_of_their_kind_are_refused_and_not_logged(running):
     n = EVENTS_BURST + 30
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b"\n".join(_note(i) for i in range(n)) + b"\n")
-        answers = _lines(sock, n)
+        answers = answer_lines(sock, n)
         # another kind has its own budget
         other = {"token": "s3cret", "event": {"kind": "participant", "id": "P1"}}
         sock.sendall(json.dumps(other).encode() + b"\n")
-        (participant,) = _lines(sock, 1)
+        (participant,) = answer_lines(sock, 1)
     ok = [a for a in answers if a["ok"]]
     refused = [a for a in answers if not a["ok"]]
     assert EVENTS_BURST <= len(ok) < n and refused
@@ -529,7 +509,7 @@ def test_the_log_keeps_client_events_up_to_its_cap_and_counts_the_rest(running, 
     monkeypatch.setattr(render_log, "MAX_CLIENT_EVENTS", 5)
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b"\n".join(_note(i) for i in range(8)) + b"\n" + PARAMS_REQUEST)
-        answers = _lines(sock, 9)
+        answers = answer_lines(sock, 9)
     assert [a["ok"] for a in answers] == [True] * 5 + [False] * 3 + [True]
     assert "cap of session events (5 events or 4 MiB)" in answers[5]["error"]
     assert [e["text"] for e in loop.log.events if e["kind"] == "note"] == [
@@ -544,7 +524,7 @@ def test_the_log_keeps_client_events_up_to_its_cap_and_counts_the_rest(running, 
     # the participant's choice is what the session is for: the flood does not cost it
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(json.dumps({"token": "s3cret", "event": {"kind": "chosen"}}).encode() + b"\n")
-        (answer,) = _lines(sock, 1)
+        (answer,) = answer_lines(sock, 1)
     assert answer["ok"], answer
     assert [e["kind"] for e in loop.log.events].count("chosen") == 1
 
@@ -582,7 +562,7 @@ def test_all_connections_together_wait_their_turn(running):
         tic = time.monotonic()
         for sock in socks:
             sock.sendall(b'{"token": "s3cret", "get": "health"}\n' * 40)
-        answers = [a for sock in socks for a in _lines(sock, 40)]
+        answers = [a for sock in socks for a in answer_lines(sock, 40)]
         elapsed = time.monotonic() - tic
     finally:
         for sock in socks:

@@ -11,24 +11,20 @@ from __future__ import annotations
 
 import json
 import socket
-import threading
 import time
 
 import numpy as np
 import pytest
 
-from evo_door.cli import build_parser
 from evo_door.files import open_h5, read_attrs
 from evo_door.models.haptic import PARAMS
 from evo_door.render import log as render_log
 from evo_door.render.check import render_agreement
 from evo_door.render.columns import N_COLUMNS
-from evo_door.render.control import ControlServer
 from evo_door.render.log import MAX_PARAM_SETS, RenderLog, recover
-from evo_door.render.loop import ServoLoop
 from evo_door.render.session import format_session, read_session, session_params
 from evo_door.render.spill import SPILL_ROWS, read_partial
-from tests.conftest import yielding_sim
+from tests.helpers import answer_lines, served_loop
 
 TOKEN = "s3cret"
 
@@ -37,34 +33,12 @@ TOKEN = "s3cret"
 def served(seed_trial):
     """A ServoLoop on the simulated device in its own thread, its control server, and
     the stop that ends it."""
-    build_parser()  # import every command before the loop competes for the GIL
-    loop = ServoLoop(yielding_sim("open", radius=seed_trial["radius"], seed=3), seed_trial)
-    stop = threading.Event()
-    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
-    server = ControlServer(loop, "127.0.0.1", 0, token=TOKEN).start()
-    thread.start()
-    deadline = time.monotonic() + 10.0
-    while loop.log.n < 10 and time.monotonic() < deadline:  # some cycles have run
-        time.sleep(0.001)
-    yield loop, server, lambda: (stop.set(), thread.join(10.0))
-    stop.set()
-    thread.join(10.0)
-    server.close()
+    with served_loop(seed_trial, TOKEN) as running:
+        yield running
 
 
 def _request(message: dict) -> bytes:
     return (json.dumps({"token": TOKEN, **message}) + "\n").encode()
-
-
-def _answers(sock, n: int) -> list[dict]:
-    sock.settimeout(30.0)
-    data = b""
-    while data.count(b"\n") < n:
-        chunk = sock.recv(65536)
-        if not chunk:
-            break
-        data += chunk
-    return [json.loads(x) for x in data.splitlines()]
 
 
 def test_a_flood_of_valid_changes_keeps_the_cap_and_the_sets_that_matter(
@@ -80,7 +54,7 @@ def test_a_flood_of_valid_changes_keeps_the_cap_and_the_sets_that_matter(
     chosen = _request({"event": {"kind": "chosen"}})
     with socket.create_connection(server.address, timeout=30) as sock:
         sock.sendall(b"".join(sets[:50]) + chosen + b"".join(sets[50:]))
-        answers = _answers(sock, 81)
+        answers = answer_lines(sock, 81)
     assert len(answers) == 81 and all(a["ok"] for a in answers), answers[-1]
     assert all(a["in_force"] for a in answers[:50] + answers[51:])
     assert loop.params["friction_closing"] == values[-1]  # the tuning goes on

@@ -23,7 +23,8 @@ from evo_door.render.control import ControlServer
 from evo_door.render.device import SimDevice
 from evo_door.render.kernels import compute_command, compute_command_implicit
 from evo_door.render.loop import ServoLoop
-from evo_door.render.safety import NON_FINITE, random_kernel_vectors
+from evo_door.render.safety import NON_FINITE
+from tests.helpers import random_kernel_vectors
 
 LIMIT = 200.0
 

@@ -19,7 +19,7 @@ from evo_door.errors import UserError
 from evo_door.files import open_h5, read_attrs
 from evo_door.models import get_model
 from evo_door.models.haptic import PARAMS
-from evo_door.render.columns import N_COLUMNS
+from evo_door.render.columns import COMMAND, N_COLUMNS, THETA
 from evo_door.render.device import SimDevice
 from evo_door.render.log import BLOCK_ROWS, RETAIN_BLOCKS, RenderLog, recover
 from evo_door.render.log_file import CHUNK_ROWS, STORED
@@ -149,9 +149,11 @@ def test_the_side_file_grows_and_recovers_the_rows_exactly(tmp_path):
     assert not side.exists()
     (tr,) = read_trials(recovered)
     assert tr.n == n_spilled and tr.rate == pytest.approx(1000.0)
-    np.testing.assert_array_equal(tr.theta, a[:, 12].astype(np.float32))
+    np.testing.assert_array_equal(tr.theta, a[:, THETA].astype(np.float32))
     with open_h5(recovered) as f:
-        np.testing.assert_array_equal(f["render/command"][()], a[:, 9:12].astype(np.float32))
+        np.testing.assert_array_equal(
+            f["render/command"][()], a[:, COMMAND : COMMAND + 3].astype(np.float32)
+        )
         attrs = read_attrs(f["render"])
         assert attrs["statistics"] == {"recovered": True}
         assert attrs["rate"] == 2500.0 and attrs["device"] == "sim"
@@ -417,7 +419,7 @@ def test_keep_recent_holds_a_few_blocks_and_the_control_port_starts_there(seed_t
     log = loop.log
     assert log.n == 4000 and sum(b is not None for b in log._blocks) <= RETAIN_BLOCKS + 1
     start = loop.device.script.theta_start
-    assert log.first()[12] == pytest.approx(start, abs=1e-3)  # kept: the summary's
+    assert log.first()[THETA] == pytest.approx(start, abs=1e-3)  # kept: the summary's
     server = ControlServer(loop)
     try:
         answer = server.answer(b'{"get": "rows", "since": 0}')

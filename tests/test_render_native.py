@@ -23,7 +23,7 @@ from evo_door.render.hm_protocol import (
     HapticMasterError,
     native_commands,
 )
-from tests.conftest import started
+from tests.helpers import started
 
 DT = 1.0 / 2500.0
 

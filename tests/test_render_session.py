@@ -13,11 +13,12 @@ import pytest
 from evo_door.cli import main
 from evo_door.errors import UserError
 from evo_door.models import get_model
+from evo_door.render.columns import THETA
 from evo_door.render.control import ControlServer, request
 from evo_door.render.device import SimDevice
 from evo_door.render.loop import ServoLoop
 from evo_door.render.session import read_session, session_params
-from tests.conftest import yielding_sim
+from tests.helpers import yielding_sim
 
 
 def _session(seed_trial, path, choose=True):
@@ -101,7 +102,7 @@ def test_rows_and_health_over_the_control_port(seed_trial):
         first = request(host, port, {"get": "rows", "since": 0})
         assert len(first["rows"]) == 50 and first["next"] == 500
         a = loop.log.array()
-        np.testing.assert_allclose(np.array(first["rows"])[:, 1], a[::10, 12])
+        np.testing.assert_allclose(np.array(first["rows"])[:, 1], a[::10, THETA])
         again = request(host, port, {"get": "rows", "since": first["next"]})
         assert again["rows"] == [] and again["next"] == 500
         # off the 10-row grid: from the next row on it

@@ -17,6 +17,7 @@ from evo_door.cli import main
 from evo_door.files import open_h5, read_attrs
 from evo_door.models import get_model
 from evo_door.render import friction as fr
+from evo_door.render.columns import DTHETA, THETA
 from evo_door.render.device import ForceScript, SimDevice
 from evo_door.render.kernels import compute_command_implicit
 from evo_door.render.loop import ServoLoop
@@ -163,7 +164,7 @@ def _rebound(params, implicit, device_damping=0.0):
             compute_command(pos, vel, f, p, 200.0, out, row)
         dev.command(out)
         dev.step(1 / RATE)
-        theta[i], w[i] = row[12], row[13]
+        theta[i], w[i] = row[THETA], row[DTHETA]
     hit = int(np.flatnonzero(theta > np.pi / 2)[0])
     assert w[hit - 1] > 0.5 and theta[hit + 400] < np.pi / 2  # it came in fast, bounced out
     return -w[hit + 200 : hit + 400].min() / w[hit - 1]
@@ -189,7 +190,7 @@ def test_the_latch_at_the_seeds_stiffness_holds_then_releases_without_ringing():
     loop = ServoLoop(dev, params, RATE, log_rate=RATE)
     loop.run(1.0)
     a = loop.log.array()
-    theta, w = a[:, 12], a[:, 13]
+    theta, w = a[:, THETA], a[:, DTHETA]
     band = np.pi / 2 - params["loose_angle"] - params["open_force"] / params["latch_stiffness"]
     held = w[1000:1500]  # 0.4-0.6 s
     assert np.all(theta[:1500] > band)  # never left the band under 10 N

@@ -8,8 +8,8 @@ import pytest
 
 from evo_door.errors import UserError
 from evo_door.experiment.pipeline import PipelineRun, load_pipeline
-from evo_door.experiment.report import JNDChanges, write_report
 from evo_door.perception import JND, perceptual_check
+from evo_door.reporting.report import JNDChanges, write_report
 from tests.test_cli import cli
 from tests.test_pipeline import PIPELINE, folder  # noqa: F401  (the fixture)
 
@@ -83,7 +83,7 @@ def test_bad_settings_and_unfinished_runs_are_refused(pipeline_file, tmp_path):
 
 def test_the_pipeline_file_sets_the_jnd_and_the_command_line_wins(folder, tmp_path):  # noqa: F811
     from evo_door.experiment.pipeline import pipeline_summary
-    from evo_door.experiment.report import pipeline_settings
+    from evo_door.reporting.report import pipeline_settings
 
     (folder / "pipe.yaml").write_text(
         PIPELINE.replace("name: two\n", "name: two\nreport: {jnd: 0.2}\n")

@@ -264,7 +264,7 @@ def test_nsga2_needs_a_chosen_feel_and_one_front(folder):
 
 @pytest.mark.slow
 def test_the_report_draws_the_front_with_the_answer(reached, tmp_path):
-    from evo_door.experiment.report import write_report
+    from evo_door.reporting.report import write_report
 
     page = write_report(reached.path, tmp_path / "rep").read_text()
     assert "smallest change within the JND" in page and "kept at their AS-IS values" in page

@@ -26,18 +26,18 @@ from evo_door.errors import UserError
 from evo_door.experiment import Results, load_experiment, run_experiment
 from evo_door.experiment.spec import render, spec_table
 from evo_door.experiment.stored import setup_from_tree
-from evo_door.experiment.tolerance import plot_tolerances
 from evo_door.files import write_h5
 from evo_door.models import get_model
 from evo_door.optim.process import process_for
 from evo_door.optim.tolerance import (
-    FeelCheck,
+    BatchFeelCheck,
     NearestFeel,
     YieldEstimate,
     clopper_pearson,
     specify,
 )
 from evo_door.params import load_params
+from evo_door.reporting.figures import plot_tolerances
 from evo_door.sim.simulate import force_angle_curve
 
 EXPERIMENT = """\
@@ -262,7 +262,7 @@ def test_fast_check_agrees_with_the_perceptual_check(fitted):
     check's verdict turns: the fast check's margins give the slow check's verdict and its
     worst JND, door by door."""
     res, setup, full = fitted
-    check = FeelCheck(setup.model, setup.feel)
+    check = BatchFeelCheck(setup.model, setup.feel)
     assert check.columns == len(check.labels)
     moves = {
         "K": (-0.2, -0.1, -0.05, -0.02, 0.02, 0.05, 0.1, 0.3, 0.9),
@@ -295,7 +295,7 @@ def test_fast_check_agrees_with_the_perceptual_check(fitted):
 
 
 def res_names(fitted) -> list[str]:
-    from evo_door.experiment.spec import spec_names
+    from evo_door.optim.specification import spec_names
 
     _, setup, _ = fitted
     return spec_names(setup.model, setup.free)

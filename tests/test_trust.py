@@ -21,7 +21,7 @@ from evo_door.experiment import load_experiment, run_experiment
 from evo_door.files import reseal
 from evo_door.files.metadata import encode_attr
 from evo_door.models import allow_model, is_code_spec, model_in_file
-from tests.tiny_run import EXPERIMENT, cli
+from tests.helpers import TINY_EXPERIMENT, cli_process
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,7 +38,7 @@ def hostile(tmp_path_factory):
     """A real results file whose model is renamed to a Python file that marks when run,
     and a folder with only that file (for ``runs``)."""
     folder = tmp_path_factory.mktemp("trust")
-    (folder / "exp.yaml").write_text(EXPERIMENT)
+    (folder / "exp.yaml").write_text(TINY_EXPERIMENT)
     run = run_experiment(load_experiment(folder / "exp.yaml"), out=folder / "good.h5")
     (folder / "evil.py").write_text(EVIL)
     (folder / "evil_mod.py").write_text(EVIL)
@@ -66,14 +66,14 @@ def test_every_reading_command_refuses_a_file_naming_code_without_running_it(hos
         ("resume", path),
     ]
     for args in commands:
-        done = cli(*args, cwd=folder)
+        done = cli_process(*args, cwd=folder)
         assert done.returncode == 2, (args, done.stdout, done.stderr)
         err = done.stderr
         assert err.count("\n") == 1 and err.startswith("evo-door: error:"), (args, err)
         assert "names model" in err and "--allow-model" in err, (args, err)
         assert not (folder / "ran.txt").exists(), args
     # a folder of them: each one listed as unreadable, with the reason, none run
-    listed = cli("runs", shown, "--json", cwd=folder)
+    listed = cli_process("runs", shown, "--json", cwd=folder)
     assert listed.returncode == 0, listed.stderr
     rows = {r["file"]: r for r in json.loads(listed.stdout)}
     assert rows[path.name]["status"] == "unreadable"
@@ -84,7 +84,7 @@ def test_every_reading_command_refuses_a_file_naming_code_without_running_it(hos
 def test_allow_model_runs_the_named_model_for_a_file_the_user_trusts(hostile):
     folder, shown = hostile
     spec = f"{folder / 'evil.py'}:MODEL"
-    done = cli("show", shown / "file.h5", "--allow-model", spec, cwd=folder)
+    done = cli_process("show", shown / "file.h5", "--allow-model", spec, cwd=folder)
     assert (folder / "ran.txt").exists(), done.stderr  # the user said so: it ran
     (folder / "ran.txt").unlink()
 

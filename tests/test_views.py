@@ -19,16 +19,16 @@ from evo_door.errors import UserError
 from evo_door.experiment import (
     Interrupted,
     Results,
-    format_json,
     load_experiment,
     reader,
     run_experiment,
 )
-from evo_door.experiment import figures as figure_views
-from evo_door.experiment.format_text import bound_advice
 from evo_door.models.base import Model
 from evo_door.optim.bounds import bound_hits
 from evo_door.params import Param, ParamTable
+from evo_door.reporting import figures as figure_views
+from evo_door.reporting import format_json
+from evo_door.reporting.format_text import bound_advice
 from tests.conftest import OSCILLATOR_PARAMS, oscillator_accel
 from tests.test_cli import cli
 from tests.test_experiment import EXPERIMENT

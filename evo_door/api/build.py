@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from evo_door.errors import UserError
 from evo_door.experiment import config
-from evo_door.experiment.pipeline import Pipeline as PipelineSpec
+from evo_door.experiment.pipeline import PipelineConfig as PipelineSpec
 from evo_door.experiment.pipeline import PipelineRun as PipelineRunner
 from evo_door.experiment.pipeline import pipeline_from_tree
 from evo_door.experiment.runner import ExperimentRun
@@ -242,7 +242,7 @@ class Experiment:
         self.tree: LinedMap | None = tree
         self.base_dir = Path.cwd()
         self.file: Path | None = None
-        self.config: config.Experiment = config.experiment_from_tree(
+        self.config: config.ExperimentConfig = config.experiment_from_tree(
             tree, _yaml_text(tree), PYTHON_SOURCE, self.base_dir
         )
 

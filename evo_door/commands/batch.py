@@ -61,8 +61,9 @@ def register(sub) -> None:
 def run(args) -> int:
     from datetime import datetime
 
-    from evo_door.experiment.batch import format_summary, plan
+    from evo_door.experiment.batch import plan
     from evo_door.optim.executors import open_executor, preflight
+    from evo_door.reporting.format_tables import format_batch
 
     executor = open_executor(preflight(args.executor or "local"))
     out_dir = Path(args.out or f"results/batch-{datetime.now():%Y%m%d-%H%M%S}")
@@ -85,7 +86,7 @@ def run(args) -> int:
             row["status"] = "interrupted"
     failed = sum(r["status"] == "failed" for r in rows.values())
     if not args.quiet:
-        print(format_summary(tasks, rows))
+        print(format_batch(tasks, rows))
         print(f"{len(tasks)} experiment(s), {failed} failed, {time.perf_counter() - t0:.1f} s")
     if interrupted:
         left = [

@@ -94,8 +94,8 @@ def chosen_runs(args) -> list:
 
 def run(args) -> int:
     from evo_door.experiment import Results
-    from evo_door.experiment.format_json import compare
-    from evo_door.experiment.format_text import format_compare
+    from evo_door.reporting.format_json import compare
+    from evo_door.reporting.format_tables import format_compare
 
     if len(args.results) < 2:
         raise UserError(f"compare needs two results files or more, got only {args.results[0]}")

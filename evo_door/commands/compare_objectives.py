@@ -89,8 +89,8 @@ def run(args) -> int:
         plan_comparison,
         run_comparison,
     )
-    from evo_door.experiment.comparison_outputs import format_summary, write_outputs
     from evo_door.experiment.comparison_summary import run_records, summarise
+    from evo_door.reporting.comparison_outputs import format_summary, write_outputs
 
     kinds = parse_kinds(args.kinds)
     derivatives = None if args.derivatives is None else parse_derivatives(args.derivatives)

@@ -9,7 +9,7 @@ from evo_door.commands._common import add_allow_model
 ORDER = 47
 
 #: The force JND's defaults (``DEFAULT_JND``, ``FORCE_FLOOR`` N of
-#: :mod:`evo_door.experiment.report`, the :class:`~evo_door.perception.JND`'s), for the help
+#: :mod:`evo_door.reporting.report`, the :class:`~evo_door.perception.JND`'s), for the help
 #: only, written out so that the parser does not import the experiment package
 #: (tests/test_cli_startup.py checks they agree).
 DEFAULT_JND = 0.10
@@ -63,9 +63,9 @@ def run(args) -> int:
     from evo_door.errors import NotResultsFileError
     from evo_door.experiment.pipeline import pipeline_summary
     from evo_door.experiment.reader import read_results
-    from evo_door.experiment.report import default_folder, pipeline_settings, write_report
     from evo_door.files import Output, claim_outputs, partial_output
     from evo_door.perception.jnd_file import is_jnd_file
+    from evo_door.reporting.report import default_folder, pipeline_settings, write_report
 
     try:
         record = read_results(args.results)  # the one open of a results file
@@ -97,9 +97,9 @@ def _report_jnd(args) -> int:
     from pathlib import Path
 
     from evo_door.errors import UserError
-    from evo_door.experiment.report_jnd import default_jnd_folder, write_jnd_report
     from evo_door.files import Output, claim_outputs, partial_output
     from evo_door.perception.jnd_file import read_jnd_file
+    from evo_door.reporting.report_jnd import default_jnd_folder, write_jnd_report
 
     if args.jnd is not None or args.force_floor is not None:
         raise UserError(

@@ -27,9 +27,9 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from evo_door.experiment import Results, store
-    from evo_door.experiment.format_text import format_show
     from evo_door.experiment.reader import check_file_models
     from evo_door.experiment.runner import ExperimentRun
+    from evo_door.reporting.format_text import format_show
 
     if args.executor is not None:
         from evo_door.optim.executors import preflight

@@ -47,9 +47,9 @@ def add_executor_argument(p, help=EXECUTOR_HELP) -> None:
 
 def run(args) -> int:
     from evo_door.experiment import Results, load_experiment
-    from evo_door.experiment.format_text import format_show
     from evo_door.experiment.pipeline import is_pipeline
     from evo_door.experiment.runner import ExperimentRun
+    from evo_door.reporting.format_text import format_show
 
     if is_pipeline(args.experiment):
         return run_pipeline(args)
@@ -108,8 +108,8 @@ def run_pipeline(args) -> int:
 def finish_pipeline(job, args) -> int:
     """Run (or resume) a pipeline and print where it ended (shared with ``resume``)."""
     from evo_door.experiment import Results
-    from evo_door.experiment.format_text import format_pipeline, format_show
     from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.reporting.format_text import format_pipeline, format_show
 
     if not interruptible(job, args, "the last finished generation of the running stage"):
         return 130

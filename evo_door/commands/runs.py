@@ -28,8 +28,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from evo_door.experiment.format_json import list_runs
-    from evo_door.experiment.format_text import format_runs
+    from evo_door.reporting.format_json import list_runs
+    from evo_door.reporting.format_tables import format_runs
 
     rows = list_runs(args.folder)
     if args.json:

@@ -89,8 +89,8 @@ def _show_jnd(args) -> int:
 def _show_pipeline(args, record) -> int:
     """Every started stage of a pipeline's file, after the pipeline's status."""
     from evo_door.experiment import Results
-    from evo_door.experiment.format_text import format_pipeline, format_show
     from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.reporting.format_text import format_pipeline, format_show
 
     pipeline = pipeline_summary(record)
     if args.plot or args.convergence:
@@ -113,9 +113,9 @@ def _show_pipeline(args, record) -> int:
 def _show_run(args, run) -> int:
     """One run, or one stage of a pipeline's file, and its figures."""
     from evo_door.experiment import Results
-    from evo_door.experiment.figures import plot_convergence, plot_fit
-    from evo_door.experiment.format_text import format_show
     from evo_door.files import Output, check_image_path, claim_outputs
+    from evo_door.reporting.figures import plot_convergence, plot_fit
+    from evo_door.reporting.format_text import format_show
 
     claim = claim_outputs(
         [Output(args.plot, "--plot"), Output(args.convergence, "--convergence")], [args.results]

@@ -15,7 +15,7 @@ The same from keyword arguments, with typed results: :mod:`evo_door.api`
 from __future__ import annotations
 
 import evo_door.plugins  # noqa: F401 (render logs as parameter files, also in a worker)
-from evo_door.experiment.config import Experiment, load_experiment
+from evo_door.experiment.config import ExperimentConfig, load_experiment
 from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun, Interrupted
 
@@ -23,7 +23,7 @@ from evo_door.experiment.runner import ExperimentRun, Interrupted
 def run_experiment(
     exp, out=None, overrides=None, trials=None, progress=False, on_checkpoint=None
 ) -> ExperimentRun:
-    """Run an experiment (an :class:`Experiment` or a YAML path) to completion.
+    """Run an experiment (an :class:`ExperimentConfig` or a YAML path) to completion.
 
     ``trials`` replaces the target's trials (in-memory data); ``on_checkpoint(run, job)``
     is called after each checkpoint written to ``out``.
@@ -45,7 +45,7 @@ def run_experiment(
     (60 evaluations give a rough answer; the full job's 2000 and its SLSQP polish land
     within 3 % of the true 101.45 N, 1.232 kg and 18.8 N.)
     """
-    if not isinstance(exp, Experiment):
+    if not isinstance(exp, ExperimentConfig):
         exp = load_experiment(exp, overrides)
     run = ExperimentRun.create(exp, out, trials)
     return run.run(progress=progress, on_checkpoint=on_checkpoint)
@@ -60,7 +60,7 @@ def resume_run(path, progress=False, on_checkpoint=None) -> ExperimentRun:
 
 
 __all__ = [
-    "Experiment",
+    "ExperimentConfig",
     "ExperimentRun",
     "Interrupted",
     "Results",

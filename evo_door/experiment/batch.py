@@ -2,8 +2,8 @@
 
 The library half of ``evo-door batch`` (:mod:`evo_door.commands.batch` is its command
 line): the sweeps of ``--set`` lists (:func:`expand_sweeps`), the tasks with their
-results files (:func:`plan`), one task as a worker runs it (:func:`run_task`) and the
-summary table (:func:`format_summary`).
+results files (:func:`plan`) and one task as a worker runs it (:func:`run_task`); the
+summary table is :func:`evo_door.reporting.format_tables.format_batch`.
 
 :func:`run_task` is what an executor ships to its workers (pickled by name), so it lives
 in this layer: a worker imports the experiment layer and what lies below it, never the
@@ -140,31 +140,3 @@ def _summary(run) -> dict:
         ),
         "seconds": float(res.tree["timings"][ATTRS].get("total_s", 0.0)),
     }
-
-
-def format_summary(tasks: list[dict], rows: dict) -> str:
-    """The summary table: experiment, status, best fitness, parameters, time, file
-    (a failed experiment's error under its row)."""
-    from evo_door.experiment.format_text import text_table
-
-    body, errors = [], []
-    for task in tasks:
-        r = rows[task["name"]]
-        seconds = f"{r['seconds']:.1f}" if "seconds" in r else ""
-        body.append(
-            [
-                task["name"],
-                r["status"],
-                r.get("fitness", ""),
-                r.get("params", ""),
-                seconds,
-                r.get("file", ""),
-            ]
-        )
-        if r.get("error"):
-            errors.append(f"  {task['name']}: {r['error']}")
-    header = ["experiment", "status", "best fitness", "best parameters", "time (s)", "file"]
-    lines = text_table(header, body)
-    if errors:
-        lines += ["failed:", *errors]
-    return "\n".join(lines)

@@ -9,13 +9,13 @@ says; :func:`run_comparison` runs them, each into a normal results file of one f
 (so ``evo-door show``, ``runs`` and ``compare`` work on each). Reading the runs back into
 one row per (kind, derivative) is :mod:`.comparison_summary`; the tables and the figure
 (``compare.csv``, ``compare.md``, ``compare.png``, ``runs.csv``) are
-:mod:`.comparison_outputs`; the common yardstick every run is scored on is
+:mod:`evo_door.reporting.comparison_outputs`; the common yardstick every run is scored on is
 :func:`evo_door.experiment.objectives.yardstick`.
 
 The library call behind ``evo-door compare-objectives``::
 
     from evo_door.experiment.comparison import plan_comparison, run_comparison
-    from evo_door.experiment.comparison_outputs import write_outputs
+    from evo_door.reporting.comparison_outputs import write_outputs
     from evo_door.experiment.comparison_summary import run_records, summarise
 
     comp = plan_comparison("experiments/default.yaml", seeds=3)
@@ -23,8 +23,6 @@ The library call behind ``evo-door compare-objectives``::
     records = run_records(comp)
     rows = summarise(records)
     write_outputs(comp, records, rows)
-
-(:func:`evo_door.experiment.comparison_outputs.compare_objectives` does the five in one call.)
 """
 
 from __future__ import annotations
@@ -38,11 +36,11 @@ from pathlib import Path
 
 from evo_door.channels import RESPONSE_CHANNELS
 from evo_door.errors import MissingChannelError, UserError, WriteError
-from evo_door.experiment.config import Experiment, load_experiment
-from evo_door.experiment.format_json import flatten
+from evo_door.experiment.config import ExperimentConfig, load_experiment
 from evo_door.experiment.objectives import DERIVATIVES, KINDS
 from evo_door.experiment.results import Results
 from evo_door.experiment.runner import ExperimentRun
+from evo_door.experiment.yamltree import flatten
 from evo_door.files import folder_reason
 from evo_door.params.declaration import suggest
 
@@ -156,7 +154,7 @@ class Comparison:
     seeds: list
     #: derivatives left out because the trials lack their channel: derivative -> why
     skipped: dict = field(default_factory=dict)
-    experiments: dict = field(default_factory=dict)  # Variant -> Experiment
+    experiments: dict = field(default_factory=dict)  # Variant -> ExperimentConfig
     #: with ``resume``: complete runs already in the folder, kept as they are
     kept: set = field(default_factory=set)
     force: bool = False
@@ -176,7 +174,7 @@ class Comparison:
         ]
 
 
-def default_folder(exp: Experiment) -> Path:
+def default_folder(exp: ExperimentConfig) -> Path:
     """``<output>/<name>-objectives-<YYYYmmdd-HHMMSS>/``, not an existing one."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     base = Path(exp.output) / f"{exp.name}-objectives-{stamp}"
@@ -207,7 +205,7 @@ def _provenance(key: str) -> bool:
     )
 
 
-def _same_settings(path: Path, exp: Experiment) -> None:
+def _same_settings(path: Path, exp: ExperimentConfig) -> None:
     """A run kept by ``resume`` must have been made from the very same settings."""
     res = Results(path)
     old, new = flatten(res.config), flatten(exp.resolved())
@@ -259,7 +257,7 @@ def plan_comparison(
         ones made from the same settings and continue an interrupted one. Without
         either, a folder that already holds a run of the plan is refused.
     loader : callable, optional
-        ``loader(overrides) -> Experiment`` in place of reading ``experiment`` as an
+        ``loader(overrides) -> ExperimentConfig`` in place of reading ``experiment`` as an
         experiment file (a pipeline's stage: :func:`evo_door.experiment.pipeline.stage_loader`).
     """
     if loader is None:
@@ -285,7 +283,7 @@ def plan_comparison(
         resume=resume,
     )
 
-    def variant_experiment(v: Variant) -> Experiment:
+    def variant_experiment(v: Variant) -> ExperimentConfig:
         return loader(overrides + v.overrides)
 
     comp.derivatives, comp.skipped = _served_derivatives(

@@ -37,8 +37,8 @@ from pathlib import Path
 from evo_door.errors import UserError
 from evo_door.experiment.config_algorithm import AlgorithmSpec, _algorithm, _objective
 from evo_door.experiment.config_reader import (
+    KeyReader,
     _param_spec,
-    _Reader,
     _resolve_path,
     _show,
     executor_setting,
@@ -74,7 +74,7 @@ SIMULATION_KEYS = ("method", "substeps", "tolerance", "time_limit")
 
 
 @dataclass
-class Experiment:
+class ExperimentConfig:
     """A checked experiment (see the module docstring)."""
 
     name: str
@@ -175,7 +175,7 @@ class Experiment:
         return json.loads(json.dumps(out))
 
 
-def _with_channels(r: _Reader, tree: LinedMap) -> str:
+def _with_channels(r: KeyReader, tree: LinedMap) -> str:
     """``model:`` with the FMU channel mapping of ``channels:`` added to its name
     (``x.fmu?force=F&theta=angle``): the name a results file and a worker find it by."""
     from evo_door.models.fmu import is_fmu_spec, join_spec, split_spec
@@ -207,7 +207,7 @@ def _require_declared(where: str, name, model) -> None:
         )
 
 
-def perception_setting(r: _Reader, base_dir: Path) -> tuple[dict, dict]:
+def perception_setting(r: KeyReader, base_dir: Path) -> tuple[dict, dict]:
     """The ``perception`` section: JND settings by name, checked (:class:`JND`), and
     the source of each one it sets.
 
@@ -225,7 +225,7 @@ def perception_setting(r: _Reader, base_dir: Path) -> tuple[dict, dict]:
         return {}, {}
     if not isinstance(node, dict):
         raise r.fail("perception", "expected a mapping of JND settings (e.g. force: 0.1)")
-    p = _Reader(node, "perception", r.node.where("perception"))
+    p = KeyReader(node, "perception", r.node.where("perception"))
     names = list(JND().as_dict())
     p.check_keys((*names, "files"))
     values, sources, table = {}, {}, {}
@@ -250,7 +250,7 @@ def perception_setting(r: _Reader, base_dir: Path) -> tuple[dict, dict]:
     return values, sources
 
 
-def _weber_entry(p: _Reader, key: str) -> dict:
+def _weber_entry(p: KeyReader, key: str) -> dict:
     """A table entry ``{weber: W, source: TEXT}`` of the Weber setting ``key``, checked;
     its source says where it was given."""
     from evo_door.perception.jnd_file import WEBER_SETTINGS
@@ -283,7 +283,7 @@ def _weber_entry(p: _Reader, key: str) -> dict:
     }
 
 
-def _jnd_files(p: _Reader, base_dir: Path, given: set) -> list[tuple[str, str]]:
+def _jnd_files(p: KeyReader, base_dir: Path, given: set) -> list[tuple[str, str]]:
     """``perception.files``: each JND file found next to the YAML file and checked
     (complete, a unit with a JND setting, a bounded estimate below 1): (path, setting).
     A setting the section also gives as a number or a table entry is refused."""
@@ -323,7 +323,7 @@ def _measured(files: list[tuple[str, str]], table: dict):
     return measured_jnd(JND(), [f for f, _ in files], table)
 
 
-def _check_perceptual(exp: Experiment) -> None:
+def _check_perceptual(exp: ExperimentConfig) -> None:
     """The perceptual objective needs a chosen feel; a model target without one needs inputs."""
     t = exp.target
     if exp.objective.perceptual and t.kind == "data":
@@ -351,7 +351,7 @@ def _check_perceptual(exp: Experiment) -> None:
         )
 
 
-def _process(exp: Experiment, r: _Reader, base_dir: Path, model) -> None:
+def _process(exp: ExperimentConfig, r: KeyReader, base_dir: Path, model) -> None:
     """``process``: the supplier's tolerances, for a fit to a chosen feel only."""
     from evo_door.experiment.config_process import process_given, process_table
 
@@ -367,14 +367,14 @@ def _process(exp: Experiment, r: _Reader, base_dir: Path, model) -> None:
         exp.process = process_table(model, exp.process_given)
 
 
-def _check_parameters(exp: Experiment, reader: _Reader, model) -> None:
+def _check_parameters(exp: ExperimentConfig, reader: KeyReader, model) -> None:
     """free / fixed / start against the model's declaration."""
     fixed = _check_fixed(exp, reader, model)
     _check_free(exp, reader, model, fixed)
     _check_start(exp, reader)
 
 
-def _check_fixed(exp: Experiment, reader: _Reader, model) -> LinedMap:
+def _check_fixed(exp: ExperimentConfig, reader: KeyReader, model) -> LinedMap:
     """``fixed``: each value checked by its declaration into ``exp.fixed``; the section
     returned (the free parameters' check names the line of a parameter also fixed)."""
     table = model.params
@@ -391,7 +391,7 @@ def _check_fixed(exp: Experiment, reader: _Reader, model) -> LinedMap:
     return fixed
 
 
-def _check_free(exp: Experiment, reader: _Reader, model, fixed: LinedMap) -> None:
+def _check_free(exp: ExperimentConfig, reader: KeyReader, model, fixed: LinedMap) -> None:
     """``free``: at least one, each declared, not fixed too, its bounds into ``exp.free``."""
     free = reader.get("free")
     if not free:
@@ -442,9 +442,9 @@ def _free_bounds(where: str, bounds, p) -> tuple[float, float]:
     return lo, hi
 
 
-def _check_start(exp: Experiment, reader: _Reader) -> None:
+def _check_start(exp: ExperimentConfig, reader: KeyReader) -> None:
     """``algorithm.start``: each a free parameter, its value within the free bounds."""
-    a = _Reader(reader.get("algorithm"), "algorithm", reader.node.where("algorithm"))
+    a = KeyReader(reader.get("algorithm"), "algorithm", reader.node.where("algorithm"))
     start = a.get("start") or LinedMap()
     for name, value in exp.algorithm.start.items():
         where = f"{start.where(name) if isinstance(start, LinedMap) else a.node.loc}: algorithm.start.{name}"
@@ -458,7 +458,7 @@ def _check_start(exp: Experiment, reader: _Reader) -> None:
         exp.algorithm.start[name] = float(value)
 
 
-def _tolerance(sim: _Reader, model) -> float:
+def _tolerance(sim: KeyReader, model) -> float:
     """``simulation.tolerance``: ``dopri5``'s tolerance, a number in (0, 1) (default the
     model's)."""
     from evo_door.sim.simulate import TOLERANCE_FLOOR
@@ -479,7 +479,7 @@ def _safe_name(name: str) -> str:
 
 def load_experiment(
     path=None, overrides=None, text: str | None = None, source: str | None = None, base_dir=None
-) -> Experiment:
+) -> ExperimentConfig:
     """Read and check an experiment file (or ``text``), applying ``--set`` overrides.
 
     Parameters
@@ -518,18 +518,18 @@ def load_experiment(
 
 def experiment_from_tree(
     tree: LinedMap, text: str, source: str, base_dir: Path, overrides=()
-) -> Experiment:
+) -> ExperimentConfig:
     """The checked experiment of a parsed tree (a file's, or one stage of a pipeline).
 
     ``{from: STAGE}`` parameter sets are left as ``{"from": STAGE, "where": LOC}``
-    (:meth:`Experiment.uses`) for the pipeline to fill in.
+    (:meth:`ExperimentConfig.uses`) for the pipeline to fill in.
     """
     from evo_door.models import get_model, resolve_model_name
 
     if not isinstance(tree, LinedMap):
         raise UserError(f"{source}:1: an experiment is a mapping of keys ({', '.join(TOP_KEYS)})")
     overrides = list(overrides)
-    r = _Reader(tree, "", tree.loc)
+    r = KeyReader(tree, "", tree.loc)
     r.check_keys(TOP_KEYS, required=("model", "target", "free"))
     model_name = resolve_model_name(_with_channels(r, tree), base_dir)
     try:
@@ -539,7 +539,7 @@ def experiment_from_tree(
         raise UserError(f"{tree.where('model')}: model: {exc}") from None
     default_name = Path(source).stem if source and not source.startswith("<") else "experiment"
     name = r.string("name", default_name)
-    sim = _Reader(r.get("simulation"), "simulation", tree.where("simulation"))
+    sim = KeyReader(r.get("simulation"), "simulation", tree.where("simulation"))
     sim.check_keys(SIMULATION_KEYS)
     method = sim.choice("method", model.method, tuple(METHODS))
     substeps = sim.integer("substeps", model.substeps, lo=1, hi=1000)
@@ -547,7 +547,7 @@ def experiment_from_tree(
     time_limit = sim.number("time_limit", 0.0) or None
     if time_limit is not None and time_limit <= 0.0:
         raise sim.fail("time_limit", f"must be a time in s above 0, got {time_limit:g}")
-    exp = Experiment(
+    exp = ExperimentConfig(
         name=_safe_name(name),
         model=model_name,
         target=_target(r, base_dir),

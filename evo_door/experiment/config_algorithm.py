@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields
 
-from evo_door.experiment.config_reader import _Reader
+from evo_door.experiment.config_reader import KeyReader
 from evo_door.optim.ga import GASettings
 from evo_door.optim.local import LocalSettings
 from evo_door.optim.multistart import ScanSettings
@@ -106,10 +106,10 @@ class AlgorithmSpec:
         )
 
 
-def _objective(reader: _Reader, curve_target: bool = False) -> Objective:
+def _objective(reader: KeyReader, curve_target: bool = False) -> Objective:
     """The ``objective`` section; a curve target (a chosen feel) is scored by the
     perceptual objective, which is then its default and its only kind."""
-    o = _Reader(reader.get("objective"), "objective", reader.node.where("objective"))
+    o = KeyReader(reader.get("objective"), "objective", reader.node.where("objective"))
     o.check_keys(OBJECTIVE_KEYS)
     kind = o.choice("kind", PERCEPTUAL if curve_target else "max_square", OBJECTIVE_KINDS)
     if curve_target and kind != PERCEPTUAL:
@@ -125,8 +125,8 @@ def _objective(reader: _Reader, curve_target: bool = False) -> Objective:
     )
 
 
-def _algorithm(reader: _Reader) -> AlgorithmSpec:
-    a = _Reader(reader.get("algorithm"), "algorithm", reader.node.where("algorithm"))
+def _algorithm(reader: KeyReader) -> AlgorithmSpec:
+    a = KeyReader(reader.get("algorithm"), "algorithm", reader.node.where("algorithm"))
     a.check_keys(ALGORITHM_KEYS)
     ga = _ga_settings(a)
     ld = LocalSettings()
@@ -158,7 +158,7 @@ def _algorithm(reader: _Reader) -> AlgorithmSpec:
 STARTS = ScanSettings().starts
 
 
-def _scan(a: _Reader, kind: str, polish: str) -> ScanSettings:
+def _scan(a: KeyReader, kind: str, polish: str) -> ScanSettings:
     """``scan`` (points a parameter, 0 / false / empty: none) and ``starts``, checked: a
     scan hands its points to SLSQP, so it needs ``polish: slsqp`` or ``kind: nlpql``."""
     raw = a.get("scan")
@@ -173,7 +173,7 @@ def _scan(a: _Reader, kind: str, polish: str) -> ScanSettings:
     return ScanSettings(points=points, starts=starts)
 
 
-def _ga_settings(a: _Reader) -> GASettings:
+def _ga_settings(a: KeyReader) -> GASettings:
     """The GA's settings of the section, each checked (defaults: :class:`GASettings`)."""
     d = GASettings()
     for key in ("reproduction_ratio", "mutation_probability"):
@@ -198,7 +198,7 @@ def _ga_settings(a: _Reader) -> GASettings:
     )
 
 
-def _polish(a: _Reader, kind: str) -> str:
+def _polish(a: KeyReader, kind: str) -> str:
     """The local method run after the GA: none (also written false or left empty) or slsqp."""
     polish = a.get("polish", "none")
     if polish is None or polish is False:

@@ -18,7 +18,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from evo_door.errors import UserError
-from evo_door.experiment.config_reader import _Reader, _resolve_path, _show
+from evo_door.experiment.config_reader import KeyReader, _resolve_path, _show
 from evo_door.experiment.yamltree import LinedMap, parse
 from evo_door.files import read_text
 from evo_door.optim.process import DISTRIBUTIONS, KINDS, process_entries
@@ -34,7 +34,7 @@ def has_built(model) -> bool:
     return any(p.process for p in model.params)
 
 
-def process_given(r: _Reader, base_dir: Path, model) -> dict[str, dict]:
+def process_given(r: KeyReader, base_dir: Path, model) -> dict[str, dict]:
     """The entries ``process:`` of ``r``'s mapping sets, by parameter name (a kind's
     entry given to each parameter of the kind; a name given on its own wins), checked
     against ``model``'s declaration; {} without the key."""

@@ -1,6 +1,6 @@
 """Reading one key of an experiment file: typed values, and errors that name its line.
 
-:class:`_Reader` wraps one mapping of the parsed YAML tree
+:class:`KeyReader` wraps one mapping of the parsed YAML tree
 (:mod:`evo_door.experiment.yamltree`) and reads its keys as whole numbers, numbers,
 choices, booleans or text, each refused in one line ``FILE:LINE: key.path: what is
 wrong``. The readers of values that several sections share (a file path next to the
@@ -19,7 +19,7 @@ from evo_door.experiment.yamltree import LinedList, LinedMap
 from evo_door.params.declaration import suggest
 
 
-class _Reader:
+class KeyReader:
     """Typed access to one mapping of the tree, with located errors."""
 
     def __init__(self, node, path: str, where: str):
@@ -129,7 +129,7 @@ def _resolve_path(text: str, base_dir: Path, where: str, key: str) -> str:
     raise UserError(f"{where}: {key}: file not found: {text} (looked for {tried})")
 
 
-def _param_spec(reader: _Reader, key, base_dir: Path):
+def _param_spec(reader: KeyReader, key, base_dir: Path):
     """A parameter set given as preset name, YAML file, render log (the session's chosen
     set) or inline mapping."""
     v = reader.get(key)
@@ -157,7 +157,7 @@ def _param_spec(reader: _Reader, key, base_dir: Path):
     return v
 
 
-def _id_list(reader: _Reader, key, allow_all: bool):
+def _id_list(reader: KeyReader, key, allow_all: bool):
     v = reader.get(key, "all" if allow_all else [])
     if allow_all and v == "all":
         return "all"
@@ -177,7 +177,7 @@ def _id_list(reader: _Reader, key, allow_all: bool):
     return ids
 
 
-def executor_setting(reader: _Reader) -> str:
+def executor_setting(reader: KeyReader) -> str:
     """The ``executor`` key of an experiment or a pipeline (default ``local``), checked."""
     from evo_door.optim.executors import DEFAULT, ExecutorNameError, check_executor
 

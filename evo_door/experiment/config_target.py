@@ -16,9 +16,9 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment.config_reader import (
+    KeyReader,
     _id_list,
     _param_spec,
-    _Reader,
     _resolve_path,
     _show,
 )
@@ -90,14 +90,14 @@ class TargetSpec:
     locs: dict = field(default_factory=dict)
 
 
-def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
+def _target(reader: KeyReader, base_dir: Path) -> TargetSpec:
     node = reader.get("target")
     if node is None:
         raise UserError(
             f"{reader.node.loc}: target: required key missing "
             "(e.g. target: {data: FILE, trials: all})"
         )
-    t = _Reader(node, "target", reader.node.where("target"))
+    t = KeyReader(node, "target", reader.node.where("target"))
     given = [k for k in ("data", "model", "curve") if k in t.node]
     if len(given) > 1:
         raise t.fail(
@@ -129,7 +129,7 @@ def _target(reader: _Reader, base_dir: Path) -> TargetSpec:
     return spec
 
 
-def _locations(t: _Reader) -> dict:
+def _locations(t: KeyReader) -> dict:
     """file:line of each key of the target, for messages about the data (the keys
     left out are located at the section)."""
     locs = {k: t.node.where(k) for k in t.node}
@@ -138,7 +138,7 @@ def _locations(t: _Reader) -> dict:
     return locs
 
 
-def _data_target(t: _Reader, base_dir: Path, locs: dict) -> TargetSpec:
+def _data_target(t: KeyReader, base_dir: Path, locs: dict) -> TargetSpec:
     """``target: {data: FILE, ...}``: measured trials."""
     t.check_keys(DATA_TARGET_KEYS, required=("data",))
     path = _resolve_path(
@@ -156,7 +156,7 @@ def _data_target(t: _Reader, base_dir: Path, locs: dict) -> TargetSpec:
     )
 
 
-def _model_target(t: _Reader, base_dir: Path, locs: dict) -> TargetSpec:
+def _model_target(t: KeyReader, base_dir: Path, locs: dict) -> TargetSpec:
     """``target: {model: NAME, inputs: ...}``: another model's response to the inputs."""
     t.check_keys(MODEL_TARGET_KEYS, required=("model",))
     inputs = t.get("inputs")
@@ -190,7 +190,7 @@ def _model_target(t: _Reader, base_dir: Path, locs: dict) -> TargetSpec:
     )
 
 
-def _rig_spec(t: _Reader, node: LinedMap, base_dir: Path) -> dict:
+def _rig_spec(t: KeyReader, node: LinedMap, base_dir: Path) -> dict:
     """``target.inputs`` written as a rig specification, checked by the rig's own rules
     (:func:`evo_door.data.rig.check_spec`, those of ``rig generate``'s flags); a bad entry
     is refused with the file and line of its key. Returned as written (JSON), with a
@@ -213,10 +213,10 @@ def _rig_spec(t: _Reader, node: LinedMap, base_dir: Path) -> dict:
     return spec
 
 
-def _preprocess(t: _Reader) -> PreprocessSpec:
+def _preprocess(t: KeyReader) -> PreprocessSpec:
     if "preprocess" not in t.node:
         return PreprocessSpec()
-    p = _Reader(t.get("preprocess"), t.key_path("preprocess"), t.node.where("preprocess"))
+    p = KeyReader(t.get("preprocess"), t.key_path("preprocess"), t.node.where("preprocess"))
     p.check_keys(PREPROCESS_KEYS)
     return PreprocessSpec(
         rate_bias=p.choice("rate_bias", "none", RATE_BIAS),
@@ -226,7 +226,7 @@ def _preprocess(t: _Reader) -> PreprocessSpec:
     )
 
 
-def _kinds(t: _Reader) -> list:
+def _kinds(t: KeyReader) -> list:
     v = t.get("kinds", [])
     if isinstance(v, str):
         v = [v]
@@ -237,7 +237,7 @@ def _kinds(t: _Reader) -> list:
     return list(v)
 
 
-def _users(t: _Reader) -> list:
+def _users(t: KeyReader) -> list:
     v = t.get("users", [])
     if isinstance(v, (str, int)) and not isinstance(v, bool):
         v = [v]

@@ -17,7 +17,7 @@ none); :meth:`FeelCheck.judged` gives the verdict under another one (``report --
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -229,10 +229,3 @@ def try_feel_check(model, full, config: dict, feel=None, recorded: bool = True):
         return feel_check(model, full, config, feel, recorded)
     except (UserError, ValueError, KeyError):
         return None
-
-
-def with_jnd(check: FeelCheck, **settings) -> JND:
-    """The check's JND with some settings replaced (``force``, ``force_floor``...);
-    a bad value is the JND's one-line error."""
-    given = {k: float(v) for k, v in settings.items() if v is not None}
-    return replace(check.jnd, **given) if given else check.jnd

@@ -177,18 +177,6 @@ class IntegrationError:
             text += f", simulation.tolerance: {self.refined_tolerance:.3g}"
         return text
 
-    def settings_text(self) -> str:
-        """``rk4, 1 substep per sample, against 2``: the two settings compared."""
-
-        def one(method, substeps, tol):
-            s = f"{substeps} substep{'s' if substeps != 1 else ''}"
-            return s + (f", tolerance {tol:.3g}" if method == "dopri5" else "")
-
-        return (
-            f"{self.method}, {one(self.method, self.substeps, self.tolerance)} per sample, "
-            f"against {one(self.refined_method, self.refined_substeps, self.refined_tolerance)}"
-        )
-
     def as_dict(self) -> dict:
         """JSON-able (non-finite numbers as None), with the warning's text or None."""
         trials = {}

@@ -11,7 +11,8 @@ sensor did not saturate.
 
 Comparing the objectives on one experiment (``evo-door compare-objectives``) builds on
 this: the plan and its runs (:mod:`.comparison`), one row per objective
-(:mod:`.comparison_summary`), the tables and the figure (:mod:`.comparison_outputs`).
+(:mod:`.comparison_summary`), the tables and the figure
+(:mod:`evo_door.reporting.comparison_outputs`).
 """
 
 from __future__ import annotations

@@ -30,6 +30,7 @@ uninterrupted one.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import time
@@ -40,12 +41,12 @@ from evo_door.errors import UserError
 from evo_door.experiment import store
 from evo_door.experiment.checkpoint import stage_position, write_checkpoint
 from evo_door.experiment.config import (
-    Experiment,
+    ExperimentConfig,
     _safe_name,
     experiment_from_tree,
     perception_setting,
 )
-from evo_door.experiment.config_reader import _Reader, _resolve_path, executor_setting
+from evo_door.experiment.config_reader import KeyReader, _resolve_path, executor_setting
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
 from evo_door.experiment.runner import ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
@@ -72,14 +73,14 @@ class Stage:
     """One stage: its name and its checked experiment (``{from: ...}`` not filled in yet)."""
 
     name: str
-    experiment: Experiment
+    experiment: ExperimentConfig
     where: str  # file:line of the stage in the pipeline file
 
     def sources(self) -> dict[str, str]:
         """Which earlier stage each ``{from: STAGE}`` names: ``params`` (the values the
         stage starts from) and ``target.params`` (what it is fitted to) -> stage name.
 
-        The provenance a results file records (:meth:`Pipeline.resolved`); the stage's
+        The provenance a results file records (:meth:`PipelineConfig.resolved`); the stage's
         experiment is never filled in place (:func:`fill` makes a copy), so this holds
         before, during and after a run.
         """
@@ -91,7 +92,7 @@ class Stage:
 
 
 @dataclass
-class Pipeline:
+class PipelineConfig:
     """A checked pipeline file (see the module docstring)."""
 
     name: str
@@ -134,7 +135,7 @@ def is_pipeline(path) -> bool:
     return isinstance(tree, LinedMap) and "stages" in tree
 
 
-def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None) -> Pipeline:
+def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None) -> PipelineConfig:
     """Read and check a pipeline file; ``--set`` overrides take the stage's name first
     (``stages.physical.algorithm.seed=3``) or a top-level key."""
     if text is None:
@@ -151,25 +152,27 @@ def load_pipeline(path=None, overrides=(), text=None, source=None, base_dir=None
     return pipeline_from_tree(tree, text, source, base_dir, overrides)
 
 
-def pipeline_from_tree(tree, text: str, source: str, base_dir: Path, overrides=()) -> Pipeline:
+def pipeline_from_tree(
+    tree, text: str, source: str, base_dir: Path, overrides=()
+) -> PipelineConfig:
     """The checked pipeline of a parsed tree (a file's, or the Python API's arguments)."""
     if not isinstance(tree, LinedMap):
         raise UserError(f"{source}:1: a pipeline is a mapping of keys ({', '.join(PIPELINE_KEYS)})")
     overrides = list(overrides)
-    r = _Reader(tree, "", tree.loc)
+    r = KeyReader(tree, "", tree.loc)
     r.check_keys(PIPELINE_KEYS, required=("stages",))
     node = tree["stages"]
     if not isinstance(node, LinedMap) or not node:
         raise r.fail("stages", "expected a mapping of stage names to experiments (inline or files)")
     default_name = Path(source).stem if not source.startswith("<") else "pipeline"
-    rep = _Reader(r.get("report"), "report", tree.where("report"))
+    rep = KeyReader(r.get("report"), "report", tree.where("report"))
     rep.check_keys(REPORT_KEYS)
     report = {}
     if "jnd" in rep.node:
         report["jnd"] = rep.number("jnd", None, lo=0.0, hi=1.0, open_lo=True)
     if "force_floor" in rep.node:
         report["force_floor"] = rep.number("force_floor", None, lo=0.0, open_lo=True)
-    pipe = Pipeline(
+    pipe = PipelineConfig(
         name=_safe_name(r.string("name", default_name)),
         stages=[],
         description=r.string("description", "") or "",
@@ -196,7 +199,7 @@ def pipeline_from_tree(tree, text: str, source: str, base_dir: Path, overrides=(
     return pipe
 
 
-def _process(pipe: Pipeline, r: _Reader, base_dir: Path) -> None:
+def _process(pipe: PipelineConfig, r: KeyReader, base_dir: Path) -> None:
     """The pipeline's ``process``: the supplier's tolerances of every stage fitted to a
     chosen feel whose model has built parameters (a haptic model's are sensations); a
     stage's own entries win, name by name."""
@@ -228,7 +231,7 @@ def _process(pipe: Pipeline, r: _Reader, base_dir: Path) -> None:
         )
 
 
-def _stage_experiment(name: str, value, where: str, base_dir: Path) -> Experiment:
+def _stage_experiment(name: str, value, where: str, base_dir: Path) -> ExperimentConfig:
     if isinstance(value, str):
         file = Path(_resolve_path(value, base_dir, where, f"stages.{name}"))
         text = read_text(file, "experiment file")
@@ -251,7 +254,7 @@ def _model_name(name: str) -> str:
     return get_model(name).name
 
 
-def _check_uses(pipe: Pipeline) -> None:
+def _check_uses(pipe: PipelineConfig) -> None:
     """Every ``{from: S}`` names an earlier stage whose model is the one it feeds."""
     seen: dict[str, Stage] = {}
     for stage in pipe.stages:
@@ -280,7 +283,7 @@ def _check_uses(pipe: Pipeline) -> None:
         seen[stage.name] = stage
 
 
-def fill(exp: Experiment, values: dict[str, dict]) -> Experiment:
+def fill(exp: ExperimentConfig, values: dict[str, dict]) -> ExperimentConfig:
     """A copy of ``exp`` with each ``{from: S}`` replaced by ``values[S]`` (name -> value).
 
     ``exp`` itself keeps its ``{from: S}``: the pipeline records from it which stages
@@ -295,7 +298,7 @@ def fill(exp: Experiment, values: dict[str, dict]) -> Experiment:
 
 
 def stage_loader(path, stage: str, results=None):
-    """``loader(overrides) -> Experiment``: one stage of the pipeline file ``path`` as an
+    """``loader(overrides) -> ExperimentConfig``: one stage of the pipeline file ``path`` as an
     experiment of its own (``--set`` assignments apply to the stage), its ``{from: S}``
     filled in from the stages of the results file ``results``."""
     from evo_door.experiment.results import Results
@@ -325,7 +328,7 @@ class PipelineRun:
     Build one with :meth:`create` or :meth:`open` (to resume), then :meth:`run`.
     """
 
-    def __init__(self, pipeline: Pipeline, path, created: str, versions: dict):
+    def __init__(self, pipeline: PipelineConfig, path, created: str, versions: dict):
         self.pipeline = pipeline
         self.path = Path(path)
         self.created = created
@@ -347,7 +350,7 @@ class PipelineRun:
 
     # -- construction --------------------------------------------------------------------
     @classmethod
-    def create(cls, pipeline: Pipeline, out=None, overwrite: bool = False) -> PipelineRun:
+    def create(cls, pipeline: PipelineConfig, out=None, overwrite: bool = False) -> PipelineRun:
         """A new run of ``pipeline`` writing ``out`` (locked until :meth:`run` ends)."""
 
         def start(path: Path, lock: FileLock) -> PipelineRun:
@@ -408,8 +411,6 @@ class PipelineRun:
         ``executor`` (a name, or an executor already started) replaces the pipeline's;
         one executor serves all the stages (one started here is closed at the end).
         """
-        import contextlib
-
         from evo_door.optim.executors import Executor, check_executor, open_executor
 
         if isinstance(executor, Executor):

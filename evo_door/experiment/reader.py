@@ -66,7 +66,7 @@ class RunSettings:
 
 
 @dataclass(frozen=True)
-class GAState:
+class StoredGAState:
     """``jobs/<k>/ga``: where a job's genetic algorithm stands (logbook: full reads only)."""
 
     generation: int
@@ -79,13 +79,13 @@ class GAState:
 
 
 @dataclass(frozen=True)
-class Job:
+class StoredJob:
     """``jobs/<k>``: one fit of a run (a trial's, all trials', or the run's only one)."""
 
     name: str
     done: bool
     ga_stop: str
-    ga: GAState | None
+    ga: StoredGAState | None
     local_fitness: float | None  # after the SLSQP polish, where there was one
     #: NSGA-II's front and the smallest change chosen from it (full reads of done jobs)
     front: SmallestChange | None = None
@@ -116,7 +116,7 @@ class PerTrialFits:
 
 
 @dataclass(frozen=True)
-class Response:
+class StoredResponse:
     """``response/<k>``: the best parameters' response to one trial, with its target."""
 
     trial_id: str
@@ -178,13 +178,13 @@ class RunRecord:
     attrs: dict
     config: dict
     settings: RunSettings
-    jobs: list[Job]
+    jobs: list[StoredJob]
     best: Best | None
     per_trial: PerTrialFits | None
     timings: dict
     provenance: Provenance
     sources: dict[str, str] = field(default_factory=dict)
-    responses: list[Response] = field(default_factory=list)
+    responses: list[StoredResponse] = field(default_factory=list)
     trials: list[StoredTrial] = field(default_factory=list)
     tree: dict | None = None
     integration_error: IntegrationError | None = None
@@ -451,7 +451,7 @@ def _settings(s) -> RunSettings:
     return settings
 
 
-def _job(j, arrays: bool, settings: RunSettings) -> Job:
+def _job(j, arrays: bool, settings: RunSettings) -> StoredJob:
     a = j[ATTRS]
     ga = None
     n = len(settings.free)
@@ -466,7 +466,7 @@ def _job(j, arrays: bool, settings: RunSettings) -> Job:
                     f"{fields.place_of(g, 'hof_fitness')}: expected 1-D or 2-D numbers, "
                     f"got shape {hof_f.shape}"
                 )
-        ga = GAState(
+        ga = StoredGAState(
             generation=fields.integer(ga_attrs, "generation", lo=0),
             evaluations=fields.integer(ga_attrs, "evaluations", lo=0),
             blowups=fields.integer(ga_attrs, "blowups", lo=0),
@@ -478,7 +478,7 @@ def _job(j, arrays: bool, settings: RunSettings) -> Job:
     local = None
     if "local" in j:
         local = fields.number(fields.group(j, "local")[ATTRS], "fitness")
-    return Job(
+    return StoredJob(
         name=fields.text(a, "name", ""),
         done=fields.flag(a, "done", False),
         ga_stop=fields.text(a, "ga_stop", ""),
@@ -536,7 +536,7 @@ def _per_trial(s: dict, settings: RunSettings) -> PerTrialFits:
     )
 
 
-def _responses(tree: dict) -> list[Response]:
+def _responses(tree: dict) -> list[StoredResponse]:
     groups = fields.group(tree, "response", {})
     out = []
     for k in job_keys(groups):
@@ -545,7 +545,7 @@ def _responses(tree: dict) -> list[Response]:
         t = fields.array(r, "t", shape=(None,))
         shape = t.shape
         out.append(
-            Response(
+            StoredResponse(
                 trial_id=fields.text(a, "trial_id"),
                 role=fields.text(a, "role"),
                 channel=fields.text(a, "channel", choices=RESPONSE_CHANNELS),

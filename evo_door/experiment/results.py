@@ -8,9 +8,10 @@ holds the file's lock) or interrupted (the file says ``running`` but nobody hold
 lock: the run was stopped by Ctrl-C, SIGTERM, SIGKILL or a crash, and ``evo-door resume``
 continues it).
 
-The views built on it live one question per module: :mod:`.format_json` (the documents
-of ``show --json``'s neighbours ``runs`` and ``compare``), :mod:`.format_text` (what a
-person reads) and :mod:`.figures` (the fit and convergence figures).
+The views built on it live in :mod:`evo_door.reporting`, one question per module:
+``format_json`` (the documents of ``show --json``'s neighbours ``runs`` and
+``compare``), ``format_text`` and ``format_tables`` (what a person reads) and
+``figures`` (the fit and convergence figures).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from evo_door.channels import unit as channel_unit
 from evo_door.errors import UserError
 from evo_door.experiment.config_algorithm import POPULATION_KINDS
 from evo_door.experiment.feel_check import jnds_used, run_jnd_sources
-from evo_door.experiment.reader import Response, RunRecord, read_run
+from evo_door.experiment.reader import RunRecord, StoredResponse, read_run
 from evo_door.experiment.stored import identifiability_from_tree, job_keys
 from evo_door.files import FileLock
 from evo_door.optim.bounds import bound_hits
@@ -485,12 +486,12 @@ class Results:
                 out[r.trial_id] = row
         return out
 
-    def responses(self) -> list[Response]:
+    def responses(self) -> list[StoredResponse]:
         """The best parameters' response to each trial, with its target (complete runs)."""
         return list(self.record.responses)
 
 
-def _channel_error(r: Response, stored, theta_unit: str) -> dict | None:
+def _channel_error(r: StoredResponse, stored, theta_unit: str) -> dict | None:
     """One trial's row of :meth:`Results.channel_errors` (None: no sample counts)."""
     channel = r.channel
     diff = np.asarray(r.model, dtype=float) - np.asarray(r.target, dtype=float)

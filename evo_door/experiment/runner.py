@@ -458,7 +458,7 @@ class ExperimentRun:
         specification a supplier builds: filled when every job is done. Where that
         specification centres the nominal (a higher yield than the fit's door), the
         centred nominal is the run's answer; the fit's door stays its alternative."""
-        from evo_door.experiment.tolerance import stage_specification
+        from evo_door.experiment.run_specification import stage_specification
         from evo_door.optim.tolerance import full_nominal
 
         xs = np.array([j.best_x for j in self.trial_jobs])

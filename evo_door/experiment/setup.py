@@ -1,4 +1,4 @@
-"""From a checked :class:`~evo_door.experiment.config.Experiment` to a :class:`Problem`.
+"""From a checked :class:`~evo_door.experiment.config.ExperimentConfig` to a :class:`Problem`.
 
 Resolution reads what the experiment names (the base parameter set, the trial file,
 the target model and its inputs) once; everything the run needs afterwards (the full

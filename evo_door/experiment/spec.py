@@ -9,8 +9,9 @@ as CSV, Markdown, LaTeX, HTML or a parameter file (YAML) that ``--params``, expe
 and the renderer read back.
 
 Rows: every parameter of the model's ``specification`` and ``sensation`` groups, and
-every free parameter whatever its group (:func:`spec_names`); geometry and numerical
-settings stay out of the table (the YAML file has them all). A run against a chosen
+every free parameter whatever its group
+(:func:`~evo_door.optim.specification.spec_names`); geometry and numerical settings stay
+out of the table (the YAML file has them all). A run against a chosen
 feel (the perceptual objective) on a mechanism a supplier builds adds what the
 supplier needs (:mod:`evo_door.optim.tolerance`, one computation that ``show``,
 ``show --json``, every format here and the report all print): each specification's
@@ -40,10 +41,9 @@ from dataclasses import dataclass
 
 from evo_door.errors import UserError
 from evo_door.experiment.results import Results
+from evo_door.optim.specification import spec_names
 
 FORMATS = ("csv", "md", "tex", "html", "yaml")
-#: the groups a specification table lists (besides the free parameters)
-SPEC_GROUPS = ("specification", "sensation")
 
 
 @dataclass
@@ -94,17 +94,11 @@ class SpecTable:
         return any(math.isfinite(r.tolerance) for r in self.rows)
 
 
-def spec_names(model, free) -> list[str]:
-    """The parameters a specification table lists: the model's ``specification`` and
-    ``sensation`` groups and the free ones, in declaration order."""
-    return [p.name for p in model.params if p.group in SPEC_GROUPS or p.name in free]
-
-
 def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
     """The specification table of a finished run or stage (see the module docstring);
     ``tolerance`` False leaves out tolerances that the file does not store (they would be
     computed, a few seconds)."""
-    from evo_door.experiment.tolerance import tolerances_of
+    from evo_door.experiment.run_specification import tolerances_of
 
     if not res.complete:
         raise UserError(
@@ -450,7 +444,7 @@ def _yaml(t: SpecTable) -> str:
 def export(res: Results, fmt: str, out=None, log=None) -> str:
     """Render ``res``'s table in ``fmt``; write it to ``out`` when given (atomically).
     ``log(line)`` hears that tolerances were computed because the file had none."""
-    from evo_door.experiment.tolerance import COMPUTED_NOTE
+    from evo_door.experiment.run_specification import COMPUTED_NOTE
     from evo_door.files import write_text
 
     table = spec_table(res)

@@ -143,18 +143,6 @@ def pipeline_attrs(path) -> dict | None:
         return attrs
 
 
-def stage_sources(path) -> dict[str, dict[str, str]]:
-    """Stage -> which earlier stage each of its ``{from: STAGE}`` took, as a pipeline's
-    results file records them (``pipeline/resolved``): ``params`` (the values the stage
-    started from) and ``target.params`` (what it was fitted to). {} for a run's file, and
-    for a stage of its own."""
-    with _open(path) as f:
-        if "pipeline/resolved" not in f:
-            return {}
-        resolved = pipeline_resolved(f["pipeline/resolved"][()], f"{path}: /pipeline/resolved")
-    return sources_of(resolved)
-
-
 def pipeline_resolved(value, where: str) -> dict:
     """``pipeline/resolved``: a pipeline's configuration (JSON text), its ``stages``
     (name -> ``uses``, ``from``, ``where``) and ``report`` checked for their types."""

@@ -122,3 +122,19 @@ def apply_override(tree: LinedMap, assignment: str) -> None:
         node = child
     node[keys[-1]] = value
     node.key_locs[keys[-1]] = where
+
+
+def flatten(config, prefix: str = "") -> dict:
+    """A nested mapping as dotted keys; lists and other values are leaves.
+
+    >>> flatten({"objective": {"kind": "ise", "derivative": 1}, "free": {"k": [20, 500]}})
+    {'objective.kind': 'ise', 'objective.derivative': 1, 'free.k': [20, 500]}
+    """
+    out = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out

@@ -1,13 +1,16 @@
 """The perceptual check of many doors at once, compiled: what a yield is counted with.
 
-:class:`FeelCheck` gives every door (a row of full kernel vectors) its signed
+:class:`BatchFeelCheck` gives every door (a row of full kernel vectors) its signed
 differences from a chosen feel in units of their JNDs (its *margins*): each point of
 both strokes outside the latch zone, both latch peaks, both peaks' angles, and the
 felt inertia and damping where the chosen feel has dynamics. A door passes when every
 margin is within +-1, as :func:`~evo_door.perception.check_verdict` judges one door
-(``tests/test_specification_yield.py`` compares the two door by door). The doors' own quantities
-(:meth:`FeelCheck.measure`) can be judged against another feel (:meth:`FeelCheck.against`,
-:meth:`FeelCheck.reference_of`): the nearest feel a process can hold is searched so.
+(``tests/test_specification_yield.py`` compares the two door by door). The doors are
+measured as a candidate of the perceptual objective is, by
+:func:`~evo_door.perception.target.measured_feel` and
+:func:`~evo_door.perception.target.felt_dynamics_rows`. The doors' own quantities
+(:meth:`BatchFeelCheck.measure`) can be judged against another feel (:meth:`BatchFeelCheck.against`,
+:meth:`BatchFeelCheck.reference_of`): the nearest feel a process can hold is searched so.
 """
 
 from __future__ import annotations
@@ -20,12 +23,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.perception import FeelTarget
 from evo_door.perception.feel import DIRECTIONS, LATCH_ZONE
-from evo_door.sim.simulate import (
-    COULOMB_SPEED,
-    coulomb_vector,
-    hold_forces_rows,
-    inertia_rows,
-)
+from evo_door.perception.target import coulomb_rows, felt_dynamics_rows, measured_feel
 
 #: every LATCH_THIN-th point of the perceptual objective's latch grid (2e-5 rad): 1.6e-4
 #: rad, 0.009 deg, a fiftieth of the position JND's angle at the handle (a latch's peak
@@ -41,7 +39,7 @@ BLOWN = 1e6
 
 @dataclass
 class Reference:
-    """What a feel is judged by on a :class:`FeelCheck`'s grid: its force (N) and force
+    """What a feel is judged by on a :class:`BatchFeelCheck`'s grid: its force (N) and force
     JND (N) per stroke at every angle, its latch peaks (N) and their JNDs, their angles
     (rad) and the position JND's angle, and its felt dynamics with their JNDs (None
     for a bare curve)."""
@@ -55,7 +53,7 @@ class Reference:
     dynamics: tuple | None = None  # ((inertia, jnd), (damping, jnd))
 
 
-class FeelCheck:
+class BatchFeelCheck:
     """The perceptual check of many doors against a chosen feel, on one fixed grid.
 
     :meth:`margins` gives every door (a row of a kernel matrix) its signed differences
@@ -124,19 +122,11 @@ class FeelCheck:
 
     def measure(self, P) -> dict:
         """The doors' own quantities: Coulomb forces (N) per stroke on :attr:`theta`,
-        latch peaks (N) and their angles (rad) per stroke, felt inertia and damping."""
-        Q = np.array([coulomb_vector(self.model, p) for p in P])
-        zone = self.theta[self.latch]
-        out: dict = {"peaks": {}, "angles": {}}
-        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = hold_forces_rows(self.model, Q, self.theta, sign * COULOMB_SPEED)
-            fl = f[:, self.latch]
-            k = np.argmin(fl, axis=1) if d == "opening" else np.argmax(fl, axis=1)
-            out[d] = f
-            out["peaks"][d] = fl[np.arange(len(P)), k]
-            out["angles"][d] = zone[k]
+        latch peaks (N) and their angles (rad) per stroke, felt inertia and damping
+        (:func:`~evo_door.perception.target.measured_feel`, as a candidate's)."""
+        out = measured_feel(self.model, coulomb_rows(self.model, P), self.theta, self.latch)
         if self.feel.dynamics is not None:
-            out["dynamics"] = self._dynamics(P)
+            out["dynamics"] = felt_dynamics_rows(self.model, P, self.dyn_theta, self.feel.jnd.speed)
         return out
 
     def against(self, got: dict, ref: Reference) -> np.ndarray:
@@ -164,14 +154,10 @@ class FeelCheck:
         """The :class:`Reference` of the feel of ``model`` at ``p`` (a haptic set, say),
         on this grid, under the chosen feel's JNDs."""
         jnd = self.feel.jnd
-        pc = coulomb_vector(model, p)
-        zone = self.theta[self.latch]
-        chosen, peaks, angles = {}, {}, {}
-        for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = hold_forces_rows(model, pc[None, :], self.theta, sign * COULOMB_SPEED)[0]
-            fl = f[self.latch]
-            k = int(np.argmin(fl) if d == "opening" else np.argmax(fl))
-            chosen[d], peaks[d], angles[d] = f, float(fl[k]), float(zone[k])
+        got = measured_feel(model, coulomb_rows(model, [p]), self.theta, self.latch)
+        chosen = {d: got[d][0] for d in DIRECTIONS}
+        peaks = {d: float(got["peaks"][d][0]) for d in DIRECTIONS}
+        angles = {d: float(got["angles"][d][0]) for d in DIRECTIONS}
         dynamics = None
         if self.feel.dynamics is not None:
             ti, tc = self.feel.felt_dynamics(model, np.asarray(p, dtype=np.float64))
@@ -185,17 +171,6 @@ class FeelCheck:
             jnd.angle_threshold(),
             dynamics,
         )
-
-    def _dynamics(self, P) -> np.ndarray:
-        """Felt inertia (kg m) and damping (N s/rad), as :meth:`FeelTarget.felt_dynamics`."""
-        theta, v = self.dyn_theta, self.feel.jnd.speed
-        inertia = inertia_rows(self.model, P, theta, -0.5 * v).mean(axis=1)
-        damping = np.zeros(len(P))
-        for s in (-1.0, 1.0):
-            half = hold_forces_rows(self.model, P, theta, 0.5 * s * v)
-            full = hold_forces_rows(self.model, P, theta, s * v)
-            damping += np.mean((full - half) / (0.5 * s * v), axis=1)
-        return np.c_[inertia, 0.5 * damping]
 
     def judge(self, P) -> np.ndarray:
         """Whether each door (row of ``P``) passes the check."""

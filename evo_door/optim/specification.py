@@ -11,6 +11,16 @@ import numpy as np
 
 from evo_door.files import ATTRS
 
+#: the groups a specification table lists (besides the free parameters)
+SPEC_GROUPS = ("specification", "sensation")
+
+
+def spec_names(model, free) -> list[str]:
+    """The parameters a specification table lists: the model's ``specification`` and
+    ``sensation`` groups and the free ones, in declaration order."""
+    return [p.name for p in model.params if p.group in SPEC_GROUPS or p.name in free]
+
+
 #: the seed of the centring's draws (what a file written without one used)
 DESIGN_SEED = 1
 

@@ -10,7 +10,7 @@ with, and the share that will: the **yield**.
 
 :func:`specify` does it in five steps:
 
-1. **The check, for many doors at once** (:class:`FeelCheck`): every door's margins,
+1. **The check, for many doors at once** (:class:`BatchFeelCheck`): every door's margins,
    its differences from the chosen feel in units of their JNDs, signed: each point of
    both strokes outside the latch zone, both latch peaks, both peaks' angles, and the
    felt inertia and damping where the chosen feel has dynamics. A door passes when
@@ -61,7 +61,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.optim.feel_doors import (
     BLOWN,
-    FeelCheck,
+    BatchFeelCheck,
     Reference,
     band_text,
     passing,
@@ -78,7 +78,7 @@ from evo_door.perception import FeelTarget
 from evo_door.perception.feel import DIRECTIONS
 
 __all__ = [
-    "FeelCheck",
+    "BatchFeelCheck",
     "NearestFeel",
     "Reference",
     "Specification",
@@ -171,7 +171,7 @@ def specify(
     hi_decl = np.array([model.params[n].upper for n in names])
     dist = [process.distribution[process.names.index(n)] for n in names]
     source = [process.source[process.names.index(n)] for n in names]
-    check = FeelCheck(model, feel)
+    check = BatchFeelCheck(model, feel)
     bar = _bar(ROUNDS + 4, progress)
 
     def widths(p):
@@ -330,7 +330,7 @@ def _check_inputs(model, p0, feel, names, samples, target) -> np.ndarray:
     return p0
 
 
-def _secants(check: FeelCheck, p, idx, t, lo, hi) -> np.ndarray:
+def _secants(check: BatchFeelCheck, p, idx, t, lo, hi) -> np.ndarray:
     """Each specification's secant slope of every margin over +-its tolerance (JND per
     unit), columns in ``idx``'s order; a step of 1e-6 of its value where the tolerance
     is 0 (a slope is still wanted for centring)."""
@@ -385,7 +385,7 @@ def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray
 
 
 def _joined(measured: list) -> dict:
-    """One :meth:`FeelCheck.measure` of the batches of a sample."""
+    """One :meth:`BatchFeelCheck.measure` of the batches of a sample."""
     out: dict = {d: np.concatenate([m[d] for m in measured]) for d in DIRECTIONS}
     for key in ("peaks", "angles"):
         out[key] = {d: np.concatenate([m[key][d] for m in measured]) for d in DIRECTIONS}
@@ -410,7 +410,7 @@ NEAREST_DOORS = 200
 
 
 def nearest_feel(
-    check: FeelCheck, got: dict, model, params, target: float, seed: int = YIELD_SEED
+    check: BatchFeelCheck, got: dict, model, params, target: float, seed: int = YIELD_SEED
 ) -> NearestFeel:
     """The set of ``model`` (the chosen feel's, at ``params``) nearest the chosen feel
     whose feel the measured doors ``got`` pass at ``target`` (module docstring, step 5).
@@ -539,7 +539,7 @@ def _allocate(M, U, t, J, names, loss, swing, target) -> dict:
     return {}
 
 
-def _curves(check: FeelCheck, forces: dict) -> dict:
+def _curves(check: BatchFeelCheck, forces: dict) -> dict:
     """The figure's arrays: the chosen curve, its JND, the sampled doors' low and high."""
     if not forces:
         return {}

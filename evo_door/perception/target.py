@@ -23,6 +23,12 @@ units of the just-noticeable difference (JND), as a user would judge it:
 The objective is the sum: 0 is the chosen feel, 1 is a difference of one JND
 everywhere. :meth:`FeelTarget.residuals` gives the terms as a vector whose squares sum
 to it (for the identifiability check and for local polish).
+
+Every door is measured one way, compiled and many at once: :func:`measured_feel` (the
+Coulomb forces of both strokes, the latch peaks and their angles) and
+:func:`felt_dynamics_rows` (the felt inertia and damping). One candidate is a batch of
+one row; :class:`~evo_door.optim.feel_doors.BatchFeelCheck`, the check of the doors a
+supplier builds, measures on the same two.
 """
 
 from __future__ import annotations
@@ -48,6 +54,53 @@ PEAK_WEIGHT = 1.0
 #: weight of each stroke point's squared excess beyond its JND (JND^2 a point): ten
 #: points 0.1 JND beyond add 1, as much as the whole stroke one JND off
 EXCESS_WEIGHT = 10.0
+
+
+#: rows measured at once (the memory of a batch: rows x angles x 2 strokes)
+ROWS = 256
+
+
+def coulomb_rows(model, P) -> np.ndarray:
+    """The Coulomb kernel vector (:func:`~evo_door.sim.simulate.coulomb_vector`) of
+    every row of the kernel matrix ``P``."""
+    from evo_door.sim.simulate import coulomb_vector
+
+    return np.array([coulomb_vector(model, p) for p in P])
+
+
+def measured_feel(model, Q, theta, latch) -> dict:
+    """What a door's feel is judged by, for every row of the Coulomb kernel matrix ``Q``
+    (:func:`coulomb_rows`) on the angles ``theta`` (rad), in one compiled call a stroke:
+    ``{"opening": forces, "closing": forces}`` (N, rows x angles) and, in the latch zone
+    (``latch``, a mask of ``theta``), ``"peaks"`` (the largest pull opening, the largest
+    push closing, N) and their ``"angles"`` (rad), each per stroke a value a row."""
+    from evo_door.sim.simulate import COULOMB_SPEED, hold_forces_rows
+
+    zone = theta[latch]
+    out: dict = {"peaks": {}, "angles": {}}
+    for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
+        f = hold_forces_rows(model, Q, theta, sign * COULOMB_SPEED)
+        fl = f[:, latch]
+        k = np.argmin(fl, axis=1) if d == "opening" else np.argmax(fl, axis=1)
+        out[d] = f
+        out["peaks"][d] = fl[np.arange(len(Q)), k]
+        out["angles"][d] = zone[k]
+    return out
+
+
+def felt_dynamics_rows(model, P, theta, speed: float) -> np.ndarray:
+    """Mean felt inertia (kg m) and viscous damping (N s/rad) of every row of the
+    kernel matrix ``P`` over the angles ``theta`` (module docstring, the dynamics;
+    ``speed``: :attr:`JND.speed`): an array (rows, 2)."""
+    from evo_door.sim.simulate import hold_forces_rows, inertia_rows
+
+    inertia = inertia_rows(model, P, theta, -0.5 * speed).mean(axis=1)
+    damping = np.zeros(len(P))
+    for s in (-1.0, 1.0):
+        half = hold_forces_rows(model, P, theta, 0.5 * s * speed)
+        full = hold_forces_rows(model, P, theta, s * speed)
+        damping += np.mean((full - half) / (0.5 * s * speed), axis=1)
+    return np.c_[inertia, 0.5 * damping]
 
 
 @dataclass
@@ -115,52 +168,46 @@ class FeelTarget:
     # -- the mechanism's side ----------------------------------------------------------
     def felt_dynamics(self, model, p) -> tuple[float, float]:
         """Mean felt inertia (kg m) and viscous damping (N s/rad) of ``model`` at ``p``
-        over the stroke (module docstring)."""
-        from evo_door.sim.simulate import hold_forces, inertia_rows
-
-        theta = self.dyn_grid
-        v = self.jnd.speed
-        inertia = inertia_rows(model, p, theta, -0.5 * v)[0]
-        damping = 0.0
-        for s in (-1.0, 1.0):
-            half = hold_forces(model, p, theta, 0.5 * s * v)
-            full = hold_forces(model, p, theta, s * v)
-            damping += float(np.mean((full - half) / (0.5 * s * v)))
-        return float(np.mean(inertia)), 0.5 * damping
+        over the stroke (module docstring): :func:`felt_dynamics_rows` of one row."""
+        inertia, damping = felt_dynamics_rows(
+            model, np.atleast_2d(p), self.dyn_grid, self.jnd.speed
+        )[0]
+        return float(inertia), float(damping)
 
     def residuals(self, model, p) -> np.ndarray:
         """The objective's terms as a vector whose squares sum to :meth:`value`."""
-        from evo_door.sim.simulate import COULOMB_SPEED, coulomb_vector, hold_forces
+        return self.residual_rows(model, p)[0]
 
-        pc = coulomb_vector(model, p)
+    def residual_rows(self, model, P) -> np.ndarray:
+        """:meth:`residuals` of every row of the full parameter matrix ``P``: an array
+        (rows, terms), each door measured with the others (:func:`measured_feel`)."""
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        n = self.stroke.size
+        theta = np.concatenate([self.stroke, self.latch])
+        got = measured_feel(model, coulomb_rows(model, P), theta, np.arange(theta.size) >= n)
         parts = []
         excess = math.sqrt(self.excess_weight)
-        for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = hold_forces(model, pc, self.stroke, s * COULOMB_SPEED)
-            r = (f - self.chosen[d]) / self.threshold[d]
+        for d in DIRECTIONS:
+            r = (got[d][:, :n] - self.chosen[d]) / self.threshold[d]
             parts.append(np.sqrt(0.5 * self.weights) * r)
             if excess > 0.0:
                 parts.append(excess * np.sign(r) * np.maximum(np.abs(r) - 1.0, 0.0))
         w, wa = math.sqrt(self.peak_weight), math.sqrt(self.angle_weight)
-        for d, s in zip(DIRECTIONS, (-1.0, 1.0)):
-            f = hold_forces(model, pc, self.latch, s * COULOMB_SPEED)
-            k = int(f.argmin() if d == "opening" else f.argmax())
-            parts.append(np.array([w * (f[k] - self.peaks[d]) / self.peak_threshold[d]]))
+        for d in DIRECTIONS:
+            parts.append((w * (got["peaks"][d] - self.peaks[d]) / self.peak_threshold[d])[:, None])
             if wa > 0.0:
-                angle = (self.latch[k] - self.peak_angles[d]) / self.angle_threshold
-                parts.append(np.array([wa * angle]))
+                angle = (got["angles"][d] - self.peak_angles[d]) / self.angle_threshold
+                parts.append((wa * angle)[:, None])
         if self.dynamics is not None:
-            inertia, damping = self.felt_dynamics(model, np.asarray(p, dtype=np.float64))
+            felt = felt_dynamics_rows(model, P, self.dyn_grid, self.jnd.speed)
             ti, tc = self.dynamics
             parts.append(
-                np.array(
-                    [
-                        (inertia - ti) / self.jnd.inertia_threshold(ti),
-                        (damping - tc) / self.jnd.damping_threshold(tc),
-                    ]
-                )
+                np.c_[
+                    (felt[:, 0] - ti) / self.jnd.inertia_threshold(ti),
+                    (felt[:, 1] - tc) / self.jnd.damping_threshold(tc),
+                ]
             )
-        r = np.concatenate(parts)
+        r = np.concatenate(parts, axis=1)
         return np.where(np.isfinite(r), r, 1e6)
 
     def mechanism_curve(self, model, p) -> FeelCurve:
@@ -216,9 +263,14 @@ class FeelTarget:
         return float(np.dot(r, r))
 
     def evaluate(self, model, P) -> np.ndarray:
-        """:meth:`value` of every row of the full parameter matrix ``P``."""
+        """:meth:`value` of every row of the full parameter matrix ``P``, :data:`ROWS`
+        rows measured at once."""
         P = np.atleast_2d(np.asarray(P, dtype=np.float64))
-        return np.array([self.value(model, np.ascontiguousarray(row)) for row in P])
+        out = np.empty(len(P))
+        for start in range(0, len(P), ROWS):
+            for k, r in enumerate(self.residual_rows(model, P[start : start + ROWS])):
+                out[start + k] = float(np.dot(r, r))
+        return out
 
     def describe(self) -> dict:
         """What a results file keeps of it (the chosen curve, the settings)."""

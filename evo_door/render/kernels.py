@@ -25,6 +25,7 @@ from evo_door.models.haptic import (
     section_scale,
     tangential_force,
 )
+from evo_door.render.columns import COMMAND, DTHETA, FORCE, POSITION, THETA, USER_FORCE, VELOCITY
 from evo_door.render.friction import implicit_coulomb
 from evo_door.render.safety import NON_FINITE, limit_force
 
@@ -158,20 +159,20 @@ def _finite_state(pos, vel, user):
 def _fill_row(pos, vel, user, out, finite, row):
     """The log row of a cycle: state, measured and commanded force, door state."""
     for i in range(3):
-        row[i] = pos[i]
-        row[3 + i] = vel[i]
-        row[6 + i] = user[i]
-        row[9 + i] = out[i]
+        row[POSITION + i] = pos[i]
+        row[VELOCITY + i] = vel[i]
+        row[USER_FORCE + i] = user[i]
+        row[COMMAND + i] = out[i]
     ym = pos[1] + DEVICE_OFFSET_Y
     zm = pos[2] + DEVICE_OFFSET_Z
     r2 = ym * ym + zm * zm
     if r2 > 1e-18 and finite:
         theta = math.atan2(ym, zm)
-        row[12] = theta
-        row[13] = (vel[1] * zm - vel[2] * ym) / r2
+        row[THETA] = theta
+        row[DTHETA] = (vel[1] * zm - vel[2] * ym) / r2
         # e_theta = (cos, -sin) in (y, z): toward closing
-        row[14] = user[1] * math.cos(theta) - user[2] * math.sin(theta)
+        row[FORCE] = user[1] * math.cos(theta) - user[2] * math.sin(theta)
     else:
-        row[12] = math.nan if not finite else 0.0
-        row[13] = math.nan if not finite else 0.0
-        row[14] = math.nan if not finite else 0.0
+        row[THETA] = math.nan if not finite else 0.0
+        row[DTHETA] = math.nan if not finite else 0.0
+        row[FORCE] = math.nan if not finite else 0.0

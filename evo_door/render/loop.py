@@ -39,9 +39,19 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.models.haptic import FRICTION_CLOSING, FRICTION_OPENING, PARAMS
 from evo_door.params import param_vector
+from evo_door.render.columns import (
+    COMMAND,
+    DTHETA,
+    FORCE,
+    N_COLUMNS,
+    POSITION,
+    THETA,
+    USER_FORCE,
+    VELOCITY,
+)
 from evo_door.render.hands_off import HANDS_OFF_RANGE, check_hands_off
 from evo_door.render.kernels import compute_command, compute_command_implicit
-from evo_door.render.log import N_COLUMNS, RenderLog
+from evo_door.render.log import RenderLog
 from evo_door.render.priority import Pacing
 from evo_door.render.safety import IMPLICIT, NON_FINITE, Watchdog, check_passive
 from evo_door.render.timing import LoopTiming
@@ -254,13 +264,13 @@ class ServoLoop:
             "status": self.status,
             "params": self.params,
             "pending": self.pending,
-            "theta": float(row[12]),
-            "dtheta": float(row[13]),
-            "force": float(row[14]),
-            "position": row[0:3].tolist(),
-            "velocity": row[3:6].tolist(),
-            "user_force": row[6:9].tolist(),
-            "command": row[9:12].tolist(),
+            "theta": float(row[THETA]),
+            "dtheta": float(row[DTHETA]),
+            "force": float(row[FORCE]),
+            "position": row[POSITION : POSITION + 3].tolist(),
+            "velocity": row[VELOCITY : VELOCITY + 3].tolist(),
+            "user_force": row[USER_FORCE : USER_FORCE + 3].tolist(),
+            "command": row[COMMAND : COMMAND + 3].tolist(),
             "faults": self.faults,
             "saturated": self.saturated,
             "watchdog": self.watchdog.reason,
@@ -558,7 +568,7 @@ class ServoLoop:
         factor = self.watchdog.factor(now)
         cmd = self._cmd
         cmd[:] = self._last * factor
-        self._row[9:12] = cmd
+        self._row[COMMAND : COMMAND + 3] = cmd
         try:
             self.device.command(cmd)
         except Exception:  # the connection is gone: nothing more to send

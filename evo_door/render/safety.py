@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from evo_door.errors import UserError
@@ -205,9 +204,3 @@ class Watchdog:
         if self.tripped_at is None:
             return 1.0
         return max(0.0, 1.0 - (t - self.tripped_at) / self.ramp_time)
-
-
-def random_kernel_vectors(n: int, rng) -> np.ndarray:
-    """``n`` haptic parameter vectors drawn uniformly within the declared bounds."""
-    lo, hi = PARAMS.lower, PARAMS.upper
-    return lo + (hi - lo) * rng.random((n, len(PARAMS)))

@@ -9,8 +9,10 @@ from evo_door.render.stopping import STOPPED
 def summary_lines(loop, stats: dict, rate: float, name: str) -> list[str]:
     """The summary of a render that ran (its log has rows): ``stats`` are the loop's
     statistics, ``rate`` its rate (Hz), ``name`` the device's."""
+    from evo_door.render.columns import THETA  # numpy: not at the command line's start
+
     stopped = stats["status"] == "stopped"
-    first, last = loop.log.first()[12], loop.log.last()[12]  # theta (rad)
+    first, last = loop.log.first()[THETA], loop.log.last()[THETA]  # rad
     status = STOPPED if stopped else stats["status"]
     lines = [
         f"rendered {stats['cycles']} cycles at {rate:g} Hz on {name} ({status}); "

@@ -15,10 +15,12 @@ surfaces (:data:`SWITCHES_SIGNATURE`; a surface is where ``g[i]`` changes sign, 
 example ``theta - theta_0`` at the start of a latch band). After every step the
 signs are compared with those at its start; where one changed, the crossing is found
 by the Illinois method on the step *length* (each trial length a fresh step from the
-same start, so every candidate is a step that does not cross), to 1e-13 of the sample
-period. The step to the last length short of the surface is kept, the state is moved
-across it by an Euler step of the bracket's width (1e-13 s, so the next step's stages
-all see the far side's law), and the period goes on from there. A surface crossed
+same start, so every candidate is a step that does not cross), to :data:`LOCATE_TOL`
+(1e-7) of the sample period. The step to the last length short of the surface is kept,
+the state is moved across it by an Euler step of the bracket's width (at least
+``LOCATE_TOL`` of the period, 1e-10 s at 1 kHz; widened fourfold while that does not
+cross it, to past 1e-6 of the period at most, so the next step's stages all see the far
+side's law), and the period goes on from there. A surface crossed
 more than :data:`MAX_EVENTS` times in one period (a chatter) is stepped over for the
 rest of it.
 

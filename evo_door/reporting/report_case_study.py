@@ -22,17 +22,14 @@ import math
 
 import numpy as np
 
-from evo_door.experiment.page import Page as _Page  # the name the sections use
-from evo_door.experiment.report_feel import JNDChanges
 from evo_door.experiment.results import Results
 from evo_door.files import save_figure
 from evo_door.perception import verdict_text
 from evo_door.perception.feel import DIRECTIONS
-
+from evo_door.reporting.page import ReportPage
+from evo_door.reporting.report_feel import JNDChanges
 
 # -- the case study --------------------------------------------------------------------
-def _free(res: Results) -> list[str]:
-    return list(res.free)
 
 
 def _target_model(res: Results):
@@ -46,7 +43,7 @@ def _target_model(res: Results):
     return model, model.load_params(t.get("params"), t.get("set") or {})
 
 
-def _case_study(page: _Page, results: list[Results], changes: JNDChanges) -> None:
+def _case_study(page: ReportPage, results: list[Results], changes: JNDChanges) -> None:
     page.h(2, "The case study", "case-study")
     physical = [r for r in results if r.complete and "table" in r.summary()]
     for res in physical[:1]:
@@ -71,7 +68,7 @@ def _case_study(page: _Page, results: list[Results], changes: JNDChanges) -> Non
         _constant_vs_variable(page, spec[-1], redesign[-1])
 
 
-def _perceptual_summary(page: _Page, results: list[Results], changes: JNDChanges) -> None:
+def _perceptual_summary(page: ReportPage, results: list[Results], changes: JNDChanges) -> None:
     """One row per stage fitted to a chosen feel: its verdict per stroke, and whether
     its answer passes; the checks themselves are in the stages' sections."""
     rows = []
@@ -112,8 +109,8 @@ def _perceptual_summary(page: _Page, results: list[Results], changes: JNDChanges
 
 
 def _trial_response(res: Results, node, values: dict):
-    """The model's response to a stored trial (a :class:`~.reader.StoredTrial`) with
-    ``values`` (name -> value)."""
+    """The model's response to a stored trial (a
+    :class:`~evo_door.experiment.reader.StoredTrial`) with ``values`` (name -> value)."""
     from evo_door.sim import simulate
 
     model = res.model
@@ -136,7 +133,7 @@ def _trial_response(res: Results, node, values: dict):
     return tr, r
 
 
-def _figure_5_2(page: _Page, res: Results) -> None:
+def _figure_5_2(page: ReportPage, res: Results) -> None:
     from matplotlib.figure import Figure
 
     from evo_door.channels import unit
@@ -191,7 +188,7 @@ def _figure_5_2(page: _Page, res: Results) -> None:
     )
 
 
-def _a_of_theta(page: _Page, res: Results) -> None:
+def _a_of_theta(page: ReportPage, res: Results) -> None:
     from matplotlib.figure import Figure
 
     values = res.values()
@@ -234,7 +231,7 @@ def _a_of_theta(page: _Page, res: Results) -> None:
     page.figure(f"{res.stage}-a-of-theta", draw, "A(theta): the pad friction's scale per section")
 
 
-def _constant_vs_variable(page: _Page, spec: Results, redesign: Results) -> None:
+def _constant_vs_variable(page: ReportPage, spec: Results, redesign: Results) -> None:
     from matplotlib.figure import Figure
 
     e0, e1 = spec.channel_errors(), redesign.channel_errors()

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evo_door.experiment.comparison import Comparison, plan_comparison, run_comparison
-from evo_door.experiment.comparison_summary import best_rows, run_records, summarise
+from evo_door.experiment.comparison import Comparison
+from evo_door.experiment.comparison_summary import best_rows
 from evo_door.experiment.objectives import KINDS
 from evo_door.files import check_image_path, save_figure, write_text
 
@@ -424,21 +424,3 @@ def write_outputs(comp: Comparison, records: list[dict], rows: list[dict]) -> li
     save_figure(figure(rows, records, comp.name), paths[2], dpi=110)
     write_text(paths[3], runs_csv(records))
     return paths
-
-
-def compare_objectives(
-    experiment,
-    overrides=(),
-    kinds=KINDS,
-    derivatives=None,
-    seeds: int = 1,
-    out=None,
-    progress: bool = False,
-) -> tuple[Comparison, list[dict], list[dict]]:
-    """Plan, run, read back and write a comparison in one call (library use)."""
-    comp = plan_comparison(experiment, overrides, kinds, derivatives, seeds, out)
-    run_comparison(comp, progress=progress)
-    records = run_records(comp)
-    rows = summarise(records)
-    write_outputs(comp, records, rows)
-    return comp, records, rows

@@ -1,5 +1,6 @@
-"""The figures of a run: its best response next to the target (``show --plot``) and its
-convergence (``show --convergence``); the report embeds both.
+"""The figures of a run: its best response next to the target (``show --plot``), its
+convergence (``show --convergence``) and its specification's yield loss and doors' band
+(:func:`plot_tolerances`); the report embeds them.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from evo_door.errors import UserError
 from evo_door.experiment.results import Results, finite, fmt_number, theta_unit_of
 from evo_door.files import save_figure
 from evo_door.optim.problem import Objective
+from evo_door.optim.specification import Specification
 
 
 def plot_fit(res: Results, path, max_trials: int = 12) -> None:
@@ -158,3 +160,55 @@ def plot_convergence(res: Results, path) -> None:
 def _positive(values) -> np.ndarray:
     v = np.asarray(values, dtype=float)
     return np.where(np.isfinite(v) & (v > 0), v, np.nan)
+
+
+def plot_tolerances(spec: Specification, label: str, path) -> None:
+    """The report's figure: each specification's contribution to the yield loss (the
+    yield gained were it built exactly), and the force-angle band of the yield's sampled
+    doors (2.5-97.5 %) against the chosen feel's JND band, per stroke."""
+    from matplotlib.figure import Figure
+
+    n = len(spec.names)
+    fig = Figure(figsize=(11.0, max(3.6, 0.9 + 0.24 * n)), layout="constrained")
+    bars, curves = fig.subplots(1, 2, width_ratios=(1.0, 1.4))
+    y = np.arange(n)[::-1]
+    colours = ["tab:red" if c else "tab:blue" for c in spec.changed]
+    bars.barh(y, 100.0 * spec.loss, color=colours, height=0.6)
+    labels = [
+        f"{name} +-{t:.3g}" + ("" if u == "1" else f" {u}")
+        for name, t, u in zip(spec.names, spec.half_width, spec.units)
+    ]
+    bars.set_yticks(y, labels, fontsize=7)
+    bars.set_xlabel("yield gained were it built exactly [% of doors]")
+    y_text = spec.yield_.text().split(" (")[0]
+    bars.set_title(f"{label}: yield {y_text}; red = changed from AS-IS", fontsize=10)
+    c = spec.curves
+    if c:
+        deg = np.degrees(c["theta"])
+        for d, colour in (("opening", "tab:blue"), ("closing", "tab:red")):
+            chosen, jnd = c[f"{d}_chosen"], c[f"{d}_jnd"]
+            curves.fill_between(deg, chosen - jnd, chosen + jnd, color=colour, alpha=0.18, lw=0)
+            curves.plot(deg, chosen, color=colour, lw=1.0, label=f"{d}: chosen +- JND")
+            curves.plot(deg, c[f"{d}_low"], color=colour, lw=0.6, ls="--")
+            curves.plot(
+                deg, c[f"{d}_high"], color=colour, lw=0.6, ls="--", label=f"{d}: 95 % of doors"
+            )
+        # the stroke sets the scale: the latch's peaks (the last 3 deg) would flatten it
+        stroke = deg <= deg[-1] - 3.0
+        parts = [c[f"{d}_{k}"][stroke] for d in ("opening", "closing") for k in ("low", "high")]
+        parts += [
+            c[f"{d}_chosen"][stroke] + s * c[f"{d}_jnd"][stroke]
+            for d in ("opening", "closing")
+            for s in (-1, 1)
+        ]
+        lo, hi = min(map(np.min, parts)), max(map(np.max, parts))
+        pad = 0.15 * (hi - lo) + 0.5
+        curves.set_ylim(lo - pad, hi + pad)
+        curves.set_xlabel("theta [deg] (0 open, 90 closed; the latch's peaks are off scale)")
+        curves.set_ylabel("force [N] (+ toward closing)")
+        curves.legend(fontsize=7)
+        curves.set_title(
+            f"doors built to the process: {spec.yield_.samples} drawn, seed {spec.yield_.seed}",
+            fontsize=10,
+        )
+    save_figure(fig, path, dpi=110)

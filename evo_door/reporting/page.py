@@ -21,7 +21,7 @@ STYLE = (
 )
 
 
-class Page:
+class ReportPage:
     """The page being built: sections of HTML, figures written and embedded."""
 
     def __init__(self, folder: Path):

@@ -9,7 +9,8 @@ yield on a fresh sample and, where the target is out of reach, the allocation. I
 results file keeps it (``tolerance/``); :func:`tolerances_of` reads it back, or
 computes it for a file written before it was kept (``export-spec`` says so in a
 note). The specifications are the rows of the run's specification table
-(:func:`evo_door.experiment.spec.spec_names`).
+(:func:`evo_door.optim.specification.spec_names`); the report's figure of it is
+:func:`evo_door.reporting.figures.plot_tolerances`.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from __future__ import annotations
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.experiment.spec import spec_names
 from evo_door.experiment.stored import setup_from_tree
 from evo_door.optim.process import process_for
+from evo_door.optim.specification import spec_names
 from evo_door.optim.tolerance import Specification, specify
 
 #: the note of a specification computed for a results file that has none
@@ -92,57 +93,3 @@ def tolerances_of(res, compute: bool = True) -> Specification | None:
         out.note = "; ".join(x for x in (out.note, COMPUTED_NOTE) if x)
         res.record.tolerance = out  # once a read: the table and the report share it
     return out
-
-
-def plot_tolerances(spec: Specification, label: str, path) -> None:
-    """The report's figure: each specification's contribution to the yield loss (the
-    yield gained were it built exactly), and the force-angle band of the yield's sampled
-    doors (2.5-97.5 %) against the chosen feel's JND band, per stroke."""
-    from matplotlib.figure import Figure
-
-    from evo_door.files import save_figure
-
-    n = len(spec.names)
-    fig = Figure(figsize=(11.0, max(3.6, 0.9 + 0.24 * n)), layout="constrained")
-    bars, curves = fig.subplots(1, 2, width_ratios=(1.0, 1.4))
-    y = np.arange(n)[::-1]
-    colours = ["tab:red" if c else "tab:blue" for c in spec.changed]
-    bars.barh(y, 100.0 * spec.loss, color=colours, height=0.6)
-    labels = [
-        f"{name} +-{t:.3g}" + ("" if u == "1" else f" {u}")
-        for name, t, u in zip(spec.names, spec.half_width, spec.units)
-    ]
-    bars.set_yticks(y, labels, fontsize=7)
-    bars.set_xlabel("yield gained were it built exactly [% of doors]")
-    y_text = spec.yield_.text().split(" (")[0]
-    bars.set_title(f"{label}: yield {y_text}; red = changed from AS-IS", fontsize=10)
-    c = spec.curves
-    if c:
-        deg = np.degrees(c["theta"])
-        for d, colour in (("opening", "tab:blue"), ("closing", "tab:red")):
-            chosen, jnd = c[f"{d}_chosen"], c[f"{d}_jnd"]
-            curves.fill_between(deg, chosen - jnd, chosen + jnd, color=colour, alpha=0.18, lw=0)
-            curves.plot(deg, chosen, color=colour, lw=1.0, label=f"{d}: chosen +- JND")
-            curves.plot(deg, c[f"{d}_low"], color=colour, lw=0.6, ls="--")
-            curves.plot(
-                deg, c[f"{d}_high"], color=colour, lw=0.6, ls="--", label=f"{d}: 95 % of doors"
-            )
-        # the stroke sets the scale: the latch's peaks (the last 3 deg) would flatten it
-        stroke = deg <= deg[-1] - 3.0
-        parts = [c[f"{d}_{k}"][stroke] for d in ("opening", "closing") for k in ("low", "high")]
-        parts += [
-            c[f"{d}_chosen"][stroke] + s * c[f"{d}_jnd"][stroke]
-            for d in ("opening", "closing")
-            for s in (-1, 1)
-        ]
-        lo, hi = min(map(np.min, parts)), max(map(np.max, parts))
-        pad = 0.15 * (hi - lo) + 0.5
-        curves.set_ylim(lo - pad, hi + pad)
-        curves.set_xlabel("theta [deg] (0 open, 90 closed; the latch's peaks are off scale)")
-        curves.set_ylabel("force [N] (+ toward closing)")
-        curves.legend(fontsize=7)
-        curves.set_title(
-            f"doors built to the process: {spec.yield_.samples} drawn, seed {spec.yield_.seed}",
-            fontsize=10,
-        )
-    save_figure(fig, path, dpi=110)

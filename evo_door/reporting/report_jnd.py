@@ -6,10 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from evo_door.errors import UserError
-from evo_door.experiment.page import Page
 from evo_door.files import write_text
 from evo_door.perception.jnd_file import JndRecord
 from evo_door.perception.jnd_show import format_jnd, plot_psychometric, plot_track
+from evo_door.reporting.page import ReportPage
 
 
 def default_jnd_folder(path) -> Path:
@@ -24,7 +24,7 @@ def write_jnd_report(record: JndRecord, out=None) -> Path:
     if folder.exists() and not folder.is_dir():
         raise UserError(f"{folder}: exists and is not a folder")
     folder.mkdir(parents=True, exist_ok=True)
-    page = Page(folder)
+    page = ReportPage(folder)
     page.h(1, f"JND session: {record.param}")
     page.pre(format_jnd(record))
     n = int(len(record.trials.get("step", ())))

@@ -1,6 +1,6 @@
 """The JSON-able documents of ``runs`` (a folder of runs, cheaply) and ``compare`` (runs
 side by side); ``show --json`` is :meth:`Results.summary`. Every file is read once,
-through :mod:`.reader`.
+through :mod:`evo_door.experiment.reader`.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from evo_door.experiment.results import (
     run_status,
     units_of,
 )
+from evo_door.experiment.yamltree import flatten
 from evo_door.optim.bounds import bound_hits
 
 
@@ -109,22 +110,6 @@ def _run_row(run) -> dict:
 
 
 # -- several runs side by side ---------------------------------------------------------
-def flatten(config, prefix: str = "") -> dict:
-    """A nested mapping as dotted keys; lists and other values are leaves.
-
-    >>> flatten({"objective": {"kind": "ise", "derivative": 1}, "free": {"k": [20, 500]}})
-    {'objective.kind': 'ise', 'objective.derivative': 1, 'free.k': [20, 500]}
-    """
-    out = {}
-    for key, value in config.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            out.update(flatten(value, name + "."))
-        else:
-            out[name] = value
-    return out
-
-
 def _differences(dicts: list[dict]) -> dict[str, list]:
     """Dotted key -> the value in each dict, for the keys whose values differ.
 

@@ -4,12 +4,12 @@ The page needs no network to be read: the figures are PNG files written next to 
 embedded in it (base64), the styles are inline. For every run (every stage of a
 pipeline) it shows the GA's convergence, the fit against the target per trial with each
 trial's error in the channel's unit, the parameter table with the per-trial ranges and
-the truth where the trials carry it (:mod:`.spec`), the identifiability check and the
-correlation matrix of the estimates.
+the truth where the trials carry it (:mod:`evo_door.experiment.spec`), the
+identifiability check and the correlation matrix of the estimates.
 
 For a pipeline laid out like the case study (``docs/case-study.md``) it adds what the
 seed's chapter 5 shows (:mod:`.report_case_study`). The page itself is built by
-:class:`evo_door.experiment.page.Page`.
+:class:`evo_door.reporting.page.ReportPage`.
 """
 
 from __future__ import annotations
@@ -21,22 +21,22 @@ from pathlib import Path
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.experiment.figures import plot_convergence, plot_fit
-from evo_door.experiment.format_text import format_integration_error
-from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
-from evo_door.experiment.report_case_study import _case_study
-from evo_door.experiment.report_feel import (
+from evo_door.experiment.results import Results
+from evo_door.experiment.run_specification import tolerances_of
+from evo_door.experiment.spec import spec_table, table_html
+from evo_door.files import save_figure, write_text
+from evo_door.reporting.figures import plot_convergence, plot_fit, plot_tolerances
+from evo_door.reporting.format_text import format_integration_error
+from evo_door.reporting.page import ReportPage
+from evo_door.reporting.report_case_study import _case_study
+from evo_door.reporting.report_feel import (
     DEFAULT_JND,
     FORCE_FLOOR,
     JNDChanges,
     front_section,
     perceptual_section,
 )
-from evo_door.experiment.results import Results
-from evo_door.experiment.spec import spec_table, table_html
-from evo_door.experiment.tolerance import plot_tolerances, tolerances_of
-from evo_door.files import save_figure, write_text
 
 __all__ = ["DEFAULT_JND", "FORCE_FLOOR", "JNDChanges", "pipeline_settings", "write_report"]
 
@@ -71,9 +71,10 @@ def default_folder(path) -> Path:
 
 def write_report(path, out=None, settings: JNDChanges | None = None, log=None) -> Path:
     """Write the report of the results file ``path`` (or its record, read once by
-    :func:`~.reader.read_results`) into the folder ``out`` (default ``<RUN>-report/``
-    next to it); returns the HTML file. ``settings`` changes the JND every perceptual
-    check is judged by (default: the pipeline file's ``report:``, else the runs' own)."""
+    :func:`~evo_door.experiment.reader.read_results`) into the folder ``out`` (default
+    ``<RUN>-report/`` next to it); returns the HTML file. ``settings`` changes the JND
+    every perceptual check is judged by (default: the pipeline file's ``report:``, else
+    the runs' own)."""
     from evo_door.experiment.pipeline import pipeline_summary
 
     t0 = time.perf_counter()
@@ -88,7 +89,7 @@ def write_report(path, out=None, settings: JNDChanges | None = None, log=None) -
     if not any(r.complete for r in results):
         raise UserError(f"{path}: nothing finished to report on yet ({results[0].status().text})")
     folder = _report_folder(path, out)
-    page = _Page(folder)
+    page = ReportPage(folder)
     name = pipeline["name"] if pipeline else results[0].attrs.get("name", "run")
     _head(page, name, path, pipeline, results)
     for res in results:
@@ -113,10 +114,10 @@ def _report_folder(path, out) -> Path:
     return folder
 
 
-def _head(page: _Page, name: str, path, pipeline, results: list) -> None:
+def _head(page: ReportPage, name: str, path, pipeline, results: list) -> None:
     """The page's title, its results file, and for a pipeline its summary and the links
     to its stages."""
-    from evo_door.experiment.format_text import format_pipeline
+    from evo_door.reporting.format_text import format_pipeline
 
     page.h(1, f"evo-door report: {name}")
     page.p(f"results file {Path(path).resolve()}")
@@ -145,7 +146,7 @@ def _made_by(v: dict, seconds: float) -> str:
 
 
 # -- one run -----------------------------------------------------------------------------
-def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
+def _run_section(page: ReportPage, res: Results, changes: JNDChanges) -> None:
     # long: a run's section in the order a reader meets it (fit, errors, the feel's
     # check, the front, the specification and its yield, identifiability)
     label = res.stage or res.attrs.get("name", "run")
@@ -232,7 +233,7 @@ def _run_section(page: _Page, res: Results, changes: JNDChanges) -> None:
             )
 
 
-def _integration_error(page: _Page, entry: dict | None) -> None:
+def _integration_error(page: ReportPage, entry: dict | None) -> None:
     """The answer's integration error beside the fit error, as ``show`` prints it; its
     warning (not small against the fit error) in the page's warning style."""
     lines = format_integration_error(entry)

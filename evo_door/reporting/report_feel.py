@@ -4,8 +4,8 @@ Every run (every stage of a pipeline) fitted to a chosen feel gets this section 
 own part of the page: the table ``show`` prints (verdict per stroke, share of the
 stroke beyond the JND, the largest difference, the angles beyond it) and the figure of
 both force-angle curves with the chosen one's JND band. The curves are the results
-file's (:mod:`.feel_check`), so nothing is simulated again; the JND is the run's own
-``perception`` settings, with the report's changes (``--jnd``, ``--force-floor``, a
+file's (:mod:`evo_door.experiment.feel_check`), so nothing is simulated again; the JND
+is the run's own ``perception`` settings, with the report's changes (``--jnd``, ``--force-floor``, a
 pipeline file's ``report:``) applied on top (:class:`JNDChanges`).
 """
 
@@ -18,7 +18,6 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.experiment.feel_check import jnd_value, jnds_used, run_jnd_sources
-from evo_door.experiment.page import Page as _Page  # the name the sections use
 from evo_door.experiment.results import Results
 from evo_door.files import save_figure
 from evo_door.perception import JND, verdict_text
@@ -30,6 +29,7 @@ from evo_door.perception.jnd_file import (
     read_jnd_file,
     usable_weber,
 )
+from evo_door.reporting.page import ReportPage
 
 #: the defaults of the force JND, for the help of ``evo-door report`` (the JND's own)
 DEFAULT_JND = JND().force
@@ -104,7 +104,9 @@ def stage_label(res: Results) -> str:
     return f"stage {res.stage}" if res.stage else "the run"
 
 
-def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str) -> dict | None:
+def perceptual_section(
+    page: ReportPage, res: Results, changes: JNDChanges, key: str
+) -> dict | None:
     """The section of ``res``'s perceptual check (nothing for a run not fitted to a
     chosen feel); returns the verdict shown (:meth:`FeelCheck.judged`), or None."""
     fc = res.record.perceptual_check
@@ -164,8 +166,8 @@ def perceptual_section(page: _Page, res: Results, changes: JNDChanges, key: str)
 
 
 def jnd_rows(jnds: dict) -> list[list[str]]:
-    """One row per JND setting (:func:`~.feel_check.jnds_used`): its name, its value
-    with its unit (a Weber fraction in %) and its source."""
+    """One row per JND setting (:func:`~evo_door.experiment.feel_check.jnds_used`): its
+    name, its value with its unit (a Weber fraction in %) and its source."""
     return [[k, jnd_value(e), e["source"]] for k, e in jnds.items()]
 
 
@@ -245,7 +247,7 @@ def _figure(path, check: dict, jnd: JND, fc, label: str) -> None:
     save_figure(fig, path, dpi=110)
 
 
-def front_section(page: _Page, res: Results, key: str) -> None:
+def front_section(page: ReportPage, res: Results, key: str) -> None:
     """A smallest-change fit's Pareto front (``algorithm: {kind: nsga2}``): the feel's
     distance from the chosen one against the size of the change, the answer marked;
     nothing for another fit."""

@@ -1,0 +1,123 @@
+"""What several test files share that is not a fixture (those are in ``conftest.py``):
+
+- a tiny experiment on the bundled trials (one door parameter, a 6 x 1 GA: a results
+  file in a few seconds) and the command line in a fresh process (:func:`cli_process`),
+  for the tests of what a command may read and write;
+- devices for loops run in a thread (:func:`yielding_sim`), a HapticMaster client
+  started on the emulator (:func:`started`) and haptic parameter vectors drawn within
+  their bounds (:func:`random_kernel_vectors`);
+- a servo loop served on its control port in a thread (:func:`served_loop`) and the
+  answers read back from a connection to it (:func:`answer_lines`).
+
+The independent statements of the science that tests compare against are
+``reference.py`` (converged integrations) and ``feel_reference.py`` (the perceptual
+check).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "experiments" / "data" / "default.h5"
+
+TINY_EXPERIMENT = f"""\
+name: tiny
+model: door
+params: default
+target: {{data: {DATA}, kinds: [impulse]}}
+free: {{F_atD: [5.0, 70.0]}}
+objective: {{kind: ise, derivative: 1}}
+algorithm: {{population: 6, generations: 1, seed: 1}}
+"""
+
+
+def cli_process(*args, cwd):
+    """``evo-door ARGS`` in a fresh process in ``cwd`` (this checkout's code)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+    return subprocess.run(
+        [sys.executable, "-m", "evo_door", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=env,
+        timeout=300,
+    )
+
+
+# -- devices ------------------------------------------------------------------------------
+def yielding_sim(*args, **kwargs):
+    """A SimDevice that gives up the GIL each cycle, as a paced loop does while it
+    waits (an unpaced simulated loop in a thread never blocks and would starve the
+    test's own thread)."""
+    from evo_door.render.device import SimDevice
+
+    class YieldingSim(SimDevice):
+        def step(self, dt):
+            super().step(dt)
+            time.sleep(0)
+
+    return YieldingSim(*args, **kwargs)
+
+
+def started(emu, **kwargs):
+    """A HapticMasterDevice connected to ``emu`` and through its start-up sequence."""
+    from evo_door.render.hapticmaster import HapticMasterDevice
+
+    device = HapticMasterDevice("127.0.0.1", emu.port, init_wait=0.0, timeout=2.0, **kwargs)
+    device.start()
+    return device
+
+
+def random_kernel_vectors(n: int, rng):
+    """``n`` haptic parameter vectors drawn uniformly within the declared bounds."""
+    from evo_door.models.haptic import PARAMS
+
+    lo, hi = PARAMS.lower, PARAMS.upper
+    return lo + (hi - lo) * rng.random((n, len(PARAMS)))
+
+
+# -- a loop served on its control port ----------------------------------------------------
+@contextlib.contextmanager
+def served_loop(params, token: str):
+    """A ServoLoop on the simulated device (opening, seed 3) with ``params`` in its own
+    thread, its control server on a free loopback port with ``token``, some cycles run:
+    yields ``(loop, server, end)``, ``end()`` stopping the loop early."""
+    from evo_door.cli import build_parser
+    from evo_door.render.control import ControlServer
+    from evo_door.render.loop import ServoLoop
+
+    build_parser()  # import every command before the loop competes for the GIL
+    loop = ServoLoop(yielding_sim("open", radius=params["radius"], seed=3), params)
+    stop = threading.Event()
+    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
+    server = ControlServer(loop, "127.0.0.1", 0, token=token).start()
+    thread.start()
+    deadline = time.monotonic() + 10.0
+    while loop.log.n < 10 and time.monotonic() < deadline:  # some cycles have run
+        time.sleep(0.001)
+    try:
+        yield loop, server, lambda: (stop.set(), thread.join(10.0))
+    finally:
+        stop.set()
+        thread.join(10.0)
+        server.close()
+
+
+def answer_lines(sock, n: int, timeout: float = 30.0) -> list[dict]:
+    """The next ``n`` answer lines on ``sock`` (JSON objects; fewer if it closes)."""
+    sock.settimeout(timeout)
+    data = b""
+    while data.count(b"\n") < n:
+        chunk = sock.recv(65536)
+        if not chunk:
+            break
+        data += chunk
+    return [json.loads(x) for x in data.splitlines()]
