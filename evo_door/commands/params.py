@@ -61,6 +61,10 @@ def run(args) -> int:
     presets = model.presets()
     if presets:
         print(f"\npresets: {', '.join(presets)}")
+    if model.states:  # a model on a state vector: what each state is
+        handle = {model.handle[0]: " (the handle)", model.handle[1]: " (its speed)"}
+        named = [f"{name}{handle.get(i, '')}" for i, name in enumerate(model.states)]
+        print(f"\nstates: {', '.join(named)}")
     if model.notes:
         print(f"\n{model.notes}")
     return 0
