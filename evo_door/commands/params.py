@@ -61,9 +61,11 @@ def run(args) -> int:
     presets = model.presets()
     if presets:
         print(f"\npresets: {', '.join(presets)}")
-    if model.states:  # a model on a state vector: what each state is
-        handle = {model.handle[0]: " (the handle)", model.handle[1]: " (its speed)"}
-        named = [f"{name}{handle.get(i, '')}" for i, name in enumerate(model.states)]
+    states = getattr(model, "states", ())  # a model on a state vector: what each state is
+    if states:
+        position, speed = getattr(model, "handle", (0, 1))
+        handle = {position: " (the handle)", speed: " (its speed)"}
+        named = [f"{name}{handle.get(i, '')}" for i, name in enumerate(states)]
         print(f"\nstates: {', '.join(named)}")
     if model.notes:
         print(f"\n{model.notes}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from evo_door.params import ParamTable
 from evo_door.sim.simulate import Response
@@ -82,7 +83,7 @@ class Plant(Protocol):
         method: str | None = None,
         substeps: int | None = None,
         tolerance: float | None = None,
-        state: np.ndarray | None = None,
+        state: ArrayLike | None = None,
     ) -> Response:
         """One trial: the force sampled every ``dt`` s in, the handle's channels out (and
         the plant's other states in ``Response.states``, the last sample's whole state in
@@ -91,7 +92,7 @@ class Plant(Protocol):
 
     def simulate_batch(
         self,
-        P: np.ndarray,
+        P: ArrayLike,
         force,
         dt: float,
         theta0: float | None = None,
@@ -127,14 +128,14 @@ class Plant(Protocol):
         """Refuse, in one line, ``what`` (the force-angle curve, the perceptual
         objective) for a plant that cannot give the force at the handle at any state."""
 
-    def hold_forces(self, p: np.ndarray, theta, dtheta: float) -> np.ndarray:
+    def hold_forces(self, p: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
         """The force at the handle (N) that holds it in static equilibrium at each
         ``theta`` while it moves at ``dtheta``: the quasi-static force-angle curve.
         A plant that cannot compute it refuses in one line."""
 
-    def hold_forces_rows(self, P: np.ndarray, theta, dtheta: float) -> np.ndarray:
+    def hold_forces_rows(self, P: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
         """:meth:`hold_forces` of every row of ``P``: an array (rows, angles)."""
 
-    def inertia_rows(self, P: np.ndarray, theta, dtheta: float) -> np.ndarray:
+    def inertia_rows(self, P: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
         """The inertia felt at the handle (force per acceleration) of every row of ``P``
         at each ``theta``: an array (rows, angles)."""

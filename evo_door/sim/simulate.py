@@ -12,17 +12,43 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from evo_door.channels import CHANNELS
 from evo_door.errors import UserError
-from evo_door.params.sets import param_vector
+from evo_door.params import ParamTable
+from evo_door.params.sets import ParamSet, param_vector
 from evo_door.sim.integrators import (
     DEFAULT_TOLERANCE,
     METHODS,
 )
 from evo_door.sim.located import no_switches
+
+if TYPE_CHECKING:
+    from evo_door.sim.plant import Plant
+
+
+class Modelled(Protocol):
+    """What the entry points below take as a model: anything with a
+    :class:`~evo_door.sim.plant.Plant` (every :class:`~evo_door.models.Model`)."""
+
+    @property
+    def plant(self) -> Plant: ...
+
+    @property
+    def params(self) -> ParamTable: ...
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def theta_range(self) -> tuple[float, float]: ...
+
+    @property
+    def theta_unit(self) -> str: ...
 
 
 @dataclass
@@ -121,17 +147,17 @@ def refined(method: str, substeps: int, tolerance: float) -> tuple[str, int, flo
 
 
 def simulate(
-    model,
-    params,
-    force,
-    dt,
-    theta0=None,
-    dtheta0=None,
-    t0=0.0,
-    method=None,
-    substeps=None,
-    tolerance=None,
-    state=None,
+    model: Modelled,
+    params: ParamSet | ArrayLike,
+    force: ArrayLike,
+    dt: float,
+    theta0: float | None = None,
+    dtheta0: float | None = None,
+    t0: float = 0.0,
+    method: str | None = None,
+    substeps: int | None = None,
+    tolerance: float | None = None,
+    state: ArrayLike | None = None,
 ) -> Response:
     """Simulate ``model`` with a :class:`~evo_door.params.ParamSet` (or vector).
 
@@ -174,8 +200,16 @@ def simulate(
 
 
 def simulate_batch(
-    model, P, force, dt, theta0=None, dtheta0=None, method=None, substeps=None, tolerance=None
-):
+    model: Modelled,
+    P: ArrayLike,
+    force: ArrayLike,
+    dt: float,
+    theta0: float | None = None,
+    dtheta0: float | None = None,
+    method: str | None = None,
+    substeps: int | None = None,
+    tolerance: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Simulate one input for every row of ``P`` in one compiled parallel call.
 
     Returns ``(theta, dtheta, ddtheta, ok)``: three ``(len(P), len(force))`` arrays
@@ -187,7 +221,9 @@ def simulate_batch(
     )
 
 
-def quasi_static_force(model, params, theta, dtheta) -> np.ndarray:
+def quasi_static_force(
+    model: Modelled, params: ParamSet | ArrayLike, theta: ArrayLike, dtheta: ArrayLike
+) -> np.ndarray:
     """User force (N, + toward closing) that holds ``ddtheta = 0`` at each (theta, dtheta).
 
     The plant's static equilibrium at the handle (:meth:`~evo_door.sim.plant.Plant.hold_forces`).
@@ -241,7 +277,7 @@ SCAN_POINTS = 2**18
 CURVE_RTOL = 1e-3
 
 
-def inertia_rows(model, P, theta, dtheta) -> np.ndarray:
+def inertia_rows(model: Modelled, P: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
     """The inertia felt at the handle (force per angular acceleration, N / (rad/s^2),
     kg m for a door) of every row of the kernel matrix ``P`` at each ``theta`` and the
     speed ``dtheta``: an array (rows, angles), from the model's plant."""
@@ -276,7 +312,7 @@ def coulomb_vector(model, params) -> np.ndarray:
     return p
 
 
-def hold_forces(model, p, theta, dtheta) -> np.ndarray:
+def hold_forces(model: Modelled, p: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
     """Force (N, + toward closing) holding ``ddtheta = 0`` at every ``theta``, compiled.
 
     ``p`` is a kernel vector, ``dtheta`` one speed: the plant's static equilibrium at the
@@ -286,14 +322,21 @@ def hold_forces(model, p, theta, dtheta) -> np.ndarray:
     return model.plant.hold_forces(p, theta, dtheta)
 
 
-def hold_forces_rows(model, P, theta, dtheta) -> np.ndarray:
+def hold_forces_rows(model: Modelled, P: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
     """:func:`hold_forces` of every row of the kernel matrix ``P`` (one door a row):
     an array (rows, angles)."""
     return model.plant.hold_forces_rows(P, theta, dtheta)
 
 
 def force_angle_curve(
-    model, params, speed=None, n=721, lo=None, hi=None, rtol=CURVE_RTOL, scan=SCAN_POINTS
+    model: Modelled,
+    params: ParamSet | ArrayLike,
+    speed: float | None = None,
+    n: int = 721,
+    lo: float | None = None,
+    hi: float | None = None,
+    rtol: float = CURVE_RTOL,
+    scan: int = SCAN_POINTS,
 ) -> dict:
     """The force-angle curve a specification reader expects: Coulomb level, latch peaks.
 
@@ -347,7 +390,7 @@ def force_angle_curve(
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise UserError(f"force-angle curve: range [{lo:g}, {hi:g}] must rise from open to closed")
     coulomb = speed is None
-    if coulomb:
+    if speed is None:
         p, w = coulomb_vector(model, params), COULOMB_SPEED
     else:
         w = float(speed)
@@ -401,7 +444,7 @@ def force_angle_curve(
                 extra.append(x[j])
                 extra.append(_polish(model, p, x, f, j, s * w, sign))
     theta = np.union1d(x[idx], np.array(extra, dtype=np.float64))
-    out = {"theta": theta, "added": ~np.isin(theta, x[::k])}
+    out: dict[str, Any] = {"theta": theta, "added": ~np.isin(theta, x[::k])}
     for d, s in signs.items():
         values = np.interp(theta, x[idx], dense[d][idx])
         exact = np.isin(theta, x[idx])
