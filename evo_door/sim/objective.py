@@ -64,6 +64,20 @@ _bmat = types.boolean[:, ::1]
 _bvec = types.boolean[::1]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def accumulate(acc, e, k, start, stop, dt, kind):
+    """The objective so far, ``acc``, with the error ``e`` of sample ``k`` of the trial
+    ``start:stop`` added: the largest square, or the trapezoid sum of squares (the
+    trial's ends weighted 1/2) times the sample period ``dt``."""
+    if kind == MAX_SQUARE:
+        if e * e > acc or not math.isfinite(e):
+            return e * e
+        return acc
+    if k == start or k == stop - 1:
+        return acc + 0.5 * dt * e * e
+    return acc + dt * e * e
+
+
 @njit(cache=True, nogil=True)
 def trial_error(
     accel,
@@ -113,14 +127,7 @@ def trial_error(
             y = dtheta
         else:
             y = a_now
-        e = y - target[k]
-        if kind == MAX_SQUARE:
-            if e * e > acc or not math.isfinite(e):
-                acc = e * e
-        elif k == start or k == stop - 1:
-            acc += 0.5 * dt * e * e
-        else:
-            acc += dt * e * e
+        acc = accumulate(acc, y - target[k], k, start, stop, dt, kind)
     if not math.isfinite(acc):
         return math.inf, False
     return acc, True

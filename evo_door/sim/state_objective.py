@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numba import njit, prange, types
 
-from evo_door.sim.objective import ISE, MAX_SQUARE
+from evo_door.sim.objective import ISE, MAX_SQUARE, accumulate
 from evo_door.sim.state_located import period
 from evo_door.sim.state_steps import R, Y, sample_rate, workspace
 from evo_door.sim.states import (
@@ -86,14 +86,7 @@ def trial_error_states(
             y = x[speed]
         else:
             y = dx[speed]
-        e = y - target[k]
-        if kind == MAX_SQUARE:
-            if e * e > acc or not math.isfinite(e):
-                acc = e * e
-        elif k == start or k == stop - 1:
-            acc += 0.5 * dt * e * e
-        else:
-            acc += dt * e * e
+        acc = accumulate(acc, y - target[k], k, start, stop, dt, kind)
     if not math.isfinite(acc):
         return math.inf, False
     return acc, True
