@@ -19,7 +19,9 @@ A model is data plus one compiled function:
   too, with :data:`REGISTRY` as the fallback of an install whose metadata is stale);
 - import path ``package.module:ATTRIBUTE`` (the module must be importable);
 - file path ``path/to/file.py:ATTRIBUTE``: a model in a user's own Python file,
-  relative to the current folder, no PYTHONPATH needed.
+  relative to the current folder, no PYTHONPATH needed;
+- mechanism file ``path/to/drawer.yaml``: bodies and components as data, compiled into
+  one right-hand side (:mod:`evo_door.models.blocks`, ``docs/blocks.md``).
 
 Whatever the source, :func:`check_model` refuses a model the integrators could not
 run, with one line, before anything is simulated. Nothing heavy is imported until a
@@ -44,6 +46,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from evo_door.errors import UserError
+from evo_door.models.blocks import is_mechanism_spec, load_mechanism
 from evo_door.models.check import RIG_KINDS, check_model  # noqa: F401 (RIG_KINDS: re-exported)
 from evo_door.params import ParamSet, ParamTable, available_presets, load_params
 from evo_door.params.declaration import suggest
@@ -257,6 +260,8 @@ def resolve_model_name(name: str, base_dir=None) -> str:
     if is_fmu_spec(name):
         fmu, interface, mapping = split_spec(name)
         return join_spec(_beside(fmu, base_dir), interface, mapping)
+    if is_mechanism_spec(name):
+        return str(_beside(Path(name.strip()).expanduser(), base_dir))
     if not is_file_spec(name):
         return name
     file, _, attr = name.rpartition(":")
@@ -273,7 +278,8 @@ def _beside(p: Path, base_dir) -> Path:
 
 
 def get_model(name: str) -> Model:
-    """The model called ``name``: a registered name, ``module:ATTR`` or ``file.py:ATTR``.
+    """The model called ``name``: a registered name, ``module:ATTR``, ``file.py:ATTR``
+    or a mechanism file ``drawer.yaml``.
 
     The same model is returned for the same name (and for one file however its path
     is written), checked once by :func:`check_model`.
@@ -282,12 +288,15 @@ def get_model(name: str) -> Model:
 
     name = str(name).strip()
     fmu = is_fmu_spec(name)
-    key = resolve_model_name(name) if is_file_spec(name) or fmu else name
+    mechanism = is_mechanism_spec(name)
+    key = resolve_model_name(name) if is_file_spec(name) or fmu or mechanism else name
     _NAMED_BY_USER.add(key)  # (named by the caller: see model_in_file for a file's names)
     if key in _MODELS:
         return _MODELS[key]
     if fmu:
         model, folder = load_fmu(key), Path(key.partition("?")[0].rpartition(".fmu")[0]).parent
+    elif mechanism:
+        model, folder = load_mechanism(Path(key)), Path(key).parent
     elif is_file_spec(name):
         path, _, attr = key.rpartition(":")
         model, folder = _from_file(name, Path(path), attr)

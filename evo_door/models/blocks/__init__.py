@@ -1,0 +1,110 @@
+"""Mechanisms from blocks: a YAML file of bodies and components becomes a model.
+
+A mechanism file (``docs/blocks.md``) names bodies (linear or rotary) and elements from
+the component library (:mod:`~evo_door.models.blocks.components`: spring, damper,
+friction, end stop, soft-close damper, cable) that act on one body or between two.
+:func:`load_mechanism` reads it (:mod:`~evo_door.models.blocks.mechanism`), writes its
+one right-hand side as numba source (:mod:`~evo_door.models.blocks.codegen`) into a
+cache folder named by the digest of that source and of evo-door's version, and imports
+it: numba's own cache beside that file makes a second process with the same mechanism
+compile nothing. The file is data: no code in it runs, its names are checked
+identifiers and its numbers only parameter defaults.
+
+The cache folder is ``$EVO_DOOR_MECHANISM_CACHE`` if set, else
+``$XDG_CACHE_HOME/evo_door/mechanisms`` (``~/.cache/evo_door/mechanisms``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+from evo_door.errors import UserError
+from evo_door.models.blocks.mechanism import read_mechanism
+
+#: environment variable naming the folder of generated mechanisms (tests use a tmp one)
+CACHE_ENV = "EVO_DOOR_MECHANISM_CACHE"
+#: file endings of a mechanism file
+SUFFIXES = (".yaml", ".yml")
+
+
+def is_mechanism_spec(name: str) -> bool:
+    """``path/to/mechanism.yaml`` (a model given as a mechanism file)."""
+    return str(name).strip().lower().endswith(SUFFIXES)
+
+
+def cache_root() -> Path:
+    """The folder of the generated mechanisms (see the module docstring)."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base).expanduser() / "evo_door" / "mechanisms"
+
+
+def load_mechanism(path: Path):
+    """The :class:`~evo_door.models.base.Model` of the mechanism file ``path``."""
+    from evo_door import __version__
+    from evo_door.models.base import Model
+    from evo_door.models.blocks.codegen import generate
+    from evo_door.params import ParamTable
+
+    if not path.is_file():
+        raise UserError(f"mechanism file {path} not found")
+    mech = read_mechanism(path)
+    source, layout = generate(mech, __version__)
+    digest = hashlib.sha256(f"{__version__}\n{source}".encode()).hexdigest()[:16]
+    module = _import(source, digest)
+    handle = mech.bodies[mech.handle]
+    linear = handle.kind == "linear"
+    return Model(
+        name=mech.name,
+        title=mech.title,
+        params=ParamTable(mech.name, mech.params),
+        rhs=module.rhs,
+        switches=getattr(module, "switches", None),
+        n_switches=layout.n_switches,
+        states=layout.states,
+        handle=layout.handle,
+        x0=layout.x0,
+        contacts=layout.contacts,
+        method="dopri5",
+        tolerance=1e-9,
+        substeps=4,
+        theta0=handle.range[0],
+        theta_range=handle.range,
+        theta_unit="m" if linear else "rad",
+        rig_kinds=("impulse",),
+        notes=mech.notes or f"A mechanism of {len(mech.bodies)} bodies from {path.name}.",
+    )
+
+
+def _import(source: str, digest: str):
+    """The generated module, written once into its cache folder and imported."""
+    name = f"evo_door_mechanism_{digest}"
+    if name in sys.modules:
+        return sys.modules[name]
+    folder = cache_root() / digest
+    file = folder / "mech.py"
+    try:
+        if not file.is_file() or file.read_text(encoding="utf-8") != source:
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f".mech.{os.getpid()}.tmp"
+            tmp.write_text(source, encoding="utf-8")
+            os.replace(tmp, file)
+    except OSError as exc:
+        raise UserError(
+            f"cannot write the compiled mechanism to {folder} ({exc.strerror}); set "
+            f"{CACHE_ENV} to a folder you can write"
+        ) from None
+    spec = importlib.util.spec_from_file_location(name, file)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception:
+        del sys.modules[name]
+        raise
+    return module

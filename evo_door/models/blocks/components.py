@@ -1,0 +1,232 @@
+"""The components a mechanism file is built from (:mod:`evo_door.models.blocks`).
+
+Each component is a small class that declares, as data, its parameters (one
+:class:`Spec` each: unit on a linear and on a rotary body, default, bounds, group,
+meaning), which body kinds it may act on, how it connects (``on:`` one body, or
+``between:`` two), its switching functions, and the numba source of its force law.
+The source is a few lines of Python written into the mechanism's one generated
+``rhs`` (:mod:`evo_door.models.blocks.codegen`): a component adds to the force
+accumulators ``f[body]`` of the bodies it touches, with positions, speeds and
+parameters already substituted as constant indices (``x[0]``, ``p[3]``).
+
+Conventions: a body's coordinate grows toward *closed* (as ``theta`` does); a force is
+positive toward closed. ``on: b`` is ``between: [ground, b]`` with the ground at 0.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+LINEAR, ROTARY = "linear", "rotary"
+
+
+@dataclass(frozen=True)
+class Spec:
+    """One parameter of a component: its units on a linear and on a rotary body."""
+
+    name: str
+    linear_unit: str
+    rotary_unit: str
+    default: float | None  # None: the file must give it
+    lower: float
+    upper: float
+    group: str
+    meaning: str
+
+    def unit(self, kind: str) -> str:
+        return self.linear_unit if kind == LINEAR else self.rotary_unit
+
+
+@dataclass(frozen=True)
+class Site:
+    """Where a component's law reads and writes, as source text: the positions and
+    speeds of its two ends (``a`` is ``"0.0"`` for the ground), the accumulators of
+    their forces (``fa`` is None for the ground), its parameters by name, and the
+    index of its first switching function."""
+
+    xa: str
+    va: str
+    xb: str
+    vb: str
+    fa: str | None
+    fb: str
+    p: dict[str, str]
+    words: dict[str, str]
+
+
+class Component:
+    """A component kind (see the module docstring)."""
+
+    kind = ""
+    title = ""
+    acts_on: tuple[str, ...] = (LINEAR, ROTARY)
+    connects = ("on", "between")  # the connections it takes
+    specs: tuple[Spec, ...] = ()
+    words: dict[str, tuple[str, ...]] = {}  # word options: name -> allowed (first: default)
+    n_switches = 0
+
+    def law(self, s: Site) -> list[str]:
+        """Source lines adding the component's force to ``s.fa`` and ``s.fb``."""
+        raise NotImplementedError
+
+    def switches(self, s: Site) -> list[str]:
+        """Expressions of the component's switching functions."""
+        return []
+
+    def contact(self, s: Site) -> bool:
+        """Whether the component makes its body's speed a stick-slip contact."""
+        return False
+
+
+def _pair(s: Site, force: str) -> list[str]:
+    """``force`` acts on b (toward closed), its reaction on a."""
+    lines = [f"{s.fb} += {force}"]
+    if s.fa is not None:
+        lines.append(f"{s.fa} -= {force}")
+    return lines
+
+
+class Spring(Component):
+    kind, title = "spring", "linear spring with pre-load"
+    acts_on = (LINEAR,)
+    specs = (
+        Spec("k", "N/m", "", None, 0.0, 1.0e7, "specification", "stiffness"),
+        Spec("preload", "N", "", 0.0, -1.0e5, 1.0e5, "specification",
+             "tension at the rest length (negative: pushes)"),
+        Spec("at", "m", "", 0.0, -10.0, 10.0, "geometry",
+             "rest length: b's position less a's where the tension is the pre-load"),
+    )  # fmt: skip
+
+    def law(self, s):
+        t = f"({s.p['preload']} + {s.p['k']} * ({s.xb} - {s.xa} - {s.p['at']}))"
+        return [f"tension = {t}", *_pair(s, "-tension")]
+
+
+class Damper(Component):
+    kind, title = "damper", "viscous damper"
+    specs = (
+        Spec("c", "N s/m", "N m s/rad", None, 0.0, 1.0e6, "specification",
+             "damping coefficient"),
+    )  # fmt: skip
+
+    def law(self, s):
+        return _pair(s, f"-{s.p['c']} * ({s.vb} - {s.va})")
+
+
+class Friction(Component):
+    kind, title = "friction", "dry friction (sign law with stick, or tanh)"
+    connects = ("on",)
+    specs = (
+        Spec("level", "N", "N m", None, 0.0, 1.0e5, "specification",
+             "friction force, both directions"),
+        Spec("level_opening", "N", "N m", None, 0.0, 1.0e5, "specification",
+             "friction force while opening (speed < 0)"),
+        Spec("level_closing", "N", "N m", None, 0.0, 1.0e5, "specification",
+             "friction force while closing (speed > 0)"),
+        Spec("slope", "s/m", "s/rad", 50.0, 1.0e-3, 1.0e6, "numerics",
+             "slope of the tanh law at zero speed (law: tanh)"),
+    )  # fmt: skip
+    words = {"law": ("sign", "tanh")}
+
+    def law(self, s):
+        closing = s.p.get("level_closing", s.p.get("level"))
+        opening = s.p.get("level_opening", s.p.get("level"))
+        v = s.vb
+        if s.words["law"] == "tanh":
+            shape = f"math.tanh({s.p['slope']} * {v})"
+            return [f"{s.fb} -= ({closing} if {v} > 0.0 else {opening}) * {shape}"]
+        return [
+            f"if {v} > 0.0:",
+            f"    {s.fb} -= {closing}",
+            f"elif {v} < 0.0:",
+            f"    {s.fb} += {opening}",
+        ]
+
+    def contact(self, s):
+        return s.words["law"] == "sign"
+
+
+class EndStop(Component):
+    kind, title = "end_stop", "stiff stop with damping: pushes, never pulls"
+    connects = ("on",)
+    specs = (
+        Spec("at", "m", "rad", None, -10.0, 10.0, "geometry", "where the stop touches"),
+        Spec("k", "N/m", "N m/rad", 1.0e5, 1.0, 1.0e9, "numerics", "stiffness of the stop"),
+        Spec("c", "N s/m", "N m s/rad", 100.0, 0.0, 1.0e6, "numerics", "damping of the stop"),
+    )  # fmt: skip
+    words = {"side": ("above", "below")}
+    n_switches = 1
+
+    def law(self, s):
+        push = f"-{s.p['k']} * ({s.xb} - {s.p['at']}) - {s.p['c']} * {s.vb}"
+        if s.words["side"] == "above":  # the body is held below `at`
+            return [f"if {s.xb} > {s.p['at']}:", f"    {s.fb} += min({push}, 0.0)"]
+        return [f"if {s.xb} < {s.p['at']}:", f"    {s.fb} += max({push}, 0.0)"]
+
+    def switches(self, s):
+        return [f"{s.xb} - {s.p['at']}"]
+
+
+class SoftClose(Component):
+    kind, title = "soft_close", "soft-close damper engaging over the last stretch"
+    acts_on = (LINEAR,)
+    connects = ("on",)
+    specs = (
+        Spec("engage", "m", "", None, -10.0, 10.0, "geometry",
+             "position from which the damper brakes the body (to the end)"),
+        Spec("c_fluid", "N s/m", "", None, 0.0, 1.0e6, "specification",
+             "damping of the fluid once engaged"),
+        Spec("pull", "N", "", 0.0, -1.0e4, 1.0e4, "specification",
+             "force pulling the body shut once engaged"),
+    )  # fmt: skip
+    n_switches = 1
+
+    def law(self, s):
+        brake = f"{s.p['pull']} - {s.p['c_fluid']} * {s.vb}"
+        return [f"if {s.xb} > {s.p['engage']}:", f"    {s.fb} += {brake}"]
+
+    def switches(self, s):
+        return [f"{s.xb} - {s.p['engage']}"]
+
+
+class Cable(Component):
+    kind, title = "cable", "elastic cable: pulls, never pushes"
+    acts_on = (LINEAR,)
+    specs = (
+        Spec("k", "N/m", "", None, 0.0, 1.0e9, "specification", "axial stiffness"),
+        Spec("length", "m", "", 0.0, -10.0, 10.0, "geometry",
+             "b's position less a's where the cable comes taut"),
+    )  # fmt: skip
+    n_switches = 1
+
+    def law(self, s):
+        stretch = f"{s.xb} - {s.xa} - {s.p['length']}"
+        return [f"tension = max({s.p['k']} * ({stretch}), 0.0)", *_pair(s, "-tension")]
+
+    def switches(self, s):
+        return [f"{s.xb} - {s.xa} - {s.p['length']}"]
+
+
+#: kind -> component
+COMPONENTS: dict[str, Component] = {
+    c.kind: c for c in (Spring(), Damper(), Friction(), EndStop(), SoftClose(), Cable())
+}
+
+#: the parameters of a body, by its kind: (spec, ...); ``mass`` of a rotary body and
+#: ``arm`` give its weight's moment, ``m g arm cos(theta)`` (none without a ``mass``)
+BODY_SPECS: dict[str, tuple[Spec, ...]] = {
+    LINEAR: (Spec("mass", "kg", "", None, 1.0e-6, 1.0e5, "specification", "mass"),),
+    ROTARY: (
+        Spec("inertia", "", "kg m^2", None, 1.0e-9, 1.0e5, "specification",
+             "moment of inertia about the axis"),
+        Spec("mass", "", "kg", None, 0.0, 1.0e5, "specification",
+             "mass whose weight acts on the lever arm (optional)"),
+        Spec("arm", "", "m", 0.0, -10.0, 10.0, "geometry",
+             "distance from the axis to the centre of mass (weight moment m g arm cos)"),
+        Spec("hand_lever", "", "m", 1.0, 1.0e-6, 10.0, "geometry",
+             "distance from the axis to where the hand pushes (handle only)"),
+    ),
+}  # fmt: skip
+#: what a body entry may hold besides its parameters
+BODY_WORDS = ("kind", "range", "start")
+GRAVITY = 9.80665

@@ -1,0 +1,328 @@
+"""A mechanism file read and checked: bodies, elements, connections, the handle.
+
+:func:`read_mechanism` turns the YAML (format: ``docs/blocks.md``) into a
+:class:`Mechanism`: names checked as identifiers, numbers as finite numbers, kinds,
+keys and connections against the component library
+(:mod:`evo_door.models.blocks.components`). Every mistake is one
+:class:`~evo_door.errors.UserError` line naming the file and the body or element.
+Nothing in the file is code: the names that reach the generated source are checked
+identifiers, the numbers are parameter defaults and never enter the source.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from evo_door.errors import UserError
+from evo_door.models.blocks.components import (
+    BODY_SPECS,
+    BODY_WORDS,
+    COMPONENTS,
+    LINEAR,
+    ROTARY,
+    Spec,
+)
+from evo_door.params import Param
+from evo_door.params.declaration import suggest
+
+_IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,39}")
+_MODEL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,63}")
+_TOP = ("name", "title", "handle", "bodies", "elements", "notes")
+GROUND = "ground"
+
+
+@dataclass
+class Body:
+    name: str
+    kind: str
+    values: dict[str, float]
+    range: tuple[float, float]
+    start: float
+
+
+@dataclass
+class Element:
+    name: str
+    kind: str
+    a: str | None  # None: the ground
+    b: str
+    values: dict[str, float]
+    words: dict[str, str]
+
+
+@dataclass
+class Mechanism:
+    name: str
+    title: str
+    handle: str
+    bodies: dict[str, Body]
+    elements: dict[str, Element]
+    notes: str = ""
+    params: list[Param] = field(default_factory=list)
+
+
+def read_mechanism(path: Path) -> Mechanism:
+    """The mechanism in the YAML file ``path`` (one-line errors, see the module)."""
+    import yaml
+
+    from evo_door.yaml_numbers import Loader
+
+    where = f"mechanism {path.name}"
+    try:
+        tree = yaml.load(path.read_text(encoding="utf-8"), Loader=Loader)
+    except OSError as exc:
+        raise UserError(f"{where}: cannot read it ({exc.strerror})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f" (line {mark.line + 1})" if mark is not None else ""
+        raise UserError(f"{where}: not valid YAML{line}") from None
+    if not isinstance(tree, dict) or set(tree) != {"mechanism"}:
+        raise UserError(f"{where}: the file must hold one mapping, mechanism: {{...}}")
+    return parse_mechanism(tree["mechanism"], where)
+
+
+def parse_mechanism(tree, where: str) -> Mechanism:
+    """The mechanism of the ``mechanism:`` mapping ``tree``."""
+    tree = _mapping(tree, where)
+    _known_keys(tree, _TOP, where)
+    for key in ("name", "handle", "bodies"):
+        if key not in tree:
+            raise UserError(f"{where}: missing {key}:")
+    name = _text(tree["name"], f"{where}: name")
+    if not _MODEL_NAME.fullmatch(name):
+        raise UserError(f"{where}: name {name!r} must be letters, digits, _ and -")
+    bodies = {n: _body(n, v, where) for n, v in _named(tree["bodies"], f"{where}: bodies").items()}
+    if not bodies:
+        raise UserError(f"{where}: bodies: give at least one body")
+    elements = {
+        n: _element(n, v, bodies, where)
+        for n, v in _named(tree.get("elements") or {}, f"{where}: elements").items()
+    }
+    handle = _text(tree["handle"], f"{where}: handle")
+    if handle not in bodies:
+        raise UserError(
+            f"{where}: handle {handle!r} is not a body" + suggest(handle, bodies)
+            + f"; bodies: {', '.join(bodies)}"
+        )  # fmt: skip
+    _connected(bodies, elements, handle, where)
+    mech = Mechanism(
+        name=name,
+        title=_text(tree.get("title", name), f"{where}: title"),
+        handle=handle,
+        bodies=bodies,
+        elements=elements,
+        notes=_text(tree.get("notes", ""), f"{where}: notes"),
+    )
+    mech.params = _declare(mech)
+    return mech
+
+
+def _mapping(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise UserError(f"{where}: expected a mapping (key: value), got {_shown(value)}")
+    return value
+
+
+def _named(value, where: str) -> dict:
+    """A mapping whose keys are checked identifiers."""
+    value = _mapping(value, where)
+    for key in value:
+        if not (isinstance(key, str) and _IDENT.fullmatch(key)) or key == GROUND:
+            raise UserError(
+                f"{where}: {key!r} is not a name (a letter, then letters, digits and _, "
+                f"at most 40; not {GROUND!r})"
+            )
+    return value
+
+
+def _known_keys(tree: dict, known, where: str) -> None:
+    for key in tree:
+        if key not in known:
+            raise UserError(
+                f"{where}: unknown key {key!r}" + suggest(str(key), known)
+                + f"; keys: {', '.join(known)}"
+            )  # fmt: skip
+
+
+def _text(value, where: str) -> str:
+    if not isinstance(value, str):
+        raise UserError(f"{where} must be text, got {_shown(value)}")
+    return " ".join(value.split())
+
+
+def _number(value, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UserError(f"{where} must be a number, got {_shown(value)}")
+    if not math.isfinite(value):
+        raise UserError(f"{where} must be a finite number, got {value}")
+    return float(value)
+
+
+def _shown(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _values(tree: dict, specs: tuple[Spec, ...], where: str, kind: str) -> dict[str, float]:
+    out = {}
+    for spec in specs:
+        if spec.name in tree:
+            v = _number(tree[spec.name], f"{where}: {spec.name}")
+            if not spec.lower <= v <= spec.upper:
+                raise UserError(
+                    f"{where}: {spec.name} = {v:g} {spec.unit(kind)} is outside "
+                    f"[{spec.lower:g}, {spec.upper:g}]"
+                )
+            out[spec.name] = v
+    return out
+
+
+def _body(name: str, tree, where: str) -> Body:
+    at = f"{where}: body {name!r}"
+    tree = _mapping(tree, at)
+    kind = tree.get("kind")
+    if kind not in BODY_SPECS:
+        raise UserError(
+            f"{at}: kind {kind!r} is not a body kind" + suggest(str(kind), BODY_SPECS)
+            + f"; body kinds: {', '.join(BODY_SPECS)}"
+        )  # fmt: skip
+    specs = BODY_SPECS[kind]
+    _known_keys(tree, BODY_WORDS + tuple(s.name for s in specs), at)
+    values = _values(tree, specs, at, kind)
+    need = "mass" if kind == LINEAR else "inertia"
+    if need not in values:
+        raise UserError(f"{at}: a {kind} body needs its {need}")
+    if "arm" in values and "mass" not in values:
+        raise UserError(f"{at}: arm without a mass (the weight acts on the arm)")
+    closed = 0.5 * math.pi if kind == ROTARY else 1.0
+    rng = tree.get("range", [0.0, closed])
+    if not isinstance(rng, list) or len(rng) != 2:
+        raise UserError(f"{at}: range must be [fully open, closed], got {_shown(rng)}")
+    lo, hi = (_number(v, f"{at}: range") for v in rng)
+    if not lo < hi:
+        raise UserError(f"{at}: range [{lo:g}, {hi:g}] must go from fully open up to closed")
+    start = _number(tree.get("start", lo), f"{at}: start")
+    return Body(name, kind, values, (lo, hi), start)
+
+
+def _element(name: str, tree, bodies: dict[str, Body], where: str) -> Element:
+    at = f"{where}: element {name!r}"
+    tree = dict(_mapping(tree, at))
+    if True in tree and "on" not in tree:  # YAML 1.1 reads the key `on` as true
+        tree["on"] = tree.pop(True)
+    kind = tree.get("kind")
+    comp = COMPONENTS.get(kind) if isinstance(kind, str) else None
+    if comp is None:
+        raise UserError(
+            f"{at}: unknown kind {kind!r}" + suggest(str(kind), COMPONENTS)
+            + f"; kinds: {', '.join(COMPONENTS)}"
+        )  # fmt: skip
+    _known_keys(tree, ("kind", *comp.connects, *comp.words, *(s.name for s in comp.specs)), at)
+    ends = [c for c in comp.connects if c in tree]
+    if len(ends) != 1:
+        raise UserError(f"{at}: say what it acts on: {' or '.join(comp.connects)}")
+    if ends[0] == "on":
+        a, b = None, _body_name(tree["on"], bodies, f"{at}: on")
+    else:
+        pair = tree["between"]
+        if not isinstance(pair, list) or len(pair) != 2:
+            raise UserError(f"{at}: between must be two bodies [a, b], got {_shown(pair)}")
+        a, b = (_body_name(n, bodies, f"{at}: between") for n in pair)
+        if a == b:
+            raise UserError(f"{at}: between connects {a!r} to itself")
+    for end in (a, b):
+        if end is not None and bodies[end].kind not in comp.acts_on:
+            raise UserError(
+                f"{at}: a {kind} acts on {' or '.join(comp.acts_on)} bodies (its units); "
+                f"{end!r} is {bodies[end].kind}"
+            )
+    kinds = {bodies[e].kind for e in (a, b) if e is not None}
+    if len(kinds) > 1:
+        raise UserError(f"{at}: it connects a linear body to a rotary one (units differ)")
+    words = {}
+    for word, allowed in comp.words.items():
+        value = tree.get(word, allowed[0])
+        if value not in allowed:
+            raise UserError(
+                f"{at}: {word} must be one of {', '.join(allowed)}, got {_shown(value)}"
+            )
+        words[word] = value
+    values = _values(tree, comp.specs, at, bodies[b].kind)
+    _complete(comp, values, words, at)
+    return Element(name, kind, a, b, values, words)
+
+
+def _complete(comp, values: dict[str, float], words: dict[str, str], at: str) -> None:
+    """Defaults of the parameters the file leaves out; the required ones checked."""
+    if comp.kind == "friction":
+        sided = {"level_opening", "level_closing"} & set(values)
+        if ("level" in values) == bool(sided) or len(sided) == 1:
+            raise UserError(f"{at}: give level, or level_opening and level_closing")
+        if words["law"] == "sign":
+            if "slope" in values:
+                raise UserError(f"{at}: slope is for law: tanh (the sign law has none)")
+            return
+    for spec in comp.specs:
+        if spec.name.startswith("level"):
+            continue
+        if spec.name not in values:
+            if spec.default is None:
+                raise UserError(f"{at}: a {comp.kind} needs {spec.name}")
+            values[spec.name] = spec.default
+
+
+def _body_name(value, bodies, where: str) -> str:
+    if not isinstance(value, str) or value not in bodies:
+        raise UserError(
+            f"{where}: {_shown(value)} is not a body" + suggest(str(value), bodies)
+            + f"; bodies: {', '.join(bodies)}"
+        )  # fmt: skip
+    return value
+
+
+def _connected(bodies, elements, handle: str, where: str) -> None:
+    """Every body is reached from the handle through elements between two bodies."""
+    reached, todo = {handle}, [handle]
+    while todo:
+        here = todo.pop()
+        for e in elements.values():
+            if e.a is not None and here in (e.a, e.b):
+                other = e.b if here == e.a else e.a
+                if other not in reached:
+                    reached.add(other)
+                    todo.append(other)
+    for body in bodies:
+        if body not in reached:
+            raise UserError(
+                f"{where}: body {body!r} is never connected to the handle {handle!r} "
+                "(give an element between: [...] them)"
+            )
+
+
+def _declare(mech: Mechanism) -> list[Param]:
+    """The declaration: each body's and element's parameters, ``name.parameter``."""
+    params = []
+    for body in mech.bodies.values():
+        for spec in BODY_SPECS[body.kind]:
+            if spec.name == "hand_lever" and body.name != mech.handle:
+                continue
+            value = body.values.get(spec.name, spec.default)
+            if value is None or (spec.name == "arm" and "mass" not in body.values):
+                continue
+            params.append(_param(body.name, spec, value, body.kind))
+    for e in mech.elements.values():
+        kind = mech.bodies[e.b].kind
+        for spec in COMPONENTS[e.kind].specs:
+            if spec.name in e.values:
+                params.append(_param(e.name, spec, e.values[spec.name], kind))
+    return params
+
+
+def _param(owner: str, spec: Spec, value: float, kind: str) -> Param:
+    return Param(
+        f"{owner}.{spec.name}", spec.unit(kind), value, spec.lower, spec.upper, spec.group,
+        f"{owner}: {spec.meaning}",
+    )  # fmt: skip
