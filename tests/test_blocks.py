@@ -248,7 +248,9 @@ def test_a_bad_mechanism_is_one_line_naming_the_element(tmp_path, change, messag
 
 
 def _cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd,
+    """``evo-door ARGS`` in a fresh process that imports this checkout's evo_door."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=900)  # fmt: skip
 
 

@@ -9,8 +9,9 @@ from evo_door.errors import UserError
 
 #: Help text of every MODEL argument.
 MODEL_HELP = (
-    "model: a name (haptic, door), package.module:MODEL, path/to/file.py:MODEL or "
-    "path/to/model.fmu (FMI 2.0 / 3.0; :me or :cs after it chooses the interface)"
+    "model: a name (haptic, door), package.module:MODEL, path/to/file.py:MODEL, "
+    "path/to/mechanism.yaml (docs/blocks.md) or path/to/model.fmu (FMI 2.0 / 3.0; "
+    ":me or :cs after it chooses the interface)"
 )
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.models.blocks.mechanism import read_mechanism
+from evo_door.params.declaration import suggest
 
 #: environment variable naming the folder of generated mechanisms (tests use a tmp one)
 CACHE_ENV = "EVO_DOOR_MECHANISM_CACHE"
@@ -52,7 +53,11 @@ def load_mechanism(path: Path):
     from evo_door.params import ParamTable
 
     if not path.is_file():
-        raise UserError(f"mechanism file {path} not found")
+        hint = ""
+        if path.parent.is_dir():
+            names = [q.name for q in path.parent.iterdir() if q.suffix in SUFFIXES]
+            hint = suggest(path.name, names)
+        raise UserError(f"mechanism file {path} not found{hint}")
     mech = read_mechanism(path)
     source, layout = generate(mech, __version__)
     digest = hashlib.sha256(f"{__version__}\n{source}".encode()).hexdigest()[:16]
@@ -77,8 +82,14 @@ def load_mechanism(path: Path):
         theta_range=handle.range,
         theta_unit="m" if linear else "rad",
         rig_kinds=("impulse",),
-        notes=mech.notes or f"A mechanism of {len(mech.bodies)} bodies from {path.name}.",
+        notes=mech.notes or _notes(mech, path),
     )
+
+
+def _notes(mech, path: Path) -> str:
+    bodies = ", ".join(f"{b.name} ({b.kind})" for b in mech.bodies.values())
+    elements = ", ".join(f"{e.name} ({e.kind})" for e in mech.elements.values()) or "none"
+    return f"Mechanism file {path.name}: bodies {bodies}; elements {elements}."
 
 
 def _import(source: str, digest: str):

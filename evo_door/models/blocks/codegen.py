@@ -90,6 +90,7 @@ def _laws(mech: Mechanism, pos, index):
             words=e.words,
         )
         where = f"on {e.b}" if e.a is None else f"between {e.a} and {e.b}"
+        where += "".join(f", {word} {value}" for word, value in e.words.items())
         lines.append(f"    # {e.name}: {comp.title}, {where}")
         lines += [f"    {line}" for line in comp.law(site)]
         switches += [(g, f"{e.name}") for g in comp.switches(site)]

@@ -110,11 +110,12 @@ class Damper(Component):
     )  # fmt: skip
 
     def law(self, s):
-        return _pair(s, f"-{s.p['c']} * ({s.vb} - {s.va})")
+        relative = s.vb if s.fa is None else f"({s.vb} - {s.va})"
+        return _pair(s, f"-{s.p['c']} * {relative}")
 
 
 class Friction(Component):
-    kind, title = "friction", "dry friction (sign law with stick, or tanh)"
+    kind, title = "friction", "dry friction"
     connects = ("on",)
     specs = (
         Spec("level", "N", "N m", None, 0.0, 1.0e5, "specification",
