@@ -111,6 +111,8 @@ def _import(source: str, digest: str):
             f"{CACHE_ENV} to a folder you can write"
         ) from None
     spec = importlib.util.spec_from_file_location(name, file)
+    if spec is None or spec.loader is None:
+        raise UserError(f"cannot import the compiled mechanism {file}")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     try:

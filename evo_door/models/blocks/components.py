@@ -60,7 +60,7 @@ class Component:
     kind = ""
     title = ""
     acts_on: tuple[str, ...] = (LINEAR, ROTARY)
-    connects = ("on", "between")  # the connections it takes
+    connects: tuple[str, ...] = ("on", "between")  # the connections it takes
     specs: tuple[Spec, ...] = ()
     words: dict[str, tuple[str, ...]] = {}  # word options: name -> allowed (first: default)
     n_switches = 0
