@@ -278,3 +278,95 @@ def test_rig_fit_and_curve_of_the_drawer_from_the_command_line(tmp_path):
     np.testing.assert_allclose(inside["force"], truth["runners.level"], atol=1e-6)
     params = _cli("params", "two_carts.yaml", cwd=work)
     assert params.returncode == 0 and "coupling.k" in params.stdout, params.stderr
+
+
+def test_cable_spring_and_damper_between_bodies_are_the_law_by_hand(tmp_path):
+    """A door pulled shut through an elastic cable by a sprung carriage: the rhs and the
+    switching functions at random states (slack and taut) against the law by hand."""
+    (tmp_path / "pull.yaml").write_text(textwrap.dedent("""
+        mechanism:
+          name: pulled
+          handle: door
+          bodies:
+            door: {kind: linear, mass: 1.5, range: [0.0, 0.6]}
+            carriage: {kind: linear, mass: 0.2, start: 0.1}
+          elements:
+            rope: {kind: cable, between: [door, carriage], k: 5.0e4, length: 0.05}
+            spring: {kind: spring, on: carriage, k: 300.0, preload: -20.0, at: 0.1}
+            oil: {kind: damper, between: [door, carriage], c: 2.0}
+            stop: {kind: end_stop, on: door, at: 0.0, side: below}
+    """))  # fmt: skip
+    model = get_model(str(tmp_path / "pull.yaml"))
+    assert model.x0 == (0.0, 0.0, 0.1, 0.0) and model.n_switches == 2
+    p = model.load_params().as_dict()
+    vec = model.params.defaults
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        x = rng.normal(scale=0.1, size=4)
+        f = float(rng.normal() * 10)
+        dx, g = np.zeros(4), np.zeros(2)
+        model.rhs(x, f, vec, dx)
+        model.switches(x, f, vec, g)
+        stretch = x[2] - x[0] - p["rope.length"]
+        tension = p["rope.k"] * max(stretch, 0.0)
+        spring = p["spring.preload"] + p["spring.k"] * (x[2] - p["spring.at"])
+        oil = -p["oil.c"] * (x[3] - x[1])
+        stop = max(-p["stop.k"] * x[0] - p["stop.c"] * x[1], 0.0) if x[0] < 0.0 else 0.0
+        want = [
+            x[1],
+            (f + tension - oil + stop) / p["door.mass"],
+            x[3],
+            (-tension - spring + oil) / p["carriage.mass"],
+        ]
+        np.testing.assert_allclose(dx, want, rtol=1e-13, atol=1e-10)
+        np.testing.assert_allclose(g, [stretch, x[0]], rtol=0, atol=1e-15)
+
+
+def test_a_soft_close_with_a_fluid_state_matches_scipy(tmp_path):
+    """``tau`` gives the soft-close's fluid a state of its own (its force, lagging the
+    viscous one): the drawer pushed through it against scipy on the law by hand, while
+    it slides forward; then the fluid relaxes once the drawer rests against the stop."""
+    text = (EXAMPLES / "soft_close_drawer.yaml").read_text()
+    text = text.replace("c_fluid: 80.0}", "c_fluid: 80.0, tau: 0.02, pull: 0.5}")
+    (tmp_path / "fluid.yaml").write_text(text)
+    model = get_model(str(tmp_path / "fluid.yaml"))
+    assert model.states == ("box", "box_speed", "softie_fluid")
+    ps = model.load_params()
+    p = ps.as_dict()
+    force = push()
+    r = simulate(model, ps, force, DT, theta0=0.0, method="dopri5", tolerance=1e-11)
+    assert r.ok and r.theta.max() > p["softie.engage"] + 0.005
+    t = DT * np.arange(force.size)
+    t_break = brentq(lambda tt: np.interp(tt, t, force) - p["runners.level"], 0.0, 0.07)
+
+    def rhs(tt, y):
+        x, v, fluid = y
+        f = np.interp(tt, t, force) - p["runners.level"] - p["grease.c"] * v
+        if x > p["softie.engage"]:
+            f += p["softie.pull"] + fluid
+            rate = (-p["softie.c_fluid"] * v - fluid) / p["softie.tau"]
+        else:
+            rate = -fluid / p["softie.tau"]
+        if x > p["stop.at"]:
+            f += min(-p["stop.k"] * (x - p["stop.at"]) - p["stop.c"] * v, 0.0)
+        return [v, f / p["box.mass"], rate]
+
+    def engage(tt, y):
+        return y[0] - p["softie.engage"]
+
+    engage.terminal = True
+    kw = dict(method="DOP853", rtol=1e-12, atol=1e-13, max_step=DT, dense_output=True)
+    first = solve_ivp(rhs, (t_break, t[-1]), [0.0, 0.0, 0.0], events=engage, **kw)
+    assert first.status == 1  # engaged
+    t_in = first.t[-1]
+    t_rest = t[np.flatnonzero((t > t_in) & (r.dtheta <= 0.0))[0]]  # where it stops
+    second = solve_ivp(rhs, (t_in, t_rest - 2 * DT), first.y[:, -1], **kw)
+    k1 = np.flatnonzero((t > t_break) & (t < t_in))
+    k2 = np.flatnonzero((t > t_in) & (t <= t_rest - 2 * DT))
+    assert k2.size > 20  # sliding in the soft close
+    for k, sol in ((k1, first), (k2, second)):
+        ref = sol.sol(t[k])
+        np.testing.assert_allclose(r.theta[k], ref[0], atol=1e-8)
+        np.testing.assert_allclose(r.dtheta[k], ref[1], atol=1e-7)
+        np.testing.assert_allclose(r.states["softie_fluid"][k], ref[2], atol=1e-5)
+    assert np.min(r.states["softie_fluid"]) < -1.0  # it braked

@@ -36,6 +36,7 @@ class Layout:
 def generate(mech: Mechanism, version: str) -> tuple[str, Layout]:
     """The module's source and its layout."""
     pos = {b: 2 * i for i, b in enumerate(mech.bodies)}
+    own = _own_states(mech, 2 * len(mech.bodies))
     index = {p.name: i for i, p in enumerate(mech.params)}
     units = {p.name: p.unit for p in mech.params}
     states, x0 = [], []
@@ -43,6 +44,9 @@ def generate(mech: Mechanism, version: str) -> tuple[str, Layout]:
         unit = "m" if body.kind == LINEAR else "rad"
         states += [b, f"{b}_speed"]
         x0 += [body.start, 0.0]
+    for entries in own.values():
+        states += [name for name, _ in entries]
+        x0 += [0.0] * len(entries)
     head = [
         f'"""Mechanism {mech.name!r}: {mech.title}',
         "",
@@ -54,10 +58,12 @@ def generate(mech: Mechanism, version: str) -> tuple[str, Layout]:
     for b, body in mech.bodies.items():
         unit = "m" if body.kind == LINEAR else "rad"
         head.append(f"    x[{pos[b]}] {b} ({unit}), x[{pos[b] + 1}] {b}_speed ({unit}/s)")
+    for e, entries in own.items():
+        head += [f"    x[{i}] {name} (a state of {e})" for name, i in entries]
     head.append("Parameters:")
     head += [f"    p[{i}] {name} ({units[name]})" for name, i in index.items()]
     head += ['"""', "", "import math", "", "from numba import njit", "", ""]
-    body_lines, switch_lines, contacts = _laws(mech, pos, index)
+    body_lines, switch_lines, contacts = _laws(mech, pos, index, own)
     source = "\n".join(head + _rhs(mech, pos, index, body_lines))
     if switch_lines:
         source += "\n\n\n" + "\n".join(
@@ -74,7 +80,18 @@ def generate(mech: Mechanism, version: str) -> tuple[str, Layout]:
     return source + "\n", layout
 
 
-def _laws(mech: Mechanism, pos, index):
+def _own_states(mech: Mechanism, first: int) -> dict[str, list[tuple[str, int]]]:
+    """element -> [(state name, index in x)] of the components' own states."""
+    out, k = {}, first
+    for e in mech.elements.values():
+        names = COMPONENTS[e.kind].own_states(e.values)
+        if names:
+            out[e.name] = [(f"{e.name}_{n}", k + j) for j, n in enumerate(names)]
+            k += len(names)
+    return out
+
+
+def _laws(mech: Mechanism, pos, index, own):
     """Each element's lines of the rhs, the switching functions, the contacts."""
     lines, switches, contacts = [], [], set()
     for e in mech.elements.values():
@@ -88,6 +105,8 @@ def _laws(mech: Mechanism, pos, index):
             fb=f"f_{e.b}",
             p={s: f"p[{index[f'{e.name}.{s}']}]" for s in e.values},
             words=e.words,
+            own=tuple(f"x[{i}]" for _, i in own.get(e.name, ())),
+            rate=tuple(f"dx[{i}]" for _, i in own.get(e.name, ())),
         )
         where = f"on {e.b}" if e.a is None else f"between {e.a} and {e.b}"
         where += "".join(f", {word} {value}" for word, value in e.words.items())

@@ -52,6 +52,8 @@ class Site:
     fb: str
     p: dict[str, str]
     words: dict[str, str]
+    own: tuple[str, ...] = ()  # the component's own states, ``x[i]``
+    rate: tuple[str, ...] = ()  # and their derivatives, ``dx[i]``
 
 
 class Component:
@@ -64,6 +66,12 @@ class Component:
     specs: tuple[Spec, ...] = ()
     words: dict[str, tuple[str, ...]] = {}  # word options: name -> allowed (first: default)
     n_switches = 0
+    optional: tuple[str, ...] = ()  # parameters with no default that may be left out
+
+    def own_states(self, values: dict[str, float]) -> tuple[str, ...]:
+        """Names of the component's own states (after the bodies' in ``x``), given the
+        parameters the file sets."""
+        return ()
 
     def law(self, s: Site) -> list[str]:
         """Source lines adding the component's force to ``s.fa`` and ``s.fb``."""
@@ -169,6 +177,11 @@ class EndStop(Component):
 
 
 class SoftClose(Component):
+    """Past ``engage`` the piston brakes the body: ``pull - c_fluid v``. With ``tau`` the
+    fluid is compliant and its force is a state of its own, ``F``, lagging the viscous
+    force: ``tau F' = -c_fluid v - F`` while engaged (the body feels ``pull + F``),
+    ``tau F' = -F`` (relaxing, not felt) once the body has left the piston."""
+
     kind, title = "soft_close", "soft-close damper engaging over the last stretch"
     acts_on = (LINEAR,)
     connects = ("on",)
@@ -179,12 +192,29 @@ class SoftClose(Component):
              "damping of the fluid once engaged"),
         Spec("pull", "N", "", 0.0, -1.0e4, 1.0e4, "specification",
              "force pulling the body shut once engaged"),
+        Spec("tau", "s", "", None, 1.0e-5, 10.0, "specification",
+             "time constant of the fluid's compliance (optional: a state of its own)"),
     )  # fmt: skip
+    optional = ("tau",)
     n_switches = 1
 
+    def own_states(self, values):
+        return ("fluid",) if "tau" in values else ()
+
     def law(self, s):
-        brake = f"{s.p['pull']} - {s.p['c_fluid']} * {s.vb}"
-        return [f"if {s.xb} > {s.p['engage']}:", f"    {s.fb} += {brake}"]
+        engaged = f"{s.xb} > {s.p['engage']}"
+        if not s.own:
+            brake = f"{s.p['pull']} - {s.p['c_fluid']} * {s.vb}"
+            return [f"if {engaged}:", f"    {s.fb} += {brake}"]
+        (fluid,), (rate,) = s.own, s.rate
+        viscous = f"-{s.p['c_fluid']} * {s.vb}"
+        return [
+            f"if {engaged}:",
+            f"    {s.fb} += {s.p['pull']} + {fluid}",
+            f"    {rate} = ({viscous} - {fluid}) / {s.p['tau']}",
+            "else:",
+            f"    {rate} = -{fluid} / {s.p['tau']}",
+        ]
 
     def switches(self, s):
         return [f"{s.xb} - {s.p['engage']}"]

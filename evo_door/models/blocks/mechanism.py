@@ -268,7 +268,7 @@ def _complete(comp, values: dict[str, float], words: dict[str, str], at: str) ->
     for spec in comp.specs:
         if spec.name.startswith("level"):
             continue
-        if spec.name not in values:
+        if spec.name not in values and spec.name not in comp.optional:
             if spec.default is None:
                 raise UserError(f"{at}: a {comp.kind} needs {spec.name}")
             values[spec.name] = spec.default
