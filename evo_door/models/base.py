@@ -247,7 +247,7 @@ def is_file_spec(name: str) -> bool:
 
 
 def resolve_model_name(name: str, base_dir=None) -> str:
-    """``name`` with a relative ``file.py:ATTRIBUTE`` made absolute.
+    """``name`` with a relative ``file.py:ATTRIBUTE`` or mechanism file made absolute.
 
     The file is looked for in ``base_dir`` (an experiment file's folder) first, then
     in the current folder (where neither has it, the name points into ``base_dir``, so
@@ -324,6 +324,8 @@ def is_code_spec(name: str) -> bool:
 
     >>> is_code_spec("door"), is_code_spec("x/drawer.py:MODEL"), is_code_spec("m.fmu")
     (False, True, True)
+    >>> is_code_spec("x/drawer.yaml")  # a mechanism file is data (docs/blocks.md)
+    False
     """
     from evo_door.models.fmu import is_fmu_spec
 
