@@ -45,9 +45,12 @@ MODEL = Model("{name}", "a spring", PARAMS, accel)
 """
 
 
-def _cli(*args, cwd):
-    """``evo-door ARGS`` in a fresh interpreter, in ``cwd``, without PYTHONPATH."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+def _cli(*args, cwd, cache_beside=False):
+    """``evo-door ARGS`` in a fresh interpreter, in ``cwd``, without PYTHONPATH
+    (``cache_beside``: numba's cache in ``__pycache__`` beside each file, whatever
+    ``NUMBA_CACHE_DIR`` the suite runs with)."""
+    drop = {"PYTHONPATH", "NUMBA_CACHE_DIR"} if cache_beside else {"PYTHONPATH"}
+    env = {k: v for k, v in os.environ.items() if k not in drop}
     return subprocess.run(
         [sys.executable, "-m", "evo_door", *args],
         cwd=cwd,
@@ -353,11 +356,11 @@ def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
     first = tmp_path / "first"
     shutil.copytree(EXAMPLE, first, ignore=shutil.ignore_patterns("__pycache__", "*.h5"))
     args = ("curve", "drawer.py:MODEL", "--params", "soft_close", "--points", "50")
-    made = _cli(*args, "--out", "a.csv", cwd=first)
+    made = _cli(*args, "--out", "a.csv", cwd=first, cache_beside=True)
     assert made.returncode == 0, made.stderr
     assert list((first / "__pycache__").glob("drawer.*.nbi"))  # the cache was written
     copy = tmp_path / "copy"
     shutil.copytree(first, copy)
-    again = _cli(*args, "--out", "b.csv", cwd=copy)
+    again = _cli(*args, "--out", "b.csv", cwd=copy, cache_beside=True)
     assert again.returncode == 0, again.stderr
     assert (copy / "b.csv").read_text() == (first / "a.csv").read_text()
