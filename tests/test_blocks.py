@@ -370,3 +370,19 @@ def test_a_soft_close_with_a_fluid_state_matches_scipy(tmp_path):
         np.testing.assert_allclose(r.dtheta[k], ref[1], atol=1e-7)
         np.testing.assert_allclose(r.states["softie_fluid"][k], ref[2], atol=1e-5)
     assert np.min(r.states["softie_fluid"]) < -1.0  # it braked
+
+
+def test_an_override_names_a_mechanism_parameter_with_its_dot():
+    """``--set free.box.mass=[2, 8]`` sets the parameter ``box.mass`` the file frees;
+    ``free."grease.c"=...`` frees one it does not; a dangling quote is one line."""
+    from evo_door.experiment.yamltree import apply_override, parse
+
+    tree = parse("free:\n  box.mass: [1.0, 9.0]\nalgorithm: {seed: 1}\n", "fit.yaml")
+    apply_override(tree, "free.box.mass=[2.0, 8.0]")
+    apply_override(tree, 'free."grease.c"=[0.5, 12.0]')
+    apply_override(tree, "algorithm.seed=3")
+    assert dict(tree["free"]) == {"box.mass": [2.0, 8.0], "grease.c": [0.5, 12.0]}
+    assert tree["algorithm"]["seed"] == 3
+    with pytest.raises(UserError, match=r"expected KEY.PATH=VALUE") as err:
+        apply_override(tree, 'free."box.mass=[2.0, 8.0]')
+    assert "\n" not in str(err.value)

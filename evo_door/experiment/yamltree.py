@@ -95,13 +95,40 @@ def parse(text: str, source: str):
     return _convert(node, source, SafeConstructor())
 
 
+def override_keys(path: str, where: str) -> list[str]:
+    """The keys of an override's path ``a.b.c``; a key in double quotes may hold dots
+    (``free."box.mass"``: a mechanism's parameter names do).
+
+    >>> override_keys('free."box.mass"', "--set")
+    ['free', 'box.mass']
+    """
+    keys, key, quoted = [], "", False
+    for ch in path:
+        if ch == '"':
+            quoted = not quoted
+        elif ch == "." and not quoted:
+            keys.append(key.strip())
+            key = ""
+        else:
+            key += ch
+    keys.append(key.strip())
+    if quoted or not all(keys):
+        raise UserError(f"{where}: expected KEY.PATH=VALUE, e.g. algorithm.seed=3")
+    return keys
+
+
 def apply_override(tree: LinedMap, assignment: str) -> None:
-    """Set ``a.b.c=value`` in ``tree`` (creating intermediate mappings)."""
+    """Set ``a.b.c=value`` in ``tree`` (creating intermediate mappings).
+
+    Where the rest of the path is itself a key of the mapping reached (``box.mass`` in
+    ``free``), that key is set: ``free.box.mass=[2, 8]`` sets a mechanism's parameter
+    the file names; ``free."box.mass"=[2, 8]`` names it whether the file does or not.
+    """
     where = f"--set {assignment}"
     path, sep, text = assignment.partition("=")
-    keys = [k.strip() for k in path.split(".")]
-    if not sep or not all(keys):
+    if not sep:
         raise UserError(f"{where}: expected KEY.PATH=VALUE, e.g. algorithm.seed=3")
+    keys = override_keys(path, where)
     try:
         value = load(text) if text.strip() else None
     except yaml.YAMLError:
@@ -113,7 +140,11 @@ def apply_override(tree: LinedMap, assignment: str) -> None:
     elif isinstance(value, list):
         value = LinedList(value, loc=where)
     node = tree
-    for key in keys[:-1]:
+    for i, key in enumerate(keys[:-1]):
+        rest = ".".join(keys[i:])
+        if rest in node:  # a dotted key the mapping holds (a mechanism's parameter)
+            keys = [rest]
+            break
         child = node.get(key)
         if not isinstance(child, LinedMap):
             child = LinedMap(loc=where)
