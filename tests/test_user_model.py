@@ -102,6 +102,8 @@ def test_drawer_example_round_trip(tmp_path, monkeypatch):
     )
     assert made.returncode == 0, made.stderr
     assert "6 trial(s)" in made.stdout and "impulse" in made.stdout
+    # the summary in the model's own unit (the stroke in m), not degrees of a door
+    assert "dtheta [m/s]" in made.stdout and "deg" not in made.stdout
     assert "unlock" not in made.stdout  # the drawer's kinds: impulse only
 
     # run from elsewhere: drawer.py is found next to fit.yaml, stored as an absolute path

@@ -118,7 +118,7 @@ def run_generate(args) -> int:
         f"params {params_source(model, params) or 'defaults'}, "
         f"{args.users} users, {args.trials} trials, seed {args.seed}{rich}",
     )
-    print(format_summary(trials, args.out))
+    print(format_summary(trials, args.out, model.theta_unit))
     print(f"wrote {args.out}")
     claim.note()
     return 0

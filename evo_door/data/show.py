@@ -28,9 +28,13 @@ def peak_or_none(trial: Trial):
         return None
 
 
-def summary_rows(trials: list[Trial]) -> list[dict]:
+def summary_rows(trials: list[Trial], unit: str = "rad") -> list[dict]:
+    """One row per trial; the coordinate in degrees where ``unit`` (the model's
+    ``theta_unit``) is rad, else in ``unit`` (a drawer's metres)."""
     rows = []
-    deg = 180.0 / math.pi
+    deg = 180.0 / math.pi if unit == "rad" else 1.0
+    shown = "deg" if unit == "rad" else unit
+    fmt = "{:.2f}" if unit == "rad" else "{:.4g}"
     for tr in trials:
         peak = peak_or_none(tr)
         sat = []
@@ -47,19 +51,22 @@ def summary_rows(trials: list[Trial]) -> list[dict]:
                 "duration [s]": f"{tr.duration:.3f}",
                 "rate [Hz]": f"{tr.rate:g}",
                 "force [N]": _range(tr.force),
-                "theta [deg]": _range(tr.theta, deg, "{:.2f}"),
-                "dtheta [deg/s]": _range(tr.dtheta, deg),
+                f"theta [{shown}]": _range(tr.theta, deg, fmt),
+                f"dtheta [{shown}/s]": (
+                    _range(tr.dtheta, deg) if unit == "rad" else _range(tr.dtheta, 1.0, "{:.3g}")
+                ),
                 "peak [N]": f"{peak.force:.1f}" if peak else "-",
-                "theta0 [deg]": f"{tr.theta0 * deg:.2f}" if tr.theta0 is not None else "-",
+                f"theta0 [{shown}]": ("-" if tr.theta0 is None else fmt.format(tr.theta0 * deg)),
                 "saturated": ",".join(sat) or "-",
             }
         )
     return rows
 
 
-def format_summary(trials: list[Trial], path="") -> str:
-    """A plain-text table, one trial per line, units in the header (degrees for people)."""
-    rows = summary_rows(trials)
+def format_summary(trials: list[Trial], path="", unit: str = "rad") -> str:
+    """A plain-text table, one trial per line, units in the header (degrees for people
+    where the coordinate is an angle; ``unit``: the model's ``theta_unit``)."""
+    rows = summary_rows(trials, unit)
     cols = list(rows[0])
     width = {c: max(len(c), *(len(r[c]) for r in rows)) for c in cols}
     lines = ["  ".join(c.ljust(width[c]) for c in cols)]
