@@ -386,3 +386,21 @@ def test_an_override_names_a_mechanism_parameter_with_its_dot():
     with pytest.raises(UserError, match=r"expected KEY.PATH=VALUE") as err:
         apply_override(tree, 'free."box.mass=[2.0, 8.0]')
     assert "\n" not in str(err.value)
+
+
+def test_free_text_of_the_file_never_becomes_code(tmp_path):
+    """A title that closes the generated module's docstring and goes on as code stays
+    text: no marker file is made, the model loads, its title is the file's."""
+    marker = tmp_path / "ran"
+    text = (EXAMPLES / "soft_close_drawer.yaml").read_text()
+    hostile = f'''a drawer""" ; import pathlib ; pathlib.Path({str(marker)!r}).touch() ; """'''
+    lines = [
+        f"  title: {json.dumps(hostile)}" if line.strip().startswith("title:") else line
+        for line in text.splitlines()
+    ]
+    (tmp_path / "hostile.yaml").write_text("\n".join(lines) + "\n")
+    model = get_model(str(tmp_path / "hostile.yaml"))
+    assert not marker.exists()
+    assert model.title == hostile
+    r = simulate(model, model.load_params(), push(256), DT)
+    assert r.ok
