@@ -104,12 +104,7 @@ def _check_states(model) -> None:
         raise UserError(f"{name}: x0 has {len(model.x0)} values for {n} states")
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in model.x0):
         raise UserError(f"{name}: x0 must be finite numbers, got {model.x0!r}")
-    if not (isinstance(model.n_switches, int) and 0 <= model.n_switches <= 64):
-        raise UserError(f"{name}: n_switches must be a whole number from 0 to 64")
-    if (model.switches is None) != (model.n_switches == 0):
-        raise UserError(f"{name}: give switches and n_switches together (or neither)")
-    if not (isinstance(model.tolerance, float) and 0.0 < model.tolerance < 1.0):
-        raise UserError(f"{name}: tolerance must be a number in (0, 1), got {model.tolerance!r}")
+    _check_settings(model)
     from evo_door.sim.states import RHS_SIGNATURE, START_SIGNATURE, STATE_SWITCHES_SIGNATURE
 
     _check_compiled(name, "rhs", model.rhs, RHS_SIGNATURE, _WANT_RHS)
@@ -141,7 +136,8 @@ def _check_compiled(name: str, what: str, func, sig, want: str) -> None:
         ) from None
 
 
-def _check_switches(model) -> None:
+def _check_settings(model) -> None:
+    """The switching functions' count and the tolerance, of either kind of model."""
     name = f"model {model.name!r}"
     if not (isinstance(model.n_switches, int) and 0 <= model.n_switches <= 64):
         raise UserError(f"{name}: n_switches must be a whole number from 0 to 64")
@@ -149,27 +145,16 @@ def _check_switches(model) -> None:
         raise UserError(f"{name}: give switches and n_switches together (or neither)")
     if not (isinstance(model.tolerance, float) and 0.0 < model.tolerance < 1.0):
         raise UserError(f"{name}: tolerance must be a number in (0, 1), got {model.tolerance!r}")
+
+
+def _check_switches(model) -> None:
+    _check_settings(model)
     if model.switches is None:
         return
-    from numba import config
-    from numba.core.dispatcher import Dispatcher
-
     from evo_door.sim.located import SWITCHES_SIGNATURE
 
     want = "a numba @njit function switches(theta, dtheta, force, p, g) writing g"
-    if getattr(config, "DISABLE_JIT", False):
-        if not callable(model.switches):
-            raise UserError(f"{name}: switches must be {want}; got {_describe(model.switches)}")
-        return
-    if not isinstance(model.switches, Dispatcher):
-        raise UserError(f"{name}: switches must be {want}; got {_describe(model.switches)}")
-    try:
-        model.switches.get_compile_result(SWITCHES_SIGNATURE)
-    except Exception as exc:  # numba raises TypingError, TypeError, NameError...
-        raise UserError(
-            f"{name}: switches must be {want}; it does not compile for "
-            f"{_signature_text(SWITCHES_SIGNATURE)}: {_numba_reason(exc)}"
-        ) from None
+    _check_compiled(f"model {model.name!r}", "switches", model.switches, SWITCHES_SIGNATURE, want)
 
 
 _WANT = "a numba @njit function accel(theta, dtheta, force, p) -> float"

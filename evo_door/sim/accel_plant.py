@@ -14,7 +14,6 @@ import numpy as np
 from numba import njit, prange, types
 
 from evo_door.errors import UserError
-from evo_door.params import ParamTable
 from evo_door.params.sets import param_vector
 from evo_door.sim.integrators import (
     ACCEL_TYPE,
@@ -24,6 +23,7 @@ from evo_door.sim.integrators import (
     prepared_form,
 )
 from evo_door.sim.objective import accel_population_errors
+from evo_door.sim.plant import CompiledPlant
 from evo_door.sim.simulate import (
     Response,
     check_force,
@@ -97,7 +97,7 @@ def _inertia_rows_serial(accel, P, theta, dtheta, out):
             out[r, i] = 1.0 / (a1 - a0)
 
 
-class AccelPlant:
+class AccelPlant(CompiledPlant):
     """The :class:`~evo_door.sim.plant.Plant` of a model given by ``accel`` (``model``:
     its :class:`~evo_door.models.Model`, or anything with the same attributes)."""
 
@@ -105,27 +105,6 @@ class AccelPlant:
     position = 0
     speed = 1
     state_names: tuple[str, ...] = ("theta", "dtheta")
-    contained = False
-
-    def __init__(self, model) -> None:
-        self.model = model
-
-    @property
-    def params(self) -> ParamTable:
-        return self.model.params
-
-    def prepare(self) -> None:
-        """Nothing to load: the kernels are compiled on import."""
-
-    def check_ready(self) -> None:
-        """Always ready."""
-
-    def not_a_parameter(self, name: str) -> str:
-        """Every variable of the model is a declared parameter."""
-        return ""
-
-    def check_start(self, theta0, dtheta0, where: str = "") -> None:
-        """Any initial state will do."""
 
     def simulate(
         self, params, force, dt, theta0=None, dtheta0=None, t0=0.0, method=None,
@@ -192,9 +171,6 @@ class AccelPlant:
             self.model, P, force, target, mask, offsets, dt, theta0, dtheta0, substeps,
             method, tol, derivative, kind, err_out, ok_out,
         )  # fmt: skip
-
-    def check_curve(self, what: str) -> None:
-        """``accel`` gives the force at any state."""
 
     def hold_forces(self, p, theta, dtheta) -> np.ndarray:
         """Force (N, + toward closing) holding ``ddtheta = 0`` at every ``theta``, in one

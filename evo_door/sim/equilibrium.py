@@ -27,10 +27,9 @@ import math
 import numpy as np
 from numba import njit, types
 
+from evo_door.sim.states import RHS_TYPE
+
 _vec = types.float64[::1]
-#: ``rhs(x, force, p, dx)``: the right-hand side of a model on a state vector.
-RHS_SIGNATURE = types.void(_vec, types.float64, _vec, _vec)
-RHS_TYPE = types.FunctionType(RHS_SIGNATURE)
 
 #: Newton iterations per point, and the step's relative size at which a point is solved.
 MAX_NEWTON = 60

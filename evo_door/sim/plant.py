@@ -139,3 +139,34 @@ class Plant(Protocol):
     def inertia_rows(self, P: ArrayLike, theta: ArrayLike, dtheta: float) -> np.ndarray:
         """The inertia felt at the handle (force per acceleration) of every row of ``P``
         at each ``theta``: an array (rows, angles)."""
+
+
+class CompiledPlant:
+    """What a plant compiled here answers (:class:`~evo_door.sim.accel_plant.AccelPlant`,
+    :class:`~evo_door.sim.state_plant.StatePlant`): nothing to load or contain, every
+    variable a declared parameter, any start and any state for the curve."""
+
+    contained = False
+
+    def __init__(self, model) -> None:
+        self.model = model
+
+    @property
+    def params(self) -> ParamTable:
+        return self.model.params
+
+    def prepare(self) -> None:
+        """Nothing to load: the kernels are compiled on import."""
+
+    def check_ready(self) -> None:
+        """Always ready."""
+
+    def not_a_parameter(self, name: str) -> str:
+        """Every variable of the model is a declared parameter."""
+        return ""
+
+    def check_start(self, theta0, dtheta0, where: str = "") -> None:
+        """Any initial state will do."""
+
+    def check_curve(self, what: str) -> None:
+        """The force at the handle is known at any state."""

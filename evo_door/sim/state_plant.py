@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.params import ParamTable
 from evo_door.params.sets import param_vector
 from evo_door.sim.equilibrium import hold_states
+from evo_door.sim.plant import CompiledPlant
 from evo_door.sim.simulate import (
     Response,
     check_force,
@@ -41,39 +41,18 @@ from evo_door.sim.states import (
 )
 
 
-class StatePlant:
-    """The :class:`~evo_door.sim.plant.Plant` of a model given by ``rhs`` (``model``)."""
-
-    contained = False
+class StatePlant(CompiledPlant):
+    """The :class:`~evo_door.sim.plant.Plant` of a model given by ``rhs`` (``model``);
+    the force at the handle is the equilibrium solve's."""
 
     def __init__(self, model) -> None:
-        self.model = model
+        super().__init__(model)
         self.state_names = tuple(model.states)
         self.n_states = len(self.state_names)
         self.position, self.speed = (int(i) for i in model.handle)
         self.contacts = np.array(model.contacts, dtype=np.int64)
         self.switches = model.switches or no_state_switches
         self.n_switches = int(model.n_switches) if model.switches is not None else 0
-
-    @property
-    def params(self) -> ParamTable:
-        return self.model.params
-
-    def prepare(self) -> None:
-        """Nothing to load: the kernels are compiled on import."""
-
-    def check_ready(self) -> None:
-        """Always ready."""
-
-    def not_a_parameter(self, name: str) -> str:
-        """Every variable of the model is a declared parameter."""
-        return ""
-
-    def check_start(self, theta0, dtheta0, where: str = "") -> None:
-        """Any initial handle state will do."""
-
-    def check_curve(self, what: str) -> None:
-        """The equilibrium solve gives the force at any state."""
 
     # -- the initial state ---------------------------------------------------------
     def initial_state(self, p, theta0=None, dtheta0=None) -> np.ndarray:
