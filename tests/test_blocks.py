@@ -404,3 +404,22 @@ def test_free_text_of_the_file_never_becomes_code(tmp_path):
     assert model.title == hostile
     r = simulate(model, model.load_params(), push(256), DT)
     assert r.ok
+
+
+def test_a_binary_or_bounded_mechanism_file_is_one_line(tmp_path):
+    """Binary data, text that is not UTF-8 and an alias bomb: one line each, no
+    traceback, nothing allocated beyond the YAML bounds."""
+    cases = {
+        "binary.yaml": b"\x89HDF\r\n\x1a\n\0\0\0",
+        "latin.yaml": "mechanism: {name: caf\xe9}\n".encode("latin-1"),
+        "bomb.yaml": (
+            "a: &a [x, x, x, x, x, x, x, x, x]\n"
+            + "".join(f"b{i}: &b{i} [*{'a' if i == 0 else f'b{i - 1}'}] \n" for i in range(200))
+        ).encode(),
+    }
+    expect = {"binary.yaml": "binary data", "latin.yaml": "not UTF-8", "bomb.yaml": "aliases"}
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(UserError) as err:
+            get_model(str(tmp_path / name))
+        assert expect[name] in str(err.value) and "\n" not in str(err.value), str(err.value)

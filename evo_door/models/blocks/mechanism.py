@@ -68,17 +68,18 @@ def read_mechanism(path: Path) -> Mechanism:
     """The mechanism in the YAML file ``path`` (one-line errors, see the module)."""
     import yaml
 
+    from evo_door.files import read_text
     from evo_door.yaml_numbers import Loader
 
     where = f"mechanism {path.name}"
+    text = read_text(path, "mechanism file")  # binary or not UTF-8: one line
     try:
-        tree = yaml.load(path.read_text(encoding="utf-8"), Loader=Loader)
-    except OSError as exc:
-        raise UserError(f"{where}: cannot read it ({exc.strerror})") from None
+        tree = yaml.load(text, Loader=Loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" (line {mark.line + 1})" if mark is not None else ""
-        raise UserError(f"{where}: not valid YAML{line}") from None
+        problem = f": {exc.problem}" if getattr(exc, "problem", None) else ""
+        raise UserError(f"{where}: not valid YAML{line}{problem}") from None
     if not isinstance(tree, dict) or set(tree) != {"mechanism"}:
         raise UserError(f"{where}: the file must hold one mapping, mechanism: {{...}}")
     return parse_mechanism(tree["mechanism"], where)
