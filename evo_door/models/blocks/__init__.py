@@ -23,7 +23,6 @@ import sys
 from pathlib import Path
 
 from evo_door.errors import UserError
-from evo_door.models.blocks.mechanism import read_mechanism
 from evo_door.params.declaration import suggest
 
 #: environment variable naming the folder of generated mechanisms (tests use a tmp one)
@@ -50,6 +49,7 @@ def load_mechanism(path: Path):
     from evo_door import __version__
     from evo_door.models.base import Model
     from evo_door.models.blocks.codegen import generate
+    from evo_door.models.blocks.mechanism import read_mechanism
     from evo_door.params import ParamTable
 
     if not path.is_file():
@@ -60,7 +60,8 @@ def load_mechanism(path: Path):
         raise UserError(f"mechanism file {path} not found{hint}")
     mech = read_mechanism(path)
     source, layout = generate(mech, __version__)
-    digest = hashlib.sha256(f"{__version__}\n{source}".encode()).hexdigest()[:16]
+    stamp = f"{__version__}\n{_library_stamp(source)}\n{source}"
+    digest = hashlib.sha256(stamp.encode()).hexdigest()[:16]
     module = _import(source, digest)
     handle = mech.bodies[mech.handle]
     linear = handle.kind == "linear"
@@ -75,9 +76,9 @@ def load_mechanism(path: Path):
         handle=layout.handle,
         x0=layout.x0,
         contacts=layout.contacts,
-        method="dopri5",
-        tolerance=1e-9,
-        substeps=4,
+        method=mech.integration["method"],
+        tolerance=mech.integration["tolerance"],
+        substeps=mech.integration["substeps"],
         theta0=handle.range[0],
         theta_range=handle.range,
         theta_unit="m" if linear else "rad",
@@ -90,6 +91,24 @@ def _notes(mech, path: Path) -> str:
     bodies = ", ".join(f"{b.name} ({b.kind})" for b in mech.bodies.values())
     elements = ", ".join(f"{e.name} ({e.kind})" for e in mech.elements.values()) or "none"
     return f"Mechanism file {path.name}: bodies {bodies}; elements {elements}."
+
+
+def _library_stamp(source: str) -> str:
+    """A digest of the library code the generated source calls (the seed's blocks):
+    every module of the packages its ``from evo_door... import`` lines name. numba's
+    cache beside the generated file would not see an edit of that code; a new digest
+    is a new folder, compiled afresh."""
+    packages = set()
+    for line in source.splitlines():
+        if line.startswith("from evo_door."):
+            spec = importlib.util.find_spec(line.split()[1])
+            if spec is not None and spec.origin:
+                packages.add(Path(spec.origin).parent)
+    h = hashlib.sha256()
+    for folder in sorted(packages):
+        for file in sorted(folder.glob("*.py")):
+            h.update(file.name.encode() + b"\0" + file.read_bytes())
+    return h.hexdigest()
 
 
 def _import(source: str, digest: str):

@@ -11,12 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from evo_door.models.blocks.components import (
-    COMPONENTS,
-    GRAVITY,
-    LINEAR,
-    Site,
-)
+from evo_door.models.blocks.components import GRAVITY, LINEAR, Site
+from evo_door.models.blocks.library import COMPONENTS
 from evo_door.models.blocks.mechanism import Mechanism
 
 _SIG = "void(float64[::1], float64, float64[::1], float64[::1])"
@@ -61,7 +57,9 @@ def generate(mech: Mechanism, version: str) -> tuple[str, Layout]:
         head += [f"    x[{i}] {name} (a state of {e})" for name, i in entries]
     head.append("Parameters:")
     head += [f"    p[{i}] {name} ({units[name]})" for name, i in index.items()]
-    head += ['"""', "", "import math", "", "from numba import njit", "", ""]
+    head += ['"""', "", "import math", "", "from numba import njit", ""]
+    head += sorted({line for e in mech.elements.values() for line in COMPONENTS[e.kind].imports})
+    head += ["", ""]
     body_lines, switch_lines, contacts = _laws(mech, pos, index, own)
     source = "\n".join(head + _rhs(mech, pos, index, body_lines))
     if switch_lines:
@@ -132,12 +130,26 @@ def _rhs(mech: Mechanism, pos, index, element_lines) -> list[str]:
         else:
             out.append(f"    f_{b} = 0.0")
         if f"{b}.arm" in index:
-            weight = f"p[{index[f'{b}.mass']}] * {GRAVITY!r} * p[{index[f'{b}.arm']}]"
-            out.append(f"    f_{b} -= {weight} * math.cos(x[{pos[b]}])  # {b}'s weight")
+            weight = f"p[{index[f'{b}.mass']}] * {GRAVITY!r}"
+            arm = f"p[{index[f'{b}.arm']}] * math.cos(x[{pos[b]}])"
+            if f"{b}.arm_normal" in index:
+                arm += f" - p[{index[f'{b}.arm_normal']}] * math.sin(x[{pos[b]}])"
+            out.append(f"    f_{b} -= {weight} * ({arm})  # {b}'s weight")
     out += element_lines
     out.append("    # the bodies: position' = speed, speed' = force / mass")
     for b, body in mech.bodies.items():
-        inertia = "mass" if body.kind == LINEAR else "inertia"
         out.append(f"    dx[{pos[b]}] = x[{pos[b] + 1}]")
-        out.append(f"    dx[{pos[b] + 1}] = f_{b} / p[{index[f'{b}.{inertia}']}]")
+        out.append(f"    dx[{pos[b] + 1}] = f_{b} / {_inertia(b, body, index)}")
     return out
+
+
+def _inertia(b: str, body, index) -> str:
+    """The source of a body's mass, or its moment of inertia about its axis."""
+    if body.kind == LINEAR:
+        return f"p[{index[f'{b}.mass']}]"
+    inertia = f"p[{index[f'{b}.inertia']}]"
+    if body.inertia_about == "axis":
+        return inertia
+    arms = [f"p[{index[f'{b}.{a}']}]" for a in ("arm", "arm_normal") if f"{b}.{a}" in index]
+    square = " + ".join(f"{a} * {a}" for a in arms)
+    return f"({inertia} + p[{index[f'{b}.mass']}] * ({square}))"

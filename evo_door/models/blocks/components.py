@@ -67,6 +67,8 @@ class Component:
     words: dict[str, tuple[str, ...]] = {}  # word options: name -> allowed (first: default)
     n_switches = 0
     optional: tuple[str, ...] = ()  # parameters with no default that may be left out
+    #: import lines the law's source needs (library code only, never the file's)
+    imports: tuple[str, ...] = ()
 
     def own_states(self, values: dict[str, float]) -> tuple[str, ...]:
         """Names of the component's own states (after the bodies' in ``x``), given the
@@ -244,7 +246,8 @@ COMPONENTS: dict[str, Component] = {
 }
 
 #: the parameters of a body, by its kind: (spec, ...); ``mass`` of a rotary body and
-#: ``arm`` give its weight's moment, ``m g arm cos(theta)`` (none without a ``mass``)
+#: ``arm`` give its weight's moment, ``-m g (arm cos(theta) - arm_normal sin(theta))``
+#: (none without a ``mass``)
 BODY_SPECS: dict[str, tuple[Spec, ...]] = {
     LINEAR: (Spec("mass", "kg", "", None, 1.0e-6, 1.0e5, "specification", "mass"),),
     ROTARY: (
@@ -254,10 +257,16 @@ BODY_SPECS: dict[str, tuple[Spec, ...]] = {
              "mass whose weight acts on the lever arm (optional)"),
         Spec("arm", "", "m", 0.0, -10.0, 10.0, "geometry",
              "distance from the axis to the centre of mass (weight moment m g arm cos)"),
+        Spec("arm_normal", "", "m", None, -10.0, 10.0, "geometry",
+             "offset of the centre of mass across the arm, toward closed at angle 0 "
+             "(optional; weight moment + m g arm_normal sin)"),
         Spec("hand_lever", "", "m", 1.0, 1.0e-6, 10.0, "geometry",
              "distance from the axis to where the hand pushes (handle only)"),
     ),
 }  # fmt: skip
 #: what a body entry may hold besides its parameters
-BODY_WORDS = ("kind", "range", "start")
+BODY_WORDS = ("kind", "range", "start", "inertia_about")
+#: where a rotary body's ``inertia`` is taken: about its axis, or about its centre of
+#: mass (the axis's is then ``inertia + mass (arm^2 + arm_normal^2)``)
+INERTIA_ABOUT = ("axis", "centre_of_mass")
 GRAVITY = 9.80665

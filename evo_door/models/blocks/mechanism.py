@@ -13,24 +13,27 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.models.blocks.components import (
     BODY_SPECS,
     BODY_WORDS,
-    COMPONENTS,
+    INERTIA_ABOUT,
     LINEAR,
     ROTARY,
     Spec,
 )
+from evo_door.models.blocks.library import COMPONENTS
 from evo_door.params import Param
 from evo_door.params.declaration import suggest
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,39}")
 _MODEL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,63}")
-_TOP = ("name", "title", "handle", "bodies", "elements", "notes")
+_TOP = ("name", "title", "handle", "bodies", "elements", "notes", "integration")
+#: the ``integration:`` keys, with the defaults of a mechanism
+INTEGRATION = {"method": "dopri5", "tolerance": 1e-9, "substeps": 4}
 GROUND = "ground"
 
 
@@ -41,6 +44,7 @@ class Body:
     values: dict[str, float]
     range: tuple[float, float]
     start: float
+    inertia_about: str = "axis"  # a rotary body's: "axis" or "centre_of_mass"
 
 
 @dataclass
@@ -62,6 +66,7 @@ class Mechanism:
     elements: dict[str, Element]
     notes: str = ""
     params: list[Param] = field(default_factory=list)
+    integration: dict = field(default_factory=lambda: dict(INTEGRATION))
 
 
 def read_mechanism(path: Path) -> Mechanism:
@@ -116,9 +121,36 @@ def parse_mechanism(tree, where: str) -> Mechanism:
         bodies=bodies,
         elements=elements,
         notes=_text(tree.get("notes", ""), f"{where}: notes"),
+        integration=_integration(tree.get("integration", {}), f"{where}: integration"),
     )
     mech.params = _declare(mech)
     return mech
+
+
+def _integration(tree, where: str) -> dict:
+    """The integration settings: ``method``, ``tolerance``, ``substeps`` (defaults
+    :data:`INTEGRATION`)."""
+    from evo_door.sim.integrators import METHODS
+
+    tree = _mapping(tree, where)
+    _known_keys(tree, tuple(INTEGRATION), where)
+    out = dict(INTEGRATION)
+    if "method" in tree:
+        method = tree["method"]
+        if method not in METHODS:
+            raise UserError(f"{where}: method {_shown(method)} is not one of {', '.join(METHODS)}")
+        out["method"] = method
+    if "tolerance" in tree:
+        tol = _number(tree["tolerance"], f"{where}: tolerance")
+        if not 1e-14 <= tol <= 1e-2:
+            raise UserError(f"{where}: tolerance {tol:g} is outside [1e-14, 1e-2]")
+        out["tolerance"] = tol
+    if "substeps" in tree:
+        n = tree["substeps"]
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= 64:
+            raise UserError(f"{where}: substeps must be a whole number from 1 to 64")
+        out["substeps"] = n
+    return out
 
 
 def _mapping(value, where: str) -> dict:
@@ -196,8 +228,18 @@ def _body(name: str, tree, where: str) -> Body:
     need = "mass" if kind == LINEAR else "inertia"
     if need not in values:
         raise UserError(f"{at}: a {kind} body needs its {need}")
-    if "arm" in values and "mass" not in values:
-        raise UserError(f"{at}: arm without a mass (the weight acts on the arm)")
+    for arm in ("arm", "arm_normal"):
+        if arm in values and "mass" not in values:
+            raise UserError(f"{at}: {arm} without a mass (the weight acts on the arm)")
+    about = tree.get("inertia_about", INERTIA_ABOUT[0])
+    if kind != ROTARY and "inertia_about" in tree:
+        raise UserError(f"{at}: inertia_about is for a rotary body")
+    if about not in INERTIA_ABOUT:
+        raise UserError(
+            f"{at}: inertia_about must be one of {', '.join(INERTIA_ABOUT)}, got {_shown(about)}"
+        )
+    if about == "centre_of_mass" and "mass" not in values:
+        raise UserError(f"{at}: inertia_about: centre_of_mass needs the body's mass")
     closed = 0.5 * math.pi if kind == ROTARY else 1.0
     rng = tree.get("range", [0.0, closed])
     if not isinstance(rng, list) or len(rng) != 2:
@@ -206,7 +248,7 @@ def _body(name: str, tree, where: str) -> Body:
     if not lo < hi:
         raise UserError(f"{at}: range [{lo:g}, {hi:g}] must go from fully open up to closed")
     start = _number(tree.get("start", lo), f"{at}: start")
-    return Body(name, kind, values, (lo, hi), start)
+    return Body(name, kind, values, (lo, hi), start, about)
 
 
 def _element(name: str, tree, bodies: dict[str, Body], where: str) -> Element:
@@ -311,8 +353,10 @@ def _declare(mech: Mechanism) -> list[Param]:
             if spec.name == "hand_lever" and body.name != mech.handle:
                 continue
             value = body.values.get(spec.name, spec.default)
-            if value is None or (spec.name == "arm" and "mass" not in body.values):
+            if value is None or (spec.name.startswith("arm") and "mass" not in body.values):
                 continue
+            if spec.name == "inertia" and body.inertia_about == "centre_of_mass":
+                spec = replace(spec, meaning="moment of inertia about the centre of mass")
             params.append(_param(body.name, spec, value, body.kind))
     for e in mech.elements.values():
         kind = mech.bodies[e.b].kind
