@@ -47,5 +47,5 @@ def mechanism_section(page: ReportPage, model: str | None, key: str, label: str)
         "with the file's values (not the fit's); evo-door draw draws it"
     )
     page.raw(
-        f'<figure class="diagram">{svg}<figcaption>{html.escape(caption)}</figcaption></figure>'
+        f'<figure class="diagram">{svg.rstrip()}<figcaption>{html.escape(caption)}</figcaption></figure>'
     )

@@ -247,6 +247,11 @@ class _Sketch:
             else:
                 self.over.append(e)
         self.labels = {e.name: element_label(mech, e) for e in mech.elements.values()}
+        self.title = f"{mech.name}: {mech.title}" if mech.title != mech.name else mech.name
+        count = (
+            f"{_many(len(mech.bodies), 'body', 'bodies')}, {_many(len(mech.elements), 'element')}"
+        )
+        self.note = f"{count}; positions and forces positive toward closed (to the right)"
         self.parts: list[str] = []
         self._measure()
 
@@ -268,11 +273,14 @@ class _Sketch:
         self.gap_rows = [[self._lines(e) * LINE + 28.0 for e in gap] for gap in self.gaps]
         rotary = any(self.mech.bodies[b].kind == ROTARY for b in self.order)
         self.body_h = max([130.0 if rotary else 84.0] + [sum(r) + 16.0 for r in self.gap_rows])
-        x = MARGIN
+        x = float(MARGIN)
         for col, gap in zip(self.columns, self.gap_widths + [0.0]):
             col.x = x
             x += col.width + gap
-        self.width = x + MARGIN
+        first = self.columns[0]
+        hand = first.x + first.width / 2 + 44.0 + _width(["+ toward closed"])
+        title = _width([self.title]) * (FONT + 2) / FONT
+        self.width = max(x, hand, MARGIN + title, MARGIN + _width([self.note])) + MARGIN
         self.over_rows = [self._lines(e) * LINE + 30.0 for e in self.over]
         self.top = MARGIN + 2 * LINE + 12.0  # the title
         self.hand_y = self.top + 22.0
@@ -281,14 +289,9 @@ class _Sketch:
         self.height = self.ground_y + 14.0 + LINE + MARGIN
 
     def render(self) -> str:
-        mech = self.mech
-        title = f"{mech.name}: {mech.title}" if mech.title != mech.name else mech.name
+        title = self.title
         self._text(MARGIN, MARGIN + FONT, [title], bold=True, size=FONT + 2)
-        count = (
-            f"{_many(len(mech.bodies), 'body', 'bodies')}, {_many(len(mech.elements), 'element')}"
-        )
-        note = f"{count}; positions and forces positive toward closed (to the right)"
-        self._text(MARGIN, MARGIN + FONT + LINE + 4, [note], fill="#555")
+        self._text(MARGIN, MARGIN + FONT + LINE + 4, [self.note], fill="#555")
         self._ground()
         for col in self.columns:
             self._body(col)
@@ -394,9 +397,9 @@ class _Sketch:
         """Elements between bodies that are not neighbours: over the row of bodies."""
         y = self.body_y - 12.0
         for k, (e, row) in enumerate(zip(self.over, self.over_rows)):
-            a, b = sorted(
-                (self.columns[self.at[e.a]], self.columns[self.at[e.b]]), key=lambda c: c.x
-            )
+            assert e.a is not None  # between two bodies, as the constructor sorted them
+            ends = (self.columns[self.at[e.a]], self.columns[self.at[e.b]])
+            a, b = sorted(ends, key=lambda c: c.x)
             xa = a.x + a.width * (0.7 + 0.2 * ((k + 1) % 2))
             xb = b.x + b.width * (0.3 - 0.2 * ((k + 1) % 2))
             self.parts.append(
