@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from evo_door.cli import main
+from evo_door.files.claims import HDF5_SIGNATURE
 from evo_door.models.blocks import CACHE_ENV, components
 from evo_door.models.blocks.drawing import SYMBOLS, body_order, element_label, mechanism_svg
 from evo_door.models.blocks.mechanism import Element, read_mechanism
@@ -184,7 +185,13 @@ def test_the_command_writes_refuses_to_replace_and_compiles_nothing(tmp_path):
     (tmp_path / "two_carts.svg").write_text("mine")
     forced = _draw("two_carts.yaml", "--force", cwd=tmp_path)
     assert forced.returncode == 0, forced.stderr
+    assert forced.stderr == "evo-door: replaced two_carts.svg\n"
     assert (tmp_path / "two_carts.svg").read_bytes() == first  # the same bytes
+    data = HDF5_SIGNATURE + b"trials"
+    (tmp_path / "data.svg").write_bytes(data)  # an HDF5 file, whatever its name
+    kept = _draw("two_carts.yaml", "--out", "data.svg", "--force", cwd=tmp_path)
+    assert kept.returncode == 2 and "an evo-door data file is there" in kept.stderr
+    assert (tmp_path / "data.svg").read_bytes() == data
 
 
 @pytest.mark.parametrize(

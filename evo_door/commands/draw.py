@@ -52,11 +52,12 @@ def run(args) -> int:
 
 
 def _claim(out: Path, inputs, force: bool):
-    """May ``out`` be written? Never over an input; over an existing file only with
-    ``--force``."""
+    """May ``out`` be written? Never over an input nor an HDF5 file (where evo-door
+    keeps data: a figure never replaces one, ``--force`` or not); over another existing
+    file only with ``--force``."""
     from evo_door.files import Output, claim_outputs
 
-    claim = claim_outputs([Output(out)], inputs, force=force)
+    claim = claim_outputs([Output(out)], inputs)
     if out.exists() and not force:
         raise UserError(f"--out {out}: a file is there already; give --force to replace it")
     return claim
