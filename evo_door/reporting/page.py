@@ -18,6 +18,7 @@ STYLE = (
     "figure{margin:1em 0}figcaption{font-size:.9em;color:#555}pre{background:#f6f6f6;"
     "padding:.6em;overflow-x:auto;font-size:.85em}.fail{color:#a00;font-weight:bold}"
     ".pass{color:#070;font-weight:bold}nav a{margin-right:1em}"
+    "figure.diagram svg{max-width:100%;height:auto}"
 )
 
 

@@ -37,6 +37,7 @@ from evo_door.reporting.report_feel import (
     front_section,
     perceptual_section,
 )
+from evo_door.reporting.report_mechanism import mechanism_section
 
 __all__ = ["DEFAULT_JND", "FORCE_FLOOR", "JNDChanges", "pipeline_settings", "write_report"]
 
@@ -163,6 +164,7 @@ def _run_section(page: ReportPage, res: Results, changes: JNDChanges) -> None:
         f"{(s['seconds'] or 0):.1f} s, seed {s['seed']}; best fitness "
         f"{s['fitness']:.4g} {s['fitness_unit']} ({s.get('best_meaning', '')})"
     )
+    mechanism_section(page, res.attrs.get("model"), key, label)
     if not res.complete:
         page.p("not finished: the figures and tables below wait for its end", "fail")
         return

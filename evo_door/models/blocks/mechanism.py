@@ -130,12 +130,12 @@ def parse_mechanism(tree, where: str) -> Mechanism:
 def _integration(tree, where: str) -> dict:
     """The integration settings: ``method``, ``tolerance``, ``substeps`` (defaults
     :data:`INTEGRATION`)."""
-    from evo_door.sim.integrators import METHODS
-
     tree = _mapping(tree, where)
     _known_keys(tree, tuple(INTEGRATION), where)
     out = dict(INTEGRATION)
     if "method" in tree:
+        from evo_door.sim.integrators import METHODS  # compiled: only when asked
+
         method = tree["method"]
         if method not in METHODS:
             raise UserError(f"{where}: method {_shown(method)} is not one of {', '.join(METHODS)}")

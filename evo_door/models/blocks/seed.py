@@ -26,16 +26,35 @@ from __future__ import annotations
 import math
 
 from evo_door.models.blocks.components import ROTARY, Component, Site, Spec
-from evo_door.models.door.parameters import TABLE
 
 
 def _spec(door_name: str, name: str | None = None, meaning: str | None = None) -> Spec:
     """The door's declaration of ``door_name`` as a component's parameter ``name``."""
+    from evo_door.models.door.parameters import TABLE  # the door's package: on demand
+
     p = TABLE[door_name]
     return Spec(
         name or door_name, "", p.unit, p.default, p.lower, p.upper, p.group,
         meaning or p.meaning.removeprefix("latch: "),
     )  # fmt: skip
+
+
+class _DoorSpecs:
+    """A component's ``specs``, made from the door's declarations when first asked for:
+    reading a mechanism that does not use the seed's blocks (``evo-door draw``, say)
+    never imports the door's compiled package."""
+
+    def __init__(self, make):
+        self.make = make
+
+    def __set_name__(self, owner, name):
+        self.name = f"_{name}"
+
+    def __get__(self, obj, owner=None):
+        cls = owner if owner is not None else type(obj)
+        if self.name not in cls.__dict__:
+            setattr(cls, self.name, tuple(self.make()))
+        return cls.__dict__[self.name]
 
 
 class SlottedPlate(Component):
@@ -45,10 +64,12 @@ class SlottedPlate(Component):
     kind, title = "slotted_plate", "the seed's plate: linkage O-A-B, spring at C, pad D, slot B"
     acts_on = (ROTARY,)
     connects = ("on",)
-    specs = tuple(
-        _spec(n)
-        for n in ("L_OA", "L_Bx", "L_By", "L_Cx", "L_Cy", "L_Dx", "L_Dy", "K", "F_load")
-        + ("F_atC", "T_atA", "T_atB", "mu", "F_atD", "a", "a_rot")
+    specs = _DoorSpecs(
+        lambda: (
+            _spec(n)
+            for n in ("L_OA", "L_Bx", "L_By", "L_Cx", "L_Cy", "L_Dx", "L_Dy", "K", "F_load")
+            + ("F_atC", "T_atA", "T_atB", "mu", "F_atD", "a", "a_rot")
+        )
     )
     imports = (
         "from evo_door.models.door.frictionforce import friction_force",
@@ -96,11 +117,13 @@ class Latch(Component):
     kind, title = "latch", "the seed's latch: unlock and lock springs, seat, wall"
     acts_on = (ROTARY,)
     connects = ("on",)
-    specs = (
-        *(_spec(door, name) for name, door in _LATCH),
-        _spec("L", "lever", "distance from the axis at which the latch's forces act"),
-        Spec("closed", "", "rad", 0.5 * math.pi, -10.0, 10.0, "geometry",
-             "the body's closed position (the latch's frame; pi/2 for the door)"),
+    specs = _DoorSpecs(
+        lambda: (
+            *(_spec(door, name) for name, door in _LATCH),
+            _spec("L", "lever", "distance from the axis at which the latch's forces act"),
+            Spec("closed", "", "rad", 0.5 * math.pi, -10.0, 10.0, "geometry",
+                 "the body's closed position (the latch's frame; pi/2 for the door)"),
+        )
     )  # fmt: skip
     n_switches = 7
     imports = (
