@@ -38,7 +38,7 @@ def test_the_pathsim_diagram_is_the_drawer_of_the_workbench():
     model = bp.drawer()
     defaults = model.load_params()
     other = defaults.replace(
-        {"box.mass": 4.5, "runners.level": 2.5, "grease.c": 1.5, "softie.c_fluid": 150.0}
+        {"box.mass": 2.5, "runners.level": 1.8, "grease.c": 2.0, "softie.c_fluid": 150.0}
     )
     t, force = bp.trial()
     for params in (defaults, other):
