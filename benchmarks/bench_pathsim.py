@@ -37,6 +37,9 @@ of :data:`POPULATION` random candidates (mass, friction, damper, soft-close free
 the trial, per candidate; PathSim: the diagram built once and re-parameterised (the
 gains and the laws' parameters set, ``Simulation.reset``, ``run``), one simulation per
 candidate, the same objective computed on its speeds, timed on a few candidates.
+
+Size: the PathSim diagram, the scipy reference and the page are one comparison, kept
+together so that the equations written three times can be read side by side.
 """
 
 from __future__ import annotations
@@ -202,8 +205,8 @@ class PathSimDrawer:
     """The drawer as a PathSim block diagram, built once; :meth:`run` re-parameterises it
     (gains and the laws' parameters), resets and runs it."""
 
-    # long: one block diagram, its connections and its events, built in one place
     def __init__(self, p: dict, t, force, solver: str = "RKDP54", tol: float = 1e-6):
+        # long: one block diagram, its blocks, connections and events, read in one place
         import pathsim.solvers as solvers
         from pathsim import Connection, Simulation
         from pathsim.blocks import Adder, Amplifier, Function, Integrator, Scope, Source
@@ -543,6 +546,7 @@ def setting_text(tool: str, setting) -> str:
 
 def markdown(result: dict) -> str:
     """The section's tables."""
+    # long: the page's sentences and tables, in the order they are read
     wb, ps = per_trial(result)
     lines = [
         "The soft-close drawer of `examples/blocks/soft_close_drawer.yaml` (sign-law dry "

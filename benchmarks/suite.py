@@ -1045,6 +1045,7 @@ def jnd_markdown(suite: Suite, info: dict) -> str:
 # -- section: mechanisms from blocks, side by side with PathSim ---------------------------
 def section_pathsim(suite: Suite) -> None:
     """The soft-close drawer in the workbench and in PathSim, at matched accuracy."""
+    # long: one metric per figure of the page, each with its label and unit
     from benchmarks import bench_pathsim as bp
 
     reason = bp.available()
