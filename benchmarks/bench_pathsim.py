@@ -433,7 +433,8 @@ def measure(quick: bool) -> dict:
     t0 = time.perf_counter()
     ref = reference(p, t, force)
     ref_seconds = time.perf_counter() - t0
-    spread = errors(*reference(p, t, force, rtol=1e-10), ref)
+    coarse = reference(p, t, force, rtol=1e-10)
+    spread = errors(coarse[0], coarse[1], ref)
     t0 = time.perf_counter()
     workbench_run(model, params, force, 1e-9, 4)
     compile_seconds = time.perf_counter() - t0
@@ -457,11 +458,11 @@ def measure(quick: bool) -> dict:
         ps[solver] = ladder(
             ps_run, [(solver, tol) for tol in tols], ref, 1 if quick else 5, first_only=quick
         )
-    best = {s: next((r for r in rows if r.get("timed")), None) for s, rows in ps.items()}
-    best_solver = min((s for s in best if best[s]), key=lambda s: best[s]["seconds"], default=None)
+    best = {s: r for s, rows in ps.items() for r in rows if r.get("timed")}
+    best_solver = min(best, key=lambda s: best[s]["seconds"], default=None)
     wb_best = next((r for r in wb if r.get("timed")), None)
     ga = paired = None
-    if best_solver and wb_best:
+    if best_solver is not None and wb_best is not None:
         paired = interleaved(
             lambda: workbench_run(
                 model, params, force, wb_best["setting"][1], wb_best["setting"][0]
