@@ -61,6 +61,12 @@ Sections (``--only``):
     method and number of trials; the estimates' bias and spread, the share within
     +-20 % and the intervals' coverage (``bench_jnd.py``); a measured run also writes
     ``benchmarks/jnd.md``.
+``pathsim``
+    mechanisms from blocks side by side: the soft-close drawer of ``examples/blocks``
+    in the workbench and as a PathSim block diagram (the optional extra ``bench``;
+    skipped with its reason when PathSim is not installed), one trial at matched
+    accuracy against a scipy reference, per trial and per GA evaluation
+    (``bench_pathsim.py``); a measured run also writes ``benchmarks/pathsim.md``.
 
 A ratio is the plain (or reference) way's value divided by the workbench's: how many
 times faster the workbench is. ``--compare OLD.json [NEW.json]`` prints new / old per
@@ -101,6 +107,7 @@ SECTIONS = (
     "control",
     "fmu",
     "jnd",
+    "pathsim",
 )
 DEFAULT_OUT = HERE / "results"
 
@@ -1035,6 +1042,126 @@ def jnd_markdown(suite: Suite, info: dict) -> str:
     )
 
 
+# -- section: mechanisms from blocks, side by side with PathSim ---------------------------
+def section_pathsim(suite: Suite) -> None:
+    """The soft-close drawer in the workbench and in PathSim, at matched accuracy."""
+    # long: one metric per figure of the page, each with its label and unit
+    from benchmarks import bench_pathsim as bp
+
+    reason = bp.available()
+    if reason:  # an optional dependency: the section says why it measured nothing
+        suite.add(
+            "pathsim.trial.speedup",
+            "pathsim",
+            "PathSim side by side",
+            None,
+            "1",
+            note=f"skipped: {reason}",
+        )
+        suite.notes.append(f"section pathsim skipped: {reason}")
+        suite.tables["pathsim"] = f"Skipped: {reason}."
+        return
+    result = bp.measure(suite.quick)
+    wb, ps = bp.per_trial(result)
+    if wb:
+        suite.add(
+            "pathsim.trial.workbench",
+            "pathsim",
+            f"drawer, one {result['seconds']:g} s trial, workbench "
+            f"({bp.setting_text('workbench', wb['setting'])})",
+            wb["seconds"],
+            "s",
+        )
+        suite.add(
+            "pathsim.trial.workbench.error_x",
+            "pathsim",
+            "  workbench: max position error",
+            wb["error_x"],
+            "m",
+        )
+        suite.add(
+            "pathsim.trial.workbench.error_v",
+            "pathsim",
+            "  workbench: max speed error",
+            wb["error_v"],
+            "m/s",
+        )
+    if ps:
+        suite.add(
+            "pathsim.trial.pathsim",
+            "pathsim",
+            f"drawer, one trial, PathSim ({bp.setting_text('PathSim', ps['setting'])})",
+            ps["seconds"],
+            "s",
+            ratio=ps["seconds"] / wb["seconds"] if wb else None,
+            ratio_to="pathsim.trial.workbench" if wb else None,
+        )
+        suite.add(
+            "pathsim.trial.pathsim.error_x",
+            "pathsim",
+            "  PathSim: max position error",
+            ps["error_x"],
+            "m",
+        )
+        suite.add(
+            "pathsim.trial.pathsim.error_v",
+            "pathsim",
+            "  PathSim: max speed error",
+            ps["error_v"],
+            "m/s",
+        )
+    ratio = bp.trial_ratio(result)
+    suite.add(
+        "pathsim.trial.speedup",
+        "pathsim",
+        "drawer: PathSim / workbench per trial at matched accuracy",
+        ratio,
+        "1",
+        target_text=f">= {bp.RATIO_TARGET:g}x",
+        met=None if ratio is None else ratio >= bp.RATIO_TARGET,
+        note="median of interleaved runs" if ratio else "no setting of one tool met the accuracy",
+    )
+    suite.add(
+        "pathsim.compile",
+        "pathsim",
+        "workbench: first call (compile or cache load)",
+        result["compile_seconds"],
+        "s",
+    )
+    ga = result["ga"]
+    if ga:
+        w, p = ga["workbench"]["per_candidate"], ga["pathsim"]["per_candidate"]
+        suite.add(
+            "pathsim.ga.workbench",
+            "pathsim",
+            f"drawer GA evaluation, workbench (population {bp.POPULATION}), per candidate",
+            w,
+            "s",
+        )
+        suite.add(
+            "pathsim.ga.pathsim",
+            "pathsim",
+            "drawer GA evaluation, PathSim (built once, re-parameterised), per candidate",
+            p,
+            "s",
+            ratio=p / w,
+            ratio_to="pathsim.ga.workbench",
+        )
+    suite.tables["pathsim"] = bp.markdown(result)
+
+
+def pathsim_markdown(suite: Suite, info: dict) -> str:
+    """``benchmarks/pathsim.md``: the drawer in the workbench and in PathSim."""
+    return targets_page(
+        suite,
+        info,
+        "pathsim",
+        "# Mechanisms from blocks, side by side with PathSim "
+        "(`python -m benchmarks --only pathsim`)",
+        [suite.tables["pathsim"]],
+    )
+
+
 RUNNERS = {
     "trial": section_trial,
     "ga": section_ga,
@@ -1047,6 +1174,7 @@ RUNNERS = {
     "control": section_control,
     "fmu": section_fmu,
     "jnd": section_jnd,
+    "pathsim": section_pathsim,
 }
 
 
@@ -1088,7 +1216,7 @@ def machine() -> dict:
         "numba": numba.__version__,
         "evo_door": evo_door.__version__,
     }
-    for mod in ("deap", "distributed", "matplotlib"):
+    for mod in ("deap", "distributed", "matplotlib", "pathsim"):
         try:
             versions[mod] = __import__(mod).__version__
         except ImportError:
@@ -1395,6 +1523,9 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     if not suite.quick and "jnd" in suite.tables:
         write_text(HERE / "jnd.md", jnd_markdown(suite, info))
         paths["jnd"] = HERE / "jnd.md"
+    if not suite.quick and suite.get("pathsim.trial.speedup") and "pathsim" in suite.tables:
+        write_text(HERE / "pathsim.md", pathsim_markdown(suite, info))
+        paths["pathsim"] = HERE / "pathsim.md"
     if not suite.quick and "casestudy" in suite.tables:  # measured: the figures docs quote
         text = casestudy_markdown(suite, info)
         write_text(HERE / "casestudy.md", text)

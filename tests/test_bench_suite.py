@@ -1,6 +1,7 @@
 """The benchmark suite (``python -m benchmarks``): a quick run writes its JSON and
 figure, ``--compare`` prints new / old per metric, bad options are one-line errors."""
 
+import importlib.util
 import json
 import os
 import shutil
@@ -124,6 +125,7 @@ def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
     metrics = {m["name"]: m for m in doc["metrics"]}
     missing = [n for n in REQUIRED if n not in metrics]
     assert not missing, missing
+    check_pathsim_section(metrics)
     for m in metrics.values():
         assert set(m) >= {"name", "value", "unit", "ratio", "target", "met"}
     # the plain GA is slower than the workbench's, its ratio says by how much
@@ -142,6 +144,21 @@ def test_quick_run_writes_json_with_every_metric_and_a_png(tmp_path):
     again = bench("--compare", str(js), str(js))
     assert again.returncode == 0, again.stderr
     assert "ga.door.workbench" in again.stdout and "1.000" in again.stdout
+
+
+def check_pathsim_section(metrics) -> None:
+    """The PathSim side by side: measured where PathSim is installed (the test extra has
+    it), else skipped with its one-line reason."""
+    m = metrics["pathsim.trial.speedup"]
+    if importlib.util.find_spec("pathsim") is None:
+        assert m["value"] is None and m["note"].startswith("skipped: PathSim is not installed")
+        return
+    assert m["value"] > 1 and m["target_text"] == ">= 100x" and isinstance(m["met"], bool)
+    for tool in ("workbench", "pathsim"):
+        assert metrics[f"pathsim.trial.{tool}.error_x"]["value"] <= 1e-6
+        assert metrics[f"pathsim.trial.{tool}.error_v"]["value"] <= 1e-5
+    ga = metrics["pathsim.ga.pathsim"]
+    assert ga["ratio_to"] == "pathsim.ga.workbench" and ga["ratio"] > 1
 
 
 @pytest.mark.slow

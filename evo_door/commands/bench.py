@@ -28,7 +28,7 @@ def register(sub) -> None:
         "--only",
         metavar="SECTION[,SECTION]",
         help="only these sections: trial, ga, scaling, executors, device, startup, casestudy, "
-        "seeds, control, fmu, jnd",
+        "seeds, control, fmu, jnd, pathsim",
     )
     p.add_argument(
         "--out", metavar="DIR", help="folder of the results (default benchmarks/results/)"
