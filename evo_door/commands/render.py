@@ -324,9 +324,9 @@ def _check_mechanism_options(args, interactive: bool) -> None:
 def _mechanism_loop(args, model, params):
     """The servo loop of a mechanism (:class:`~evo_door.render.mechanism.MechanismLoop`)
     on the device ``--device`` names."""
-    from evo_door.render.mechanism import RADIUS, Mechanism, MechanismLoop
+    from evo_door.render.mechanism import RADIUS, MechanismLoop, RenderedModel
 
-    path = Mechanism(model).path
+    path = RenderedModel(model).path
     device, name = make_device(
         args.device, args.user, RADIUS, args.seed, args.device_damping, path=path
     )

@@ -354,8 +354,10 @@ class SimDevice(Device):
         self.vel = np.zeros(3)
         self._user = np.zeros(3)
         self._cmd = np.zeros(3)
-        hand = isinstance(self.script, UserScript)
-        self._hand = Hand(self.script, self.radius, self.path) if hand else None
+        script = self.script
+        self._hand = (
+            Hand(script, self.radius, self.path) if isinstance(script, UserScript) else None
+        )
         self.stopped = False
         #: the plane constraint rendered natively (N/m, N s/m); 0 until asked
         self.k_plane = 0.0

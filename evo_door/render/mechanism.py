@@ -104,7 +104,7 @@ class Stroke:
         return CLOSED * (pos[1] + self.centre - self.lo) / (self.hi - self.lo)
 
 
-class Mechanism:
+class RenderedModel:
     """A state-vector model ready to render: its law, handle, geometry and checks."""
 
     def __init__(self, model):
@@ -180,7 +180,7 @@ class Mechanism:
         return f"{self.handle} = {q:.5g} {self.unit}"
 
 
-def scan(mech: Mechanism, p) -> dict:
+def scan(mech: RenderedModel, p) -> dict:
     """The handle's stiffness and damping over its range, in device units.
 
     At :data:`N_SCAN` positions over the range and 10 % beyond each end (where end stops
@@ -246,7 +246,7 @@ def scan(mech: Mechanism, p) -> dict:
     return best
 
 
-def substeps(mech: Mechanism, p, period: float) -> tuple[int, float]:
+def substeps(mech: RenderedModel, p, period: float) -> tuple[int, float]:
     """Runge-Kutta steps a cycle of ``period`` (s) for the other states, and their fastest
     rate (1/s): the largest eigenvalue magnitude of their Jacobian (forward differences,
     the handle held) over the range, the handle at rest and moving, a contact's speed
@@ -281,10 +281,10 @@ def substeps(mech: Mechanism, p, period: float) -> tuple[int, float]:
     )
 
 
-def measure(mech: Mechanism, p) -> dict:
+def measure(mech: RenderedModel, p) -> dict:
     """What the checks read of the parameter vector ``p``: :func:`scan`'s answer, plus
     ``fastest`` (1/s) the other states' fastest rate (:func:`substeps`' at 1 s) and
-    ``gain`` (:meth:`Mechanism.gain`). Tens of milliseconds: the loop keeps it for
+    ``gain`` (:meth:`RenderedModel.gain`). Tens of milliseconds: the loop keeps it for
     the set in force and judges it again at a measured period (:func:`judge`)."""
     s = scan(mech, p)
     s["fastest"] = substeps(mech, p, 1.0)[1]
@@ -292,14 +292,14 @@ def measure(mech: Mechanism, p) -> dict:
     return s
 
 
-def check_mechanism(mech: Mechanism, p, damping: float, period: float) -> int:
+def check_mechanism(mech: RenderedModel, p, damping: float, period: float) -> int:
     """The Runge-Kutta steps a cycle if the loop can render ``p`` at ``period`` (s) on a
     device of its own ``damping`` (N s/m); else a UserError in one line (see the module
     docstring). :func:`measure` then :func:`judge`."""
     return judge(mech, measure(mech, p), damping, period)
 
 
-def judge(mech: Mechanism, s: dict, damping: float, period: float) -> int:
+def judge(mech: RenderedModel, s: dict, damping: float, period: float) -> int:
     """:func:`check_mechanism` on what :func:`measure` found, ``s``."""
     mass = mech.device_mass(s["gain"])
     k_handle, k_name = s["K"], "the handle's stiffness"
@@ -344,7 +344,7 @@ def judge(mech: Mechanism, s: dict, damping: float, period: float) -> int:
     return n
 
 
-def check_hands_off(mech: Mechanism, params, limit: float) -> None:
+def check_hands_off(mech: RenderedModel, params, limit: float) -> None:
     """A UserError unless the mechanism, released from rest anywhere in its range with no
     hand on it, stays under ``limit`` (rad/s; on a linear handle times
     :data:`HANDS_OFF_REACH`, m/s): the door's hands-off check
@@ -383,7 +383,7 @@ class MechanismLoop(ServoLoop):
         if kw.pop("clamp", False):
             raise UserError("--clamp scales the haptic model's springs; a mechanism is refused "
                             "instead (lower its stiffness with --set NAME=VALUE)")  # fmt: skip
-        self.mech = Mechanism(model)
+        self.mech = RenderedModel(model)
         self._checked: tuple = (None, {})  # (the set last measured, what was found)
         self._nsub_of: tuple = (None, 0)  # (the set last judged, its Runge-Kutta steps)
         super().__init__(device, params, rate, friction="tanh", **kw)
