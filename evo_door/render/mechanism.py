@@ -77,6 +77,8 @@ RK4_REACH = 1.0
 #: Runge-Kutta steps of the other states a cycle at most (a mechanism that needs more
 #: is refused: its cycle would outgrow the period)
 MAX_SUBSTEPS = 64
+#: Newton steps of :meth:`RenderedModel.rest` at most
+REST_NEWTON = 30
 #: positions scanned for the handle's stiffness, over the range and 10 % beyond each end
 N_SCAN = 241
 #: a linear handle's hands-off limit is the door's (rad/s) times this (m): the speed of
@@ -137,6 +139,39 @@ class RenderedModel:
         """The whole state with the handle at ``q``, ``dq`` and the others at their start."""
         return np.ascontiguousarray(self.law.initial_state(p, q, dq), dtype=np.float64)
 
+    def rest(self, p, q: float, dq: float = 0.0) -> np.ndarray:
+        """The whole state with the handle held at ``q`` (moving at ``dq``) and the other
+        states at rest there: ``dx = 0`` for each of them (a towed body where its spring
+        is slack, a fluid's force settled), by Newton's method from their start, forward
+        differences; their start where it does not converge in :data:`REST_NEWTON`
+        steps."""
+        p = np.ascontiguousarray(p, dtype=np.float64)
+        x = self.state(p, q, dq)
+        idx = self.others
+        if idx.size == 0:
+            return x
+        rhs, f0, f1 = self.law.rhs, np.empty(self.n), np.empty(self.n)
+        y = x.copy()
+        for _ in range(REST_NEWTON):
+            rhs(y, 0.0, p, f0)
+            jac = np.empty((idx.size, idx.size))
+            for col, j in enumerate(idx):
+                h = 1e-7 * (1.0 + abs(y[j]))
+                yj = y.copy()
+                yj[j] += h
+                rhs(yj, 0.0, p, f1)
+                jac[:, col] = (f1[idx] - f0[idx]) / h
+            try:
+                step = np.linalg.solve(jac, -f0[idx])
+            except np.linalg.LinAlgError:
+                return x
+            if not np.all(np.isfinite(step)):
+                return x
+            y[idx] += step
+            if np.max(np.abs(step) / (1.0 + np.abs(y[idx]))) < 1e-12:
+                return y
+        return x
+
     def gain(self, p) -> float:
         """The handle's acceleration per newton of the hand (the rhs is affine in the
         force): from the acceleration at 0 and 1 N, checked at the range's ends."""
@@ -185,7 +220,7 @@ def scan(mech: RenderedModel, p) -> dict:
 
     At :data:`N_SCAN` positions over the range and 10 % beyond each end (where end stops
     push), moving at +-1 % and +-100 % of the range per second, the other states at
-    their start: ``K = -dF/dq``, ``C = -dF/dv`` (central differences of the force on
+    rest there (:meth:`RenderedModel.rest`): ``K = -dF/dq``, ``C = -dF/dv`` (central differences of the force on
     the hand, :func:`~evo_door.render.mechanism_kernels.hand_force`), divided by the
     device's metres per unit (the circle's radius on a rotary handle). Returns ``K``
     (N/m, the largest), ``K_at`` (the coordinate), ``K_param`` (the parameter whose
@@ -216,7 +251,7 @@ def scan(mech: RenderedModel, p) -> dict:
     stiffest = None
     for q in np.linspace(lo - 0.1 * span, hi + 0.1 * span, N_SCAN):
         for v in (-span, -0.01 * span, 0.01 * span, span):
-            x = mech.state(p, q, v)
+            x = mech.rest(p, q, v)
             hv = 1e-6 * abs(v)
             k = stiffness(x, q, v, p)
             f0 = force(x, q, v, p)
@@ -349,7 +384,8 @@ def check_hands_off(mech: RenderedModel, params, limit: float) -> None:
     hand on it, stays under ``limit`` (rad/s; on a linear handle times
     :data:`HANDS_OFF_REACH`, m/s): the door's hands-off check
     (:mod:`evo_door.render.hands_off`), its duration and sample period, on the
-    mechanism's own simulation (the other states at their start)."""
+    mechanism's own simulation (the other states at rest where it is released,
+    :meth:`RenderedModel.rest`)."""
     from evo_door.render.hands_off import HANDS_OFF_DT, hands_off_duration
 
     lo, hi = mech.range
@@ -359,7 +395,8 @@ def check_hands_off(mech: RenderedModel, params, limit: float) -> None:
     force = np.zeros(int(round(duration / HANDS_OFF_DT)) + 1)
     speed, start = -1.0, lo
     for q0 in np.linspace(lo, hi, HANDS_OFF_PARTS + 1):
-        r = mech.model.plant.simulate(params, force, HANDS_OFF_DT, theta0=float(q0), dtheta0=0.0)
+        x0 = mech.rest(param_vector(params, mech.model.params), float(q0))
+        r = mech.model.plant.simulate(params, force, HANDS_OFF_DT, state=x0)
         fastest = float(np.max(np.abs(r.dtheta))) if r.ok else math.inf
         fastest = fastest if math.isfinite(fastest) else math.inf
         if fastest > speed:
@@ -475,11 +512,11 @@ class MechanismLoop(ServoLoop):
     # -- the cycle -----------------------------------------------------------------------
     def _command(self, t: float, now: float) -> None:
         m = self.mech
-        if self._fresh:  # the other states at their start, the handle where the device is
+        if self._fresh:  # the handle where the device is, the other states at rest there
             handle_of(self._pos, self._vel, self._geo, self._hs)
             q, dq = float(self._hs[0]), float(self._hs[1])
             if math.isfinite(q) and math.isfinite(dq):
-                self._x[:] = m.state(self._p, q, dq)
+                self._x[:] = m.rest(self._p, q, dq)
                 self._fresh = False
         cmd = self._cmd
         code = mechanism_command(
