@@ -307,13 +307,14 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
 
 def _check_mechanism_options(args, interactive: bool) -> None:
     """What a mechanism's render does not take (yet): a UserError naming it."""
-    flag = next(
-        (f for f, on in (("--console", args.console), ("--control", args.control is not None),
-                         ("--clamp", args.clamp)) if on),
-        None,
-    )  # fmt: skip
-    if flag is None and interactive:
-        flag = "the terminal's keys (no --duration)"
+    haptic_only = {
+        "--console": args.console,
+        "--control": args.control is not None,
+        "--clamp": args.clamp,
+        "--friction": args.friction != "implicit",
+        "the terminal's keys (no --duration)": interactive,
+    }
+    flag = next((name for name, given in haptic_only.items() if given), None)
     if flag is not None:
         raise UserError(
             f"{flag} goes with the haptic model; a mechanism ({args.model}) renders headless "

@@ -21,7 +21,7 @@ of its own (:func:`~evo_door.render.mechanism_kernels.mechanism_command`):
   ``1 / (gain R)`` on the circle).
 - **the other states** (other bodies, a component's own state) are integrated over each
   cycle with the handle's position and speed imposed from the device: classic
-  Runge-Kutta in :func:`substeps` steps, at most :data:`MAX_SUBSTEPS`.
+  Runge-Kutta in `ceil(rho T)` steps (:func:`fastest_rate`: rho), at most :data:`MAX_SUBSTEPS`.
 
 Before it runs (and for every change) :func:`check_mechanism` refuses, in one line, a
 mechanism the loop cannot render passively at its rate (Colgate and Schenkel's
@@ -220,13 +220,15 @@ def scan(mech: RenderedModel, p) -> dict:
 
     At :data:`N_SCAN` positions over the range and 10 % beyond each end (where end stops
     push), moving at +-1 % and +-100 % of the range per second, the other states at
-    rest there (:meth:`RenderedModel.rest`): ``K = -dF/dq``, ``C = -dF/dv`` (central differences of the force on
-    the hand, :func:`~evo_door.render.mechanism_kernels.hand_force`), divided by the
-    device's metres per unit (the circle's radius on a rotary handle). Returns ``K``
-    (N/m, the largest), ``K_at`` (the coordinate), ``K_param`` (the parameter whose
-    halving lowers it most, "" if none by a quarter; one-sided differences, the
-    smaller: a jump of the law is no stiffness), ``C`` (N s/m, the largest),
-    ``C_at``, ``B`` (N s/m, the size of the most negative damping, 0 if none), ``B_at``.
+    rest there (:meth:`RenderedModel.rest`): ``K = -dF/dq``, ``C = -dF/dv`` of the
+    force on the hand (:func:`~evo_door.render.mechanism_kernels.hand_force`) by
+    one-sided differences, the smaller of the two (:func:`_one_sided`: a jump or a kink
+    of the law, a stop's edge with its damper switching on, is no stiffness), divided by
+    the device's metres per unit (the circle's radius on a rotary handle). Returns
+    ``K`` (N/m, the largest), ``K_at`` (the coordinate where it begins), ``K_param``
+    (the parameter it is proportional to: halving it halves K there, "" if none),
+    ``C`` (N s/m, the largest), ``C_at``, ``B`` (N s/m, the size of the most negative
+    damping, 0 if none), ``B_at``.
     """
     p = np.ascontiguousarray(p, dtype=np.float64)
     lo, hi = mech.range
@@ -241,12 +243,10 @@ def scan(mech: RenderedModel, p) -> dict:
         return hand_force(rhs, x, pv, mech.iv, gain, dx)
 
     def stiffness(x, q, v, pv):
-        """-dF/dq by one-sided differences, the smaller of the two: a jump or a kink of
-        the law at ``q`` (a stop's edge, its damping switching on) is no stiffness."""
         f0 = force(x, q, v, pv)
         up = -(force(x, q + hq, v, pv) - f0) / hq
         down = -(f0 - force(x, q - hq, v, pv)) / hq
-        return max(min(up, down), 0.0) / metres
+        return max(_one_sided(up, down), 0.0) / metres
 
     stiffest = None
     for q in np.linspace(lo - 0.1 * span, hi + 0.1 * span, N_SCAN):
@@ -255,10 +255,9 @@ def scan(mech: RenderedModel, p) -> dict:
             hv = 1e-6 * abs(v)
             k = stiffness(x, q, v, p)
             f0 = force(x, q, v, p)
-            up = -(force(x, q, v + hv, p) - f0) / hv / metres
-            down = -(f0 - force(x, q, v - hv, p)) / hv / metres
-            c = min(up, down) if up > 0.0 and down > 0.0 else max(min(up, down), 0.0)
-            c = max(up, down) if up < 0.0 and down < 0.0 else c
+            up = -(force(x, q, v + hv, p) - f0) / hv
+            down = -(f0 - force(x, q, v - hv, p)) / hv
+            c = _one_sided(up, down) / metres
             if k > best["K"] * (1.0 + 1e-6):  # the first of equals: where it begins
                 best.update(K=k, K_at=q)
                 stiffest = (x.copy(), q, v)
@@ -267,28 +266,38 @@ def scan(mech: RenderedModel, p) -> dict:
             if -c > best["B"]:
                 best.update(B=-c, B_at=q)
     best["K_param"] = ""
-    if stiffest is not None:  # which parameter makes it: the one whose halving lowers it most
+    if stiffest is not None:  # which parameter makes it: halving it halves K (within 10 %)
         x, q, v = stiffest
-        drop = 0.25
+        off = 0.1
         for j, name in enumerate(mech.model.params.names):
             if p[j] == 0.0:
                 continue
             ph = p.copy()
             ph[j] *= 0.5
-            k = stiffness(x, q, v, ph)
-            if 1.0 - k / best["K"] > drop:
-                drop, best["K_param"] = 1.0 - k / best["K"], name
+            ratio = stiffness(x, q, v, ph) / best["K"]
+            if abs(ratio - 0.5) < off:
+                off, best["K_param"] = abs(ratio - 0.5), name
     return best
 
 
-def substeps(mech: RenderedModel, p, period: float) -> tuple[int, float]:
-    """Runge-Kutta steps a cycle of ``period`` (s) for the other states, and their fastest
-    rate (1/s): the largest eigenvalue magnitude of their Jacobian (forward differences,
-    the handle held) over the range, the handle at rest and moving, a contact's speed
-    off zero (its sign law is a jump there); ``|h lambda| <= RK4_REACH``. 0 steps for a
-    mechanism with no other states."""
+def _one_sided(up: float, down: float) -> float:
+    """Of a forward and a backward difference, the smaller if both have one sign, else 0:
+    a law that jumps or kinks here has no slope to sample."""
+    if up > 0.0 and down > 0.0:
+        return min(up, down)
+    if up < 0.0 and down < 0.0:
+        return max(up, down)
+    return 0.0
+
+
+def fastest_rate(mech: RenderedModel, p) -> float:
+    """The fastest rate (1/s) of the states besides the handle: the largest eigenvalue
+    magnitude of their Jacobian (forward differences, the handle held) at 25 positions
+    over the range, the handle still and moving at half the range a second, the other
+    states at rest there, a contact's speed off zero (its sign law is a jump there);
+    inf where it is not finite, 0 for a mechanism with no other states."""
     if mech.others.size == 0:
-        return 0, 0.0
+        return 0.0
     p = np.ascontiguousarray(p, dtype=np.float64)
     lo, hi = mech.range
     rhs, f0, f1 = mech.law.rhs, np.empty(mech.n), np.empty(mech.n)
@@ -296,7 +305,7 @@ def substeps(mech: RenderedModel, p, period: float) -> tuple[int, float]:
     fastest = 0.0
     for q in np.linspace(lo, hi, 25):
         for v in (0.0, 0.5 * (hi - lo)):
-            x = mech.state(p, q, v)
+            x = mech.rest(p, q, v)
             for k in mech.contacts:
                 x[k] = 1e-3 * (hi - lo) if x[k] == 0.0 else x[k]
             rhs(x, 0.0, p, f0)
@@ -307,22 +316,19 @@ def substeps(mech: RenderedModel, p, period: float) -> tuple[int, float]:
                 xj[j] += h
                 rhs(xj, 0.0, p, f1)
                 jac[:, col] = (f1[others] - f0[others]) / h
-            if np.all(np.isfinite(jac)):
-                fastest = max(fastest, float(np.max(np.abs(np.linalg.eigvals(jac)))))
-            else:
-                fastest = math.inf
-    return max(1, math.ceil(fastest * period / RK4_REACH)) if math.isfinite(fastest) else -1, (
-        fastest
-    )
+            if not np.all(np.isfinite(jac)):
+                return math.inf
+            fastest = max(fastest, float(np.max(np.abs(np.linalg.eigvals(jac)))))
+    return fastest
 
 
 def measure(mech: RenderedModel, p) -> dict:
     """What the checks read of the parameter vector ``p``: :func:`scan`'s answer, plus
-    ``fastest`` (1/s) the other states' fastest rate (:func:`substeps`' at 1 s) and
+    ``fastest`` (1/s) the other states' fastest rate (:func:`fastest_rate`) and
     ``gain`` (:meth:`RenderedModel.gain`). Tens of milliseconds: the loop keeps it for
     the set in force and judges it again at a measured period (:func:`judge`)."""
     s = scan(mech, p)
-    s["fastest"] = substeps(mech, p, 1.0)[1]
+    s["fastest"] = fastest_rate(mech, p)
     s["gain"] = mech.gain(np.ascontiguousarray(p, dtype=np.float64))
     return s
 
