@@ -372,3 +372,34 @@ def test_render_a_rotary_mechanism_on_the_emulated_hapticmaster_over_tcp(tmp_pat
     along = command[:, 1] * np.cos(theta) - command[:, 2] * np.sin(theta)
     err = np.abs(along - f_t)
     assert np.percentile(err, 99) < 1e-3 and err.max() < 0.5, (np.percentile(err, 99), err.max())
+
+
+def test_other_states_too_stiff_for_the_cycle_are_refused_and_steps_follow_their_rate(
+    tmp_path,
+):
+    """A light body on a stiff spring behind a soft tow: the handle feels 400 N/m (fine),
+    the towed body rings at sqrt(k / m); the loop takes ceil(rho T) Runge-Kutta steps,
+    at most 64."""
+    text = """\
+        mechanism:
+          name: ringing-tow
+          title: a cart towing a light body held by a stiff spring
+          handle: a
+          bodies:
+            a: {kind: linear, mass: 2.0, range: [0.0, 0.4]}
+            b: {kind: linear, mass: 1.0e-3}
+          elements:
+            tow: {kind: spring, between: [a, b], k: 400.0}
+            anchor: {kind: spring, on: b, k: 1.0e7}
+            drag: {kind: damper, on: b, c: 1.0}
+    """
+    model = get_model(write(tmp_path, "ringing.yaml", text))
+    device = SimDevice("hold", path=Stroke(*model.theta_range))
+    loop = MechanismLoop(device, model, model.load_params(), 2500.0, hands_off_speed=None)
+    rho = math.sqrt((1.0e7 + 400.0) / 1.0e-3)  # |lambda| of the damped body, just over 1e5
+    assert loop.substeps == math.ceil(rho / 2500.0) == 41
+    with pytest.raises(UserError) as err:  # 1e6 1/s: 400 steps a cycle
+        MechanismLoop(device, model, model.load_params(None, {"b.mass": 1.0e-5}), 2500.0)
+    message = str(err.value)
+    assert "\n" not in message and "too stiff for the loop" in message, message
+    assert "fastest rate 1e+06 1/s" in message, message

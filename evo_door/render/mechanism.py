@@ -544,6 +544,11 @@ class MechanismLoop(ServoLoop):
             self.log.event(t, "fault", f"device command failed: {exc}")
 
     @property
+    def substeps(self) -> int:
+        """Runge-Kutta steps of the other states a cycle (0: none)."""
+        return self._nsub
+
+    @property
     def state(self) -> np.ndarray:
         """The model's state vector now (a copy): the handle as last read, the others."""
         return self._x.copy()
