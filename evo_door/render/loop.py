@@ -23,7 +23,11 @@ A simulated device runs in simulated time, as fast as the machine allows, unless
 and the period statistics (:mod:`evo_door.render.timing`: mean period, p99 lateness,
 missed cycles) say how well it kept time.
 
-Size: under 700 lines, one class: its parameter changes, its statistics and
+A mechanism (any model on a state vector) is rendered by a subclass,
+:class:`~evo_door.render.mechanism.MechanismLoop`, through the hooks of "what the loop
+renders" (the model's check, its declaration, its mass, its kernels, the time-0 event).
+
+Size: under 750 lines, one class: its parameter changes, its statistics and
 the cycle belong together (the cycle reads the set in force and feeds the statistics);
 the kernels, pacing, timing and log are already modules of their own.
 """
