@@ -455,6 +455,8 @@ class MechanismLoop(ServoLoop):
             s = measure(self.mech, param_vector(params, self.mech.model.params))
         self._nsub_of = (params, judge(self.mech, s, self.damping, self._check_period))
         self._checked = (params, s)
+        if params is getattr(self, "params", None):  # the recheck at the measured period
+            self._nsub = self._nsub_of[1]
         return params, {}
 
     def _hands_off(self, params) -> None:
