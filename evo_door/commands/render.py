@@ -1,4 +1,5 @@
-"""``evo-door render``: render a haptic parameter set on a device (headless for now)."""
+"""``evo-door render``: render a haptic parameter set, or a mechanism (any model on a
+state vector: ``evo-door render MECHANISM.yaml``), on a device."""
 
 from __future__ import annotations
 
@@ -76,7 +77,17 @@ def register(sub) -> None:
         help="render the haptic model on a force-feedback device (servo loop, log)",
         description="Render a haptic parameter set on a device: each cycle reads the "
         "device, evaluates the haptic model's device-space force and commands it, "
-        "within the device's force limit. Headless with --user and --duration.",
+        "within the device's force limit. Headless with --user and --duration. Given "
+        "MODEL (a mechanism file, path/file.py:MODEL), renders that model instead: its "
+        "handle on the device, its other states integrated in the loop "
+        "(docs/renderer.md, 'Rendering a mechanism').",
+    )
+    p.add_argument(
+        "model",
+        nargs="?",
+        metavar="MODEL",
+        help="a model on a state vector to render (a mechanism file MECHANISM.yaml, "
+        "path/file.py:MODEL); default: the haptic model",
     )
     add_params_arguments(p)
     p.add_argument(
@@ -189,13 +200,14 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def make_device(spec: str, user: str | None, radius: float, seed: int, damping=None):
-    """The device named by ``--device``."""
+def make_device(spec: str, user: str | None, radius: float, seed: int, damping=None, path=None):
+    """The device named by ``--device`` (``path``: the handle's path of a mechanism, on
+    which the simulated device's virtual hand reads its script)."""
     if spec == "sim":
         from evo_door.render.device import SimDevice
 
         extra = {} if damping is None else {"damping": damping}
-        return SimDevice(user or "hold", radius=radius, seed=seed, **extra), "sim"
+        return SimDevice(user or "hold", radius=radius, seed=seed, path=path, **extra), "sim"
     if spec.startswith("hapticmaster://"):
         from evo_door.render.hapticmaster import HapticMasterDevice
         from evo_door.render.hm_protocol import parse_address
@@ -227,24 +239,32 @@ def run(args) -> int:
         )
     if args.duration is not None and args.user is None and args.device == "sim":
         raise UserError("a headless run on the simulated device needs --user SCRIPT")
-    params = get_model("haptic").load_params(args.params, parse_assignments(args.assignments))
+    model = get_model(args.model or "haptic")
+    if model.name != "haptic":
+        _check_mechanism_options(args, interactive)
+    params = model.load_params(args.params, parse_assignments(args.assignments))
     claim = _claim_log(args, args.log, [params.source])
     _check_supervisor_options(args)
-    device, name = make_device(
-        args.device, args.user, params["radius"], args.seed, args.device_damping
-    )
-    loop = ServoLoop(
-        device,
-        params,
-        args.rate,
-        log_rate=args.log_rate,
-        clamp=args.clamp,
-        realtime=_paced(args),
-        device_name=name,
-        friction=args.friction,
-        watchdog_misses=args.watchdog_misses,
-        hands_off_speed=args.hands_off_speed,
-    )
+    if model.name != "haptic":
+        loop = _mechanism_loop(args, model, params)
+        name = loop.device_name
+    else:
+        device, name = make_device(
+            args.device, args.user, params["radius"], args.seed, args.device_damping
+        )
+        loop = ServoLoop(
+            device,
+            params,
+            args.rate,
+            log_rate=args.log_rate,
+            clamp=args.clamp,
+            realtime=_paced(args),
+            device_name=name,
+            friction=args.friction,
+            watchdog_misses=args.watchdog_misses,
+            hands_off_speed=args.hands_off_speed,
+        )
+    device = loop.device
     loop.supervisor = _start_supervisor(args, device, loop)
     try:
         return _render(loop, args, interactive, name, claim)
@@ -283,6 +303,45 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
         warning = getattr(loop.device, "failsafe_warning", "")
         if warning:  # on every way out, once
             print(f"evo-door: warning: {warning}", file=sys.stderr)
+
+
+def _check_mechanism_options(args, interactive: bool) -> None:
+    """What a mechanism's render does not take (yet): a UserError naming it."""
+    haptic_only = {
+        "--console": args.console,
+        "--control": args.control is not None,
+        "--clamp": args.clamp,
+        "--friction": args.friction != "implicit",
+        "the terminal's keys (no --duration)": interactive,
+    }
+    flag = next((name for name, given in haptic_only.items() if given), None)
+    if flag is not None:
+        raise UserError(
+            f"{flag} goes with the haptic model; a mechanism ({args.model}) renders headless "
+            "with --duration, its parameters set by --params and --set"
+        )
+
+
+def _mechanism_loop(args, model, params):
+    """The servo loop of a mechanism (:class:`~evo_door.render.mechanism.MechanismLoop`)
+    on the device ``--device`` names."""
+    from evo_door.render.mechanism import RADIUS, MechanismLoop, RenderedModel
+
+    path = RenderedModel(model).path
+    device, name = make_device(
+        args.device, args.user, RADIUS, args.seed, args.device_damping, path=path
+    )
+    return MechanismLoop(
+        device,
+        model,
+        params,
+        args.rate,
+        log_rate=args.log_rate,
+        realtime=_paced(args),
+        device_name=name,
+        watchdog_misses=args.watchdog_misses,
+        hands_off_speed=args.hands_off_speed,
+    )
 
 
 def _check_supervisor_options(args) -> None:

@@ -112,6 +112,22 @@ class UserScript:
         return not any(a <= t < b for a, b in self.let_go)
 
 
+class Circle:
+    """The handle's path of the haptic model: the circle of ``radius`` (m) about the
+    model frame's origin; a script's angle is the door's angle on it."""
+
+    def __init__(self, radius: float):
+        self.radius = float(radius)
+
+    def point(self, angle: float) -> tuple[float, float, float]:
+        """Device coordinates (m) of the handle at the script's ``angle`` (rad)."""
+        return on_path(angle, self.radius)
+
+    def angle(self, pos) -> float:
+        """The script's angle (rad) of the handle at ``pos`` (m, device frame)."""
+        return math.atan2(pos[1] + DEVICE_OFFSET_Y, pos[2] + DEVICE_OFFSET_Z)
+
+
 class Hand:
     """A :class:`UserScript`'s hand on the handle, for a device to ask its force.
 
@@ -119,12 +135,15 @@ class Hand:
     while the hand holds the handle, zero while it has let go; when it takes the
     handle again it remembers the angle there, so that its target starts from it.
     Time going back (a new render) starts the script afresh. ``radius`` (m): the
-    handle's circle.
+    handle's circle; ``path``: another path of the handle (an object with the methods
+    ``point(angle)`` and ``angle(pos)`` of :class:`Circle`: a mechanism's straight
+    stroke, :mod:`evo_door.render.mechanism`), the script's angles read on it.
     """
 
-    def __init__(self, script: UserScript, radius: float):
+    def __init__(self, script: UserScript, radius: float, path=None):
         self.script = script
         self.radius = float(radius)
+        self.path = Circle(radius) if path is None else path
         self._grab: tuple | None = None  # (t s, theta rad) where it took the handle again
         self._held = True
         self._last = -math.inf
@@ -142,9 +161,8 @@ class Hand:
             out[:] = 0.0
             return
         if not self._held:  # takes the handle again, where it is
-            ym, zm = pos[1] + DEVICE_OFFSET_Y, pos[2] + DEVICE_OFFSET_Z
-            self._grab, self._held = (t, math.atan2(ym, zm)), True
-        self._target[:] = on_path(s.target(t, self._grab), self.radius)
+            self._grab, self._held = (t, self.path.angle(pos)), True
+        self._target[:] = self.path.point(s.target(t, self._grab))
         hand_force(pos, vel, self._target, s.stiffness, s.damping, s.max_force, out)
 
 
@@ -299,6 +317,9 @@ class SimDevice(Device):
         Saturation of the host's command (N).
     seed : int
         Seed of the sensor noise.
+    path : object or None
+        The handle's path, on which a :class:`UserScript` reads its angles and the
+        device starts (:class:`Hand`); None: the haptic model's circle of ``radius``.
     """
 
     simulated = True
@@ -315,6 +336,7 @@ class SimDevice(Device):
         max_force: float = MAX_FORCE,
         seed: int = 0,
         substeps: int = 4,
+        path=None,
     ):
         self.script = user_script(script) if isinstance(script, str) else script
         self.radius = float(radius)
@@ -327,11 +349,15 @@ class SimDevice(Device):
         self.substeps = int(substeps)
         self._rng = np.random.default_rng(seed)
         self.t = 0.0
-        self.pos = np.array(on_path(self.script.theta_start, self.radius), dtype=np.float64)
+        self.path = Circle(self.radius) if path is None else path
+        self.pos = np.array(self.path.point(self.script.theta_start), dtype=np.float64)
         self.vel = np.zeros(3)
         self._user = np.zeros(3)
         self._cmd = np.zeros(3)
-        self._hand = Hand(self.script, self.radius) if isinstance(self.script, UserScript) else None
+        script = self.script
+        self._hand = (
+            Hand(script, self.radius, self.path) if isinstance(script, UserScript) else None
+        )
         self.stopped = False
         #: the plane constraint rendered natively (N/m, N s/m); 0 until asked
         self.k_plane = 0.0

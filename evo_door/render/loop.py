@@ -23,7 +23,11 @@ A simulated device runs in simulated time, as fast as the machine allows, unless
 and the period statistics (:mod:`evo_door.render.timing`: mean period, p99 lateness,
 missed cycles) say how well it kept time.
 
-Size: under 700 lines, one class: its parameter changes, its statistics and
+A mechanism (any model on a state vector) is rendered by a subclass,
+:class:`~evo_door.render.mechanism.MechanismLoop`, through the hooks of "what the loop
+renders" (the model's check, its declaration, its mass, its kernels, the time-0 event).
+
+Size: under 750 lines, one class: its parameter changes, its statistics and
 the cycle belong together (the cycle reads the set in force and feeds the statistics);
 the kernels, pacing, timing and log are already modules of their own.
 """
@@ -94,12 +98,10 @@ def _device_number(device, name: str, default: float, unit: str, positive=False)
     return value
 
 
-def _check_settings(rate, params, log_rate, ramp_time, friction) -> None:
+def _check_settings(rate, log_rate, ramp_time, friction) -> None:
     """A UserError for a loop setting out of its range (ServoLoop's arguments)."""
     if not (math.isfinite(rate) and 10.0 <= rate <= 20000.0):
         raise UserError(f"--rate {rate:g}: give a loop rate in 10..20000 Hz")
-    if getattr(params, "model", None) != "haptic":
-        raise UserError("the renderer takes a parameter set of the 'haptic' model")
     if not (math.isfinite(log_rate) and 1.0 <= log_rate <= rate):
         raise UserError(f"--log-rate {log_rate:g}: give a log rate in 1..{rate:g} Hz (the loop's)")
     if not 0.0 < ramp_time <= 0.01:
@@ -169,7 +171,8 @@ class ServoLoop:
         supervisor=None,
         hands_off_speed: float | None = None,
     ):
-        _check_settings(rate, params, log_rate, ramp_time, friction)
+        _check_settings(rate, log_rate, ramp_time, friction)
+        self._check_model(params)
         _check_hands_off_speed(hands_off_speed)
         self.hands_off_speed = None if hands_off_speed is None else float(hands_off_speed)
         self.friction = friction
@@ -182,7 +185,7 @@ class ServoLoop:
         self.damping = _device_number(device, "damping", 0.0, "N s/m")
         self.simulated = bool(getattr(device, "simulated", False))
         self.realtime = (not self.simulated) if realtime is None else bool(realtime)
-        self.log = RenderLog(log_rate, PARAMS)
+        self.log = RenderLog(log_rate, self._table(params))
         self.pacing = Pacing(self.log)  # a paced loop's priority and wait for its slot
         self.watchdog = Watchdog(watchdog_misses, ramp_time)
         self.supervisor = supervisor
@@ -195,11 +198,11 @@ class ServoLoop:
         self.exclude = IMPLICIT if friction == "implicit" else frozenset()
         self._native: tuple[str, ...] = ()
         self.timing = LoopTiming(self.period)
-        self.params, changes = self._passive(renderable(params))
+        self.params, changes = self._passive(self._renderable(params))
         self._hands_off(self.params)
         self._clamp_note = changes
         self._set_vectors()
-        self._mass = self.params["inertia"] / self.params["radius"]
+        self._mass = self._virtual_mass()
         self.faults = 0
         self.saturated = 0
         self.statistics: dict = {}
@@ -231,7 +234,7 @@ class ServoLoop:
                 before = dict(self._pending[1]) if self._pending is not None else {}
             try:
                 new = base.replace(dict(values), source=CHANGE)
-                new, changes = self._passive(renderable(new))
+                new, changes = self._passive(self._renderable(new))
                 self._hands_off(new)
             except UserError as exc:
                 self.log.client_event(self._now, "refused", str(exc), values=dict(values))
@@ -282,6 +285,43 @@ class ServoLoop:
         """The loop's timing so far, for a display (any thread): the statistics of
         :meth:`run`'s end, computed now."""
         return self._stats(self._k)
+
+    # -- what the loop renders: the haptic model (a subclass renders another) --------
+    def _check_model(self, params) -> None:
+        """A UserError unless ``params`` is a set of the model this loop renders."""
+        if getattr(params, "model", None) != "haptic":
+            raise UserError("the renderer takes a parameter set of the 'haptic' model")
+
+    def _table(self, params):
+        """The declaration of the sets the log records."""
+        return PARAMS
+
+    def _renderable(self, params):
+        """``params`` if every value is finite and declared (:func:`renderable`)."""
+        return renderable(params)
+
+    def _virtual_mass(self) -> float:
+        """The mass (kg) the device moves for the set in force: the haptic I / R."""
+        return self.params["inertia"] / self.params["radius"]
+
+    def _load_kernels(self) -> None:
+        """Call the cycle's kernels once (numba's cache: milliseconds), not in the first
+        slot."""
+        T = self.period
+        pos, vel, user, cmd, row = self._pos, self._vel, self._user, self._cmd, self._row
+        compute_command(pos, vel, user, self._p, self.limit, cmd, row)
+        compute_command_implicit(
+            pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
+        )
+
+    def travel(self, first: float, last: float) -> str:
+        """Where the handle went, for the summary: the door from ``first`` to ``last``
+        (rad, the log's first and last theta)."""
+        return f"door {math.degrees(first):.1f} -> {math.degrees(last):.1f} deg"
+
+    def _log_law(self) -> None:
+        """The event at time 0 that says how the set is rendered (its friction law)."""
+        self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
 
     def _passive(self, params):
         """Colgate-Schenkel at the period in force, without what is not sampled explicitly."""
@@ -334,7 +374,7 @@ class ServoLoop:
     def _set_mass(self) -> None:
         """The device renders the virtual mass I / R natively; the implicit friction
         needs the mass that moves, that one, or the device's own if it cannot be set."""
-        virtual = self.params["inertia"] / self.params["radius"]
+        virtual = self._virtual_mass()
         set_mass = getattr(self.device, "set_mass", None)
         if set_mass is not None:
             set_mass(virtual)
@@ -394,7 +434,7 @@ class ServoLoop:
         self._new_buffers()
         self.timing = LoopTiming(self.period)
         self.log.params(0.0, self._set_vector())
-        self.log.event(0.0, "friction", f"dry friction rendered by the {self.friction} law")
+        self._log_law()
         self._log_device()
         if self._clamp_note:
             self.log.event(0.0, "clamp", "clamped to be passive", changes=self._clamp_note)
@@ -422,13 +462,8 @@ class ServoLoop:
         """Just before the first cycle: the kernels loaded, the device started and told
         what it renders, the clock's origin ``t0`` taken, the supervisor armed."""
         T = self.period
-        pos, vel, user, cmd, row = self._pos, self._vel, self._user, self._cmd, self._row
-        # load both kernels now (numba's cache: milliseconds), not in the first slot
-        compute_command(pos, vel, user, self._p, self.limit, cmd, row)
-        compute_command_implicit(
-            pos, vel, user, self._p, self._p_free, 1.0, T, 0.0, self.limit, cmd, row
-        )
-        cmd[:] = 0.0
+        self._load_kernels()
+        self._cmd[:] = 0.0
         # a device over a link counts as stalled after the watchdog's budget without
         # an answer (the device applies its own floor): its read then fails, which
         # trips the watchdog, and the loop ends at the next command

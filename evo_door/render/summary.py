@@ -12,11 +12,11 @@ def summary_lines(loop, stats: dict, rate: float, name: str) -> list[str]:
     from evo_door.render.columns import THETA  # numpy: not at the command line's start
 
     stopped = stats["status"] == "stopped"
-    first, last = loop.log.first()[THETA], loop.log.last()[THETA]  # rad
+    first, last = loop.log.first()[THETA], loop.log.last()[THETA]  # rad (a mechanism's unit)
     status = STOPPED if stopped else stats["status"]
     lines = [
         f"rendered {stats['cycles']} cycles at {rate:g} Hz on {name} ({status}); "
-        f"door {first * 57.29577951308232:.1f} -> {last * 57.29577951308232:.1f} deg",
+        + loop.travel(first, last),
         timing_line(stats),
     ]
     if "round_trip_mean_s" in stats:

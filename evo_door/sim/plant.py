@@ -20,13 +20,29 @@ the coordinate ``x[position]`` (``theta``, in the model's ``theta_unit``) whose 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from evo_door.errors import UserError
 from evo_door.params import ParamTable
 from evo_door.sim.simulate import Response
+
+
+@dataclass(frozen=True)
+class StateLaw:
+    """What a loop that integrates a state-vector model itself needs of it: the compiled
+    ``rhs(x, force, p, dx)`` (:mod:`evo_door.sim.states`' contract: affine in the
+    force), the speed states of its sign-law contacts, and ``initial_state(p, theta0,
+    dtheta0)``, the whole state vector with the handle's entries set (the other states
+    at their start)."""
+
+    rhs: Callable
+    contacts: tuple[int, ...]
+    initial_state: Callable[..., np.ndarray]
 
 
 @runtime_checkable
@@ -140,6 +156,11 @@ class Plant(Protocol):
         """The inertia felt at the handle (force per acceleration) of every row of ``P``
         at each ``theta``: an array (rows, angles)."""
 
+    def state_law(self, what: str) -> StateLaw:
+        """The plant's compiled right-hand side on its state vector, for ``what`` (the
+        renderer's loop integrates it itself); a plant without one refuses in one
+        line naming ``what``."""
+
 
 class CompiledPlant:
     """What a plant compiled here answers (:class:`~evo_door.sim.accel_plant.AccelPlant`,
@@ -170,3 +191,10 @@ class CompiledPlant:
 
     def check_curve(self, what: str) -> None:
         """The force at the handle is known at any state."""
+
+    def state_law(self, what: str) -> StateLaw:
+        """Refused: only a model on a state vector gives its right-hand side."""
+        raise UserError(
+            f"{what} takes a model on a state vector (a mechanism file, or a Model with "
+            f"rhs=...); {self.model.name!r} is not one"
+        )

@@ -24,7 +24,7 @@ import numpy as np
 from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
 from evo_door.sim.equilibrium import hold_states
-from evo_door.sim.plant import CompiledPlant
+from evo_door.sim.plant import CompiledPlant, StateLaw
 from evo_door.sim.simulate import (
     Response,
     check_force,
@@ -162,6 +162,10 @@ class StatePlant(CompiledPlant):
             offsets, dt, np.ascontiguousarray(X0), setup, self.contacts, self.position,
             self.speed, derivative, kind, err_out, ok_out,
         )  # fmt: skip
+
+    def state_law(self, what: str) -> StateLaw:
+        """The model's rhs, contacts and initial state (for a loop of its own)."""
+        return StateLaw(self.model.rhs, tuple(int(k) for k in self.contacts), self.initial_state)
 
     # -- the force at the handle -----------------------------------------------------
     def _hold(self, p, theta, dtheta) -> tuple[np.ndarray, np.ndarray]:

@@ -116,6 +116,10 @@ class FmuPlant:
         too, and run inside a fit's compiled loops): see :meth:`_refuse`."""
         self._refuse(what)
 
+    def state_law(self, what: str) -> NoReturn:
+        """Refused: an FMU gives no compiled right-hand side (see :meth:`_refuse`)."""
+        self._refuse(what)
+
     def hold_forces(self, p, theta, dtheta) -> np.ndarray:
         """The force that holds the door at each ``theta`` moving at ``dtheta``, from the
         FMU's derivatives with its states set there (a model-exchange FMU whose states
