@@ -154,6 +154,8 @@ class RenderedModel:
         y = x.copy()
         for _ in range(REST_NEWTON):
             rhs(y, 0.0, p, f0)
+            if np.max(np.abs(f0[idx])) == 0.0:
+                return y  # at rest already (a slack tow: its Jacobian may be singular)
             jac = np.empty((idx.size, idx.size))
             for col, j in enumerate(idx):
                 h = 1e-7 * (1.0 + abs(y[j]))
