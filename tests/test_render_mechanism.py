@@ -403,3 +403,46 @@ def test_other_states_too_stiff_for_the_cycle_are_refused_and_steps_follow_their
     message = str(err.value)
     assert "\n" not in message and "too stiff for the loop" in message, message
     assert "fastest rate 1e+06 1/s" in message, message
+
+
+def test_push_changes_a_rendered_mechanism_through_its_control_port(tmp_path, capsys):
+    """``render DRAWER --control`` in a process of its own; ``push --set`` of the
+    drawer's own names: applied and logged; a stop too stiff for the rate, an unknown
+    name: refused in one line, the running set kept."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from evo_door.render.control import request
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    cmd = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=5000",
+           "--user", "hold", "--duration", "60", "--realtime", "--control", "0",
+           "--log", str(tmp_path / "drawer.h5")]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)  # fmt: skip
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("control port 127.0.0.1:"), (line, proc.stderr.read())
+        to = line.split()[2]
+        host, port = to.rsplit(":", 1)
+        deadline = time.monotonic() + 60.0
+        while request(host, int(port), {"get": "state"}).get("t", 0.0) <= 0.0:
+            assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read()
+            time.sleep(0.05)  # the loop's checks done, its cycles running
+        assert main(["push", "--set", "grease.c=5.5", "--to", to, "--timeout", "60"]) == 0
+        out = capsys.readouterr().out
+        assert "grease.c = 5.5 N s/m" in out and "1 value(s)" in out
+        assert main(["push", "--set", "stop.k=1e6", "--to", to, "--timeout", "60"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "not passive" in err and "(stop.k)" in err and "\n" not in err
+        assert main(["push", "--set", "grease.cc=1", "--to", to, "--timeout", "60"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "has no parameter 'grease.cc' (did you mean 'grease.c'?)" in err
+        assert main(["push", "--set", "grease.c=5.5", "--to", to, "--timeout", "60"]) == 0
+        assert "nothing to push" in capsys.readouterr().out
+    finally:
+        proc.terminate()
+        proc.wait(30)

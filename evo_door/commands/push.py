@@ -15,7 +15,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "push",
         help="change the parameters of a running renderer (evo-door render --control)",
-        description="Send a haptic parameter set (a YAML file or preset: the whole set, "
+        description="Send a parameter set of the rendered model (a YAML file or preset: the whole set, "
         "only the values that differ from the running set are sent) and/or single "
         "values (--set NAME=VALUE, SI units) to a renderer's control port. The renderer "
         "checks them against the declaration, the passivity condition and its hands-off "
@@ -30,6 +30,11 @@ def register(sub) -> None:
         default=[],
         dest="assignments",
         help="one parameter (SI units); repeatable; on top of the file",
+    )
+    p.add_argument(
+        "--model",
+        help="the model of P.yaml when the renderer runs a mechanism (the file it renders); "
+        "default haptic",
     )
     p.add_argument("--to", required=True, metavar="HOST:PORT", help="the renderer's control port")
     p.add_argument("--token", help="the token the renderer was started with")
@@ -50,6 +55,7 @@ def _fmt(name: str, value: float, units: dict) -> str:
 def run(args) -> int:
     from evo_door.models import get_model
     from evo_door.params import parse_assignments
+    from evo_door.params.declaration import suggest
     from evo_door.render.control import parse_control, request
 
     check_ranges(args)
@@ -57,14 +63,10 @@ def run(args) -> int:
         raise UserError("push: give a parameter file and/or --set NAME=VALUE")
     host, port = parse_control(args.to)
     overrides = parse_assignments(args.assignments)
-    model = get_model("haptic")
-    wanted: dict[str, float] = {}
-    if args.file is not None:
-        wanted.update(model.load_params(args.file, overrides).as_dict())
-    else:
+    model = get_model(args.model or "haptic")
+    if args.model or all(name in model.params.names for name in overrides):
         for name, value in overrides.items():  # checked here first, then by the renderer
             model.params[name].check(value, "--set")
-            wanted[name] = value
     base = {"token": args.token} if args.token else {}
 
     def ask(message: dict) -> dict:
@@ -76,6 +78,24 @@ def run(args) -> int:
     running = ask({"get": "params"})
     units = running.get("units", {})
     current = running.get("params", {})
+    rendered = str(running.get("model", "haptic"))
+    wanted: dict[str, float] = {}
+    if args.file is not None or args.model:
+        if model.params.model != rendered:
+            raise UserError(
+                f"the renderer runs {rendered!r}, not {model.name!r}: give --model, the "
+                "model the renderer renders"
+            )
+    if args.file is not None:
+        wanted.update(model.load_params(args.file, overrides).as_dict())
+    else:
+        for name, value in overrides.items():  # the renderer checks the value
+            if name not in units:
+                raise UserError(
+                    f"--set {name}: {rendered!r} has no parameter {name!r}"
+                    + suggest(name, list(units))
+                )
+            wanted[name] = value
     send = {n: v for n, v in wanted.items() if current.get(n) != v}
     if not send:
         print(f"nothing to push: the renderer at {host}:{port} already runs these values")

@@ -309,7 +309,6 @@ def _check_mechanism_options(args, interactive: bool) -> None:
     """What a mechanism's render does not take (yet): a UserError naming it."""
     haptic_only = {
         "--console": args.console,
-        "--control": args.control is not None,
         "--clamp": args.clamp,
         "--friction": args.friction != "implicit",
         "the terminal's keys (no --duration)": interactive,
@@ -317,8 +316,9 @@ def _check_mechanism_options(args, interactive: bool) -> None:
     flag = next((name for name, given in haptic_only.items() if given), None)
     if flag is not None:
         raise UserError(
-            f"{flag} goes with the haptic model; a mechanism ({args.model}) renders headless "
-            "with --duration, its parameters set by --params and --set"
+            f"{flag} goes with the haptic model; a mechanism ({args.model}) renders with "
+            "--duration or --control (evo-door push changes its parameters), its "
+            "parameters set by --params and --set"
         )
 
 

@@ -94,7 +94,6 @@ import time
 import numpy as np
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import PARAMS
 from evo_door.render.columns import COLUMNS
 from evo_door.render.messages import (
     MAX_LINE,
@@ -371,7 +370,7 @@ class ControlServer:
             if what == "state":
                 return self._state()
             if what == "declaration":
-                return {"ok": True, "declaration": PARAMS.rows()}
+                return {"ok": True, "declaration": self.loop.params.table.rows()}
             return {
                 "ok": False,
                 "error": 'expected {"set": {...}}, {"event": {...}} or {"get": '
@@ -391,7 +390,7 @@ class ControlServer:
             new = loop.request_change({str(k): float(v) for k, v in values.items()})
             applied = {name: new[name] for name in values}
             # the values the clamp changed too
-            for name in PARAMS.names:
+            for name in loop.params.table.names:
                 if name not in applied and new[name] != loop.params[name]:
                     applied[name] = new[name]
             deadline = time.monotonic() + APPLY_WAIT
@@ -448,7 +447,8 @@ class ControlServer:
         return {
             "ok": True,
             "params": snap["params"].as_dict(),
-            "units": {q.name: q.unit for q in PARAMS},
+            "model": snap["params"].model,
+            "units": {q.name: q.unit for q in snap["params"].table},
             "t": snap["t"],
         }
 
