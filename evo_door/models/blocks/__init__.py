@@ -47,9 +47,7 @@ def cache_root() -> Path:
 
 def load_mechanism(path: Path):
     """The :class:`~evo_door.models.base.Model` of the mechanism file ``path``."""
-    from evo_door import __version__
     from evo_door.models.base import Model
-    from evo_door.models.blocks.codegen import generate
     from evo_door.params import ParamTable
 
     if not path.is_file():
@@ -59,9 +57,7 @@ def load_mechanism(path: Path):
             hint = suggest(path.name, names)
         raise UserError(f"mechanism file {path} not found{hint}")
     mech = read_mechanism(path)
-    source, layout = generate(mech, __version__)
-    digest = hashlib.sha256(f"{__version__}\n{source}".encode()).hexdigest()[:16]
-    module = _import(source, digest)
+    module, layout = _compiled(mech)
     handle = mech.bodies[mech.handle]
     linear = handle.kind == "linear"
     return Model(
@@ -84,6 +80,28 @@ def load_mechanism(path: Path):
         rig_kinds=("impulse",),
         notes=mech.notes or _notes(mech, path),
     )
+
+
+def mechanism_energy(path: Path):
+    """The compiled ``energy(x, p)`` of the mechanism file ``path`` (J): kinetic energy
+    of the bodies, potential energy of their weights and of the elements that store
+    one (spring, cable, end stop, detent, gas strut)."""
+    return _compiled(read_mechanism(path))[0].energy
+
+
+def _compiled(mech):
+    """The mechanism's generated module, imported, and its layout."""
+    from evo_door import __version__
+    from evo_door.models.blocks.codegen import generate
+
+    source, layout = generate(mech, __version__)
+    text = f"{__version__}\n{source}"
+    if "blocks.kinematics import" in source:  # numba's cache would not see it change
+        from evo_door.models.blocks import kinematics
+
+        text += Path(kinematics.__file__).read_text(encoding="utf-8")
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    return _import(source, digest), layout
 
 
 def _notes(mech, path: Path) -> str:

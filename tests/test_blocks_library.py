@@ -1,0 +1,338 @@
+"""The rest of the component library of mechanisms from blocks (docs/blocks.md):
+transmissions (slider-crank, four-bar, table) with their ratio against a finite
+difference, a spring and a gas strut through a slider-crank against scipy on the
+equations written here again, the static curve against the potential through the map,
+detent, gas strut and table spring against their laws by hand, numbers with units, the
+energy conserved by an undamped mechanism, and a transmission that folds refused in
+one line naming it and where.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.interpolate import PchipInterpolator
+
+from evo_door.errors import UserError
+from evo_door.models import get_model
+from evo_door.models.blocks import CACHE_ENV, mechanism_energy
+from evo_door.models.blocks.kinematics import four_bar, pchip, slider_crank
+from evo_door.sim import simulate
+from evo_door.sim.simulate import force_angle_curve
+
+DT = 1.0 / 1024.0
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    """Generated mechanisms in a tmp folder of the session (not the user's cache)."""
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path_factory.getbasetemp() / "mechanisms"))
+
+
+def write(tmp_path, name, text):
+    (tmp_path / name).write_text(textwrap.dedent(text))
+    return str(tmp_path / name)
+
+
+# -- the kinematic maps, written again here ---------------------------------------------
+def crank_s(q, r=0.05, rod=0.15, e=0.02, phase=0.3):
+    phi = q + phase
+    return r * np.cos(phi) + np.sqrt(rod**2 - (r * np.sin(phi) - e) ** 2)
+
+
+def rocker_angle(q, a, b, c, d, phase, branch):
+    """The rocker's angle by intersecting two circles: the crank's end ``B`` and the
+    rocker's pivot ``D``; the coupler ``b`` from B meets the rocker ``c`` from D."""
+    bx, by = a * np.cos(q + phase), a * np.sin(q + phase)
+    dist = math.hypot(d - bx, by)
+    # the point C: distance b from B and c from D; along BD then across it
+    along = (b**2 - c**2 + dist**2) / (2 * dist)
+    across = math.sqrt(b**2 - along**2)
+    ux, uy = (d - bx) / dist, (0 - by) / dist
+    side = branch  # the open branch lies on the left of B -> D
+    cx, cy = bx + along * ux - side * across * uy, by + along * uy + side * across * ux
+    return math.atan2(cy, cx - d)
+
+
+def test_every_ratio_is_the_derivative_of_its_map():
+    h = 1e-6
+    for q in np.linspace(0.2, 2.8, 27):
+        s, r = slider_crank(q, 0.05, 0.15, 0.02, 0.3)
+        assert s == pytest.approx(crank_s(q), abs=1e-15)
+        fd = (
+            slider_crank(q + h, 0.05, 0.15, 0.02, 0.3)[0]
+            - slider_crank(q - h, 0.05, 0.15, 0.02, 0.3)[0]
+        ) / (2 * h)
+        assert r == pytest.approx(fd, abs=1e-7)
+    for branch in (1.0, -1.0):
+        for q in np.linspace(0.7, 3.4, 28):
+            args = (0.04, 0.12, 0.08, 0.1, 0.0, branch)
+            s, r = four_bar(q, *args)
+            want = rocker_angle(q, 0.04, 0.12, 0.08, 0.1, 0.0, branch)
+            assert math.remainder(s - want, 2 * math.pi) == pytest.approx(0.0, abs=1e-12)
+            fd = (four_bar(q + h, *args)[0] - four_bar(q - h, *args)[0]) / (2 * h)
+            assert r == pytest.approx(fd, abs=1e-7)
+    x, y = [0.0, 0.3, 1.0, 1.2, 2.0, 3.0], [0.0, 0.01, 0.015, 0.03, 0.05, 0.06]
+    p = np.array([9.0] + x + y)  # the table from index 1
+    ref = PchipInterpolator(x, y)
+    for q in np.linspace(0.0, 3.0, 301):
+        s, r = pchip(q, p, 1, 6)
+        assert s == pytest.approx(float(ref(q)), abs=1e-15)
+        assert r == pytest.approx(float(ref(q, 1)), rel=1e-12, abs=1e-14)
+        if np.min(np.abs(q - np.array(x))) > 1e-4:  # C1 only: not across a knot
+            fd = (pchip(q + h, p, 1, 6)[0] - pchip(q - h, p, 1, 6)[0]) / (2 * h)
+            assert r == pytest.approx(fd, abs=1e-7)
+    # beyond the points: a straight line with the end slope (a continuous ratio)
+    d0, d1 = float(ref(0.0, 1)), float(ref(3.0, 1))
+    assert d0 > 0.0 and d1 > 0.0
+    assert pchip(3.5, p, 1, 6) == pytest.approx((0.06 + 0.5 * d1, d1), rel=1e-14)
+    assert pchip(-1.0, p, 1, 6) == pytest.approx((-d0, d0), rel=1e-14)
+
+
+ARM = """
+mechanism:
+  name: sprung-arm
+  handle: arm
+  bodies:
+    arm: {kind: rotary, inertia: 0.02, hand_lever: 0.1, range: ["30 deg", "150 deg"]}
+  transmissions:
+    crank: {kind: slider_crank, on: arm, radius: 0.05, rod: 0.15, offset: 0.02, phase: 0.3}
+  elements:
+    spring: {kind: spring, on: crank, k: "2 N/mm", preload: 5.0, at: 0.12}
+    strut: {kind: gas_strut, on: crank, preload: 20.0, slope: 300.0, length: 0.2,
+            c_extension: 2.0, c_compression: 15.0}
+    oil: {kind: damper, on: arm, c: 0.004}
+"""
+
+
+def arm_potential(q, p):
+    s = crank_s(q)
+    d = s - p["spring.at"]
+    u = p["strut.length"] - s
+    return (p["spring.preload"] * d + 0.5 * p["spring.k"] * d * d
+            + p["strut.preload"] * u + 0.5 * p["strut.slope"] * u * u)  # fmt: skip
+
+
+def test_a_spring_and_a_strut_through_a_slider_crank_match_scipy(tmp_path):
+    model = get_model(write(tmp_path, "arm.yaml", ARM))
+    ps = model.load_params()
+    p = ps.as_dict()
+    assert p["spring.k"] == 2000.0 and model.theta_range == pytest.approx(
+        (math.pi / 6, 5 * math.pi / 6)
+    )
+    n = 1024
+    t = DT * np.arange(n)
+    force = np.where(t < 0.2, 30.0 * np.sin(np.pi * t / 0.2) ** 2, 0.0)
+    q0 = 1.0
+    r = simulate(model, ps, force, DT, theta0=q0, method="dopri5", tolerance=1e-11)
+    assert r.ok
+
+    def rhs(tt, y):
+        q, w = y
+        h = 1e-6  # the ratio of the map written here: a central difference is not
+        # precise enough at 1e-8, so the closed form again
+        phi = q + 0.3
+        root = math.sqrt(0.15**2 - (0.05 * math.sin(phi) - 0.02) ** 2)
+        ratio = -0.05 * math.sin(phi) - (0.05 * math.sin(phi) - 0.02) * 0.05 * math.cos(phi) / root
+        assert abs(ratio - (crank_s(q + h) - crank_s(q - h)) / (2 * h)) < 1e-7
+        s, v = crank_s(q), ratio * w
+        tension = p["spring.preload"] + p["spring.k"] * (s - p["spring.at"])
+        push = p["strut.preload"] + p["strut.slope"] * (p["strut.length"] - s)
+        push -= (p["strut.c_extension"] if v > 0 else p["strut.c_compression"]) * v
+        torque = 0.1 * np.interp(tt, t, force) + ratio * (push - tension) - p["oil.c"] * w
+        return [w, torque / p["arm.inertia"]]
+
+    sol = solve_ivp(rhs, (0.0, t[-1]), [q0, 0.0], method="DOP853", rtol=1e-12, atol=1e-13,
+                    max_step=DT, dense_output=True)  # fmt: skip
+    ref = sol.sol(t)
+    assert np.ptp(r.theta) > 0.3 and np.ptp(r.dtheta) > 1.0  # it moved, both ways
+    assert np.any(r.dtheta > 0.1) and np.any(r.dtheta < -0.1)
+    np.testing.assert_allclose(r.theta, ref[0], atol=2e-8)
+    np.testing.assert_allclose(r.dtheta, ref[1], atol=2e-7)
+
+    # the static curve: the hand holds the arm against -dV/dq, the potential of the
+    # spring and the strut through the map
+    c = force_angle_curve(model, ps, n=121)
+    q = c["theta"]
+    h = 1e-6
+    hold = (arm_potential(q + h, p) - arm_potential(q - h, p)) / (2 * h) / p["arm.hand_lever"]
+    np.testing.assert_allclose(c["closing"], hold, rtol=1e-7, atol=1e-6)
+    np.testing.assert_allclose(c["opening"], hold, rtol=1e-7, atol=1e-6)
+    assert np.ptp(hold) > 10.0  # not a flat curve
+
+
+EVERYTHING = """
+mechanism:
+  name: everything
+  handle: arm
+  bodies:
+    arm: {kind: rotary, inertia: "0.01 kg m^2", range: ["40 deg", "160 deg"], hand_lever: "10 cm"}
+    cart: {kind: linear, mass: "500 g", start: "20 mm"}
+    sled: {kind: linear, mass: 1.0}
+  transmissions:
+    bar: {kind: four_bar, on: arm, crank: 0.04, coupler: 0.12, rocker: 0.08, ground: 0.1}
+    cam: {kind: table, on: arm, output: linear, q: [0.0, 1.0, 2.0, 3.0],
+          s: [0.0, 0.01, 0.03, 0.04]}
+  elements:
+    click: {kind: detent, on: bar, amplitude: 0.1, pitch: "30 deg", phase: 0.2}
+    strut: {kind: gas_strut, on: cam, preload: 50.0, slope: 100, length: 0.05,
+            c_extension: 3, c_compression: 30}
+    table: {kind: spring_table, on: arm, deflection: [0.0, 1.0, 2.0, 3.0],
+            force: [0.0, 0.2, 0.3, 0.35]}
+    follower: {kind: spring, between: [cam, cart], k: "3 N/mm", at: 0.01}
+    rub: {kind: detent, on: cart, amplitude: "2 N", pitch: "5 mm"}
+    tie: {kind: detent, between: [sled, cart], amplitude: 1.0, pitch: 0.01}
+    push: {kind: gas_strut, between: [cart, sled], preload: 10.0, length: 0.1,
+           slope: 20.0, c_compression: 4.0}
+"""
+
+
+def test_detent_strut_table_spring_and_maps_are_the_law_by_hand(tmp_path):
+    """A rotary arm drives a rocker (four-bar) that clicks and a cam (table) with a gas
+    strut, a table spring on it, a cart following the cam through a spring, a sled
+    clicked and pushed from the cart: the rhs at random states against the laws by hand
+    (the maps written again here, the tables by scipy's PchipInterpolator)."""
+    model = get_model(write(tmp_path, "all.yaml", EVERYTHING))
+    p = model.load_params().as_dict()
+    assert p["cart.mass"] == 0.5 and p["click.pitch"] == pytest.approx(math.pi / 6, rel=1e-15)
+    assert p["arm.hand_lever"] == pytest.approx(0.1) and p["rub.pitch"] == pytest.approx(0.005)
+    assert p["follower.k"] == pytest.approx(3000.0) and model.x0[2] == pytest.approx(0.02)
+    assert model.params["table.force_2"].unit == "N m" and model.params["cam.s_1"].unit == "m"
+    assert model.params["click.amplitude"].unit == "N m" and model.params["cam.q_1"].unit == "rad"
+    vec = model.params.defaults
+    cam = PchipInterpolator([0.0, 1.0, 2.0, 3.0], [0.0, 0.01, 0.03, 0.04])
+    spring = PchipInterpolator([0.0, 1.0, 2.0, 3.0], [0.0, 0.2, 0.3, 0.35])
+    rng = np.random.default_rng(5)
+    h = 1e-6
+    for _ in range(40):
+        q = rng.uniform(0.75, 2.75)
+        x = np.array([q, rng.normal(), *rng.normal(scale=0.05, size=1), rng.normal(),
+                      *rng.normal(scale=0.05, size=1), rng.normal()])  # fmt: skip
+        f = float(rng.normal() * 5)
+        dx = np.zeros(6)
+        model.rhs(x, f, vec, dx)
+        psi = rocker_angle(q, 0.04, 0.12, 0.08, 0.1, 0.0, 1.0)
+        ratio = (rocker_angle(q + h, 0.04, 0.12, 0.08, 0.1, 0.0, 1.0)
+                 - rocker_angle(q - h, 0.04, 0.12, 0.08, 0.1, 0.0, 1.0)) / (2 * h)  # fmt: skip
+        click = -0.1 * math.sin(2 * math.pi * (psi - 0.2) / (math.pi / 6))
+        s, rc = float(cam(q)), float(cam(q, 1))
+        v = rc * x[1]
+        strut = 50.0 + 100.0 * (0.05 - s) - (3.0 if v > 0 else 30.0) * v
+        follow = 3000.0 * (x[2] - s - 0.01)  # tension: pulls the cam and the cart together
+        torque = 0.1 * f + ratio * click + rc * (strut + follow) - float(spring(q))
+        rub = -2.0 * math.sin(2 * math.pi * x[2] / 0.005)
+        tie = -1.0 * math.sin(2 * math.pi * (x[2] - x[4]) / 0.01)
+        w = x[5] - x[3]
+        push = 10.0 + 20.0 * (0.1 - (x[4] - x[2])) - (4.0 * w if w < 0 else 0.0)
+        assert dx[1] == pytest.approx(torque / 0.01, rel=1e-6)
+        assert dx[3] == pytest.approx((-follow + rub + tie - push) / 0.5, rel=1e-12, abs=1e-9)
+        assert dx[5] == pytest.approx((-tie + push) / 1.0, rel=1e-12, abs=1e-9)
+        assert (dx[0], dx[2], dx[4]) == (x[1], x[3], x[5])
+
+
+def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
+    """Two carts, a spring and a cable between them, a detent, end stops, and an arm
+    whose spring acts through a slider-crank: no damper, no friction. Its energy
+    stays within 1e-8 of its start along a simulation that crosses stops and clicks."""
+    file = write(
+        tmp_path,
+        "free.yaml",
+        """
+        mechanism:
+          name: free
+          handle: a
+          bodies:
+            a: {kind: linear, mass: 1.0, range: [0.0, 0.5], start: 0.05}
+            b: {kind: linear, mass: 2.0, start: 0.02}
+          elements:
+            coupling: {kind: spring, between: [a, b], k: 200.0, preload: 3.0, at: 0.01}
+            rope: {kind: cable, between: [a, b], k: 800.0, length: 0.03}
+            clicks: {kind: detent, on: a, amplitude: 4.0, pitch: 0.02, phase: 0.005}
+            low: {kind: end_stop, on: a, at: 0.03, side: below, k: 5000.0, c: 0.0}
+            high: {kind: end_stop, on: b, at: 0.08, k: 5000.0, c: 0.0}
+            strut: {kind: gas_strut, on: b, preload: 5.0, slope: 50.0, length: 0.1}
+    """,
+    )
+    model = get_model(file)
+    energy = mechanism_energy(Path(file))
+    ps = model.load_params()
+    vec = model.params.vector(ps.as_dict())
+    force = np.zeros(2048)
+    r = simulate(model, ps, force, DT, theta0=0.05, method="dopri5", tolerance=1e-13)
+    assert r.ok
+    assert model.states == ("a", "a_speed", "b", "b_speed")
+    x = np.column_stack([r.theta, r.dtheta, r.states["b"], r.states["b_speed"]])
+    e = np.array([energy(np.ascontiguousarray(row), vec) for row in x])
+    # at the start, by hand: the spring, the detent, the strut (the cable is slack)
+    d = 0.02 - 0.05 - 0.01
+    clicks = 4.0 * 0.02 / (2 * math.pi) * (1 - math.cos(2 * math.pi * (0.05 - 0.005) / 0.02))
+    assert e[0] == pytest.approx(3.0 * d + 100.0 * d * d + clicks + 5.0 * 0.08 + 25.0 * 0.08**2)
+    # it clicks, hits both stops, and the cable comes taut
+    assert np.ptp(x[:, 0]) > 0.1 and x[:, 0].min() < 0.03 and x[:, 2].max() > 0.08
+    assert np.max(x[:, 2] - x[:, 0]) > 0.03
+    assert np.max(np.abs(e / e[0] - 1.0)) < 1e-8, np.max(np.abs(e / e[0] - 1.0))
+
+
+FOLDS = """
+mechanism:
+  name: folds
+  handle: arm
+  bodies:
+    arm: {kind: rotary, inertia: 0.01, range: ["40 deg", "160 deg"]}
+  transmissions:
+    crank: {kind: slider_crank, on: arm, radius: 0.05, rod: 0.15, offset: 0.02, phase: 0.3}
+    bar: {kind: four_bar, on: arm, crank: 0.04, coupler: 0.12, rocker: 0.08, ground: 0.1}
+    cam: {kind: table, on: arm, output: linear, q: [0.0, 1.0, 2.0, 3.0], s: [0.0, 0.01, 0.03, 0.04]}
+  elements:
+    spring: {kind: spring, on: crank, k: 100.0}
+    click: {kind: detent, on: bar, amplitude: 0.1, pitch: 0.5}
+"""
+
+BAD = [
+    (("rod: 0.15", "rod: 0.027"), "transmission 'crank': it folds at q = 0.92263 rad: the rod cannot reach"),
+    (("coupler: 0.12", "coupler: 0.3"),
+     "transmission 'bar': it folds at q = 0.698132 rad: the four-bar cannot close"),
+    (('"40 deg"', '"10 deg"'), "transmission 'bar': it passes a dead point at q = 0.42"),
+    (("0.01, 0.03, 0.04]", "0.03, 0.02, 0.04]"),
+     "transmission 'cam': it is not monotone: s turns at q = 1 rad (point 1)"),
+    (("q: [0.0, 1.0,", "q: [0.0, 0.0,"),
+     "transmission 'cam': its q points must rise; q_1 = 0 rad does not"),
+    (("kind: slider_crank", "kind: slider_crnk"),
+     "transmission 'crank': unknown kind 'slider_crnk' (did you mean 'slider_crank'?)"),
+    (('arm: {kind: rotary, inertia: 0.01, range: ["40 deg", "160 deg"]}',
+      "arm: {kind: linear, mass: 1.0}"),
+     "transmission 'crank': a slider_crank is driven by a rotary body; 'arm' is linear"),
+    (("spring: {kind: spring, on: crank", "spring: {kind: spring, on: bar"),
+     "element 'spring': a spring acts on linear coordinates (its units); "
+     "transmission 'bar' outputs a rotary one"),
+    (("amplitude: 0.1", 'amplitude: "0.1 N"'),
+     "element 'click': amplitude: the unit N does not fit N m"),
+    (("    crank: {kind: slider_crank", "    arm: {kind: slider_crank"),
+     "transmission 'arm': a body has that name"),
+    (("click: {kind: detent, on: bar", "click: {kind: detent, between: [crank, bar]"),
+     "element 'click': it connects a linear coordinate to a rotary one"),
+    (("click: {kind: detent, on: bar", "click: {kind: detent, on: bra"),
+     "element 'click': on: 'bra' is not a body (did you mean 'bar'"),
+    (("s: [0.0, 0.01, 0.03, 0.04]", "s: [0.0, 0.01, 0.03]"),
+     "transmission 'cam': q and s must hold as many points"),
+    (("spring: {kind: spring, on: crank, k: 100.0}",
+      "spring: {kind: spring_table, on: crank, deflection: [0, 1, 1], force: [0, 1, 2]}"),
+     "element 'spring': its deflection points must rise; deflection[2] does not"),
+    (("k: 100.0", 'k: "100 furlongs"'), "element 'spring': k: unknown unit 'furlongs'"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("change, message", BAD, ids=[m[:40] for _, m in BAD])
+def test_a_transmission_that_folds_is_one_line_naming_it(tmp_path, change, message):
+    old, new = change
+    text = textwrap.dedent(FOLDS)
+    assert old in text
+    (tmp_path / "bad.yaml").write_text(text.replace(old, new, 1))
+    with pytest.raises(UserError) as err:
+        get_model(str(tmp_path / "bad.yaml"))
+    assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
