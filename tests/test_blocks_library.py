@@ -9,7 +9,12 @@ one line naming it and where.
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import shutil
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -25,6 +30,8 @@ from evo_door.models.blocks.kinematics import four_bar, pchip, slider_crank
 from evo_door.sim import simulate
 from evo_door.sim.simulate import force_angle_curve
 
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples" / "blocks"
 DT = 1.0 / 1024.0
 
 
@@ -336,3 +343,42 @@ def test_a_transmission_that_folds_is_one_line_naming_it(tmp_path, change, messa
     with pytest.raises(UserError) as err:
         get_model(str(tmp_path / "bad.yaml"))
     assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def cli(*args, cwd):
+    """``evo-door ARGS`` in a fresh process that imports this checkout's evo_door."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=900)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_rig_fit_and_curve_of_the_knob_from_the_command_line(tmp_path):
+    """The knob example through the real commands: impulse trials from the rig, the fit
+    of knob_fit.yaml recovering the detent's amplitude, the bearing's friction and the
+    grease within 2 %, and the Coulomb curve: the detent's sine plus the friction,
+    through the finger's lever."""
+    work = tmp_path / "blocks"
+    shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
+    made = cli("rig", "generate", "--model", "knob.yaml", "--trials", "8",
+               "--out", "knob_trials.h5", cwd=work)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    run = cli("run", "knob_fit.yaml", "--out", "knob_fit.h5", cwd=work)
+    assert run.returncode == 0, run.stderr
+    shown = cli("show", "knob_fit.h5", "--json", cwd=work)
+    assert shown.returncode == 0, shown.stderr
+    best = json.loads(shown.stdout)["best"]
+    truth = get_model(str(EXAMPLES / "knob.yaml")).load_params().as_dict()
+    for name in ("clicks.amplitude", "bearing.level", "grease.c"):
+        assert abs(best[name] / truth[name] - 1.0) < 0.02, (name, best[name], truth[name])
+    curve = cli("curve", "knob.yaml", "--out", "knob_curve.csv", cwd=work)
+    assert curve.returncode == 0, curve.stderr
+    table = np.genfromtxt(work / "knob_curve.csv", delimiter=",", names=True, dtype=None,
+                          encoding="utf-8")  # fmt: skip
+    lever, amplitude = truth["knob.hand_lever"], truth["clicks.amplitude"]
+    for direction, sign in (("closing", 1.0), ("opening", -1.0)):
+        rows = table[table["direction"] == direction]
+        q = rows["theta"]
+        inside = (q > 0.01) & (q < truth["high.at"] - 0.01)
+        want = (amplitude * np.sin(12.0 * q) + sign * truth["bearing.level"]) / lever
+        np.testing.assert_allclose(rows["force"][inside], want[inside], atol=1e-6)

@@ -1,8 +1,10 @@
 """Mechanisms from blocks: a YAML file of bodies and components becomes a model.
 
-A mechanism file (``docs/blocks.md``) names bodies (linear or rotary) and elements from
-the component library (:mod:`~evo_door.models.blocks.components`: spring, damper,
-friction, end stop, soft-close damper, cable) that act on one body or between two.
+A mechanism file (``docs/blocks.md``) names bodies (linear or rotary), transmissions
+(:mod:`~evo_door.models.blocks.transmissions`) and elements from the component library
+(:mod:`~evo_door.models.blocks.library`: spring, damper, friction, end stop,
+soft-close damper, cable, detent, gas strut, table spring) that act on one body or
+between two, or on a transmission's output.
 :func:`load_mechanism` reads it (:mod:`~evo_door.models.blocks.mechanism`), writes its
 one right-hand side as numba source (:mod:`~evo_door.models.blocks.codegen`) into a
 cache folder named by the digest of that source and of evo-door's version, and imports
