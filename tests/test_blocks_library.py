@@ -331,6 +331,9 @@ BAD = [
       "spring: {kind: spring_table, on: crank, deflection: [0, 1, 1], force: [0, 1, 2]}"),
      "element 'spring': its deflection points must rise; deflection[2] does not"),
     (("k: 100.0", 'k: "100 furlongs"'), "element 'spring': k: unknown unit 'furlongs'"),
+    (("q: [0.0, 1.0,", 'q: [0.0, "100 turn",'), "transmission 'cam': q[1] = 628.319 rad is outside [-100, 100]"),
+    (("s: [0.0, 0.01,", 's: [0.0, "3 cm",'), "transmission 'cam': it is not monotone: s turns at q = 1 rad"),
+    (("s: [0.0, 0.01, 0.03, 0.04]", "s: 7"), "transmission 'cam': s must be a list of 2 to 64 numbers"),
 ]  # fmt: skip
 
 

@@ -102,17 +102,14 @@ def _laws(mech: Mechanism, pos, index, own):
     lines, switches, contacts, potentials = [], [], set(), []
     for e in mech.elements.values():
         comp = COMPONENTS[e.kind]
+        (xa, va, fa), (xb, vb, fb) = _end(e.a, e.via_a, pos), _end(e.b, e.via, pos)
         site = Site(
-            xa="0.0" if e.a is None else f"x[{pos[e.a]}]" if e.via_a is None else f"s_{e.via_a}",
-            va="0.0"
-            if e.a is None
-            else f"x[{pos[e.a] + 1}]"
-            if e.via_a is None
-            else f"v_{e.via_a}",
-            xb=f"x[{pos[e.b]}]" if e.via is None else f"s_{e.via}",
-            vb=f"x[{pos[e.b] + 1}]" if e.via is None else f"v_{e.via}",
-            fa=None if e.a is None else f"f_{e.a}" if e.via_a is None else f"f_{e.via_a}",
-            fb=f"f_{e.b}" if e.via is None else f"f_{e.via}",
+            xa=xa,
+            va=va,
+            xb=xb,
+            vb=vb,
+            fa=fa,
+            fb=fb or "",
             p={s: f"p[{index[f'{e.name}.{s}']}]" for s in e.values},
             words=e.words,
             own=tuple(f"x[{i}]" for _, i in own.get(e.name, ())),
@@ -132,11 +129,22 @@ def _laws(mech: Mechanism, pos, index, own):
     return lines, switches, contacts, potentials
 
 
+def _end(body: str | None, via: str | None, pos) -> tuple[str, str, str | None]:
+    """Source of an element's end: its position, its speed and its force accumulator
+    (the ground's: 0, 0, None; a transmission's output: ``s_``, ``v_``, ``f_``)."""
+    if body is None:
+        return "0.0", "0.0", None
+    if via is not None:
+        return f"s_{via}", f"v_{via}", f"f_{via}"
+    return f"x[{pos[body]}]", f"x[{pos[body] + 1}]", f"f_{body}"
+
+
 def _energy(mech: Mechanism, pos, index, maps, potentials) -> list[str]:
     """``energy(x, p)``: the bodies' kinetic energy, their weights' and the elements'
     potential energies (J); a component that stores none (a damper, a friction) adds
     nothing, nor does a table spring (its integral is not written)."""
-    out = ['@njit("float64(float64[::1], float64[::1])", cache=True)', "def energy(x, p):"]
+    # compiled on its first call only (a model that never asks pays nothing)
+    out = ["@njit(cache=True)", "def energy(x, p):"]
     out += [line for lines, _ in maps for line in lines]
     out.append("    e = 0.0")
     for b, body in mech.bodies.items():

@@ -266,12 +266,9 @@ def _transmission(name: str, tree, bodies: dict[str, Body], where: str) -> Trans
     t = Transmission(name, kind, body.name, values, words, body.kind, output)
     if kind == "table":
         for key, of in (("q", body.kind), ("s", output)):
-            points = tree.get(key)
-            if not isinstance(points, list) or not 2 <= len(points) <= TABLE_POINTS:
-                raise UserError(f"{at}: {key} must be a list of 2 to {TABLE_POINTS} numbers")
             unit = "m" if of == LINEAR else "rad"
-            for i, v in enumerate(points):
-                values[f"{key}_{i}"] = _number(v, f"{at}: {key}[{i}]", unit)
+            points = Spec(key, unit, unit, None, -100.0, 100.0, "geometry", "")
+            values.update(_table(tree.get(key), points, LINEAR, at))
         if len(tree["q"]) != len(tree["s"]):
             raise UserError(f"{at}: q and s must hold as many points")
         t.values = {k: values[k] for k in sorted(values, key=lambda k: (k[0], int(k[2:])))}
@@ -361,7 +358,10 @@ def _element(
             values.update(_table(tree.get(spec.name), spec, units, at))
     _complete(comp, values, words, at)
     comp.check(values, words, at)
-    return Element(name, kind, a, b, values, words, via and via.name, units, via_a and via_a.name)
+    return Element(
+        name, kind, a, b, values, words,
+        None if via is None else via.name, units, None if via_a is None else via_a.name,
+    )  # fmt: skip
 
 
 def _end(value, bodies, transmissions, where: str) -> tuple[str, Transmission | None]:
@@ -433,10 +433,11 @@ def _declare(mech: Mechanism) -> list[Param]:
             params.append(_param(body.name, spec, value, body.kind))
     for t in mech.transmissions.values():
         for key, value in t.values.items():
-            spec = next((s for s in TRANSMISSIONS[t.kind].specs if s.name == key), None)
-            if spec is None:  # a table's point
-                spec = Spec(key, t.unit(key), t.unit(key), value, -100.0, 100.0, "geometry",
-                            f"point {key[2:]} of the table, {key[0]}")  # fmt: skip
+            named = [s for s in TRANSMISSIONS[t.kind].specs if s.name == key]
+            spec = named[0] if named else Spec(  # a table's point
+                key, t.unit(key), t.unit(key), value, -100.0, 100.0, "geometry",
+                f"point {key[2:]} of the table, {key[0]}",
+            )  # fmt: skip
             params.append(_param(t.name, spec, value, LINEAR))
     for e in mech.elements.values():
         for spec in COMPONENTS[e.kind].all_specs(e.values):
