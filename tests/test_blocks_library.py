@@ -26,7 +26,7 @@ from scipy.interpolate import PchipInterpolator
 from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.models.blocks import CACHE_ENV, mechanism_energy
-from evo_door.models.blocks.kinematics import four_bar, pchip, slider_crank
+from evo_door.models.blocks.kinematics import four_bar, pchip, pchip_integral, slider_crank
 from evo_door.sim import simulate
 from evo_door.sim.simulate import force_angle_curve
 
@@ -95,10 +95,19 @@ def test_every_ratio_is_the_derivative_of_its_map():
             fd = (pchip(q + h, p, 1, 6)[0] - pchip(q - h, p, 1, 6)[0]) / (2 * h)
             assert r == pytest.approx(fd, abs=1e-7)
     # beyond the points: a straight line with the end slope (a continuous ratio)
+    # its integral from the first point (a table spring's potential), against scipy's
+    for q in np.linspace(0.0, 3.0, 61):
+        assert pchip_integral(q, p, 1, 6) == pytest.approx(
+            ref.integrate(0.0, q), rel=1e-13, abs=1e-16
+        )
     d0, d1 = float(ref(0.0, 1)), float(ref(3.0, 1))
     assert d0 > 0.0 and d1 > 0.0
     assert pchip(3.5, p, 1, 6) == pytest.approx((0.06 + 0.5 * d1, d1), rel=1e-14)
     assert pchip(-1.0, p, 1, 6) == pytest.approx((-d0, d0), rel=1e-14)
+    assert pchip_integral(3.5, p, 1, 6) == pytest.approx(
+        ref.integrate(0.0, 3.0) + 0.06 * 0.5 + 0.5 * d1 * 0.25, rel=1e-13
+    )
+    assert pchip_integral(-1.0, p, 1, 6) == pytest.approx(0.5 * d0, rel=1e-13)
 
 
 def arm_potential(q, p):
@@ -230,8 +239,8 @@ def test_detent_strut_table_spring_and_maps_are_the_law_by_hand(tmp_path):
 
 
 def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
-    """Two carts, a spring and a cable between them, a detent, end stops, and an arm
-    whose spring acts through a slider-crank: no damper, no friction. Its energy
+    """Two carts, a spring, a table spring and a cable between them, a detent, end
+    stops, a gas strut: no damper, no friction. Its energy
     stays within 1e-8 of its start along a simulation that crosses stops and clicks."""
     file = write(
         tmp_path,
@@ -250,6 +259,8 @@ def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
             low: {kind: end_stop, on: a, at: 0.03, side: below, k: 5000.0, c: 0.0}
             high: {kind: end_stop, on: b, at: 0.08, k: 5000.0, c: 0.0}
             strut: {kind: gas_strut, on: b, preload: 5.0, slope: 50.0, length: 0.1}
+            table: {kind: spring_table, between: [a, b], deflection: [-0.1, -0.02, 0.0, 0.06],
+                    force: [-8.0, -2.0, 0.0, 5.0]}
     """,
     )
     model = get_model(file)
@@ -265,7 +276,11 @@ def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
     # at the start, by hand: the spring, the detent, the strut (the cable is slack)
     d = 0.02 - 0.05 - 0.01
     clicks = 4.0 * 0.02 / (2 * math.pi) * (1 - math.cos(2 * math.pi * (0.05 - 0.005) / 0.02))
-    assert e[0] == pytest.approx(3.0 * d + 100.0 * d * d + clicks + 5.0 * 0.08 + 25.0 * 0.08**2)
+    table = PchipInterpolator([-0.1, -0.02, 0.0, 0.06], [-8.0, -2.0, 0.0, 5.0]).integrate(
+        -0.1, -0.03
+    )
+    hand = 3.0 * d + 100.0 * d * d + clicks + 5.0 * 0.08 + 25.0 * 0.08**2 + table
+    assert e[0] == pytest.approx(hand, rel=1e-13)
     # it clicks, hits both stops, and the cable comes taut
     assert np.ptp(x[:, 0]) > 0.1 and x[:, 0].min() < 0.03 and x[:, 2].max() > 0.08
     assert np.max(x[:, 2] - x[:, 0]) > 0.03

@@ -142,7 +142,7 @@ def _end(body: str | None, via: str | None, pos) -> tuple[str, str, str | None]:
 def _energy(mech: Mechanism, pos, index, maps, potentials) -> list[str]:
     """``energy(x, p)``: the bodies' kinetic energy, their weights' and the elements'
     potential energies (J); a component that stores none (a damper, a friction) adds
-    nothing, nor does a table spring (its integral is not written)."""
+    nothing."""
     # compiled on its first call only (a model that never asks pays nothing)
     out = ["@njit(cache=True)", "def energy(x, p):"]
     out += [line for lines, _ in maps for line in lines]

@@ -16,7 +16,8 @@ cannot be evaluated returns NaN for both.
 - :func:`pchip`: the monotone piecewise-cubic interpolant (Fritsch-Carlson slopes, the
   end slopes of the three-point formula, as scipy's ``PchipInterpolator``) of the
   points held in ``p`` from index ``i0``: ``n`` abscissas then ``n`` ordinates;
-  beyond the end points a straight line with the end slope.
+  beyond the end points a straight line with the end slope. :func:`pchip_integral`
+  is its integral from the first point (the potential of a table spring).
 """
 
 from __future__ import annotations
@@ -117,3 +118,33 @@ def pchip(q, p, i0, n):  # pragma: no cover - compiled
     ds = (6 * t2 - 6 * t) * y0 + (3 * t2 - 4 * t + 1) * d0 + (-6 * t2 + 6 * t) * y1
     ds += (3 * t2 - 2 * t) * d1
     return s, ds / h
+
+
+@njit(cache=True)
+def _segment_integral(p, i0, n, k, t):  # pragma: no cover - compiled
+    """The integral of segment ``k`` of :func:`pchip` from its start to ``t`` (0..1)."""
+    x, y = i0, i0 + n
+    h = p[x + k + 1] - p[x + k]
+    d0, d1 = _slope(p, i0, n, k) * h, _slope(p, i0, n, k + 1) * h
+    t2 = t * t
+    t3, t4 = t2 * t, t2 * t2
+    out = (0.5 * t4 - t3 + t) * p[y + k] + (0.25 * t4 - 2.0 * t3 / 3.0 + 0.5 * t2) * d0
+    out += (-0.5 * t4 + t3) * p[y + k + 1] + (0.25 * t4 - t3 / 3.0) * d1
+    return out * h
+
+
+@njit(cache=True)
+def pchip_integral(q, p, i0, n):  # pragma: no cover - compiled
+    x, y = i0, i0 + n
+    if q <= p[x]:
+        u = q - p[x]
+        return p[y] * u + 0.5 * _slope(p, i0, n, 0) * u * u
+    total = 0.0
+    k = 0
+    while k < n - 1 and q > p[x + k + 1]:
+        total += _segment_integral(p, i0, n, k, 1.0)
+        k += 1
+    if k == n - 1:
+        u = q - p[x + n - 1]
+        return total + p[y + n - 1] * u + 0.5 * _slope(p, i0, n, n - 1) * u * u
+    return total + _segment_integral(p, i0, n, k, (q - p[x + k]) / (p[x + k + 1] - p[x + k]))

@@ -11,7 +11,8 @@ tabulated spring.
   transmission it acts along its own geometry.
 - ``spring_table``: a spring whose tension over its deflection ``d = x_b - x_a`` is the
   monotone cubic through the points ``deflection``, ``force`` (each point a parameter,
-  ``deflection_0``, ``force_0``, ...), a straight line with the end slope beyond them.
+  ``deflection_0``, ``force_0``, ...), a straight line with the end slope beyond them;
+  its potential the integral of that curve from the first point.
 """
 
 from __future__ import annotations
@@ -94,7 +95,7 @@ class TabulatedSpring(Component):
              "tension at that deflection (pulls the ends together)"),
     )  # fmt: skip
     tables = ("deflection", "force")
-    imports = ("from evo_door.models.blocks.kinematics import pchip",)
+    imports = ("from evo_door.models.blocks.kinematics import pchip, pchip_integral",)
 
     def check(self, values, words, at):
         d = [values[f"deflection_{i}"] for i in range(sum(k.startswith("d") for k in values))]
@@ -111,3 +112,8 @@ class TabulatedSpring(Component):
             f"tension = pchip({_relative(s, s.xb, s.xa)}, p, {int(first)}, {n})[0]",
             *_pair(s, "-tension"),
         ]
+
+    def potential(self, s):
+        n = sum(1 for k in s.p if k.startswith("deflection_"))
+        first = int(s.p["deflection_0"].removeprefix("p[").removesuffix("]"))
+        return f"pchip_integral({_relative(s, s.xb, s.xa)}, p, {first}, {n})"
