@@ -192,6 +192,7 @@ mechanism:
     tie: {kind: detent, between: [sled, cart], amplitude: 1.0, pitch: 0.01}
     push: {kind: gas_strut, between: [cart, sled], preload: 10.0, length: 0.1,
            slope: 20.0, c_compression: 4.0}
+    hill: {kind: bump, on: sled, amplitude: 3.0, at: 0.01, width: "4 cm"}
 """
 
 
@@ -234,13 +235,18 @@ def test_detent_strut_table_spring_and_maps_are_the_law_by_hand(tmp_path):
         push = 10.0 + 20.0 * (0.1 - (x[4] - x[2])) - (4.0 * w if w < 0 else 0.0)
         assert dx[1] == pytest.approx(torque / 0.01, rel=1e-6)
         assert dx[3] == pytest.approx((-follow + rub + tie - push) / 0.5, rel=1e-12, abs=1e-9)
-        assert dx[5] == pytest.approx((-tie + push) / 1.0, rel=1e-12, abs=1e-9)
+        u = x[4] - 0.01
+        hill = 3.0 * math.sin(math.pi * u / 0.04) if abs(u) < 0.04 else 0.0
+        assert dx[5] == pytest.approx((-tie + push + hill) / 1.0, rel=1e-12, abs=1e-9)
+        g = np.zeros(model.n_switches)
+        model.switches(x, f, vec, g)
+        np.testing.assert_allclose(g, [u - 0.04, u + 0.04], rtol=0, atol=1e-16)
         assert (dx[0], dx[2], dx[4]) == (x[1], x[3], x[5])
 
 
 def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
-    """Two carts, a spring, a table spring and a cable between them, a detent, end
-    stops, a gas strut: no damper, no friction. Its energy
+    """Two carts, a spring, a table spring and a cable between them, a detent, a
+    bump, end stops, a gas strut: no damper, no friction. Its energy
     stays within 1e-8 of its start along a simulation that crosses stops and clicks."""
     file = write(
         tmp_path,
@@ -259,6 +265,7 @@ def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
             low: {kind: end_stop, on: a, at: 0.03, side: below, k: 5000.0, c: 0.0}
             high: {kind: end_stop, on: b, at: 0.08, k: 5000.0, c: 0.0}
             strut: {kind: gas_strut, on: b, preload: 5.0, slope: 50.0, length: 0.1}
+            hill: {kind: bump, on: b, amplitude: 2.0, at: 0.05, width: 0.01}
             table: {kind: spring_table, between: [a, b], deflection: [-0.1, -0.02, 0.0, 0.06],
                     force: [-8.0, -2.0, 0.0, 5.0]}
     """,
@@ -281,7 +288,7 @@ def test_an_undamped_mechanism_conserves_its_energy(tmp_path):
     )
     hand = 3.0 * d + 100.0 * d * d + clicks + 5.0 * 0.08 + 25.0 * 0.08**2 + table
     assert e[0] == pytest.approx(hand, rel=1e-13)
-    # it clicks, hits both stops, and the cable comes taut
+    # it clicks, hits both stops, crosses the bump, and the cable comes taut
     assert np.ptp(x[:, 0]) > 0.1 and x[:, 0].min() < 0.03 and x[:, 2].max() > 0.08
     assert np.max(x[:, 2] - x[:, 0]) > 0.03
     assert np.max(np.abs(e / e[0] - 1.0)) < 1e-8, np.max(np.abs(e / e[0] - 1.0))

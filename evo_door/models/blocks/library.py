@@ -1,7 +1,7 @@
 """The component library a mechanism file draws from: kind -> component.
 
 The general components (:mod:`~evo_door.models.blocks.components`) and those of
-:mod:`~evo_door.models.blocks.springs` (detent, gas strut, tabulated spring), in one
+:mod:`~evo_door.models.blocks.springs` (detent, bump, gas strut, tabulated spring), in one
 mapping that the reader and the code generator take.
 """
 
@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from evo_door.models.blocks.components import COMPONENTS as GENERAL
 from evo_door.models.blocks.components import Component
-from evo_door.models.blocks.springs import Detent, GasStrut, TabulatedSpring
+from evo_door.models.blocks.springs import Bump, Detent, GasStrut, TabulatedSpring
 
 #: kind -> component
 COMPONENTS: dict[str, Component] = {
     **GENERAL,
-    **{c.kind: c for c in (Detent(), GasStrut(), TabulatedSpring())},
+    **{c.kind: c for c in (Detent(), Bump(), GasStrut(), TabulatedSpring())},
 }

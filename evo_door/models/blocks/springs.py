@@ -1,9 +1,10 @@
-"""More components (:mod:`evo_door.models.blocks.components`): detent, gas strut,
-tabulated spring.
+"""More components (:mod:`evo_door.models.blocks.components`): detent, bump, gas
+strut, tabulated spring.
 
 - ``detent``: clicks every ``pitch`` (a knob's 12 clicks per turn: pitch 30 deg), a force
   ``-amplitude sin(2 pi (x_b - x_a - phase) / pitch)`` on b: at rest at
   ``phase + k pitch``, its potential ``amplitude pitch / (2 pi) (1 - cos(...))``.
+- ``bump``: one click at a position (:class:`Bump`); several make a set of clicks.
 - ``gas_strut``: pushes its ends apart with ``preload + slope (length - d)``,
   ``d = x_b - x_a`` (``length``: where it pushes with the pre-load; ``slope``: the
   rise of the force as it is compressed), damped by ``c_extension`` while it extends
@@ -54,6 +55,45 @@ class Detent(Component):
     def potential(self, s):
         size = f"{s.p['amplitude']} * {s.p['pitch']} / {_TWO_PI}"
         return f"{size} * (1.0 - math.cos({self._angle(s)}))"
+
+
+class Bump(Component):
+    """One click at a position: a hill of half-width ``width`` centred on ``at`` that the
+    body climbs over, ``V = amplitude width / pi (1 + cos(pi u / width))`` for
+    ``|u| < width``, ``u = x_b - x_a - at``, and the force ``amplitude sin(pi u /
+    width)`` pushing the body off it (peak ``amplitude`` at ``u = +-width / 2``);
+    nothing beyond. A negative amplitude is a notch that holds the body. Its edges
+    are switching functions."""
+
+    kind, title = "bump", "bump: one click at a position"
+    specs = (
+        Spec("amplitude", "N", "N m", None, -1.0e5, 1.0e5, "specification",
+             "peak force of the click (negative: a notch)"),
+        Spec("at", "m", "rad", None, -100.0, 100.0, "geometry", "centre of the bump"),
+        Spec("width", "m", "rad", None, 1.0e-6, 100.0, "geometry", "half-width of the bump"),
+    )  # fmt: skip
+    n_switches = 2
+
+    def _u(self, s: Site) -> str:
+        return f"({_relative(s, s.xb, s.xa)} - {s.p['at']})"
+
+    def law(self, s):
+        u, w = self._u(s), s.p["width"]
+        return [
+            f"if abs({u}) < {w}:",
+            *(
+                f"    {line}"
+                for line in _pair(s, f"{s.p['amplitude']} * math.sin(math.pi * {u} / {w})")
+            ),
+        ]
+
+    def switches(self, s):
+        u, w = self._u(s), s.p["width"]
+        return [f"{u} - {w}", f"{u} + {w}"]
+
+    def potential(self, s):
+        u, w, a = self._u(s), s.p["width"], s.p["amplitude"]
+        return f"({a} * {w} / math.pi * (1.0 + math.cos(math.pi * {u} / {w})) if abs({u}) < {w} else 0.0)"
 
 
 class GasStrut(Component):
