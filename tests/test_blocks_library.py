@@ -433,3 +433,25 @@ def test_energy_through_transmissions_is_conserved(tmp_path):
     # it swings into the high stop and back
     assert np.ptp(r.theta) > 0.5 and r.theta.max() > math.radians(100) and r.theta.min() < 1.01
     assert np.max(np.abs(e / e[0] - 1.0)) < 1e-8, np.max(np.abs(e / e[0] - 1.0))
+
+
+def test_free_text_in_transmissions_and_tables_never_becomes_code(tmp_path):
+    """Code put where a transmission's name, word, table point or a unit goes is
+    refused in one line; nothing of it runs (no marker file)."""
+    marker = tmp_path / "ran"
+    code = f"__import__('pathlib').Path({str(marker)!r}).touch()"
+    text = textwrap.dedent(FOLDS)
+    for old, new, says in [
+        ("    cam: {kind: table", f"    {json.dumps(code)}: {{kind: table", "is not a name"),
+        ("on: arm, crank: 0.04", f"on: arm, branch: {json.dumps(code)}, crank: 0.04",
+         "'bar': branch must be one of open, crossed"),
+        ("q: [0.0, 1.0,", f"q: [0.0, {json.dumps(code)},", "'cam': q[1] must be a number"),
+        ("k: 100.0", f"k: {json.dumps('1 ' + code)}", "'spring': k: unknown unit"),
+        ("on: crank, k", f"on: {json.dumps(code)}, k", "is not a body"),
+    ]:  # fmt: skip
+        assert old in text
+        (tmp_path / "hostile.yaml").write_text(text.replace(old, new, 1))
+        with pytest.raises(UserError) as err:
+            get_model(str(tmp_path / "hostile.yaml"))
+        assert says in str(err.value) and "\n" not in str(err.value), str(err.value)
+    assert not marker.exists()
