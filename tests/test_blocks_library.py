@@ -455,3 +455,39 @@ def test_free_text_in_transmissions_and_tables_never_becomes_code(tmp_path):
             get_model(str(tmp_path / "hostile.yaml"))
         assert says in str(err.value) and "\n" not in str(err.value), str(err.value)
     assert not marker.exists()
+
+
+def test_a_friction_pad_through_a_slider_crank_sticks_and_slips(tmp_path):
+    """Dry friction (sign law) on a slider-crank's output: the arm's speed is a
+    stick-slip contact; it holds the arm against a hand torque below
+    ``level |ds/dq|`` and slips above it, and the Coulomb curve is
+    ``+-level |ds/dq| / hand_lever`` over the stroke."""
+    file = write(
+        tmp_path,
+        "pad.yaml",
+        """
+        mechanism:
+          name: pad
+          handle: arm
+          bodies:
+            arm: {kind: rotary, inertia: 0.02, hand_lever: 0.1, range: ["30 deg", "150 deg"]}
+          transmissions:
+            crank: {kind: slider_crank, on: arm, radius: 0.05, rod: 0.15, offset: 0.02, phase: 0.3}
+          elements:
+            pad: {kind: friction, on: crank, level: 10.0}
+    """,
+    )
+    model = get_model(file)
+    assert model.contacts == (1,)
+    ps = model.load_params()
+    q0 = 1.0
+    ratio = abs(slider_crank(q0, 0.05, 0.15, 0.02, 0.3)[1])
+    hold = 10.0 * ratio / 0.1  # the hand force the pad holds at q0
+    weak = simulate(model, ps, np.full(512, 0.9 * hold), DT, theta0=q0)
+    assert weak.ok and np.all(weak.theta == q0) and np.all(weak.dtheta == 0.0)
+    strong = simulate(model, ps, np.full(512, 1.1 * hold), DT, theta0=q0)
+    assert strong.ok and strong.theta[-1] > q0 + 0.01
+    c = force_angle_curve(model, ps, n=61)
+    want = 10.0 * np.abs([slider_crank(q, 0.05, 0.15, 0.02, 0.3)[1] for q in c["theta"]]) / 0.1
+    np.testing.assert_allclose(c["closing"], want, rtol=1e-9)
+    np.testing.assert_allclose(c["opening"], -want, rtol=1e-9)
