@@ -218,12 +218,12 @@ mechanism:
 """
 
 BAD = [
-    (("kind: spring,", "kind: sprung,"), "element 'coupling': unknown kind 'sprung' (did you mean 'spring'?)"),
+    (("kind: spring,", "kind: sprung,"), "element 'coupling': unknown kind 'sprung' (did you mean 'spring'"),
     (("on: a,", "on: bxo,"), "element 'rub': on: 'bxo' is not a body"),
     (("handle: a", "handle: coupling"), "handle 'coupling' is not a body"),
     (("  handle: a\\n", ""), "missing handle:"),
     (("linear, mass: 2.0", "rotary, inertia: 2.0"), "'coupling': a spring acts on linear bodies"),
-    (("level: 1.5", "level: lots"), "element 'rub': level must be a number, got 'lots'"),
+    (("level: 1.5", "level: lots"), "element 'rub': level must be a number or 'NUMBER UNIT', got 'lots'"),
     (("level: 1.5", "level: .nan"), "element 'rub': level must be a finite number"),
     (("level: 1.5", "levle: 1.5"), "element 'rub': unknown key 'levle' (did you mean 'level'?)"),
     (("between: [a, b]", "between: [a, a]"), "element 'coupling': between connects 'a' to itself"),
@@ -233,6 +233,11 @@ BAD = [
     (("k: 400.0", "k: -4.0"), "element 'coupling': k = -4 N/m is outside [0, 1e+07]"),
     (("mass: 3.0", "mss: 3.0"), "body 'b': unknown key 'mss' (did you mean 'mass'?)"),
     (("level: 1.5", "level_opening: 1.5"), "element 'rub': give level, or level_opening and level_closing"),
+    (("k: 400.0", 'k: "400 N m/rad"'), "element 'coupling': k: the unit N m/rad does not fit N/m"),
+    (("mass: 3.0", 'mass: "3 m"'), "body 'b': mass: the unit m does not fit kg"),
+    (("mass: 3.0", 'mass: "3 kgs"'), "body 'b': mass: unknown unit 'kgs'"),
+    (("level: 1.5", 'level: "1.5 N N"'), "element 'rub': level: the unit N N does not fit N"),
+    (("level: 1.5", 'level: "N 1.5"'), "element 'rub': level must be a number or 'NUMBER UNIT', got 'N 1.5'"),
 ]  # fmt: skip
 
 

@@ -181,3 +181,25 @@ def test_a_bad_door_word_is_one_line(tmp_path, change, message):
     with pytest.raises(UserError) as err:
         get_model(str(tmp_path / "bad.yaml"))
     assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_the_door_as_blocks_stores_the_built_in_doors_energy(both, tmp_path):
+    """The generated ``energy(x, p)`` against the door's own (kinetic, gravity, the
+    spring at C, the latch's springs, the wall and the stop) over the stroke and past
+    both ends; both zero-referenced alike but for the gravity and spring constants of
+    the fully-open pose, which the difference at theta = 0 removes."""
+    from evo_door.models.blocks import mechanism_energy
+    from evo_door.models.door import energy
+
+    door, blocks = both
+    pd = param_vector(door.load_params("default", overrides={"G_y": 0.03}), door.params)
+    pb = param_vector(blocks.load_params(overrides={"door.arm_normal": 0.03}), blocks.params)
+    e_blocks = mechanism_energy(DOOR_FILE)
+    rng = np.random.default_rng(5)
+    thetas = np.concatenate([[-0.01, 0.0, 1.55, 1.563, 1.5705, 1.575], rng.uniform(0, 1.57, 40)])
+    offset = e_blocks(np.array([0.0, 0.0]), pb) - energy(0.0, 0.0, pd)
+    for theta in thetas:
+        w = rng.uniform(-2.0, 2.0)
+        want = energy(float(theta), w, pd)
+        got = e_blocks(np.array([theta, w]), pb) - offset
+        assert got == pytest.approx(want, rel=1e-11, abs=1e-11), theta

@@ -1,8 +1,10 @@
 """Mechanisms from blocks: a YAML file of bodies and components becomes a model.
 
-A mechanism file (``docs/blocks.md``) names bodies (linear or rotary) and elements from
-the component library (:mod:`~evo_door.models.blocks.components`: spring, damper,
-friction, end stop, soft-close damper, cable) that act on one body or between two.
+A mechanism file (``docs/blocks.md``) names bodies (linear or rotary), transmissions
+(:mod:`~evo_door.models.blocks.transmissions`) and elements from the component library
+(:mod:`~evo_door.models.blocks.library`: spring, damper, friction, end stop,
+soft-close damper, cable, detent, gas strut, table spring) that act on one body or
+between two, or on a transmission's output.
 :func:`load_mechanism` reads it (:mod:`~evo_door.models.blocks.mechanism`), writes its
 one right-hand side as numba source (:mod:`~evo_door.models.blocks.codegen`) into a
 cache folder named by the digest of that source and of evo-door's version, and imports
@@ -46,9 +48,7 @@ def cache_root() -> Path:
 
 def load_mechanism(path: Path):
     """The :class:`~evo_door.models.base.Model` of the mechanism file ``path``."""
-    from evo_door import __version__
     from evo_door.models.base import Model
-    from evo_door.models.blocks.codegen import generate
     from evo_door.models.blocks.mechanism import read_mechanism
     from evo_door.params import ParamTable
 
@@ -59,10 +59,7 @@ def load_mechanism(path: Path):
             hint = suggest(path.name, names)
         raise UserError(f"mechanism file {path} not found{hint}")
     mech = read_mechanism(path)
-    source, layout = generate(mech, __version__)
-    stamp = f"{__version__}\n{_library_stamp(source)}\n{source}"
-    digest = hashlib.sha256(stamp.encode()).hexdigest()[:16]
-    module = _import(source, digest)
+    module, layout = _compiled(mech)
     handle = mech.bodies[mech.handle]
     linear = handle.kind == "linear"
     return Model(
@@ -85,6 +82,26 @@ def load_mechanism(path: Path):
         rig_kinds=("impulse",),
         notes=mech.notes or _notes(mech, path),
     )
+
+
+def mechanism_energy(path: Path):
+    """The compiled ``energy(x, p)`` of the mechanism file ``path`` (J): kinetic energy
+    of the bodies, potential energy of their weights and of the elements that store
+    one (spring, cable, end stop, detent, gas strut)."""
+    from evo_door.models.blocks.mechanism import read_mechanism
+
+    return _compiled(read_mechanism(path))[0].energy
+
+
+def _compiled(mech):
+    """The mechanism's generated module, imported, and its layout."""
+    from evo_door import __version__
+    from evo_door.models.blocks.codegen import generate
+
+    source, layout = generate(mech, __version__)
+    text = f"{__version__}\n{_library_stamp(source)}\n{source}"
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    return _import(source, digest), layout
 
 
 def _notes(mech, path: Path) -> str:

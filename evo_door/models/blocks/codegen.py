@@ -57,14 +57,17 @@ def generate(mech: Mechanism, version: str) -> tuple[str, Layout]:
         head += [f"    x[{i}] {name} (a state of {e})" for name, i in entries]
     head.append("Parameters:")
     head += [f"    p[{i}] {name} ({units[name]})" for name, i in index.items()]
-    head += ['"""', "", "import math", "", "from numba import njit", ""]
-    head += sorted({line for e in mech.elements.values() for line in COMPONENTS[e.kind].imports})
-    head += ["", ""]
-    body_lines, switch_lines, contacts = _laws(mech, pos, index, own)
-    source = "\n".join(head + _rhs(mech, pos, index, body_lines))
+    imports = sorted({i for e in mech.elements.values() for i in COMPONENTS[e.kind].imports}
+                     | {t.imports for t in mech.transmissions.values()})  # fmt: skip
+    head += ['"""', "", "import math", "", "from numba import njit", *imports, "", ""]
+    body_lines, switch_lines, contacts, potentials = _laws(mech, pos, index, own)
+    maps = _transmissions(mech, pos, index)
+    source = "\n".join(head + _rhs(mech, pos, index, maps, body_lines))
+    source += "\n\n\n" + "\n".join(_energy(mech, pos, index, maps, potentials))
     if switch_lines:
         source += "\n\n\n" + "\n".join(
             [f'@njit("{_SIG}", cache=True)', "def switches(x, force, p, g):"]
+            + [line for t in maps for line in t[0]]
             + [f"    g[{k}] = {expr}  # {why}" for k, (expr, why) in enumerate(switch_lines)]
         )
     layout = Layout(
@@ -96,32 +99,84 @@ def _own_states(mech: Mechanism, first: int) -> dict[str, list[tuple[str, int]]]
 
 def _laws(mech: Mechanism, pos, index, own):
     """Each element's lines of the rhs, the switching functions, the contacts."""
-    lines, switches, contacts = [], [], set()
+    lines, switches, contacts, potentials = [], [], set(), []
     for e in mech.elements.values():
         comp = COMPONENTS[e.kind]
+        (xa, va, fa), (xb, vb, fb) = _end(e.a, e.via_a, pos), _end(e.b, e.via, pos)
         site = Site(
-            xa="0.0" if e.a is None else f"x[{pos[e.a]}]",
-            va="0.0" if e.a is None else f"x[{pos[e.a] + 1}]",
-            xb=f"x[{pos[e.b]}]",
-            vb=f"x[{pos[e.b] + 1}]",
-            fa=None if e.a is None else f"f_{e.a}",
-            fb=f"f_{e.b}",
+            xa=xa,
+            va=va,
+            xb=xb,
+            vb=vb,
+            fa=fa,
+            fb=fb or "",
             p={s: f"p[{index[f'{e.name}.{s}']}]" for s in e.values},
             words=e.words,
             own=tuple(f"x[{i}]" for _, i in own.get(e.name, ())),
             rate=tuple(f"dx[{i}]" for _, i in own.get(e.name, ())),
         )
-        where = f"on {e.b}" if e.a is None else f"between {e.a} and {e.b}"
+        a, b = e.via_a or e.a, e.via or e.b
+        where = f"on {b}" if a is None else f"between {a} and {b}"
         where += "".join(f", {word} {value}" for word, value in e.words.items())
         lines.append(f"    # {e.name}: {comp.title}, {where}")
         lines += [f"    {line}" for line in comp.law(site)]
         switches += [(g, f"{e.name}") for g in comp.switches(site)]
         if comp.contact(site):
             contacts.add(pos[e.b] + 1)
-    return lines, switches, contacts
+        stored = comp.potential(site)
+        if stored is not None:
+            potentials.append((stored, e.name))
+    return lines, switches, contacts, potentials
 
 
-def _rhs(mech: Mechanism, pos, index, element_lines) -> list[str]:
+def _end(body: str | None, via: str | None, pos) -> tuple[str, str, str | None]:
+    """Source of an element's end: its position, its speed and its force accumulator
+    (the ground's: 0, 0, None; a transmission's output: ``s_``, ``v_``, ``f_``)."""
+    if body is None:
+        return "0.0", "0.0", None
+    if via is not None:
+        return f"s_{via}", f"v_{via}", f"f_{via}"
+    return f"x[{pos[body]}]", f"x[{pos[body] + 1}]", f"f_{body}"
+
+
+def _energy(mech: Mechanism, pos, index, maps, potentials) -> list[str]:
+    """``energy(x, p)``: the bodies' kinetic energy, their weights' and the elements'
+    potential energies (J); a component that stores none (a damper, a friction) adds
+    nothing."""
+    # compiled on its first call only (a model that never asks pays nothing)
+    out = ["@njit(cache=True)", "def energy(x, p):"]
+    out += [line for lines, _ in maps for line in lines]
+    out.append("    e = 0.0")
+    for b, body in mech.bodies.items():
+        out.append(f"    e += 0.5 * {_inertia(b, body, index)} * x[{pos[b] + 1}] ** 2  # {b}")
+        if f"{b}.arm" in index:
+            weight = f"p[{index[f'{b}.mass']}] * {GRAVITY!r}"
+            height = f"p[{index[f'{b}.arm']}] * math.sin(x[{pos[b]}])"
+            if f"{b}.arm_normal" in index:
+                height += f" + p[{index[f'{b}.arm_normal']}] * math.cos(x[{pos[b]}])"
+            out.append(f"    e += {weight} * ({height})  # {b}'s weight")
+    out += [f"    e += {expr}  # {name}" for expr, name in potentials]
+    out.append("    return e")
+    return out
+
+
+def _transmissions(mech: Mechanism, pos, index) -> list[tuple[list[str], str]]:
+    """Each transmission's lines (its output, its ratio and the output's speed) and
+    the line that brings the force on its output to its body (virtual work)."""
+    out = []
+    for t in mech.transmissions.values():
+        p = {k: f"p[{index[f'{t.name}.{k}']}]" for k in t.values}
+        q, w = f"x[{pos[t.body]}]", f"x[{pos[t.body] + 1}]"
+        lines = [
+            f"    # {t.name}: {t.kind} on {t.body}, {t.output} output",
+            f"    s_{t.name}, r_{t.name} = {t.call(q, p)}",
+            f"    v_{t.name} = r_{t.name} * {w}",
+        ]
+        out.append((lines, f"    f_{t.body} += r_{t.name} * f_{t.name}  # through {t.name}"))
+    return out
+
+
+def _rhs(mech: Mechanism, pos, index, maps, element_lines) -> list[str]:
     out = [f'@njit("{_SIG}", cache=True)', "def rhs(x, force, p, dx):"]
     for b, body in mech.bodies.items():
         if b == mech.handle:
@@ -135,7 +190,11 @@ def _rhs(mech: Mechanism, pos, index, element_lines) -> list[str]:
             if f"{b}.arm_normal" in index:
                 arm += f" - p[{index[f'{b}.arm_normal']}] * math.sin(x[{pos[b]}])"
             out.append(f"    f_{b} -= {weight} * ({arm})  # {b}'s weight")
+    for lines, _ in maps:
+        out += lines
+    out += [f"    f_{t} = 0.0" for t in mech.transmissions]
     out += element_lines
+    out += [back for _, back in maps]
     out.append("    # the bodies: position' = speed, speed' = force / mass")
     for b, body in mech.bodies.items():
         out.append(f"    dx[{pos[b]}] = x[{pos[b] + 1}]")

@@ -69,6 +69,29 @@ class Component:
     optional: tuple[str, ...] = ()  # parameters with no default that may be left out
     #: import lines the law's source needs (library code only, never the file's)
     imports: tuple[str, ...] = ()
+    #: parameters the file gives as a list of points: ``NAME_0``, ``NAME_1``, ... each
+    tables: tuple[str, ...] = ()
+
+    def all_specs(self, values: dict[str, float]) -> list[Spec]:
+        """The specs of the parameters, a table's one a point (those ``values`` hold)."""
+        out = []
+        for s in self.specs:
+            if s.name not in self.tables:
+                out.append(s)
+                continue
+            i = 0
+            while f"{s.name}_{i}" in values:
+                out.append(Spec(f"{s.name}_{i}", s.linear_unit, s.rotary_unit, values[f"{s.name}_{i}"],
+                                s.lower, s.upper, s.group, f"{s.meaning}, point {i}"))  # fmt: skip
+                i += 1
+        return out
+
+    def check(self, values: dict[str, float], words: dict[str, str], at: str) -> None:
+        """Refuse values that do not make the component (a UserError naming ``at``)."""
+
+    def potential(self, s: Site) -> str | None:
+        """Source of the component's potential energy (J), or None if it stores none."""
+        return None
 
     def own_states(self, values: dict[str, float]) -> tuple[str, ...]:
         """Names of the component's own states (after the bodies' in ``x``), given the
@@ -110,6 +133,10 @@ class Spring(Component):
     def law(self, s):
         t = f"({s.p['preload']} + {s.p['k']} * ({s.xb} - {s.xa} - {s.p['at']}))"
         return [f"tension = {t}", *_pair(s, "-tension")]
+
+    def potential(self, s):
+        d = f"({s.xb} - {s.xa} - {s.p['at']})"
+        return f"{s.p['preload']} * {d} + 0.5 * {s.p['k']} * {d} * {d}"
 
 
 class Damper(Component):
@@ -177,6 +204,11 @@ class EndStop(Component):
     def switches(self, s):
         return [f"{s.xb} - {s.p['at']}"]
 
+    def potential(self, s):
+        inside = ">" if s.words["side"] == "above" else "<"
+        d = f"({s.xb} - {s.p['at']})"
+        return f"(0.5 * {s.p['k']} * {d} * {d} if {s.xb} {inside} {s.p['at']} else 0.0)"
+
 
 class SoftClose(Component):
     """Past ``engage`` the piston brakes the body: ``pull - c_fluid v``. With ``tau`` the
@@ -238,6 +270,10 @@ class Cable(Component):
 
     def switches(self, s):
         return [f"{s.xb} - {s.xa} - {s.p['length']}"]
+
+    def potential(self, s):
+        stretch = f"max({s.xb} - {s.xa} - {s.p['length']}, 0.0)"
+        return f"0.5 * {s.p['k']} * {stretch} * {stretch}"
 
 
 #: kind -> component

@@ -26,12 +26,19 @@ from evo_door.models.blocks.components import (
     Spec,
 )
 from evo_door.models.blocks.library import COMPONENTS
+from evo_door.models.blocks.transmissions import (
+    TABLE_POINTS,
+    TRANSMISSIONS,
+    Transmission,
+    check_fold,
+)
+from evo_door.models.blocks.units import quantity
 from evo_door.params import Param
 from evo_door.params.declaration import suggest
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,39}")
 _MODEL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,63}")
-_TOP = ("name", "title", "handle", "bodies", "elements", "notes", "integration")
+_TOP = ("name", "title", "handle", "bodies", "transmissions", "elements", "notes", "integration")
 #: the ``integration:`` keys, with the defaults of a mechanism
 INTEGRATION = {"method": "dopri5", "tolerance": 1e-9, "substeps": 4}
 GROUND = "ground"
@@ -55,6 +62,9 @@ class Element:
     b: str
     values: dict[str, float]
     words: dict[str, str]
+    via: str | None = None  # the transmission whose output is its end b (else: b itself)
+    units: str = LINEAR  # the kind whose units its parameters take
+    via_a: str | None = None  # and its end a's
 
 
 @dataclass
@@ -66,6 +76,7 @@ class Mechanism:
     elements: dict[str, Element]
     notes: str = ""
     params: list[Param] = field(default_factory=list)
+    transmissions: dict[str, Transmission] = field(default_factory=dict)
     integration: dict = field(default_factory=lambda: dict(INTEGRATION))
 
 
@@ -103,8 +114,15 @@ def parse_mechanism(tree, where: str) -> Mechanism:
     bodies = {n: _body(n, v, where) for n, v in _named(tree["bodies"], f"{where}: bodies").items()}
     if not bodies:
         raise UserError(f"{where}: bodies: give at least one body")
+    transmissions = {
+        n: _transmission(n, v, bodies, where)
+        for n, v in _named(tree.get("transmissions") or {}, f"{where}: transmissions").items()
+    }
+    for n in transmissions:
+        if n in bodies:
+            raise UserError(f"{where}: transmission {n!r}: a body has that name")
     elements = {
-        n: _element(n, v, bodies, where)
+        n: _element(n, v, bodies, transmissions, where)
         for n, v in _named(tree.get("elements") or {}, f"{where}: elements").items()
     }
     handle = _text(tree["handle"], f"{where}: handle")
@@ -121,6 +139,7 @@ def parse_mechanism(tree, where: str) -> Mechanism:
         bodies=bodies,
         elements=elements,
         notes=_text(tree.get("notes", ""), f"{where}: notes"),
+        transmissions=transmissions,
         integration=_integration(tree.get("integration", {}), f"{where}: integration"),
     )
     mech.params = _declare(mech)
@@ -186,7 +205,10 @@ def _text(value, where: str) -> str:
     return " ".join(value.split())
 
 
-def _number(value, where: str) -> float:
+def _number(value, where: str, unit: str | None = None) -> float:
+    """A finite number; with its declared ``unit``, text ``"NUMBER UNIT"`` converted."""
+    if isinstance(value, str) and unit is not None:
+        value = quantity(value, unit, where)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"{where} must be a number, got {_shown(value)}")
     if not math.isfinite(value):
@@ -203,7 +225,7 @@ def _values(tree: dict, specs: tuple[Spec, ...], where: str, kind: str) -> dict[
     out = {}
     for spec in specs:
         if spec.name in tree:
-            v = _number(tree[spec.name], f"{where}: {spec.name}")
+            v = _number(tree[spec.name], f"{where}: {spec.name}", spec.unit(kind))
             if not spec.lower <= v <= spec.upper:
                 raise UserError(
                     f"{where}: {spec.name} = {v:g} {spec.unit(kind)} is outside "
@@ -244,14 +266,90 @@ def _body(name: str, tree, where: str) -> Body:
     rng = tree.get("range", [0.0, closed])
     if not isinstance(rng, list) or len(rng) != 2:
         raise UserError(f"{at}: range must be [fully open, closed], got {_shown(rng)}")
-    lo, hi = (_number(v, f"{at}: range") for v in rng)
+    unit = "rad" if kind == ROTARY else "m"
+    lo, hi = (_number(v, f"{at}: range", unit) for v in rng)
     if not lo < hi:
         raise UserError(f"{at}: range [{lo:g}, {hi:g}] must go from fully open up to closed")
-    start = _number(tree.get("start", lo), f"{at}: start")
+    start = _number(tree.get("start", lo), f"{at}: start", unit)
     return Body(name, kind, values, (lo, hi), start, about)
 
 
-def _element(name: str, tree, bodies: dict[str, Body], where: str) -> Element:
+def _transmission(name: str, tree, bodies: dict[str, Body], where: str) -> Transmission:
+    """A transmission of the file, its map checked over its body's range."""
+    at = f"{where}: transmission {name!r}"
+    tree = dict(_mapping(tree, at))
+    if True in tree and "on" not in tree:  # YAML 1.1 reads the key `on` as true
+        tree["on"] = tree.pop(True)
+    kind = tree.get("kind")
+    spec = TRANSMISSIONS.get(kind) if isinstance(kind, str) else None
+    if spec is None:
+        raise UserError(
+            f"{at}: unknown kind {kind!r}" + suggest(str(kind), TRANSMISSIONS)
+            + f"; transmission kinds: {', '.join(TRANSMISSIONS)}"
+        )  # fmt: skip
+    data = ("q", "s") if kind == "table" else ()
+    _known_keys(tree, ("kind", "on", *spec.words, *data, *(s.name for s in spec.specs)), at)
+    if "on" not in tree:
+        raise UserError(f"{at}: say which body drives it: on")
+    body = bodies[_body_name(tree["on"], bodies, f"{at}: on")]
+    if body.kind not in spec.inputs:
+        raise UserError(f"{at}: a {kind} is driven by a {' or '.join(spec.inputs)} body; "
+                        f"{body.name!r} is {body.kind}")  # fmt: skip
+    words = _words(tree, spec.words, at)
+    if kind == "table" and "output" not in tree:
+        words["output"] = body.kind
+    output = words["output"] if spec.output is None else spec.output
+    values = _values(tree, spec.specs, at, LINEAR)
+    for s in spec.specs:
+        if s.name not in values:
+            if s.default is None:
+                raise UserError(f"{at}: a {kind} needs {s.name}")
+            values[s.name] = s.default
+    t = Transmission(name, kind, body.name, values, words, body.kind, output)
+    if kind == "table":
+        for key, of in (("q", body.kind), ("s", output)):
+            unit = "m" if of == LINEAR else "rad"
+            points = Spec(key, unit, unit, None, -100.0, 100.0, "geometry", "")
+            values.update(_table(tree.get(key), points, LINEAR, at))
+        if len(tree["q"]) != len(tree["s"]):
+            raise UserError(f"{at}: q and s must hold as many points")
+        t.values = {k: values[k] for k in sorted(values, key=lambda k: (k[0], int(k[2:])))}
+    why = check_fold(t, *body.range)
+    if why is not None:
+        raise UserError(f"{at}: {why} (over {body.name}'s range {body.range[0]:g} .. "
+                        f"{body.range[1]:g})")  # fmt: skip
+    return t
+
+
+def _table(points, spec: Spec, kind: str, at: str) -> dict[str, float]:
+    """A list of numbers ``spec.name: [..]``: the parameters ``NAME_0``, ``NAME_1``, ..."""
+    if not isinstance(points, list) or not 2 <= len(points) <= TABLE_POINTS:
+        raise UserError(f"{at}: {spec.name} must be a list of 2 to {TABLE_POINTS} numbers")
+    out = {}
+    for i, v in enumerate(points):
+        x = _number(v, f"{at}: {spec.name}[{i}]", spec.unit(kind))
+        if not spec.lower <= x <= spec.upper:
+            raise UserError(f"{at}: {spec.name}[{i}] = {x:g} {spec.unit(kind)} is outside "
+                            f"[{spec.lower:g}, {spec.upper:g}]")  # fmt: skip
+        out[f"{spec.name}_{i}"] = x
+    return out
+
+
+def _words(tree: dict, options: dict[str, tuple[str, ...]], at: str) -> dict[str, str]:
+    words = {}
+    for word, allowed in options.items():
+        value = tree.get(word, allowed[0])
+        if value not in allowed:
+            raise UserError(
+                f"{at}: {word} must be one of {', '.join(allowed)}, got {_shown(value)}"
+            )
+        words[word] = value
+    return words
+
+
+def _element(
+    name: str, tree, bodies: dict[str, Body], transmissions: dict[str, Transmission], where: str
+) -> Element:
     at = f"{where}: element {name!r}"
     tree = dict(_mapping(tree, at))
     if True in tree and "on" not in tree:  # YAML 1.1 reads the key `on` as true
@@ -268,34 +366,51 @@ def _element(name: str, tree, bodies: dict[str, Body], where: str) -> Element:
     if len(ends) != 1:
         raise UserError(f"{at}: say what it acts on: {' or '.join(comp.connects)}")
     if ends[0] == "on":
-        a, b = None, _body_name(tree["on"], bodies, f"{at}: on")
+        a, (b, via) = None, _end(tree["on"], bodies, transmissions, f"{at}: on")
+        via_a = None
     else:
         pair = tree["between"]
         if not isinstance(pair, list) or len(pair) != 2:
             raise UserError(f"{at}: between must be two bodies [a, b], got {_shown(pair)}")
-        a, b = (_body_name(n, bodies, f"{at}: between") for n in pair)
-        if a == b:
-            raise UserError(f"{at}: between connects {a!r} to itself")
-    for end in (a, b):
-        if end is not None and bodies[end].kind not in comp.acts_on:
+        (a, via_a), (b, via) = (_end(n, bodies, transmissions, f"{at}: between") for n in pair)
+        if pair[0] == pair[1]:
+            raise UserError(f"{at}: between connects {pair[0]!r} to itself")
+    kinds = []
+    for end, t in ((a, via_a), (b, via)):
+        if end is None:
+            continue
+        if t is not None and t.output not in comp.acts_on:
+            raise UserError(
+                f"{at}: a {kind} acts on {' or '.join(comp.acts_on)} coordinates (its units); "
+                f"transmission {t.name!r} outputs a {t.output} one"
+            )
+        if t is None and bodies[end].kind not in comp.acts_on:
             raise UserError(
                 f"{at}: a {kind} acts on {' or '.join(comp.acts_on)} bodies (its units); "
                 f"{end!r} is {bodies[end].kind}"
             )
-    kinds = {bodies[e].kind for e in (a, b) if e is not None}
-    if len(kinds) > 1:
-        raise UserError(f"{at}: it connects a linear body to a rotary one (units differ)")
-    words = {}
-    for word, allowed in comp.words.items():
-        value = tree.get(word, allowed[0])
-        if value not in allowed:
-            raise UserError(
-                f"{at}: {word} must be one of {', '.join(allowed)}, got {_shown(value)}"
-            )
-        words[word] = value
-    values = _values(tree, comp.specs, at, bodies[b].kind)
+        kinds.append(bodies[end].kind if t is None else t.output)
+    if len(set(kinds)) > 1:
+        raise UserError(f"{at}: it connects a linear coordinate to a rotary one (units differ)")
+    words = _words(tree, comp.words, at)
+    units = kinds[-1]
+    values = _values(tree, tuple(s for s in comp.specs if s.name not in comp.tables), at, units)
+    for spec in comp.specs:
+        if spec.name in comp.tables:
+            values.update(_table(tree.get(spec.name), spec, units, at))
     _complete(comp, values, words, at)
-    return Element(name, kind, a, b, values, words)
+    comp.check(values, words, at)
+    return Element(
+        name, kind, a, b, values, words,
+        None if via is None else via.name, units, None if via_a is None else via_a.name,
+    )  # fmt: skip
+
+
+def _end(value, bodies, transmissions, where: str) -> tuple[str, Transmission | None]:
+    """An element's end: a body, or a transmission's output (and the body it is on)."""
+    if isinstance(value, str) and value in transmissions:
+        return transmissions[value].body, transmissions[value]
+    return _body_name(value, bodies, where, transmissions), None
 
 
 def _complete(comp, values: dict[str, float], words: dict[str, str], at: str) -> None:
@@ -309,7 +424,7 @@ def _complete(comp, values: dict[str, float], words: dict[str, str], at: str) ->
                 raise UserError(f"{at}: slope is for law: tanh (the sign law has none)")
             return
     for spec in comp.specs:
-        if spec.name.startswith("level"):
+        if spec.name.startswith("level") or spec.name in comp.tables:
             continue
         if spec.name not in values and spec.name not in comp.optional:
             if spec.default is None:
@@ -317,11 +432,13 @@ def _complete(comp, values: dict[str, float], words: dict[str, str], at: str) ->
             values[spec.name] = spec.default
 
 
-def _body_name(value, bodies, where: str) -> str:
+def _body_name(value, bodies, where: str, transmissions=()) -> str:
     if not isinstance(value, str) or value not in bodies:
+        known = [*bodies, *transmissions]
+        also = f"; transmissions: {', '.join(transmissions)}" if transmissions else ""
         raise UserError(
-            f"{where}: {_shown(value)} is not a body" + suggest(str(value), bodies)
-            + f"; bodies: {', '.join(bodies)}"
+            f"{where}: {_shown(value)} is not a body" + suggest(str(value), known)
+            + f"; bodies: {', '.join(bodies)}{also}"
         )  # fmt: skip
     return value
 
@@ -358,11 +475,18 @@ def _declare(mech: Mechanism) -> list[Param]:
             if spec.name == "inertia" and body.inertia_about == "centre_of_mass":
                 spec = replace(spec, meaning="moment of inertia about the centre of mass")
             params.append(_param(body.name, spec, value, body.kind))
+    for t in mech.transmissions.values():
+        for key, value in t.values.items():
+            named = [s for s in TRANSMISSIONS[t.kind].specs if s.name == key]
+            spec = named[0] if named else Spec(  # a table's point
+                key, t.unit(key), t.unit(key), value, -100.0, 100.0, "geometry",
+                f"point {key[2:]} of the table, {key[0]}",
+            )  # fmt: skip
+            params.append(_param(t.name, spec, value, LINEAR))
     for e in mech.elements.values():
-        kind = mech.bodies[e.b].kind
-        for spec in COMPONENTS[e.kind].specs:
+        for spec in COMPONENTS[e.kind].all_specs(e.values):
             if spec.name in e.values:
-                params.append(_param(e.name, spec, e.values[spec.name], kind))
+                params.append(_param(e.name, spec, e.values[spec.name], e.units))
     return params
 
 

@@ -74,7 +74,7 @@ class SlottedPlate(Component):
     imports = (
         "from evo_door.models.door.frictionforce import friction_force",
         "from evo_door.models.door.kinematics import pose",
-        "from evo_door.models.door.plate import plate",
+        "from evo_door.models.door.plate import plate, spring_potential",
         "from evo_door.models.door.relativespeed import relative_speed",
     )
 
@@ -91,6 +91,11 @@ class SlottedPlate(Component):
             f"{p['mu']}, {p['T_atB']}, {p['a']}, {p['a_rot']})",
             f"{s.fb} += plate_.q + slot_.q",
         ]
+
+    def potential(self, s):
+        p = s.p
+        geometry = ", ".join(p[n] for n in ("L_OA", "L_Bx", "L_By", "L_Cx", "L_Cy"))
+        return f"spring_potential(pose({s.xb}, {geometry}), {p['L_Cy']}, {p['K']}, {p['F_load']})"
 
 
 #: the latch's parameters: its name in the block, the door's declaration
@@ -127,7 +132,7 @@ class Latch(Component):
     )  # fmt: skip
     n_switches = 7
     imports = (
-        "from evo_door.models.door.latch import latch",
+        "from evo_door.models.door.latch import latch, latch_potential",
         "from evo_door.models.blocks.seed_kernels import latch_switch",
     )
 
@@ -141,6 +146,21 @@ class Latch(Component):
     def law(self, s):
         lever = s.p["lever"]
         return [f"{s.fb} += latch({self._theta(s)}, {s.vb}, {lever}, {self._args(s)})"]
+
+    def potential(self, s):
+        """The catch's springs (the door's :func:`latch_potential`) and the wall's."""
+        p, theta = s.p, self._theta(s)
+        springs = ", ".join(
+            p[n] for n in ("unlock_force", "lock_force", "loose_angle", "open_stiffness")
+            + ("close_stiffness", "open_hold", "close_hold", "seat_force")
+        )  # fmt: skip
+        past = f"({theta} - {0.5 * math.pi!r})"
+        wall = (
+            f"(0.5 * {p['wall_stiffness']} * {p['lever']} * {past} ** 2 if {past} > 0.0 else 0.0)"
+        )
+        catch = f"({p['unlock_force']} > 0.0 or {p['lock_force']} > 0.0)"
+        spring = f"({p['lever']} * latch_potential({theta}, {springs}) if {catch} else 0.0)"
+        return f"{spring} + {wall}"
 
     def switches(self, s):
         return [
