@@ -491,3 +491,41 @@ def test_a_friction_pad_through_a_slider_crank_sticks_and_slips(tmp_path):
     want = 10.0 * np.abs([slider_crank(q, 0.05, 0.15, 0.02, 0.3)[1] for q in c["theta"]]) / 0.1
     np.testing.assert_allclose(c["closing"], want, rtol=1e-9)
     np.testing.assert_allclose(c["opening"], -want, rtol=1e-9)
+
+
+@pytest.mark.slow
+def test_rig_fit_and_curve_of_the_cable_door_from_the_command_line(tmp_path):
+    """The cable door as blocks (two bodies, a cable on a drum between them) through the
+    real commands: impulse trials, the fit of cable_fit.yaml recovering the leaf's
+    inertia, the spring's pre-load, the carriage's damper and the hinge friction within
+    2 %, and the Coulomb curve against its closed form: the carriage at rest where the
+    taut cable's tension is the spring's, ``c = (k_c s - P) / (k_c + k_s)``."""
+    work = tmp_path / "blocks"
+    shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
+    made = cli("rig", "generate", "--model", "cable_door.yaml", "--trials", "8",
+               "--out", "cable_trials.h5", cwd=work)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    run = cli("run", "cable_fit.yaml", "--out", "cable_fit.h5", cwd=work)
+    assert run.returncode == 0, run.stderr
+    shown = cli("show", "cable_fit.h5", "--json", cwd=work)
+    assert shown.returncode == 0, shown.stderr
+    best = json.loads(shown.stdout)["best"]
+    p = get_model(str(EXAMPLES / "cable_door.yaml")).load_params().as_dict()
+    for name in ("door.inertia", "spring.preload", "dashpot.c", "hinge.level"):
+        assert abs(best[name] / p[name] - 1.0) < 0.02, (name, best[name], p[name])
+    curve = cli("curve", "cable_door.yaml", "--out", "cable_curve.csv", cwd=work)
+    assert curve.returncode == 0, curve.stderr
+    table = np.genfromtxt(work / "cable_curve.csv", delimiter=",", names=True, dtype=None,
+                          encoding="utf-8")  # fmt: skip
+    radius = p["drum.s_0"] / p["drum.q_1"]
+    k_c, k_s, preload = p["cable.k"], p["spring.k"], p["spring.preload"]
+    for direction, sign in (("closing", 1.0), ("opening", -1.0)):
+        rows = table[table["direction"] == direction]
+        q = rows["theta"]
+        inside = (q > 0.01) & (q < np.pi / 2 - 0.01)
+        s = radius * (np.pi / 2 - q)
+        carriage = (k_c * s - preload) / (k_c + k_s)
+        tension = preload + k_s * carriage
+        weight = p["door.mass"] * 9.80665 * p["door.arm"] * np.cos(q)
+        want = (weight - radius * tension + sign * p["hinge.level"]) / p["door.hand_lever"]
+        np.testing.assert_allclose(rows["force"][inside], want[inside], atol=1e-6)
