@@ -428,3 +428,36 @@ def test_a_binary_or_bounded_mechanism_file_is_one_line(tmp_path):
         with pytest.raises(UserError) as err:
             get_model(str(tmp_path / name))
         assert expect[name] in str(err.value) and "\n" not in str(err.value), str(err.value)
+
+
+def test_a_tanh_friction_between_two_bodies_is_the_law_by_hand(tmp_path, monkeypatch):
+    """Friction on the relative speed (a sliding sleeve on a rod): on b, its reaction on
+    a, asymmetric levels; the sign law between bodies is refused in one line."""
+    text = textwrap.dedent("""
+        mechanism:
+          name: sleeve
+          handle: rod
+          bodies:
+            rod: {kind: linear, mass: 2.0}
+            sleeve: {kind: linear, mass: 0.5}
+          elements:
+            grip: {kind: friction, between: [rod, sleeve], law: tanh, level_opening: 3.0,
+                   level_closing: 2.0, slope: 40.0}
+    """)
+    (tmp_path / "sleeve.yaml").write_text(text)
+    model = get_model(str(tmp_path / "sleeve.yaml"))
+    p = model.load_params().as_dict()
+    vec = np.array([p[n] for n in model.params.names])
+    for v_rod, v_sleeve in ((0.3, 0.1), (0.1, 0.3), (0.0, -0.02)):
+        x, dx = np.array([0.1, v_rod, 0.05, v_sleeve]), np.empty(4)
+        model.rhs(x, 5.0, vec, dx)
+        rel = v_sleeve - v_rod
+        level = 2.0 if rel > 0 else 3.0
+        f = -level * np.tanh(40.0 * rel)  # on the sleeve
+        assert dx[3] == pytest.approx(f / 0.5, rel=1e-14)
+        assert dx[1] == pytest.approx((5.0 - f) / 2.0, rel=1e-14)
+    (tmp_path / "bad.yaml").write_text(text.replace("law: tanh, ", "").replace(", slope: 40.0", ""))
+    with pytest.raises(
+        UserError, match="element 'grip': a friction between two bodies takes law: tanh"
+    ):
+        get_model(str(tmp_path / "bad.yaml"))

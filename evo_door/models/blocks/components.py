@@ -152,8 +152,10 @@ class Damper(Component):
 
 
 class Friction(Component):
+    """Dry friction on a body's speed, or (``law: tanh`` only) on the relative speed of
+    two bodies: ``-level tanh(slope v)`` on b, its reaction on a."""
+
     kind, title = "friction", "dry friction"
-    connects = ("on",)
     specs = (
         Spec("level", "N", "N m", None, 0.0, 1.0e5, "specification",
              "friction force, both directions"),
@@ -169,10 +171,10 @@ class Friction(Component):
     def law(self, s):
         closing = s.p.get("level_closing", s.p.get("level"))
         opening = s.p.get("level_opening", s.p.get("level"))
-        v = s.vb
+        v = s.vb if s.fa is None else f"({s.vb} - {s.va})"
         if s.words["law"] == "tanh":
             shape = f"math.tanh({s.p['slope']} * {v})"
-            return [f"{s.fb} -= ({closing} if {v} > 0.0 else {opening}) * {shape}"]
+            return _pair(s, f"-({closing} if {v} > 0.0 else {opening}) * {shape}")
         return [
             f"if {v} > 0.0:",
             f"    {s.fb} -= {closing}",

@@ -398,6 +398,11 @@ def _element(
     for spec in comp.specs:
         if spec.name in comp.tables:
             values.update(_table(tree.get(spec.name), spec, units, at))
+    if kind == "friction" and a is not None and words["law"] == "sign":
+        raise UserError(
+            f"{at}: a friction between two bodies takes law: tanh (the sign law's stick "
+            "needs a contact on their relative speed, which the integrators keep per body)"
+        )
     _complete(comp, values, words, at)
     comp.check(values, words, at)
     return Element(
