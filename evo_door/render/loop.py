@@ -583,6 +583,11 @@ class ServoLoop:
             code = compute_command(
                 self._pos, self._vel, self._user, self._p, self.limit, cmd, self._row
             )
+        self._send(t, now, code, cmd)
+
+    def _send(self, t: float, now: float, code: int, cmd) -> None:
+        """Count the kernel's ``code`` (not finite, limited), then command ``cmd``; a
+        command that fails trips the watchdog."""
         if code == NON_FINITE:
             self.faults += 1
             if self.faults <= 100:

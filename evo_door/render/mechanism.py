@@ -58,7 +58,6 @@ from evo_door.render.mechanism_kernels import (
     handle_of,
     mechanism_command,
 )
-from evo_door.render.safety import NON_FINITE
 
 #: the circle of a rotary handle (m): the haptic model's default radius
 RADIUS = PARAMS["radius"].default
@@ -534,18 +533,7 @@ class MechanismLoop(ServoLoop):
             m.iv, self._check_period, self._nsub, self.limit, self._hs, self._work, cmd,
             self._row,
         )  # fmt: skip
-        if code == NON_FINITE:
-            self.faults += 1
-            if self.faults <= 100:
-                self.log.event(t, "fault", "non-finite state or force: zero force")
-        elif code:
-            self.saturated += 1
-        try:
-            self.device.command(cmd)
-            self._last[:] = cmd
-        except Exception as exc:  # the connection dropped while sending
-            self.watchdog.trip(now, f"device command failed: {exc}")
-            self.log.event(t, "fault", f"device command failed: {exc}")
+        self._send(t, now, code, cmd)
 
     @property
     def substeps(self) -> int:

@@ -111,12 +111,17 @@ class Component:
         return False
 
 
-def _pair(s: Site, force: str) -> list[str]:
+def pair(s: Site, force: str) -> list[str]:
     """``force`` acts on b (toward closed), its reaction on a."""
     lines = [f"{s.fb} += {force}"]
     if s.fa is not None:
         lines.append(f"{s.fa} -= {force}")
     return lines
+
+
+def relative(s: Site, b: str, a: str) -> str:
+    """b's position (or speed) less a's; b's alone on the ground."""
+    return b if s.fa is None else f"({b} - {a})"
 
 
 class Spring(Component):
@@ -132,7 +137,7 @@ class Spring(Component):
 
     def law(self, s):
         t = f"({s.p['preload']} + {s.p['k']} * ({s.xb} - {s.xa} - {s.p['at']}))"
-        return [f"tension = {t}", *_pair(s, "-tension")]
+        return [f"tension = {t}", *pair(s, "-tension")]
 
     def potential(self, s):
         d = f"({s.xb} - {s.xa} - {s.p['at']})"
@@ -147,8 +152,7 @@ class Damper(Component):
     )  # fmt: skip
 
     def law(self, s):
-        relative = s.vb if s.fa is None else f"({s.vb} - {s.va})"
-        return _pair(s, f"-{s.p['c']} * {relative}")
+        return pair(s, f"-{s.p['c']} * {relative(s, s.vb, s.va)}")
 
 
 class Friction(Component):
@@ -171,10 +175,10 @@ class Friction(Component):
     def law(self, s):
         closing = s.p.get("level_closing", s.p.get("level"))
         opening = s.p.get("level_opening", s.p.get("level"))
-        v = s.vb if s.fa is None else f"({s.vb} - {s.va})"
+        v = relative(s, s.vb, s.va)
         if s.words["law"] == "tanh":
             shape = f"math.tanh({s.p['slope']} * {v})"
-            return _pair(s, f"-({closing} if {v} > 0.0 else {opening}) * {shape}")
+            return pair(s, f"-({closing} if {v} > 0.0 else {opening}) * {shape}")
         return [
             f"if {v} > 0.0:",
             f"    {s.fb} -= {closing}",
@@ -268,7 +272,7 @@ class Cable(Component):
 
     def law(self, s):
         stretch = f"{s.xb} - {s.xa} - {s.p['length']}"
-        return [f"tension = max({s.p['k']} * ({stretch}), 0.0)", *_pair(s, "-tension")]
+        return [f"tension = max({s.p['k']} * ({stretch}), 0.0)", *pair(s, "-tension")]
 
     def switches(self, s):
         return [f"{s.xb} - {s.xa} - {s.p['length']}"]

@@ -274,19 +274,26 @@ def _body(name: str, tree, where: str) -> Body:
     return Body(name, kind, values, (lo, hi), start, about)
 
 
-def _transmission(name: str, tree, bodies: dict[str, Body], where: str) -> Transmission:
-    """A transmission of the file, its map checked over its body's range."""
-    at = f"{where}: transmission {name!r}"
+def _entry(tree, kinds: dict, listed: str, at: str):
+    """A transmission's or an element's mapping (a copy, its ``on`` key as written),
+    its ``kind`` and what the library holds under it; one line for an unknown kind."""
     tree = dict(_mapping(tree, at))
     if True in tree and "on" not in tree:  # YAML 1.1 reads the key `on` as true
         tree["on"] = tree.pop(True)
     kind = tree.get("kind")
-    spec = TRANSMISSIONS.get(kind) if isinstance(kind, str) else None
-    if spec is None:
+    found = kinds.get(kind) if isinstance(kind, str) else None
+    if found is None:
         raise UserError(
-            f"{at}: unknown kind {kind!r}" + suggest(str(kind), TRANSMISSIONS)
-            + f"; transmission kinds: {', '.join(TRANSMISSIONS)}"
+            f"{at}: unknown kind {kind!r}" + suggest(str(kind), kinds)
+            + f"; {listed}: {', '.join(kinds)}"
         )  # fmt: skip
+    return tree, kind, found
+
+
+def _transmission(name: str, tree, bodies: dict[str, Body], where: str) -> Transmission:
+    """A transmission of the file, its map checked over its body's range."""
+    at = f"{where}: transmission {name!r}"
+    tree, kind, spec = _entry(tree, TRANSMISSIONS, "transmission kinds", at)
     data = ("q", "s") if kind == "table" else ()
     _known_keys(tree, ("kind", "on", *spec.words, *data, *(s.name for s in spec.specs)), at)
     if "on" not in tree:
@@ -351,16 +358,7 @@ def _element(
     name: str, tree, bodies: dict[str, Body], transmissions: dict[str, Transmission], where: str
 ) -> Element:
     at = f"{where}: element {name!r}"
-    tree = dict(_mapping(tree, at))
-    if True in tree and "on" not in tree:  # YAML 1.1 reads the key `on` as true
-        tree["on"] = tree.pop(True)
-    kind = tree.get("kind")
-    comp = COMPONENTS.get(kind) if isinstance(kind, str) else None
-    if comp is None:
-        raise UserError(
-            f"{at}: unknown kind {kind!r}" + suggest(str(kind), COMPONENTS)
-            + f"; kinds: {', '.join(COMPONENTS)}"
-        )  # fmt: skip
+    tree, kind, comp = _entry(tree, COMPONENTS, "kinds", at)
     _known_keys(tree, ("kind", *comp.connects, *comp.words, *(s.name for s in comp.specs)), at)
     ends = [c for c in comp.connects if c in tree]
     if len(ends) != 1:

@@ -19,20 +19,9 @@ strut, tabulated spring.
 from __future__ import annotations
 
 from evo_door.errors import UserError
-from evo_door.models.blocks.components import LINEAR, Component, Site, Spec
+from evo_door.models.blocks.components import LINEAR, Component, Site, Spec, pair, relative
 
 _TWO_PI = "6.283185307179586"
-
-
-def _relative(s: Site, x: str, y: str) -> str:
-    return x if s.fa is None else f"({x} - {y})"
-
-
-def _pair(s: Site, force: str) -> list[str]:
-    lines = [f"{s.fb} += {force}"]
-    if s.fa is not None:
-        lines.append(f"{s.fa} -= {force}")
-    return lines
 
 
 class Detent(Component):
@@ -46,11 +35,11 @@ class Detent(Component):
     )  # fmt: skip
 
     def _angle(self, s: Site) -> str:
-        d = _relative(s, s.xb, s.xa)
+        d = relative(s, s.xb, s.xa)
         return f"{_TWO_PI} * ({d} - {s.p['phase']}) / {s.p['pitch']}"
 
     def law(self, s):
-        return _pair(s, f"-{s.p['amplitude']} * math.sin({self._angle(s)})")
+        return pair(s, f"-{s.p['amplitude']} * math.sin({self._angle(s)})")
 
     def potential(self, s):
         size = f"{s.p['amplitude']} * {s.p['pitch']} / {_TWO_PI}"
@@ -75,7 +64,7 @@ class Bump(Component):
     n_switches = 2
 
     def _u(self, s: Site) -> str:
-        return f"({_relative(s, s.xb, s.xa)} - {s.p['at']})"
+        return f"({relative(s, s.xb, s.xa)} - {s.p['at']})"
 
     def law(self, s):
         u, w = self._u(s), s.p["width"]
@@ -83,7 +72,7 @@ class Bump(Component):
             f"if abs({u}) < {w}:",
             *(
                 f"    {line}"
-                for line in _pair(s, f"{s.p['amplitude']} * math.sin(math.pi * {u} / {w})")
+                for line in pair(s, f"{s.p['amplitude']} * math.sin(math.pi * {u} / {w})")
             ),
         ]
 
@@ -113,16 +102,16 @@ class GasStrut(Component):
     )  # fmt: skip
 
     def law(self, s):
-        d, v = _relative(s, s.xb, s.xa), _relative(s, s.vb, s.va)
+        d, v = relative(s, s.xb, s.xa), relative(s, s.vb, s.va)
         return [
             f"stroke = {v}",
             f"push = {s.p['preload']} + {s.p['slope']} * ({s.p['length']} - {d})",
             f"push -= ({s.p['c_extension']} if stroke > 0.0 else {s.p['c_compression']}) * stroke",
-            *_pair(s, "push"),
+            *pair(s, "push"),
         ]
 
     def potential(self, s):
-        u = f"({s.p['length']} - {_relative(s, s.xb, s.xa)})"
+        u = f"({s.p['length']} - {relative(s, s.xb, s.xa)})"
         return f"{s.p['preload']} * {u} + 0.5 * {s.p['slope']} * {u} * {u}"
 
 
@@ -149,11 +138,11 @@ class TabulatedSpring(Component):
         n = sum(1 for k in s.p if k.startswith("deflection_"))
         first = s.p["deflection_0"].removeprefix("p[").removesuffix("]")
         return [
-            f"tension = pchip({_relative(s, s.xb, s.xa)}, p, {int(first)}, {n})[0]",
-            *_pair(s, "-tension"),
+            f"tension = pchip({relative(s, s.xb, s.xa)}, p, {int(first)}, {n})[0]",
+            *pair(s, "-tension"),
         ]
 
     def potential(self, s):
         n = sum(1 for k in s.p if k.startswith("deflection_"))
         first = int(s.p["deflection_0"].removeprefix("p[").removesuffix("]"))
-        return f"pchip_integral({_relative(s, s.xb, s.xa)}, p, {first}, {n})"
+        return f"pchip_integral({relative(s, s.xb, s.xa)}, p, {first}, {n})"
