@@ -64,7 +64,10 @@ def run(args) -> int:
     host, port = parse_control(args.to)
     overrides = parse_assignments(args.assignments)
     model = get_model(args.model or "haptic")
-    if args.model or all(name in model.params.names for name in overrides):
+    wanted: dict[str, float] = {}
+    if args.file is not None:  # read before anything is sent
+        wanted.update(model.load_params(args.file, overrides).as_dict())
+    elif args.model or all(name in model.params.names for name in overrides):
         for name, value in overrides.items():  # checked here first, then by the renderer
             model.params[name].check(value, "--set")
     base = {"token": args.token} if args.token else {}
@@ -79,16 +82,13 @@ def run(args) -> int:
     units = running.get("units", {})
     current = running.get("params", {})
     rendered = str(running.get("model", "haptic"))
-    wanted: dict[str, float] = {}
     if args.file is not None or args.model:
         if model.params.model != rendered:
             raise UserError(
                 f"the renderer runs {rendered!r}, not {model.name!r}: give --model, the "
                 "model the renderer renders"
             )
-    if args.file is not None:
-        wanted.update(model.load_params(args.file, overrides).as_dict())
-    else:
+    if args.file is None:
         for name, value in overrides.items():  # the renderer checks the value
             if name not in units:
                 raise UserError(
