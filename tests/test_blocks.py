@@ -461,3 +461,42 @@ def test_a_tanh_friction_between_two_bodies_is_the_law_by_hand(tmp_path, monkeyp
         UserError, match="element 'grip': a friction between two bodies takes law: tanh"
     ):
         get_model(str(tmp_path / "bad.yaml"))
+
+
+PIPELINE = """\
+name: drawer-two-stages
+stages:
+  runners:
+    model: soft_close_drawer.yaml
+    target: {data: trials.h5, kinds: [impulse]}
+    free: {runners.level: [0.2, 4.0], grease.c: [0.5, 12.0]}
+    objective: {kind: ise, derivative: 1}
+    algorithm: {population: 12, generations: 3, seed: 1, polish: slsqp}
+  softie:
+    model: soft_close_drawer.yaml
+    params: {from: runners}
+    target: {data: trials.h5, kinds: [impulse]}
+    free: {softie.c_fluid: [20.0, 300.0]}
+    objective: {kind: ise, derivative: 1}
+    algorithm: {population: 12, generations: 3, seed: 1, polish: slsqp}
+"""
+
+
+def test_a_pipeline_takes_a_mechanism_file_stage_to_stage(tmp_path):
+    """Two stages on the drawer, the second from the first's estimates (names with their
+    dots through ``params: {from: ...}``): each recovers what it fits."""
+    work = tmp_path / "blocks"
+    shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
+    (work / "pipeline.yaml").write_text(PIPELINE)
+    made = _cli("rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "4",
+                "--out", "trials.h5", cwd=work)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    run = _cli("run", "pipeline.yaml", "--out", "pipe.h5", "--quiet", cwd=work)
+    assert run.returncode == 0, run.stderr
+    from evo_door.api import load
+
+    result = load(work / "pipe.h5")
+    first, second = result.stages["runners"], result.stages["softie"]
+    assert abs(first.estimates["runners.level"].value / 1.2 - 1.0) < 0.05
+    assert abs(second.estimates["softie.c_fluid"].value / 80.0 - 1.0) < 0.05
+    assert second.model == first.model and second.model.endswith("soft_close_drawer.yaml")
