@@ -1,7 +1,7 @@
 """Issue 39's first "done when": a mechanism file nobody tuned the library for (its own
 names, two bodies, an element with a state of its own) is simulated, fitted from rig
-trials (every free parameter within 2 %), drawn and rendered on the simulated device,
-through the commands alone, no Python.
+trials (every free parameter within 2 %), its curve drawn up, drawn and rendered on the
+simulated device, through the commands alone, no Python.
 
 The mechanism: two nested drawers, the front one (the handle) pulling the back one
 along by an elastic strap once it is 4 cm ahead; rollers with dry friction under the
@@ -82,6 +82,14 @@ def test_params_simulate_and_draw_take_the_file(folder):
     assert run["theta"][-1] > 0.08  # past the soft-close's engagement
     assert run["back"][-1] > 0.0  # the strap pulled the back drawer along
     assert np.min(run["closer_fluid"]) < -1.0  # the fluid's force built up, braking
+    # the curve: the back drawer at rest where its strap is slack (no equation holds
+    # its place: the equilibrium's Jacobian is singular there), the rollers' friction
+    _ok("curve", "drawers.yaml", "--out", "curve.csv", cwd=folder)
+    curve = np.genfromtxt(folder / "curve.csv", delimiter=",", names=True, dtype=None,
+                          encoding="utf-8")  # fmt: skip
+    sign = np.where(curve["direction"] == "closing", 1.0, -1.0)
+    inside = curve["theta"] < 0.29  # short of the buffer
+    np.testing.assert_allclose(curve["force"][inside], 1.5 * sign[inside], atol=1e-9)
     _ok("draw", "drawers.yaml", cwd=folder)
     svg = ET.parse(folder / "drawers.svg").getroot()
     texts = " ".join(e.text or "" for e in svg.iter())

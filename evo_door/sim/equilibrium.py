@@ -16,8 +16,10 @@ other states ``z`` and the force ``F`` such that
 That is ``m + 1`` equations in ``m + 1`` unknowns (``m`` the other states), solved by
 Newton's method with a forward-difference Jacobian and a small LU with partial pivoting.
 Along a curve each angle starts from the previous angle's solution (continuation), so a
-scan over the stroke follows one branch of the equilibrium. A point where Newton does not
-converge gives NaN (the curve's caller says where).
+scan over the stroke follows one branch of the equilibrium. A state that no equation
+holds (a body on a slack cable, at rest anywhere) makes the Jacobian singular: a small
+diagonal (1e-9 of its largest entry) then keeps that state where it is and solves the
+others. A point where Newton does not converge gives NaN (the curve's caller says where).
 """
 
 from __future__ import annotations
@@ -121,8 +123,16 @@ def hold_states(rhs, p, theta, dtheta, x0, position, speed, out, slope):
                 for i in range(m + 1):
                     jac[i, c] = (r2[i] - r[i]) / h
             step = -r
+            keep_jac = jac.copy()
             if not _solve(jac, step):
-                break
+                # a state no equation holds (a body on a slack cable, free to sit
+                # anywhere): a small diagonal leaves it where it is, the others solved
+                step = -r
+                ridge = 1e-9 * (1.0 + np.max(np.abs(keep_jac)))
+                for i in range(m + 1):
+                    keep_jac[i, i] += ridge
+                if not _solve(keep_jac, step):
+                    break
             size = 0.0
             for i in range(m + 1):
                 u[i] += step[i]
