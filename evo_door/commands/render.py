@@ -305,10 +305,19 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
             print(f"evo-door: warning: {warning}", file=sys.stderr)
 
 
+def _spec(args) -> str | None:
+    """The rendered model as the console process loads it (``--model``): the name given,
+    a mechanism file made absolute; None for the haptic model (the default)."""
+    if not args.model:
+        return None
+    from evo_door.models import resolve_model_name
+
+    return resolve_model_name(args.model)
+
+
 def _check_mechanism_options(args, interactive: bool) -> None:
     """What a mechanism's render does not take (yet): a UserError naming it."""
     haptic_only = {
-        "--console": args.console,
         "--clamp": args.clamp,
         "--friction": args.friction != "implicit",
         "the terminal's keys (no --duration)": interactive,
@@ -317,8 +326,8 @@ def _check_mechanism_options(args, interactive: bool) -> None:
     if flag is not None:
         raise UserError(
             f"{flag} goes with the haptic model; a mechanism ({args.model}) renders with "
-            "--duration or --control (evo-door push changes its parameters), its "
-            "parameters set by --params and --set"
+            "--duration, --control (evo-door push changes its parameters) or --console, "
+            "its parameters set by --params and --set"
         )
 
 
@@ -446,7 +455,9 @@ def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
         raise UserError("--token goes with --control")
     try:
         if server is not None and args.console:
-            console = start_console(server.address, token, args.console_host, args.console_port)
+            console = start_console(
+                server.address, token, args.console_host, args.console_port, _spec(args)
+            )
         if not interactive:
             return loop.run(args.duration, stop=stop)
         from evo_door.render.keys import run_terminal

@@ -59,9 +59,18 @@ def key_map(table=PARAMS, group: str = GROUP) -> dict[str, tuple[str, float]]:
     names = [p for p in table if p.group == group]
     if len(names) > len(KEY_PAIRS):
         raise UserError(f"{len(names)} parameters in group {group!r}: more than the keys")
+    return keys_for(names)
+
+
+def keys_for(params, steps: dict | None = None) -> dict[str, tuple[str, float]]:
+    """key -> (parameter name, signed step) for the declared ``params`` (:class:`Param`),
+    handed out in their order; past the :data:`KEY_PAIRS`, a parameter has no keys.
+    A parameter's step is ``steps[name]`` where given, else :func:`nice_step` of its
+    declared range."""
     keys: dict[str, tuple[str, float]] = {}
-    for (down, up), p in zip(KEY_PAIRS, names):
-        step = nice_step(p.upper - p.lower)
+    steps = steps or {}
+    for (down, up), p in zip(KEY_PAIRS, params):
+        step = steps.get(p.name, nice_step(p.upper - p.lower))
         keys[down] = (p.name, -step)
         keys[up] = (p.name, step)
     return keys
