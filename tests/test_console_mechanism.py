@@ -11,7 +11,9 @@ thread with its control port, the console in another, no browser.
 - ``/api/curve`` is the drawer's own force-position curve of the set in force, in m;
 - Save writes a parameter file of the drawer that ``render DRAWER --params`` renders;
 - a JND session is refused in one line; a console that is not told the mechanism's
-  file says how to give it.
+  file says how to give it;
+- the terminal's keys of ``render DRAWER`` step what the console changes;
+- ``render DRAWER --console`` end to end (slow).
 """
 
 from __future__ import annotations
@@ -233,6 +235,25 @@ def test_a_console_not_told_the_mechanisms_file_says_how(renderer, drawer, tmp_p
     with pytest.raises(UserError) as err:
         asyncio.run(server.start())
     assert "--model: model 'haptic', but the renderer" in str(err.value)
+
+
+def test_the_terminal_keys_of_a_mechanism_are_the_consoles(drawer):
+    """``render DRAWER`` on a terminal: the keys step what the console changes, by its
+    steps; the haptic model's keys are as they were."""
+    from evo_door.models.haptic import PARAMS
+    from evo_door.render.console.sensations import tunable_keys
+    from evo_door.render.keys import key_change, key_map, screen
+
+    params = drawer.load_params(None, {"stop.k": 5000.0})
+    keys = tunable_keys(drawer.params, params.as_dict())
+    assert keys["a"] == ("box.mass", -0.5) and keys["A"] == ("box.mass", 0.5)
+    assert ("stop.k", 500.0) in keys.values()
+    assert not {"stop.at", "softie.engage"} & {name for name, _ in keys.values()}
+    assert key_change("A", params.as_dict(), keys, drawer.params) == {"box.mass": 3.5}
+    assert tunable_keys(PARAMS) == key_map()
+    device = yielding_sim("hold", path=Stroke(*drawer.theta_range))
+    text = screen(MechanismLoop(device, drawer, params), keys, "", drawer.params, "m")
+    assert "box.mass" in text and " kg" in text and "stop.k" in text and " N/m" in text
 
 
 @pytest.mark.slow

@@ -61,6 +61,27 @@ def window(p, value: float) -> tuple[float, float]:
     return p.lower, p.upper
 
 
+def slider_ranges(table, start: dict | None = None) -> dict[str, tuple[float, float]]:
+    """Each parameter a page may change of ``table`` -> its slider's range: a sensation's
+    declared one, a mechanism's :func:`window` about its value in ``start`` (default:
+    its declared default)."""
+    params = tunable_params(table)
+    start = start or {}
+    if any(p.group == GROUP for p in params):
+        return {p.name: (p.lower, p.upper) for p in params}
+    return {p.name: window(p, float(start.get(p.name, p.default))) for p in params}
+
+
+def tunable_keys(table, start: dict | None = None) -> dict[str, tuple[str, float]]:
+    """key -> (parameter name, signed step) for what a page may change of ``table``,
+    the step :func:`~evo_door.render.keys.nice_step` of its slider's range (the haptic
+    model's: :func:`~evo_door.render.keys.key_map`'s); the terminal's keys of a
+    mechanism."""
+    ranges = slider_ranges(table, start)
+    steps = {name: nice_step(hi - lo) for name, (lo, hi) in ranges.items()}
+    return keys_for(tunable_params(table), steps)
+
+
 class Tunable:
     """The rendered ``model`` as a page sees it: what it may change, with what keys, and
     the model's force-angle curve."""
@@ -72,19 +93,11 @@ class Tunable:
         self.names = [p.name for p in self.params]
         #: the haptic console: sensations, the door's picture, the latch, JND sessions
         self.sensations = any(p.group == GROUP for p in self.table)
-        start = start or {}
         #: each parameter's slider range: a sensation's declared one, a mechanism's
         #: :func:`window` about the value the console started from
-        self.ranges = {
-            p.name: (
-                (p.lower, p.upper)
-                if self.sensations
-                else window(p, float(start.get(p.name, p.default)))
-            )
-            for p in self.params
-        }
+        self.ranges = slider_ranges(self.table, start)
         self.steps = {name: nice_step(hi - lo) for name, (lo, hi) in self.ranges.items()}
-        self.keys = keys_for(self.params, self.steps)
+        self.keys = tunable_keys(self.table, start)
         self.what = (
             "sensation parameter of the declaration"
             if self.sensations
