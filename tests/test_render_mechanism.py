@@ -289,8 +289,8 @@ def test_a_model_without_a_state_vector_is_refused(capsys):
     assert main(["render", "door", "--user", "swing", "--duration", "0.1"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "takes a model on a state vector" in err, err
-    assert main(["render", DRAWER, "--console"]) == 2
-    assert "--console goes with the haptic model" in capsys.readouterr().err
+    assert main(["render", DRAWER, "--clamp", "--control", "0"]) == 2
+    assert "--clamp goes with the haptic model" in capsys.readouterr().err
 
 
 # -- the command end to end ---------------------------------------------------------------

@@ -20,12 +20,20 @@ def register(sub) -> None:
         "console",
         help="serve the operator's web console for a running renderer (render --control)",
         description="Serve a web page to tune a running renderer live: the door and its "
-        "force-angle curve, loop health, a slider and two keys per sensation, undo, "
+        "force-angle curve, loop health, a slider and two keys per sensation (a "
+        "mechanism's: per parameter but its geometry), undo, "
         "reset, save, A/B comparison, JND sessions, the participant's choice. It talks to the "
         "renderer only through its control port. Runs until Ctrl-C.",
     )
     p.add_argument(
         "--control", required=True, metavar="HOST:PORT", help="the renderer's control port"
+    )
+    p.add_argument(
+        "--model",
+        metavar="MODEL",
+        help="the rendered model, when it is not installed: the mechanism file (or "
+        "path/file.py:MODEL) the renderer was started with (default: the model the "
+        "renderer names; render --console passes its own)",
     )
     p.add_argument(
         "--token",
@@ -81,7 +89,14 @@ def run(args) -> int:
     token = args.token or os.environ.get(TOKEN_ENV) or None
     from evo_door.experiment.store import versions
 
-    server = ConsoleServer((host, port), token, args.host, args.port, save_dir, versions=versions())
+    model = None
+    if args.model:
+        from evo_door.models import get_model
+
+        model = get_model(args.model)
+    server = ConsoleServer(
+        (host, port), token, args.host, args.port, save_dir, versions=versions(), model=model
+    )
     parent = os.getppid()
 
     async def serve() -> None:

@@ -241,7 +241,7 @@ def run(args) -> int:
         raise UserError("a headless run on the simulated device needs --user SCRIPT")
     model = get_model(args.model or "haptic")
     if model.name != "haptic":
-        _check_mechanism_options(args, interactive)
+        _check_mechanism_options(args)
     params = model.load_params(args.params, parse_assignments(args.assignments))
     claim = _claim_log(args, args.log, [params.source])
     _check_supervisor_options(args)
@@ -305,20 +305,28 @@ def _render(loop, args, interactive: bool, name: str, claim) -> int:
             print(f"evo-door: warning: {warning}", file=sys.stderr)
 
 
-def _check_mechanism_options(args, interactive: bool) -> None:
+def _spec(args) -> str | None:
+    """The rendered model as the console process loads it (``--model``): the name given,
+    a mechanism file made absolute; None for the haptic model (the default)."""
+    if not args.model:
+        return None
+    from evo_door.models import resolve_model_name
+
+    return resolve_model_name(args.model)
+
+
+def _check_mechanism_options(args) -> None:
     """What a mechanism's render does not take (yet): a UserError naming it."""
     haptic_only = {
-        "--console": args.console,
         "--clamp": args.clamp,
         "--friction": args.friction != "implicit",
-        "the terminal's keys (no --duration)": interactive,
     }
     flag = next((name for name, given in haptic_only.items() if given), None)
     if flag is not None:
         raise UserError(
             f"{flag} goes with the haptic model; a mechanism ({args.model}) renders with "
-            "--duration or --control (evo-door push changes its parameters), its "
-            "parameters set by --params and --set"
+            "--duration, --control (evo-door push changes its parameters), --console or "
+            "the terminal's keys, its parameters set by --params and --set"
         )
 
 
@@ -446,9 +454,13 @@ def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
         raise UserError("--token goes with --control")
     try:
         if server is not None and args.console:
-            console = start_console(server.address, token, args.console_host, args.console_port)
+            console = start_console(
+                server.address, token, args.console_host, args.console_port, _spec(args)
+            )
         if not interactive:
             return loop.run(args.duration, stop=stop)
+        from evo_door.models import get_model
+        from evo_door.render.console.sensations import tunable_keys
         from evo_door.render.keys import run_terminal
 
         result: dict = {}
@@ -462,7 +474,12 @@ def _run_loop(loop, args, interactive: bool, stop: threading.Event) -> dict:
         thread = threading.Thread(target=serve, name="evo-door-servo", daemon=True)
         thread.start()
         try:
-            run_terminal(loop, stop)
+            # the parameters the web console changes, with its steps (the haptic
+            # model's sensations; a mechanism's specification and numerics)
+            table = loop.params.table
+            keys = tunable_keys(table, loop.params.as_dict())
+            unit = get_model(args.model or "haptic").theta_unit
+            run_terminal(loop, stop, keys=keys, table=table, unit=unit)
         finally:
             stop.set()
             thread.join()

@@ -428,7 +428,7 @@ class ControlServer:
         if reason is not None:
             raise UserError(reason)
         if "params" in event:
-            event["params"] = checked_values(event["params"])
+            event["params"] = checked_values(event["params"], table=self.loop.params.table)
         if kind == "chosen":  # the whole set: what is not given is the set in force
             event["params"] = {**self.loop.params.as_dict(), **event.get("params", {})}
         text = json.dumps(event)

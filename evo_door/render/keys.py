@@ -11,6 +11,12 @@ on its bound. Each change goes to :meth:`ServoLoop.request_change`, so the loop 
 it (declaration, passivity) and applies it between two cycles, or refuses it and the
 screen shows why.
 
+A mechanism (``render MECHANISM.yaml`` on a terminal) gets keys for the parameters the
+web console changes, with its steps
+(:func:`~evo_door.render.console.sensations.tunable_keys`: its specification and
+numerics, a step a twentieth of four times the value it started with), and its
+handle's coordinate in its own unit.
+
 :func:`key_change` (key -> change) is the whole of the key handling and needs no
 terminal; :func:`run_terminal` adds raw mode, ``select`` on stdin and the screen.
 """
@@ -59,9 +65,18 @@ def key_map(table=PARAMS, group: str = GROUP) -> dict[str, tuple[str, float]]:
     names = [p for p in table if p.group == group]
     if len(names) > len(KEY_PAIRS):
         raise UserError(f"{len(names)} parameters in group {group!r}: more than the keys")
+    return keys_for(names)
+
+
+def keys_for(params, steps: dict | None = None) -> dict[str, tuple[str, float]]:
+    """key -> (parameter name, signed step) for the declared ``params`` (:class:`Param`),
+    handed out in their order; past the :data:`KEY_PAIRS`, a parameter has no keys.
+    A parameter's step is ``steps[name]`` where given, else :func:`nice_step` of its
+    declared range."""
     keys: dict[str, tuple[str, float]] = {}
-    for (down, up), p in zip(KEY_PAIRS, names):
-        step = nice_step(p.upper - p.lower)
+    steps = steps or {}
+    stepped = [(p, steps.get(p.name, nice_step(p.upper - p.lower))) for p in params]
+    for (down, up), (p, step) in zip(KEY_PAIRS, [(p, s) for p, s in stepped if s > 0]):
         keys[down] = (p.name, -step)
         keys[up] = (p.name, step)
     return keys
@@ -94,15 +109,21 @@ def shown(value: float, unit: str) -> str:
     return f"{value:9.4g} {unit}" if unit != "1" else f"{value:9.4g}"
 
 
-def screen(loop, keys: dict, message: str = "") -> str:
-    """The text of one screen: the state, then a line per parameter with its keys."""
+def screen(loop, keys: dict, message: str = "", table=PARAMS, unit: str = "rad") -> str:
+    """The text of one screen: the state, then a line per parameter of ``table`` with its
+    keys; ``unit``: the handle's (an angle in rad is shown in degrees)."""
     snap = loop.snapshot()
     params = snap["params"]
     lines = [f"evo-door render: {snap['device']} at {snap['rate']:g} Hz, {snap['status']}"]
-    if math.isfinite(snap["theta"]):
+    if math.isfinite(snap["theta"]) and unit == "rad":
         lines.append(
             f"t {snap['t']:8.2f} s   theta {snap['theta'] * _DEG:7.2f} deg   "
             f"dtheta {snap['dtheta'] * _DEG:8.2f} deg/s   user force {snap['force']:7.2f} N"
+        )
+    elif math.isfinite(snap["theta"]):
+        lines.append(
+            f"t {snap['t']:8.2f} s   position {snap['theta']:8.4f} {unit}   "
+            f"speed {snap['dtheta']:8.4f} {unit}/s   user force {snap['force']:7.2f} N"
         )
     lines.append("key down/up  parameter                  value         step")
     by_name: dict[str, list] = {}
@@ -111,23 +132,27 @@ def screen(loop, keys: dict, message: str = "") -> str:
     for name, pair in by_name.items():
         down = next(k for k, s in pair if s < 0)
         up = next(k for k, s in pair if s > 0)
-        unit = PARAMS[name].unit
+        p_unit = table[name].unit
         step = abs(pair[0][1])
         lines.append(
-            f"  {down}/{up}       {name:24s} {shown(params[name], unit)}  "
-            f"{shown(step, unit).strip()}"
+            f"  {down}/{up}       {name:24s} {shown(params[name], p_unit)}  "
+            f"{shown(step, p_unit).strip()}"
         )
     lines.append("q quits" + (f"   | {message}" if message else ""))
     return "\r\n".join(lines)
 
 
-def run_terminal(loop, stop, refresh: float = 0.1) -> None:
-    """Raw-mode key loop on stdin until ``q`` or ``stop`` (the loop's own end) is set."""
+def run_terminal(
+    loop, stop, refresh: float = 0.1, keys=None, table=PARAMS, unit: str = "rad"
+) -> None:
+    """Raw-mode key loop on stdin until ``q`` or ``stop`` (the loop's own end) is set;
+    ``keys`` (default :func:`key_map`) step the parameters of ``table``, the handle's
+    coordinate shown in ``unit``."""
     import select
     import termios
     import tty
 
-    keys = key_map()
+    keys = key_map() if keys is None else keys
     fd = sys.stdin.fileno()
     saved = termios.tcgetattr(fd)
     message = ""
@@ -136,7 +161,7 @@ def run_terminal(loop, stop, refresh: float = 0.1) -> None:
         tty.setcbreak(fd)
         out.write("\x1b[?25l")  # hide the cursor
         while not stop.is_set():
-            out.write("\x1b[H\x1b[2J" + screen(loop, keys, message) + "\r\n")
+            out.write("\x1b[H\x1b[2J" + screen(loop, keys, message, table, unit) + "\r\n")
             out.flush()
             ready, _, _ = select.select([sys.stdin], [], [], refresh)
             if not ready:
@@ -145,13 +170,13 @@ def run_terminal(loop, stop, refresh: float = 0.1) -> None:
             if key == "q":
                 stop.set()
                 break
-            change = key_change(key, loop.params.as_dict(), keys)
+            change = key_change(key, loop.params.as_dict(), keys, table)
             if change is None:
                 continue
             try:
                 new = loop.request_change(change)
                 name = next(iter(change))
-                message = f"{name} -> {shown(new[name], PARAMS[name].unit).strip()}"
+                message = f"{name} -> {shown(new[name], table[name].unit).strip()}"
             except UserError as exc:
                 message = f"refused: {' '.join(str(exc).split())}"
             time.sleep(0.005)

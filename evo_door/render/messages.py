@@ -220,20 +220,23 @@ class ClientLimits:
         return min(0.1, self.total.wait())
 
 
-def checked_values(values, key="params", names=None, what="parameter of the declaration"):
+def checked_values(
+    values, key="params", names=None, what="parameter of the declaration", table=PARAMS
+):
     """``values`` {name: SI value} checked (a UserError with the reason otherwise):
     a non-empty object under ``key``, names among ``names`` (default: the whole
-    declaration; else a ``what``), finite numbers within their declared bounds."""
+    declaration ``table``, the haptic model's unless given; else a ``what``), finite
+    numbers within their declared bounds."""
     if not isinstance(values, dict) or not values:
         raise UserError(f'"{key}" must be a non-empty object {{name: value}}')
-    allowed = PARAMS.names if names is None else names
+    allowed = table.names if names is None else names
     out = {}
     for name, value in values.items():
         if name not in allowed:
             raise UserError(f"{name!r} is not a {what}")
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserError(f"parameter {name!r}: {value!r} is not a number")
-        q = PARAMS[name]
+        q = table[name]
         if not (math.isfinite(value) and q.lower <= value <= q.upper):
             raise UserError(
                 f"{name} = {value!r} {q.unit}: outside its declared range "

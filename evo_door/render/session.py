@@ -204,8 +204,8 @@ def format_session(s: dict, path="") -> str:
     from evo_door.models.haptic import PARAMS
     from evo_door.render.keys import shown as shown_unit
 
-    def shown(name, value):
-        return shown_unit(value, PARAMS[name].unit).strip()
+    def shown(name, value):  # a mechanism's names are not the haptic model's: no unit
+        return shown_unit(value, PARAMS[name].unit if name in PARAMS else "").strip()
 
     stats = s["statistics"]
     lines = [f"render log {path}".rstrip()]

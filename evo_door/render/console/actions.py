@@ -16,7 +16,6 @@ from evo_door.errors import UserError
 from evo_door.render.console import ab, jnd_mode
 from evo_door.render.console.page import error, one_line, refused
 from evo_door.render.console.saving import MAX_ID, on_save
-from evo_door.render.console.sensations import check_values
 
 if TYPE_CHECKING:
     from evo_door.render.console.page import Page
@@ -30,7 +29,7 @@ async def on_set(console: Console, page: Page, message: dict) -> None:
     if source not in SOURCES:
         source = "slider"
     try:
-        values = check_values(message.get("values"))
+        values = console.tunable.check_values(message.get("values"))
     except UserError as exc:
         page.post(refused(exc, message.get("values")))
         return

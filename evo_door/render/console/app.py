@@ -2,7 +2,8 @@
 WebSocket of each open page, read within its limits.
 
 ``GET /`` and ``/static/NAME`` serve the page, ``/api/declaration`` and ``/api/curve``
-its data, ``/ws`` the WebSocket whose messages the console's session handles
+the rendered model's data (:mod:`~evo_door.render.console.sensations`), ``/ws`` the
+WebSocket whose messages the console's session handles
 (:meth:`~evo_door.render.console.session.Console.handle`).
 """
 
@@ -17,7 +18,6 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from evo_door.render.console.actions import PAGE_KINDS
 from evo_door.render.console.page import Page, dumps, error
 from evo_door.render.console.security import GUARD, guard_for, headers, security
-from evo_door.render.console.sensations import declaration
 from evo_door.render.console.session import Console
 from evo_door.render.messages import MAX_LINE, BadMessage, ClientLimits, parse_message
 
@@ -59,7 +59,7 @@ async def _static(request: web.Request) -> web.StreamResponse:
 
 
 async def _declaration(request: web.Request) -> web.Response:
-    return web.json_response(declaration())
+    return web.json_response(request.app[CONSOLE].tunable.declaration())
 
 
 async def _curve(request: web.Request) -> web.Response:

@@ -27,6 +27,9 @@ function, sends the track and the fit to the pages, writes the JND file in its s
 folder (``jnd-PARAM-PARTICIPANT.h5``, never over another file) and puts the set the
 session started from back in force.
 
+Sessions are the haptic model's (a declaration with a ``sensation`` group): a console
+rendering a mechanism refuses ``jnd_start`` in one line.
+
 Render-log events: ``jnd_start`` (the settings), ``jnd_trial`` (each presentation:
 trial, step, order, the values of interval 1 and 2), ``jnd_answer`` (trial, answer,
 correct, step, order, time), ``jnd_end`` (status and fit) and ``jnd_save`` (the file).
@@ -45,14 +48,13 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import PARAMS
 from evo_door.perception.jnd_file import curve_points, write_jnd_file
 from evo_door.perception.procedures import METHODS, JndSession
 from evo_door.perception.psychometric import Fit
 from evo_door.render.console.client import cancel_and_wait
 from evo_door.render.console.page import error
 from evo_door.render.console.saving import safe_stem, unused_path
-from evo_door.render.console.sensations import sensation_names
+from evo_door.render.console.sensations import Tunable
 
 if TYPE_CHECKING:
     from evo_door.render.console.page import Page
@@ -98,17 +100,24 @@ def _number(message: dict, key: str, default, lo: float, hi: float, unit: str) -
     return float(value)
 
 
-def parse_settings(message: dict, params: dict[str, float]) -> JndSettings:
-    """The settings of a ``jnd_start`` message, checked against the declaration;
-    ``params`` is the set in force (the default reference)."""
-    names = sensation_names()
+def parse_settings(
+    message: dict, params: dict[str, float], tunable: Tunable | None = None
+) -> JndSettings:
+    """The settings of a ``jnd_start`` message, checked against the declaration of
+    ``tunable`` (default: the haptic model's); ``params`` is the set in force (the
+    default reference)."""
+    if tunable is None:
+        from evo_door.models import get_model
+
+        tunable = Tunable(get_model("haptic"))
+    names = tunable.names
     param = message.get("param")
     if not isinstance(param, str) or param not in names:
         shown = param if isinstance(param, str) and len(param) <= 64 else "?"
         close = difflib.get_close_matches(shown, names, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise UserError(f"param {shown!r}: not a sensation parameter of the declaration{hint}")
-    p = PARAMS[param]
+    p = tunable.table[param]
     reference = message.get("reference")
     if reference is None:
         reference = params.get(param, p.default)
@@ -157,7 +166,7 @@ class JndRun:
             s.method,
             trials=s.trials,
             seed=s.seed,
-            upper=PARAMS[s.param].upper,
+            upper=console.tunable.table[s.param].upper,
         )
         self.base = dict(console.params)  # put back in force at the end
         self.participant = console.participant
@@ -367,7 +376,7 @@ class JndRun:
                 status=self.status,
                 participant=self.participant or "anonymous",
                 device=f"renderer at {console.client.where} (evo-door console)",
-                model="haptic",
+                model=console.tunable.table.model,
                 reference_params=reference_params,
                 settings={**asdict(s), "neutral": "pause: let go, next set switched in"},
                 seed=s.seed,
@@ -396,7 +405,12 @@ class JndRun:
 async def on_jnd_start(console: Console, page: Page, message: dict) -> None:
     if console.jnd is not None and console.jnd.running:
         raise UserError("a JND session is running: stop it first")
-    settings = parse_settings(message, await console.refresh())
+    if not console.tunable.sensations:
+        raise UserError(
+            f"JND sessions compare the haptic model's sensations; the renderer renders "
+            f"{console.tunable.table.model!r}: compare its sets with A/B instead"
+        )
+    settings = parse_settings(message, await console.refresh(), console.tunable)
     run = JndRun(console, settings, page)
     console.jnd = run
     await console.event(

@@ -27,9 +27,14 @@ CONSOLE_NICENESS = 10
 CONSOLE_START = 30.0
 
 
-def start_console(address, token, console_host: str, console_port: int):
-    """Spawn ``evo-door console`` for the control port at ``address``; print its URL."""
-    child = _spawn(_command(address, console_host, console_port), _environment(token))
+def start_console(address, token, console_host: str, console_port: int, model=None):
+    """Spawn ``evo-door console`` for the control port at ``address``; print its URL.
+    ``model``: the rendered model's name as the user gave it (a mechanism file made
+    absolute), passed as ``--model``; None for the haptic model."""
+    command = _command(address, console_host, console_port)
+    if model:
+        command += ["--model", str(model)]
+    child = _spawn(command, _environment(token))
     # spawned with pipes: stdout and stderr are never None (the `or` is for the types)
     first, errors = _relay(child.stdout or (), child.stderr or ())
     if not first.startswith("console "):

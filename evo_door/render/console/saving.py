@@ -1,5 +1,7 @@
-"""A page's Save: the set in force written as a parameter file in the save folder,
-under a name of its own (never over another file), and recorded in the log."""
+"""A page's Save: the set in force written as a parameter file of the rendered model
+(``model:`` its name, every parameter of its declaration) in the save folder, under a
+name of its own (never over another file), and recorded in the log: ``evo-door render
+MODEL --params FILE`` renders it again."""
 
 from __future__ import annotations
 
@@ -9,7 +11,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import PARAMS
 
 if TYPE_CHECKING:
     from evo_door.render.console.page import Page
@@ -55,7 +56,7 @@ async def on_save(console: Console, page: Page, message: dict) -> None:
     note = "chosen in the evo-door console"
     if console.participant:
         note += f" by participant {console.participant}"
-    ps = ParamSet.from_mapping(PARAMS, now, description=note)
+    ps = ParamSet.from_mapping(console.tunable.table, now, description=note)
     path = unused_path(folder, stem)
     try:
         ps.to_yaml(path)

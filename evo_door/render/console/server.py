@@ -8,7 +8,7 @@ times a second while a page is open and sends them to every page as a ``tick``;
 another asks for the set in force 4 times a second and tells the pages when it
 changed (``source`` ``"push"`` when no page caused it, ``evo-door push`` for one).
 
-Every change a page asks for is checked here first (declared sensation names, finite
+Every change a page asks for is checked here first (names a page may change, finite
 numbers within their bounds), then sent as a control-port ``set``, which the renderer
 checks again (bounds, passivity, the hands-off speed) and applies between two cycles,
 or refuses: the page then gets ``refused`` with the reason and nothing changes. The
@@ -27,8 +27,12 @@ own origin and socket, and no CORS headers.
 The HTTP and WebSocket API (every number in SI units)::
 
     GET /, /static/NAME          the page
-    GET /api/declaration         the sensation parameters: bounds, step, two keys each
-    GET /api/curve               quasi-static force-angle curve of the set in force
+    GET /api/declaration         the parameters a page may change (the haptic model's
+                                 sensations, a mechanism's specification and numerics:
+                                 sensations.py): unit, bounds, step, two keys each;
+                                 and the model: name, title, the handle's unit, range
+    GET /api/curve               quasi-static force-angle curve of the set in force,
+                                 against the handle's coordinate (theta, unit)
     GET /ws                      WebSocket, JSON messages:
         server -> page: hello, tick (~30/s), params (source slider, key, undo, reset,
                         ab, jnd or push), refused, saved, ab, participant, chosen,
@@ -83,7 +87,9 @@ from evo_door.render.control import is_loopback
 
 
 class ConsoleServer:
-    """The console on ``host``:``port`` for the renderer at ``control`` (host, port).
+    """The console on ``host``:``port`` for the renderer at ``control`` (host, port);
+    ``model``: the rendered model, when the renderer's is not installed (a mechanism
+    file: :class:`~evo_door.render.console.session.Console`).
 
     ``await start()`` reaches the renderer (trying for ``wait`` s), listens and
     returns the page's URL; ``await stop()`` ends it.
@@ -98,6 +104,7 @@ class ConsoleServer:
         save_dir=".",
         wait: float | None = None,
         versions: dict | None = None,
+        model=None,
     ):
         if not is_loopback(host) and not token:
             raise UserError(
@@ -105,12 +112,17 @@ class ConsoleServer:
             )
         self.host, self.port, self.token = host, int(port), token or None
         self.wait = CONNECT_WAIT if wait is None else wait
-        self.console = Console(ControlClient(*control, token=self.token), save_dir, versions)
+        client = ControlClient(*control, token=self.token)
+        self.console = Console(client, save_dir, versions, model)
         self.runner: web.AppRunner | None = None
         self.url = ""
 
     async def start(self) -> str:
-        await self.console.connect(self.wait)
+        try:
+            await self.console.connect(self.wait)
+        except BaseException:
+            await self.console.client.close()
+            raise
         # the port is needed by the checks before the app exists: bind a socket first
         import socket
 

@@ -19,13 +19,12 @@ import contextlib
 from pathlib import Path
 
 from evo_door.errors import UserError
-from evo_door.models.haptic import PARAMS
 from evo_door.render.console.actions import ACTIONS, PAGE_KINDS
 from evo_door.render.console.client import ControlClient, cancel_and_wait
 from evo_door.render.console.jnd_mode import BLOCKED, JndRun
 from evo_door.render.console.page import Page, dumps, error, one_line, refused
 from evo_door.render.console.saving import MAX_ID
-from evo_door.render.console.sensations import force_curve
+from evo_door.render.console.sensations import Tunable
 from evo_door.render.messages import ClientLimits, RateLimit
 
 #: ticks (rows, state, health) a second while a page is open
@@ -63,10 +62,18 @@ class Console:
         Where ``save`` writes parameter files (and a JND session its JND file).
     versions : dict, optional
         The software's versions, recorded in JND files (the command passes them).
+    model : Model, optional
+        The rendered model (``evo-door console --model``; ``render --console`` passes
+        its own). By default the model the renderer names, if it is installed (the
+        haptic model); a mechanism file must be given.
     """
 
-    def __init__(self, client: ControlClient, save_dir=".", versions: dict | None = None):
+    def __init__(
+        self, client: ControlClient, save_dir=".", versions: dict | None = None, model=None
+    ):
         self.client = client
+        self.model = model
+        self._tunable: Tunable | None = None  # what a page may change: known at connect
         self.save_dir = Path(save_dir)
         self.versions = dict(versions or {})  # the software's, for the JND files
         self.jnd: JndRun | None = None  # the JND session, running or last ended
@@ -110,15 +117,47 @@ class Console:
                     f"the renderer at {self.client.where} refused: "
                     f"{answer.get('error', 'no reason given')}"
                 )
+        model = self._rendered_model(params.get("model", "haptic"))
         names = [row.get("name") for row in decl.get("declaration", [])]
-        if names != list(PARAMS.names):
+        if names != list(model.params.names):
             raise UserError(
-                f"the renderer at {self.client.where} declares other haptic parameters "
-                "than this console (another evo-door version?)"
+                f"the renderer at {self.client.where} declares other "
+                f"{model.params.model} parameters than this console (another evo-door "
+                "version, or another file of that name?)"
             )
         self.params = {k: float(v) for k, v in params["params"].items()}
+        self._tunable = Tunable(model, self.params)
         self.params_t = float(params.get("t", 0.0))
         self.start = dict(self.params)
+
+    @property
+    def tunable(self) -> Tunable:
+        """The rendered model as the pages see it (:meth:`connect` learns it)."""
+        if self._tunable is None:
+            raise UserError("the console has not reached the renderer yet")
+        return self._tunable
+
+    def _rendered_model(self, name):
+        """The model the renderer renders (its declaration's ``name``): the one given,
+        which must be it, or an installed model of that name; else a UserError."""
+        from evo_door.models import available_models, get_model
+
+        where = self.client.where
+        if not isinstance(name, str) or not name:
+            raise UserError(f"the renderer at {where} does not name its model")
+        if self.model is not None:
+            if self.model.params.model != name:
+                raise UserError(
+                    f"--model: model {self.model.params.model!r}, but the renderer at "
+                    f"{where} renders {name!r}"
+                )
+            return self.model
+        if name not in available_models():
+            raise UserError(
+                f"the renderer at {where} renders model {name!r}: give its file with "
+                "--model (a mechanism file, path/file.py:MODEL)"
+            )
+        return get_model(name)
 
     def start_polling(self) -> None:
         loop = asyncio.get_running_loop()
@@ -350,10 +389,10 @@ class Console:
     async def curve(self) -> dict:
         """The force-angle curve of the set in force (cached per set)."""
         values, t = self.visible(dict(self.params)), self.params_t
-        key = tuple(values[n] for n in PARAMS.names)
+        key = tuple(values[n] for n in self.tunable.table.names)
         if key not in self._curves:
             loop = asyncio.get_running_loop()
-            self._curves[key] = await loop.run_in_executor(None, force_curve, values)
+            self._curves[key] = await loop.run_in_executor(None, self.tunable.curve, values)
             while len(self._curves) > 16:
                 self._curves.popitem(last=False)
         return {**self._curves[key], "params_t": t}

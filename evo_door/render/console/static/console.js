@@ -5,6 +5,10 @@
  * The server (evo_door/render/console/server.py) serves this file, GET /api/declaration,
  * GET /api/curve and the WebSocket /ws; every number in a message is SI (rad, rad/s, N),
  * the page shows angles in degrees, labelled, and every number with its unit.
+ * The rendered model comes with the declaration (its "model": name, the handle's unit
+ * and range, door): the haptic model's page shows the door, its latch and JND sessions;
+ * another model's (a mechanism) shows its handle on its stroke, in its unit (a linear
+ * handle's position in m), and the parameters a page may change of it.
  *
  * Conventions (docs/conventions.md): theta 0 = fully open (door horizontal), pi/2 = closed
  * (vertical); force + toward closing; opening means dtheta < 0.
@@ -27,7 +31,9 @@
 
   // ---------------------------------------------------------------- state
   const S = {
-    decl: [], // rows of /api/declaration, sensation group, declaration order
+    decl: [], // rows of /api/declaration, the parameters a page may change, declaration order
+    // the rendered model (/api/declaration): the haptic model's door until it says otherwise
+    model: { name: "haptic", title: "", unit: "rad", range: [0, CLOSED], door: true, jnd: true },
     byName: {},
     keyMap: {}, // key -> {name, dir}
     display: { rad: "deg" },
@@ -99,6 +105,51 @@
 
   function clamp(v, lo, hi) {
     return Math.min(Math.max(v, lo), hi);
+  }
+
+  // the handle's coordinate for people: an angle (rad) in degrees, a position in its unit
+  function handleScale() {
+    return S.model.unit === "rad" ? DEG : 1;
+  }
+
+  function handleUnit() {
+    return S.model.unit === "rad" ? "deg" : S.model.unit;
+  }
+
+  function handleWord() {
+    return S.model.unit === "rad" ? "angle" : "position";
+  }
+
+  // digits after the point of the handle's coordinate shown (0.1 deg; 1 mm on a 0.45 m stroke)
+  function handleDigits() {
+    const span = (S.model.range[1] - S.model.range[0]) * handleScale();
+    return Math.max(1, Math.min(4, 3 - Math.floor(Math.log10(span))));
+  }
+
+  function setModel(m) {
+    const range = Array.isArray(m.range) && m.range.length === 2 ? m.range.map(Number) : [0, CLOSED];
+    S.model = {
+      name: String(m.name || ""),
+      title: String(m.title || ""),
+      unit: String(m.unit || "rad"),
+      range: range[1] > range[0] ? range : [0, CLOSED],
+      door: m.door !== false,
+      jnd: m.jnd !== false,
+    };
+    $("jnd-panel").hidden = !S.model.jnd;
+    $("zoom-latch").hidden = !S.model.door;
+    if (!S.model.door) {
+      S.zoomLatch = false;
+      $("door-title").textContent = "Mechanism " + S.model.name;
+      $("door-title").title = S.model.title;
+      $("curve-title").textContent = "Force against " + handleWord();
+      $("door").setAttribute("aria-label", "The handle of " + S.model.name + " on its stroke, in " +
+        handleUnit());
+      $("force-angle").setAttribute("aria-label", "User force in newtons against the handle's " +
+        handleWord() + " in " + handleUnit() + ", live trace over the model's opening and closing curves");
+    }
+    latch.configure(S.inForce);
+    invalidate();
   }
 
   // ---------------------------------------------------------------- message area
@@ -251,6 +302,7 @@
       })
       .then((d) => {
         S.display = d.display || S.display;
+        if (d.model) setModel(d.model);
         buildSliders(d.params || []);
       })
       .catch((err) => {
@@ -288,6 +340,13 @@
     let group = null;
     let groupName = null;
     for (const p of rows) {
+      if (Array.isArray(p.range) && p.range.length === 2) {
+        // a mechanism's slider range, inside its declared bounds (sensations.py): the
+        // page's bounds from here on; the declared ones in the row's title
+        p.declared = [p.lower, p.upper];
+        p.lower = Number(p.range[0]);
+        p.upper = Number(p.range[1]);
+      }
       S.byName[p.name] = p;
       const [down, up] = p.keys || [];
       if (down) S.keyMap[down] = { name: p.name, dir: -1 };
@@ -326,7 +385,9 @@
     row.id = "row-" + p.name;
     row.title = p.name + ": " + p.meaning + " (" + withUnit(p.unit, p.lower) + " .. " +
       withUnit(p.unit, p.upper) + ", step " + withUnit(p.unit, p.step) +
-      (down ? "; keys " + down + " down, " + up + " up" : "") + ")";
+      (down ? "; keys " + down + " down, " + up + " up" : "") +
+      (p.declared ? "; declared " + withUnit(p.unit, p.declared[0]) + " .. " + withUnit(p.unit, p.declared[1]) : "") +
+      ")";
 
     const label = document.createElement("label");
     label.htmlFor = "slider-" + p.name;
@@ -946,7 +1007,7 @@
       this.theta3 = this.theta2 - (k > 0 ? closeForce / k : 0) - num("close_hold", 0);
       this.lockAt = this.theta0 - LATCH_HYST;
       this.unlockAt = Math.min(this.theta1, this.theta0 - 2 * LATCH_HYST);
-      this.active = openForce > 0 || closeForce > 0;
+      this.active = S.model.door && (openForce > 0 || closeForce > 0);
     },
     reset() {
       this.locked = null;
@@ -1067,6 +1128,13 @@
       this.slideFilter.frequency.setTargetAtTime(350 + 900 * level, now, 0.06);
     },
   };
+
+  // the sliding sound's speed in deg/s: the door's own; a mechanism's as the door's
+  // quarter turn is to its stroke (the same loudness at the same fraction a second)
+  function slideSpeed(dtheta) {
+    if (S.model.door) return dtheta * DEG;
+    return (dtheta / (S.model.range[1] - S.model.range[0])) * CLOSED * DEG;
+  }
 
   // ---------------------------------------------------------------- curve
   let curveSeq = 0;
@@ -1321,11 +1389,19 @@
     }
     // between two ticks (about 33 ms apart), move the drawing on with the speed
     const age = Math.min((performance.now() - S.tickAt) / 1000, 0.05);
-    if (isFinite(dtheta)) theta = clamp(theta + dtheta * age, -0.05, CLOSED + 0.05);
+    if (isFinite(dtheta)) {
+      const [lo, hi] = S.model.range;
+      const pad = S.model.door ? 0.05 : 0.1 * (hi - lo);
+      theta = S.model.door ? clamp(theta + dtheta * age, -0.05, CLOSED + 0.05) : clamp(theta + dtheta * age, lo - pad, hi + pad);
+    }
     return { theta: theta, dtheta: dtheta, force: force };
   }
 
   function drawDoor(ds) {
+    if (!S.model.door) {
+      drawStroke(ds);
+      return;
+    }
     const { ctx, w, h } = fitCanvas($("door"));
     const m = 16;
     const hx = Math.max(m + 30, w * 0.18);
@@ -1467,6 +1543,76 @@
     }
   }
 
+  // a mechanism's handle (not the haptic door): its stroke from open (left) to closed
+  // (right) with a scale in its unit, the handle as a block, the user's force, the numbers
+  function drawStroke(ds) {
+    const { ctx, w, h } = fitCanvas($("door"));
+    const [lo, hi] = S.model.range;
+    const hk = handleScale();
+    const u = handleUnit();
+    const x0 = 36;
+    const x1 = Math.max(x0 + 20, w - 36);
+    const y = Math.round(h * 0.55) + 0.5;
+    const X = (q) => x0 + ((q - lo) / (hi - lo)) * (x1 - x0);
+    ctx.strokeStyle = COLORS.axis;
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.moveTo(x0, y);
+    ctx.lineTo(x1, y);
+    ctx.stroke();
+    ctx.lineWidth = 1;
+    ctx.font = "11px system-ui, sans-serif";
+    ctx.fillStyle = COLORS.muted;
+    ctx.textAlign = "center";
+    ctx.textBaseline = "top";
+    for (const v of niceTicks(lo * hk, hi * hk, 5)) {
+      const px = Math.round(X(v / hk)) + 0.5;
+      ctx.beginPath();
+      ctx.moveTo(px, y + 3);
+      ctx.lineTo(px, y + 8);
+      ctx.stroke();
+      ctx.fillText(fmt(v, 3) + " " + u, px, y + 10);
+    }
+    ctx.textBaseline = "bottom";
+    ctx.fillText("open", x0, y - 22);
+    ctx.fillText("closed", x1, y - 22);
+    if (!ds) {
+      ctx.fillText("waiting for the renderer", w / 2, y - 40);
+      return;
+    }
+    const px = X(clamp(ds.theta, lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo)));
+    ctx.fillStyle = COLORS.ink;
+    ctx.fillRect(px - 9, y - 14, 18, 28);
+    // the user's force along the stroke, + toward closing (right)
+    if (isFinite(ds.force) && Math.abs(ds.force) > 0.2) {
+      const len = clamp(ds.force * 2.5, -70, 70);
+      const ay = y - 24;
+      ctx.strokeStyle = COLORS.force;
+      ctx.fillStyle = COLORS.force;
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.moveTo(px, ay);
+      ctx.lineTo(px + len, ay);
+      ctx.stroke();
+      const sgn = Math.sign(len);
+      ctx.beginPath();
+      ctx.moveTo(px + len, ay);
+      ctx.lineTo(px + len - sgn * 7, ay - 4);
+      ctx.lineTo(px + len - sgn * 7, ay + 4);
+      ctx.closePath();
+      ctx.fill();
+    }
+    ctx.fillStyle = COLORS.ink;
+    ctx.font = "12px system-ui, sans-serif";
+    ctx.textAlign = "right";
+    ctx.textBaseline = "top";
+    const d = handleDigits();
+    const xr = w - 6;
+    ctx.fillText(handleWord() + " " + fixed(ds.theta * hk, d) + " " + u, xr, 4);
+    ctx.fillText("speed " + (isFinite(ds.dtheta) ? fixed(ds.dtheta * hk, d) : "-") + " " + u + "/s", xr, 19);
+    ctx.fillText("force " + (isFinite(ds.force) ? fixed(ds.force, 1) : "-") + " N", xr, 34);
+  }
+
   // ---------------------------------------------------------------- force against angle
   function drawForceAngle() {
     const { ctx, w, h } = fitCanvas($("force-angle"));
@@ -1476,19 +1622,26 @@
     const tEnd = n ? R.t[n - 1] : 0;
     let i0 = 0;
     while (i0 < n && R.t[i0] < tEnd - WINDOW_S) i0++;
+    const hk = handleScale();
     const thDeg = [];
     const f = [];
     for (let i = i0; i < n; i++) {
-      thDeg.push(R.theta[i] * DEG);
+      thDeg.push(R.theta[i] * hk);
       f.push(R.force[i]);
     }
-    const cx = c && c.theta_deg ? c.theta_deg : [];
+    const cx = c && Array.isArray(c.theta) ? c.theta.map((v) => v * hk) : c && c.theta_deg ? c.theta_deg : [];
     let xr;
-    if (S.zoomLatch) {
+    if (S.zoomLatch && S.model.door) {
       // the latch: from below the lock band to just past closed
       xr = [Math.min(latch.theta3 * DEG, 89) - 1, CLOSED * DEG + 0.5];
-    } else {
+    } else if (S.model.door) {
       xr = [Math.min(-2, cx.length ? cx[0] : 0), Math.max(92, cx.length ? cx[cx.length - 1] + 2 : 0)];
+    } else {
+      // the stroke and a twentieth of it beyond each end (where the stops push)
+      const lo = S.model.range[0] * hk;
+      const hi = S.model.range[1] * hk;
+      const pad = 0.05 * (hi - lo);
+      xr = [Math.min(lo, cx.length ? cx[0] : lo) - pad, Math.max(hi, cx.length ? cx[cx.length - 1] : hi) + pad];
     }
     const inside = (xs, ys) => ys.filter((_, i) => xs[i] >= xr[0] && xs[i] <= xr[1]);
     const yr = niceRange(
@@ -1497,7 +1650,7 @@
     );
     const box = { x: 42, y: 8, w: w - 50, h: h - 40 };
     if (box.w < 20 || box.h < 20) return;
-    const key = [xr, yr, c ? c.seq : 0].join();
+    const key = [xr, yr, c ? c.seq : 0, S.model.name].join();
     ctx.drawImage(layer("force-angle", w, h, key, (g) => drawForceAngleBack(g, box, xr, yr, c, cx)), 0, 0, w, h);
     const { X, Y } = mapping(box, xr, yr);
     ctx.save();
@@ -1528,7 +1681,8 @@
   }
 
   function drawForceAngleBack(ctx, box, xr, yr, c, cx) {
-    const { X, Y } = axes(ctx, box, xr, yr, "angle (deg)", "force (N), + toward closing", { xTicks: 6 });
+    const xlabel = handleWord() + " (" + handleUnit() + ")";
+    const { X, Y } = axes(ctx, box, xr, yr, xlabel, "force (N), + toward closing", { xTicks: 6 });
     ctx.save();
     ctx.beginPath();
     ctx.rect(box.x, box.y, box.w, box.h);
@@ -1583,7 +1737,22 @@
     { label: "force (N)", color: COLORS.force, min: 2, digits: 1, unit: "N" },
   ];
 
+  // the strip's traces: the door's in degrees, a mechanism's handle in its unit
+  function stripTraces() {
+    if (S.model.door) return STRIP;
+    const u = handleUnit();
+    const span = (S.model.range[1] - S.model.range[0]) * handleScale();
+    const d = handleDigits();
+    return [
+      { label: handleWord() + " (" + u + ")", color: COLORS.angle, min: 0.05 * span, digits: d, unit: u },
+      { label: "speed (" + u + "/s)", color: COLORS.speed, min: 0.1 * span, digits: d, unit: u + "/s" },
+      STRIP[2],
+    ];
+  }
+
   function drawStrip() {
+    const STRIP = stripTraces();
+    const hk = handleScale();
     const { ctx, w, h } = fitCanvas($("strip"));
     const R = S.rows;
     const n = R.t.length;
@@ -1594,8 +1763,8 @@
     const data = [[], [], []];
     for (let i = i0; i < n; i++) {
       rel.push(R.t[i] - tEnd);
-      data[0].push(R.theta[i] * DEG);
-      data[1].push(R.dtheta[i] * DEG);
+      data[0].push(R.theta[i] * hk);
+      data[1].push(R.dtheta[i] * hk);
       data[2].push(R.force[i]);
     }
     const top = 8;
@@ -1605,7 +1774,7 @@
     const xr = [-WINDOW_S, 0];
     const boxes = STRIP.map((_, k) => ({ x: 46, y: top + k * (ph + gap), w: w - 54, h: ph }));
     const yrs = STRIP.map((tr, k) => niceRange(range([data[k]], 0.05, tr.min), 3));
-    const back = layer("strip", w, h, yrs.join("|"), (g) => {
+    const back = layer("strip", w, h, yrs.join("|") + S.model.name, (g) => {
       STRIP.forEach((tr, k) => {
         const last = k === STRIP.length - 1;
         axes(g, boxes[k], xr, yrs[k], last ? "time (s), 0 = now" : "", tr.label, {
@@ -1738,7 +1907,7 @@
     }
     const age = now - S.tickAt;
     const moving = ds && isFinite(ds.dtheta) && Math.abs(ds.dtheta) > 1e-3 && age < 60;
-    sound.slide(S.connected && age < 500 && ds && isFinite(ds.dtheta) ? ds.dtheta * DEG : 0);
+    sound.slide(S.connected && age < 500 && ds && isFinite(ds.dtheta) ? slideSpeed(ds.dtheta) : 0);
     if (moving || chartsWaiting || recentClick) {
       // the next frame a display period later, not at the browser's own 60 Hz: the
       // browser shares the machine's two cores with the servo loop
