@@ -91,16 +91,28 @@ def served_loop(params, token: str):
     thread, its control server on a free loopback port with ``token``, some cycles run:
     yields ``(loop, server, end)``, ``end()`` stopping the loop early."""
     from evo_door.cli import build_parser
-    from evo_door.render.control import ControlServer
     from evo_door.render.loop import ServoLoop
 
     build_parser()  # import every command before the loop competes for the GIL
     loop = ServoLoop(yielding_sim("open", radius=params["radius"], seed=3), params)
+    with serving(loop, token) as served:
+        yield served
+
+
+@contextlib.contextmanager
+def serving(loop, token: str, wait: float = 10.0):
+    """``loop`` (a ServoLoop, or a MechanismLoop) run in its own thread, its control
+    server on a free loopback port with ``token``, once some cycles have run (at most
+    ``wait`` s): yields ``(loop, server, end)``, ``end()`` stopping the loop early."""
+    from evo_door.cli import build_parser
+    from evo_door.render.control import ControlServer
+
+    build_parser()  # import every command before the loop competes for the GIL
     stop = threading.Event()
     thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
     server = ControlServer(loop, "127.0.0.1", 0, token=token).start()
     thread.start()
-    deadline = time.monotonic() + 10.0
+    deadline = time.monotonic() + wait
     while loop.log.n < 10 and time.monotonic() < deadline:  # some cycles have run
         time.sleep(0.001)
     try:
@@ -109,6 +121,33 @@ def served_loop(params, token: str):
         stop.set()
         thread.join(10.0)
         server.close()
+
+
+class ServedConsole:
+    """A console server (``ConsoleServer``) running its asyncio loop in a thread:
+    ``url`` its page with the token, ``base`` its root, ``call(coro)`` runs a
+    coroutine there."""
+
+    def __init__(self, server):
+        import asyncio
+
+        self.server = server
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.url = self.call(server.start())
+        self.base = f"http://127.0.0.1:{server.port}/"
+
+    def call(self, coro, timeout: float = 60.0):
+        import asyncio
+
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def close(self) -> None:
+        self.call(self.server.stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5.0)
+        self.loop.close()
 
 
 def answer_lines(sock, n: int, timeout: float = 30.0) -> list[dict]:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -34,11 +33,10 @@ from evo_door.errors import UserError  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
 from evo_door.models.blocks import CACHE_ENV  # noqa: E402
 from evo_door.render.console.server import ConsoleServer  # noqa: E402
-from evo_door.render.control import ControlServer  # noqa: E402
 from evo_door.render.keys import KEY_PAIRS, nice_step  # noqa: E402
 from evo_door.render.mechanism import MechanismLoop, Stroke  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.helpers import yielding_sim  # noqa: E402
+from tests.helpers import ServedConsole, serving, yielding_sim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DRAWER = str(ROOT / "examples" / "blocks" / "soft_close_drawer.yaml")
@@ -61,44 +59,16 @@ def renderer(drawer):
     params = drawer.load_params(None, {"stop.k": 5000.0})
     device = yielding_sim("hold", path=Stroke(*drawer.theta_range), seed=3)
     loop = MechanismLoop(device, drawer, params)
-    stop = threading.Event()
-    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
-    control = ControlServer(loop, "127.0.0.1", 0, token=TOKEN).start()
-    thread.start()
-    deadline = time.monotonic() + 30.0
-    while loop.log.n < 10 and time.monotonic() < deadline:
-        time.sleep(0.001)
-    yield loop, control
-    stop.set()
-    thread.join(10.0)
-    control.close()
-
-
-class _Served:
-    """A ConsoleServer running its event loop in a thread."""
-
-    def __init__(self, server: ConsoleServer):
-        self.server = server
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        self.url = self.call(server.start())
-        self.base = f"http://127.0.0.1:{server.port}/"
-
-    def call(self, coro, timeout=60.0):
-        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
-
-    def close(self):
-        self.call(self.server.stop())
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(5.0)
-        self.loop.close()
+    with serving(loop, TOKEN, wait=30.0) as (loop, control, _end):
+        yield loop, control
 
 
 @pytest.fixture
 def console(renderer, drawer, tmp_path):
     _, control = renderer
-    served = _Served(ConsoleServer(control.address, TOKEN, "127.0.0.1", 0, tmp_path, model=drawer))
+    served = ServedConsole(
+        ConsoleServer(control.address, TOKEN, "127.0.0.1", 0, tmp_path, model=drawer)
+    )
     yield served
     served.close()
 

@@ -14,7 +14,6 @@ import re
 import socket
 import subprocess
 import sys
-import threading
 import time
 import urllib.error
 import urllib.request
@@ -32,11 +31,11 @@ from evo_door.render.console import app as console_app  # noqa: E402
 from evo_door.render.console import server as console_server  # noqa: E402
 from evo_door.render.console.saving import safe_stem  # noqa: E402
 from evo_door.render.console.server import ConsoleServer  # noqa: E402
-from evo_door.render.control import ControlServer, request  # noqa: E402
+from evo_door.render.control import request  # noqa: E402
 from evo_door.render.keys import key_map  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.helpers import yielding_sim  # noqa: E402
+from tests.helpers import ServedConsole, serving, yielding_sim  # noqa: E402
 
 TOKEN = "s3cret-token"
 SENSATIONS = [p.name for p in PARAMS if p.group == "sensation"]
@@ -50,44 +49,14 @@ def renderer(seed_trial):
     build_parser()
     device = yielding_sim("open", radius=seed_trial["radius"], seed=3, damping=60.0)
     loop = ServoLoop(device, seed_trial, friction="tanh")
-    stop = threading.Event()
-    thread = threading.Thread(target=loop.run, kwargs={"stop": stop}, daemon=True)
-    control = ControlServer(loop, "127.0.0.1", 0, token=TOKEN).start()
-    thread.start()
-    deadline = time.monotonic() + 10.0
-    while loop.log.n < 10 and time.monotonic() < deadline:
-        time.sleep(0.001)
-    yield loop, control
-    stop.set()
-    thread.join(10.0)
-    control.close()
-
-
-class _Served:
-    """A ConsoleServer running its event loop in a thread."""
-
-    def __init__(self, server: ConsoleServer):
-        self.server = server
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        self.url = self._call(server.start())
-        self.base = f"http://127.0.0.1:{server.port}/"
-
-    def _call(self, coro, timeout=30.0):
-        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
-
-    def close(self):
-        self._call(self.server.stop())
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(5.0)
-        self.loop.close()
+    with serving(loop, TOKEN, wait=10.0) as (loop, control, _end):
+        yield loop, control
 
 
 @pytest.fixture
 def console(renderer, tmp_path):
     loop, control = renderer
-    served = _Served(ConsoleServer(control.address, TOKEN, "127.0.0.1", 0, tmp_path))
+    served = ServedConsole(ConsoleServer(control.address, TOKEN, "127.0.0.1", 0, tmp_path))
     yield served
     served.close()
 
