@@ -21,6 +21,7 @@ from evo_door.perception.jnd_file import read_jnd_file  # noqa: E402
 from evo_door.perception.procedures import SimParticipant  # noqa: E402
 from evo_door.render.console.jnd_mode import parse_settings  # noqa: E402
 from tests import test_console_server as base  # noqa: E402
+from tests.helpers import ServedConsole  # noqa: E402
 from tests.test_console_server import _next, _page, _session  # noqa: E402
 
 # the renderer and the console of the server's tests
@@ -222,7 +223,7 @@ def test_a_console_shut_down_mid_session_writes_what_was_answered(renderer, tmp_
 
     loop, control = renderer
     start = loop.params.as_dict()
-    served = base._Served(ConsoleServer(control.address, base.TOKEN, "127.0.0.1", 0, tmp_path))
+    served = ServedConsole(ConsoleServer(control.address, base.TOKEN, "127.0.0.1", 0, tmp_path))
     closed = False
     try:
 

@@ -418,8 +418,10 @@ def test_push_changes_a_rendered_mechanism_through_its_control_port(tmp_path, ca
 
     root = Path(__file__).resolve().parents[1]
     env = {**os.environ, "PYTHONPATH": str(root)}
-    cmd = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=5000",
+    # paced at 1 kHz with a watchdog of 1 s: a loaded machine (CI) does not stall it
+    cmd = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=1000",
            "--user", "hold", "--duration", "60", "--realtime", "--control", "0",
+           "--rate", "1000", "--watchdog-misses", "1000",
            "--log", str(tmp_path / "drawer.h5")]  # fmt: skip
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)  # fmt: skip
