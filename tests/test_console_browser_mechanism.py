@@ -1,6 +1,7 @@
 """The operator's console of a rendered mechanism in a real browser.
 
-``evo-door render soft_close_drawer.yaml --set stop.k=5000 --user swing --console``
+``evo-door render soft_close_drawer.yaml --set stop.k=2000 --user swing --console``
+(at 1 kHz)
 runs in its own process; headless Chromium opens the URL it prints. The page is the
 drawer's: its handle on its stroke in m, no door, no latch zoom, no JND panel; the
 drawer's parameters with their units and sliders over four times their values; a key
@@ -81,8 +82,11 @@ def _in_force(driver, name: str) -> float | None:
 
 def _render(folder: Path):
     """``render DRAWER ... --console`` in its own process: (process, URL)."""
-    command = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=5000"]
+    # at 1 kHz with a watchdog of 1 s: a loaded machine (CI) does not stall the loop,
+    # which would end the render under the page
+    command = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=2000"]
     command += ["--user", "swing", "--duration", "120", "--console", "--console-port", "0"]
+    command += ["--rate", "1000", "--watchdog-misses", "1000"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(ROOT)}
     env[CACHE_ENV] = str(folder / "mechanisms")
     proc = subprocess.Popen(command, cwd=folder, stdin=subprocess.DEVNULL,
@@ -145,14 +149,14 @@ def test_the_page_of_a_rendered_drawer(tmp_path):
         # a stop too stiff for the loop: the renderer's reason, the set in force kept
         driver.execute_script(
             "const s = document.getElementById('slider-stop.k');"
-            "s.value = '20000';"
+            "s.value = '8000';"
             "s.dispatchEvent(new Event('input', {bubbles: true}));"
             "s.dispatchEvent(new Event('change', {bubbles: true}));"
         )
         _wait(driver, lambda d: "not passive" in d.find_element(By.ID, "message").text,
               "the refusal's reason")  # fmt: skip
         assert "(stop.k)" in driver.find_element(By.ID, "message").text
-        assert _in_force(driver, "stop.k") == 5000.0
+        assert _in_force(driver, "stop.k") == 2000.0
     finally:
         driver.quit()
         if proc is not None and proc.poll() is None:
