@@ -150,10 +150,7 @@ def _energy(mech: Mechanism, pos, index, maps, potentials) -> list[str]:
     for b, body in mech.bodies.items():
         out.append(f"    e += 0.5 * {_inertia(b, body, index)} * x[{pos[b] + 1}] ** 2  # {b}")
         if f"{b}.arm" in index:
-            weight = f"p[{index[f'{b}.mass']}] * {GRAVITY!r}"
-            height = f"p[{index[f'{b}.arm']}] * math.sin(x[{pos[b]}])"
-            if f"{b}.arm_normal" in index:
-                height += f" + p[{index[f'{b}.arm_normal']}] * math.cos(x[{pos[b]}])"
+            weight, height, _ = _weight(b, pos, index)
             out.append(f"    e += {weight} * ({height})  # {b}'s weight")
     out += [f"    e += {expr}  # {name}" for expr, name in potentials]
     out.append("    return e")
@@ -185,10 +182,7 @@ def _rhs(mech: Mechanism, pos, index, maps, element_lines) -> list[str]:
         else:
             out.append(f"    f_{b} = 0.0")
         if f"{b}.arm" in index:
-            weight = f"p[{index[f'{b}.mass']}] * {GRAVITY!r}"
-            arm = f"p[{index[f'{b}.arm']}] * math.cos(x[{pos[b]}])"
-            if f"{b}.arm_normal" in index:
-                arm += f" - p[{index[f'{b}.arm_normal']}] * math.sin(x[{pos[b]}])"
+            weight, _, arm = _weight(b, pos, index)
             out.append(f"    f_{b} -= {weight} * ({arm})  # {b}'s weight")
     for lines, _ in maps:
         out += lines
@@ -200,6 +194,20 @@ def _rhs(mech: Mechanism, pos, index, maps, element_lines) -> list[str]:
         out.append(f"    dx[{pos[b]}] = x[{pos[b] + 1}]")
         out.append(f"    dx[{pos[b] + 1}] = f_{b} / {_inertia(b, body, index)}")
     return out
+
+
+def _weight(b: str, pos, index) -> tuple[str, str, str]:
+    """A rotary body's weight ``m g``, the height of its centre of mass over the axis
+    (``arm sin + arm_normal cos``: the energy's) and that height's derivative in the
+    angle (``arm cos - arm_normal sin``: the moment's lever), as source."""
+    weight = f"p[{index[f'{b}.mass']}] * {GRAVITY!r}"
+    q, arm = f"x[{pos[b]}]", f"p[{index[f'{b}.arm']}]"
+    height, lever = f"{arm} * math.sin({q})", f"{arm} * math.cos({q})"
+    if f"{b}.arm_normal" in index:
+        normal = f"p[{index[f'{b}.arm_normal']}]"
+        height += f" + {normal} * math.cos({q})"
+        lever += f" - {normal} * math.sin({q})"
+    return weight, height, lever
 
 
 def _inertia(b: str, body, index) -> str:
