@@ -13,9 +13,41 @@ only from :func:`__getattr__`, is the one exception (``docs/architecture.md``).
 
 from __future__ import annotations
 
+import os
+import sys
 from typing import Any
 
 __version__ = "0.2.0.dev0"
+
+#: numba's cache locators: evo-door's, which stamp a kernel with every source it imports
+#: (:mod:`evo_door.kernel_cache`), then numba's own list (``kernel_cache.LOCATORS``; a
+#: test checks they agree). Named here, without importing numba, before any kernel is
+#: decorated.
+KERNEL_CACHE_LOCATORS = (
+    "evo_door.kernel_cache.UserProvided,evo_door.kernel_cache.InTree,"
+    "evo_door.kernel_cache.UserWide,UserProvidedCacheLocator,InTreeCacheLocator,"
+    "UserWideCacheLocator,IPythonCacheLocator,ZipCacheLocator"
+)
+
+
+def _use_kernel_cache() -> None:
+    """Put evo-door's locators in front of those numba reads (its environment variable,
+    and its live setting when numba came first); a user's own list stays behind them."""
+    own = os.environ.get("NUMBA_CACHE_LOCATOR_CLASSES", "")
+    if own.startswith(KERNEL_CACHE_LOCATORS):
+        return
+    value = KERNEL_CACHE_LOCATORS + ("," + own if own else "")
+    os.environ["NUMBA_CACHE_LOCATOR_CLASSES"] = value
+    config = getattr(sys.modules.get("numba"), "config", None)
+    if config is not None:
+        config.CACHE_LOCATOR_CLASSES = value
+
+
+_use_kernel_cache()
+
+#: Whether numba's compilations are announced on stderr (set by the command line while a
+#: command runs; :mod:`evo_door.kernel_cache`).
+compile_notes = False
 
 #: the names :mod:`evo_door.api` offers at the package's top
 API = (

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
+import evo_door
 import evo_door.plugins  # noqa: F401 (fills the lower layers' registries: render logs as parameter files)
 from evo_door import __version__
 from evo_door.errors import UserError, error_line
@@ -49,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
+    compile_notes(True)
     try:
         for spec in getattr(args, "allow_model", None) or []:  # --allow-model (reading)
             from evo_door.errors import plain_text
@@ -74,6 +77,20 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("evo-door: interrupted", file=sys.stderr)
         return 130
+    finally:
+        compile_notes(False)
+
+
+def compile_notes(on: bool) -> None:
+    """Say on stderr what numba compiles while a command runs (a first run after an
+    install or an edit), instead of a silent wait; ``EVO_DOOR_COMPILE_NOTES=0`` keeps
+    quiet. Nothing is imported for it: :mod:`evo_door.kernel_cache` reads
+    ``evo_door.compile_notes`` when numba first imports it."""
+    on = on and os.environ.get("EVO_DOOR_COMPILE_NOTES", "1") != "0"
+    evo_door.compile_notes = on
+    cache = sys.modules.get("evo_door.kernel_cache")
+    if cache is not None:
+        cache.announce() if on else cache.finish_announce()
 
 
 def _numba_cache(exc: BaseException) -> str | None:

@@ -2,12 +2,19 @@
 models' usual parameter sets; the HapticMaster emulator. What tests share that is not a
 fixture is in ``helpers.py``."""
 
+import os
+
 import pytest
 from numba import njit
 
 from evo_door.models import get_model
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
+
+#: The command line's notes of what numba compiles (evo_door.kernel_cache) would land in
+#: the stderr that tests compare, whenever a test happens to compile first; quiet here
+#: (tests/test_kernel_cache.py turns them on).
+os.environ["EVO_DOOR_COMPILE_NOTES"] = "0"
 
 
 @njit(cache=True)

@@ -24,7 +24,7 @@ PACKAGE = ROOT / "evo_door"
 #: unit of its own layer. ``evo_door`` is the package's own ``__init__`` (the version).
 #: docs/architecture.md gives the same table, with each unit's purpose and place.
 LAYERS: list[set[str]] = [
-    {"evo_door", "errors", "channels", "yaml_numbers"},
+    {"evo_door", "errors", "channels", "yaml_numbers", "kernel_cache"},
     {"files"},
     {"params"},
     {"sim"},

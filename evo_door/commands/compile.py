@@ -1,0 +1,128 @@
+"""``evo-door compile``: compile the kernels once, ahead of the first real command.
+
+numba compiles a kernel the first time it runs and keeps it in its disk cache
+(:mod:`evo_door.kernel_cache`, which also drops an entry whose sources changed). A first
+command after an install therefore waits for its kernels; this command pays that wait at
+a time of the user's choosing: for a cluster image, a CI job, a lab machine before a
+session. It imports every module of the package (kernels with a declared signature
+compile there) and runs each built-in model through what the commands use, briefly:
+a simulation by every integration scheme, one by a batch, a force-angle curve, and a
+GA generation on the bundled trials by every objective. ``evo-door run
+experiments/default.yaml`` then starts at once (``tests/test_kernel_cache.py``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ORDER = 95
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "compile",
+        help="compile numba's kernels once (a cluster image, CI, a lab machine before a "
+        "session); later commands start at once",
+    )
+    p.add_argument("--quiet", action="store_true", help="no line per kernel, only the summary")
+    p.set_defaults(func=run)
+
+
+def modules() -> list[str]:
+    """Every module of the package but the entry point."""
+    import evo_door
+
+    names = [
+        info.name
+        for info in pkgutil.walk_packages(evo_door.__path__, "evo_door.")
+        if not info.name.endswith("__main__")
+    ]
+    return sorted(names)
+
+
+def steps():
+    """``(what, callable)``: the work that compiles every kernel the commands use."""
+    import numpy as np
+
+    from evo_door.models import get_model
+    from evo_door.optim.problem import KINDS
+    from evo_door.sim import METHODS, simulate, simulate_batch
+    from evo_door.sim.simulate import force_angle_curve
+
+    def importing():
+        skipped = []
+        for name in modules():
+            try:
+                importlib.import_module(name)
+            except ImportError as exc:  # an optional extra not installed (fmpy, dask...)
+                skipped.append(f"{name} ({exc.name or exc})")
+        return f"skipped {', '.join(skipped)}" if skipped else ""
+
+    def simulating(name):
+        model = get_model(name)
+        params = model.load_params()
+        dt = 1 / 1024
+        force = np.where(np.arange(512) * dt < 0.1, 20.0, 0.0)
+        for method in sorted(METHODS):
+            simulate(model, params, force, dt, method=method)
+        simulate_batch(model, np.array([params.vector] * 2), force, dt)
+        force_angle_curve(model, params)
+        return ""
+
+    def fitting(kind, folder):
+        import evo_door
+
+        trials = folder / "trials.h5"
+        if not trials.exists():  # two impulses of the virtual rig (no repository needed)
+            from evo_door.data.io import write_trials
+            from evo_door.data.rig.campaign import Campaign, generate_trials
+
+            door = get_model("door")
+            campaign = Campaign(users=1, trials=2, kinds=("impulse",))
+            write_trials(
+                trials, generate_trials(door, door.load_params(), campaign, progress=False)
+            )
+        evo_door.Experiment(
+            name="compile",
+            model="door",
+            params="default",
+            target=evo_door.trial_file(trials, preprocess={"rate_bias": "start"}),
+            free={"M": [0.3, 2.5]},
+            objective={"kind": kind, "derivative": 1},
+            algorithm={"population": 4, "generations": 1, "seed": 1},  # and its polish
+        ).run(folder / f"{kind}.h5")
+        return ""
+
+    yield "importing every module", importing
+    for name in ("haptic", "door"):
+        yield f"simulating the {name} model", lambda name=name: simulating(name)
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind in KINDS:
+            yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
+
+
+def run(args) -> int:
+    from evo_door import kernel_cache
+
+    if args.quiet:
+        kernel_cache.finish_announce(summary=False)
+    kernel_cache.COMPILES.count = 0
+    start = time.perf_counter()
+    for what, work in steps():
+        print(f"compile: {what}", file=sys.stderr)
+        note = work()
+        if note:
+            print(f"compile: {note}", file=sys.stderr)
+    n = kernel_cache.COMPILES.count
+    kernel_cache.finish_announce(summary=False)
+    print(
+        f"compiled {n} kernels in {time.perf_counter() - start:.1f} s"
+        if n
+        else "nothing to compile: every kernel was in numba's cache"
+    )
+    return 0

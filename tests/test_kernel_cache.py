@@ -1,0 +1,181 @@
+"""numba's cache of compiled kernels: dropped when any source a kernel imports changes,
+and a first run that says what it compiles (``evo_door.kernel_cache``, ``evo-door
+compile``)."""
+
+import io
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numba
+import pytest
+from numba import njit
+
+import evo_door
+from evo_door import kernel_cache
+from tests.helpers import DATA, ROOT, TINY_EXPERIMENT
+
+
+def test_the_package_names_its_locators_to_numba_in_front_of_numbas_own():
+    assert evo_door.KERNEL_CACHE_LOCATORS == kernel_cache.LOCATORS
+    assert numba.config.CACHE_LOCATOR_CLASSES.startswith(kernel_cache.LOCATORS)
+    # a kernel of the package is stamped by its imports, not by its own file alone
+    from evo_door.sim.integrators import integrate_batch
+
+    locator = integrate_batch._cache._impl.locator
+    assert isinstance(locator, (kernel_cache.InTree, kernel_cache.UserProvided))
+
+
+def _tree(tmp_path, files: dict) -> Path:
+    root = tmp_path / "evo_door"
+    for name, text in files.items():
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return root
+
+
+def test_a_stamp_covers_the_modules_imported_at_top_level_through_others(tmp_path, monkeypatch):
+    root = _tree(
+        tmp_path,
+        {
+            "__init__.py": "",
+            "sim/__init__.py": "",
+            "sim/kernel.py": "from evo_door.sim import helpers\nfrom evo_door.consts import K\n",
+            "sim/helpers.py": "from evo_door.laws import (\n    tanh,\n)\n",
+            "laws.py": "def tanh(x): return x\n",
+            "consts.py": "K = 1.0\n",
+            "late.py": "X = 1\n",
+            "other.py": "Y = 1\n",
+        },
+    )
+    (root / "sim/kernel.py").write_text(
+        (root / "sim/kernel.py").read_text() + "def f():\n    from evo_door.late import X\n"
+    )
+    monkeypatch.setattr(kernel_cache, "ROOT", root)
+    kernel = root / "sim/kernel.py"
+    before = kernel_cache.source_stamp(kernel)
+    for name, changes in [
+        ("laws.py", True),  # through helpers, a name of a parenthesised import list
+        ("consts.py", True),  # a constant frozen into compiled code
+        ("sim/__init__.py", True),  # a parent package runs first
+        ("late.py", False),  # imported inside a function: plain Python, later
+        ("other.py", False),  # not imported
+    ]:
+        (root / name).write_text((root / name).read_text() + "# edited\n")
+        after = kernel_cache.source_stamp(kernel)
+        assert (after != before) is changes, name
+        before = after
+
+
+def _copy_package(tmp_path) -> Path:
+    shutil.copytree(
+        ROOT / "evo_door", tmp_path / "evo_door", ignore=shutil.ignore_patterns("__pycache__")
+    )
+    return tmp_path
+
+
+USER_FILE = """\
+from numba import njit
+from evo_door.render.friction import tanh_friction
+
+@njit(cache=True)
+def braking(v):
+    return tanh_friction(v, 2.0, 3.0)
+
+print(braking(0.1), sum(braking.stats.cache_hits.values()))
+"""
+
+
+def test_an_edit_of_a_module_a_cached_kernel_calls_compiles_it_afresh(tmp_path):
+    """numba alone would load the old machine code: it watches the kernel's own file."""
+    home = _copy_package(tmp_path)
+    (home / "user.py").write_text(USER_FILE)
+    env = {**os.environ, "PYTHONPATH": str(home), "NUMBA_CACHE_DIR": str(home / "cache")}
+
+    def run():
+        out = subprocess.run(
+            [sys.executable, "user.py"], cwd=home, env=env, capture_output=True, text=True
+        )
+        assert out.returncode == 0, out.stderr
+        value, hits = out.stdout.split()
+        return float(value), int(hits)
+
+    first, hits = run()
+    assert hits == 0
+    assert run() == (first, 1)  # unchanged: from the cache
+    friction = home / "evo_door/render/friction.py"
+    text = friction.read_text()
+    body = "def tanh_friction(velocity, f_c, slope):"
+    assert body in text
+    friction.write_text(text.replace(body, body + "\n    f_c = 2.0 * f_c"))
+    edited, hits = run()
+    assert hits == 0 and edited == pytest.approx(2.0 * first, rel=1e-12)
+
+
+def test_the_notes_name_each_kernel_compiled_and_end_with_a_summary():
+    out = io.StringIO()
+    kernel_cache.announce(out)
+    try:
+
+        @njit
+        def fresh(x):
+            return x + 1.5
+
+        assert fresh(1.0) == 2.5
+        assert fresh(2.0) == 3.5  # compiled once: one note
+    finally:
+        kernel_cache.finish_announce(out)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("evo-door: compiling numba kernels (the first run")
+    named = [line for line in lines if "fresh" in line]
+    assert len(named) == 1 and named[0].startswith("evo-door: compiling tests.")
+    assert named[0].endswith("<locals>.fresh (kernel 1, 0 s so far)")
+    assert lines[-1].startswith("evo-door: compiled 1 kernels in ")
+    kernel_cache.announce(out)  # nothing compiled: no summary
+    kernel_cache.finish_announce(out)
+    assert out.getvalue().splitlines() == lines
+
+
+def _cli(args, cache, cwd):
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        "MPLBACKEND": "Agg",
+        "NUMBA_CACHE_DIR": str(cache),
+        "EVO_DOOR_COMPILE_NOTES": "1",
+    }
+    out = subprocess.run(
+        [sys.executable, "-m", "evo_door", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stderr
+    return [line for line in out.stderr.splitlines() if line.startswith("evo-door: compil")]
+
+
+@pytest.mark.slow
+def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(tmp_path):
+    """A fresh cache (an install): ``simulate haptic`` names what it compiles; ``evo-door
+    compile`` compiles the rest; a GA run then compiles nothing; ``EVO_DOOR_COMPILE_NOTES=0``
+    is quiet."""
+    cache = tmp_path / "cache"
+    t = 0.001 * __import__("numpy").arange(2000)
+    (tmp_path / "in.csv").write_text("t,force\n" + "".join(f"{x},{5.0}\n" for x in t))
+    notes = _cli(["simulate", "haptic", "--input", "in.csv", "--out", "out.csv"], cache, tmp_path)
+    assert "evo-door: compiling evo_door.models.haptic.accel" in "\n".join(notes)
+    assert notes[-1].startswith("evo-door: compiled ")
+    assert _cli(["compile"], cache, tmp_path)  # the door, the objectives: more to compile
+    assert (
+        _cli(["simulate", "haptic", "--input", "in.csv", "--out", "o2.csv"], cache, tmp_path) == []
+    )
+    (tmp_path / "tiny.yaml").write_text(TINY_EXPERIMENT)
+    assert DATA.exists()
+    assert _cli(["run", "tiny.yaml", "--out", "tiny.h5"], cache, tmp_path) == []
+    again = _cli(["compile"], cache, tmp_path)
+    assert again == []  # the command's own summary goes to stdout
