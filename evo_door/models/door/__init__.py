@@ -55,7 +55,7 @@ from evo_door.models.door.posetable import (
 )
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.params import param_vector
-from evo_door.sim.integrators import register_prepared
+from evo_door.sim.integrators import PREPARE_SIGNATURE, register_prepared
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
 PARAMS = TABLE
@@ -274,7 +274,9 @@ TABLE_START = N_PARAMS + 6
 PREPARED_SIZE = TABLE_START + TABLE_SIZE
 
 
-@njit(cache=True, nogil=True)
+# its signature declared: the objective kernels take it as a first-class function and
+# Python calls it (Prepared.vector), and numba's cache keys the two ways apart
+@njit(PREPARE_SIGNATURE, cache=True, nogil=True)
 def prepare(p, q):
     """Fill the prepared vector ``q`` (:data:`PREPARED_SIZE`) for the parameters ``p``.
 
