@@ -7,7 +7,8 @@
   started on the emulator (:func:`started`) and haptic parameter vectors drawn within
   their bounds (:func:`random_kernel_vectors`);
 - a servo loop served on its control port in a thread (:func:`served_loop`) and the
-  answers read back from a connection to it (:func:`answer_lines`).
+  answers read back from a connection to it (:func:`answer_lines`);
+- a process stopped for sure (:func:`freeze`: SIGSTOP, then its threads seen stopped).
 
 The independent statements of the science that tests compare against are
 ``reference.py`` (converged integrations) and ``feel_reference.py`` (the perceptual
@@ -50,6 +51,26 @@ def cli_process(*args, cwd):
         env=env,
         timeout=300,
     )
+
+
+def freeze(pid: int, timeout: float = 5.0) -> None:
+    """SIGSTOP ``pid`` and wait until every thread of it is stopped. The signal is
+    delivered asynchronously: on a loaded machine the process may still answer a
+    request or two after ``os.kill`` returns, which a stall test must not count on."""
+    import signal
+
+    os.kill(pid, signal.SIGSTOP)
+    tasks = Path(f"/proc/{pid}/task")
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        states = []
+        for stat in tasks.glob("*/stat"):
+            with contextlib.suppress(OSError):  # a thread that just ended
+                states.append(stat.read_text().rsplit(")", 1)[1].split()[0])
+        if states and all(s in "tT" for s in states):
+            return
+        time.sleep(0.001)
+    raise AssertionError(f"process {pid} not stopped {timeout} s after SIGSTOP")
 
 
 # -- devices ------------------------------------------------------------------------------

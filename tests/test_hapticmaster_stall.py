@@ -33,6 +33,7 @@ from evo_door.render.hm_protocol import (
     failsafe_commands,
 )
 from evo_door.render.loop import ServoLoop
+from tests.helpers import freeze
 
 pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGSTOP"), reason="needs SIGSTOP")
 
@@ -112,7 +113,7 @@ def test_a_stalled_device_is_noticed_in_milliseconds_and_resumes_without_force()
         device.command([0.0, 40.0, 0.0])
         device.read()
         assert probe(port, f"get {BIAS_NAME} force", "get state") == ["[0,40,0]", "force"]
-        os.kill(emu.pid, signal.SIGSTOP)
+        freeze(emu.pid)
         try:
             t0 = time.monotonic()
             with pytest.raises(HapticMasterConnectionLost, match="no answer within 50 ms"):
@@ -142,7 +143,7 @@ def test_render_over_a_stalled_emulator_ends_within_half_a_second():
         try:
             # the radial spring (its circle 4 cm inside the hand's) pulls on the handle
             assert wait_for(lambda: bias_newtons(port) > 20.0, 90.0), render.poll()
-            os.kill(emu.pid, signal.SIGSTOP)
+            freeze(emu.pid)
             t0 = time.monotonic()
             try:
                 code = render.wait(timeout=2.5)

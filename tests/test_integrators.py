@@ -151,3 +151,56 @@ def test_bad_inputs_are_user_errors(oscillator):
         simulate(oscillator, p, [0.0, 1.0], DT, method="euler")
     with pytest.raises(UserError, match="takes 4 parameters"):
         simulate(oscillator, p[:3], [0.0, 1.0], DT)
+
+
+# -- nothing computed twice: the acceleration a step ends with serves the next ----------
+@njit
+def counted_accel(theta, dtheta, force, p):
+    """A gentle oscillator with sign-law dry friction (``p[2]``) that counts its calls
+    in ``p[3]``."""
+    p[3] += 1.0
+    friction = p[2] * (1.0 if dtheta > 0.0 else (-1.0 if dtheta < 0.0 else 0.0))
+    return force - p[0] * theta - p[1] * dtheta - friction
+
+
+def _calls_per_sample(force, friction, theta0, stick):
+    from evo_door.sim.integrators import DOPRI5, integrate_compiled
+    from evo_door.sim.located import no_switches
+
+    p = np.array([40.0, 0.5, friction, 0.0])
+    n = force.size
+    out = [np.empty(n) for _ in range(3)]
+    ok = integrate_compiled(
+        counted_accel, no_switches, p, force, 1 / 1024, 1, theta0, 0.0, DOPRI5, 1e-7, 0,
+        stick, *out,
+    )  # fmt: skip
+    assert ok
+    return (p[3] - 1) / (n - 1), out
+
+
+@pytest.mark.numerics
+def test_a_smooth_sample_costs_the_six_new_stages_of_one_step():
+    """Dormand-Prince's seven stages share the first with the step before (first same as
+    last), and the acceleration a sample reports is that last stage: six calls a sample
+    where the motion is smooth (eight when the period and the output each evaluated it
+    again)."""
+    force = 2.0 * np.sin(np.arange(2048) / 1024 * 3.0)
+    per_sample, (theta, dtheta, ddtheta) = _calls_per_sample(force, 0.0, 0.1, False)
+    assert 5.9 < per_sample <= 6.05, per_sample
+    # the reported acceleration is the model's at the reported state and force
+    p = np.array([40.0, 0.5, 0.0, 0.0])
+    for k in (1, 700, 2047):
+        assert ddtheta[k] == pytest.approx(
+            counted_accel(theta[k], dtheta[k], force[k], p), rel=1e-12, abs=1e-12
+        )
+
+
+@pytest.mark.numerics
+def test_a_stuck_sample_costs_the_four_calls_that_decide_it_holds():
+    """Held by its dry friction a whole period, the door's friction is read on both sides
+    at the period's start and end (four calls), and its rate there is 0 without asking
+    again."""
+    force = np.full(2048, 1.0)  # well inside the friction's 5 N
+    per_sample, (theta, dtheta, ddtheta) = _calls_per_sample(force, 5.0, 0.0, True)
+    assert np.all(dtheta == 0.0) and np.all(theta == 0.0) and np.all(ddtheta == 0.0)
+    assert per_sample <= 4.01, per_sample

@@ -31,6 +31,7 @@ from evo_door.render import supervisor as sup
 from evo_door.render.device import SimDevice
 from evo_door.render.hm_protocol import BIAS_NAME, FrameReader, encode
 from evo_door.render.loop import ServoLoop
+from tests.helpers import freeze
 
 #: the probe's question: the device's state, and the host's bias force and whether it is on
 PROBE = f"get state;get {BIAS_NAME} force;get {BIAS_NAME} enabled"
@@ -190,7 +191,7 @@ def test_a_frozen_renderer_leaves_no_force_and_does_not_resume(emulator, tmp_pat
         assert _wait_for_force(probe, proc) > 20.0
         supervisor = _supervisor_pid(proc.pid)
         stopped = time.monotonic()
-        os.kill(proc.pid, signal.SIGSTOP)
+        freeze(proc.pid)
         off = _time_to_no_force(probe, stopped)
         assert off < 0.1, f"force still on {off * 1e3:.0f} ms into the stall"
         # while frozen, and after it runs again, no force comes back
@@ -406,7 +407,7 @@ def test_a_frozen_render_on_the_simulated_device_does_not_resume(tmp_path):
         while not (partial.exists() and partial.stat().st_size > 200_000):
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
             time.sleep(0.05)
-        os.kill(proc.pid, signal.SIGSTOP)
+        freeze(proc.pid)
         time.sleep(1.0)
         os.kill(proc.pid, signal.SIGCONT)
         out, err = proc.communicate(timeout=30)

@@ -190,17 +190,23 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
 
 @njit(cache=True, nogil=True, inline="always")
 def step_period(
-    accel, switches, p, theta, dtheta, f0, f1, a_start, dt, substeps, method, tol, n_sw, stick, g
-):
+    accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
+    n_sw, stick, g,
+):  # fmt: skip
     """Move the state over one sample period: :func:`advance`, or where the model has
     switching surfaces, stick-slip friction or the method is ``dopri5``,
-    :func:`~evo_door.sim.located.advance_located` (``g``: 4 rows of scratch)."""
+    :func:`~evo_door.sim.located.advance_located` (``g``: 4 rows of scratch; with
+    ``g_ready`` its first row holds the switching functions at the start).
+
+    Returns ``(theta, dtheta, a_end, a_ok)``: where ``a_ok``, ``a_end`` is the
+    acceleration at the end that the last step already computed."""
     if method == DOPRI5 or n_sw > 0 or stick:
         return advance_located(
-            accel, switches, p, theta, dtheta, f0, f1, dt, substeps, method, tol, n_sw, stick,
-            g[0], g[1], g[2], g[3],
+            accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method,
+            tol, n_sw, stick, g[0], g[1], g[2], g[3],
         )  # fmt: skip
-    return advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
+    theta, dtheta = advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
+    return theta, dtheta, 0.0, False
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -227,9 +233,9 @@ def integrate_with(
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
     for k in range(n - 1):
-        theta, dtheta = step_period(
-            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, dt, substeps,
-            method, tol, n_sw, stick, g,
+        theta, dtheta, a_end, a_ok = step_period(
+            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
+            substeps, method, tol, n_sw, stick, g,
         )  # fmt: skip
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
             for j in range(k + 1, n):
@@ -237,7 +243,7 @@ def integrate_with(
                 dtheta_out[j] = np.nan
                 ddtheta_out[j] = np.nan
             return False
-        a_now = rate(accel, p, theta, dtheta, force[k + 1], stick)
+        a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
         theta_out[k + 1] = theta
         dtheta_out[k + 1] = dtheta
         ddtheta_out[k + 1] = a_now

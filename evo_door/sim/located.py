@@ -302,6 +302,8 @@ def advance_located(
     dtheta,
     f0,
     f1,
+    a_start,
+    g_ready,
     dt,
     substeps,
     method,
@@ -319,6 +321,12 @@ def advance_located(
     ``n_sw`` switching functions; ``stick`` says its dry friction is a sign law (the
     module docstring). ``g0``, ``g1``, ``gx`` are scratch arrays of at least ``n_sw``
     floats, ``active`` one more (1.0 for a surface still located this period).
+
+    Nothing a period has is computed again by the next: ``a_start`` is the acceleration
+    at the start (``accel``'s, as :func:`rate` gives it unless the door is stuck), and
+    with ``g_ready`` ``g0`` holds the switching functions there; on return ``g0`` holds
+    them at the end. Returns ``(theta, dtheta, a_end, a_ok)``: ``a_end`` is ``accel`` at
+    the end, from the last step's last stage, where ``a_ok`` (else compute it).
     """
     # long: one loop over the period's steps, in four cases read top to bottom (a
     # stuck door; the step; a crossing located; the move across it); they share the
@@ -331,18 +339,23 @@ def advance_located(
         active[i] = 1.0
     events = 0
     rejects = 0
-    a1 = 0.0
-    fresh = False  # a1 holds the acceleration at the current state
+    a1 = a_start
+    fresh = True  # a1 holds the acceleration at the current state
+    a_ok = False  # ... and it is the last step's last stage, at the current state
+    g_fresh = True  # g0 holds the switching functions at the current state and time
     a_t = 0.0
     a_w = 0.0
     if method == SEMI_IMPLICIT:
-        a_t, a_w = jacobian(accel, p, theta, dtheta, f0, accel(theta, dtheta, f0, p))
-    switches(theta, dtheta, f0, p, g0)
+        a_base = accel(theta, dtheta, f0, p) if stick and dtheta == 0.0 else a_start
+        a_t, a_w = jacobian(accel, p, theta, dtheta, f0, a_base)
+    if not g_ready:
+        switches(theta, dtheta, f0, p, g0)
     while dt - t > LOCATE_TOL * dt:
         force = f0 + slope * t
         # 1. a stuck door: held until the other forces beat the friction
         if stick and dtheta == 0.0:
             fresh = False
+            a_ok = False
             forward = accel(theta, CREEP, force, p)
             backward = accel(theta, -CREEP, force, p)
             if forward > 0.0:
@@ -358,11 +371,14 @@ def advance_located(
                     free = min(free, t + (dt - t) * (-forward) / (forward_end - forward))
                 if backward_end < 0.0:
                     free = min(free, t + (dt - t) * (-backward) / (backward_end - backward))
-                if free >= dt:
-                    return theta, 0.0
+                if free >= dt:  # held to the end, where the friction still holds: rate 0
+                    switches(theta, 0.0, f1, p, g0)
+                    return theta, 0.0, 0.0, True
                 t = max(free, t + LOCATE_TOL * dt)
+                g_fresh = False
                 continue
             switches(theta, dtheta, force, p, g0)
+            g_fresh = True
         # 2. the step (a sliding door's friction held on its side: see sided)
         side = 0
         if stick:
@@ -371,6 +387,7 @@ def advance_located(
         if not fresh:
             a1 = accel(theta, dtheta, force, p)
         fresh = False
+        a_ok = False
         th1, w1, err, a_end = trial_step(
             accel, p, theta, dtheta, a1, t, h, f0, slope, method, tol, a_t, a_w, side
         )
@@ -398,11 +415,13 @@ def advance_located(
             t += h
             for i in range(n_sw):
                 g0[i] = g1[i]
+            g_fresh = True
             if method == DOPRI5:
                 grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
                 h = min(h_max, h * min(5.0, grow))
                 a1 = a_end  # first same as last: the next step's first stage
                 fresh = True
+                a_ok = side == 0 or w1 * side > 0.0  # sided gave accel's own value
             continue
         # 3. a crossing: the longest step short of it, by Illinois on the length
         events += 1
@@ -457,6 +476,7 @@ def advance_located(
         if c == n_sw:
             dtheta = 0.0  # the speed's zero: stick, or slip the other way (case 1)
             switches(theta, dtheta, f0 + slope * t, p, g0)
+            g_fresh = True
             continue
         width = max(hi - lo, LOCATE_TOL * dt)
         before = g0[c]
@@ -474,6 +494,9 @@ def advance_located(
                 break
             width *= 4.0
         switches(theta, dtheta, f0 + slope * min(t, dt), p, g0)
+        g_fresh = True
         if not _crossed(g0[c], before):
             active[c] = 0.0  # grazes it: step over it for the rest of the period
-    return theta, dtheta
+    if not g_fresh:
+        switches(theta, dtheta, f1, p, g0)
+    return theta, dtheta, a1, a_ok

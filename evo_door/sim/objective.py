@@ -112,13 +112,13 @@ def trial_error(
     acc = 0.0
     for k in range(start, stop):
         if k > start:
-            theta, dtheta = step_period(
-                accel, switches, p, theta, dtheta, force[k - 1], force[k], a_now, dt,
-                substeps, method, tol, n_sw, stick, g,
+            theta, dtheta, a_end, a_ok = step_period(
+                accel, switches, p, theta, dtheta, force[k - 1], force[k], a_now, k > start + 1,
+                dt, substeps, method, tol, n_sw, stick, g,
             )  # fmt: skip
             if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
                 return math.inf, False
-            a_now = rate(accel, p, theta, dtheta, force[k], stick)
+            a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k], stick)
         if not mask[k]:
             continue
         if derivative == 0:
