@@ -40,16 +40,17 @@ algorithm: {{population: 6, generations: 1, seed: 1}}
 """
 
 
-def cli_process(*args, cwd):
-    """``evo-door ARGS`` in a fresh process in ``cwd`` (this checkout's code)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+def cli_process(*args, cwd, env=None, timeout=300):
+    """``evo-door ARGS`` in a fresh process in ``cwd`` (this checkout's code); ``env``:
+    variables set on top of this process's."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg", **(env or {})}
     return subprocess.run(
         [sys.executable, "-m", "evo_door", *map(str, args)],
         capture_output=True,
         text=True,
         cwd=cwd,
         env=env,
-        timeout=300,
+        timeout=timeout,
     )
 
 

@@ -10,12 +10,13 @@ import sys
 from pathlib import Path
 
 import numba
+import numpy as np
 import pytest
 from numba import njit
 
 import evo_door
 from evo_door import kernel_cache
-from tests.helpers import DATA, ROOT, TINY_EXPERIMENT
+from tests.helpers import DATA, ROOT, TINY_EXPERIMENT, cli_process
 
 
 def test_the_package_names_its_locators_to_numba_in_front_of_numbas_own():
@@ -140,42 +141,31 @@ def test_the_notes_name_each_kernel_compiled_and_end_with_a_summary():
 
 
 def _cli(args, cache, cwd):
-    env = {
-        **os.environ,
-        "PYTHONPATH": str(ROOT),
-        "MPLBACKEND": "Agg",
-        "NUMBA_CACHE_DIR": str(cache),
-        "EVO_DOOR_COMPILE_NOTES": "1",
-    }
-    out = subprocess.run(
-        [sys.executable, "-m", "evo_door", *map(str, args)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    """The compile notes of ``evo-door ARGS`` on the numba cache ``cache``."""
+    env = {"NUMBA_CACHE_DIR": str(cache), "EVO_DOOR_COMPILE_NOTES": "1"}
+    out = cli_process(*args, cwd=cwd, env=env, timeout=600)
     assert out.returncode == 0, out.stderr
     return [line for line in out.stderr.splitlines() if line.startswith("evo-door: compil")]
 
 
 @pytest.mark.slow
 def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(tmp_path):
-    """A fresh cache (an install): ``simulate haptic`` names what it compiles; ``evo-door
-    compile`` compiles the rest; a GA run then compiles nothing; ``EVO_DOOR_COMPILE_NOTES=0``
-    is quiet."""
+    """A fresh cache (an install): the first command, ``evo-door compile``, names each
+    kernel it compiles as it starts (any command does: the notes are the command line's,
+    ``evo_door.cli.compile_notes``); then ``simulate haptic`` and a GA run compile
+    nothing."""
     cache = tmp_path / "cache"
-    t = 0.001 * __import__("numpy").arange(2000)
+    notes = _cli(["compile"], cache, tmp_path)
+    assert notes[0].startswith("evo-door: compiling numba kernels (the first run")
+    named = "\n".join(notes)
+    for kernel in ("evo_door.models.haptic.accel", "evo_door.sim.objective._population_errors"):
+        assert f"evo-door: compiling {kernel} (kernel " in named, kernel
+    t = 0.001 * np.arange(2000)
     (tmp_path / "in.csv").write_text("t,force\n" + "".join(f"{x},{5.0}\n" for x in t))
-    notes = _cli(["simulate", "haptic", "--input", "in.csv", "--out", "out.csv"], cache, tmp_path)
-    assert "evo-door: compiling evo_door.models.haptic.accel" in "\n".join(notes)
-    assert notes[-1].startswith("evo-door: compiled ")
-    assert _cli(["compile"], cache, tmp_path)  # the door, the objectives: more to compile
     assert (
-        _cli(["simulate", "haptic", "--input", "in.csv", "--out", "o2.csv"], cache, tmp_path) == []
+        _cli(["simulate", "haptic", "--input", "in.csv", "--out", "o.csv"], cache, tmp_path) == []
     )
     (tmp_path / "tiny.yaml").write_text(TINY_EXPERIMENT)
     assert DATA.exists()
     assert _cli(["run", "tiny.yaml", "--out", "tiny.h5"], cache, tmp_path) == []
-    again = _cli(["compile"], cache, tmp_path)
-    assert again == []  # the command's own summary goes to stdout
+    assert _cli(["compile"], cache, tmp_path) == []  # its own summary goes to stdout
