@@ -7,8 +7,10 @@ a time of the user's choosing: for a cluster image, a CI job, a lab machine befo
 session. It imports every module of the package (kernels with a declared signature
 compile there) and runs each built-in model through what the commands use, briefly:
 a simulation by every integration scheme, one by a batch, a force-angle curve, and a
-GA generation on the bundled trials by every objective. ``evo-door run
-experiments/default.yaml`` then starts at once (``tests/test_kernel_cache.py``).
+GA generation with its polish by every objective, on two impulses of the virtual rig (no
+repository data needed). ``evo-door simulate`` and ``evo-door run`` then compile nothing
+(``tests/test_kernel_cache.py``). The render loop's own kernels and a mechanism file's
+module compile at their first use, named by the notes.
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ def register(sub) -> None:
         help="compile numba's kernels once (a cluster image, CI, a lab machine before a "
         "session); later commands start at once",
     )
-    p.add_argument("--quiet", action="store_true", help="no line per kernel, only the summary")
+    p.add_argument(
+        "--quiet", action="store_true", help="no line per step or kernel, only the summary"
+    )
     p.set_defaults(func=run)
 
 
@@ -113,11 +117,12 @@ def run(args) -> int:
         kernel_cache.finish_announce(summary=False)
     kernel_cache.COMPILES.count = 0
     start = time.perf_counter()
+    say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
     for what, work in steps():
-        print(f"compile: {what}", file=sys.stderr)
+        say(f"compile: {what}")
         note = work()
         if note:
-            print(f"compile: {note}", file=sys.stderr)
+            say(f"compile: {note}")
     n = kernel_cache.COMPILES.count
     kernel_cache.finish_announce(summary=False)
     print(
