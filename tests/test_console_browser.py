@@ -19,12 +19,10 @@ screenshot to ``docs/figures/console.png`` (else to the test's temporary folder)
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import os
 import queue
-import shutil
 import signal
 import subprocess
 import sys
@@ -34,39 +32,22 @@ from pathlib import Path
 
 import pytest
 
+from tests.browser import (
+    By,
+    NoAlertPresentException,
+    TimeoutException,
+    WebDriverWait,
+    headless_chromium,
+    skip_if_missing,
+    stop,
+)
+
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _program(path: str, name: str) -> str | None:
-    return path if os.access(path, os.X_OK) else shutil.which(name)
-
-
-CHROMIUM = _program("/usr/bin/chromium", "chromium")
-CHROMEDRIVER = _program("/usr/bin/chromedriver", "chromedriver")
-_MISSING = [
-    what
-    for what, there in (
-        ("chromium (apt-get install chromium)", CHROMIUM),
-        ("chromedriver (apt-get install chromium-driver)", CHROMEDRIVER),
-        ("selenium (pip install selenium)", importlib.util.find_spec("selenium")),
-        ("aiohttp (pip install aiohttp)", importlib.util.find_spec("aiohttp")),
-    )
-    if not there
-]
-#: on CI the browser tests must run: a missing browser fails them instead of a skip
-REQUIRED = bool(os.environ.get("CI")) and os.environ.get("EVO_DOOR_BROWSER_TESTS", "1") != "0"
-_WHY = "the browser tests need " + ", ".join(_MISSING)
-if _MISSING and not REQUIRED:
-    pytest.skip(_WHY, allow_module_level=True)
-if not _MISSING:  # else (on CI) the session fixture fails every test with _WHY
-    from selenium import webdriver
-    from selenium.common.exceptions import NoAlertPresentException, TimeoutException
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-    from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
+skip_if_missing()
 
 from evo_door.cli import main  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
@@ -149,13 +130,7 @@ def _read_lines(stream, out: queue.Queue, lines: list[str]) -> None:
 def browser():
     """Headless Chromium on a blank page, started before the renderer (as an operator's
     browser already runs: its start-up costs the loop's cores a second or two)."""
-    if _MISSING:  # REQUIRED: CI must not lose the browser tests silently
-        pytest.fail(f"{_WHY}; CI requires them (EVO_DOOR_BROWSER_TESTS=0 skips)", pytrace=False)
-    options = Options()
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1366,900"):
-        options.add_argument(arg)
-    options.binary_location = CHROMIUM
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver = headless_chromium()
     try:
         driver.execute_cdp_cmd("Page.addScriptToEvaluateOnNewDocument", {"source": CAPTURE_SOCKETS})
         driver.get("about:blank")
@@ -210,13 +185,7 @@ def session(browser, tmp_path_factory):
         s.control = control
         yield s
     finally:
-        if proc.poll() is None:  # a test failed before the last one stopped it
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc)  # a test failed before the last one stopped it
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,8 @@ with the renderer's reason and the set in force stays. Skipped as
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import queue
-import shutil
-import signal
 import subprocess
 import sys
 import threading
@@ -27,6 +24,14 @@ from pathlib import Path
 import pytest
 
 from evo_door.models.blocks import CACHE_ENV
+from tests.browser import (
+    By,
+    TimeoutException,
+    WebDriverWait,
+    headless_chromium,
+    skip_if_missing,
+    stop,
+)
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -34,33 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DRAWER = str(ROOT / "examples" / "blocks" / "soft_close_drawer.yaml")
 
 
-def _program(path: str, name: str) -> str | None:
-    return path if os.access(path, os.X_OK) else shutil.which(name)
-
-
-CHROMIUM = _program("/usr/bin/chromium", "chromium")
-CHROMEDRIVER = _program("/usr/bin/chromedriver", "chromedriver")
-_MISSING = [
-    what
-    for what, there in (
-        ("chromium (apt-get install chromium)", CHROMIUM),
-        ("chromedriver (apt-get install chromium-driver)", CHROMEDRIVER),
-        ("selenium (pip install selenium)", importlib.util.find_spec("selenium")),
-        ("aiohttp (pip install aiohttp)", importlib.util.find_spec("aiohttp")),
-    )
-    if not there
-]
-REQUIRED = bool(os.environ.get("CI")) and os.environ.get("EVO_DOOR_BROWSER_TESTS", "1") != "0"
-_WHY = "the browser tests need " + ", ".join(_MISSING)
-if _MISSING and not REQUIRED:
-    pytest.skip(_WHY, allow_module_level=True)
-if not _MISSING:
-    from selenium import webdriver
-    from selenium.common.exceptions import TimeoutException
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-    from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
+skip_if_missing()
 
 #: how long the renderer gets to print its console URL, the page to show a change (s)
 START_TIMEOUT = 60.0
@@ -116,13 +95,7 @@ def _render(folder: Path):
 
 
 def test_the_page_of_a_rendered_drawer(tmp_path):
-    if _MISSING:
-        pytest.fail(f"{_WHY}; CI requires them (EVO_DOOR_BROWSER_TESTS=0 skips)", pytrace=False)
-    options = Options()
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1366,900"):
-        options.add_argument(arg)
-    options.binary_location = CHROMIUM
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver = headless_chromium()
     proc = None
     try:
         proc, url = _render(tmp_path)
@@ -159,10 +132,4 @@ def test_the_page_of_a_rendered_drawer(tmp_path):
         assert _in_force(driver, "stop.k") == 2000.0
     finally:
         driver.quit()
-        if proc is not None and proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop(proc)
