@@ -54,6 +54,15 @@ def cli_process(*args, cwd, env=None, timeout=300):
     )
 
 
+def console_url(stdout) -> str:
+    """The URL ``render --console`` prints on its line ``console URL``, read from its
+    stdout up to that line (the rest stays to be read); "" when the output ends first."""
+    for line in stdout:
+        if line.startswith("console "):
+            return line.split()[1]
+    return ""
+
+
 def freeze(pid: int, timeout: float = 5.0) -> None:
     """SIGSTOP ``pid`` and wait until every thread of it is stopped. The signal is
     delivered asynchronously: on a loaded machine the process may still answer a

@@ -36,7 +36,7 @@ from evo_door.render.console.server import ConsoleServer  # noqa: E402
 from evo_door.render.keys import KEY_PAIRS, nice_step  # noqa: E402
 from evo_door.render.mechanism import MechanismLoop, Stroke  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.helpers import ServedConsole, serving, yielding_sim  # noqa: E402
+from tests.helpers import ServedConsole, console_url, serving, yielding_sim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DRAWER = str(ROOT / "examples" / "blocks" / "soft_close_drawer.yaml")
@@ -241,11 +241,7 @@ def test_render_console_serves_a_mechanism(tmp_path_factory, tmp_path):
     cmd += ["--user", "hold", "--duration", "8", "--console", "--console-port", "0"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, text=True)
     try:
-        url = ""
-        for line in proc.stdout:
-            if line.startswith("console "):
-                url = line.split()[1]
-                break
+        url = console_url(proc.stdout)
         assert url.startswith("http://127.0.0.1:") and "?token=" in url
         base, query = url.split("?")
         with urllib.request.urlopen(f"{base}api/declaration?{query}", timeout=60) as r:

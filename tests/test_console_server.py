@@ -35,7 +35,7 @@ from evo_door.render.control import request  # noqa: E402
 from evo_door.render.keys import key_map  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.helpers import ServedConsole, serving, yielding_sim  # noqa: E402
+from tests.helpers import ServedConsole, console_url, serving, yielding_sim  # noqa: E402
 
 TOKEN = "s3cret-token"
 SENSATIONS = [p.name for p in PARAMS if p.group == "sensation"]
@@ -472,11 +472,7 @@ def test_render_console_spawns_the_console_and_stops_it(tmp_path):
     cmd += ["--user", "hold", "--duration", "4", "--console", "--console-port", "0"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, text=True)
     try:
-        url = ""
-        for line in proc.stdout:
-            if line.startswith("console "):
-                url = line.split()[1]
-                break
+        url = console_url(proc.stdout)
         assert url.startswith("http://127.0.0.1:") and "?token=" in url
         printed = time.monotonic()  # the loop starts after the console is up
         base, query = url.split("?")
