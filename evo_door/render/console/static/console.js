@@ -1527,15 +1527,8 @@
       ctx.closePath();
       ctx.fill();
     }
-    // readout
-    ctx.fillStyle = COLORS.ink;
-    ctx.font = "12px system-ui, sans-serif";
-    ctx.textAlign = "right";
-    ctx.textBaseline = "top";
-    const x0 = w - 6;
-    ctx.fillText("angle " + fixed(ds.theta * DEG, 1) + " deg", x0, 4);
-    ctx.fillText("speed " + (isFinite(ds.dtheta) ? fixed(ds.dtheta * DEG, 1) : "-") + " deg/s", x0, 19);
-    ctx.fillText("force " + (isFinite(ds.force) ? fixed(ds.force, 1) : "-") + " N", x0, 34);
+    const x0 = readout(ctx, w, "angle " + fixed(ds.theta * DEG, 1) + " deg",
+      (isFinite(ds.dtheta) ? fixed(ds.dtheta * DEG, 1) : "-") + " deg/s", ds.force);
     if (latch.active && latch.locked !== null) {
       const recent = S.latchEvent && performance.now() - S.latchEvent.at < 600;
       ctx.fillStyle = recent ? "#b54708" : COLORS.muted;
@@ -1602,15 +1595,24 @@
       ctx.closePath();
       ctx.fill();
     }
+    const d = handleDigits();
+    readout(ctx, w, handleWord() + " " + fixed(ds.theta * hk, d) + " " + u,
+      (isFinite(ds.dtheta) ? fixed(ds.dtheta * hk, d) : "-") + " " + u + "/s", ds.force);
+  }
+
+  // the numbers at the top right of the door or the stroke, a line each: the position
+  // and the speed (as given, with their units), the force in N; returns their right
+  // edge, for a line more
+  function readout(ctx, w, position, speed, force) {
     ctx.fillStyle = COLORS.ink;
     ctx.font = "12px system-ui, sans-serif";
     ctx.textAlign = "right";
     ctx.textBaseline = "top";
-    const d = handleDigits();
-    const xr = w - 6;
-    ctx.fillText(handleWord() + " " + fixed(ds.theta * hk, d) + " " + u, xr, 4);
-    ctx.fillText("speed " + (isFinite(ds.dtheta) ? fixed(ds.dtheta * hk, d) : "-") + " " + u + "/s", xr, 19);
-    ctx.fillText("force " + (isFinite(ds.force) ? fixed(ds.force, 1) : "-") + " N", xr, 34);
+    const x = w - 6;
+    ctx.fillText(position, x, 4);
+    ctx.fillText("speed " + speed, x, 19);
+    ctx.fillText("force " + (isFinite(force) ? fixed(force, 1) : "-") + " N", x, 34);
+    return x;
   }
 
   // ---------------------------------------------------------------- force against angle
