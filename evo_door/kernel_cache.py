@@ -90,8 +90,10 @@ def source_stamp(path: str | os.PathLike) -> bytes:
     return h.digest()
 
 
+@functools.cache
 def uses_evo_door(path: str) -> bool:
-    """Whether a cached function's file is evo-door's or imports it."""
+    """Whether a cached function's file is evo-door's or imports it (asked by each
+    locator in turn for every cached function: once per file and process)."""
     if not os.path.isfile(path):
         return False
     if Path(path).resolve().is_relative_to(ROOT):
