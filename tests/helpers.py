@@ -39,6 +39,12 @@ objective: {{kind: ise, derivative: 1}}
 algorithm: {{population: 6, generations: 1, seed: 1}}
 """
 
+# The render's safety limits for a test that needs a whole session over real TCP on a
+# loaded machine (the suite runs a worker per core, CI runs jobs beside it): the widest
+# the commands accept, so that a descheduled test process does not end the session. The
+# limits themselves are tested where they must trip (test_render_stall and the like).
+LOADED_MACHINE_LIMITS = ["--watchdog-misses", "1000", "--supervisor-budget", "1000"]
+
 
 def cli_process(*args, cwd, env=None, timeout=300):
     """``evo-door ARGS`` in a fresh process in ``cwd`` (this checkout's code); ``env``:

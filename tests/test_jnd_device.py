@@ -19,6 +19,7 @@ from evo_door.files import open_h5, read_attrs
 from evo_door.perception.jnd_file import read_jnd_file
 from evo_door.perception.procedures import JndSession, SimParticipant, run_simulated
 from evo_door.render.jnd import STOP, JndTiming, TerminalPerson
+from tests.helpers import LOADED_MACHINE_LIMITS
 
 ROOT = Path(__file__).resolve().parents[1]
 #: short intervals in simulated time: a session of 80 trials is 38 s on the loop's clock
@@ -299,7 +300,7 @@ def test_a_session_over_the_emulated_hapticmaster(tmp_path):
         args = ["jnd", "--param", "viscous_damping", "--participant", "sim:0.2"]
         args += ["--trials", "10", "--interval", "0.15", "--pause", "0.1", "--ramp", "0.05"]
         args += ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
-        args += ["--rate", "1000", "--watchdog-misses", "50", "--supervisor-budget", "200"]
+        args += ["--rate", "1000", *LOADED_MACHINE_LIMITS]
         args += ["--out", str(tmp_path / "j.h5"), "--log", str(log), "--json"]
         code = main(args)
     finally:

@@ -39,6 +39,7 @@ from evo_door.render.mechanism import (
     MechanismLoop,
     Stroke,
 )
+from tests.helpers import LOADED_MACHINE_LIMITS
 
 DRAWER = str(Path(__file__).resolve().parents[1] / "examples" / "blocks" / "soft_close_drawer.yaml")
 #: the drawer's stop made soft enough for the default loop: K T / 2 = 1 N s/m below
@@ -355,7 +356,7 @@ def test_render_a_rotary_mechanism_on_the_emulated_hapticmaster_over_tcp(tmp_pat
         port = int(line.split("127.0.0.1:")[1].split()[0])
         device = ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
         args = ["render", flap, *device, "--rate", "1000", "--log-rate", "1000"]
-        args += ["--watchdog-misses", "50", "--supervisor-budget", "200"]  # a loaded machine
+        args += LOADED_MACHINE_LIMITS
         assert main([*args, "--duration", "3", "--log", str(log)]) == 0
     finally:
         emulator.terminate()

@@ -19,6 +19,7 @@ import pytest
 from evo_door.cli import main
 from evo_door.experiment.results import Results
 from evo_door.models import get_model
+from tests.helpers import LOADED_MACHINE_LIMITS
 
 pytestmark = pytest.mark.slow
 
@@ -74,8 +75,7 @@ def test_a_log_over_the_emulated_hapticmaster_fits_back_to_the_rendered_set(tmp_
         log = tmp_path / "emu.h5"
         device = ["--device", f"hapticmaster://127.0.0.1:{port}", "--device-damping", "2"]
         args = ["render", "--params", "seed_trial", *device, "--rate", "1000"]
-        args += ["--watchdog-misses", "50"]  # a loaded test machine may stall 10 ms
-        args += ["--supervisor-budget", "200"]  # and the emulator's answers tens of ms
+        args += LOADED_MACHINE_LIMITS
         assert main([*args, "--duration", str(SWING), "--log", str(log)]) == 0
     finally:
         emulator.terminate()
