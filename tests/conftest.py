@@ -10,11 +10,41 @@ from numba import njit
 from evo_door.models import get_model
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
+from tests.helpers import measured_tiers, tier
 
 #: The command line's notes of what numba compiles (evo_door.kernel_cache) would land in
 #: the stderr that tests compare, whenever a test happens to compile first; quiet here
 #: (tests/test_kernel_cache.py turns them on).
 os.environ["EVO_DOOR_COMPILE_NOTES"] = "0"
+
+
+@pytest.hookimpl(tryfirst=True)  # before -m selects by marker
+def pytest_collection_modifyitems(config, items):
+    """The tiers (docs/testing.md): a test not marked ``slow`` is ``integration`` if
+    ``tests/tiers.txt`` lists it (measured at 0.5 s or more) or if it asks for a fixture
+    of its file's, shared by its module or the session, that a test of another tier asks
+    for too (whichever test asks first pays for it: most are a fit, a run or a corpus);
+    else ``unit``."""
+    measured = measured_tiers()
+    kinds = [tier(i.nodeid, i.get_closest_marker("slow") is not None, measured) for i in items]
+    shared = {f for item, kind in zip(items, kinds) if kind != "unit" for f in _own_shared(item)}
+    for item, kind in zip(items, kinds):
+        if kind == "unit" and shared.intersection(_own_shared(item)):
+            kind = "integration"
+        if kind != "slow":
+            item.add_marker(kind)
+
+
+def _own_shared(item) -> set[tuple[str, str]]:
+    """``(file, name)`` of the module- or session-scoped fixtures a test asks for that its
+    own file defines."""
+    info = getattr(item, "_fixtureinfo", None)  # a docstring example has none
+    here = item.nodeid.split("::")[0]
+    return {
+        (here, name)
+        for name, defs in (info.name2fixturedefs.items() if info else ())
+        if defs[-1].scope in ("module", "session") and defs[-1].baseid == here
+    }
 
 
 @njit(cache=True)

@@ -46,6 +46,23 @@ algorithm: {{population: 6, generations: 1, seed: 1}}
 LOADED_MACHINE_LIMITS = ["--watchdog-misses", "1000", "--supervisor-budget", "1000"]
 
 
+def measured_tiers(path: Path = ROOT / "tests" / "tiers.txt") -> frozenset[str]:
+    """The ids of the tests ``tests/tiers.txt`` lists (measured at 0.5 s or more: not
+    ``unit``; written by ``benchmarks/slowest_tests.py --tiers``)."""
+    if not path.exists():
+        return frozenset()
+    lines = (line.strip() for line in path.read_text(encoding="utf-8").splitlines())
+    return frozenset(line for line in lines if line and not line.startswith("#"))
+
+
+def tier(node_id: str, slow: bool, measured: frozenset[str]) -> str:
+    """A test's tier: ``slow`` as marked, ``integration`` if measured at 0.5 s or more,
+    else ``unit``."""
+    if slow:
+        return "slow"
+    return "integration" if node_id in measured else "unit"
+
+
 def cli_process(*args, cwd, env=None, timeout=300):
     """``evo-door ARGS`` in a fresh process in ``cwd`` (this checkout's code); ``env``:
     variables set on top of this process's."""

@@ -3,6 +3,7 @@
 import pytest
 
 from benchmarks import slowest_tests as st
+from tests import helpers
 
 JUNIT = """<?xml version="1.0" encoding="utf-8"?>
 <testsuites><testsuite name="pytest" tests="4" time="12.5" timestamp="2026-11-29T05:00:00">
@@ -54,9 +55,92 @@ def test_a_file_that_is_not_a_run_is_one_line(tmp_path, content):
 
 
 def test_every_reason_names_a_test_that_exists():
-    from tests.helpers import ROOT
-
     for name in st.REASONS:
         module, test = name.split("::")
-        source = (ROOT / "tests" / f"{module}.py").read_text()
+        source = (helpers.ROOT / "tests" / f"{module}.py").read_text()
         assert f"def {test}(" in source, name
+
+
+UNIT_RUN = """<?xml version="1.0" encoding="utf-8"?>
+<testsuites><testsuite name="pytest" tests="3" time="3.0">
+<testcase classname="tests.test_quick" name="test_quick" time="0.7"/>
+<testcase classname="tests.test_quick" name="test_other[a-b]" time="0.1"/>
+<testcase classname="evo_door.sim.simulate" name="evo_door.sim.simulate.simulate" time="2.0"/>
+</testsuite></testsuites>
+"""
+
+
+def test_tiers_list_every_test_at_the_limit_in_any_run_and_no_docstring_example(tmp_path):
+    runs = [tmp_path / "run.xml", tmp_path / "unit.xml"]
+    runs[0].write_text(JUNIT)
+    runs[1].write_text(UNIT_RUN)  # test_quick pays a shared fixture here: 0.7 s
+    text = st.tiers_text(runs, "abc1234")
+    listed = [line for line in text.splitlines() if not line.startswith("#")]
+    assert listed == [
+        "tests/test_fuzz.py::"
+        "test_damaged_files_are_refused_in_one_line_in_bounded_time_and_memory[run]",
+        "tests/test_latch_fitness.py::test_latch_forces_are_the_same_whatever_the_ga_seed",
+        "tests/test_new.py::test_something_slow",
+        "tests/test_quick.py::test_quick",
+    ]
+    assert "at commit\n# abc1234)" in text
+    assert helpers.measured_tiers(_written(tmp_path, text)) == frozenset(listed)
+
+
+def _written(tmp_path, text):
+    path = tmp_path / "tiers.txt"
+    path.write_text(text)
+    return path
+
+
+def test_a_test_is_slow_as_marked_integration_as_measured_else_unit():
+    measured = frozenset({"tests/test_a.py::test_b"})
+    assert helpers.tier("tests/test_a.py::test_b", True, measured) == "slow"
+    assert helpers.tier("tests/test_a.py::test_b", False, measured) == "integration"
+    assert helpers.tier("tests/test_a.py::test_c", False, measured) == "unit"
+
+
+def test_conftest_marks_this_quick_test_unit(request):
+    assert request.node.get_closest_marker("unit") is not None
+    assert request.node.get_closest_marker("integration") is None
+
+
+def test_every_listed_tier_names_a_test_that_exists():
+    listed = helpers.measured_tiers()
+    assert len(listed) > 100  # the file is there and read
+    for node in listed:
+        path, *_, name = node.split("::")
+        source = (helpers.ROOT / path).read_text()
+        assert f"def {name.split('[')[0]}(" in source, node
+
+
+FIXTURE_SHARING = """
+import pytest
+
+@pytest.fixture(scope="module")
+def fit():
+    return 1
+
+@pytest.mark.slow
+def test_slow(fit):
+    pass
+
+def test_shares_the_slow_ones_fixture(fit):
+    pass
+
+def test_alone():
+    pass
+"""
+
+
+def test_a_quick_test_sharing_a_module_fixture_with_a_slow_one_is_integration(pytester):
+    """Whichever test asks first for a shared fixture pays for it: not a unit test."""
+    pytester.makeconftest("from tests.conftest import pytest_collection_modifyitems\n")
+    pytester.makepyfile(test_tiers=FIXTURE_SHARING)
+    for marker, names in (
+        ("unit", ["test_alone"]),
+        ("integration", ["test_shares_the_slow_ones_fixture"]),
+    ):
+        out = pytester.runpytest_inprocess("--collect-only", "-q", "-m", marker)
+        ids = [line for line in out.outlines if "::" in line]
+        assert [i.split("::")[1] for i in ids] == names, out.outlines

@@ -36,7 +36,7 @@ target: {{curve: {curve}}}
   F_atC: [0, 100]
   F_atD: [0, 100]
   T_atO: [0, 0.1]
-algorithm: {{kind: nsga2, population: 40, generations: {generations}, seed: 1, polish: {polish}}}
+algorithm: {{kind: nsga2, population: 40, generations: {generations}, seed: 1, polish: slsqp}}
 """
 SHARP = "perception: {force: 0.01, force_floor: 0.02}\n"
 
@@ -57,8 +57,10 @@ def assert_same(a: dict, b: dict) -> None:
 
 def stage(folder, name, curve, generations=12, perception=SHARP, polish="slsqp", **extra):
     text = STAGE.format(
-        name=name, curve=curve, generations=generations, perception=perception, polish=polish
-    ) + "".join(f"{k}: {v}\n" for k, v in extra.items())
+        name=name, curve=curve, generations=generations, perception=perception
+    ).replace("polish: slsqp", f"polish: {polish}") + "".join(
+        f"{k}: {v}\n" for k, v in extra.items()
+    )
     path = folder / f"{name}.yaml"
     path.write_text(text)
     return load_experiment(path)
