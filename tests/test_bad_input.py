@@ -501,6 +501,14 @@ CASES = {
         "render --device hapticmaster://127.0.0.1:1 --duration 0.1 --supervisor-budget 1",
         "--supervisor-budget 1: must be in 5..1000 ms",
     ),
+    "run: --checkpoint-every negative": (
+        "run experiments/default.yaml --checkpoint-every -1",
+        "--checkpoint-every -1: must be in 0..86400 s",
+    ),
+    "resume: --checkpoint-every not a number": (
+        "resume missing.h5 --checkpoint-every often",
+        "--checkpoint-every 'often': expected a number",
+    ),
     "render: --supervisor-budget nan": (
         "render --device hapticmaster://127.0.0.1:1 --duration 0.1 --supervisor-budget nan",
         "--supervisor-budget nan",

@@ -327,6 +327,55 @@ def test_kill_after_the_last_job_before_the_final_write_then_resume(folder):
     assert_same(comparable(whole.path), comparable(folder / "cut.h5"))
 
 
+def _counted_run(folder, name, every, monkeypatch, stop_at=None):
+    """A run of the folder's experiment with checkpoints ``every`` seconds apart; the
+    number of writes. ``stop_at``: Ctrl-C in the first evaluation of that generation."""
+    from evo_door.experiment import runner
+    from evo_door.optim.problem import Problem
+
+    writes = []
+    write = runner.write_checkpoint
+    monkeypatch.setattr(runner, "write_checkpoint", lambda *a: writes.append(1) or write(*a))
+    run = ExperimentRun.create(load(folder), folder / name)
+    run.checkpoint_every = every
+    if stop_at is not None:
+        calls = []
+        evaluate = Problem.evaluate
+
+        def interrupted(self, X):
+            calls.append(1)
+            if len(calls) == stop_at + 1:  # generation 0 is one population's evaluation
+                raise KeyboardInterrupt
+            return evaluate(self, X)
+
+        monkeypatch.setattr(Problem, "evaluate", interrupted)
+    try:
+        run.run()
+    finally:
+        monkeypatch.undo()
+    return len(writes)
+
+
+def test_checkpoints_spaced_in_time_give_the_same_file(folder, monkeypatch):
+    """A GA's generations are written at most every ``checkpoint_every`` seconds: none
+    of the seven here (0 to 6), only the file's start, the end of its job and the final
+    write; the same file."""
+    every = _counted_run(folder, "every.h5", 0.0, monkeypatch)
+    spaced = _counted_run(folder, "spaced.h5", 1e9, monkeypatch)
+    assert every == 1 + 7 + 2 and spaced == 3
+    assert_same(comparable(folder / "every.h5"), comparable(folder / "spaced.h5"))
+
+
+def test_ctrl_c_between_checkpoints_writes_the_last_finished_generation(folder, monkeypatch):
+    whole = run_experiment(load(folder), folder / "whole.h5")
+    with pytest.raises(KeyboardInterrupt):
+        _counted_run(folder, "cut.h5", 1e9, monkeypatch, stop_at=4)
+    cut = Results(folder / "cut.h5")
+    assert cut.attrs["status"] == "running" and cut.attrs["generations_done"] == [3]
+    assert resume_run(folder / "cut.h5").status == "complete"
+    assert_same(comparable(whole.path), comparable(folder / "cut.h5"))
+
+
 def test_per_trial_fits_give_a_min_max_table(folder):
     text = EXPERIMENT.replace("per_trial: false", "per_trial: true").replace(
         "generations: 6", "generations: 3"

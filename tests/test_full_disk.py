@@ -206,18 +206,19 @@ def test_a_refused_checkpoint_keeps_the_last_and_resume_ends_as_an_uninterrupted
     k = next(i for i in range(3, len(need)) if need[i] > max(need[:i]))
     _remount(d, f"size={max(need[:k]) * PAGE}")
 
-    err = _one_line(cli_process("run", exp, "--out", out, "--quiet", cwd=work))
+    every = ("--checkpoint-every", "0")  # every generation, as the sizes were measured
+    err = _one_line(cli_process("run", exp, "--out", out, "--quiet", *every, cwd=work))
     kept = re.search(r"the last checkpoint \(generation (\d+)\) is kept: resume with `(.*)`$", err)
     assert kept and f"{out}: cannot write (no space left on device)" in err, err
     assert int(kept.group(1)) >= 1 and kept.group(2) == f"evo-door resume {out}"
     assert _left(d) == ["R.h5"]
     # the disk still full: resume says the same, and keeps the same checkpoint
-    again = _one_line(cli_process("resume", out, "--quiet", cwd=work))
+    again = _one_line(cli_process("resume", out, "--quiet", *every, cwd=work))
     assert again == err, again
     assert _left(d) == ["R.h5"]
     # room again: resume ends as the uninterrupted run did
     _remount(d, "size=4m")
-    done = cli_process("resume", out, "--quiet", cwd=work)
+    done = cli_process("resume", out, "--quiet", *every, cwd=work)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert np.array_equal(_best_x(out), best)
     assert _left(d) == ["R.h5"]

@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from evo_door.commands._common import add_allow_model, add_progress_arguments, show_progress
-from evo_door.commands.run import add_executor_argument
+from evo_door.commands._common import (
+    add_allow_model,
+    add_progress_arguments,
+    check_ranges,
+    show_progress,
+)
+from evo_door.commands.run import add_checkpoint_argument, add_executor_argument
 
 ORDER = 41
 
@@ -20,6 +25,7 @@ def register(sub) -> None:
         "where the GA's evaluations run (local, processes[:N], dask[:N], tcp://HOST:PORT); "
         "default: the one the run used; the result does not depend on it",
     )
+    add_checkpoint_argument(p)
     add_progress_arguments(p)
     add_allow_model(p)
     p.set_defaults(func=run)
@@ -31,6 +37,7 @@ def run(args) -> int:
     from evo_door.experiment.runner import ExperimentRun
     from evo_door.reporting.format_text import format_show
 
+    check_ranges(args)
     if args.executor is not None:
         from evo_door.optim.executors import preflight
 
@@ -39,6 +46,7 @@ def run(args) -> int:
     if store.pipeline_attrs(args.results) is not None:
         return resume_pipeline(args)
     job = ExperimentRun.open(args.results)
+    job.checkpoint_every = args.checkpoint_every
     if job.status == "complete":
         print(f"{args.results}: already complete, nothing to do")
         return 0
@@ -63,6 +71,7 @@ def resume_pipeline(args) -> int:
     from evo_door.experiment.pipeline import PipelineRun
 
     job = PipelineRun.open(args.results)
+    job.checkpoint_every = args.checkpoint_every
     if job.status == "complete":
         print(f"{args.results}: already complete, nothing to do")
         return 0

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import sys
 
-from evo_door.commands._common import add_progress_arguments, show_progress
+from evo_door.commands._common import (
+    DAY,
+    Range,
+    add_progress_arguments,
+    check_ranges,
+    declare_ranges,
+    show_progress,
+)
 
 ORDER = 40
 
@@ -29,6 +36,7 @@ def register(sub) -> None:
         help="replace an existing results file at --out (a complete or interrupted run)",
     )
     add_executor_argument(p)
+    add_checkpoint_argument(p)
     add_progress_arguments(p)
     p.set_defaults(func=run)
 
@@ -41,8 +49,35 @@ EXECUTOR_HELP = (
 )
 
 
+class _RunnersCheckpointEvery:
+    """The default of ``--checkpoint-every``: the runner's ``CHECKPOINT_EVERY``, read
+    only when it is used or the help printed (building the parser imports nothing
+    heavy)."""
+
+    def __float__(self) -> float:
+        from evo_door.experiment.runner import CHECKPOINT_EVERY
+
+        return CHECKPOINT_EVERY
+
+    def __str__(self) -> str:
+        return f"{float(self):g}"
+
+
 def add_executor_argument(p, help=EXECUTOR_HELP) -> None:
     p.add_argument("--executor", metavar="EXECUTOR", default=None, help=help)
+
+
+def add_checkpoint_argument(p) -> None:
+    """``--checkpoint-every SECONDS`` (run, resume): how often a GA writes its file."""
+    p.add_argument(
+        "--checkpoint-every",
+        metavar="SECONDS",
+        default=_RunnersCheckpointEvery(),
+        help="write the results file after a generation once the last write is this old "
+        "(default %(default)s s; 0: every generation); every fit's end, Ctrl-C and SIGTERM "
+        "write it anyway, so a kill loses at most this much of the GA's work",
+    )
+    declare_ranges(p, {"--checkpoint-every": Range(0, DAY, "s")})
 
 
 def run(args) -> int:
@@ -51,6 +86,7 @@ def run(args) -> int:
     from evo_door.experiment.runner import ExperimentRun
     from evo_door.reporting.format_text import format_show
 
+    check_ranges(args)
     if is_pipeline(args.experiment):
         return run_pipeline(args)
     from evo_door.optim.executors import preflight
@@ -58,6 +94,7 @@ def run(args) -> int:
     exp = load_experiment(args.experiment, args.assignments)
     exp.executor = preflight(args.executor or exp.executor)
     job = ExperimentRun.create(exp, args.out, overwrite=args.force)
+    job.checkpoint_every = args.checkpoint_every
     if not args.quiet:
         on = "" if exp.executor == "local" else f"; executor {exp.executor}"
         print(
@@ -97,6 +134,7 @@ def run_pipeline(args) -> int:
         if name is not None:
             preflight(name)
     job = PipelineRun.create(pipe, args.out, overwrite=args.force)
+    job.checkpoint_every = args.checkpoint_every
     if not args.quiet:
         print(
             f"{pipe.name}: {len(pipe.stages)} stages ({', '.join(job.stage_names)}); "

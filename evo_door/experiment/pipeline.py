@@ -22,9 +22,10 @@ experiment, every ``from`` naming an earlier stage of the same model.
 The results file holds one group per stage, ``stages/<name>``, each laid out exactly as
 a single run's file (:mod:`.store`), so everything that reads a run reads a stage
 (``Results(path, stage=...)``); the root says which stages there are and how far the
-pipeline got. Each stage checkpoints the whole file after every generation as a run
-does (the finished stages are copied over unchanged), so a killed pipeline resumes at
-the stage and generation where it stopped and ends with the numbers of an
+pipeline got. Each stage checkpoints the whole file as a run does (a generation at most
+every :data:`~evo_door.experiment.runner.CHECKPOINT_EVERY` seconds, every job; the
+finished stages are copied over unchanged), so a killed pipeline resumes at the stage
+and generation of its last checkpoint and ends with the numbers of an
 uninterrupted one.
 """
 
@@ -48,7 +49,7 @@ from evo_door.experiment.config import (
 )
 from evo_door.experiment.config_reader import KeyReader, _resolve_path, executor_setting
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
-from evo_door.experiment.runner import ExperimentRun
+from evo_door.experiment.runner import CHECKPOINT_EVERY, ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, fields, read_text, remove_stale_temporaries
 from evo_door.params.declaration import suggest
@@ -343,6 +344,8 @@ class PipelineRun:
         #: None: each stage's own
         self.executor: str | None = pipeline.executor
         self.on_disk: str | None = None  # where the file's last checkpoint stands, if any
+        #: seconds between a GA's checkpoints in every stage (ExperimentRun's)
+        self.checkpoint_every = CHECKPOINT_EVERY
 
     @property
     def stage_names(self) -> list[str]:
@@ -441,6 +444,7 @@ class PipelineRun:
                 run = self._start(stage)
             self.current = run
             run.writer = self._writer(stage.name)
+            run.checkpoint_every = self.checkpoint_every
             run.label_prefix = f"stage {k}/{n} " if n > 1 else ""
             if progress:
                 print(self._stage_line(k, stage, run), file=sys.stderr, flush=True)

@@ -61,6 +61,12 @@ from evo_door.optim.spread import trial_estimates, with_trial_spread
 #: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
 POOLED = "pooled"
 
+#: Least seconds between two of a GA's checkpoints: a generation ending sooner after the
+#: last write is not written (a results file is rewritten whole, some 0.05-0.2 s). The
+#: end of a job, Ctrl-C, SIGTERM and a checkpoint hook always write, so a kill loses at
+#: most this much of the GA's work, which a resume repeats exactly.
+CHECKPOINT_EVERY = 5.0
+
 
 class Interrupted(Exception):
     """Raised by a checkpoint hook to stop a run as a kill would (tests)."""
@@ -173,6 +179,11 @@ class ExperimentRun:
         self.executor = DEFAULT_EXECUTOR
         self._ex: Executor | None = None
         self.on_disk: str | None = None  # where the file's last checkpoint stands, if any
+        #: seconds between a GA's checkpoints (:data:`CHECKPOINT_EVERY`; 0: every one)
+        self.checkpoint_every = CHECKPOINT_EVERY
+        self._written = time.monotonic()  # when the file was last written
+        #: a finished generation not written yet: (tree, position), for Ctrl-C to write
+        self._pending: tuple[dict, str] | None = None
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -277,10 +288,12 @@ class ExperimentRun:
 
     # -- running -----------------------------------------------------------------------
     def run(self, progress: bool = False, on_checkpoint=None, executor=None) -> ExperimentRun:
-        """Run (or continue) every job; checkpoint after every generation.
+        """Run (or continue) every job; checkpoint after a generation when the last is
+        :attr:`checkpoint_every` seconds old, after every job, and on Ctrl-C or SIGTERM.
 
-        ``on_checkpoint(run, job)`` is called after each checkpoint is on disk
-        (raise :class:`Interrupted` there to simulate a kill). ``executor`` is where
+        ``on_checkpoint(run, job)`` is called after each checkpoint is on disk, and with
+        it every generation is written (raise :class:`Interrupted` there to simulate a
+        kill). ``executor`` is where
         the GA's evaluations run: a name (it replaces :attr:`executor`) or an
         executor already started (a pipeline's, shared by its stages); by default
         :attr:`executor`, started here if a GA is left to run and closed at the end.
@@ -290,9 +303,15 @@ class ExperimentRun:
             self.executor = check_executor(executor)
         elif executor is not None:
             self.executor = executor.name
+        self._written = time.monotonic()
         try:
             with _TermAsInterrupt() as self._term, self._executor(executor, progress) as self._ex:
-                self._run_jobs(progress)
+                try:
+                    self._run_jobs(progress)
+                except KeyboardInterrupt:
+                    if self._pending is not None:  # Ctrl-C between checkpoints
+                        self.checkpoint(*self._pending)
+                    raise
         finally:
             self._ex = None
             self.release()
@@ -407,7 +426,10 @@ class ExperimentRun:
 
         def checkpoint(state):
             job.ga = state
-            self._checkpoint_and_hook(job)
+            if self._checkpoint_due():
+                self._checkpoint_and_hook(job)
+            else:  # its tree now: the GA's next step changes ``state`` in place
+                self._pending = (self._tree(), position(self.jobs))
 
         hooks = [Callback(checkpoint)]
         if settings.patience is not None:
@@ -435,6 +457,13 @@ class ExperimentRun:
         if self.algorithm.kind == "nsga2":
             return ChangeObjectives.around(problem, evaluator)
         return evaluator
+
+    def _checkpoint_due(self) -> bool:
+        """Whether a finished generation is written: :attr:`checkpoint_every` seconds
+        after the last write, or at once where a hook watches or SIGTERM came."""
+        if self._hook is not None or (self._term is not None and self._term.requested):
+            return True
+        return time.monotonic() - self._written >= self.checkpoint_every
 
     def _checkpoint_and_hook(self, job: Job) -> None:
         self.checkpoint()
@@ -566,14 +595,23 @@ class ExperimentRun:
         """Seconds spent on this run by every session so far."""
         return self.elapsed_before + (time.perf_counter() - self._t0)
 
-    def checkpoint(self) -> None:
-        """Write the whole run to its results file (atomically; refused: the last
-        checkpoint is kept, :mod:`.checkpoint`), or hand it to :attr:`writer`."""
+    def _tree(self) -> dict:
+        """The whole run as the tree its results file holds (:func:`.store.run_tree`)."""
         tree = store.run_tree(self, self._trials_on_disk)
         tree[ATTRS]["executor"] = self.executor
+        return tree
+
+    def checkpoint(self, tree: dict | None = None, where: str | None = None) -> None:
+        """Write the whole run to its results file (atomically; refused: the last
+        checkpoint is kept, :mod:`.checkpoint`), or hand it to :attr:`writer`.
+        ``tree`` and ``where``: an earlier state of the run and its position."""
+        if tree is None:
+            tree, where = self._tree(), position(self.jobs)
         if self.writer is not None:
             self.writer(tree)
         else:
             write_checkpoint(self.path, tree, self.on_disk)
+        self._written = time.monotonic()
+        self._pending = None
         self._trials_on_disk = True
-        self.on_disk = position(self.jobs)
+        self.on_disk = where
