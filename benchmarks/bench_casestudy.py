@@ -17,9 +17,6 @@ from __future__ import annotations
 
 import math
 import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -50,24 +47,15 @@ def run_pipeline(out: Path, quick: bool, settings=(), env=None) -> float:
 
     ``settings`` are ``--set`` overrides of every stage's algorithm (``seed=3``), ``env``
     extra environment variables (``NUMBA_CPU_NAME``)."""
-    cmd = [sys.executable, "-m", "evo_door", "run", str(PIPELINE), "--out", str(out), "--quiet"]
+    from benchmarks._util import evo_door_command
+
+    args = ["run", PIPELINE, "--out", out, "--quiet"]
     for stage in stage_names():
         for setting in (*(QUICK_SETTINGS if quick else ()), *settings):
-            cmd += ["--set", f"stages.{stage}.algorithm.{setting}"]
+            args += ["--set", f"stages.{stage}.algorithm.{setting}"]
     for setting in os.environ.get(QUICK_EXTRA_ENV, "").split() if quick else ():
-        cmd += ["--set", setting]
-    # the checkout's evo_door, also when another one is installed
-    env = {
-        **os.environ,
-        **(env or {}),
-        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-    }
-    t0 = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=3600)
-    wall = time.perf_counter() - t0
-    if done.returncode != 0:
-        raise RuntimeError((done.stderr.strip().splitlines() or ["no output"])[-1])
-    return wall
+        args += ["--set", setting]
+    return evo_door_command(args, env, cwd=ROOT)[0]
 
 
 def stage_figures(path: Path, stage: str) -> dict:
