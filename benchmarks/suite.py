@@ -817,10 +817,16 @@ def section_control(suite: Suite) -> None:
     """The servo loop with 200 clients flooding its control port."""
     import tempfile
 
-    from benchmarks.bench_control import CLIENTS, RSS_TARGET_MIB, flood_run
+    from benchmarks.bench_control import (
+        CLIENTS,
+        QUICK_SECONDS,
+        RSS_TARGET_MIB,
+        SECONDS,
+        flood_run,
+    )
     from evo_door.render.log import MAX_CLIENT_EVENTS
 
-    seconds = 4.0 if suite.quick else 20.0
+    seconds = QUICK_SECONDS if suite.quick else SECONDS
     with tempfile.TemporaryDirectory() as tmp:
         alone = flood_run(seconds, 0, Path(tmp))
         s = flood_run(seconds, CLIENTS, Path(tmp))
