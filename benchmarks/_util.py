@@ -1,4 +1,5 @@
-"""Helpers shared by the benchmark scripts: timing, a free port, the machine line of a report."""
+"""Helpers shared by the benchmark scripts: timing, a free port, a command in a fresh
+process, the machine line of a report."""
 
 from __future__ import annotations
 
@@ -6,10 +7,14 @@ import os
 import platform
 import socket
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def median_time(fn, repeat: int) -> float:
@@ -27,6 +32,27 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def evo_door_command(args, env=None, cwd=None, timeout: float = 3600) -> tuple[float, str]:
+    """``evo-door ARGS`` in a fresh process, as a user types it (start-up and numba's
+    cache loading included), this checkout's ``evo_door`` first on the path and ``env``
+    added to the environment: its wall time (s) and its standard output. A failure
+    raises RuntimeError with the last line of its standard error."""
+    env = {
+        **os.environ,
+        **(env or {}),
+        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+    }
+    command = [sys.executable, "-m", "evo_door", *map(str, args)]
+    t0 = time.perf_counter()
+    done = subprocess.run(
+        command, capture_output=True, text=True, env=env, cwd=cwd, timeout=timeout
+    )
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError((done.stderr.strip().splitlines() or ["no output"])[-1])
+    return wall, done.stdout
 
 
 def machine_line(extra: str = "", how: str = "medians of repeats") -> str:

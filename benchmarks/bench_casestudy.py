@@ -16,10 +16,6 @@ a smoke test of this code, not a measurement.
 from __future__ import annotations
 
 import math
-import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -31,14 +27,11 @@ BUDGET_S = 120.0
 #: every stage's GA in a --quick run: enough to exercise the code, nothing more (the
 #: polish and the scans stay, each cut to two SLSQP iterations)
 QUICK_SETTINGS = ("population=8", "generations=1", "max_iterations=2")
-#: the tests' hook: further ``--set`` overrides of a --quick run (whole paths, separated
-#: by white space), e.g. shorter scans and fewer input trials, so that the tests' smoke
-#: run of the section takes every stage of the main job through the same code in less
-#: time; a measured run (not --quick) ignores it
-QUICK_EXTRA_ENV = "EVO_DOOR_BENCH_QUICK_SET"
+#: doors of the independent check of a specification's yield: measured, --quick
+CHECK_DOORS, QUICK_CHECK_DOORS = 2000, 500
 
 
-def stage_names(pipeline: Path = PIPELINE) -> list[str]:
+def stage_names(pipeline: Path) -> list[str]:
     """The stages the pipeline file declares, in order."""
     import yaml
 
@@ -46,28 +39,18 @@ def stage_names(pipeline: Path = PIPELINE) -> list[str]:
 
 
 def run_pipeline(out: Path, quick: bool, settings=(), env=None) -> float:
-    """Run the main job into ``out`` in a fresh process; its wall time (s).
+    """Run the main job (the pipeline :data:`PIPELINE` names when called; the tests put
+    a small one in its place) into ``out`` in a fresh process; its wall time (s).
 
     ``settings`` are ``--set`` overrides of every stage's algorithm (``seed=3``), ``env``
     extra environment variables (``NUMBA_CPU_NAME``)."""
-    cmd = [sys.executable, "-m", "evo_door", "run", str(PIPELINE), "--out", str(out), "--quiet"]
-    for stage in stage_names():
+    from benchmarks._util import evo_door_command
+
+    args = ["run", PIPELINE, "--out", out, "--quiet"]
+    for stage in stage_names(PIPELINE):
         for setting in (*(QUICK_SETTINGS if quick else ()), *settings):
-            cmd += ["--set", f"stages.{stage}.algorithm.{setting}"]
-    for setting in os.environ.get(QUICK_EXTRA_ENV, "").split() if quick else ():
-        cmd += ["--set", setting]
-    # the checkout's evo_door, also when another one is installed
-    env = {
-        **os.environ,
-        **(env or {}),
-        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-    }
-    t0 = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=3600)
-    wall = time.perf_counter() - t0
-    if done.returncode != 0:
-        raise RuntimeError((done.stderr.strip().splitlines() or ["no output"])[-1])
-    return wall
+            args += ["--set", f"stages.{stage}.algorithm.{setting}"]
+    return evo_door_command(args, env, cwd=ROOT)[0]
 
 
 def stage_figures(path: Path, stage: str) -> dict:
@@ -169,7 +152,7 @@ def specification(path: Path, stages: list[str], quick: bool = False) -> list[di
         spec = res.record.tolerance
         if spec is None or not res.complete:
             continue
-        got = check_file(path, stage, 500 if quick else 2000, seed=7)
+        got = check_file(path, stage, QUICK_CHECK_DOORS if quick else CHECK_DOORS, seed=7)
         loss = sorted(zip(spec.loss, spec.names), reverse=True)[:5]
         t = dict(zip(spec.names, spec.half_width))
         out.append(

@@ -48,6 +48,8 @@ CLIENTS = 200
 BATCH = 20
 #: resident memory the renderer may grow by under the flood (MiB)
 RSS_TARGET_MIB = 64.0
+#: each render's duration (s): a measured run, a ``--quick`` one (the suite's section)
+SECONDS, QUICK_SECONDS = 20.0, 4.0
 TOKEN = "bench"
 
 
@@ -258,7 +260,7 @@ def row(what: str, s: dict) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=20.0, help="each render (s)")
+    ap.add_argument("--seconds", type=float, default=SECONDS, help="each render (s)")
     ap.add_argument("--repeat", type=int, default=1, help="rounds of (a), (b)")
     ap.add_argument("--no-write", action="store_true", help="print only")
     args = ap.parse_args(argv)

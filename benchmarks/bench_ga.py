@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._util import half_sine_pulses  # noqa: E402
+from benchmarks._util import evo_door_command, half_sine_pulses  # noqa: E402
 from evo_door.data.trial import Trial  # noqa: E402
 from evo_door.errors import UserError  # noqa: E402
 from evo_door.models import get_model  # noqa: E402
@@ -177,8 +177,6 @@ def time_run(name, problem, population=100, generations=20, seed=1):
     from evo_door.experiment import load_experiment, run_experiment
 
     text = experiment_yaml(name, problem, population, generations, seed)
-    import subprocess
-
     with tempfile.TemporaryDirectory() as tmp:
         write_trials(Path(tmp) / "trials.h5", problem.fit.trials)
         (Path(tmp) / "bench.yaml").write_text(text)
@@ -188,29 +186,8 @@ def time_run(name, problem, population=100, generations=20, seed=1):
         secs = time.perf_counter() - t0
         size = (Path(tmp) / "run.h5").stat().st_size
         # the whole command from a shell: interpreter, imports, numba's cache, the run
-        env = {
-            **os.environ,
-            "PYTHONPATH": os.pathsep.join(
-                [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
-            ),
-        }
-        t0 = time.perf_counter()
-        subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "evo_door",
-                "run",
-                str(Path(tmp) / "bench.yaml"),
-                "--out",
-                str(Path(tmp) / "cli.h5"),
-                "--quiet",
-            ],
-            check=True,
-            env=env,
-            cwd=tmp,
-        )
-        cli_secs = time.perf_counter() - t0
+        cli = ["run", Path(tmp) / "bench.yaml", "--out", Path(tmp) / "cli.h5", "--quiet"]
+        cli_secs, _ = evo_door_command(cli, cwd=tmp)
     return secs, run, size, cli_secs
 
 

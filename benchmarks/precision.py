@@ -48,7 +48,6 @@ the earlier suite's trials keep its names for the points it had
 from __future__ import annotations
 
 import math
-import os
 import statistics
 from dataclasses import dataclass, field
 from functools import partial
@@ -70,15 +69,12 @@ SCIPY = ("RK45", "LSODA", "Radau", "DOP853")
 RTOLS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 #: CPU time (s) after which a ``solve_ivp`` run is stopped.
 TIME_LIMIT = 20.0
-#: The tests' hook: another CPU time limit (s) of a ``--quick`` run's ``solve_ivp`` runs
-#: (the haptic trials' runs all reach it, the door's end well within it).
-QUICK_LIMIT_ENV = "EVO_DOOR_BENCH_QUICK_LIMIT"
 #: The same in ``--quick`` (and only RK45 and LSODA).
 QUICK: dict[str, Any] = {
     "tolerances": (1e-5, 1e-8),
     "substeps": (1, 8),
     "rtols": (1e-6,),
-    "limit": float(os.environ.get(QUICK_LIMIT_ENV) or 2.0),
+    "limit": 2.0,
 }
 #: Repeats of a workbench run (the default's carry the targets).
 REPEATS, DEFAULT_REPEATS = 11, 31

@@ -67,23 +67,21 @@ REASONS = {
         "the case study's physical stage (GA 100 x 20 and SLSQP) on the door as blocks, "
         "integrated as a state vector"
     ),
-    "test_bench_suite::test_casestudy_section_runs_the_main_job_and_leaves_the_quoted_figures_alone": (
-        "the benchmark's casestudy section: the six-stage main job (GA 8 x 1 a stage) in a "
-        "fresh process"
-    ),
-    "test_bench_suite::test_quick_run_writes_json_with_every_metric_and_a_png": (
-        "every quick benchmark section but the main job's, FMU and control: GA, scaling, "
-        "executors (processes, Dask), device, start-up, JND planning, PathSim"
+    "test_bench_suite::test_casestudy_section_runs_a_stand_in_pipeline_and_reads_every_figure": (
+        "the benchmark's casestudy section on a two-stage pipeline: a fit, then a door's "
+        "specification with its yield"
     ),
     "test_bench_suite::test_quick_trial_section_measures_every_trial_and_draws_the_work_precision": (
-        "work-precision of six trials: each integrator setting and scipy's four solvers "
-        "against a converged reference"
+        "work-precision of six short trials: each integrator setting, scipy's solvers and "
+        "the pure-Python model in fresh processes"
     ),
     "test_bench_suite::test_fmu_section_builds_the_fmu_and_compares_with_fmpy": (
-        "builds the door FMU with CMake, then FMPy and the workbench side by side"
+        "builds the door FMU with CMake, then FMPy and the workbench side by side, each "
+        "interface's sandbox started"
     ),
     "test_bench_suite::test_control_section_floods_a_render_and_reads_its_log": (
-        "a render in its own process paced on the wall clock, 200 clients flooding it for 4 s"
+        "two renders, each in its own process paced on the wall clock for 2 s, one flooded "
+        "by 200 clients"
     ),
     "test_smallest_change::test_resume_of_an_interrupted_nsga2_run_gives_the_same_front": (
         "an NSGA-II specification run straight through, and again interrupted and resumed"

@@ -445,36 +445,19 @@ def section_scaling(suite: Suite) -> None:
 def run_experiment_cli(exp: Path, out: Path, executor: str | None) -> dict:
     """``evo-door run EXP --out OUT [--executor X] --quiet`` in a fresh process: wall
     time, the run's own total time and best parameters (``evo-door show --json``)."""
-    cmd = [sys.executable, "-m", "evo_door", "run", str(exp), "--out", str(out), "--quiet"]
-    if executor is not None:
-        cmd += ["--executor", executor]
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-    }
-    t0 = time.perf_counter()
-    done = subprocess.run(
-        cmd, capture_output=True, text=True, env=env, cwd=exp.parent, timeout=1200
-    )
-    wall = time.perf_counter() - t0
-    if done.returncode != 0:
-        last = (done.stderr.strip().splitlines() or ["no output"])[-1]
-        raise RuntimeError(last)
-    # the run is the suite's own: the model it names (an FMU, say) is the one it ran
+    from benchmarks._util import evo_door_command
     from evo_door.files import open_h5
     from evo_door.files.metadata import read_attrs
 
+    args = ["run", exp, "--out", out, "--quiet"]
+    if executor is not None:
+        args += ["--executor", executor]
+    wall, _ = evo_door_command(args, cwd=exp.parent, timeout=1200)
+    # the run is the suite's own: the model it names (an FMU, say) is the one it ran
     with open_h5(out) as f:
         model = str(read_attrs(f).get("model", ""))
-    shown = subprocess.run(
-        [sys.executable, "-m", "evo_door", "show", str(out), "--json", "--allow-model", model],
-        capture_output=True,
-        text=True,
-        env=env,
-    )
-    if shown.returncode != 0:
-        raise RuntimeError((shown.stderr.strip().splitlines() or ["show failed"])[-1])
-    info = json.loads(shown.stdout)
+    _, shown = evo_door_command(["show", out, "--json", "--allow-model", model])
+    info = json.loads(shown)
     return {
         "wall": wall,
         "run": info.get("seconds"),
@@ -834,10 +817,16 @@ def section_control(suite: Suite) -> None:
     """The servo loop with 200 clients flooding its control port."""
     import tempfile
 
-    from benchmarks.bench_control import CLIENTS, RSS_TARGET_MIB, flood_run
+    from benchmarks.bench_control import (
+        CLIENTS,
+        QUICK_SECONDS,
+        RSS_TARGET_MIB,
+        SECONDS,
+        flood_run,
+    )
     from evo_door.render.log import MAX_CLIENT_EVENTS
 
-    seconds = 4.0 if suite.quick else 20.0
+    seconds = QUICK_SECONDS if suite.quick else SECONDS
     with tempfile.TemporaryDirectory() as tmp:
         alone = flood_run(seconds, 0, Path(tmp))
         s = flood_run(seconds, CLIENTS, Path(tmp))
