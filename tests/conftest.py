@@ -1,8 +1,12 @@
 """Shared fixtures: small analytic test models that need no door physics; the bundled
-models' usual parameter sets; the HapticMaster emulator. What tests share that is not a
-fixture is in ``helpers.py``."""
+models' usual parameter sets; the HapticMaster emulator; the FMUs built from the
+project's C, once per suite run. What tests share that is not a fixture is in
+``helpers.py``."""
 
+import fcntl
 import os
+import shutil
+from pathlib import Path
 
 import pytest
 from numba import njit
@@ -109,3 +113,60 @@ def emulator():
     emu = HapticMasterEmulator(port=0, clock="query", steps_per_query=0)
     yield emu
     emu.close()
+
+
+# -- the FMUs built from the project's C (tests/test_fmu*.py) -------------------------
+class SharedFMUs:
+    """The test FMUs, each built at most once per suite run, into ``folder``, which every
+    xdist worker of the run shares: the first worker to ask for an FMU builds it while
+    holding a lock on its name; another that asks meanwhile waits for the lock, then
+    takes the file. The files are shared: a test that changes one works on a copy."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+
+    def door(self, fmi: int, layout: str = "tuned", faults: bool = False) -> Path:
+        """The door of examples/fmu, both interfaces: ``build_fmu(path, fmi, layout,
+        faults=faults)``."""
+        from tests.helpers import door_fmu_builder
+
+        def make(out):
+            door_fmu_builder().build_fmu(out, fmi, layout, faults=faults, force=True)
+
+        return self.once(f"door{fmi}_{layout}{'_faulty' if faults else ''}.fmu", make)
+
+    def hinge(self, fmi: int, theta_start=None, rename=None) -> Path:
+        """The hybrid hinge of tests/fmu_events (model exchange), or a variant of it:
+        ``build_hinge_fmu(path, fmi, theta_start, rename)``."""
+        from tests.fmu_events.hinge_fmu import build_hinge_fmu
+
+        name = f"hinge{fmi}" + ("" if theta_start is None else f"_start{theta_start!r}")
+        name += "".join(f"_{old}-as-{new}" for old, new in sorted((rename or {}).items()))
+        return self.once(f"{name}.fmu", lambda out: build_hinge_fmu(out, fmi, theta_start, rename))
+
+    def once(self, name: str, make) -> Path:
+        """``folder/name``, unless a worker has made it already made by ``make(out)``:
+        ``out`` is another name, renamed once ``make`` returns, so that the file is there
+        only when whole."""
+        path = self.folder / name
+        with open(self.folder / f".{name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # waits for the worker building it; let go on close
+            if not path.exists():
+                partial = self.folder / f".{name}.building"
+                make(partial)
+                os.replace(partial, path)
+        return path
+
+
+@pytest.fixture(scope="session")
+def shared_fmus(tmp_path_factory) -> SharedFMUs:
+    """The FMUs of the tests, built once per suite run (:class:`SharedFMUs`), in the
+    run's temporary folder: under xdist the parent of each worker's own."""
+    if shutil.which("cmake") is None:
+        pytest.skip("cmake is not installed")
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent
+    folder = base / "shared-fmus"
+    folder.mkdir(exist_ok=True)
+    return SharedFMUs(folder)

@@ -8,7 +8,9 @@
   their bounds (:func:`random_kernel_vectors`);
 - a servo loop served on its control port in a thread (:func:`served_loop`) and the
   answers read back from a connection to it (:func:`answer_lines`);
-- a process stopped for sure (:func:`freeze`: SIGSTOP, then its threads seen stopped).
+- a process stopped for sure (:func:`freeze`: SIGSTOP, then its threads seen stopped);
+- the example door FMU's builder, ``examples/fmu/build.py``, as a module
+  (:func:`door_fmu_builder`; conftest's ``shared_fmus`` builds the FMUs themselves).
 
 The independent statements of the science that tests compare against are
 ``reference.py`` (converged integrations) and ``feel_reference.py`` (the perceptual
@@ -18,6 +20,7 @@ check).
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import os
 import subprocess
@@ -61,6 +64,18 @@ def tier(node_id: str, slow: bool, measured: frozenset[str]) -> str:
     if slow:
         return "slow"
     return "integration" if node_id in measured else "unit"
+
+
+def door_fmu_builder():
+    """``examples/fmu/build.py`` as a module (it is no package), loaded once per process
+    under the name ``door_fmu_build``: its dataclasses look their module up there."""
+    name = "door_fmu_build"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, ROOT / "examples/fmu/build.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
 
 
 def cli_process(*args, cwd, env=None, timeout=300):

@@ -1,15 +1,14 @@
 """FMU models: declared from their description, simulated by the compiled kernels,
 fitted from trials made by FMPy, refused in one line when broken (issue 28).
 
-The FMUs are the project's own door (examples/fmu), built here from its C sources for
-FMI 2.0 and 3.0. The "untuned" layout is the FMU nobody tuned for evo-door: its input is
-``F_hand``, its outputs ``angle`` and ``speed`` in degrees, its parameters named like a
-Modelica export (``door.J``); the tests reach it only through a channel mapping.
+The FMUs are the project's own door (examples/fmu), built from its C sources for FMI
+2.0 and 3.0 once per suite run (conftest's ``shared_fmus``). The "untuned" layout is the
+FMU nobody tuned for evo-door: its input is ``F_hand``, its outputs ``angle`` and
+``speed`` in degrees, its parameters named like a Modelica export (``door.J``); the tests
+reach it only through a channel mapping.
 """
 
-import importlib.util
 import math
-import sys
 import zipfile
 from pathlib import Path
 
@@ -18,17 +17,14 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from evo_door.cli import main
+from tests.helpers import door_fmu_builder
 
 fmpy = pytest.importorskip("fmpy")
 
 # numerics (run again on a generic CPU in CI): the comparisons of the kernels' numbers;
 # the fits and the refusals are not about the last bits
 
-ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("door_fmu_build", ROOT / "examples/fmu/build.py")
-build = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = build
-_spec.loader.exec_module(build)
+build = door_fmu_builder()  # examples/fmu/build.py
 
 DT = 1 / 1024  # s
 UNTUNED = {"force": "F_hand", "theta": "angle", "dtheta": "speed"}
@@ -36,14 +32,10 @@ STATES = {"theta0": "door.phi", "dtheta0": "door.w"}
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    """(fmi, layout) -> path of the built FMU (both interfaces in each)."""
-    folder = tmp_path_factory.mktemp("fmus")
-    out = {}
-    for fmi in (2, 3):
-        for layout in ("tuned", "untuned"):
-            out[fmi, layout] = build.build_fmu(folder / f"door{fmi}_{layout}.fmu", fmi, layout)
-    return out
+def fmus(shared_fmus):
+    """(fmi, layout) -> path of the built FMU (both interfaces in each; shared by the
+    whole run: a test that changes one copies it)."""
+    return {(fmi, lay): shared_fmus.door(fmi, lay) for fmi in (2, 3) for lay in build.LAYOUT_NAMES}
 
 
 def push(amp=20.0, width=0.15, duration=2.0):

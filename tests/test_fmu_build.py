@@ -10,10 +10,13 @@ interpolated signal FMPy's CVode holds the input between output points and overs
 them; the README says by how much.)
 """
 
-import importlib.util
+import fcntl
 import shutil
 import subprocess
 import sys
+import time
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +25,8 @@ from scipy.integrate import solve_ivp
 
 from benchmarks.bench_fmu import door_accel as accel
 from evo_door.errors import UserError
+from tests.conftest import SharedFMUs
+from tests.helpers import door_fmu_builder
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy import read_model_description, simulate_fmu  # noqa: E402
@@ -33,10 +38,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_SCRIPT = ROOT / "examples" / "fmu" / "build.py"
-_spec = importlib.util.spec_from_file_location("door_fmu_build", BUILD_SCRIPT)
-build = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = build  # its dataclasses look their module up there
-_spec.loader.exec_module(build)
+build = door_fmu_builder()  # examples/fmu/build.py
 
 needs_cmake = pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is not installed")
 
@@ -90,16 +92,10 @@ def at_samples(result, name):
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    """The four FMUs, both interfaces each: {(fmi, layout): path}."""
-    if shutil.which("cmake") is None:
-        pytest.skip("cmake is not installed")
-    folder = tmp_path_factory.mktemp("fmus")
-    return {
-        (fmi, layout): build.build_fmu(folder / f"door{fmi}_{layout}.fmu", fmi, layout)
-        for fmi in (2, 3)
-        for layout in build.LAYOUT_NAMES
-    }
+def fmus(shared_fmus):
+    """The four FMUs, both interfaces each: {(fmi, layout): path}; ``build_fmu``'s, once
+    per suite run (the tests that change how it builds build their own)."""
+    return {(fmi, lay): shared_fmus.door(fmi, lay) for fmi in (2, 3) for lay in build.LAYOUT_NAMES}
 
 
 @pytest.mark.slow
@@ -259,6 +255,44 @@ def test_an_fmu_with_one_interface_refuses_the_other(tmp_path):
     md.coSimulation = md.modelExchange  # pretend, to reach the binary's own check
     with pytest.raises(Exception, match="instantiate"):
         fmpy.instantiate_fmu(fmpy.extract(str(path)), md, "CoSimulation")
+
+
+def test_the_command_line_builds_what_build_fmu_builds(shared_fmus, tmp_path, capsys):
+    """Its flags reach ``build_fmu``: the faulty door of FMI 3.0 from the command line
+    has the entries and the modelDescription of ``build_fmu(..., 3, faults=True)``'s."""
+    out = tmp_path / "faulty3.fmu"
+    assert build.main(["--fmi", "3", "--faults", "--out", str(out)]) == 0
+    assert "(FMI 3.0, layout tuned, me,cs, faulty on purpose; " in capsys.readouterr().out
+    with zipfile.ZipFile(out) as ours, zipfile.ZipFile(shared_fmus.door(3, faults=True)) as api:
+        assert ours.namelist() == api.namelist()
+        assert ours.read("modelDescription.xml") == api.read("modelDescription.xml")
+
+
+def test_a_shared_fmu_is_made_once_and_waited_for_while_another_worker_makes_it(tmp_path):
+    """conftest's ``shared_fmus``, which the FMU tests of every xdist worker share."""
+    shared, made = SharedFMUs(tmp_path), []
+
+    def make(out):
+        made.append(out)
+        out.write_bytes(b"ours")
+
+    with open(tmp_path / ".x.fmu.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another worker is making x.fmu
+        asked = ThreadPoolExecutor(1).submit(shared.once, "x.fmu", make)
+        time.sleep(0.2)
+        assert not asked.done()
+        (tmp_path / "x.fmu").write_bytes(b"theirs")
+    assert asked.result(timeout=10).read_bytes() == b"theirs" and made == []
+
+    def broken(out):
+        out.write_bytes(b"half")
+        raise UserError("cmake --build failed")
+
+    with pytest.raises(UserError):
+        shared.once("y.fmu", broken)
+    assert not (tmp_path / "y.fmu").exists()  # nothing half made to take
+    assert shared.once("y.fmu", make).read_bytes() == b"ours"
+    assert shared.once("y.fmu", broken).read_bytes() == b"ours" and len(made) == 1
 
 
 def test_the_builder_refuses_bad_input_before_compiling(tmp_path):

@@ -2,8 +2,9 @@
 
 The FMU is a door on a hinge with a latch (a discrete state switched by two event
 indicators, with hysteresis), a timed damping boost (a time event, announced through the
-next event time) and a bouncing open stop (an event that resets a state), built here for
-FMI 2.0 and 3.0 from the C in ``tests/fmu_events`` (``hinge.h`` says the law).
+next event time) and a bouncing open stop (an event that resets a state), built for FMI
+2.0 and 3.0 from the C in ``tests/fmu_events`` (``hinge.h`` says the law), once per suite
+run (conftest's ``shared_fmus``).
 
 Each run is compared with an independent scipy integration of the same hybrid law
 (:func:`reference`): DOP853 at rtol 1e-10, every event a terminal ``solve_ivp`` event,
@@ -30,7 +31,7 @@ from evo_door.sim import simulate
 fmpy = pytest.importorskip("fmpy")
 from fmpy.validation import validate_fmu  # noqa: E402
 
-from tests.fmu_events.hinge_fmu import PARAMETERS, build_hinge_fmu  # noqa: E402
+from tests.fmu_events.hinge_fmu import PARAMETERS  # noqa: E402
 
 # not numerics: the errors measured here are the events' (a step late at most), far
 # above what another vector width changes; tests/test_fmu.py runs the kernels there
@@ -62,9 +63,9 @@ ERROR_4, ERROR_256 = 2e-3, 1e-5
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("hinge")
-    return {fmi: build_hinge_fmu(folder / f"hinge{fmi}.fmu", fmi) for fmi in (2, 3)}
+def fmus(shared_fmus):
+    """fmi -> the hinge FMU (built once per suite run)."""
+    return {fmi: shared_fmus.hinge(fmi) for fmi in (2, 3)}
 
 
 def values(fmu, **changes) -> np.ndarray:

@@ -2,16 +2,15 @@
 parameters are never taken for channels, and ``evo-door curve`` reads its force-angle
 curve where its states allow it, or refuses in one line saying why.
 
-The FMUs are built here from the project's C: the hinge of ``tests/fmu_events`` in two
-variants (its angle starting at 0.3 rad; its ``latch_angle`` parameter renamed
-``theta0``, as an export names a rest angle) and the door of ``examples/fmu``.
+The FMUs are built from the project's C once per suite run (conftest's ``shared_fmus``):
+the hinge of ``tests/fmu_events`` in two variants (its angle starting at 0.3 rad; its
+``latch_angle`` parameter renamed ``theta0``, as an export names a rest angle) and the
+door of ``examples/fmu``.
 """
 
 import csv
-import importlib.util
 import math
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,17 +20,12 @@ from evo_door.cli import main
 from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.sim import simulate
+from tests.helpers import door_fmu_builder
 
 fmpy = pytest.importorskip("fmpy")
-from tests.fmu_events.hinge_fmu import build_hinge_fmu  # noqa: E402
-
 pytestmark = pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is not installed")
 
-ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("door_fmu_build", ROOT / "examples/fmu/build.py")
-build = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = build
-_spec.loader.exec_module(build)
+build = door_fmu_builder()  # examples/fmu/build.py
 
 DT = 1 / 1024  # s
 T = np.arange(2049) * DT
@@ -42,14 +36,14 @@ START = 0.3  # rad: the start value of the hinge's angle in the first variant
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("plant")
+def fmus(shared_fmus):
+    """The hinge's variants and the door's builds of the tests (once per suite run)."""
     return {
-        "start": build_hinge_fmu(folder / "start.fmu", 2, theta_start=START),
-        "named": build_hinge_fmu(folder / "named.fmu", 3, rename={"latch_angle": "theta0"}),
-        "plain": build_hinge_fmu(folder / "plain.fmu", 3),
-        "door": build.build_fmu(folder / "door.fmu", 3, "tuned"),
-        "untuned": build.build_fmu(folder / "untuned.fmu", 2, "untuned"),
+        "start": shared_fmus.hinge(2, theta_start=START),
+        "named": shared_fmus.hinge(3, rename={"latch_angle": "theta0"}),
+        "plain": shared_fmus.hinge(3),
+        "door": shared_fmus.door(3, "tuned"),
+        "untuned": shared_fmus.door(2, "untuned"),
     }
 
 

@@ -9,7 +9,6 @@ replace a dead or stopped child, and leave a run that finishes, resumes after a 
 gives the same numbers on every executor.
 """
 
-import importlib.util
 import os
 import shutil
 import signal
@@ -30,6 +29,7 @@ from evo_door.optim import sandbox
 from evo_door.optim.ga import GASettings, GeneticAlgorithm
 from evo_door.optim.problem import Objective, Problem
 from evo_door.sim.simulate import simulate
+from tests.helpers import door_fmu_builder
 from tests.test_cli import cli
 from tests.test_executors import _same
 from tests.test_experiment import assert_same, comparable
@@ -41,12 +41,7 @@ pytestmark = [
 ]
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location(
-    "door_fmu_build", ROOT / "examples" / "fmu" / "build.py"
-)
-build = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = build  # its dataclasses look their module up there
-_spec.loader.exec_module(build)
+build = door_fmu_builder()  # examples/fmu/build.py
 
 #: damping values (N.m.s/rad) of a good candidate and of each fault; friction (N.m) beside
 GOOD, OTHER = 0.8, 1.6
@@ -69,14 +64,12 @@ def one_child(monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    """The faulty door, FMI 2.0 and 3.0 (both interfaces in each), and two trials of
-    it at its start values (damping 0.8: no fault)."""
+def fmus(shared_fmus, tmp_path_factory):
+    """The faulty door, FMI 2.0 and 3.0 (both interfaces in each; built once per suite
+    run), and two trials of it at its start values (damping 0.8: no fault), also in
+    ``folder/trials.h5``."""
     folder = tmp_path_factory.mktemp("faulty")
-    paths = {2: build.build_fmu(folder / "faulty2.fmu", 2, faults=True)}
-    # the command line's flag
-    assert build.main(["--fmi", "3", "--faults", "--out", str(folder / "faulty3.fmu")]) == 0
-    paths[3] = folder / "faulty3.fmu"
+    paths = {fmi: shared_fmus.door(fmi, faults=True) for fmi in (2, 3)}
     model = get_model(str(paths[2]))
     dt = 1 / 256  # s
     t = np.arange(128) * dt

@@ -10,29 +10,17 @@ are needed; the examples' builder (``examples/fmu/build.py``) lends its helpers.
 
 from __future__ import annotations
 
-import importlib.util
 import platform
 import shutil
-import sys
 import tempfile
 import xml.etree.ElementTree as ET
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from tests.helpers import door_fmu_builder
+
 HERE = Path(__file__).resolve().parent
-_EXAMPLE = HERE.parents[1] / "examples" / "fmu" / "build.py"
-
-
-def _example_builder():
-    """examples/fmu/build.py as a module (its platform table, headers and runner)."""
-    name = "door_fmu_build"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, _EXAMPLE)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module  # its dataclasses look their module up there
-        spec.loader.exec_module(module)
-    return sys.modules[name]
 
 
 @dataclass(frozen=True)
@@ -258,7 +246,7 @@ def build_hinge_fmu(out: Path, fmi: int = 2, theta_start=None, rename=None) -> P
     """Build the hybrid hinge FMU (model exchange, FMI ``fmi``) into ``out``; its path.
     ``theta_start`` and ``rename`` make a :func:`variant`."""
     parameters, variables = variant(theta_start, rename)
-    example = _example_builder()
+    example = door_fmu_builder()  # its platform table, headers and runner
     cmake = shutil.which("cmake")
     if cmake is None:
         raise RuntimeError("cmake is not on PATH")
