@@ -276,13 +276,14 @@ def test_a_shared_fmu_is_made_once_and_waited_for_while_another_worker_makes_it(
         made.append(out)
         out.write_bytes(b"ours")
 
-    with open(tmp_path / ".x.fmu.lock", "w") as lock:
+    with ThreadPoolExecutor(1) as pool, open(tmp_path / ".x.fmu.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # another worker is making x.fmu
-        asked = ThreadPoolExecutor(1).submit(shared.once, "x.fmu", make)
+        asked = pool.submit(shared.once, "x.fmu", make)
         time.sleep(0.2)
-        assert not asked.done()
+        assert not asked.done()  # waiting for the lock
         (tmp_path / "x.fmu").write_bytes(b"theirs")
-    assert asked.result(timeout=10).read_bytes() == b"theirs" and made == []
+        lock.close()  # the other worker is done
+        assert asked.result(timeout=10).read_bytes() == b"theirs" and made == []
 
     def broken(out):
         out.write_bytes(b"half")
