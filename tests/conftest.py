@@ -145,7 +145,7 @@ class SharedFMUs:
         return self.once(f"{name}.fmu", lambda out: build_hinge_fmu(out, fmi, theta_start, rename))
 
     def once(self, name: str, make) -> Path:
-        """``folder/name``, unless a worker has made it already made by ``make(out)``:
+        """``folder/name``, made by ``make(out)`` unless a worker has made it already.
         ``out`` is another name, renamed once ``make`` returns, so that the file is there
         only when whole."""
         path = self.folder / name
