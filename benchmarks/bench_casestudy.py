@@ -189,7 +189,7 @@ def specification(path: Path, stages: list[str], quick: bool = False) -> list[di
 
 def figures(path: Path, wall: float, quick: bool = False) -> dict:
     """Everything the section reports, from the main job's results file."""
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
 
     summary = pipeline_summary(path)
     stages = [s["name"] for s in summary["stages"]]

@@ -28,7 +28,7 @@ RUNS: tuple[tuple[str, tuple[str, ...], dict[str, str]], ...] = (
 def estimates(path: Path) -> dict:
     """stage -> parameter -> (value, relative half-width, verdict), from a results file."""
     from evo_door.experiment import Results
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
 
     out: dict = {}
     summary = pipeline_summary(path)

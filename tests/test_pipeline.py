@@ -13,9 +13,9 @@ from evo_door.experiment.pipeline import (
     PipelineRun,
     is_pipeline,
     load_pipeline,
-    pipeline_summary,
     resume_pipeline,
 )
+from evo_door.experiment.pipeline_status import pipeline_summary
 from evo_door.reporting.format_text import format_pipeline
 from tests.test_cli import cli
 from tests.test_optim import make_trial

@@ -82,7 +82,7 @@ def test_bad_settings_and_unfinished_runs_are_refused(pipeline_file, tmp_path):
 
 
 def test_the_pipeline_file_sets_the_jnd_and_the_command_line_wins(folder, tmp_path):  # noqa: F811
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
     from evo_door.reporting.report import pipeline_settings
 
     (folder / "pipe.yaml").write_text(

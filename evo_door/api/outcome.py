@@ -15,7 +15,7 @@ from pathlib import Path, PurePath
 from typing import Any
 
 from evo_door.errors import UserError
-from evo_door.experiment.pipeline import pipeline_summary
+from evo_door.experiment.pipeline_status import pipeline_summary
 from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
 from evo_door.experiment.results import Results
 from evo_door.experiment.spec import SpecTable, spec_table

@@ -61,7 +61,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from evo_door.errors import NotResultsFileError
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
     from evo_door.experiment.reader import read_results
     from evo_door.files import Output, claim_outputs, partial_output
     from evo_door.perception.jnd_file import is_jnd_file

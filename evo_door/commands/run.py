@@ -50,12 +50,12 @@ EXECUTOR_HELP = (
 
 
 class _RunnersCheckpointEvery:
-    """The default of ``--checkpoint-every``: the runner's ``CHECKPOINT_EVERY``, read
+    """The default of ``--checkpoint-every``: ``evo_door.experiment.checkpoint.CHECKPOINT_EVERY``, read
     only when it is used or the help printed (building the parser imports nothing
     heavy)."""
 
     def __float__(self) -> float:
-        from evo_door.experiment.runner import CHECKPOINT_EVERY
+        from evo_door.experiment.checkpoint import CHECKPOINT_EVERY
 
         return CHECKPOINT_EVERY
 
@@ -146,7 +146,7 @@ def run_pipeline(args) -> int:
 def finish_pipeline(job, args) -> int:
     """Run (or resume) a pipeline and print where it ended (shared with ``resume``)."""
     from evo_door.experiment import Results
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
     from evo_door.reporting.format_text import format_pipeline, format_show
 
     if not interruptible(job, args, "the last finished generation of the running stage"):

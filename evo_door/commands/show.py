@@ -89,7 +89,7 @@ def _show_jnd(args) -> int:
 def _show_pipeline(args, record) -> int:
     """Every started stage of a pipeline's file, after the pipeline's status."""
     from evo_door.experiment import Results
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
     from evo_door.reporting.format_text import format_pipeline, format_show
 
     pipeline = pipeline_summary(record)

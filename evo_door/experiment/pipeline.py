@@ -23,7 +23,7 @@ The results file holds one group per stage, ``stages/<name>``, each laid out exa
 a single run's file (:mod:`.store`), so everything that reads a run reads a stage
 (``Results(path, stage=...)``); the root says which stages there are and how far the
 pipeline got. Each stage checkpoints the whole file as a run does (a generation at most
-every :data:`~evo_door.experiment.runner.CHECKPOINT_EVERY` seconds, every job; the
+every :data:`~evo_door.experiment.checkpoint.CHECKPOINT_EVERY` seconds, every job; the
 finished stages are copied over unchanged), so a killed pipeline resumes at the stage
 and generation of its last checkpoint and ends with the numbers of an
 uninterrupted one.
@@ -40,7 +40,7 @@ from pathlib import Path
 
 from evo_door.errors import UserError
 from evo_door.experiment import store
-from evo_door.experiment.checkpoint import stage_position, write_checkpoint
+from evo_door.experiment.checkpoint import CHECKPOINT_EVERY, stage_position, write_checkpoint
 from evo_door.experiment.config import (
     ExperimentConfig,
     _safe_name,
@@ -49,7 +49,7 @@ from evo_door.experiment.config import (
 )
 from evo_door.experiment.config_reader import KeyReader, _resolve_path, executor_setting
 from evo_door.experiment.run_preflight import _LOCKED, claim_output, default_output
-from evo_door.experiment.runner import CHECKPOINT_EVERY, ExperimentRun
+from evo_door.experiment.runner import ExperimentRun
 from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import ATTRS, FileLock, Keep, fields, read_text, remove_stale_temporaries
 from evo_door.params.declaration import suggest
@@ -549,56 +549,3 @@ def resume_pipeline(path, progress=False, on_checkpoint=None) -> PipelineRun:
     if run.status == "complete":
         return run
     return run.run(progress=progress, on_checkpoint=on_checkpoint)
-
-
-# -- reading ---------------------------------------------------------------------------
-def pipeline_summary(path) -> dict | None:
-    """Where a pipeline's file stands (None for a single run's file), JSON-able.
-
-    ``path`` is a results file or a record :func:`~.reader.read_results` read (a command
-    that goes on to show the stages reads the file once). ``status`` is complete,
-    running (a process holds the file) or interrupted, as for a run; ``stages`` gives
-    each declared stage's state (``complete``, ``running``, ``interrupted``, ``not
-    started``) and its progress text.
-    """
-    from evo_door.experiment.reader import PipelineRecord, RunRecord, read_results
-    from evo_door.experiment.results import run_status
-
-    record = path if isinstance(path, (PipelineRecord, RunRecord)) else read_results(path)
-    if not isinstance(record, PipelineRecord):
-        return None
-    path, attrs = record.path, record.attrs
-    stages = []
-    for name in record.stages:
-        run = record.runs.get(name)
-        if run is not None:
-            status = run_status(path, run.attrs, run.config)
-            entry = {"name": name, "status": status.state, "text": status.text}
-        else:
-            entry = {"name": name, "status": "not started", "text": "not started"}
-        entry["from"] = record.sources.get(name, {})
-        entry["uses"] = sorted(set(entry["from"].values()))
-        stages.append(entry)
-    state = attrs.get("status", "unknown")
-    hint = ""
-    if state != "complete":
-        holder = FileLock.holder(path)
-        if holder is not None:
-            state = "running"
-        else:
-            state, hint = "interrupted", f"evo-door resume {path}"
-    where = next((s for s in stages if s["status"] != "complete"), None)
-    text = state
-    if state != "complete" and where is not None:
-        k = attrs["stages"].index(where["name"]) + 1
-        text = f"{state} in stage {k}/{len(stages)} {where['name']} ({where['text']})"
-    return {
-        "file": str(path),
-        "name": attrs.get("name", ""),
-        "status": state,
-        "status_text": text,
-        "resume": hint,
-        "stages": stages,
-        "created": attrs.get("created", ""),
-        "total_s": float(attrs.get("total_s", 0.0)),
-    }

@@ -25,7 +25,6 @@ What is checked and claimed before a run starts (its results file, its memory) i
 from __future__ import annotations
 
 import contextlib
-import signal
 import sys
 import time
 from dataclasses import dataclass, field
@@ -36,7 +35,12 @@ import numpy as np
 
 from evo_door.experiment import store
 from evo_door.experiment.answer_checks import identifiability_of, integration_error_of
-from evo_door.experiment.checkpoint import position, write_checkpoint
+from evo_door.experiment.checkpoint import (
+    CHECKPOINT_EVERY,
+    TermAsInterrupt,
+    position,
+    write_checkpoint,
+)
 from evo_door.experiment.config import AlgorithmSpec
 from evo_door.experiment.feel_check import try_feel_check
 from evo_door.experiment.run_preflight import (
@@ -61,12 +65,6 @@ from evo_door.optim.spread import trial_estimates, with_trial_spread
 #: the name of the job fitting every trial at once in a ``per_trial`` run with ``pooled``
 POOLED = "pooled"
 
-#: Least seconds between two of a GA's checkpoints: a generation ending sooner after the
-#: last write is not written (a results file is rewritten whole, some 0.05-0.2 s). The
-#: end of a job, Ctrl-C, SIGTERM and a checkpoint hook always write, so a kill loses at
-#: most this much of the GA's work, which a resume repeats exactly.
-CHECKPOINT_EVERY = 5.0
-
 
 class Interrupted(Exception):
     """Raised by a checkpoint hook to stop a run as a kill would (tests)."""
@@ -90,36 +88,6 @@ class Job:
     identifiability: object = None  # Identifiability at best_x (optim.identifiability)
     #: ``nsga2``: the front and the smallest change chosen from it (optim.smallest_change)
     front: SmallestChange | None = None
-
-
-class _TermAsInterrupt:
-    """While a run runs, SIGTERM stops it as Ctrl-C does, at the next checkpoint.
-
-    A batch system's time limit or a plain ``kill`` sends SIGTERM; the handler only
-    notes it (an exception raised inside a signal handler can land in a place that
-    swallows it, such as a weakref callback), and the run raises KeyboardInterrupt once
-    the current generation is on disk. A second SIGTERM gets the previous handler (by
-    default: die at once; the last checkpoint is whole either way).
-    """
-
-    def __init__(self):
-        self.requested = False
-        self._previous = None
-
-    def __enter__(self) -> _TermAsInterrupt:
-        try:
-            self._previous = signal.signal(signal.SIGTERM, self._handle)
-        except ValueError:  # not the main thread: signals are not ours to take
-            self._previous = None
-        return self
-
-    def _handle(self, signum, frame) -> None:
-        self.requested = True
-        signal.signal(signal.SIGTERM, self._previous or signal.SIG_DFL)
-
-    def __exit__(self, *exc) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGTERM, self._previous)
 
 
 class ExperimentRun:
@@ -174,7 +142,7 @@ class ExperimentRun:
         self._trials_on_disk = False
         self._hook = None
         self._lock: FileLock | None = None
-        self._term: _TermAsInterrupt | None = None
+        self._term: TermAsInterrupt | None = None
         #: where the GA's evaluations run (an executor's name); provenance only
         self.executor = DEFAULT_EXECUTOR
         self._ex: Executor | None = None
@@ -305,7 +273,7 @@ class ExperimentRun:
             self.executor = executor.name
         self._written = time.monotonic()
         try:
-            with _TermAsInterrupt() as self._term, self._executor(executor, progress) as self._ex:
+            with TermAsInterrupt() as self._term, self._executor(executor, progress) as self._ex:
                 try:
                     self._run_jobs(progress)
                 except KeyboardInterrupt:

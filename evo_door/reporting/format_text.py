@@ -1,6 +1,6 @@
 """What a person reads of one run: the text of ``show`` and a pipeline's header, each
 built from the JSON-able documents the views make (:meth:`Results.summary`,
-:func:`~evo_door.experiment.pipeline.pipeline_summary`), so that ``--json`` and the
+:func:`~evo_door.experiment.pipeline_status.pipeline_summary`), so that ``--json`` and the
 text cannot disagree. The tables of several runs are :mod:`.format_tables`.
 """
 

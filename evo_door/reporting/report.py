@@ -76,7 +76,7 @@ def write_report(path, out=None, settings: JNDChanges | None = None, log=None) -
     ``<RUN>-report/`` next to it); returns the HTML file. ``settings`` changes the JND
     every perceptual check is judged by (default: the pipeline file's ``report:``, else
     the runs' own)."""
-    from evo_door.experiment.pipeline import pipeline_summary
+    from evo_door.experiment.pipeline_status import pipeline_summary
 
     t0 = time.perf_counter()
     record = path if isinstance(path, (PipelineRecord, RunRecord)) else read_results(path)
