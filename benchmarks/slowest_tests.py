@@ -47,6 +47,22 @@ UNIT_LIMIT = 0.5
 
 #: Why a slow test takes its time, by ``file::test`` (parameters left out).
 REASONS = {
+    "test_jnd_downstream::test_perception_files_change_the_runs_own_verdict_and_say_where_from": (
+        "two runs fitted to a feel, each with a measured JND file, then `show` of each"
+    ),
+    "test_jnd_downstream::test_the_objective_and_the_tolerances_follow_the_file": (
+        "a perceptual GA and the specification's yield for each of three perception settings"
+    ),
+    "test_feel_check::test_show_json_judges_a_run_fitted_to_a_chosen_feel": (
+        "its fixture: a door's curve and two GA runs fitted to it"
+    ),
+    "test_full_disk::test_a_full_disk_is_one_line_and_leaves_nothing": (
+        "its fixture runs a tiny experiment in a fresh process; the `report` case then "
+        "draws its figures before the full disk refuses them"
+    ),
+    "test_perception::test_a_feel_made_from_a_door_is_reached_and_its_door_found": (
+        "a specification run: a GA fitted to a feel, its smallest change and its yield"
+    ),
     "test_blocks_library::test_rig_fit_and_curve_of_the_cable_door_from_the_command_line": (
         "rig trials, a GA fit and a curve of a two-body mechanism file, each command a "
         "fresh process that compiles the mechanism's module or loads it"
