@@ -261,10 +261,10 @@ class ExperimentRun:
 
         ``on_checkpoint(run, job)`` is called after each checkpoint is on disk, and with
         it every generation is written (raise :class:`Interrupted` there to simulate a
-        kill). ``executor`` is where
-        the GA's evaluations run: a name (it replaces :attr:`executor`) or an
-        executor already started (a pipeline's, shared by its stages); by default
-        :attr:`executor`, started here if a GA is left to run and closed at the end.
+        kill). ``executor`` is where the GA's evaluations run: a name (it replaces
+        :attr:`executor`) or an executor already started (a pipeline's, shared by its
+        stages); by default :attr:`executor`, started here if a GA is left to run and
+        closed at the end.
         """
         self._hook = on_checkpoint
         if isinstance(executor, str):
