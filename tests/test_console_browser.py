@@ -41,6 +41,7 @@ from tests.browser import (
     skip_if_missing,
     stop,
 )
+from tests.helpers import LOADED_MACHINE_WATCHDOG
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -147,7 +148,7 @@ def session(browser, tmp_path_factory):
     log = folder / "session.h5"
     command = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     command += ["--device", "sim", "--user", "swing", "--realtime"]
-    command += ["--watchdog-misses", "1000"]  # paced beside the suite's workers and CI's jobs
+    command += LOADED_MACHINE_WATCHDOG  # paced beside the suite's workers and CI's jobs
     command += ["--console", "--console-port", "0", "--log", str(log)]
     # a control port of known token: the JND test reads what the renderer has in force
     command += ["--control", "127.0.0.1:0", "--token", CONTROL_TOKEN]

@@ -49,10 +49,10 @@ EXECUTOR_HELP = (
 )
 
 
-class _RunnersCheckpointEvery:
-    """The default of ``--checkpoint-every``: ``evo_door.experiment.checkpoint.CHECKPOINT_EVERY``, read
-    only when it is used or the help printed (building the parser imports nothing
-    heavy)."""
+class _DefaultCheckpointEvery:
+    """The default of ``--checkpoint-every``,
+    ``evo_door.experiment.checkpoint.CHECKPOINT_EVERY``, read only when it is used or
+    the help printed (building the parser imports nothing heavy)."""
 
     def __float__(self) -> float:
         from evo_door.experiment.checkpoint import CHECKPOINT_EVERY
@@ -72,7 +72,7 @@ def add_checkpoint_argument(p) -> None:
     p.add_argument(
         "--checkpoint-every",
         metavar="SECONDS",
-        default=_RunnersCheckpointEvery(),
+        default=_DefaultCheckpointEvery(),
         help="write the results file after a generation once the last write is this old "
         "(default %(default)s s; 0: every generation); every fit's end, Ctrl-C and SIGTERM "
         "write it anyway, so a kill loses at most this much of the GA's work",
