@@ -35,7 +35,13 @@ from evo_door.render.control import request  # noqa: E402
 from evo_door.render.keys import key_map  # noqa: E402
 from evo_door.render.loop import ServoLoop  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.helpers import ServedConsole, console_url, serving, yielding_sim  # noqa: E402
+from tests.helpers import (  # noqa: E402
+    LOADED_MACHINE_WATCHDOG,
+    ServedConsole,
+    console_url,
+    serving,
+    yielding_sim,
+)
 
 TOKEN = "s3cret-token"
 SENSATIONS = [p.name for p in PARAMS if p.group == "sensation"]
@@ -470,6 +476,7 @@ def test_render_console_spawns_the_console_and_stops_it(tmp_path):
     one and the page with it, its summary giving a period the loop never kept)."""
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     cmd += ["--user", "hold", "--duration", "4", "--console", "--console-port", "0"]
+    cmd += LOADED_MACHINE_WATCHDOG  # a 37 ms stall beside the suite's workers ended one
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, text=True)
     try:
         url = console_url(proc.stdout)

@@ -14,13 +14,16 @@ import math
 
 import numpy as np
 import pytest
+from numba import njit, types
 
 from evo_door.models import get_model
 from evo_door.models.door import energy
 from evo_door.models.door.latch import latch_angles
 from evo_door.models.haptic import latch_angles_of
 from evo_door.sim import simulate
-from evo_door.sim.simulate import param_vector
+from evo_door.sim.integrators import ACCEL_TYPE, METHODS, integrate_compiled, kernel_form
+from evo_door.sim.located import SWITCHES_TYPE, advance_located, rate
+from evo_door.sim.simulate import param_vector, tolerance_of
 from tests.reference import converged
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)
@@ -273,3 +276,60 @@ def test_a_stop_bounce_gives_no_energy_back(door, default, kind):
     worst = int(rise.argmax())
     assert rise[worst] <= 1e-12, f"energy rises by {rise[worst]:.2e} J at sample {worst}"
     assert e[-1] < e[0] - 0.1
+
+
+@njit(
+    types.void(
+        ACCEL_TYPE, SWITCHES_TYPE, types.float64[::1], types.float64[::1], types.float64,
+        types.float64, types.float64, types.int64, types.int64, types.float64, types.int64,
+        types.boolean, types.float64[::1], types.float64[::1],
+    )
+)  # fmt: skip
+def _located_only(
+    accel, switches, p, force, dt, theta0, dtheta0, substeps, method, tol, n_sw, stick, th, w
+):  # fmt: skip
+    """Every period by :func:`advance_located` (the integrators' shortcut for periods
+    without events left out): the angle and speed at each sample into ``th`` and ``w``."""
+    g = np.empty((4, max(n_sw, 1)))
+    theta, dtheta = theta0, dtheta0
+    a_now = rate(accel, p, theta, dtheta, force[0], stick)
+    th[0], w[0] = theta, dtheta
+    h = 0.0
+    for k in range(force.shape[0] - 1):
+        theta, dtheta, a_end, a_ok, h = advance_located(
+            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
+            substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3], h,
+        )  # fmt: skip
+        a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
+        th[k + 1], w[k + 1] = theta, dtheta
+
+
+@pytest.mark.parametrize(
+    "method, substeps", [("default", 1), ("dopri5", 2), ("rk4", 2), ("semi_implicit", 2)]
+)
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("name", ["haptic", "door"])
+def test_a_period_without_events_has_the_located_steps_numbers(name, kind, method, substeps):
+    """Where a period's steps meet no surface and are accurate at the first try, the
+    integrators take them without the locating loop (``smooth_period``): the same
+    arithmetic, so every sample equals the located integration's bit for bit, on trials
+    that cross latch bands, stops and the speed's zero; with each model's method at one
+    substep, and with dopri5 and the fixed-step methods at two."""
+    model = get_model(name)
+    ps = model.load_params(PRESETS[name])
+    force, theta0, dtheta0 = scenario(model, ps, kind)
+    form = kernel_form(model.accel, len(param_vector(ps)))
+    q = form.vector(param_vector(ps))
+    code = METHODS[model.method if method == "default" else method]
+    tol = tolerance_of(model)
+    n_sw, stick = model.n_switches, model.stick_slip
+    out = [np.empty(force.size) for _ in range(3)]
+    args = (q, force, DT, substeps, theta0, dtheta0, code, tol, n_sw, stick)
+    assert integrate_compiled(form.accel, model.switches, *args, *out)
+    th, w = np.empty(force.size), np.empty(force.size)
+    _located_only(
+        form.accel, model.switches, q, force, DT, theta0, dtheta0, substeps, code, tol, n_sw,
+        stick, th, w,
+    )  # fmt: skip
+    np.testing.assert_array_equal(out[0], th)
+    np.testing.assert_array_equal(out[1], w)

@@ -36,9 +36,17 @@ forces break the stick is solved exactly; the door then slips from ``+-CREEP``.
 **Adaptive steps** (method ``dopri5``): Dormand and Prince's 5(4) pair, its step
 chosen within each sample period from the embedded error estimate against the
 tolerance ``tol``: ``|error| <= tol (1 + |x|)`` per component (rad, rad/s). Steps
-never exceed ``dt / substeps``; each period starts from that length, so a period's
-result does not depend on how the one before it was cut. ``rk4`` and
-``semi_implicit`` keep their fixed steps, with the surfaces located as above.
+never exceed ``dt / substeps``. A period starts from the step length the last one's
+error estimate proposed (``h_start``, ``h_next``), unless that one had an event (a
+surface, a stuck door): then from ``dt / substeps``. A door resting on a stiff stop
+so keeps the short step it needs, rather than trying the full length again at every
+sample to have it rejected. ``rk4`` and ``semi_implicit`` keep their fixed steps, with
+the surfaces located as above.
+
+Most periods of a trial need none of the locating: their steps cross nothing and are
+accurate at the first try. :func:`smooth_period` takes those steps on their own, with
+the same arithmetic as :func:`advance_located` (so the same numbers), and hands the
+period to :func:`advance_located` when a step is too coarse or crosses something.
 """
 
 from __future__ import annotations
@@ -63,6 +71,8 @@ LOCATE_TOL = 1e-7
 LOCATE_ITER = 80
 #: Most step-size rejections in one period before a step is taken regardless.
 MAX_REJECTS = 400
+#: Most steps of one period without an event taken outside the locating loop.
+MAX_SMOOTH_STEPS = 256
 
 _GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
@@ -290,6 +300,78 @@ def _first_crossing(g0, g1, n, w0, w1, stick, active):
     return best
 
 
+@njit(cache=True, nogil=True, inline="always")
+def smooth_period(
+    accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
+    n_sw, stick, g0, g1, h_start,
+):  # fmt: skip
+    """A sample period whose steps cross nothing and are all accurate at the first try.
+
+    Most periods of a trial are. There :func:`advance_located` takes its steps one after
+    the other and checks each end's switching functions, and this does the same, with
+    the same arithmetic (so the same numbers) and nothing else: no locating, no retry,
+    no bookkeeping for them, which cost about as much as a ``dopri5`` step's six
+    right-hand sides. Returns ``(ok, theta, dtheta, a_end, a_ok, h_next)``, ``h_start``
+    and ``h_next`` as :func:`advance_located` has them. When not ``ok`` (a step too
+    coarse, a surface or the speed's zero reached, not finite, a stuck door), nothing
+    is moved, ``g0`` holds the switching functions at the period's start, and the
+    period is :func:`advance_located`'s from its start. ``g1``: scratch.
+    """
+    # long: advance_located's step loop without its cases 1, 3 and 4, kept line for line
+    # alike so that the two give the same numbers (tests/test_events.py checks it)
+    slope = (f1 - f0) / dt
+    h_max = dt / substeps
+    h = h_max if h_start <= 0.0 else min(h_start, h_max)
+    t = 0.0
+    if not g_ready:
+        switches(theta, dtheta, f0, p, g0)
+    a_t = 0.0
+    a_w = 0.0
+    if method == SEMI_IMPLICIT:
+        a_t, a_w = jacobian(accel, p, theta, dtheta, f0, a_start)
+    th, w = theta, dtheta
+    a1 = a_start
+    fresh = True
+    a_ok = False
+    for _ in range(MAX_SMOOTH_STEPS):
+        if not dt - t > LOCATE_TOL * dt:
+            for i in range(n_sw):
+                g0[i] = g1[i]
+            return True, th, w, a1, a_ok, h if method == DOPRI5 else 0.0
+        if stick and w == 0.0:
+            break
+        side = 0
+        if stick:
+            side = 1 if w > 0.0 else -1
+        proposed = max(h, LOCATE_TOL * dt)
+        h = min(proposed, dt - t)
+        if not fresh:
+            a1 = accel(th, w, f0 + slope * t, p)
+        th1, w1, err, a_end = trial_step(
+            accel, p, th, w, a1, t, h, f0, slope, method, tol, a_t, a_w, side
+        )
+        if not (err <= 1.0 and math.isfinite(th1) and math.isfinite(w1)):
+            break
+        switches(th1, w1, f0 + slope * (t + h), p, g1)
+        # (a sign kept since the period's start is the sign at this step's start)
+        crossed = stick and _crossed(w, w1)
+        for i in range(n_sw):
+            crossed = crossed or _crossed(g0[i], g1[i])
+        if crossed:
+            break
+        th, w = th1, w1
+        t += h
+        fresh = False
+        a_ok = False
+        if method == DOPRI5:
+            grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
+            h = max(min(h_max, h * min(5.0, grow)), min(proposed, h_max) if h < proposed else 0.0)
+            a1 = a_end
+            fresh = True
+            a_ok = side == 0 or w1 * side > 0.0
+    return False, theta, dtheta, a_start, False, 0.0
+
+
 # Not inlined: compiled once, for the first-class function types the kernels pass
 # (integrate_compiled, the objective kernels), which keeps compiling the workbench's
 # kernels to about a quarter of what inlining it into each of them took.
@@ -314,6 +396,7 @@ def advance_located(
     g1,
     gx,
     active,
+    h_start,
 ):
     """Move ``(theta, dtheta)`` over one sample period ``dt``, surfaces located.
 
@@ -325,15 +408,21 @@ def advance_located(
     Nothing a period has is computed again by the next: ``a_start`` is the acceleration
     at the start (``accel``'s, as :func:`rate` gives it unless the door is stuck), and
     with ``g_ready`` ``g0`` holds the switching functions there; on return ``g0`` holds
-    them at the end. Returns ``(theta, dtheta, a_end, a_ok)``: ``a_end`` is ``accel`` at
-    the end, from the last step's last stage, where ``a_ok`` (else compute it).
+    them at the end. ``h_start`` is the first step's length (the last period's
+    :data:`next <advance_located>` one; 0: ``dt / substeps``).
+
+    Returns ``(theta, dtheta, a_end, a_ok, h_next)``: ``a_end`` is ``accel`` at the end,
+    from the last step's last stage, where ``a_ok`` (else compute it); ``h_next`` the
+    step length the error estimate proposes for the next period, 0 when this one had
+    an event (a surface, a stuck door: the next starts afresh) or a fixed step.
     """
     # long: one loop over the period's steps, in four cases read top to bottom (a
     # stuck door; the step; a crossing located; the move across it); they share the
     # period's clock, step length and scratch arrays
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max
+    h = h_max if h_start <= 0.0 else min(h_start, h_max)
+    carry = method == DOPRI5  # no event yet: the next period starts from h
     t = 0.0
     for i in range(n_sw):
         active[i] = 1.0
@@ -356,6 +445,7 @@ def advance_located(
         if stick and dtheta == 0.0:
             fresh = False
             a_ok = False
+            carry = False
             forward = accel(theta, CREEP, force, p)
             backward = accel(theta, -CREEP, force, p)
             if forward > 0.0:
@@ -373,7 +463,7 @@ def advance_located(
                     free = min(free, t + (dt - t) * (-backward) / (backward_end - backward))
                 if free >= dt:  # held to the end, where the friction still holds: rate 0
                     switches(theta, 0.0, f1, p, g0)
-                    return theta, 0.0, 0.0, True
+                    return theta, 0.0, 0.0, True, 0.0
                 t = max(free, t + LOCATE_TOL * dt)
                 g_fresh = False
                 continue
@@ -383,7 +473,8 @@ def advance_located(
         side = 0
         if stick:
             side = 1 if dtheta > 0.0 else (-1 if dtheta < 0.0 else 0)
-        h = min(max(h, LOCATE_TOL * dt), dt - t)  # never a step of nothing
+        proposed = max(h, LOCATE_TOL * dt)  # never a step of nothing
+        h = min(proposed, dt - t)
         if not fresh:
             a1 = accel(theta, dtheta, force, p)
         fresh = False
@@ -418,11 +509,15 @@ def advance_located(
             g_fresh = True
             if method == DOPRI5:
                 grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-                h = min(h_max, h * min(5.0, grow))
+                # (a step cut at the period's end ends it: its proposal carries over)
+                h = max(
+                    min(h_max, h * min(5.0, grow)), min(proposed, h_max) if h < proposed else 0.0
+                )
                 a1 = a_end  # first same as last: the next step's first stage
                 fresh = True
                 a_ok = side == 0 or w1 * side > 0.0  # sided gave accel's own value
             continue
+        carry = False
         # 3. a crossing: the longest step short of it, by Illinois on the length
         events += 1
         lo, hi = 0.0, h
@@ -499,4 +594,4 @@ def advance_located(
             active[c] = 0.0  # grazes it: step over it for the rest of the period
     if not g_fresh:
         switches(theta, dtheta, f1, p, g0)
-    return theta, dtheta, a1, a_ok
+    return theta, dtheta, a1, a_ok, h if carry else 0.0
