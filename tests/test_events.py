@@ -294,11 +294,10 @@ def _located_only(
     theta, dtheta = theta0, dtheta0
     a_now = rate(accel, p, theta, dtheta, force[0], stick)
     th[0], w[0] = theta, dtheta
-    h = 0.0
     for k in range(force.shape[0] - 1):
-        theta, dtheta, a_end, a_ok, h = advance_located(
+        theta, dtheta, a_end, a_ok = advance_located(
             accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
-            substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3], h,
+            substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3],
         )  # fmt: skip
         a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
         th[k + 1], w[k + 1] = theta, dtheta

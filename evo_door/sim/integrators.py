@@ -192,36 +192,37 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
 @njit(cache=True, nogil=True, inline="always")
 def step_period(
     accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
-    n_sw, stick, g, h_start, smooth,
+    n_sw, stick, g, smooth,
 ):  # fmt: skip
     """Move the state over one sample period: :func:`advance`, or where the model has
     switching surfaces, stick-slip friction or the method is ``dopri5``,
     :func:`~evo_door.sim.located.advance_located` (``g``: 4 rows of scratch; with
-    ``g_ready`` its first row holds the switching functions at the start; ``h_start``
-    its first step). With ``smooth`` (the last period's answer), the period's steps
-    are first tried without the locating loop
-    (:func:`~evo_door.sim.located.smooth_period`: the same numbers, without the loop's
-    cost), which serves every period that crosses nothing and cuts no step.
+    ``g_ready`` its first row holds the switching functions at the start). With
+    ``smooth`` (the last period's answer), the period's steps are first tried without
+    the locating loop (:func:`~evo_door.sim.located.smooth_period`: the same numbers,
+    without the loop's cost), which serves every period that crosses nothing and cuts
+    no step.
 
-    Returns ``(theta, dtheta, a_end, a_ok, h_next, smooth)``: where ``a_ok``, ``a_end``
-    is the acceleration at the end that the last step already computed; ``h_next`` the
-    next period's first step; ``smooth`` whether this period was that shortcut's."""
+    Returns ``(theta, dtheta, a_end, a_ok, smooth)``: where ``a_ok``, ``a_end`` is the
+    acceleration at the end that the last step already computed; ``smooth`` whether
+    the next period tries the shortcut (after one it could not take, the next does not,
+    so that a stretch of short steps does not pay for every period's step twice)."""
     if method == DOPRI5 or n_sw > 0 or stick:
         if smooth:
-            ok, th1, w1, a_end, a_ok, h_next = smooth_period(
+            ok, th1, w1, a_end, a_ok = smooth_period(
                 accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps,
-                method, tol, n_sw, stick, g[0], g[1], h_start,
+                method, tol, n_sw, stick, g[0], g[1],
             )  # fmt: skip
             if ok:
-                return th1, w1, a_end, a_ok, h_next, True
+                return th1, w1, a_end, a_ok, True
             g_ready = True  # smooth_period left the switching functions at the start
-        theta, dtheta, a_end, a_ok, h_next = advance_located(
+        theta, dtheta, a_end, a_ok = advance_located(
             accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method,
-            tol, n_sw, stick, g[0], g[1], g[2], g[3], h_start,
+            tol, n_sw, stick, g[0], g[1], g[2], g[3],
         )  # fmt: skip
-        return theta, dtheta, a_end, a_ok, h_next, not smooth
+        return theta, dtheta, a_end, a_ok, not smooth
     theta, dtheta = advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
-    return theta, dtheta, 0.0, False, 0.0, False
+    return theta, dtheta, 0.0, False, False
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -247,11 +248,11 @@ def integrate_with(
     theta_out[0] = theta
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
-    h_next, smooth = 0.0, True
+    smooth = True
     for k in range(n - 1):
-        theta, dtheta, a_end, a_ok, h_next, smooth = step_period(
+        theta, dtheta, a_end, a_ok, smooth = step_period(
             accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
-            substeps, method, tol, n_sw, stick, g, h_next, smooth,
+            substeps, method, tol, n_sw, stick, g, smooth,
         )  # fmt: skip
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
             for j in range(k + 1, n):

@@ -36,12 +36,9 @@ forces break the stick is solved exactly; the door then slips from ``+-CREEP``.
 **Adaptive steps** (method ``dopri5``): Dormand and Prince's 5(4) pair, its step
 chosen within each sample period from the embedded error estimate against the
 tolerance ``tol``: ``|error| <= tol (1 + |x|)`` per component (rad, rad/s). Steps
-never exceed ``dt / substeps``. A period starts from the step length the last one's
-error estimate proposed (``h_start``, ``h_next``), unless that one had an event (a
-surface, a stuck door): then from ``dt / substeps``. A door resting on a stiff stop
-so keeps the short step it needs, rather than trying the full length again at every
-sample to have it rejected. ``rk4`` and ``semi_implicit`` keep their fixed steps, with
-the surfaces located as above.
+never exceed ``dt / substeps``; each period starts from that length, so a period's
+result does not depend on how the one before it was cut. ``rk4`` and
+``semi_implicit`` keep their fixed steps, with the surfaces located as above.
 
 Most periods of a trial need none of the locating: their steps cross nothing and are
 accurate at the first try. :func:`smooth_period` takes those steps on their own, with
@@ -303,7 +300,7 @@ def _first_crossing(g0, g1, n, w0, w1, stick, active):
 @njit(cache=True, nogil=True, inline="always")
 def smooth_period(
     accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
-    n_sw, stick, g0, g1, h_start,
+    n_sw, stick, g0, g1,
 ):  # fmt: skip
     """A sample period whose steps cross nothing and are all accurate at the first try.
 
@@ -311,17 +308,16 @@ def smooth_period(
     the other and checks each end's switching functions, and this does the same, with
     the same arithmetic (so the same numbers) and nothing else: no locating, no retry,
     no bookkeeping for them, which cost about as much as a ``dopri5`` step's six
-    right-hand sides. Returns ``(ok, theta, dtheta, a_end, a_ok, h_next)``, ``h_start``
-    and ``h_next`` as :func:`advance_located` has them. When not ``ok`` (a step too
-    coarse, a surface or the speed's zero reached, not finite, a stuck door), nothing
-    is moved, ``g0`` holds the switching functions at the period's start, and the
-    period is :func:`advance_located`'s from its start. ``g1``: scratch.
+    right-hand sides. Returns ``(ok, theta, dtheta, a_end, a_ok)``. When not ``ok`` (a
+    step too coarse, a surface or the speed's zero reached, not finite, a stuck door),
+    nothing is moved, ``g0`` holds the switching functions at the period's start, and
+    the period is :func:`advance_located`'s from its start. ``g1``: scratch.
     """
     # long: advance_located's step loop without its cases 1, 3 and 4, kept line for line
     # alike so that the two give the same numbers (tests/test_events.py checks it)
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max if h_start <= 0.0 else min(h_start, h_max)
+    h = h_max
     t = 0.0
     if not g_ready:
         switches(theta, dtheta, f0, p, g0)
@@ -337,14 +333,13 @@ def smooth_period(
         if not dt - t > LOCATE_TOL * dt:
             for i in range(n_sw):
                 g0[i] = g1[i]
-            return True, th, w, a1, a_ok, h if method == DOPRI5 else 0.0
+            return True, th, w, a1, a_ok
         if stick and w == 0.0:
             break
         side = 0
         if stick:
             side = 1 if w > 0.0 else -1
-        proposed = max(h, LOCATE_TOL * dt)
-        h = min(proposed, dt - t)
+        h = min(max(h, LOCATE_TOL * dt), dt - t)
         if not fresh:
             a1 = accel(th, w, f0 + slope * t, p)
         th1, w1, err, a_end = trial_step(
@@ -365,11 +360,11 @@ def smooth_period(
         a_ok = False
         if method == DOPRI5:
             grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-            h = max(min(h_max, h * min(5.0, grow)), min(proposed, h_max) if h < proposed else 0.0)
+            h = min(h_max, h * min(5.0, grow))
             a1 = a_end
             fresh = True
             a_ok = side == 0 or w1 * side > 0.0
-    return False, theta, dtheta, a_start, False, 0.0
+    return False, theta, dtheta, a_start, False
 
 
 # Not inlined: compiled once, for the first-class function types the kernels pass
@@ -396,7 +391,6 @@ def advance_located(
     g1,
     gx,
     active,
-    h_start,
 ):
     """Move ``(theta, dtheta)`` over one sample period ``dt``, surfaces located.
 
@@ -408,21 +402,15 @@ def advance_located(
     Nothing a period has is computed again by the next: ``a_start`` is the acceleration
     at the start (``accel``'s, as :func:`rate` gives it unless the door is stuck), and
     with ``g_ready`` ``g0`` holds the switching functions there; on return ``g0`` holds
-    them at the end. ``h_start`` is the first step's length (the last period's
-    :data:`next <advance_located>` one; 0: ``dt / substeps``).
-
-    Returns ``(theta, dtheta, a_end, a_ok, h_next)``: ``a_end`` is ``accel`` at the end,
-    from the last step's last stage, where ``a_ok`` (else compute it); ``h_next`` the
-    step length the error estimate proposes for the next period, 0 when this one had
-    an event (a surface, a stuck door: the next starts afresh) or a fixed step.
+    them at the end. Returns ``(theta, dtheta, a_end, a_ok)``: ``a_end`` is ``accel`` at
+    the end, from the last step's last stage, where ``a_ok`` (else compute it).
     """
     # long: one loop over the period's steps, in four cases read top to bottom (a
     # stuck door; the step; a crossing located; the move across it); they share the
     # period's clock, step length and scratch arrays
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max if h_start <= 0.0 else min(h_start, h_max)
-    carry = method == DOPRI5  # no event yet: the next period starts from h
+    h = h_max
     t = 0.0
     for i in range(n_sw):
         active[i] = 1.0
@@ -445,7 +433,6 @@ def advance_located(
         if stick and dtheta == 0.0:
             fresh = False
             a_ok = False
-            carry = False
             forward = accel(theta, CREEP, force, p)
             backward = accel(theta, -CREEP, force, p)
             if forward > 0.0:
@@ -463,7 +450,7 @@ def advance_located(
                     free = min(free, t + (dt - t) * (-backward) / (backward_end - backward))
                 if free >= dt:  # held to the end, where the friction still holds: rate 0
                     switches(theta, 0.0, f1, p, g0)
-                    return theta, 0.0, 0.0, True, 0.0
+                    return theta, 0.0, 0.0, True
                 t = max(free, t + LOCATE_TOL * dt)
                 g_fresh = False
                 continue
@@ -473,8 +460,7 @@ def advance_located(
         side = 0
         if stick:
             side = 1 if dtheta > 0.0 else (-1 if dtheta < 0.0 else 0)
-        proposed = max(h, LOCATE_TOL * dt)  # never a step of nothing
-        h = min(proposed, dt - t)
+        h = min(max(h, LOCATE_TOL * dt), dt - t)  # never a step of nothing
         if not fresh:
             a1 = accel(theta, dtheta, force, p)
         fresh = False
@@ -509,15 +495,11 @@ def advance_located(
             g_fresh = True
             if method == DOPRI5:
                 grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-                # (a step cut at the period's end ends it: its proposal carries over)
-                h = max(
-                    min(h_max, h * min(5.0, grow)), min(proposed, h_max) if h < proposed else 0.0
-                )
+                h = min(h_max, h * min(5.0, grow))
                 a1 = a_end  # first same as last: the next step's first stage
                 fresh = True
                 a_ok = side == 0 or w1 * side > 0.0  # sided gave accel's own value
             continue
-        carry = False
         # 3. a crossing: the longest step short of it, by Illinois on the length
         events += 1
         lo, hi = 0.0, h
@@ -594,4 +576,4 @@ def advance_located(
             active[c] = 0.0  # grazes it: step over it for the rest of the period
     if not g_fresh:
         switches(theta, dtheta, f1, p, g0)
-    return theta, dtheta, a1, a_ok, h if carry else 0.0
+    return theta, dtheta, a1, a_ok

@@ -159,13 +159,11 @@ def all_finite(x):
 
 @njit(cache=True, nogil=True, inline="always")
 def located_period(
-    rhs, switches, p, x, f0, f1, dt, substeps, method, tol, n_sw, contacts, W, G, JM, piv, modes,
-    h_start,
-):  # fmt: skip
+    rhs, switches, p, x, f0, f1, dt, substeps, method, tol, n_sw, contacts, W, G, JM, piv, modes
+):
     """Move ``x`` over one sample period ``dt`` (force linear from ``f0`` to ``f1``),
     the model's ``n_sw`` surfaces and the contacts' located within the steps
-    (:func:`evo_door.sim.located.advance_located` on a state vector, its ``h_start``
-    and the ``h_next`` it returns too)."""
+    (:func:`evo_door.sim.located.advance_located` on a state vector)."""
     # long: advance_located's one loop over the period's steps, its four cases read
     # top to bottom (contacts at rest; the step; a crossing located; the move across
     # it), sharing the period's clock, step length and scratch rows
@@ -174,8 +172,7 @@ def located_period(
     a1, x1, xt, xlo, y, r = W[A1], W[X1], W[XT], W[XLO], W[Y], W[R]
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max if h_start <= 0.0 else min(h_start, h_max)
-    carry = method == DOPRI5  # no event yet: the next period starts from h
+    h = h_max
     t = 0.0
     for i in range(n_g):
         active[i] = 1.0
@@ -194,20 +191,18 @@ def located_period(
             at_rest, stuck = release(rhs, p, x, force, contacts, y, r)
             if at_rest > 0:
                 fresh = False
-                carry = False
                 set_modes(x, contacts, modes)
                 if stuck > 0:
                     free = frozen_until(rhs, p, x, force, f1, t, dt, contacts, modes, W)
                     if free >= dt:
-                        return 0.0
+                        return
                     if free >= 0.0:
                         t = max(free, t + LOCATE_TOL * dt)
                         continue
                 surfaces(rhs, switches, p, x, force, n_sw, contacts, modes, g0, y, r)
         # 2. the step (sliding contacts' friction held on their sides, stuck ones held)
         set_modes(x, contacts, modes)
-        proposed = max(h, LOCATE_TOL * dt)  # never a step of nothing
-        h = min(proposed, dt - t)
+        h = min(max(h, LOCATE_TOL * dt), dt - t)  # never a step of nothing
         if not fresh:
             stage_rate(rhs, p, x, force, contacts, modes, a1, y, r)
         fresh = False
@@ -234,14 +229,10 @@ def located_period(
             g0[:n_g] = g1[:n_g]
             if method == DOPRI5:
                 grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-                # (a step cut at the period's end ends it: its proposal carries over)
-                h = max(
-                    min(h_max, h * min(5.0, grow)), min(proposed, h_max) if h < proposed else 0.0
-                )
+                h = min(h_max, h * min(5.0, grow))
                 a1[:] = W[K7]  # first same as last
                 fresh = True
             continue
-        carry = False
         # 3. a crossing: the longest step short of it, by Illinois on the length
         events += 1
         lo, hi = 0.0, h
@@ -309,7 +300,6 @@ def located_period(
         surfaces(rhs, switches, p, x, f0 + slope * min(t, dt), n_sw, contacts, modes, g0, y, r)
         if not crossed(g0[c], before):
             active[c] = 0.0  # grazes it: step over it for the rest of the period
-    return h if carry else 0.0
 
 
 # Not inlined: compiled once, for the first-class function types of the kernels that
@@ -317,16 +307,15 @@ def located_period(
 @njit(cache=True, nogil=True)
 def period(
     rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
-    W, G, JM, piv, modes, h_start,
+    W, G, JM, piv, modes,
 ):  # fmt: skip
     """Move the state ``x`` (in place) over one sample period: :func:`plain_period`,
     or where the model has switching surfaces or contacts, or the method is ``dopri5``,
-    :func:`located_period`. ``a_start`` is the rate at the period's start; ``h_start``
-    the first step (0: ``dt / substeps``). Returns the next period's first step."""
+    :func:`located_period`. ``a_start`` is the rate at the period's start."""
     if method != DOPRI5 and n_sw == 0 and contacts.shape[0] == 0:
         plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, modes, JM, piv, W)
-        return 0.0
-    return located_period(
-        rhs, switches, p, x, f0, f1, dt, substeps, method, tol, n_sw, contacts,
-        W, G, JM, piv, modes, h_start,
-    )  # fmt: skip
+    else:
+        located_period(
+            rhs, switches, p, x, f0, f1, dt, substeps, method, tol, n_sw, contacts,
+            W, G, JM, piv, modes,
+        )  # fmt: skip

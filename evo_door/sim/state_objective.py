@@ -69,12 +69,11 @@ def trial_error_states(
     dx = np.empty(x.shape[0])
     sample_rate(rhs, p, x, force[start], contacts, dx, W[Y], W[R])
     acc = 0.0
-    h = 0.0
     for k in range(start, stop):
         if k > start:
-            h = period(
+            period(
                 rhs, switches, p, x, force[k - 1], force[k], dx, dt, substeps, method, tol,
-                n_sw, contacts, W, G, JM, piv, modes, h,
+                n_sw, contacts, W, G, JM, piv, modes,
             )  # fmt: skip
             if blown_up(x):
                 return math.inf, False

@@ -174,11 +174,10 @@ def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_
     sample_rate(rhs, p, x, force[0], contacts, dx, W[Y], W[R])
     x_out[:, 0] = x
     dx_out[:, 0] = dx
-    h = 0.0
     for k in range(force.shape[0] - 1):
-        h = period(
+        period(
             rhs, switches, p, x, force[k], force[k + 1], dx, dt, substeps, method, tol, n_sw,
-            contacts, W, G, JM, piv, modes, h,
+            contacts, W, G, JM, piv, modes,
         )  # fmt: skip
         if not blown_up(x):
             sample_rate(rhs, p, x, force[k + 1], contacts, dx, W[Y], W[R])
