@@ -159,11 +159,15 @@ def all_finite(x):
 
 @njit(cache=True, nogil=True, inline="always")
 def located_period(
-    rhs, switches, p, x, f0, f1, dt, substeps, method, tol, n_sw, contacts, W, G, JM, piv, modes
-):
+    rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts, W, G, JM,
+    piv, modes,
+):  # fmt: skip
     """Move ``x`` over one sample period ``dt`` (force linear from ``f0`` to ``f1``),
     the model's ``n_sw`` surfaces and the contacts' located within the steps
-    (:func:`evo_door.sim.located.advance_located` on a state vector)."""
+    (:func:`evo_door.sim.located.advance_located` on a state vector). ``a_start`` is
+    the rate at the start (:func:`~evo_door.sim.state_steps.sample_rate`'s): the first
+    step's first stage where no contact is at rest (the same rhs call, so the same
+    numbers as computing it again, one call less a period)."""
     # long: advance_located's one loop over the period's steps, its four cases read
     # top to bottom (contacts at rest; the step; a crossing located; the move across
     # it), sharing the period's clock, step length and scratch rows
@@ -178,7 +182,8 @@ def located_period(
         active[i] = 1.0
     events = 0
     rejects = 0
-    fresh = False  # a1 holds the rate at the current state
+    a1[:] = a_start  # unless a contact is at rest: then case 1 computes it anew
+    fresh = True  # a1 holds the rate at the current state
     if method == SEMI_IMPLICIT:
         jacobian(rhs, p, x, f0, JM[0], W[DX], y, r)
     set_modes(x, contacts, modes)
@@ -316,6 +321,6 @@ def period(
         plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, modes, JM, piv, W)
     else:
         located_period(
-            rhs, switches, p, x, f0, f1, dt, substeps, method, tol, n_sw, contacts,
+            rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
             W, G, JM, piv, modes,
         )  # fmt: skip
