@@ -189,40 +189,49 @@ def advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method):
     return theta, dtheta
 
 
+#: Most periods a trial goes straight to the locating loop after the shortcut failed
+#: again and again (it waits 1, 2, 4, ... periods before it tries the shortcut anew).
+MAX_SKIP = 64
+
+
 @njit(cache=True, nogil=True, inline="always")
 def step_period(
     accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
-    n_sw, stick, g, smooth,
+    n_sw, stick, g, skip, backoff,
 ):  # fmt: skip
     """Move the state over one sample period: :func:`advance`, or where the model has
     switching surfaces, stick-slip friction or the method is ``dopri5``,
     :func:`~evo_door.sim.located.advance_located` (``g``: 4 rows of scratch; with
-    ``g_ready`` its first row holds the switching functions at the start). With
-    ``smooth`` (the last period's answer), the period's steps are first tried without
-    the locating loop (:func:`~evo_door.sim.located.smooth_period`: the same numbers,
-    without the loop's cost), which serves every period that crosses nothing and cuts
-    no step.
+    ``g_ready`` its first row holds the switching functions at the start).
 
-    Returns ``(theta, dtheta, a_end, a_ok, smooth)``: where ``a_ok``, ``a_end`` is the
-    acceleration at the end that the last step already computed; ``smooth`` whether
-    the next period tries the shortcut (after one it could not take, the next does not,
-    so that a stretch of short steps does not pay for every period's step twice)."""
+    Unless ``skip`` is positive, the period's steps are first tried without the
+    locating loop (:func:`~evo_door.sim.located.smooth_period`: the same numbers,
+    without the loop's cost), which serves every period that crosses nothing and cuts
+    no step. Where it cannot (a door resting on its stiff stop cuts every step), the
+    try would cost a step a period: after a failure the next ``backoff`` periods skip
+    it, and ``backoff`` doubles while it keeps failing (up to :data:`MAX_SKIP`). A
+    trial starts with ``skip`` 0 and ``backoff`` 1.
+
+    Returns ``(theta, dtheta, a_end, a_ok, skip, backoff)``: where ``a_ok``, ``a_end``
+    is the acceleration at the end that the last step already computed; ``skip`` and
+    ``backoff`` for the next period."""
     if method == DOPRI5 or n_sw > 0 or stick:
-        if smooth:
+        if skip <= 0:
             ok, th1, w1, a_end, a_ok = smooth_period(
                 accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps,
                 method, tol, n_sw, stick, g[0], g[1],
             )  # fmt: skip
             if ok:
-                return th1, w1, a_end, a_ok, True
+                return th1, w1, a_end, a_ok, 0, 1
             g_ready = True  # smooth_period left the switching functions at the start
+            skip, backoff = backoff + 1, min(2 * backoff, MAX_SKIP)
         theta, dtheta, a_end, a_ok = advance_located(
             accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method,
             tol, n_sw, stick, g[0], g[1], g[2], g[3],
         )  # fmt: skip
-        return theta, dtheta, a_end, a_ok, not smooth
+        return theta, dtheta, a_end, a_ok, skip - 1, backoff
     theta, dtheta = advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
-    return theta, dtheta, 0.0, False, False
+    return theta, dtheta, 0.0, False, 0, 1
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -248,11 +257,11 @@ def integrate_with(
     theta_out[0] = theta
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
-    smooth = True
+    skip, backoff = 0, 1
     for k in range(n - 1):
-        theta, dtheta, a_end, a_ok, smooth = step_period(
+        theta, dtheta, a_end, a_ok, skip, backoff = step_period(
             accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
-            substeps, method, tol, n_sw, stick, g, smooth,
+            substeps, method, tol, n_sw, stick, g, skip, backoff,
         )  # fmt: skip
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
             for j in range(k + 1, n):

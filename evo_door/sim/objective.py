@@ -110,12 +110,12 @@ def trial_error(
     dtheta = dtheta0
     a_now = rate(accel, p, theta, dtheta, force[start], stick)
     acc = 0.0
-    smooth = True
+    skip, backoff = 0, 1
     for k in range(start, stop):
         if k > start:
-            theta, dtheta, a_end, a_ok, smooth = step_period(
+            theta, dtheta, a_end, a_ok, skip, backoff = step_period(
                 accel, switches, p, theta, dtheta, force[k - 1], force[k], a_now, k > start + 1,
-                dt, substeps, method, tol, n_sw, stick, g, smooth,
+                dt, substeps, method, tol, n_sw, stick, g, skip, backoff,
             )  # fmt: skip
             if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
                 return math.inf, False
