@@ -509,7 +509,8 @@ class ServoLoop:
         1. a waiting parameter change comes into force, whole;
         2. the device is read (a failed read trips the watchdog);
         3. the stall rule (paced loops): too long since the last command trips the
-           watchdog (:meth:`_check_stall`);
+           watchdog (:meth:`_check_stall`), checked before the read too
+           (:meth:`_stalled_before`);
         4. the force: while the watchdog is tripped, the last force ramped down
            (:meth:`_ramp_down`); else the kernel's, commanded (:meth:`_command`);
         5. the supervisor's heartbeat, the device's step (a simulated device moves),
@@ -524,11 +525,15 @@ class ServoLoop:
         watchdog = self.watchdog
         self._now = t
         self._apply_pending(t)
+        stalled = False
+        if self.realtime and not watchdog.tripped:
+            stalled = self._stalled_before(tic)
         self._read(t, now)
         if self.realtime and not watchdog.tripped:
             self._sent = self._check_stall(self._sent, self._stall_limit)
-            if watchdog.tripped:  # the ramp starts after the stall, not before
-                now = self._sent - self.t0
+            stalled = watchdog.tripped
+        if stalled:  # the ramp starts after the stall, not before
+            now = self._sent - self.t0
         if watchdog.tripped:
             if not self._ramp_down(t, now):
                 return False
@@ -656,6 +661,17 @@ class ServoLoop:
         elif self.supervisor is not None and self.supervisor.latched:
             self.watchdog.trip(tic - self.t0, "stalled: the supervisor took the force off")
         return tic
+
+    def _stalled_before(self, tic: float) -> bool:
+        """The stall rule at a cycle's start (``tic``), before the device is read: a
+        loop kept from running between two cycles (SIGSTOP) ends as stalled. Read
+        first, the device's answer to a command sent before the stall could end it
+        instead ("no effect named ...": the supervisor had removed it meanwhile), which
+        hid the stall and its length from the log and the summary. True when it trips."""
+        if tic - self._sent <= self._stall_limit:
+            return False
+        self._sent = self._check_stall(self._sent, self._stall_limit)
+        return True
 
     def _disarm_supervisor(self) -> None:
         """The loop ends: disarm the supervisor; log what it did, if it did anything."""
