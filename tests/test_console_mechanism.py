@@ -36,7 +36,7 @@ from evo_door.render.console.server import ConsoleServer  # noqa: E402
 from evo_door.render.keys import KEY_PAIRS, nice_step  # noqa: E402
 from evo_door.render.mechanism import MechanismLoop, Stroke  # noqa: E402
 from evo_door.sim.simulate import force_angle_curve  # noqa: E402
-from tests.helpers import ServedConsole, console_url, serving, yielding_sim  # noqa: E402
+from tests.helpers import LOADED_MACHINE_WATCHDOG, ServedConsole, console_url, serving, yielding_sim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DRAWER = str(ROOT / "examples" / "blocks" / "soft_close_drawer.yaml")
@@ -239,6 +239,7 @@ def test_render_console_serves_a_mechanism(tmp_path_factory, tmp_path):
     env[CACHE_ENV] = str(tmp_path_factory.getbasetemp() / "mechanisms")
     cmd = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=5000"]
     cmd += ["--user", "hold", "--duration", "8", "--console", "--console-port", "0"]
+    cmd += LOADED_MACHINE_WATCHDOG  # paced beside the suite's workers: a 53 ms stall ended one
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, text=True)
     try:
         url = console_url(proc.stdout)

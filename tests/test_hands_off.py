@@ -39,7 +39,7 @@ from evo_door.render.hands_off import (
     hands_off_motion,
 )
 from evo_door.render.loop import ServoLoop
-from tests.helpers import yielding_sim
+from tests.helpers import LOADED_MACHINE_WATCHDOG, yielding_sim
 
 ROOT = Path(__file__).resolve().parents[1]
 BALANCES = [f"balance_{k}" for k in range(1, 10)]
@@ -238,7 +238,7 @@ def render_process(tmp_path):
     args = ["render", "--params", "seed_trial", "--device", "sim", "--user", "hold"]
     proc = subprocess.Popen(
         [sys.executable, "-m", "evo_door", *args, "--duration", "60", "--realtime",
-         "--control", "0", "--token", TOKEN],
+         "--control", "0", "--token", TOKEN, *LOADED_MACHINE_WATCHDOG],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
     )  # fmt: skip
     try:

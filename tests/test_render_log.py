@@ -26,6 +26,7 @@ from evo_door.render.log_file import CHUNK_ROWS, STORED
 from evo_door.render.loop import ServoLoop
 from evo_door.render.session import read_session, session_params
 from evo_door.render.spill import SPILL_ROWS, partial_path, read_partial
+from tests.helpers import LOADED_MACHINE_WATCHDOG
 
 
 def _cycles(n: int, seed: int = 0):
@@ -257,6 +258,7 @@ def test_recover_a_render_killed_mid_run(tmp_path, capsys):
     side = partial_path(log)
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     cmd += ["--device", "sim", "--user", "open", "--duration", "30", "--realtime"]
+    cmd += LOADED_MACHINE_WATCHDOG  # paced beside the suite's workers
     proc = subprocess.Popen([*cmd, "--log", str(log)], stdout=subprocess.DEVNULL)
     try:
         # two chunks of rows (2 s at 1 kHz) on the disk, then a kill
@@ -290,6 +292,7 @@ def test_ctrl_c_stops_a_render_alike_with_or_without_duration(how, tmp_path, cap
     log = tmp_path / "l.h5"
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     cmd += ["--device", "sim", "--user", "swing", *how, "--log", str(log)]
+    cmd += LOADED_MACHINE_WATCHDOG  # paced beside the suite's workers
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         # rendering: a chunk of rows (a second at 1 kHz) in the side file
