@@ -216,7 +216,9 @@ def step_period(
     is the acceleration at the end that the last step already computed; ``skip`` and
     ``backoff`` for the next period."""
     if method == DOPRI5 or n_sw > 0 or stick:
-        if skip <= 0:
+        if skip > 0:
+            skip -= 1
+        else:
             ok, th1, w1, a_end, a_ok = smooth_period(
                 accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps,
                 method, tol, n_sw, stick, g[0], g[1],
@@ -224,12 +226,12 @@ def step_period(
             if ok:
                 return th1, w1, a_end, a_ok, 0, 1
             g_ready = True  # smooth_period left the switching functions at the start
-            skip, backoff = backoff + 1, min(2 * backoff, MAX_SKIP)
+            skip, backoff = backoff, min(2 * backoff, MAX_SKIP)
         theta, dtheta, a_end, a_ok = advance_located(
             accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method,
             tol, n_sw, stick, g[0], g[1], g[2], g[3],
         )  # fmt: skip
-        return theta, dtheta, a_end, a_ok, skip - 1, backoff
+        return theta, dtheta, a_end, a_ok, skip, backoff
     theta, dtheta = advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
     return theta, dtheta, 0.0, False, 0, 1
 
