@@ -32,6 +32,7 @@ from tests.browser import (
     skip_if_missing,
     stop,
 )
+from tests.helpers import LOADED_MACHINE_WATCHDOG
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
@@ -65,7 +66,7 @@ def _render(folder: Path):
     # which would end the render under the page
     command = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=2000"]
     command += ["--user", "swing", "--duration", "120", "--console", "--console-port", "0"]
-    command += ["--rate", "1000", "--watchdog-misses", "1000"]
+    command += ["--rate", "1000", *LOADED_MACHINE_WATCHDOG]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(ROOT)}
     env[CACHE_ENV] = str(folder / "mechanisms")
     proc = subprocess.Popen(command, cwd=folder, stdin=subprocess.DEVNULL,

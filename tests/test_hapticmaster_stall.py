@@ -33,7 +33,7 @@ from evo_door.render.hm_protocol import (
     failsafe_commands,
 )
 from evo_door.render.loop import ServoLoop
-from tests.helpers import freeze
+from tests.helpers import LOADED_MACHINE_WATCHDOG, freeze
 
 pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGSTOP"), reason="needs SIGSTOP")
 
@@ -262,7 +262,7 @@ def test_render_says_in_one_line_when_the_device_may_still_hold_a_force(capsys):
         code = main(
             ["render", "--params", "seed_trial", "--device"]
             + [f"hapticmaster://127.0.0.1:{emu.port}", "--device-damping", "2"]
-            + ["--rate", "1000", "--watchdog-misses", "1000", "--duration", "20"]
+            + ["--rate", "1000", *LOADED_MACHINE_WATCHDOG, "--duration", "20"]
         )
         dropper.join(5.0)
         out, err = capsys.readouterr()

@@ -39,7 +39,7 @@ from evo_door.render.mechanism import (
     MechanismLoop,
     Stroke,
 )
-from tests.helpers import LOADED_MACHINE_LIMITS
+from tests.helpers import LOADED_MACHINE_LIMITS, LOADED_MACHINE_WATCHDOG
 
 DRAWER = str(Path(__file__).resolve().parents[1] / "examples" / "blocks" / "soft_close_drawer.yaml")
 #: the drawer's stop made soft enough for the default loop: K T / 2 = 1 N s/m below
@@ -422,7 +422,7 @@ def test_push_changes_a_rendered_mechanism_through_its_control_port(tmp_path, ca
     # paced at 1 kHz with a watchdog of 1 s: a loaded machine (CI) does not stall it
     cmd = [sys.executable, "-m", "evo_door", "render", DRAWER, "--set", "stop.k=1000",
            "--user", "hold", "--duration", "60", "--realtime", "--control", "0",
-           "--rate", "1000", "--watchdog-misses", "1000",
+           "--rate", "1000", *LOADED_MACHINE_WATCHDOG,
            "--log", str(tmp_path / "drawer.h5")]  # fmt: skip
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)  # fmt: skip
