@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -182,3 +183,49 @@ def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_com
     assert DATA.exists()
     assert _cli(["run", "tiny.yaml", "--out", "tiny.h5"], cache, tmp_path) == []
     assert _cli(["compile"], cache, tmp_path) == []  # its own summary goes to stdout
+
+
+class _Config:
+    """What ``tests/conftest.py``'s hooks read of a pytest config."""
+
+    def __init__(self, numprocesses, dist="load", collectonly=False, worker=False):
+        self.option = SimpleNamespace(numprocesses=numprocesses, dist=dist, collectonly=collectonly)
+        if worker:
+            self.workerinput = {}
+        self.lines = []
+        self.pluginmanager = SimpleNamespace(
+            get_plugin=lambda name: SimpleNamespace(write_line=self.lines.append)
+        )
+
+
+@pytest.mark.parametrize(
+    "config, runs",
+    [
+        (_Config(2), True),
+        (_Config(4), True),
+        (_Config(1), False),  # one worker compiles alone: nothing to share
+        (_Config(None, dist="no"), False),  # no xdist: the tests compile what they use
+        (_Config(2, collectonly=True), False),
+        (_Config(2, worker=True), False),  # a worker: the controller compiled
+    ],
+)
+def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, runs):
+    """With two or more xdist workers, the controller runs ``evo-door compile`` once
+    and says so; otherwise nothing runs."""
+    from tests import conftest
+
+    calls = []
+
+    def fake_run(cmd, **kwargs):
+        calls.append(cmd)
+        return SimpleNamespace(returncode=0, stdout="compiled 22 kernels in 9.0 s\n", stderr="")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    conftest.pytest_sessionstart(SimpleNamespace(config=config))
+    if runs:
+        assert calls == [[sys.executable, "-m", "evo_door", "compile", "--quiet"]]
+        assert config.lines[0].startswith(
+            "evo-door compile, before the workers start: compiled 22 kernels in 9.0 s"
+        )
+    else:
+        assert calls == [] and config.lines == []
