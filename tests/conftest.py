@@ -14,7 +14,7 @@ from numba import njit
 from evo_door.models import get_model
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
-from tests.helpers import measured_tiers, tier
+from tests.helpers import COMPILE_HANG_GUARD, ROOT, cli_process, measured_tiers, tier
 
 #: The command line's notes of what numba compiles (evo_door.kernel_cache) would land in
 #: the stderr that tests compare, whenever a test happens to compile first; quiet here
@@ -41,16 +41,11 @@ def pytest_sessionstart(session):
     config = session.config
     if workers(config) < 2 or config.option.collectonly:
         return
-    import subprocess
-    import sys
     import time
 
     start = time.perf_counter()
-    done = subprocess.run(
-        [sys.executable, "-m", "evo_door", "compile", "--quiet"],
-        capture_output=True,
-        text=True,
-    )
+    # the checkout's evo_door (cli_process puts it first on the path), as the workers import it
+    done = cli_process("compile", "--quiet", cwd=ROOT, timeout=COMPILE_HANG_GUARD)
     line = (done.stdout.strip().splitlines() or ["(no summary)"])[-1]
     reporter = config.pluginmanager.get_plugin("terminalreporter")
     say = reporter.write_line if reporter else print

@@ -48,6 +48,10 @@ algorithm: {{population: 6, generations: 1, seed: 1}}
 # limits themselves are tested where they must trip (test_render_stall and the like).
 LOADED_MACHINE_WATCHDOG = ["--watchdog-misses", "1000"]  # any device
 LOADED_MACHINE_LIMITS = [*LOADED_MACHINE_WATCHDOG, "--supervisor-budget", "1000"]  # a HapticMaster
+#: Seconds a command that compiles every kernel (``evo-door compile`` on an empty cache)
+#: may take before a test calls it hung: a guard against a hang, not a speed limit (CI
+#: runs one at idle priority beside the suite, where its compilation waits).
+COMPILE_HANG_GUARD = 2400
 
 
 def measured_tiers(path: Path = ROOT / "tests" / "tiers.txt") -> frozenset[str]:

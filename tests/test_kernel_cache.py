@@ -17,7 +17,7 @@ from numba import njit
 
 import evo_door
 from evo_door import kernel_cache
-from tests.helpers import DATA, ROOT, TINY_EXPERIMENT, cli_process
+from tests.helpers import COMPILE_HANG_GUARD, DATA, ROOT, TINY_EXPERIMENT, cli_process
 
 
 def test_the_package_names_its_locators_to_numba_in_front_of_numbas_own():
@@ -144,9 +144,7 @@ def test_the_notes_name_each_kernel_compiled_and_end_with_a_summary():
 def _cli(args, cache, cwd):
     """The compile notes of ``evo-door ARGS`` on the numba cache ``cache``."""
     env = {"NUMBA_CACHE_DIR": str(cache), "EVO_DOOR_COMPILE_NOTES": "1"}
-    # a guard against a hang, not a speed limit: CI runs this at idle priority beside
-    # the suite, where the compilation (about 100 s of CPU) waits for the suite's end
-    out = cli_process(*args, cwd=cwd, env=env, timeout=2400)
+    out = cli_process(*args, cwd=cwd, env=env, timeout=COMPILE_HANG_GUARD)
     assert out.returncode == 0, out.stderr
     return [line for line in out.stderr.splitlines() if line.startswith("evo-door: compil")]
 
