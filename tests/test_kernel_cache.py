@@ -2,6 +2,7 @@
 and a first run that says what it compiles (``evo_door.kernel_cache``, ``evo-door
 compile``)."""
 
+import ast
 import io
 import os
 import shutil
@@ -37,6 +38,37 @@ def _tree(tmp_path, files: dict) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
     return root
+
+
+def eager_uncached(path: Path) -> list[str]:
+    """The module-level functions of ``path`` that numba compiles at import (``@njit``
+    with a signature) without its disk cache: ``file:line name``."""
+    found = []
+    for node in ast.parse(path.read_text()).body:
+        if not isinstance(node, ast.FunctionDef):
+            continue
+        for dec in node.decorator_list:
+            call = dec if isinstance(dec, ast.Call) else None
+            name = call and getattr(call.func, "attr", getattr(call.func, "id", ""))
+            if name in ("njit", "jit") and call.args:
+                cached = any(k.arg == "cache" and getattr(k.value, "value", False) is True
+                             for k in call.keywords)  # fmt: skip
+                if not cached:
+                    found.append(f"{path.name}:{node.lineno} {node.name}")
+    return found
+
+
+def test_eager_kernels_at_module_level_use_the_disk_cache(tmp_path):
+    """A kernel with a signature compiles when its module is imported: in the package
+    every command pays it, in a test file every process that collects the file (a
+    kernel of tests/test_events.py cost 2.5 s in each). With ``cache=True`` it compiles
+    once. The check reads the sources; it finds a kernel written without the cache."""
+    files = sorted((ROOT / "evo_door").rglob("*.py")) + sorted((ROOT / "tests").glob("*.py"))
+    assert len(files) > 100
+    assert not [hit for f in files for hit in eager_uncached(f)]
+    probe = tmp_path / "probe.py"  # the check itself, on a file it must flag
+    probe.write_text("from numba import njit\n@njit('f8(f8)')\ndef twice(x):\n    return 2 * x\n")
+    assert eager_uncached(probe) == ["probe.py:3 twice"]
 
 
 def test_a_stamp_covers_the_modules_imported_at_top_level_through_others(tmp_path, monkeypatch):

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 import numpy as np
-from scipy import integrate, signal
 
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
@@ -36,6 +35,8 @@ def lowpass(x, rate: float, cutoff: float, order: int = 4, axis: int = -1) -> np
     The effective order is doubled (forward and backward pass) and the gain at
     ``cutoff`` is 1/2 (-6 dB) instead of 1/sqrt(2).
     """
+    from scipy import signal  # here: 0.5 s that a command reading trials need not pay
+
     if not (0.0 < cutoff < 0.5 * rate):
         raise UserError(
             f"low-pass cutoff {cutoff:g} Hz must lie in (0, {0.5 * rate:g}) Hz "
@@ -83,6 +84,8 @@ def resample(trial: Trial, rate: float) -> Trial:
     padded along a line fitted to the signal, so an angle sitting at pi/2 does not
     ring toward zero at the edges.
     """
+    from scipy import signal  # here: 0.5 s that a command reading trials need not pay
+
     if rate <= 0:
         raise UserError(f"resampling rate must be positive, got {rate:g} Hz")
     ratio = Fraction(rate / trial.rate).limit_denominator(10000)
@@ -117,6 +120,8 @@ def to_uniform(t, columns: dict, rate: float) -> tuple[np.ndarray, dict]:
 # -- angle from rate (eq. 3.11) -------------------------------------------------------
 def integrate_rate(t, dtheta, theta0: float = 0.0) -> np.ndarray:
     """``theta(t) = theta0 + integral of dtheta`` (eq. 3.11), cumulative trapezoid."""
+    from scipy import integrate  # here: 0.5 s that a command reading trials need not pay
+
     return theta0 + integrate.cumulative_trapezoid(dtheta, t, initial=0.0)
 
 
@@ -452,6 +457,8 @@ def find_force_peak(
         A candidate peak must stand out by this fraction of the largest force;
         the highest candidate wins.
     """
+    from scipy import signal  # here: 0.5 s that a command reading trials need not pay
+
     if isinstance(trial_or_force, Trial):
         trial = trial_or_force
         force, rate, t0 = trial.force, trial.rate, float(trial.t[0])
