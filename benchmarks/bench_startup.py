@@ -12,9 +12,12 @@ start to exit; ``python -c "import numba"`` is the cost the parser no longer pay
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
+import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,6 +27,8 @@ from benchmarks._util import machine_line, median_time, publish  # noqa: E402
 
 #: Target wall time (s) of a command that does not simulate.
 TARGET = 0.3
+#: A first command after an install ends, or names what it compiles, within this (s).
+FIRST_WORD = 5.0
 
 
 def _evo_door() -> list[str]:
@@ -51,6 +56,44 @@ def wall_time(cmd: list[str], repeat: int) -> float:
 
     once()
     return median_time(once, repeat)
+
+
+def first_run(cmd: list[str], cache: Path, cwd: Path) -> tuple[float, float, str]:
+    """Run ``cmd`` in ``cwd`` on the numba cache folder ``cache`` (an empty one: as
+    after an install): its wall time (s), the seconds until its first line on stderr (its
+    end if it prints none) and that line."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    start = time.perf_counter()
+    proc = subprocess.Popen(
+        cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stderr is not None
+    first, first_at, rest = "", None, []
+    for line in proc.stderr:  # the command line's stderr is line-buffered
+        if first_at is None:
+            first, first_at = line.strip(), time.perf_counter() - start
+        rest.append(line)
+    code = proc.wait()
+    wall = time.perf_counter() - start
+    if code != 0:
+        raise RuntimeError(f"{' '.join(map(str, cmd))} failed ({code}): {''.join(rest)[-500:]}")
+    return wall, wall if first_at is None else first_at, first
+
+
+def cold_and_warm(cmd: list[str], cache: Path, cwd: Path, repeat: int) -> dict:
+    """``cmd`` on the empty cache ``cache`` (it compiles what it runs), then ``repeat``
+    times on the cache it filled: ``cold`` and ``first_word`` (s, :func:`first_run`),
+    ``first_line``, ``warm`` (s, the median)."""
+    cold, first_word, line = first_run(cmd, cache, cwd)
+    warm = statistics.median(first_run(cmd, cache, cwd)[0] for _ in range(repeat))
+    return {"cold": cold, "first_word": first_word, "first_line": line, "warm": warm}
+
+
+def force_csv(path: Path, seconds: float = 2.0, rate: float = 1000.0) -> Path:
+    """A constant 5 N push, ``t,force``, for ``simulate`` to run on."""
+    n = int(seconds * rate)
+    path.write_text("t,force\n" + "".join(f"{k / rate:.6f},5.0\n" for k in range(n)))
+    return path
 
 
 def main(argv=None):

@@ -253,7 +253,7 @@ def reference(model, p, trial: BenchTrial, quick: bool):
 def workbench_points(model, p, trial: BenchTrial, ref, quick: bool) -> list[Point]:
     """evo-door ``simulate`` at its defaults and at every setting of each method."""
     from evo_door.sim import simulate
-    from evo_door.sim.simulate import tolerance_of
+    from evo_door.sim_settings import tolerance_of
 
     run = partial(
         simulate, model, p, trial.force, trial.dt, theta0=trial.theta0, dtheta0=trial.dtheta0

@@ -35,7 +35,9 @@ Sections (``--only``):
     the haptic device-force cost (from Python, from compiled code) and the servo loop
     on the simulated device, paced on the wall clock.
 ``startup``
-    wall time of ``evo-door --help`` and ``evo-door params haptic`` (target < 0.3 s).
+    wall time of ``evo-door --help`` and ``evo-door params haptic`` (target < 0.3 s);
+    cold start (an empty numba cache) and warm start of ``evo-door simulate haptic``
+    (target: its first line, or its end, within 5 s) and of ``evo-door compile``.
 ``casestudy``
     the main job, ``evo-door run experiments/case_study.yaml``, once in a fresh
     process: wall time, each stage's time, evaluations and fit, each estimate's error
@@ -688,10 +690,57 @@ def section_startup(suite: Suite) -> None:
             target=target,
             target_text=None if target is None else "< 0.3 s",
         )
+    _cold_and_warm_start(suite)
     suite.tables["startup"] = (
-        f"Wall time of a fresh process, median of {repeat} runs after one untimed run.\n\n"
+        f"Wall time of a fresh process, median of {repeat} runs after one untimed run. "
+        "Cold: on an empty numba cache, as after an install (`NUMBA_CACHE_DIR` a new "
+        "folder): the command compiles what it runs; its first line is the time until it "
+        "says what it compiles (or ends). Warm: the same command again, on the cache it "
+        f"filled (median of {repeat}).\n\n"
         + _generic_table([m for m in suite.metrics if m.section == "startup"])
     )
+
+
+def _cold_and_warm_start(suite: Suite) -> None:
+    """The first ``evo-door simulate haptic`` after an install and the next ones; in a
+    measured run also ``evo-door compile`` (every kernel) cold and warm. --quick times
+    ``params haptic`` the same way (it compiles nothing)."""
+    from benchmarks.bench_startup import FIRST_WORD, _evo_door, cold_and_warm, force_csv
+
+    evo = _evo_door()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        force_csv(folder / "push.csv")
+        sim = [*evo, "simulate", "haptic", "--input", "push.csv", "--out", "out.csv"]
+        cases = [("simulate", "`evo-door simulate haptic` (2 s trial)", sim)]
+        if suite.quick:
+            cases = [("params", "`evo-door params haptic`", [*evo, "params", "haptic"])]
+        else:
+            cases.append(("compile", "`evo-door compile` (every kernel)", [*evo, "compile"]))
+        for key, label, cmd in cases:
+            got = cold_and_warm(cmd, folder / f"cache-{key}", folder, 2 if suite.quick else 5)
+            name = f"startup.{key}"
+            suite.add(f"{name}.cold", "startup", f"{label}, cold", got["cold"], "s")
+            if key != "compile":  # (compile names each kernel as it starts it)
+                suite.add(
+                    f"{name}.first_word",
+                    "startup",
+                    f"{label}, cold: its first line on stderr, or its end",
+                    got["first_word"],
+                    "s",
+                    target=FIRST_WORD,
+                    target_text=f"<= {FIRST_WORD:g} s",
+                    note=repr(got["first_line"][:70]) if got["first_line"] else "no line",
+                )
+            suite.add(
+                f"{name}.warm",
+                "startup",
+                f"{label}, warm",
+                got["warm"],
+                "s",
+                ratio=got["cold"] / got["warm"],
+                ratio_to=f"{name}.cold",
+            )
 
 
 # -- section: the main job -----------------------------------------------------------

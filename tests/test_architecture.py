@@ -25,7 +25,7 @@ PACKAGE = ROOT / "evo_door"
 #: docs/architecture.md gives the same table, with each unit's purpose and place.
 LAYERS: list[set[str]] = [
     {"evo_door", "errors", "channels", "yaml_numbers", "kernel_cache"},
-    {"files"},
+    {"files", "sim_settings"},
     {"params"},
     {"sim"},
     {"models"},

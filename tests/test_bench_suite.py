@@ -423,8 +423,33 @@ def check_device(metrics) -> None:
 
 
 def check_startup(metrics) -> None:
+    """The targets, and a first command on an empty numba cache timed to its first word
+    and against the next ones (--quick: ``params haptic``, which compiles nothing, so
+    it says nothing and its first word is its end)."""
     for name in ("startup.help", "startup.params_haptic"):
         assert metrics[name].target == 0.3 and isinstance(metrics[name].met, bool)
+    cold, first = metrics["startup.params.cold"], metrics["startup.params.first_word"]
+    assert first.target == 5.0 and first.met is True
+    assert first.value == pytest.approx(cold.value) and first.note == "no line"
+    warm = metrics["startup.params.warm"]
+    assert warm.ratio_to == "startup.params.cold"
+    assert warm.ratio == pytest.approx(cold.value / warm.value)
+
+
+def test_a_first_command_is_timed_to_its_first_line(tmp_path):
+    """``first_run`` times a command to the first line it writes on stderr, on the numba
+    cache it is given: a stand-in that says a line, waits, then ends."""
+    from benchmarks.bench_startup import first_run
+
+    code = (
+        "import os, sys, time; print('compiling', os.environ['NUMBA_CACHE_DIR'], "
+        "file=sys.stderr); time.sleep(1.0)"
+    )
+    wall, first_at, line = first_run([sys.executable, "-c", code], tmp_path / "c", tmp_path)
+    assert line == f"compiling {tmp_path / 'c'}"
+    assert first_at < 0.8 and wall >= 1.0 + first_at - 0.05
+    with pytest.raises(RuntimeError, match="failed"):
+        first_run([sys.executable, "-c", "raise SystemExit(3)"], tmp_path / "c", tmp_path)
 
 
 def check_jnd(metrics) -> None:
@@ -485,7 +510,11 @@ SECTION_CASES = {
         ),
         check_device,
     ),
-    "startup": (one_timed_start, ("startup.help", "startup.params_haptic"), check_startup),
+    "startup": (
+        one_timed_start,
+        ("startup.help", "startup.params_haptic", "startup.params.cold", "startup.params.warm"),
+        check_startup,
+    ),
     "jnd": (
         one_session,
         ("jnd.staircase.40.within", "jnd.quest.40.coverage", "jnd.quest.40.bias"),

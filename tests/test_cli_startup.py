@@ -84,7 +84,7 @@ except AttributeError as exc:
     assert printed.splitlines()[0].endswith(" True False")
     assert printed.splitlines()[1] == "module 'evo_door' has no attribute 'Experimentt'"
     _, heavy = _probe("import evo_door\nprint(evo_door.Experiment.__module__)")
-    assert "numba" in heavy  # the probe sees the API's import when it happens
+    assert "numpy" in heavy  # the probe sees the API's import when it happens
 
 
 def test_the_api_names_are_the_package_s():
@@ -164,3 +164,29 @@ def test_constants_written_out_for_the_parser_agree_with_the_library():
     assert export_spec.FORMAT_NAMES == tuple(FORMATS)
     assert report.DEFAULT_JND == report_lib.DEFAULT_JND
     assert report.FORCE_FLOOR == report_lib.FORCE_FLOOR
+
+
+def test_reading_results_loads_no_integrator():
+    """The results reader (``show``, ``export-spec``, ``runs``) and a refusal of a file
+    that is not there import neither numba nor the runner: the settings a results file
+    states are plain data (``evo_door.sim_settings``) and ``evo_door.experiment`` loads
+    its names on first use. Asking for one of them loads it."""
+    printed, heavy = _probe(
+        """
+import sys
+import evo_door.cli, evo_door.experiment.reader
+assert evo_door.cli.main(["show", "missing.h5"]) == 2
+print("runner" if "evo_door.experiment.runner" in sys.modules else "no runner")
+"""
+    )
+    assert "numba" not in heavy and printed.strip() == "no runner"
+    printed, heavy = _probe(
+        """
+from evo_door.sim import simulate
+from evo_door.experiment import ExperimentRun
+print(simulate.__module__, ExperimentRun.__module__)
+"""
+    )
+    assert (
+        "numba" in heavy and printed.strip() == "evo_door.sim.simulate evo_door.experiment.runner"
+    )

@@ -16,8 +16,9 @@ from evo_door.models.door import laws, posetable
 from evo_door.models.door.kinematics import Pose, pose
 from evo_door.optim.kernels import ISE, population_errors
 from evo_door.sim import simulate, simulate_batch
-from evo_door.sim.integrators import DEFAULT_TOLERANCE, DOPRI5, RK4, integrate, prepared_form
+from evo_door.sim.integrators import integrate, prepared_form
 from evo_door.sim.simulate import param_vector
+from evo_door.sim_settings import DEFAULT_TOLERANCE, DOPRI5, RK4
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)
 pytestmark = pytest.mark.numerics

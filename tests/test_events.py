@@ -21,9 +21,10 @@ from evo_door.models.door import energy
 from evo_door.models.door.latch import latch_angles
 from evo_door.models.haptic import latch_angles_of
 from evo_door.sim import simulate
-from evo_door.sim.integrators import ACCEL_TYPE, METHODS, integrate_compiled, kernel_form
+from evo_door.sim.integrators import ACCEL_TYPE, integrate_compiled, kernel_form
 from evo_door.sim.located import SWITCHES_TYPE, advance_located, rate
-from evo_door.sim.simulate import param_vector, tolerance_of
+from evo_door.sim.simulate import param_vector
+from evo_door.sim_settings import METHODS, tolerance_of
 from tests.reference import converged
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)

@@ -164,8 +164,9 @@ def counted_accel(theta, dtheta, force, p):
 
 
 def _calls_per_sample(force, friction, theta0, stick):
-    from evo_door.sim.integrators import DOPRI5, integrate_compiled
+    from evo_door.sim.integrators import integrate_compiled
     from evo_door.sim.located import no_switches
+    from evo_door.sim_settings import DOPRI5
 
     p = np.array([40.0, 0.5, friction, 0.0])
     n = force.size

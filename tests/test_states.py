@@ -15,8 +15,8 @@ from scipy.optimize import brentq
 from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.params import param_vector
-from evo_door.sim.integrators import METHODS, integrate
-from evo_door.sim.state_objective import ISE, MAX_SQUARE, population_errors_states
+from evo_door.sim.integrators import integrate
+from evo_door.sim.state_objective import population_errors_states
 from evo_door.sim.states import (
     RHS_SIGNATURE,
     integrate_states,
@@ -26,6 +26,7 @@ from evo_door.sim.states import (
     simulate_states,
     simulate_states_batch,
 )
+from evo_door.sim_settings import ISE, MAX_SQUARE, METHODS
 
 pytestmark = pytest.mark.numerics
 

@@ -54,9 +54,9 @@ def steps():
     import numpy as np
 
     from evo_door.models import get_model
-    from evo_door.optim.problem import KINDS
     from evo_door.sim import METHODS, simulate, simulate_batch
     from evo_door.sim.simulate import force_angle_curve
+    from evo_door.sim_settings import KINDS
 
     def importing():
         skipped = []

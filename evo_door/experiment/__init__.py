@@ -14,10 +14,35 @@ The same from keyword arguments, with typed results: :mod:`evo_door.api`
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING
+
 import evo_door.plugins  # noqa: F401 (render logs as parameter files, also in a worker)
-from evo_door.experiment.config import ExperimentConfig, load_experiment
-from evo_door.experiment.results import Results
-from evo_door.experiment.runner import ExperimentRun, Interrupted
+
+#: the names below and the module of each, loaded on first use: a command that reads a
+#: results file (``show``) imports :mod:`.reader`, not the runner and its kernels
+_WHERE = {
+    "ExperimentConfig": "evo_door.experiment.config",
+    "load_experiment": "evo_door.experiment.config",
+    "Results": "evo_door.experiment.results",
+    "ExperimentRun": "evo_door.experiment.runner",
+    "Interrupted": "evo_door.experiment.runner",
+}
+
+if TYPE_CHECKING:
+    from evo_door.experiment.config import ExperimentConfig, load_experiment
+    from evo_door.experiment.results import Results
+    from evo_door.experiment.runner import ExperimentRun, Interrupted
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(importlib.import_module(_WHERE[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))
 
 
 def run_experiment(
@@ -33,6 +58,7 @@ def run_experiment(
     >>> import tempfile
     >>> from pathlib import Path
     >>> import evo_door
+    >>> from evo_door.experiment import Results, load_experiment
     >>> main_job = Path(evo_door.__file__).parents[1] / "experiments" / "default.yaml"
     >>> exp = load_experiment(main_job, overrides=["algorithm.population=20",
     ...                       "algorithm.generations=3", "algorithm.polish=none"])
@@ -45,6 +71,9 @@ def run_experiment(
     (60 evaluations give a rough answer; the full job's 2000 and its SLSQP polish land
     within 3 % of the true 101.45 N, 1.232 kg and 18.8 N.)
     """
+    from evo_door.experiment.config import ExperimentConfig, load_experiment
+    from evo_door.experiment.runner import ExperimentRun
+
     if not isinstance(exp, ExperimentConfig):
         exp = load_experiment(exp, overrides)
     run = ExperimentRun.create(exp, out, trials)
@@ -53,6 +82,8 @@ def run_experiment(
 
 def resume_run(path, progress=False, on_checkpoint=None) -> ExperimentRun:
     """Continue an interrupted run from its results file (a complete run is left as is)."""
+    from evo_door.experiment.runner import ExperimentRun
+
     run = ExperimentRun.open(path)
     if run.status == "complete":
         return run

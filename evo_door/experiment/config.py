@@ -48,8 +48,7 @@ from evo_door.experiment.yamltree import LinedMap, apply_override, parse
 from evo_door.files import read_text
 from evo_door.optim.problem import Objective
 from evo_door.params.declaration import suggest
-from evo_door.sim.integrators import METHODS
-from evo_door.sim.simulate import tolerance_of
+from evo_door.sim_settings import METHODS, tolerance_of
 
 TOP_KEYS = (
     "name",

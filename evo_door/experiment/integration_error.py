@@ -46,7 +46,7 @@ import numpy as np
 from evo_door.channels import RESPONSE_CHANNELS
 from evo_door.channels import unit as channel_unit
 from evo_door.files import ATTRS, Dataset
-from evo_door.sim.simulate import tolerance_of
+from evo_door.sim_settings import tolerance_of
 
 #: Relative change of the objective between the run's and the refined settings above
 #: which the integration error is not small against the fit error.

@@ -18,7 +18,7 @@ from evo_door.data.trial import Trial
 from evo_door.errors import MissingChannelError, UserError
 from evo_door.optim.problem import Objective, Problem
 from evo_door.params.declaration import suggest
-from evo_door.sim.simulate import refined, tolerance_of
+from evo_door.sim_settings import refined, tolerance_of
 
 
 @dataclass

@@ -53,7 +53,7 @@ from evo_door.optim.bounds import bound_hits
 from evo_door.optim.ga import LOG_FIELDS, GeneticAlgorithm
 from evo_door.optim.nsga2 import NSGA2, FrontState
 from evo_door.params.declaration import suggest
-from evo_door.sim.simulate import tolerance_of
+from evo_door.sim_settings import tolerance_of
 
 FORMAT = "evo-door run"
 FORMAT_VERSION = 1

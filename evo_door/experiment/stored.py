@@ -24,7 +24,7 @@ from evo_door.files import ATTRS, DamagedFile, Node, fields
 from evo_door.optim.ga import LOG_FIELDS
 from evo_door.optim.local import LocalResult
 from evo_door.optim.problem import COMBINE, OBJECTIVE_KINDS, Objective
-from evo_door.sim.integrators import METHODS
+from evo_door.sim_settings import METHODS
 
 #: the kinds of target a run is fitted to
 TARGET_KINDS = ("data", "model", "curve")

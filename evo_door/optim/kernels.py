@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evo_door.sim.objective import ISE, KINDS, MAX_SQUARE
+from evo_door.sim_settings import ISE, KINDS, MAX_SQUARE
 
 __all__ = ["ISE", "KINDS", "MAX_SQUARE", "population_errors"]
 

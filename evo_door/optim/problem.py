@@ -11,15 +11,21 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from evo_door.channels import RESPONSE_CHANNELS, unit
 from evo_door.data.trial import Trial
 from evo_door.errors import UserError
-from evo_door.optim.kernels import KINDS, population_errors
-from evo_door.sim.integrators import METHODS
-from evo_door.sim.simulate import Response, simulate, simulate_batch, tolerance_of
+from evo_door.sim_settings import KINDS, METHODS, tolerance_of
+
+if TYPE_CHECKING:
+    from evo_door.sim.simulate import Response
+
+# The compiled kernels (:mod:`evo_door.optim.kernels`, :mod:`evo_door.sim.simulate`)
+# are imported where a problem runs them: a command that only reads an objective from
+# a results file (``show``) does not load numba and their machine code.
 
 #: How the per-trial objectives of one candidate are combined into its fitness.
 COMBINE = ("sum", "max", "mean")
@@ -277,6 +283,8 @@ class Problem:
         err = np.empty((P.shape[0], len(pack)))
         ok = np.zeros((P.shape[0], len(pack)), dtype=np.bool_)
         if len(pack) and P.shape[0]:
+            from evo_door.optim.kernels import population_errors
+
             population_errors(
                 self.model,
                 P,
@@ -331,6 +339,8 @@ class Problem:
         picks some of its trials. Sandboxed, each trial is run in the sandbox's child: one
         that crashes it or overruns the time limit is a response of NaN, not ok.
         """
+        from evo_door.sim.simulate import Response, simulate
+
         pack = self.fit if pack is None else pack
         p = self.full(x)[0]
         out = []
@@ -383,6 +393,8 @@ class Problem:
                         runs[k][i] = got[k][0]
                     ok[i] = got[3][0]
             return runs[0], runs[1], runs[2], ok
+        from evo_door.sim.simulate import simulate_batch
+
         return simulate_batch(
             self.model,
             P,

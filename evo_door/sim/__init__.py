@@ -1,6 +1,5 @@
 """Compiled integrators (:mod:`.integrators`) and their Python entry points (:mod:`.simulate`)."""
 
-from evo_door.sim.integrators import METHODS
 from evo_door.sim.simulate import (
     Response,
     quasi_static_curve,
@@ -8,6 +7,7 @@ from evo_door.sim.simulate import (
     simulate,
     simulate_batch,
 )
+from evo_door.sim_settings import METHODS
 
 __all__ = [
     "METHODS",

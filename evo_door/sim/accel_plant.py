@@ -30,8 +30,8 @@ from evo_door.sim.simulate import (
     check_state,
     events_of,
     method_code,
-    tolerance_of,
 )
+from evo_door.sim_settings import tolerance_of
 
 #: rows below which the row kernels run on one thread (threads cost more than they give)
 ROWS_IN_THREADS = 8

@@ -17,10 +17,10 @@ linearly between samples. Outputs are reported at the sample instants.
 
 Two schemes:
 
-``rk4`` (:data:`RK4`)
+``rk4`` (:data:`~evo_door.sim_settings.RK4`)
     Classic fourth-order Runge-Kutta. Accurate and cheap while the step stays inside
     the stability region of the stiffest spring or the steepest tanh friction.
-``semi_implicit`` (:data:`SEMI_IMPLICIT`)
+``semi_implicit`` (:data:`~evo_door.sim_settings.SEMI_IMPLICIT`)
     The two-stage linearly implicit Rosenbrock method ROS2 (Verwer et al. 1999,
     gamma = 1 + 1/sqrt(2)), second order and L-stable. Its 2x2 Jacobian is taken by
     forward differences of ``accel`` once per sample period, keeping only its
@@ -42,10 +42,10 @@ prepared vector per individual in flight. A fast form may come with its own
 inlined into the stages rather than called through a pointer): :func:`integrate`
 runs it when handed that fast form.
 
-Numba's disk cache keys a function on its own file only: code inlined or linked
-from another module (these steps into a model's specialised integrator) is not
-checked, so after editing one module, clear the ``__pycache__/*.nb[ic]`` files of the
-modules that compile it in.
+Numba's disk cache keys a function on its own file only; :mod:`evo_door.kernel_cache`
+stamps each cached kernel with every evo-door module it imports as well, so an edit of
+one that a kernel compiles in (these steps into a model's specialised integrator)
+compiles that kernel afresh.
 
 Set ``NUMBA_DISABLE_JIT=1`` to run all kernels as plain Python (debugging, coverage).
 """
@@ -61,7 +61,6 @@ from numba import njit, prange, types
 
 from evo_door.sim.located import (
     DOPRI5,
-    RK4,
     SEMI_IMPLICIT,
     SWITCHES_TYPE,
     advance_located,
@@ -72,10 +71,6 @@ from evo_door.sim.located import (
     ros2_step,
     smooth_period,
 )
-
-METHODS = {"rk4": RK4, "semi_implicit": SEMI_IMPLICIT, "dopri5": DOPRI5}
-#: Default tolerance of ``dopri5`` (per step, ``tol (1 + |x|)`` in rad and rad/s).
-DEFAULT_TOLERANCE = 1e-7
 
 #: Angular speed (rad/s) beyond which a simulation counts as blown up.
 BLOWUP_SPEED = 1.0e6

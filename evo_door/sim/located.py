@@ -52,10 +52,8 @@ import math
 
 from numba import njit, types
 
-#: ``method`` codes (the same as :data:`evo_door.sim.integrators.METHODS`).
-RK4 = 0
-SEMI_IMPLICIT = 1
-DOPRI5 = 2
+# the ``method`` codes (plain data, :data:`evo_door.sim_settings.METHODS`)
+from evo_door.sim_settings import DOPRI5, SEMI_IMPLICIT
 
 #: Speed (rad/s) at which a stick-slip model's friction is read at rest: its sign is
 #: the side of the friction, and it is far too small to move anything else.

@@ -51,11 +51,7 @@ from evo_door.sim.integrators import (
 )
 from evo_door.sim.located import SWITCHES_TYPE, rate
 from evo_door.sim.simulate import events_of
-
-MAX_SQUARE = 0
-ISE = 1
-#: objective.kind in an experiment -> kernel code
-KINDS = {"max_square": MAX_SQUARE, "ise": ISE}
+from evo_door.sim_settings import MAX_SQUARE
 
 _vec = types.float64[::1]
 _mat = types.float64[:, ::1]

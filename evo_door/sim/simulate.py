@@ -21,11 +21,8 @@ from evo_door.channels import CHANNELS
 from evo_door.errors import UserError
 from evo_door.params import ParamTable
 from evo_door.params.sets import ParamSet, param_vector
-from evo_door.sim.integrators import (
-    DEFAULT_TOLERANCE,
-    METHODS,
-)
 from evo_door.sim.located import no_switches
+from evo_door.sim_settings import METHODS
 
 if TYPE_CHECKING:
     from evo_door.sim.plant import Plant
@@ -129,21 +126,6 @@ def events_of(model) -> tuple:
     if switches is None:
         return no_switches, 0, bool(getattr(model, "stick_slip", False))
     return switches, int(model.n_switches), bool(model.stick_slip)
-
-
-def tolerance_of(model, tolerance=None) -> float:
-    """The ``dopri5`` tolerance: ``tolerance`` if given (checked), else the model's."""
-    tol = getattr(model, "tolerance", DEFAULT_TOLERANCE) if tolerance is None else tolerance
-    tol = float(tol)
-    if not (math.isfinite(tol) and 0.0 < tol < 1.0):
-        raise UserError(f"integration tolerance must be a number in (0, 1), got {tolerance!r}")
-    return tol
-
-
-def refined(method: str, substeps: int, tolerance: float) -> tuple[str, int, float]:
-    """The settings of the a-posteriori error check: the same method at half the step
-    (and, for ``dopri5``, a 32 times tighter tolerance: its error goes as h^5)."""
-    return method, 2 * int(substeps), float(tolerance) / 32.0
 
 
 def simulate(

@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numba import njit, prange, types
 
-from evo_door.sim.objective import ISE, MAX_SQUARE, accumulate
+from evo_door.sim.objective import accumulate
 from evo_door.sim.state_located import period
 from evo_door.sim.state_steps import R, Y, sample_rate, workspace
 from evo_door.sim.states import (
@@ -41,6 +41,7 @@ from evo_door.sim.states import (
     TOLERANCE,
     blown_up,
 )
+from evo_door.sim_settings import ISE, MAX_SQUARE
 
 __all__ = ["ISE", "MAX_SQUARE", "population_errors_states", "trial_error_states"]
 

@@ -30,7 +30,6 @@ from evo_door.sim.simulate import (
     check_force,
     check_state,
     method_code,
-    tolerance_of,
 )
 from evo_door.sim.state_objective import population_errors_states
 from evo_door.sim.states import (
@@ -39,6 +38,7 @@ from evo_door.sim.states import (
     no_state_switches,
     settings,
 )
+from evo_door.sim_settings import tolerance_of
 
 
 class StatePlant(CompiledPlant):

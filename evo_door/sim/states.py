@@ -84,9 +84,10 @@ import numpy as np
 from numba import njit, prange, types
 
 from evo_door.errors import UserError
-from evo_door.sim.integrators import BLOWUP_SPEED, DEFAULT_TOLERANCE, METHODS
+from evo_door.sim.integrators import BLOWUP_SPEED
 from evo_door.sim.state_located import period
 from evo_door.sim.state_steps import R, Y, sample_rate, workspace
+from evo_door.sim_settings import DEFAULT_TOLERANCE, METHODS
 
 _vec = types.float64[::1]
 _mat = types.float64[:, ::1]

@@ -153,7 +153,7 @@ def _integration(tree, where: str) -> dict:
     _known_keys(tree, tuple(INTEGRATION), where)
     out = dict(INTEGRATION)
     if "method" in tree:
-        from evo_door.sim.integrators import METHODS  # compiled: only when asked
+        from evo_door.sim_settings import METHODS
 
         method = tree["method"]
         if method not in METHODS:

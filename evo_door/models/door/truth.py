@@ -69,7 +69,8 @@ from evo_door.models.door.kinematics import pose
 from evo_door.models.door.parameters import GRAVITY
 from evo_door.models.door.relativespeed import relative_speed
 from evo_door.params import Param, ParamSet, ParamTable, load_params, param_vector
-from evo_door.sim.integrators import BLOWUP_SPEED, DEFAULT_TOLERANCE, METHODS, integrate
+from evo_door.sim.integrators import BLOWUP_SPEED, integrate
+from evo_door.sim_settings import DEFAULT_TOLERANCE, METHODS
 
 #: The name ``--truth`` takes for this truth.
 NAME = "rich"
