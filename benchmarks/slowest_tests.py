@@ -68,7 +68,7 @@ REASONS = {
         "fresh process that compiles the mechanism's module or loads it"
     ),
     "test_blocks_library::test_rig_fit_and_curve_of_the_knob_from_the_command_line": (
-        "the same for the detent knob: rig, fit, curve from the command line"
+        "the detent knob's mechanism file through rig, fit and curve commands, each a fresh process"
     ),
     "test_state_model::test_rig_fit_and_curve_from_the_command_line": (
         "the soft-close drawer (a state-vector model) through rig, fit and curve commands"

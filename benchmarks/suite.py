@@ -690,7 +690,7 @@ def section_startup(suite: Suite) -> None:
             target=target,
             target_text=None if target is None else "< 0.3 s",
         )
-    _cold_and_warm_start(suite)
+    _cold_and_warm_start(suite, repeat)
     suite.tables["startup"] = (
         f"Wall time of a fresh process, median of {repeat} runs after one untimed run. "
         "Cold: on an empty numba cache, as after an install (`NUMBA_CACHE_DIR` a new "
@@ -701,7 +701,7 @@ def section_startup(suite: Suite) -> None:
     )
 
 
-def _cold_and_warm_start(suite: Suite) -> None:
+def _cold_and_warm_start(suite: Suite, repeat: int) -> None:
     """The first ``evo-door simulate haptic`` after an install and the next ones; in a
     measured run also ``evo-door compile`` (every kernel) cold and warm. --quick times
     ``params haptic`` the same way (it compiles nothing)."""
@@ -718,7 +718,7 @@ def _cold_and_warm_start(suite: Suite) -> None:
         else:
             cases.append(("compile", "`evo-door compile` (every kernel)", [*evo, "compile"]))
         for key, label, cmd in cases:
-            got = cold_and_warm(cmd, folder / f"cache-{key}", folder, 2 if suite.quick else 5)
+            got = cold_and_warm(cmd, folder / f"cache-{key}", folder, repeat)
             name = f"startup.{key}"
             suite.add(f"{name}.cold", "startup", f"{label}, cold", got["cold"], "s")
             if key != "compile":  # (compile names each kernel as it starts it)

@@ -125,7 +125,7 @@ def no_state_switches(x, force, p, g):
 def settings(dt, substeps, method, tol=DEFAULT_TOLERANCE, n_switches=0) -> np.ndarray:
     """The packed settings vector: ``dt`` (s; None for the objective kernel, which
     takes each trial's), ``substeps`` (>= 1), ``method`` (a code or a name of
-    :data:`~evo_door.sim.integrators.METHODS`), ``tol`` (``dopri5``'s, in (0, 1)),
+    :data:`~evo_door.sim_settings.METHODS`), ``tol`` (``dopri5``'s, in (0, 1)),
     ``n_switches`` (the model's switching values)."""
     if isinstance(method, str):
         if method not in METHODS:
