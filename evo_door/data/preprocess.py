@@ -3,7 +3,8 @@
 All functions are pure: they return new arrays or a new :class:`Trial` and note what
 they did in ``trial.meta["preprocess"]``. The filters are scipy's (Butterworth
 second-order sections run forward and backward, so without phase lag); nothing here
-is hand-rolled signal processing.
+is hand-rolled signal processing. Each function imports the part of scipy it runs:
+``scipy.signal`` alone took 0.9 s of a 1.2 s ``data import``, which filters nothing.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def lowpass(x, rate: float, cutoff: float, order: int = 4, axis: int = -1) -> np
     The effective order is doubled (forward and backward pass) and the gain at
     ``cutoff`` is 1/2 (-6 dB) instead of 1/sqrt(2).
     """
-    from scipy import signal  # here: 0.5 s that a command reading trials need not pay
+    from scipy import signal
 
     if not (0.0 < cutoff < 0.5 * rate):
         raise UserError(
@@ -84,7 +85,7 @@ def resample(trial: Trial, rate: float) -> Trial:
     padded along a line fitted to the signal, so an angle sitting at pi/2 does not
     ring toward zero at the edges.
     """
-    from scipy import signal  # here: 0.5 s that a command reading trials need not pay
+    from scipy import signal
 
     if rate <= 0:
         raise UserError(f"resampling rate must be positive, got {rate:g} Hz")
@@ -120,7 +121,7 @@ def to_uniform(t, columns: dict, rate: float) -> tuple[np.ndarray, dict]:
 # -- angle from rate (eq. 3.11) -------------------------------------------------------
 def integrate_rate(t, dtheta, theta0: float = 0.0) -> np.ndarray:
     """``theta(t) = theta0 + integral of dtheta`` (eq. 3.11), cumulative trapezoid."""
-    from scipy import integrate  # here: 0.5 s that a command reading trials need not pay
+    from scipy import integrate
 
     return theta0 + integrate.cumulative_trapezoid(dtheta, t, initial=0.0)
 
@@ -457,7 +458,7 @@ def find_force_peak(
         A candidate peak must stand out by this fraction of the largest force;
         the highest candidate wins.
     """
-    from scipy import signal  # here: 0.5 s that a command reading trials need not pay
+    from scipy import signal
 
     if isinstance(trial_or_force, Trial):
         trial = trial_or_force

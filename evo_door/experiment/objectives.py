@@ -24,7 +24,7 @@ import numpy as np
 from evo_door.channels import unit
 from evo_door.experiment.results import Results
 from evo_door.experiment.stored import setup_from_tree
-from evo_door.optim.kernels import KINDS as _KINDS
+from evo_door.sim_settings import KINDS as _KINDS
 
 #: objective kinds, in the order the seed writes them (eq. 5.3, eq. 5.4)
 KINDS = tuple(_KINDS)

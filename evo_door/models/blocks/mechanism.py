@@ -35,6 +35,7 @@ from evo_door.models.blocks.transmissions import (
 from evo_door.models.blocks.units import quantity
 from evo_door.params import Param
 from evo_door.params.declaration import suggest
+from evo_door.sim_settings import METHODS
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,39}")
 _MODEL_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,63}")
@@ -153,8 +154,6 @@ def _integration(tree, where: str) -> dict:
     _known_keys(tree, tuple(INTEGRATION), where)
     out = dict(INTEGRATION)
     if "method" in tree:
-        from evo_door.sim_settings import METHODS
-
         method = tree["method"]
         if method not in METHODS:
             raise UserError(f"{where}: method {_shown(method)} is not one of {', '.join(METHODS)}")
