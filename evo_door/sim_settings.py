@@ -2,8 +2,8 @@
 
 A command that only reads a results file (``show``, ``export-spec``, ``runs``) checks a
 stored method's name, its tolerance and the objective's kind; importing the compiled
-integrators for that cost it numba and the loading of their machine code, about half
-a second a command. The compiled modules (:mod:`evo_door.sim`) take their codes from here; it sits
+integrators for that cost it numba and the loading of their machine code, most of its
+start-up. The compiled modules (:mod:`evo_door.sim`) take their codes from here; it sits
 below them, outside the package, because importing any module of ``evo_door.sim`` loads
 the integrators (its ``__init__``).
 """

@@ -223,7 +223,7 @@ def test_lowpass_keeps_saturated_samples_marked():
 
 
 def test_reading_trials_leaves_scipys_signal_processing_unimported():
-    """``data import`` of a CSV took 1.2 s, 0.9 s of it importing ``scipy.signal`` for
+    """``data import`` of a CSV spent most of its time importing ``scipy.signal`` for
     filters it does not run: the module imports it where a filter needs it. A fresh
     interpreter imports the trial readers and the preprocessing and finds it absent."""
     import subprocess

@@ -285,7 +285,7 @@ def test_a_stop_bounce_gives_no_energy_back(door, default, kind):
         types.float64, types.float64, types.int64, types.int64, types.float64, types.int64,
         types.boolean, types.float64[::1], types.float64[::1],
     ),
-    cache=True,  # compiled at import: 2.5 s in every process that collects this file
+    cache=True,  # compiled at import: otherwise in every process that collects this file
 )  # fmt: skip
 def _located_only(
     accel, switches, p, force, dt, theta0, dtheta0, substeps, method, tol, n_sw, stick, th, w

@@ -61,7 +61,7 @@ def eager_uncached(path: Path) -> list[str]:
 def test_eager_kernels_at_module_level_use_the_disk_cache(tmp_path):
     """A kernel with a signature compiles when its module is imported: in the package
     every command pays it, in a test file every process that collects the file (a
-    kernel of tests/test_events.py cost 2.5 s in each). With ``cache=True`` it compiles
+    kernel of tests/test_events.py did, in each). With ``cache=True`` it compiles
     once. The check reads the sources; it finds a kernel written without the cache."""
     files = sorted((ROOT / "evo_door").rglob("*.py")) + sorted((ROOT / "tests").glob("*.py"))
     assert len(files) > 100

@@ -4,7 +4,7 @@ All functions are pure: they return new arrays or a new :class:`Trial` and note 
 they did in ``trial.meta["preprocess"]``. The filters are scipy's (Butterworth
 second-order sections run forward and backward, so without phase lag); nothing here
 is hand-rolled signal processing. Each function imports the part of scipy it runs:
-``scipy.signal`` alone took 0.9 s of a 1.2 s ``data import``, which filters nothing.
+``scipy.signal`` alone was most of a ``data import``, which filters nothing.
 """
 
 from __future__ import annotations
