@@ -40,6 +40,7 @@ from evo_door.models.haptic_params import (  # noqa: F401 (re-exported)
     PARAMS,
 )
 from evo_door.params import ParamTable, param_vector
+from evo_door.sim.hold import HOLD_SIGNATURE, register_hold
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
 # Positions in the kernel vector, generated from the declaration (never literal).
@@ -384,6 +385,30 @@ def accel(theta, dtheta, force, p):
 def accel_tanh(theta, dtheta, force, p):
     """:func:`accel` with the seed's tanh dry friction (model ``haptic_tanh``)."""
     return (tangential_force_law(theta, dtheta, p, False) + force) / p[INERTIA]
+
+
+@njit(HOLD_SIGNATURE, cache=True, nogil=True)
+def hold(theta, dtheta, p):
+    """Force (N at the handle) that holds the door still at ``(theta, dtheta)``: what
+    two calls of :func:`accel` give (:mod:`evo_door.sim.hold`), its tangential force
+    computed once."""
+    f = tangential_force_law(theta, dtheta, p, True)
+    a0 = (f + 0.0) / p[INERTIA]
+    a1 = (f + 1.0) / p[INERTIA]
+    return -a0 / (a1 - a0)
+
+
+@njit(HOLD_SIGNATURE, cache=True, nogil=True)
+def hold_tanh(theta, dtheta, p):
+    """:func:`hold` of :func:`accel_tanh`."""
+    f = tangential_force_law(theta, dtheta, p, False)
+    a0 = (f + 0.0) / p[INERTIA]
+    a1 = (f + 1.0) / p[INERTIA]
+    return -a0 / (a1 - a0)
+
+
+register_hold(accel, hold)
+register_hold(accel_tanh, hold_tanh)
 
 
 #: How many switching functions :func:`switches` writes.

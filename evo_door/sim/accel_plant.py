@@ -15,6 +15,7 @@ from numba import njit, prange, types
 
 from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
+from evo_door.sim.hold import HOLD_TYPE, hold_form
 from evo_door.sim.integrators import (
     ACCEL_TYPE,
     integrate,
@@ -33,14 +34,17 @@ from evo_door.sim.simulate import (
 )
 from evo_door.sim_settings import tolerance_of
 
-#: rows below which the row kernels run on one thread (threads cost more than they give)
+#: rows below which the inertia kernel runs on one thread (threads cost more than they give)
 ROWS_IN_THREADS = 8
+#: rows x angles from which the hold-force kernels share them across threads (one door's
+#: force-angle curve for the perceptual objective is some 3000 angles)
+HOLDS_IN_THREADS = 1024
 
 _vec = types.float64[::1]
-_SCAN_SIGNATURE = types.void(ACCEL_TYPE, _vec, _vec, types.float64, _vec)
+_mat = types.float64[:, ::1]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _hold(accel, p, theta, dtheta):
     """Force (N) holding ddtheta = 0 at (theta, dtheta): accel is affine in the force."""
     a0 = accel(theta, dtheta, 0.0, p)
@@ -48,28 +52,19 @@ def _hold(accel, p, theta, dtheta):
     return -a0 / (a1 - a0)
 
 
-@njit(_SCAN_SIGNATURE, cache=True, nogil=True)
-def _hold_serial(accel, p, theta, dtheta, out):
-    for i in range(theta.shape[0]):
-        out[i] = _hold(accel, p, theta[i], dtheta)
+_ROWS_SIGNATURE = types.void(ACCEL_TYPE, _mat, _vec, types.float64, _mat)
+_HELD_SIGNATURE = types.void(HOLD_TYPE, _mat, _vec, types.float64, _mat)
 
 
-@njit(_SCAN_SIGNATURE, cache=True, parallel=True)
-def _hold_parallel(accel, p, theta, dtheta, out):
-    for i in prange(theta.shape[0]):
-        out[i] = _hold(accel, p, theta[i], dtheta)
-
-
-_ROWS_SIGNATURE = types.void(
-    ACCEL_TYPE, types.float64[:, ::1], _vec, types.float64, types.float64[:, ::1]
-)
-
-
+# The hold-force kernels: one loop over every (row, angle) pair, so that the angles of one
+# door are shared across threads as well as many doors; by ``accel`` (any model) or by a
+# registered ``hold`` (the door's, the same numbers in half the time).
 @njit(_ROWS_SIGNATURE, cache=True, parallel=True)
 def _hold_rows(accel, P, theta, dtheta, out):
-    for r in prange(P.shape[0]):
-        for i in range(theta.shape[0]):
-            out[r, i] = _hold(accel, P[r], theta[i], dtheta)
+    n = theta.shape[0]
+    for k in prange(P.shape[0] * n):
+        r = k // n
+        out[r, k - r * n] = _hold(accel, P[r], theta[k - r * n], dtheta)
 
 
 @njit(_ROWS_SIGNATURE, cache=True, nogil=True)
@@ -77,6 +72,21 @@ def _hold_rows_serial(accel, P, theta, dtheta, out):
     for r in range(P.shape[0]):
         for i in range(theta.shape[0]):
             out[r, i] = _hold(accel, P[r], theta[i], dtheta)
+
+
+@njit(_HELD_SIGNATURE, cache=True, parallel=True)
+def _held_rows(hold, P, theta, dtheta, out):
+    n = theta.shape[0]
+    for k in prange(P.shape[0] * n):
+        r = k // n
+        out[r, k - r * n] = hold(theta[k - r * n], dtheta, P[r])
+
+
+@njit(_HELD_SIGNATURE, cache=True, nogil=True)
+def _held_rows_serial(hold, P, theta, dtheta, out):
+    for r in range(P.shape[0]):
+        for i in range(theta.shape[0]):
+            out[r, i] = hold(theta[i], dtheta, P[r])
 
 
 @njit(_ROWS_SIGNATURE, cache=True, parallel=True)
@@ -95,6 +105,12 @@ def _inertia_rows_serial(accel, P, theta, dtheta, out):
             a0 = accel(theta[i], dtheta, 0.0, P[r])
             a1 = accel(theta[i], dtheta, 1.0, P[r])
             out[r, i] = 1.0 / (a1 - a0)
+
+
+def _kernel_array(a) -> np.ndarray:
+    """``a`` as the kernels' signatures take it: C-contiguous, float64, writable (a
+    parameter set's own vector is read-only, a type of its own to numba)."""
+    return np.require(a, np.float64, ["C", "W"])
 
 
 class AccelPlant(CompiledPlant):
@@ -175,26 +191,28 @@ class AccelPlant(CompiledPlant):
     def hold_forces(self, p, theta, dtheta) -> np.ndarray:
         """Force (N, + toward closing) holding ``ddtheta = 0`` at every ``theta``, in one
         compiled (for many angles, multi-threaded) call."""
-        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
-        p = np.ascontiguousarray(p, dtype=np.float64)
-        out = np.empty(theta.shape)
-        kernel = _hold_parallel if theta.size > 4096 else _hold_serial
-        kernel(self.model.accel, p, theta, float(dtheta), out)
-        return out
+        return self.hold_forces_rows(np.atleast_2d(p), theta, dtheta)[0]
 
     def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
-        """:meth:`hold_forces` of every row of ``P``, the rows across threads."""
-        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
-        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        """:meth:`hold_forces` of every row of ``P``, across threads when there are
+        many rows or angles; by the model's registered ``hold`` where it has one
+        (:mod:`evo_door.sim.hold`), else by ``accel``."""
+        P = _kernel_array(np.atleast_2d(P))
+        theta = _kernel_array(np.atleast_1d(theta))
         out = np.empty((P.shape[0], theta.size))
-        kernel = _hold_rows if P.shape[0] >= ROWS_IN_THREADS else _hold_rows_serial
-        kernel(self.model.accel, P, theta, float(dtheta), out)
+        many = out.size >= HOLDS_IN_THREADS
+        hold = hold_form(self.model.accel)
+        if hold is not None:
+            (_held_rows if many else _held_rows_serial)(hold, P, theta, float(dtheta), out)
+        else:
+            kernel = _hold_rows if many else _hold_rows_serial
+            kernel(self.model.accel, P, theta, float(dtheta), out)
         return out
 
     def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
         """Felt inertia: ``accel`` is affine in the force, its slope is 1 / inertia."""
-        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
-        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        P = _kernel_array(np.atleast_2d(P))
+        theta = _kernel_array(np.atleast_1d(theta))
         out = np.empty((P.shape[0], theta.size))
         kernel = _inertia_rows if P.shape[0] >= ROWS_IN_THREADS else _inertia_rows_serial
         kernel(self.model.accel, P, theta, float(dtheta), out)

@@ -23,7 +23,9 @@ soft-close damper, say) is one more function and one more ``q +=`` line there.
 the same blocks with the chain's pose taken from a table (:mod:`.posetable`), on a
 vector that :func:`prepare` fills once per parameter set; the door registers the pair
 with :func:`~evo_door.sim.integrators.register_prepared` ("The fast path" in
-``docs/physical-model.md``).
+``docs/physical-model.md``). :func:`hold`, the force that holds the door still, is
+registered too (:func:`~evo_door.sim.hold.register_hold`): the perceptual
+objective's force-angle curves in half the time of two calls of :func:`accel`.
 
 :func:`energy` gives the door's mechanical energy (kinetic, gravity, spring, latch and
 stop potentials) for the conservation tests. Equations and the drawing of the
@@ -55,6 +57,7 @@ from evo_door.models.door.posetable import (
 )
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.params import param_vector
+from evo_door.sim.hold import HOLD_SIGNATURE, register_hold
 from evo_door.sim.integrators import PREPARE_SIGNATURE, register_prepared
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
@@ -200,6 +203,23 @@ def accel(theta, dtheta, force, p):
         p[T_ATO],
         p[A_ROT],
     )
+
+
+@njit(HOLD_SIGNATURE, cache=True, nogil=True)
+def hold(theta, dtheta, p):
+    """Force (N at E, + toward closing) that holds the door still at ``(theta, dtheta)``.
+
+    :func:`accel` is affine in the force, so the force is ``-a(0) / (a(1) - a(0))``; the
+    mechanism's forces do not depend on it and are computed once here, where two calls
+    of :func:`accel` compute them twice: the same numbers, in half the time (the
+    perceptual objective's force-angle curves; registered with
+    :func:`~evo_door.sim.hold.register_hold`).
+    """
+    q_ext = mechanism_force(theta, dtheta, p)
+    at = (p[L], p[M], p[I_Z], p[G_X], p[G_Y], p[T_ATO], p[A_ROT])
+    a0 = door(theta, dtheta, 0.0, q_ext, *at)
+    a1 = door(theta, dtheta, 1.0, q_ext, *at)
+    return -a0 / (a1 - a0)
 
 
 #: How many switching functions :func:`switches` writes.
@@ -364,6 +384,7 @@ def prepared_vector(params) -> np.ndarray:
 
 
 register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE)
+register_hold(accel, hold)
 
 
 @njit(cache=True, nogil=True)

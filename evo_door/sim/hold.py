@@ -1,0 +1,44 @@
+"""A model's quasi-static force, where it has a faster way to it than ``accel``.
+
+The force that holds a one-coordinate model still (``ddtheta = 0``) at a state follows
+from ``accel`` being affine in the force: ``-a(0) / (a(1) - a(0))``, two calls
+(:mod:`.accel_plant`). Both calls compute everything that does not depend on the force
+(a door's mechanism, the haptic model's tangential force). A model may register a
+compiled ``hold(theta, dtheta, p)`` (:data:`HOLD_SIGNATURE`) that computes it once: the
+same numbers, to the last bit, in about half the time. The perceptual objective measures
+each door's force-angle curve on some 3000 angles, so this is much of its cost.
+
+A registry, like :func:`~evo_door.sim.integrators.register_prepared`'s: a model's module
+fills it when imported and nothing changes it afterwards. Its own module, light to
+import, because the models that register import it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from numba import types
+
+#: Signature of a model's ``hold(theta, dtheta, p) -> force``: the force (N) that holds
+#: ``ddtheta = 0`` at ``(theta, dtheta)``, as ``-a(0) / (a(1) - a(0))`` of ``accel``.
+HOLD_SIGNATURE = types.float64(types.float64, types.float64, types.float64[::1])
+#: The numba type of a ``hold`` function as a kernel argument.
+HOLD_TYPE = types.FunctionType(HOLD_SIGNATURE)
+
+#: model accel -> its ``hold``
+_HOLDS: dict[object, Callable] = {}
+
+
+def register_hold(accel, hold) -> None:
+    """Declare the compiled ``hold`` (:data:`HOLD_SIGNATURE`) as the quasi-static force of
+    the model right-hand side ``accel``: what two calls of ``accel`` give, to the last
+    bit (the door and the haptic model do at import; their tests check it)."""
+    _HOLDS[accel] = hold
+
+
+def hold_form(accel) -> Callable | None:
+    """The ``hold`` registered for ``accel`` (:func:`register_hold`), or None."""
+    try:
+        return _HOLDS.get(accel)
+    except TypeError:  # an unhashable callable: none
+        return None
