@@ -311,3 +311,24 @@ def _feel_dict(setup) -> dict:
         "dynamics": feel.dynamics,
         "closed": feel.closed,
     }
+
+
+def test_the_centrings_worst_margins_are_numpys_to_the_last_bit():
+    """The centring's objective takes each design door's worst margin from a compiled
+    loop (no temporaries of the design sample's size): the same numbers as numpy's
+    ``max |v + D|`` row by row, NaN and infinities included, and the same smoothed yield."""
+    from evo_door.optim.feel_doors import smoothed_share, soft_yield
+    from evo_door.optim.yield_kernel import worst_shifted
+
+    rng = np.random.default_rng(3)
+    D = rng.standard_normal((400, 731)) * 0.7
+    D[5, 100] = np.nan
+    D[7, 3] = np.inf
+    D[9, 730] = -np.inf
+    v = rng.standard_normal(731) * 0.3
+    got = worst_shifted(D, v)
+    want = np.max(np.abs(v + D), axis=1)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.isnan(got[5]) and got[7] == np.inf and got[9] == np.inf
+    finite = np.delete(np.arange(400), [5])
+    assert smoothed_share(got[finite]) == soft_yield(v + D[finite])

@@ -194,7 +194,11 @@ def band_text(band: float, unit: str, relative: float) -> str:
 def soft_yield(margins, smoothing: float = SMOOTHING) -> float:
     """The share of doors that pass, smoothed: each door counts
     ``1 / (1 + exp((worst - 1) / smoothing))`` by its worst margin (JND)."""
-    worst = np.max(np.abs(np.atleast_2d(margins)), axis=1)
+    return smoothed_share(np.max(np.abs(np.atleast_2d(margins)), axis=1), smoothing)
+
+
+def smoothed_share(worst, smoothing: float = SMOOTHING) -> float:
+    """:func:`soft_yield` of doors whose worst margins (JND) are ``worst``."""
     return float(np.mean(1.0 / (1.0 + np.exp(np.clip((worst - 1.0) / smoothing, -50, 50)))))
 
 

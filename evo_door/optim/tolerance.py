@@ -65,6 +65,7 @@ from evo_door.optim.feel_doors import (
     Reference,
     band_text,
     passing,
+    smoothed_share,
     soft_yield,
 )
 from evo_door.optim.specification import (
@@ -355,11 +356,13 @@ def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray
     nominal that maximises the smoothed yield of the secant model about ``p``."""
     from scipy.optimize import minimize
 
+    from evo_door.optim.yield_kernel import worst_shifted
+
     lo = np.array([check.model.params[check.model.params.names[i]].lower for i in idx])
     hi = np.array([check.model.params[check.model.params.names[i]].upper for i in idx])
     J = _secants(check, p, idx, t, lo, hi)
     m0 = check.margins(p)[0]
-    D = (U * t) @ J.T  # every design door's deviation of its margins
+    D = np.ascontiguousarray((U * t) @ J.T)  # every design door's deviation of its margins
     Jf = J[:, cols]
     ref = np.maximum(t[cols], 1e-3 * (search_hi - search_lo))
     box_lo = np.maximum(p[idx][cols] - TRUST * ref, search_lo)
@@ -368,7 +371,7 @@ def _centre_round(check, p, idx, cols, t, U, search_lo, search_hi) -> np.ndarray
         return p
 
     def objective(z):
-        return -soft_yield(m0 + Jf @ (z * ref) + D)
+        return -smoothed_share(worst_shifted(D, m0 + Jf @ (z * ref)))
 
     z_lo = (box_lo - p[idx][cols]) / ref
     z_hi = (box_hi - p[idx][cols]) / ref
