@@ -30,9 +30,9 @@ def rows(model, n, seed):
     moved by 20 % at random), and its Coulomb vector (the perceptual objective's)."""
     rng = np.random.default_rng(seed)
     p = model.load_params().vector
-    moved = [p * (1 + 0.2 * rng.standard_normal(p.size) * (rng.random(p.size) < 0.5))]
-    moved += [p * (1 + 0.2 * rng.standard_normal(p.size) * (rng.random(p.size) < 0.5))
-              for _ in range(n - 1)]  # fmt: skip
+    moved = [
+        p * (1 + 0.2 * rng.standard_normal(p.size) * (rng.random(p.size) < 0.5)) for _ in range(n)
+    ]
     return np.ascontiguousarray(np.r_[moved, [coulomb_vector(model, model.load_params())]])
 
 

@@ -387,24 +387,26 @@ def accel_tanh(theta, dtheta, force, p):
     return (tangential_force_law(theta, dtheta, p, False) + force) / p[INERTIA]
 
 
-@njit(HOLD_SIGNATURE, cache=True, nogil=True)
-def hold(theta, dtheta, p):
-    """Force (N at the handle) that holds the door still at ``(theta, dtheta)``: what
-    two calls of :func:`accel` give (:mod:`evo_door.sim.hold`), its tangential force
-    computed once."""
-    f = tangential_force_law(theta, dtheta, p, True)
+@njit(cache=True, inline="always")
+def _hold(theta, dtheta, p, sign_law):
+    """What two calls of the right-hand side give for the force that holds the door still
+    (:mod:`evo_door.sim.hold`), its tangential force computed once."""
+    f = tangential_force_law(theta, dtheta, p, sign_law)
     a0 = (f + 0.0) / p[INERTIA]
     a1 = (f + 1.0) / p[INERTIA]
     return -a0 / (a1 - a0)
+
+
+@njit(HOLD_SIGNATURE, cache=True, nogil=True)
+def hold(theta, dtheta, p):
+    """Force (N at the handle) that holds the door still at ``(theta, dtheta)``: :func:`accel`'s."""
+    return _hold(theta, dtheta, p, True)
 
 
 @njit(HOLD_SIGNATURE, cache=True, nogil=True)
 def hold_tanh(theta, dtheta, p):
     """:func:`hold` of :func:`accel_tanh`."""
-    f = tangential_force_law(theta, dtheta, p, False)
-    a0 = (f + 0.0) / p[INERTIA]
-    a1 = (f + 1.0) / p[INERTIA]
-    return -a0 / (a1 - a0)
+    return _hold(theta, dtheta, p, False)
 
 
 register_hold(accel, hold)

@@ -21,9 +21,10 @@ def worst_shifted(D, v):
         worst = 0.0
         for j in range(D.shape[1]):
             m = abs(v[j] + D[i, j])
-            if m > worst or m != m:
+            if m != m:  # NaN: numpy's max is NaN
                 worst = m
-                if m != m:
-                    break
+                break
+            if m > worst:
+                worst = m
         out[i] = worst
     return out
