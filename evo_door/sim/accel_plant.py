@@ -58,7 +58,7 @@ _HELD_SIGNATURE = types.void(HOLD_TYPE, _mat, _vec, types.float64, _mat)
 
 # The hold-force kernels: one loop over every (row, angle) pair, so that the angles of one
 # door are shared across threads as well as many doors; by ``accel`` (any model) or by a
-# registered ``hold`` (the door's, the same numbers in half the time).
+# registered ``hold`` (the door's: the same numbers, its mechanism computed once).
 @njit(_ROWS_SIGNATURE, cache=True, parallel=True)
 def _hold_rows(accel, P, theta, dtheta, out):
     n = theta.shape[0]
@@ -153,7 +153,7 @@ class AccelPlant(CompiledPlant):
     def _prepared(self, fast, p) -> np.ndarray:
         """The prepared vector of ``p``: the last one again when ``p`` is the last's (a
         closed-loop rig trial simulates a few samples at a time with one parameter set,
-        where preparing the door's pose table was a third of each call). One entry,
+        where each call prepared the door's pose table afresh). One entry,
         replaced whole, so that threads sharing the plant read a matching pair; the
         kernels only read it. ``fast`` is the model's, fixed with the model."""
         key = p.tobytes()

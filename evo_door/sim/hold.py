@@ -5,7 +5,7 @@ from ``accel`` being affine in the force: ``-a(0) / (a(1) - a(0))``, two calls
 (:mod:`.accel_plant`). Both calls compute everything that does not depend on the force
 (a door's mechanism, the haptic model's tangential force). A model may register a
 compiled ``hold(theta, dtheta, p)`` (:data:`HOLD_SIGNATURE`) that computes it once: the
-same numbers, to the last bit, in about half the time. The perceptual objective measures
+same numbers, to the last bit, for about one call's work instead of two. The perceptual objective measures
 each door's force-angle curve on some 3000 angles, so this is much of its cost.
 
 A registry, like :func:`~evo_door.sim.integrators.register_prepared`'s: a model's module

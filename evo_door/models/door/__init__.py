@@ -25,7 +25,7 @@ vector that :func:`prepare` fills once per parameter set; the door registers the
 with :func:`~evo_door.sim.integrators.register_prepared` ("The fast path" in
 ``docs/physical-model.md``). :func:`hold`, the force that holds the door still, is
 registered too (:func:`~evo_door.sim.hold.register_hold`): the perceptual
-objective's force-angle curves in half the time of two calls of :func:`accel`.
+objective's force-angle curves with the mechanism computed once, not twice.
 
 :func:`energy` gives the door's mechanical energy (kinetic, gravity, spring, latch and
 stop potentials) for the conservation tests. Equations and the drawing of the
@@ -211,7 +211,7 @@ def hold(theta, dtheta, p):
 
     :func:`accel` is affine in the force, so the force is ``-a(0) / (a(1) - a(0))``; the
     mechanism's forces do not depend on it and are computed once here, where two calls
-    of :func:`accel` compute them twice: the same numbers, in half the time (the
+    of :func:`accel` compute them twice: the same numbers, for about half the work (the
     perceptual objective's force-angle curves; registered with
     :func:`~evo_door.sim.hold.register_hold`).
     """
