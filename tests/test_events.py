@@ -21,10 +21,11 @@ from evo_door.models.door import energy
 from evo_door.models.door.latch import latch_angles
 from evo_door.models.haptic import latch_angles_of
 from evo_door.sim import simulate
-from evo_door.sim.integrators import ACCEL_TYPE, integrate_compiled, kernel_form
+from evo_door.sim.integrators import ACCEL_TYPE, integrate_compiled, kernel_form, try_span
 from evo_door.sim.located import SWITCHES_TYPE, advance_located, rate
 from evo_door.sim.simulate import param_vector
-from evo_door.sim_settings import METHODS, tolerance_of
+from evo_door.sim.spans import MAX_SPAN, MIN_SPAN
+from evo_door.sim_settings import DOPRI5, METHODS, tolerance_of
 from tests.reference import converged
 
 # compared against references: run again on a generic CPU in CI (pyproject markers)
@@ -291,18 +292,39 @@ def _located_only(
     accel, switches, p, force, dt, theta0, dtheta0, substeps, method, tol, n_sw, stick, th, w
 ):  # fmt: skip
     """Every period by :func:`advance_located` (the integrators' shortcut for periods
-    without events left out): the angle and speed at each sample into ``th`` and ``w``."""
+    without events left out), where the integrators do not step over several periods
+    (``try_span``, which runs as theirs): the angle and speed at each sample into ``th``
+    and ``w``."""
     g = np.empty((4, max(n_sw, 1)))
     theta, dtheta = theta0, dtheta0
     a_now = rate(accel, p, theta, dtheta, force[0], stick)
     th[0], w[0] = theta, dtheta
-    for k in range(force.shape[0] - 1):
+    spans = method == DOPRI5 and substeps == 1
+    th_s, w_s = np.empty(MAX_SPAN + 1), np.empty(MAX_SPAN + 1)
+    span, wait, patience = MIN_SPAN, 0, 1
+    switches(theta, dtheta, force[0], p, g[0])
+    n = force.shape[0]
+    k = 0
+    while k < n - 1:
+        m = 0
+        if spans:
+            m, a_end, span, wait, patience = try_span(
+                accel, switches, p, theta, dtheta, a_now, force, k, n, dt, tol, n_sw, stick,
+                g[0], g[1], span, wait, patience, th_s, w_s,
+            )  # fmt: skip
+        if m > 0:
+            th[k + 1 : k + m + 1] = th_s[1 : m + 1]
+            w[k + 1 : k + m + 1] = w_s[1 : m + 1]
+            theta, dtheta, a_now = th_s[m], w_s[m], a_end
+            k += m
+            continue
         theta, dtheta, a_end, a_ok = advance_located(
-            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
+            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, True, dt,
             substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3],
         )  # fmt: skip
         a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
         th[k + 1], w[k + 1] = theta, dtheta
+        k += 1
 
 
 @pytest.mark.parametrize(
@@ -315,7 +337,8 @@ def test_a_period_without_events_has_the_located_steps_numbers(name, kind, metho
     integrators take them without the locating loop (``smooth_period``): the same
     arithmetic, so every sample equals the located integration's bit for bit, on trials
     that cross latch bands, stops and the speed's zero; with each model's method at one
-    substep, and with dopri5 and the fixed-step methods at two."""
+    substep (its steps over several periods, where the force allows them, the same in
+    both), and with dopri5 and the fixed-step methods at two."""
     model = get_model(name)
     ps = model.load_params(PRESETS[name])
     force, theta0, dtheta0 = scenario(model, ps, kind)

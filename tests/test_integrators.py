@@ -205,3 +205,81 @@ def test_a_stuck_sample_costs_the_four_calls_that_decide_it_holds():
     per_sample, (theta, dtheta, ddtheta) = _calls_per_sample(force, 5.0, 0.0, True)
     assert np.all(dtheta == 0.0) and np.all(theta == 0.0) and np.all(ddtheta == 0.0)
     assert per_sample <= 4.01, per_sample
+
+
+# -- steps over several samples where the force is linear -------------------------------
+def _free_swing(n, theta0=0.1):
+    """The counted oscillator (no dry friction) swinging free from ``theta0``: ``n``
+    samples of zero force; its angle and speed exactly (k 40 N m/rad, c 0.5, inertia 1)."""
+    t = np.arange(n) / 1024
+    theta = damped_free_response(t, 40.0, 0.5, 1.0, theta0)
+    return np.zeros(n), t, theta
+
+
+@pytest.mark.numerics
+def test_a_free_swing_is_stepped_over_several_samples_at_the_accuracy_of_one():
+    """With no force (a door let go), one dopri5 step spans several sample periods and
+    the samples inside it come from its dense output: a fraction of the six calls a
+    sample costs stepped period by period, within 1e-8 rad of the exact swing (one
+    step a period gives some 1e-11; the tolerance, 1e-7 per step, is what is asked);
+    the acceleration at every sample is the model's at the reported state."""
+    force, t, exact = _free_swing(4096)
+    per_sample, (theta, dtheta, ddtheta) = _calls_per_sample(force, 0.0, 0.1, False)
+    assert per_sample < 2.0, per_sample  # 1 of them the output's acceleration
+    assert np.max(np.abs(theta - exact)) < 1e-8
+    speed = np.gradient(exact, t)  # only a check that the speed is the swing's
+    assert np.max(np.abs(dtheta[1:-1] - speed[1:-1])) < 2e-3
+    p = np.array([40.0, 0.5, 0.0, 0.0])
+    for k in (1, 5, 1001, 4095):
+        assert ddtheta[k] == pytest.approx(counted_accel(theta[k], dtheta[k], 0.0, p), abs=1e-12)
+
+
+@pytest.mark.numerics
+@pytest.mark.parametrize("run, spans", [(3, False), (4, True)])
+def test_a_force_that_kinks_every_few_samples_is_stepped_period_by_period(run, spans):
+    """A step spans periods only where the force is linear over at least four of them
+    (``MIN_SPAN``): a measured force's quantised noise makes three samples in a row
+    collinear by chance, and a step there would change its numbers for nothing. A force
+    that ramps up and down with a kink every ``run`` samples is stepped sample by sample
+    (six calls a sample) at 3, over several samples at 4."""
+    n = 4096
+    k = np.arange(n)
+    force = 0.5 * np.where((k // run) % 2 == 0, k % run, run - k % run)
+    per_sample, _ = _calls_per_sample(force, 0.0, 0.1, False)
+    assert (per_sample < 5.0) == spans, per_sample
+
+
+@pytest.mark.numerics
+def test_the_objective_spans_the_samples_the_simulation_spans():
+    """The GA's objective kernel makes the same steps as :func:`simulate` on a door's
+    trial with a push and a free swing (where the steps span samples): its max-square
+    speed error is the simulated one's, to the bit, for every candidate."""
+    from evo_door.data.trial import Trial
+    from evo_door.models import get_model
+    from evo_door.optim import Objective, Problem
+
+    door = get_model("door")
+    p = door.load_params()
+    n = 3072
+    k = np.arange(n)
+    force = np.where(k < 200, 20.0 * np.sin(np.pi * k / 200), 0.0)
+    r = simulate(door, p, force, DT, theta0=0.0)
+    target = r.dtheta + 0.01 * np.sin(k / 50.0)
+    trial = Trial(k * DT, force, r.theta, target, r.ddtheta, trial_id="s", theta0=0.0)
+    stiffness = p.as_dict()["K"]
+    problem = Problem(
+        door,
+        ["K"],
+        [0.5 * stiffness],
+        [1.5 * stiffness],
+        door.params.defaults,
+        [trial],
+        Objective("max_square", 1),
+    )
+    scales = np.array([0.8, 1.0, 1.2])
+    err, ok = problem.trial_errors(scales[:, None] * stiffness)
+    assert ok.all()
+    for scale, e in zip(scales, err[:, 0]):
+        q = door.load_params(overrides={"K": scale * stiffness})
+        sim = simulate(door, q, force, DT, theta0=0.0)
+        assert e == np.max((sim.dtheta - target) ** 2)

@@ -174,6 +174,25 @@ def test_ga_never_leaves_bounds_and_counts_evaluations():
     assert state.evaluations < 9 * 30  # unchanged survivors are not evaluated again
 
 
+def test_a_clone_is_what_deepcopy_makes_and_shares_nothing():
+    """The GA's clone copies genes and fitness as ``copy.deepcopy`` does (DEAP's default
+    clone), and neither copy changes with the other."""
+    import copy
+
+    from evo_door.optim.ga import Individual, clone_individual
+
+    ind = Individual([1.5, -2.0, 3.25])
+    ind.fitness.values = (0.125,)
+    for twin in (clone_individual(ind), copy.deepcopy(ind)):
+        assert list(twin) == list(ind) and type(twin) is type(ind)
+        assert twin.fitness.valid and twin.fitness.values == (0.125,)
+        twin[0] = 9.0
+        del twin.fitness.values
+        assert ind[0] == 1.5 and ind.fitness.values == (0.125,)
+    fresh = Individual([1.0])
+    assert not clone_individual(fresh).fitness.valid
+
+
 def test_same_seed_same_run_and_global_random_untouched():
     tr = make_trial(9, 0.5)
     prob = Problem(

@@ -57,6 +57,18 @@ if not hasattr(creator, "EvoDoorIndividual"):
 
 Individual = creator.EvoDoorIndividual
 
+
+def clone_individual(ind):
+    """A copy of an individual: its genes (floats) and its fitness, if it has one.
+
+    What DEAP's default clone (``copy.deepcopy``) makes of it, without walking the
+    object graph for each of the some 2000 copies a GA 100 x 20 makes."""
+    twin = Individual(ind)
+    if ind.fitness.valid:
+        twin.fitness.values = ind.fitness.values
+    return twin
+
+
 #: Logbook columns, in order.
 LOG_FIELDS = ("gen", "evals", "blowups", "min", "mean", "max", "std")
 
@@ -203,6 +215,7 @@ class GeneticAlgorithm:
             ),
         )
         tb.register("select", partial(sel_tournament, tournsize=s.tournament, rng=rng))
+        tb.register("clone", clone_individual)
         return tb
 
     @staticmethod

@@ -71,6 +71,14 @@ from evo_door.sim.located import (
     ros2_step,
     smooth_period,
 )
+from evo_door.sim.spans import (
+    MAX_SPAN,
+    MIN_SPAN,
+    SPAN_COARSE,
+    SPAN_KEPT,
+    kink_free,
+    span_step,
+)
 
 #: Angular speed (rad/s) beyond which a simulation counts as blown up.
 BLOWUP_SPEED = 1.0e6
@@ -232,6 +240,48 @@ def step_period(
 
 
 @njit(cache=True, nogil=True, inline="always")
+def try_span(
+    accel, switches, p, theta, dtheta, a_now, force, k, stop, dt, tol, n_sw, stick, g0, g1,
+    span, wait, patience, th_s, w_s,
+):  # fmt: skip
+    """Try to move the state from sample ``k`` by one ``dopri5`` step over several periods
+    (:func:`~evo_door.sim.located.span_step`), up to ``span`` of them and not past
+    sample ``stop - 1``.
+
+    A step too coarse is tried again shorter, as the error estimate says, while it
+    still spans two periods. Where none can (a door resting on its stiff stop, a noisy
+    measured force, whose kinks at every sample a longer step cannot follow), or a
+    surface lies within the step, the next ``patience`` periods are stepped one by one
+    (``wait``), and ``patience`` doubles while that keeps happening (up to
+    :data:`MAX_SKIP`): what a failed try costs stays a small share of the trial. A
+    kept step sets the next ``span`` from its error, as a step's length is set. A trial
+    starts with ``span`` 2, ``wait`` 0 and ``patience`` 1.
+
+    Returns ``(m, a_end, span, wait, patience)``: ``m`` the periods the step spanned
+    (the states at samples ``k + 1`` ... ``k + m`` in ``th_s`` and ``w_s``, ``a_end``
+    the acceleration at the last), 0 when the next period is :func:`step_period`'s.
+    """
+    if wait > 0:
+        return 0, 0.0, span, wait - 1, patience
+    run = kink_free(force, k, min(max(span, MIN_SPAN), stop - 1 - k))
+    if run < MIN_SPAN:  # the force kinks within the next periods: nothing to try
+        return 0, 0.0, span, 0, patience
+    m = min(span, run)
+    while m >= 2:
+        found, err, a_end = span_step(
+            accel, switches, p, theta, dtheta, a_now, force, k, m, dt, tol, n_sw, stick,
+            g0, g1, th_s, w_s,
+        )  # fmt: skip
+        if found == SPAN_KEPT:
+            grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
+            return m, a_end, min(MAX_SPAN, max(2, int(m * min(5.0, grow)))), 0, 1
+        if found != SPAN_COARSE or not math.isfinite(err):
+            break
+        m = int(m * max(0.2, 0.9 * err**-0.2))
+    return 0, 0.0, MIN_SPAN, patience, min(2 * patience, MAX_SKIP)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def integrate_with(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
     theta_out, dtheta_out, ddtheta_out,
@@ -255,21 +305,44 @@ def integrate_with(
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
     skip, backoff = 0, 1
-    for k in range(n - 1):
-        theta, dtheta, a_end, a_ok, skip, backoff = step_period(
-            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0, dt,
-            substeps, method, tol, n_sw, stick, g, skip, backoff,
-        )  # fmt: skip
+    spans = method == DOPRI5 and substeps == 1  # steps over several periods
+    th_s = np.empty(MAX_SPAN + 1)
+    w_s = np.empty(MAX_SPAN + 1)
+    span, wait, patience = MIN_SPAN, 0, 1
+    if spans:
+        switches(theta, dtheta, force[0], p, g[0])
+    k = 0
+    while k < n - 1:
+        m = 0
+        if spans:
+            m, a_end, span, wait, patience = try_span(
+                accel, switches, p, theta, dtheta, a_now, force, k, n, dt, tol, n_sw, stick,
+                g[0], g[1], span, wait, patience, th_s, w_s,
+            )  # fmt: skip
+        if m > 0:
+            for j in range(1, m):
+                theta_out[k + j] = th_s[j]
+                dtheta_out[k + j] = w_s[j]
+                ddtheta_out[k + j] = rate(accel, p, th_s[j], w_s[j], force[k + j], stick)
+            theta, dtheta, a_now = th_s[m], w_s[m], a_end
+        else:
+            m = 1
+            theta, dtheta, a_end, a_ok, skip, backoff = step_period(
+                accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0 or spans,
+                dt, substeps, method, tol, n_sw, stick, g, skip, backoff,
+            )  # fmt: skip
+            if math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED:
+                a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
+        k += m
         if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
-            for j in range(k + 1, n):
+            for j in range(k, n):
                 theta_out[j] = np.nan
                 dtheta_out[j] = np.nan
                 ddtheta_out[j] = np.nan
             return False
-        a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
-        theta_out[k + 1] = theta
-        dtheta_out[k + 1] = dtheta
-        ddtheta_out[k + 1] = a_now
+        theta_out[k] = theta
+        dtheta_out[k] = dtheta
+        ddtheta_out[k] = a_now
     return True
 
 

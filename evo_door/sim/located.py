@@ -40,6 +40,9 @@ never exceed ``dt / substeps``; each period starts from that length, so a period
 result does not depend on how the one before it was cut. ``rk4`` and
 ``semi_implicit`` keep their fixed steps, with the surfaces located as above.
 
+**Steps over several periods** (``dopri5`` at one substep): where the force is linear
+over several periods, one step may cross them (:mod:`evo_door.sim.spans`).
+
 Most periods of a trial need none of the locating: their steps cross nothing and are
 accurate at the first try. :func:`smooth_period` takes those steps on their own, with
 the same arithmetic as :func:`advance_located` (so the same numbers), and hands the
@@ -114,6 +117,12 @@ _A64, _A65 = 49.0 / 176.0, -5103.0 / 18656.0
 _B1, _B3, _B4, _B5, _B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
 _E1, _E3, _E4 = 71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0
 _E5, _E6, _E7 = -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0
+#: The nodes c2 ... c5 of a step's stages, as fractions of its length.
+DOPRI_NODES = (_C2, _C3, _C4, _C5)
+# the dense output's fifth coefficient (Hairer, Norsett and Wanner's DOPRI5)
+_D1, _D3 = -12715105075.0 / 11282082432.0, 87487479700.0 / 32700410799.0
+_D4, _D5 = -10690763975.0 / 1880347072.0, 701980252875.0 / 199316789632.0
+_D6, _D7 = -1453857185.0 / 822651844.0, 69997945.0 / 29380423.0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -125,28 +134,32 @@ def dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol, side):
     the tolerance (a step is good when it is at most 1), ``a_end`` the acceleration
     at the new state (the next step's first stage).
     """
+    th_new, w_new, err, a_end, _dt5, _dw5 = dopri_stages(
+        accel, p, th, w, a1, h, f0 + slope * (t + _C2 * h), f0 + slope * (t + _C3 * h),
+        f0 + slope * (t + _C4 * h), f0 + slope * (t + _C5 * h), f0 + slope * (t + h), tol, side,
+    )  # fmt: skip
+    return th_new, w_new, err, a_end
+
+
+@njit(cache=True, nogil=True, inline="always")
+def dopri_stages(accel, p, th, w, a1, h, f2, f3, f4, f5, f_end, tol, side):
+    """The stages of :func:`dopri_step`, the force at each stage's time given.
+
+    ``f2`` ... ``f5`` are the force at the nodes ``c2`` ... ``c5`` of the step, ``f_end``
+    at its end. Returns ``(theta, dtheta, err, a_end, d_theta, d_dtheta)``: the first
+    four as :func:`dopri_step`'s, the last two the fifth coefficient of the step's
+    dense output (:func:`evo_door.sim.spans.dense`) for each component.
+    """
     k1t, k1w = w, a1
     k2t = w + h * _A21 * k1w
-    k2w = sided(accel, p, th + h * _A21 * k1t, k2t, f0 + slope * (t + _C2 * h), side)
+    k2w = sided(accel, p, th + h * _A21 * k1t, k2t, f2, side)
     k3t = w + h * (_A31 * k1w + _A32 * k2w)
-    k3w = sided(accel, p, th + h * (_A31 * k1t + _A32 * k2t), k3t, f0 + slope * (t + _C3 * h), side)
+    k3w = sided(accel, p, th + h * (_A31 * k1t + _A32 * k2t), k3t, f3, side)
     k4t = w + h * (_A41 * k1w + _A42 * k2w + _A43 * k3w)
-    k4w = sided(
-        accel,
-        p,
-        th + h * (_A41 * k1t + _A42 * k2t + _A43 * k3t),
-        k4t,
-        f0 + slope * (t + _C4 * h),
-        side,
-    )
+    k4w = sided(accel, p, th + h * (_A41 * k1t + _A42 * k2t + _A43 * k3t), k4t, f4, side)
     k5t = w + h * (_A51 * k1w + _A52 * k2w + _A53 * k3w + _A54 * k4w)
     k5w = sided(
-        accel,
-        p,
-        th + h * (_A51 * k1t + _A52 * k2t + _A53 * k3t + _A54 * k4t),
-        k5t,
-        f0 + slope * (t + _C5 * h),
-        side,
+        accel, p, th + h * (_A51 * k1t + _A52 * k2t + _A53 * k3t + _A54 * k4t), k5t, f5, side
     )
     k6t = w + h * (_A61 * k1w + _A62 * k2w + _A63 * k3w + _A64 * k4w + _A65 * k5w)
     k6w = sided(
@@ -154,17 +167,19 @@ def dopri_step(accel, p, th, w, a1, t, h, f0, slope, tol, side):
         p,
         th + h * (_A61 * k1t + _A62 * k2t + _A63 * k3t + _A64 * k4t + _A65 * k5t),
         k6t,
-        f0 + slope * (t + h),
+        f_end,
         side,
     )
     th_new = th + h * (_B1 * k1t + _B3 * k3t + _B4 * k4t + _B5 * k5t + _B6 * k6t)
     w_new = w + h * (_B1 * k1w + _B3 * k3w + _B4 * k4w + _B5 * k5w + _B6 * k6w)
     k7t = w_new
-    k7w = sided(accel, p, th_new, w_new, f0 + slope * (t + h), side)
+    k7w = sided(accel, p, th_new, w_new, f_end, side)
     et = h * (_E1 * k1t + _E3 * k3t + _E4 * k4t + _E5 * k5t + _E6 * k6t + _E7 * k7t)
     ew = h * (_E1 * k1w + _E3 * k3w + _E4 * k4w + _E5 * k5w + _E6 * k6w + _E7 * k7w)
     err = max(abs(et) / (tol * (1.0 + abs(th))), abs(ew) / (tol * (1.0 + abs(w))))
-    return th_new, w_new, err, k7w
+    d_t = h * (_D1 * k1t + _D3 * k3t + _D4 * k4t + _D5 * k5t + _D6 * k6t + _D7 * k7t)
+    d_w = h * (_D1 * k1w + _D3 * k3w + _D4 * k4w + _D5 * k5w + _D6 * k6w + _D7 * k7w)
+    return th_new, w_new, err, k7w, d_t, d_w
 
 
 @njit(cache=True, nogil=True, inline="always")

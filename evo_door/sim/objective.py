@@ -48,10 +48,12 @@ from evo_door.sim.integrators import (
     PREPARE_TYPE,
     kernel_form,
     step_period,
+    try_span,
 )
 from evo_door.sim.located import SWITCHES_TYPE, rate
 from evo_door.sim.simulate import events_of
-from evo_door.sim_settings import MAX_SQUARE
+from evo_door.sim.spans import MAX_SPAN, MIN_SPAN
+from evo_door.sim_settings import DOPRI5, MAX_SQUARE
 
 _vec = types.float64[::1]
 _mat = types.float64[:, ::1]
@@ -72,6 +74,16 @@ def accumulate(acc, e, k, start, stop, dt, kind):
     if k == start or k == stop - 1:
         return acc + 0.5 * dt * e * e
     return acc + dt * e * e
+
+
+@njit(cache=True, nogil=True, inline="always")
+def sample_value(theta, dtheta, ddtheta, derivative):
+    """What the objective compares at a sample: angle, speed or acceleration."""
+    if derivative == 0:
+        return theta
+    if derivative == 1:
+        return dtheta
+    return ddtheta
 
 
 @njit(cache=True, nogil=True)
@@ -105,26 +117,48 @@ def trial_error(
     theta = theta0
     dtheta = dtheta0
     a_now = rate(accel, p, theta, dtheta, force[start], stick)
-    acc = 0.0
     skip, backoff = 0, 1
-    for k in range(start, stop):
-        if k > start:
-            theta, dtheta, a_end, a_ok, skip, backoff = step_period(
-                accel, switches, p, theta, dtheta, force[k - 1], force[k], a_now, k > start + 1,
-                dt, substeps, method, tol, n_sw, stick, g, skip, backoff,
+    spans = method == DOPRI5 and substeps == 1  # steps over several periods (try_span)
+    th_s = np.empty(MAX_SPAN + 1)
+    w_s = np.empty(MAX_SPAN + 1)
+    span, wait, patience = MIN_SPAN, 0, 1
+    if spans:
+        switches(theta, dtheta, force[start], p, g[0])
+    acc = 0.0
+    if mask[start]:
+        y = sample_value(theta, dtheta, a_now, derivative)
+        acc = accumulate(acc, y - target[start], start, start, stop, dt, kind)
+    k = start
+    while k < stop - 1:
+        m = 0
+        if spans:
+            m, a_end, span, wait, patience = try_span(
+                accel, switches, p, theta, dtheta, a_now, force, k, stop, dt, tol, n_sw, stick,
+                g[0], g[1], span, wait, patience, th_s, w_s,
             )  # fmt: skip
-            if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
-                return math.inf, False
-            a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k], stick)
-        if not mask[k]:
-            continue
-        if derivative == 0:
-            y = theta
-        elif derivative == 1:
-            y = dtheta
+        if m > 0:
+            for j in range(1, m):
+                if mask[k + j]:
+                    a_j = 0.0
+                    if derivative == 2:
+                        a_j = rate(accel, p, th_s[j], w_s[j], force[k + j], stick)
+                    y = sample_value(th_s[j], w_s[j], a_j, derivative)
+                    acc = accumulate(acc, y - target[k + j], k + j, start, stop, dt, kind)
+            theta, dtheta, a_now = th_s[m], w_s[m], a_end
         else:
-            y = a_now
-        acc = accumulate(acc, y - target[k], k, start, stop, dt, kind)
+            m = 1
+            theta, dtheta, a_end, a_ok, skip, backoff = step_period(
+                accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now,
+                k > start or spans, dt, substeps, method, tol, n_sw, stick, g, skip, backoff,
+            )  # fmt: skip
+        if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
+            return math.inf, False
+        k += m
+        if m == 1:
+            a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k], stick)
+        if mask[k]:
+            y = sample_value(theta, dtheta, a_now, derivative)
+            acc = accumulate(acc, y - target[k], k, start, stop, dt, kind)
     if not math.isfinite(acc):
         return math.inf, False
     return acc, True
