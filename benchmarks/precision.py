@@ -19,9 +19,10 @@ targets and figure: :mod:`benchmarks.precision_report`). Each model, ``door`` (p
 
 Every trial is run by every way at every setting:
 
-- evo-door ``simulate``: the model's defaults; ``dopri5`` (steps of at most one
-  sample) at the tolerances :data:`TOLERANCES`; ``rk4`` and ``semi_implicit`` at the
-  sub-steps :data:`SUBSTEPS`. Median of repeats, one numba thread.
+- evo-door ``simulate``: the model's defaults; ``dopri5`` (one substep: steps of at
+  most one sample, over several where the force is linear) at the tolerances
+  :data:`TOLERANCES`; ``rk4`` and ``semi_implicit`` at the sub-steps :data:`SUBSTEPS`.
+  Median of repeats, one numba thread.
 - scipy ``solve_ivp`` RK45, LSODA, Radau and DOP853 around the compiled ``accel``, at
   the relative tolerances :data:`RTOLS` (atol = rtol / 1000, a step of at most 4
   samples, the force linear between samples: :func:`benchmarks.plain.run_plain`). A
