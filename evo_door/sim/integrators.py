@@ -13,7 +13,10 @@ make numba recompile every kernel in every new process.)
 
 The input force is sampled at a fixed period ``dt`` (1/1024 s for the seed's trials);
 each sample period is split into ``substeps`` equal steps, with the force interpolated
-linearly between samples. Outputs are reported at the sample instants.
+linearly between samples. Outputs are reported at the sample instants. ``dopri5``
+(:mod:`evo_door.sim.located`) chooses its steps within each period, and at one substep
+takes one step over several periods where the force is linear over them
+(:func:`try_span`, :mod:`evo_door.sim.spans`).
 
 Two schemes:
 
@@ -245,7 +248,7 @@ def try_span(
     span, wait, patience, th_s, w_s,
 ):  # fmt: skip
     """Try to move the state from sample ``k`` by one ``dopri5`` step over several periods
-    (:func:`~evo_door.sim.located.span_step`), up to ``span`` of them and not past
+    (:func:`~evo_door.sim.spans.span_step`), up to ``span`` of them and not past
     sample ``stop - 1``.
 
     A step too coarse is tried again shorter, as the error estimate says, while it
@@ -255,7 +258,8 @@ def try_span(
     (``wait``), and ``patience`` doubles while that keeps happening (up to
     :data:`MAX_SKIP`): what a failed try costs stays a small share of the trial. A
     kept step sets the next ``span`` from its error, as a step's length is set. A trial
-    starts with ``span`` 2, ``wait`` 0 and ``patience`` 1.
+    starts with ``span`` :data:`~evo_door.sim.spans.MIN_SPAN`, ``wait`` 0 and
+    ``patience`` 1.
 
     Returns ``(m, a_end, span, wait, patience)``: ``m`` the periods the step spanned
     (the states at samples ``k + 1`` ... ``k + m`` in ``th_s`` and ``w_s``, ``a_end``
