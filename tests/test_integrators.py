@@ -247,39 +247,3 @@ def test_a_force_that_kinks_every_few_samples_is_stepped_period_by_period(run, s
     force = 0.5 * np.where((k // run) % 2 == 0, k % run, run - k % run)
     per_sample, _ = _calls_per_sample(force, 0.0, 0.1, False)
     assert (per_sample < 5.0) == spans, per_sample
-
-
-@pytest.mark.numerics
-def test_the_objective_spans_the_samples_the_simulation_spans():
-    """The GA's objective kernel makes the same steps as :func:`simulate` on a door's
-    trial with a push and a free swing (where the steps span samples): its max-square
-    speed error is the simulated one's, to the bit, for every candidate."""
-    from evo_door.data.trial import Trial
-    from evo_door.models import get_model
-    from evo_door.optim import Objective, Problem
-
-    door = get_model("door")
-    p = door.load_params()
-    n = 3072
-    k = np.arange(n)
-    force = np.where(k < 200, 20.0 * np.sin(np.pi * k / 200), 0.0)
-    r = simulate(door, p, force, DT, theta0=0.0)
-    target = r.dtheta + 0.01 * np.sin(k / 50.0)
-    trial = Trial(k * DT, force, r.theta, target, r.ddtheta, trial_id="s", theta0=0.0)
-    stiffness = p.as_dict()["K"]
-    problem = Problem(
-        door,
-        ["K"],
-        [0.5 * stiffness],
-        [1.5 * stiffness],
-        door.params.defaults,
-        [trial],
-        Objective("max_square", 1),
-    )
-    scales = np.array([0.8, 1.0, 1.2])
-    err, ok = problem.trial_errors(scales[:, None] * stiffness)
-    assert ok.all()
-    for scale, e in zip(scales, err[:, 0]):
-        q = door.load_params(overrides={"K": scale * stiffness})
-        sim = simulate(door, q, force, DT, theta0=0.0)
-        assert e == np.max((sim.dtheta - target) ** 2)
