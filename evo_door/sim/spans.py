@@ -58,15 +58,6 @@ SPAN_KEPT, SPAN_COARSE, SPAN_CROSSES = 0, 1, 2
 SPAN_TOLERANCE = 0.1
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _force_in(force, k, m, dt, tau):
-    """The force ``tau`` seconds after sample ``k``, linear between samples (``m`` periods
-    on from ``k`` at most), as the periods' steps read it."""
-    x = tau / dt
-    j = min(int(x), m - 1)
-    return force[k + j] + (force[k + j + 1] - force[k + j]) * (x - j)
-
-
 #: A sample where the force's slope changes by at most this share of the force's size
 #: counts as no kink: a force linear to its rounding.
 KINK_FREE = 1e-12
@@ -99,8 +90,8 @@ def span_step(
 
     Where the motion is smooth, a step of one period is far more accurate than the
     tolerance asks, and its six right-hand sides buy nothing a longer step would not.
-    The force stays linear between samples within the step (its stages read it where
-    they fall); the samples inside the step are read from its dense output
+    The force is linear over the whole step (the caller checks it, :func:`kink_free`),
+    so its stages read it from the first period's slope; the samples inside the step are read from its dense output
     (:func:`dense`, order 4), each checked as a step's end is: no switching function
     changed sign since the start, and a stick-slip door's speed kept its sign.
 
@@ -117,21 +108,12 @@ def span_step(
             return SPAN_CROSSES, math.inf, a_start
         side = 1 if dtheta > 0.0 else -1
     h = m * dt
+    f0 = force[k]
+    slope = (force[k + 1] - f0) / dt  # the same over the whole step (kink_free)
     th1, w1, err, a_end, d_t, d_w = dopri_stages(
-        accel,
-        p,
-        theta,
-        dtheta,
-        a_start,
-        h,
-        _force_in(force, k, m, dt, C2 * h),
-        _force_in(force, k, m, dt, C3 * h),
-        _force_in(force, k, m, dt, C4 * h),
-        _force_in(force, k, m, dt, C5 * h),
-        force[k + m],
-        SPAN_TOLERANCE * tol,
-        side,
-    )
+        accel, p, theta, dtheta, a_start, h, f0 + slope * (C2 * h), f0 + slope * (C3 * h),
+        f0 + slope * (C4 * h), f0 + slope * (C5 * h), force[k + m], SPAN_TOLERANCE * tol, side,
+    )  # fmt: skip
     if not (err <= 1.0):
         return SPAN_COARSE, err, a_end
     if not (math.isfinite(th1) and math.isfinite(w1)):
