@@ -261,3 +261,31 @@ def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, r
         )
     else:
         assert calls == [] and config.lines == []
+
+
+def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
+    """numba's cache beside a model file names the module its functions were compiled
+    in: a folder copied with its ``__pycache__`` (``cp -r``) must load in the copy.
+
+    Not a numerical test (``-m numerics``): without ``NUMBA_CACHE_DIR`` the package's
+    own kernels load from this checkout's ``__pycache__`` too, which the generic-CPU
+    pass would fill with a second compilation of all of them (77 s of its 127 s)."""
+    example = ROOT / "examples" / "drawer"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
+    args = ("curve", "drawer.py:MODEL", "--params", "soft_close", "--points", "50")
+
+    def curve(folder: Path, out: str):
+        done = subprocess.run(
+            [sys.executable, "-m", "evo_door", *args, "--out", out],
+            cwd=folder, env=env, capture_output=True, text=True, timeout=COMPILE_HANG_GUARD,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        return (folder / out).read_text()
+
+    first = tmp_path / "first"
+    shutil.copytree(example, first, ignore=shutil.ignore_patterns("__pycache__", "*.h5"))
+    made = curve(first, "a.csv")
+    assert list((first / "__pycache__").glob("drawer.*.nbi"))  # the cache was written
+    copy = tmp_path / "copy"
+    shutil.copytree(first, copy)
+    assert curve(copy, "b.csv") == made

@@ -4,7 +4,6 @@ import importlib.metadata
 import json
 import os
 import re
-import shutil
 import subprocess
 import sys
 from dataclasses import replace
@@ -45,12 +44,9 @@ MODEL = Model("{name}", "a spring", PARAMS, accel)
 """
 
 
-def _cli(*args, cwd, cache_beside=False):
-    """``evo-door ARGS`` in a fresh interpreter, in ``cwd``, without PYTHONPATH
-    (``cache_beside``: numba's cache in ``__pycache__`` beside each file, whatever
-    ``NUMBA_CACHE_DIR`` the suite runs with)."""
-    drop = {"PYTHONPATH", "NUMBA_CACHE_DIR"} if cache_beside else {"PYTHONPATH"}
-    env = {k: v for k, v in os.environ.items() if k not in drop}
+def _cli(*args, cwd):
+    """``evo-door ARGS`` in a fresh interpreter, in ``cwd``, without PYTHONPATH."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     return subprocess.run(
         [sys.executable, "-m", "evo_door", *args],
         cwd=cwd,
@@ -350,19 +346,3 @@ def test_bundled_models_without_entry_points_still_load(monkeypatch):
     assert np.array_equal(
         get_model("door").load_params("default").vector, get_model("door").load_params(None).vector
     )
-
-
-def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
-    """numba's cache beside a model file names the module its functions were compiled
-    in: a folder copied with its ``__pycache__`` (``cp -r``) must load in the copy."""
-    first = tmp_path / "first"
-    shutil.copytree(EXAMPLE, first, ignore=shutil.ignore_patterns("__pycache__", "*.h5"))
-    args = ("curve", "drawer.py:MODEL", "--params", "soft_close", "--points", "50")
-    made = _cli(*args, "--out", "a.csv", cwd=first, cache_beside=True)
-    assert made.returncode == 0, made.stderr
-    assert list((first / "__pycache__").glob("drawer.*.nbi"))  # the cache was written
-    copy = tmp_path / "copy"
-    shutil.copytree(first, copy)
-    again = _cli(*args, "--out", "b.csv", cwd=copy, cache_beside=True)
-    assert again.returncode == 0, again.stderr
-    assert (copy / "b.csv").read_text() == (first / "a.csv").read_text()
