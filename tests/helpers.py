@@ -100,10 +100,13 @@ def door_fmu_builder():
     return sys.modules[name]
 
 
-def cli_process(*args, cwd, env=None, timeout=300):
+def cli_process(*args, cwd, env=None, unset=(), timeout=300):
     """``evo-door ARGS`` in a fresh process in ``cwd`` (this checkout's code); ``env``:
-    variables set on top of this process's."""
+    variables set on top of this process's; ``unset``: variables of this process's left
+    out."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg", **(env or {})}
+    for name in unset:
+        env.pop(name, None)
     return subprocess.run(
         [sys.executable, "-m", "evo_door", *map(str, args)],
         capture_output=True,

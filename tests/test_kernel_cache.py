@@ -271,14 +271,11 @@ def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
     own kernels load from this checkout's ``__pycache__`` too, which the generic-CPU
     pass would fill with a second compilation of all of them (77 s of its 127 s)."""
     example = ROOT / "examples" / "drawer"
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
     args = ("curve", "drawer.py:MODEL", "--params", "soft_close", "--points", "50")
 
     def curve(folder: Path, out: str):
-        done = subprocess.run(
-            [sys.executable, "-m", "evo_door", *args, "--out", out],
-            cwd=folder, env=env, capture_output=True, text=True, timeout=COMPILE_HANG_GUARD,
-        )  # fmt: skip
+        done = cli_process(*args, "--out", out, cwd=folder, unset=["NUMBA_CACHE_DIR"],
+                           timeout=COMPILE_HANG_GUARD)  # fmt: skip
         assert done.returncode == 0, done.stderr
         return (folder / out).read_text()
 

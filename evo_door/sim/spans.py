@@ -91,9 +91,10 @@ def span_step(
     Where the motion is smooth, a step of one period is far more accurate than the
     tolerance asks, and its six right-hand sides buy nothing a longer step would not.
     The force is linear over the whole step (the caller checks it, :func:`kink_free`),
-    so its stages read it from the first period's slope; the samples inside the step are read from its dense output
-    (:func:`dense`, order 4), each checked as a step's end is: no switching function
-    changed sign since the start, and a stick-slip door's speed kept its sign.
+    so its stages read it from the first period's slope; the samples inside the step are
+    read from its dense output (:func:`dense`, order 4), each checked as a step's end
+    is: no switching function changed sign since the start, and a stick-slip door's
+    speed kept its sign.
 
     ``a_start`` is the acceleration at the start and ``g0`` holds the switching
     functions there. Returns ``(found, err, a_end)`` (:data:`SPAN_KEPT`, ...): when
