@@ -269,7 +269,7 @@ def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
 
     Not a numerical test (``-m numerics``): without ``NUMBA_CACHE_DIR`` the package's
     own kernels load from this checkout's ``__pycache__`` too, which the generic-CPU
-    pass would fill with a second compilation of all of them (77 s of its 127 s)."""
+    pass would fill with a second compilation of all of them."""
     example = ROOT / "examples" / "drawer"
     args = ("curve", "drawer.py:MODEL", "--params", "soft_close", "--points", "50")
 
