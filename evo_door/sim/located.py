@@ -102,6 +102,13 @@ def sided(accel, p, theta, dtheta, force, side):
     a = accel(theta, dtheta, force, p)
     if side == 0 or dtheta * side > 0.0:
         return a
+    return other_side(accel, p, theta, dtheta, force, side, a)
+
+
+@njit(cache=True, nogil=True)
+def other_side(accel, p, theta, dtheta, force, side, a):
+    """:func:`sided` where the stage's speed is on the wrong side: ``a`` with the
+    friction's two sides' difference added (called, not inlined: it is rare)."""
     here = accel(theta, -side * CREEP, force, p) if dtheta != 0.0 else a
     return a - here + accel(theta, side * CREEP, force, p)
 
@@ -276,23 +283,29 @@ def rate(accel, p, theta, dtheta, force, stick):
     holds the other forces, else the acceleration of the side it slips to.
     """
     if stick and dtheta == 0.0:
-        forward = accel(theta, CREEP, force, p)
-        if forward > 0.0:
-            return forward
-        backward = accel(theta, -CREEP, force, p)
-        if backward < 0.0:
-            return backward
-        return 0.0
+        return stuck_rate(accel, p, theta, force)
     return accel(theta, dtheta, force, p)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
+def stuck_rate(accel, p, theta, force):
+    """:func:`rate` of a stick-slip model at rest (called, not inlined)."""
+    forward = accel(theta, CREEP, force, p)
+    if forward > 0.0:
+        return forward
+    backward = accel(theta, -CREEP, force, p)
+    if backward < 0.0:
+        return backward
+    return 0.0
+
+
+@njit(cache=True, nogil=True)
 def _crossed(a, b):
     """True when ``a`` and ``b`` lie on two sides of zero (0 counts as positive)."""
     return (a < 0.0) != (b < 0.0)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _first_crossing(g0, g1, n, w0, w1, stick, active):
     """Index of the crossing with the smallest linear estimate of its time, -1 if none;
     ``n`` stands for the speed's zero (stick-slip)."""

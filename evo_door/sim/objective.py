@@ -62,7 +62,7 @@ _bmat = types.boolean[:, ::1]
 _bvec = types.boolean[::1]
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def accumulate(acc, e, k, start, stop, dt, kind):
     """The objective so far, ``acc``, with the error ``e`` of sample ``k`` of the trial
     ``start:stop`` added: the largest square, or the trapezoid sum of squares (the
@@ -76,7 +76,7 @@ def accumulate(acc, e, k, start, stop, dt, kind):
     return acc + dt * e * e
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def sample_value(theta, dtheta, ddtheta, derivative):
     """What the objective compares at a sample: angle, speed or acceleration."""
     if derivative == 0:

@@ -24,7 +24,7 @@ from evo_door.sim.located import DOPRI_NODES, _crossed, dopri_stages
 C2, C3, C4, C5 = DOPRI_NODES
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def dense(y0, y1, slope0, slope1, d5, h, u):
     """A component of a ``dopri5`` step's state at the fraction ``u`` of the step.
 
@@ -63,7 +63,7 @@ SPAN_TOLERANCE = 0.1
 KINK_FREE = 1e-12
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def kink_free(force, k, m):
     """How many of the ``m`` sample periods after sample ``k`` a step may span: up to the
     first sample where the force, linear between samples, changes its slope.

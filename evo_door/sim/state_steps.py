@@ -54,7 +54,7 @@ _E1, _E3, _E4 = 71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0
 _E5, _E6, _E7 = -17253.0 / 339200.0, 22.0 / 525.0, -1.0 / 40.0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def workspace(n, n_surfaces, n_contacts):
     """The scratch arrays of one trial: ``W`` (:data:`ROWS` x n), ``G`` (4 x surfaces:
     g0, g1, gx, active), ``JM`` (2 x n x n: the Jacobian and ROS2's matrix), ``piv``

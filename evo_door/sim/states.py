@@ -191,7 +191,7 @@ def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_
     return True
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def blown_up(x):
     """True when a state is not finite or of magnitude :data:`BLOWUP` or more."""
     for v in x:
