@@ -47,6 +47,10 @@ Most periods of a trial need none of the locating: their steps cross nothing and
 accurate at the first try. :func:`smooth_period` takes those steps on their own, with
 the same arithmetic as :func:`advance_located` (so the same numbers), and hands the
 period to :func:`advance_located` when a step is too coarse or crosses something.
+
+Size: a little over 600 lines: the steps, the locating and the friction's two sides
+share their arithmetic (a smooth period's numbers are :func:`advance_located`'s), so
+they stay side by side.
 """
 
 from __future__ import annotations
