@@ -349,7 +349,7 @@ def test_a_period_without_events_has_the_located_steps_numbers(name, kind, metho
     n_sw, stick = model.n_switches, model.stick_slip
     out = [np.empty(force.size) for _ in range(3)]
     args = (q, force, DT, substeps, theta0, dtheta0, code, tol, n_sw, stick)
-    assert integrate_compiled(form.accel, model.switches, *args, *out)
+    assert integrate_compiled(form.accel, model.switches, *args, *out, True)
     th, w = np.empty(force.size), np.empty(force.size)
     _located_only(
         form.accel, model.switches, q, force, DT, theta0, dtheta0, substeps, code, tol, n_sw,

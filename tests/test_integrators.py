@@ -163,7 +163,7 @@ def counted_accel(theta, dtheta, force, p):
     return force - p[0] * theta - p[1] * dtheta - friction
 
 
-def _calls_per_sample(force, friction, theta0, stick):
+def _calls_per_sample(force, friction, theta0, stick, rates=True):
     from evo_door.sim.integrators import integrate_compiled
     from evo_door.sim.located import no_switches
     from evo_door.sim_settings import DOPRI5
@@ -173,7 +173,7 @@ def _calls_per_sample(force, friction, theta0, stick):
     out = [np.empty(n) for _ in range(3)]
     ok = integrate_compiled(
         counted_accel, no_switches, p, force, 1 / 1024, 1, theta0, 0.0, DOPRI5, 1e-7, 0,
-        stick, *out,
+        stick, *out, rates,
     )  # fmt: skip
     assert ok
     return (p[3] - 1) / (n - 1), out
@@ -232,6 +232,24 @@ def test_a_free_swing_is_stepped_over_several_samples_at_the_accuracy_of_one():
     p = np.array([40.0, 0.5, 0.0, 0.0])
     for k in (1, 5, 1001, 4095):
         assert ddtheta[k] == pytest.approx(counted_accel(theta[k], dtheta[k], 0.0, p), abs=1e-12)
+
+
+@pytest.mark.numerics
+def test_without_rates_a_step_over_several_samples_leaves_their_acceleration_out():
+    """``rates=False`` (the objective's, unless it compares accelerations): the samples
+    inside a step over several periods get NaN for their acceleration, at no call of the
+    model each; every angle and speed and every other acceleration are the same to the
+    bit as with the rates."""
+    force, _, _ = _free_swing(4096)
+    with_rates, (theta, dtheta, ddtheta) = _calls_per_sample(force, 0.0, 0.1, False)
+    without, (theta2, dtheta2, ddtheta2) = _calls_per_sample(force, 0.0, 0.1, False, False)
+    assert np.array_equal(theta, theta2) and np.array_equal(dtheta, dtheta2)
+    inside = np.isnan(ddtheta2)
+    assert 0.5 * force.size < inside.sum() < force.size  # most samples, never all
+    assert not inside[0] and not inside[-1] and np.all(np.isfinite(ddtheta))
+    assert np.array_equal(ddtheta[~inside], ddtheta2[~inside])
+    calls_saved = round((with_rates - without) * (force.size - 1))
+    assert calls_saved == inside.sum()  # one call of the model a sample left out
 
 
 @pytest.mark.numerics

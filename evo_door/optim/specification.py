@@ -82,11 +82,13 @@ def clopper_pearson(passed: int, n: int, confidence: float = 0.95) -> tuple[floa
     """
     if n <= 0:
         return (math.nan, math.nan)
-    from scipy.stats import beta
+    # the beta distribution's quantiles, as scipy.stats.beta.ppf computes them (the same
+    # function), without importing scipy.stats: much of the start of a command that shows one
+    from scipy.special import betaincinv
 
     a = 1.0 - confidence
-    lo = 0.0 if passed == 0 else float(beta.ppf(a / 2, passed, n - passed + 1))
-    hi = 1.0 if passed == n else float(beta.ppf(1 - a / 2, passed + 1, n - passed))
+    lo = 0.0 if passed == 0 else float(betaincinv(passed, n - passed + 1, a / 2))
+    hi = 1.0 if passed == n else float(betaincinv(passed + 1, n - passed, 1 - a / 2))
     return (lo, hi)
 
 

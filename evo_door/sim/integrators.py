@@ -302,7 +302,7 @@ def try_span(
 @njit(cache=True, nogil=True, inline="always")
 def integrate_with(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-    theta_out, dtheta_out, ddtheta_out,
+    theta_out, dtheta_out, ddtheta_out, rates,
 ):  # fmt: skip
     """The body of :func:`integrate`, generic in ``accel`` and ``switches``.
 
@@ -341,7 +341,10 @@ def integrate_with(
             for j in range(1, m):
                 theta_out[k + j] = th_s[j]
                 dtheta_out[k + j] = w_s[j]
-                ddtheta_out[k + j] = rate(accel, p, th_s[j], w_s[j], force[k + j], stick)
+                if rates:
+                    ddtheta_out[k + j] = rate(accel, p, th_s[j], w_s[j], force[k + j], stick)
+                else:
+                    ddtheta_out[k + j] = np.nan
             theta, dtheta, a_now = th_s[m], w_s[m], a_end
         else:
             m = 1
@@ -379,25 +382,27 @@ INTEGRATE_SIGNATURE = types.boolean(
     _vec,
     _vec,
     _vec,
+    types.boolean,  # rates
 )
 
 
 @njit(types.boolean(ACCEL_TYPE, SWITCHES_TYPE, *INTEGRATE_SIGNATURE.args), cache=True, nogil=True)
 def integrate_compiled(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-    theta_out, dtheta_out, ddtheta_out,
+    theta_out, dtheta_out, ddtheta_out, rates,
 ):  # fmt: skip
     """:func:`integrate` for compiled callers: ``accel`` and ``switches`` through
-    function pointers."""
+    function pointers. The objective kernels call it too (:mod:`evo_door.sim.objective`),
+    so its steps are compiled once for both."""
     return integrate_with(
         accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-        theta_out, dtheta_out, ddtheta_out,
+        theta_out, dtheta_out, ddtheta_out, rates,
     )  # fmt: skip
 
 
 def integrate(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-    theta_out, dtheta_out, ddtheta_out,
+    theta_out, dtheta_out, ddtheta_out, rates=True,
 ):  # fmt: skip
     """Integrate one trial; fill the three output arrays at the force's sample instants.
 
@@ -405,12 +410,15 @@ def integrate(
     its dry friction is a sign law (:mod:`evo_door.sim.located`); ``tol`` is the
     tolerance of ``dopri5``. Returns ``True`` on success, ``False`` if the state
     became non-finite or the speed exceeded :data:`BLOWUP_SPEED` (the rest of the
-    outputs is then NaN). Runs the integrator specialised to ``accel`` where one is
-    registered (:func:`register_prepared`), else :func:`integrate_compiled`.
+    outputs is then NaN). ``rates`` False leaves NaN for the acceleration at the samples
+    inside a step over several periods (:mod:`evo_door.sim.spans`), which then costs
+    no call of ``accel`` each: for a caller that does not read it. Runs the integrator
+    specialised to ``accel`` where one is registered (:func:`register_prepared`), else
+    :func:`integrate_compiled`.
     """
     args = (
         p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-        theta_out, dtheta_out, ddtheta_out,
+        theta_out, dtheta_out, ddtheta_out, rates,
     )  # fmt: skip
     special = next((f.integrate for f in _PREPARED.values() if f.accel is accel), None)
     if special is not None:
@@ -486,4 +494,5 @@ def integrate_batch(
             theta_out[i],
             dtheta_out[i],
             ddtheta_out[i],
+            True,
         )

@@ -16,11 +16,13 @@ trial's instants ``t_k = k dt``:
 Samples whose ``mask`` is False are left out of both (a saturated sensor sample says
 only that the true value is beyond the range; see ``Trial.unsaturated``).
 
-The response is reduced sample by sample while it is integrated, so nothing of the
-size of a trial is stored per individual. The stepping is the same as
-:func:`evo_door.sim.integrators.integrate` (same steps, same force interpolation, same
-blow-up test), so the error of one individual equals the error computed from
-:func:`evo_door.sim.simulate` output to rounding.
+Each trial of an individual is integrated by
+:func:`evo_door.sim.integrators.integrate_compiled`, what :func:`evo_door.sim.simulate`
+runs, into arrays of the trial's length, and reduced from them: the error of one
+individual is the one computed from :func:`evo_door.sim.simulate`'s output.
+The integrator is compiled once and called here, not compiled again into this kernel
+(it is most of the compile time); the acceleration inside a step over several periods
+is computed only for ``derivative`` 2.
 
 Trials are passed concatenated: ``force`` and ``target`` hold every trial one after
 the other, trial ``j`` occupying ``offsets[j]:offsets[j + 1]``, with its own sample
@@ -42,18 +44,10 @@ import math
 import numpy as np
 from numba import njit, prange, types
 
-from evo_door.sim.integrators import (
-    ACCEL_TYPE,
-    BLOWUP_SPEED,
-    PREPARE_TYPE,
-    kernel_form,
-    step_period,
-    try_span,
-)
-from evo_door.sim.located import SWITCHES_TYPE, rate
+from evo_door.sim.integrators import ACCEL_TYPE, PREPARE_TYPE, integrate_compiled, kernel_form
+from evo_door.sim.located import SWITCHES_TYPE
 from evo_door.sim.simulate import events_of
-from evo_door.sim.spans import MAX_SPAN, MIN_SPAN
-from evo_door.sim_settings import DOPRI5, MAX_SQUARE
+from evo_door.sim_settings import MAX_SQUARE
 
 _vec = types.float64[::1]
 _mat = types.float64[:, ::1]
@@ -104,7 +98,6 @@ def trial_error(
     tol,
     n_sw,
     stick,
-    g,
     derivative,
     kind,
 ):
@@ -114,50 +107,19 @@ def trial_error(
     Returns ``(error, ok)``; ``ok`` is False (and ``error`` is inf) when the
     simulation blew up or the error is not finite.
     """
-    theta = theta0
-    dtheta = dtheta0
-    a_now = rate(accel, p, theta, dtheta, force[start], stick)
-    skip, backoff = 0, 1
-    spans = method == DOPRI5 and substeps == 1  # steps over several periods (try_span)
-    th_s = np.empty(MAX_SPAN + 1)
-    w_s = np.empty(MAX_SPAN + 1)
-    span, wait, patience = MIN_SPAN, 0, 1
-    if spans:
-        switches(theta, dtheta, force[start], p, g[0])
+    n = stop - start
+    theta = np.empty(n)
+    dtheta = np.empty(n)
+    ddtheta = np.empty(n)
+    if not integrate_compiled(
+        accel, switches, p, force[start:stop], dt, substeps, theta0, dtheta0, method, tol,
+        n_sw, stick, theta, dtheta, ddtheta, derivative == 2,
+    ):  # fmt: skip
+        return math.inf, False
     acc = 0.0
-    if mask[start]:
-        y = sample_value(theta, dtheta, a_now, derivative)
-        acc = accumulate(acc, y - target[start], start, start, stop, dt, kind)
-    k = start
-    while k < stop - 1:
-        m = 0
-        if spans:
-            m, a_end, span, wait, patience = try_span(
-                accel, switches, p, theta, dtheta, a_now, force, k, stop, dt, tol, n_sw, stick,
-                g[0], g[1], span, wait, patience, th_s, w_s,
-            )  # fmt: skip
-        if m > 0:
-            for j in range(1, m):
-                if mask[k + j]:
-                    a_j = 0.0
-                    if derivative == 2:
-                        a_j = rate(accel, p, th_s[j], w_s[j], force[k + j], stick)
-                    y = sample_value(th_s[j], w_s[j], a_j, derivative)
-                    acc = accumulate(acc, y - target[k + j], k + j, start, stop, dt, kind)
-            theta, dtheta, a_now = th_s[m], w_s[m], a_end
-        else:
-            m = 1
-            theta, dtheta, a_end, a_ok, skip, backoff = step_period(
-                accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now,
-                k > start or spans, dt, substeps, method, tol, n_sw, stick, g, skip, backoff,
-            )  # fmt: skip
-        if not (math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED):
-            return math.inf, False
-        k += m
-        if m == 1:
-            a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k], stick)
+    for k in range(start, stop):
         if mask[k]:
-            y = sample_value(theta, dtheta, a_now, derivative)
+            y = sample_value(theta[k - start], dtheta[k - start], ddtheta[k - start], derivative)
             acc = accumulate(acc, y - target[k], k, start, stop, dt, kind)
     if not math.isfinite(acc):
         return math.inf, False
@@ -256,7 +218,6 @@ def _population_errors(
     for i in prange(P.shape[0]):
         p = np.empty(size)
         prepare(P[i], p)
-        g = np.empty((4, max(n_sw, 1)))
         for j in range(n_trials):
             e, ok = trial_error(
                 accel,
@@ -275,7 +236,6 @@ def _population_errors(
                 tol,
                 n_sw,
                 stick,
-                g,
                 derivative,
                 kind,
             )
