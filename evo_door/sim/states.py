@@ -162,6 +162,26 @@ def check_settings(setup) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def blown_up(x):
+    """True when a state is not finite or of magnitude :data:`BLOWUP` or more."""
+    for v in x:
+        if not (abs(v) < BLOWUP):
+            return True
+    return False
+
+
+#: Signature of :func:`integrate_trial`.
+TRIAL_SIGNATURE = types.boolean(
+    RHS_TYPE, STATE_SWITCHES_TYPE, _vec, _vec, _vec, types.float64, _vec, _ivec, _mat, _mat
+)
+#: The numba type of :func:`integrate_trial` as a kernel argument.
+TRIAL_TYPE = types.FunctionType(TRIAL_SIGNATURE)
+
+
+# Compiled once, with its signature; the parallel kernels (the batch here, the objective's)
+# take it as an argument and call it through a pointer, once a trial: called directly,
+# each would link its code and LLVM would optimise all of it again in each.
+@njit(TRIAL_SIGNATURE, cache=True, nogil=True)
 def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_out):
     """:func:`integrate_states` at the sample period ``dt`` (``setup[DT]`` unread)."""
     n = x0.shape[0]
@@ -191,15 +211,6 @@ def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_
     return True
 
 
-@njit(cache=True, nogil=True)
-def blown_up(x):
-    """True when a state is not finite or of magnitude :data:`BLOWUP` or more."""
-    for v in x:
-        if not (abs(v) < BLOWUP):
-            return True
-    return False
-
-
 @njit(
     types.boolean(RHS_TYPE, STATE_SWITCHES_TYPE, _vec, _vec, _vec, _vec, _ivec, _mat, _mat),
     cache=True,
@@ -218,20 +229,25 @@ def integrate_states(rhs, switches, p, force, x0, settings, contacts, x_out, dx_
     )
 
 
+def integrate_states_batch(rhs, switches, P, force, X0, settings, contacts, x_out, dx_out, ok_out):
+    """:func:`integrate_states` for every row of ``P`` (``(n_ind, n_params)``) from the
+    initial states ``X0[i]`` into ``x_out[i]``, ``dx_out[i]`` and ``ok_out[i]``, the
+    rows in parallel (numba prange)."""
+    _batch(integrate_trial, rhs, switches, P, force, X0, settings, contacts, x_out, dx_out, ok_out)
+
+
 @njit(
     types.void(
-        RHS_TYPE, STATE_SWITCHES_TYPE, _mat, _vec, _mat, _vec, _ivec, _cube, _cube,
+        TRIAL_TYPE, RHS_TYPE, STATE_SWITCHES_TYPE, _mat, _vec, _mat, _vec, _ivec, _cube, _cube,
         types.boolean[::1],
     ),
     cache=True,
     parallel=True,
 )  # fmt: skip
-def integrate_states_batch(rhs, switches, P, force, X0, settings, contacts, x_out, dx_out, ok_out):
-    """:func:`integrate_states` for every row of ``P`` (``(n_ind, n_params)``) from the
-    initial states ``X0[i]`` into ``x_out[i]``, ``dx_out[i]`` and ``ok_out[i]``, the
-    rows in parallel (numba prange)."""
+def _batch(trial, rhs, switches, P, force, X0, settings, contacts, x_out, dx_out, ok_out):
+    """:func:`integrate_states_batch` with :func:`integrate_trial` as ``trial``."""
     for i in prange(P.shape[0]):
-        ok_out[i] = integrate_trial(
+        ok_out[i] = trial(
             rhs, switches, P[i], force, X0[i], settings[DT], settings, contacts, x_out[i], dx_out[i]
         )
 
