@@ -20,6 +20,7 @@ from evo_door.sim.integrators import (
     ACCEL_TYPE,
     integrate,
     integrate_batch,
+    integrate_compiled,
     kernel_form,
     prepared_form,
 )
@@ -185,7 +186,7 @@ class AccelPlant(CompiledPlant):
         switches, n_sw, stick = events_of(model)
         form = kernel_form(model.accel, P.shape[1])
         integrate_batch(
-            form.accel, form.prepare, switches, form.size, P, force, float(dt),
+            integrate_compiled, form.accel, form.prepare, switches, form.size, P, force, float(dt),
             int(substeps or model.substeps), theta0, dtheta0,
             method_code(method or model.method), tolerance_of(model, tolerance), n_sw, stick,
             theta, dtheta, ddtheta, ok,

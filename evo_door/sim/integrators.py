@@ -386,7 +386,16 @@ INTEGRATE_SIGNATURE = types.boolean(
 )
 
 
-@njit(types.boolean(ACCEL_TYPE, SWITCHES_TYPE, *INTEGRATE_SIGNATURE.args), cache=True, nogil=True)
+#: Signature of :func:`integrate_compiled`.
+INTEGRATE_COMPILED_SIGNATURE = types.boolean(ACCEL_TYPE, SWITCHES_TYPE, *INTEGRATE_SIGNATURE.args)
+#: The numba type of :func:`integrate_compiled` as a kernel argument: the parallel kernels
+#: (:func:`integrate_batch`, the objective's) take it so and call it through a pointer,
+#: once a trial; called directly, each would link its code, and numba's LLVM would
+#: optimise the whole integrator again in each.
+INTEGRATE_TYPE = types.FunctionType(INTEGRATE_COMPILED_SIGNATURE)
+
+
+@njit(INTEGRATE_COMPILED_SIGNATURE, cache=True, nogil=True)
 def integrate_compiled(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
     theta_out, dtheta_out, ddtheta_out, rates,
@@ -428,6 +437,7 @@ def integrate(
 
 @njit(
     types.void(
+        INTEGRATE_TYPE,
         ACCEL_TYPE,
         PREPARE_TYPE,
         SWITCHES_TYPE,
@@ -451,6 +461,7 @@ def integrate(
     parallel=True,
 )
 def integrate_batch(
+    trial,
     accel,
     prepare,
     switches,
@@ -474,11 +485,12 @@ def integrate_batch(
 
     ``accel``, ``prepare`` and ``size`` are a :func:`kernel_form`: each row is prepared
     (into a vector of ``size`` floats) inside the parallel loop and integrated with
-    ``accel`` on it; ``switches``, ``n_sw`` and ``stick`` as in :func:`integrate`."""
+    ``accel`` on it by ``trial``, :func:`integrate_compiled` (:data:`INTEGRATE_TYPE`);
+    ``switches``, ``n_sw`` and ``stick`` as in :func:`integrate`."""
     for i in prange(P.shape[0]):
         q = np.empty(size)
         prepare(P[i], q)
-        ok_out[i] = integrate_compiled(
+        ok_out[i] = trial(
             accel,
             switches,
             q,

@@ -20,9 +20,10 @@ Each trial of an individual is integrated by
 :func:`evo_door.sim.integrators.integrate_compiled`, what :func:`evo_door.sim.simulate`
 runs, into arrays of the trial's length, and reduced from them: the error of one
 individual is the one computed from :func:`evo_door.sim.simulate`'s output.
-The integrator is compiled once and called here, not compiled again into this kernel
-(it is most of the compile time); the acceleration inside a step over several periods
-is computed only for ``derivative`` 2.
+The integrator is compiled once and called here through a pointer
+(:data:`~evo_door.sim.integrators.INTEGRATE_TYPE`), once a trial: neither compiled again
+into this kernel nor optimised again with it (it is most of the compile time). The
+acceleration inside a step over several periods is computed only for ``derivative`` 2.
 
 Trials are passed concatenated: ``force`` and ``target`` hold every trial one after
 the other, trial ``j`` occupying ``offsets[j]:offsets[j + 1]``, with its own sample
@@ -44,7 +45,13 @@ import math
 import numpy as np
 from numba import njit, prange, types
 
-from evo_door.sim.integrators import ACCEL_TYPE, PREPARE_TYPE, integrate_compiled, kernel_form
+from evo_door.sim.integrators import (
+    ACCEL_TYPE,
+    INTEGRATE_TYPE,
+    PREPARE_TYPE,
+    integrate_compiled,
+    kernel_form,
+)
 from evo_door.sim.located import SWITCHES_TYPE
 from evo_door.sim.simulate import events_of
 from evo_door.sim_settings import MAX_SQUARE
@@ -82,6 +89,7 @@ def sample_value(theta, dtheta, ddtheta, derivative):
 
 @njit(cache=True, nogil=True)
 def trial_error(
+    trial,
     accel,
     switches,
     p,
@@ -103,7 +111,8 @@ def trial_error(
 ):
     """Objective of one trial (samples ``start:stop`` of ``force`` / ``target`` / ``mask``).
 
-    Samples where ``mask`` is False (a saturated sensor, say) do not count.
+    ``trial`` is :func:`~evo_door.sim.integrators.integrate_compiled`. Samples where
+    ``mask`` is False (a saturated sensor, say) do not count.
     Returns ``(error, ok)``; ``ok`` is False (and ``error`` is inf) when the
     simulation blew up or the error is not finite.
     """
@@ -111,7 +120,7 @@ def trial_error(
     theta = np.empty(n)
     dtheta = np.empty(n)
     ddtheta = np.empty(n)
-    if not integrate_compiled(
+    if not trial(
         accel, switches, p, force[start:stop], dt, substeps, theta0, dtheta0, method, tol,
         n_sw, stick, theta, dtheta, ddtheta, derivative == 2,
     ):  # fmt: skip
@@ -156,13 +165,14 @@ def accel_population_errors(
     form = kernel_form(model.accel, P.shape[1])
     switches, n_sw, stick = events_of(model)
     _population_errors(
-        form.accel, form.prepare, switches, form.size, P, force, target, mask, offsets, dt,
+        integrate_compiled, form.accel, form.prepare, switches, form.size, P, force, target, mask, offsets, dt,
         theta0, dtheta0, substeps, method, tol, n_sw, stick, derivative, kind, err_out, ok_out,
     )  # fmt: skip
 
 
 @njit(
     types.void(
+        INTEGRATE_TYPE,
         ACCEL_TYPE,
         PREPARE_TYPE,
         SWITCHES_TYPE,
@@ -189,6 +199,7 @@ def accel_population_errors(
     parallel=True,
 )
 def _population_errors(
+    trial,
     accel,
     prepare,
     switches,
@@ -220,6 +231,7 @@ def _population_errors(
         prepare(P[i], p)
         for j in range(n_trials):
             e, ok = trial_error(
+                trial,
                 accel,
                 switches,
                 p,
