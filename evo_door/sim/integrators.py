@@ -48,16 +48,17 @@ runs it when handed that fast form.
 **What is inlined.** The steps are written as small functions that numba inlines into
 their callers (``inline="always"``, at the level of its own IR): called instead, each
 would take its arrays as seven values each and its right-hand side through a pointer,
-and the trials run measurably slower. That inlining is most of the time a kernel takes to
-compile, and it grows with the number of inlined call sites, small ones included. So the
-small helpers that do arithmetic on numbers or arrays (:func:`~evo_door.sim.located._crossed`,
-:func:`~evo_door.sim.spans.dense`, :func:`~evo_door.sim.objective.accumulate`, ...) are
-plain calls, which LLVM inlines on its own, and so are the rare branches of the
-right-hand side's wrappers (:func:`~evo_door.sim.located.other_side`,
-:func:`~evo_door.sim.located.stuck_rate`). Each was kept inlined or not as the trials'
-timing said: the state vector's contact and LU helpers stay inlined. A cold ``evo-door compile`` is timed in the
-benchmark suite's start-up section (``python -m benchmarks --only startup``), the
-trials in its ``trial`` section.
+and the trials run measurably slower. That inlining is most of the time a kernel takes
+to compile, and it grows with the number of inlined call sites, small ones included.
+So the small helpers that do arithmetic on numbers or arrays
+(:func:`~evo_door.sim.located._crossed`, :func:`~evo_door.sim.spans.dense`,
+:func:`~evo_door.sim.objective.accumulate`, ...) are plain calls, which LLVM inlines on
+its own, and so are the rare branches of the right-hand side's wrappers
+(:func:`~evo_door.sim.located.other_side`, :func:`~evo_door.sim.located.stuck_rate`).
+Each was kept inlined or not as the trials' timing said: the state vector's contact and
+LU helpers stay inlined. A cold ``evo-door compile`` is timed in the benchmark suite's
+start-up section (``python -m benchmarks --only startup``), the trials in its
+``trial`` section.
 
 Numba's disk cache keys a function on its own file only; :mod:`evo_door.kernel_cache`
 stamps each cached kernel with every evo-door module it imports as well, so an edit of
