@@ -85,3 +85,34 @@ def test_a_model_without_a_hold_gets_it_from_accel():
     P = rows(tanh, 3, seed=7)
     got = bare.plant.hold_forces_rows(P, ANGLES, 0.2)
     assert np.array_equal(got, tanh.plant.hold_forces_rows(P, ANGLES, 0.2), equal_nan=True)
+
+
+@pytest.mark.parametrize("name", ["door", "haptic"])
+def test_each_row_at_angles_of_its_own_gets_what_the_whole_grid_gives_there(name):
+    """``hold_forces_at`` (a latch peak refined around where each door's coarse search
+    found it): row by row the numbers of ``hold_forces_rows`` on the whole grid, on one
+    thread (few) and across threads (many), and by ``accel`` where no hold is
+    registered."""
+    from dataclasses import replace
+
+    from numba import njit
+
+    model = get_model(name)
+    P = rows(model, 40, seed=3)
+    whole = model.plant.hold_forces_rows(P, ANGLES, -COULOMB_SPEED)
+    rng = np.random.default_rng(4)
+    pick = np.sort(rng.integers(0, ANGLES.size, (len(P), 33)), axis=1)  # each row its own
+    got = model.plant.hold_forces_at(P, ANGLES[pick], -COULOMB_SPEED)
+    assert got.size >= HOLDS_IN_THREADS
+    assert np.array_equal(got, np.take_along_axis(whole, pick, axis=1), equal_nan=True)
+    few = model.plant.hold_forces_at(P[:2], ANGLES[pick[:2, :5]], -COULOMB_SPEED)
+    assert np.array_equal(few, whole[:2][np.arange(2)[:, None], pick[:2, :5]], equal_nan=True)
+    inner = model.accel
+
+    @njit(cache=False)
+    def accel(theta, dtheta, force, p):
+        return inner(theta, dtheta, force, p)
+
+    bare = replace(model, name=f"{name}_bare", accel=accel)
+    slow = bare.plant.hold_forces_at(P[:3], ANGLES[pick[:3]], -COULOMB_SPEED)
+    assert np.array_equal(slow, got[:3], equal_nan=True)

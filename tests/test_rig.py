@@ -236,6 +236,34 @@ def test_trials_from_spec_for_experiments():
             rig.trials_from_spec({"model": TOY, **spec})
 
 
+def test_a_campaign_is_made_once_a_process_and_handed_out_as_copies(monkeypatch):
+    """The case study's stages that share their users' inputs share one campaign: the
+    same trials, made once; each caller gets its own copy; another door, another make."""
+    from evo_door.data.rig import spec as rig_spec
+
+    made = []
+
+    def counted(*args):
+        made.append(args[2])
+        return generate(*args)
+
+    generate = rig_spec.generate_trials
+    monkeypatch.setattr(rig_spec, "generate_trials", counted)
+    monkeypatch.setattr(rig_spec, "_MADE", {})
+    spec = {"model": TOY, "trials": 2, "seed": 4, "kinds": "lock"}
+    first = rig.trials_from_spec(spec)
+    first[0].force[:] = 0.0  # a caller's own copy
+    again = rig.trials_from_spec(dict(spec))
+    assert len(made) == 1
+    fresh = generate(TOY_DOOR, TOY_DOOR.load_params(), made[0], rig.RigSettings())
+    assert [t.digest() for t in again] == [t.digest() for t in fresh]
+    assert np.any(again[0].force != 0.0)
+    other = rig.trials_from_spec({**spec, "seed": 5})
+    assert len(made) == 2 and other[0].digest() != again[0].digest()
+    rig.trials_from_spec({**spec, "set": {"friction": 7.0}})  # another door, same campaign
+    assert len(made) == 3
+
+
 def test_cli_generate_show_plot_and_bad_file(tmp_path, capsys):
     from evo_door.cli import main
 

@@ -58,6 +58,13 @@ EXCESS_WEIGHT = 10.0
 
 #: rows measured at once (the memory of a batch: rows x angles x 2 strokes)
 ROWS = 256
+#: the latch zone's grid is searched for each peak coarse to fine (stroke_and_peaks):
+#: every LATCH_COARSE-th angle, then every angle within LATCH_WINDOW coarse steps of the
+#: coarse peak. A catch rises over some 50 points of the grid and its peak is a plateau
+#: some 300 long, so the peak is among them (tests/test_perception.py compares the two
+#: searches door by door); an eighth of the zone's angles
+LATCH_COARSE = 8
+LATCH_WINDOW = 2
 
 
 def coulomb_rows(model, P) -> np.ndarray:
@@ -85,6 +92,45 @@ def measured_feel(model, Q, theta, latch) -> dict:
         out[d] = f
         out["peaks"][d] = fl[np.arange(len(Q)), k]
         out["angles"][d] = zone[k]
+    return out
+
+
+def stroke_and_peaks(model, Q, stroke, zone) -> dict:
+    """:func:`measured_feel` with the forces on the angles ``stroke`` (rad) and the
+    peaks searched on the latch zone's grid ``zone`` (rad) coarse to fine, for a plant
+    whose force at an angle depends on that angle alone (``hold_forces_at``: a model
+    given by ``accel``): every :data:`LATCH_COARSE`-th angle first, then every angle
+    within :data:`LATCH_WINDOW` coarse steps of the coarse peak. The same peaks and
+    angles as on every angle of ``zone`` unless a spike narrower than a coarse step
+    stands higher than the coarse peak's surroundings (as where a catch lets go: a
+    sample or two of the whole grid may land on its edge; the peak's force then
+    differs by a fraction of a per cent, its angle by up to the plateau's length).
+    Other plants (a state vector's hold starts from the last angle's equilibrium) are
+    measured on every angle."""
+    from evo_door.sim.simulate import COULOMB_SPEED, hold_forces_rows
+
+    at = getattr(model.plant, "hold_forces_at", None)
+    if at is None:
+        theta = np.concatenate([stroke, zone])
+        got = measured_feel(model, Q, theta, np.arange(theta.size) >= stroke.size)
+        return {**got, **{d: got[d][:, : stroke.size] for d in DIRECTIONS}}
+    rows = np.arange(len(Q))
+    coarse = np.arange(0, zone.size, LATCH_COARSE)
+    reach = LATCH_WINDOW * LATCH_COARSE
+    width = min(zone.size, 2 * reach + 1)
+    out: dict = {"peaks": {}, "angles": {}}
+    for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
+        speed = sign * COULOMB_SPEED
+        out[d] = hold_forces_rows(model, Q, stroke, speed)
+        # the largest push closing, the largest pull (the least force) opening: the
+        # first largest of sign x force, as np.argmax takes it on the whole grid
+        g = sign * hold_forces_rows(model, Q, zone[coarse], speed)
+        start = np.clip(coarse[np.argmax(g, axis=1)] - reach, 0, zone.size - width)
+        window = start[:, None] + np.arange(width)
+        f = at(Q, zone[window], speed)
+        k = np.argmax(sign * f, axis=1)
+        out["peaks"][d] = f[rows, k]
+        out["angles"][d] = zone[window[rows, k]]
     return out
 
 
@@ -183,8 +229,7 @@ class FeelTarget:
         (rows, terms), each door measured with the others (:func:`measured_feel`)."""
         P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
         n = self.stroke.size
-        theta = np.concatenate([self.stroke, self.latch])
-        got = measured_feel(model, coulomb_rows(model, P), theta, np.arange(theta.size) >= n)
+        got = stroke_and_peaks(model, coulomb_rows(model, P), self.stroke, self.latch)
         parts = []
         excess = math.sqrt(self.excess_weight)
         for d in DIRECTIONS:

@@ -90,6 +90,26 @@ def _held_rows_serial(hold, P, theta, dtheta, out):
             out[r, i] = hold(theta[i], dtheta, P[r])
 
 
+# The same, each row at angles of its own (a row of ``theta``): a latch peak refined
+# around where each door's coarse search found it.
+_AT_SIGNATURE = types.void(HOLD_TYPE, _mat, _mat, types.float64, _mat)
+
+
+@njit(_AT_SIGNATURE, cache=True, parallel=True)
+def _held_at(hold, P, theta, dtheta, out):
+    n = theta.shape[1]
+    for k in prange(P.shape[0] * n):
+        r = k // n
+        out[r, k - r * n] = hold(theta[r, k - r * n], dtheta, P[r])
+
+
+@njit(_AT_SIGNATURE, cache=True, nogil=True)
+def _held_at_serial(hold, P, theta, dtheta, out):
+    for r in range(P.shape[0]):
+        for i in range(theta.shape[1]):
+            out[r, i] = hold(theta[r, i], dtheta, P[r])
+
+
 @njit(_ROWS_SIGNATURE, cache=True, parallel=True)
 def _inertia_rows(accel, P, theta, dtheta, out):
     for r in prange(P.shape[0]):
@@ -222,6 +242,23 @@ class AccelPlant(CompiledPlant):
         else:
             kernel = _hold_rows if many else _hold_rows_serial
             kernel(self.model.accel, P, theta, float(dtheta), out)
+        return out
+
+    def hold_forces_at(self, P, theta, dtheta) -> np.ndarray:
+        """:meth:`hold_forces_rows` with each row of ``P`` at the angles of the same row
+        of ``theta`` (rows, angles), for a model with a registered ``hold``; else each
+        row by :meth:`hold_forces_rows`. A door's force at an angle depends on nothing
+        else, so any subset of a grid gives what the whole grid gives there."""
+        P = _kernel_array(np.atleast_2d(P))
+        theta = _kernel_array(np.atleast_2d(theta))
+        hold = hold_form(self.model.accel)
+        if hold is None:
+            return np.array(
+                [self.hold_forces_rows(p[None], t, dtheta)[0] for p, t in zip(P, theta)]
+            )
+        out = np.empty(theta.shape)
+        kernel = _held_at if out.size >= HOLDS_IN_THREADS else _held_at_serial
+        kernel(hold, P, theta, float(dtheta), out)
         return out
 
     def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
