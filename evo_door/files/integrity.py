@@ -196,6 +196,33 @@ def verify(f, path) -> None:
         _CHECKED[identity] = None
 
 
+def checked(path) -> tuple | None:
+    """The identity of the file at ``path`` when this process checked it (or wrote it:
+    :func:`vouch`) as it is now, else None."""
+    identity = _identity(path)
+    return identity if identity is not None and identity in _CHECKED else None
+
+
+def vouch(path, written) -> None:
+    """Count the file at ``path`` as checked when it is the file this process has just
+    sealed and written (``written``: the ``os.stat`` of the temporary it was written as,
+    before the rename onto ``path``): the same device, inode, size and modification
+    time. A pipeline reads back the file it writes after every stage; its own file
+    needs no second check, and a file another process put there meanwhile, or changed,
+    is checked as any other."""
+    import os
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    same = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    if same == (written.st_dev, written.st_ino, written.st_size, written.st_mtime_ns):
+        if len(_CHECKED) >= _CHECKED_MAX:
+            _CHECKED.clear()
+        _CHECKED[(*same, st.st_ctime_ns)] = None
+
+
 def _check(f, path) -> None:
     budget = [0]
     sealed, unsealed = [], []
