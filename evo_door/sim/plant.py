@@ -60,6 +60,13 @@ class Plant(Protocol):
     contained : bool
         The plant runs native code nobody here compiled (an FMU): a fit evaluates it in a
         sandbox process (:mod:`evo_door.optim.sandbox`).
+
+    A plant whose force at an angle depends on that angle alone may offer
+    ``hold_forces_at(P, theta, dtheta)``: :meth:`hold_forces_rows` with each row at the
+    angles of its own row of ``theta``. The perceptual objective then searches the latch
+    peaks coarse to fine (:func:`~evo_door.perception.target.stroke_and_peaks`); the
+    model given by ``accel`` has it, a state vector (each angle starts from the last
+    one's equilibrium) does not.
     """
 
     @property
