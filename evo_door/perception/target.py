@@ -28,7 +28,8 @@ Every door is measured one way, compiled and many at once: :func:`measured_feel`
 Coulomb forces of both strokes, the latch peaks and their angles) and
 :func:`felt_dynamics_rows` (the felt inertia and damping). One candidate is a batch of
 one row; :class:`~evo_door.optim.feel_doors.BatchFeelCheck`, the check of the doors a
-supplier builds, measures on the same two.
+supplier builds, measures on the same two. The objective itself searches the latch
+zone's fine grid coarse to fine where the plant allows it (:func:`stroke_and_peaks`).
 """
 
 from __future__ import annotations
@@ -226,7 +227,7 @@ class FeelTarget:
 
     def residual_rows(self, model, P) -> np.ndarray:
         """:meth:`residuals` of every row of the full parameter matrix ``P``: an array
-        (rows, terms), each door measured with the others (:func:`measured_feel`)."""
+        (rows, terms), each door measured with the others (:func:`stroke_and_peaks`)."""
         P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
         n = self.stroke.size
         got = stroke_and_peaks(model, coulomb_rows(model, P), self.stroke, self.latch)
