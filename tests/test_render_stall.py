@@ -396,7 +396,10 @@ def test_a_stall_within_the_budget_is_not_one():
 def test_a_frozen_render_on_the_simulated_device_does_not_resume(tmp_path):
     cmd = [sys.executable, "-m", "evo_door", "render", "--params", "seed_trial"]
     cmd += ["--device", "sim", "--user", "hold", "--duration", "60", "--realtime"]
-    cmd += ["--watchdog-misses", "250"]  # 100 ms: only the stall below ends it
+    # 500 ms at 2000 Hz: only the stall below ends it (at 100 ms, a loaded CI machine
+    # once stalled the render 447 ms before the test froze it, and the watchdog caught
+    # that instead)
+    cmd += ["--rate", "2000", "--watchdog-misses", "1000"]
     log = tmp_path / "sim.h5"
     proc = subprocess.Popen(
         [*cmd, "--log", str(log)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
