@@ -191,9 +191,14 @@ def verify(f, path) -> None:
         return
     _check(f, path)
     if identity is not None and identity == _identity(path):
-        if len(_CHECKED) >= _CHECKED_MAX:
-            _CHECKED.clear()
-        _CHECKED[identity] = None
+        _remember(identity)
+
+
+def _remember(identity: tuple) -> None:
+    """Note the file of ``identity`` (:func:`_identity`) as checked."""
+    if len(_CHECKED) >= _CHECKED_MAX:
+        _CHECKED.clear()
+    _CHECKED[identity] = None
 
 
 def checked(path) -> tuple | None:
@@ -210,17 +215,10 @@ def vouch(path, written) -> None:
     time. A pipeline reads back the file it writes after every stage; its own file
     needs no second check, and a file another process put there meanwhile, or changed,
     is checked as any other."""
-    import os
-
-    try:
-        st = os.stat(path)
-    except OSError:
-        return
-    same = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
-    if same == (written.st_dev, written.st_ino, written.st_size, written.st_mtime_ns):
-        if len(_CHECKED) >= _CHECKED_MAX:
-            _CHECKED.clear()
-        _CHECKED[(*same, st.st_ctime_ns)] = None
+    identity = _identity(path)  # the rename changed its ctime only
+    ours = (written.st_dev, written.st_ino, written.st_size, written.st_mtime_ns)
+    if identity is not None and identity[:4] == ours:
+        _remember(identity)
 
 
 def _check(f, path) -> None:
