@@ -115,17 +115,19 @@ def stroke_and_peaks(model, Q, stroke, zone) -> dict:
         theta = np.concatenate([stroke, zone])
         got = measured_feel(model, Q, theta, np.arange(theta.size) >= stroke.size)
         return {**got, **{d: got[d][:, : stroke.size] for d in DIRECTIONS}}
-    rows = np.arange(len(Q))
+    rows, n = np.arange(len(Q)), stroke.size
     coarse = np.arange(0, zone.size, LATCH_COARSE)
     reach = LATCH_WINDOW * LATCH_COARSE
     width = min(zone.size, 2 * reach + 1)
+    theta = np.concatenate([stroke, zone[coarse]])  # the stroke, then the coarse zone
     out: dict = {"peaks": {}, "angles": {}}
     for d, sign in zip(DIRECTIONS, (-1.0, 1.0)):
         speed = sign * COULOMB_SPEED
-        out[d] = hold_forces_rows(model, Q, stroke, speed)
+        f = hold_forces_rows(model, Q, theta, speed)
+        out[d] = f[:, :n]
         # the largest push closing, the largest pull (the least force) opening: the
         # first largest of sign x force, as np.argmax takes it on the whole grid
-        g = sign * hold_forces_rows(model, Q, zone[coarse], speed)
+        g = sign * f[:, n:]
         start = np.clip(coarse[np.argmax(g, axis=1)] - reach, 0, zone.size - width)
         window = start[:, None] + np.arange(width)
         f = at(Q, zone[window], speed)
