@@ -302,6 +302,8 @@ def _located_only(
     spans = method == DOPRI5 and substeps == 1
     th_s, w_s = np.empty(MAX_SPAN + 1), np.empty(MAX_SPAN + 1)
     span, wait, patience = MIN_SPAN, 0, 1
+    h_max = dt / substeps
+    h0 = h_max
     switches(theta, dtheta, force[0], p, g[0])
     n = force.shape[0]
     k = 0
@@ -316,12 +318,15 @@ def _located_only(
             th[k + 1 : k + m + 1] = th_s[1 : m + 1]
             w[k + 1 : k + m + 1] = w_s[1 : m + 1]
             theta, dtheta, a_now = th_s[m], w_s[m], a_end
+            h0 = h_max
             k += m
             continue
-        theta, dtheta, a_end, a_ok = advance_located(
+        theta, dtheta, a_end, a_ok, h0 = advance_located(
             accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, True, dt,
-            substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3],
+            substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3], h0,
         )  # fmt: skip
+        if method != DOPRI5:
+            h0 = h_max
         a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
         th[k + 1], w[k + 1] = theta, dtheta
         k += 1

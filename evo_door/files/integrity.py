@@ -19,6 +19,7 @@ read as they are; a file with some digests but not all is damaged.
 from __future__ import annotations
 
 import hashlib
+import math
 
 from evo_door.errors import UserError
 from evo_door.files.metadata import DIGEST
@@ -74,7 +75,8 @@ def _attrs_digest(h, obj) -> None:
 def _dataset_digest(h, ds, budget: list, path) -> None:
     import numpy as np
 
-    nbytes = int(np.prod(ds.shape, dtype=np.float64) * ds.dtype.itemsize) if ds.shape else 0
+    shape, dtype = ds.shape, ds.dtype  # each a call into HDF5: asked once
+    nbytes = math.prod(shape) * dtype.itemsize if shape else 0
     if nbytes > MAX_DATASET_BYTES:
         raise DamagedFile(
             f"{path}: {ds.name} would take {nbytes / 2**20:.0f} MiB to read, "
@@ -83,17 +85,20 @@ def _dataset_digest(h, ds, budget: list, path) -> None:
     budget[0] += nbytes
     if budget[0] > MAX_FILE_BYTES:
         raise DamagedFile(f"{path}: would take more than {MAX_FILE_BYTES / 2**30:.0f} GiB to read")
-    h.update(f"d{ds.dtype.str}{ds.shape}".encode())
+    h.update(f"d{dtype.str}{shape}".encode())
     _attrs_digest(h, ds)
-    if ds.shape is None:  # an empty dataspace
+    if shape is None:  # an empty dataspace
         return
     try:
-        if not ds.shape or ds.dtype.kind == "O" or ds.shape[0] == 0:
+        if not shape or dtype.kind == "O" or shape[0] == 0:
             h.update(_canon(ds[()]))
             return
-        row = max(1, nbytes // ds.shape[0])
+        row = max(1, nbytes // shape[0])
         step = max(1, _SLICE_BYTES // row)
-        for i in range(0, ds.shape[0], step):
+        if step >= shape[0]:  # the whole at once (most datasets): the same bytes
+            h.update(np.ascontiguousarray(ds[()]).tobytes())
+            return
+        for i in range(0, shape[0], step):
             h.update(np.ascontiguousarray(ds[i : i + step]).tobytes())
     except Exception as exc:  # noqa: BLE001 - whatever HDF5 raises on a damaged chunk
         raise DamagedFile(f"{path}: corrupt HDF5 data in {ds.name} ({_first_line(exc)})") from None

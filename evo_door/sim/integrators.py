@@ -218,7 +218,7 @@ MAX_SKIP = 64
 @njit(cache=True, nogil=True, inline="always")
 def step_period(
     accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
-    n_sw, stick, g, skip, backoff,
+    n_sw, stick, g, skip, backoff, h0,
 ):  # fmt: skip
     """Move the state over one sample period: :func:`advance`, or where the model has
     switching surfaces, stick-slip friction or the method is ``dopri5``,
@@ -231,30 +231,37 @@ def step_period(
     no step. Where it cannot (a door resting on its stiff stop cuts every step), the
     try would cost a step a period: after a failure the next ``backoff`` periods skip
     it, and ``backoff`` doubles while it keeps failing (up to :data:`MAX_SKIP`). A
-    trial starts with ``skip`` 0 and ``backoff`` 1.
+    trial starts with ``skip`` 0 and ``backoff`` 1. ``dopri5``'s first step in the
+    period is ``h0`` long: what the last period's first step asked for
+    (:func:`~evo_door.sim.located.advance_located`; the first period, and after a step
+    over several periods: ``dt / substeps``).
 
-    Returns ``(theta, dtheta, a_end, a_ok, skip, backoff)``: where ``a_ok``, ``a_end``
-    is the acceleration at the end that the last step already computed; ``skip`` and
-    ``backoff`` for the next period."""
+    Returns ``(theta, dtheta, a_end, a_ok, skip, backoff, h_next)``: where ``a_ok``,
+    ``a_end`` is the acceleration at the end that the last step already computed;
+    ``skip``, ``backoff`` and ``h0`` for the next period."""
+    h_max = dt / substeps
+    if method != DOPRI5:
+        h0 = h_max  # the fixed steps: whole ones, but where a surface cuts one
     if method == DOPRI5 or n_sw > 0 or stick:
         if skip > 0:
             skip -= 1
         else:
-            ok, th1, w1, a_end, a_ok = smooth_period(
+            ok, th1, w1, a_end, a_ok, h_next = smooth_period(
                 accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps,
-                method, tol, n_sw, stick, g[0], g[1],
+                method, tol, n_sw, stick, g[0], g[1], h0,
             )  # fmt: skip
             if ok:
-                return th1, w1, a_end, a_ok, 0, 1
+                return th1, w1, a_end, a_ok, 0, 1, h_next
             g_ready = True  # smooth_period left the switching functions at the start
+            h0 = h_next  # ... and its first step cut, where only its error failed it
             skip, backoff = backoff, min(2 * backoff, MAX_SKIP)
-        theta, dtheta, a_end, a_ok = advance_located(
+        theta, dtheta, a_end, a_ok, h_next = advance_located(
             accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method,
-            tol, n_sw, stick, g[0], g[1], g[2], g[3],
+            tol, n_sw, stick, g[0], g[1], g[2], g[3], h0,
         )  # fmt: skip
-        return theta, dtheta, a_end, a_ok, skip, backoff
+        return theta, dtheta, a_end, a_ok, skip, backoff, h_next
     theta, dtheta = advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
-    return theta, dtheta, 0.0, False, 0, 1
+    return theta, dtheta, 0.0, False, 0, 1, h_max
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -328,6 +335,8 @@ def integrate_with(
     th_s = np.empty(MAX_SPAN + 1)
     w_s = np.empty(MAX_SPAN + 1)
     span, wait, patience = MIN_SPAN, 0, 1
+    h_max = dt / substeps
+    h0 = h_max  # the first step of the next period (dopri5)
     if spans:
         switches(theta, dtheta, force[0], p, g[0])
     k = 0
@@ -347,11 +356,12 @@ def integrate_with(
                 else:
                     ddtheta_out[k + j] = np.nan
             theta, dtheta, a_now = th_s[m], w_s[m], a_end
+            h0 = h_max  # a step over several periods: the motion is smooth
         else:
             m = 1
-            theta, dtheta, a_end, a_ok, skip, backoff = step_period(
+            theta, dtheta, a_end, a_ok, skip, backoff, h0 = step_period(
                 accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, k > 0 or spans,
-                dt, substeps, method, tol, n_sw, stick, g, skip, backoff,
+                dt, substeps, method, tol, n_sw, stick, g, skip, backoff, h0,
             )  # fmt: skip
             if math.isfinite(theta) and abs(dtheta) < BLOWUP_SPEED:
                 a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)

@@ -36,8 +36,8 @@ forces break the stick is solved exactly; the door then slips from ``+-CREEP``.
 **Adaptive steps** (method ``dopri5``): Dormand and Prince's 5(4) pair, its step
 chosen within each sample period from the embedded error estimate against the
 tolerance ``tol``: ``|error| <= tol (1 + |x|)`` per component (rad, rad/s). Steps
-never exceed ``dt / substeps``; each period starts from that length, so a period's
-result does not depend on how the one before it was cut. ``rk4`` and
+never exceed ``dt / substeps``; a period's first step is the length the error of the
+last period's first step asked for (:func:`advance_located`). ``rk4`` and
 ``semi_implicit`` keep their fixed steps, with the surfaces located as above.
 
 **Steps over several periods** (``dopri5`` at one substep): where the force is linear
@@ -48,7 +48,7 @@ accurate at the first try. :func:`smooth_period` takes those steps on their own,
 the same arithmetic as :func:`advance_located` (so the same numbers), and hands the
 period to :func:`advance_located` when a step is too coarse or crosses something.
 
-Size: a little over 600 lines: the steps, the locating and the friction's two sides
+Size: some 650 lines: the steps, the locating and the friction's two sides
 share their arithmetic (a smooth period's numbers are :func:`advance_located`'s), so
 they stay side by side.
 """
@@ -327,10 +327,26 @@ def _first_crossing(g0, g1, n, w0, w1, stick, active):
     return best
 
 
+@njit(cache=True, nogil=True)
+def next_length(h, h_want, err, h_max):
+    """The length of the ``dopri5`` step after a kept one of length ``h`` and error
+    ``err`` (over the tolerance): grown or cut as the error says, at most ``h_max``.
+
+    ``h_want`` is the length the kept step was asked to have: longer where the period's
+    end cut it short. A step cut so is no measure of the next one's length, so where
+    its error lets the step grow, the next one is at least the length asked.
+    """
+    grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
+    nxt = h * min(5.0, grow)
+    if h < h_want and nxt >= h:
+        nxt = max(nxt, h_want)
+    return min(h_max, nxt)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def smooth_period(
     accel, switches, p, theta, dtheta, f0, f1, a_start, g_ready, dt, substeps, method, tol,
-    n_sw, stick, g0, g1,
+    n_sw, stick, g0, g1, h0,
 ):  # fmt: skip
     """A sample period whose steps cross nothing and are all accurate at the first try.
 
@@ -338,16 +354,20 @@ def smooth_period(
     the other and checks each end's switching functions, and this does the same, with
     the same arithmetic (so the same numbers) and nothing else: no locating, no retry,
     no bookkeeping for them, which cost about as much as a ``dopri5`` step's six
-    right-hand sides. Returns ``(ok, theta, dtheta, a_end, a_ok)``. When not ``ok`` (a
-    step too coarse, a surface or the speed's zero reached, not finite, a stuck door),
-    nothing is moved, ``g0`` holds the switching functions at the period's start, and
-    the period is :func:`advance_located`'s from its start. ``g1``: scratch.
+    right-hand sides. The first step is ``h0`` long, and ``h_next`` is returned, as by
+    :func:`advance_located`. Returns ``(ok, theta, dtheta, a_end, a_ok, h_next)``.
+    When not ``ok`` (a step too coarse, a surface or the speed's zero reached, not
+    finite, a stuck door), nothing is moved, ``g0`` holds the switching functions at the
+    period's start, and the period is :func:`advance_located`'s from its start, with
+    ``h_next`` as its ``h0``: ``h0``, or, where the first step only was too coarse, that
+    step cut as its error asks (what :func:`advance_located` would do first).
+    ``g1``: scratch.
     """
     # long: advance_located's step loop without its cases 1, 3 and 4, kept line for line
     # alike so that the two give the same numbers (tests/test_events.py checks it)
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max
+    h = min(h0, h_max)
     t = 0.0
     if not g_ready:
         switches(theta, dtheta, f0, p, g0)
@@ -359,16 +379,18 @@ def smooth_period(
     a1 = a_start
     fresh = True
     a_ok = False
+    h_next = -1.0
     for _ in range(MAX_SMOOTH_STEPS):
         if not dt - t > LOCATE_TOL * dt:
             for i in range(n_sw):
                 g0[i] = g1[i]
-            return True, th, w, a1, a_ok
+            return True, th, w, a1, a_ok, h_next if h_next > 0.0 else h_max
         if stick and w == 0.0:
             break
         side = 0
         if stick:
             side = 1 if w > 0.0 else -1
+        h_want = h
         h = min(max(h, LOCATE_TOL * dt), dt - t)
         if not fresh:
             a1 = accel(th, w, f0 + slope * t, p)
@@ -376,6 +398,15 @@ def smooth_period(
             accel, p, th, w, a1, t, h, f0, slope, method, tol, a_t, a_w, side
         )
         if not (err <= 1.0 and math.isfinite(th1) and math.isfinite(w1)):
+            if t == 0.0 and math.isfinite(err) and h > LOCATE_TOL * dt:
+                # the first step too coarse: where it crosses nothing, advance_located
+                # would cut it as the error says; it starts with the cut step instead
+                switches(th1, w1, f0 + slope * h, p, g1)
+                crossed = stick and _crossed(w, w1)
+                for i in range(n_sw):
+                    crossed = crossed or _crossed(g0[i], g1[i])
+                if not crossed:
+                    return False, theta, dtheta, a_start, False, h * max(0.2, 0.9 * err**-0.2)
             break
         switches(th1, w1, f0 + slope * (t + h), p, g1)
         # (a sign kept since the period's start is the sign at this step's start)
@@ -389,12 +420,13 @@ def smooth_period(
         fresh = False
         a_ok = False
         if method == DOPRI5:
-            grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-            h = min(h_max, h * min(5.0, grow))
+            h = next_length(h, h_want, err, h_max)
+            if h_next < 0.0:
+                h_next = h
             a1 = a_end
             fresh = True
             a_ok = side == 0 or w1 * side > 0.0
-    return False, theta, dtheta, a_start, False
+    return False, theta, dtheta, a_start, False, h0
 
 
 # Not inlined: compiled once, for the first-class function types the kernels pass
@@ -421,6 +453,7 @@ def advance_located(
     g1,
     gx,
     active,
+    h0,
 ):
     """Move ``(theta, dtheta)`` over one sample period ``dt``, surfaces located.
 
@@ -432,15 +465,22 @@ def advance_located(
     Nothing a period has is computed again by the next: ``a_start`` is the acceleration
     at the start (``accel``'s, as :func:`rate` gives it unless the door is stuck), and
     with ``g_ready`` ``g0`` holds the switching functions there; on return ``g0`` holds
-    them at the end. Returns ``(theta, dtheta, a_end, a_ok)``: ``a_end`` is ``accel`` at
-    the end, from the last step's last stage, where ``a_ok`` (else compute it).
+    them at the end. The first step is ``h0`` long (at most ``dt / substeps``).
+    Returns ``(theta, dtheta, a_end, a_ok, h_next)``: ``a_end`` is ``accel`` at the
+    end, from the last step's last stage, where ``a_ok`` (else compute it); ``h_next``
+    the next period's ``h0`` (``dopri5``): the length the error of the period's first
+    kept step asks for next, where that step starts the period (else, after an event,
+    ``dt / substeps``). A measured force kinks at every sample, and a door resting on
+    its stiff stop answers each kink with a transient that the first step of every
+    period must follow: the first step of one period is the best guess for the next
+    one's, where a whole period's step is refused (and costs a step) at each.
     """
     # long: one loop over the period's steps, in four cases read top to bottom (a
     # stuck door; the step; a crossing located; the move across it); they share the
     # period's clock, step length and scratch arrays
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max
+    h = min(h0, h_max)
     t = 0.0
     for i in range(n_sw):
         active[i] = 1.0
@@ -450,6 +490,7 @@ def advance_located(
     fresh = True  # a1 holds the acceleration at the current state
     a_ok = False  # ... and it is the last step's last stage, at the current state
     g_fresh = True  # g0 holds the switching functions at the current state and time
+    h_next = -1.0  # the length after the period's first step (see the docstring)
     a_t = 0.0
     a_w = 0.0
     if method == SEMI_IMPLICIT:
@@ -480,7 +521,7 @@ def advance_located(
                     free = min(free, t + (dt - t) * (-backward) / (backward_end - backward))
                 if free >= dt:  # held to the end, where the friction still holds: rate 0
                     switches(theta, 0.0, f1, p, g0)
-                    return theta, 0.0, 0.0, True
+                    return theta, 0.0, 0.0, True, h_next if h_next > 0.0 else h_max
                 t = max(free, t + LOCATE_TOL * dt)
                 g_fresh = False
                 continue
@@ -490,6 +531,7 @@ def advance_located(
         side = 0
         if stick:
             side = 1 if dtheta > 0.0 else (-1 if dtheta < 0.0 else 0)
+        h_want = h
         h = min(max(h, LOCATE_TOL * dt), dt - t)  # never a step of nothing
         if not fresh:
             a1 = accel(theta, dtheta, force, p)
@@ -519,13 +561,15 @@ def advance_located(
                 continue
         if c < 0:
             theta, dtheta = th1, w1
+            from_start = t == 0.0
             t += h
             for i in range(n_sw):
                 g0[i] = g1[i]
             g_fresh = True
             if method == DOPRI5:
-                grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-                h = min(h_max, h * min(5.0, grow))
+                h = next_length(h, h_want, err, h_max)
+                if h_next < 0.0:  # the period's first step: from its start, or after an event
+                    h_next = h if from_start else h_max
                 a1 = a_end  # first same as last: the next step's first stage
                 fresh = True
                 a_ok = side == 0 or w1 * side > 0.0  # sided gave accel's own value
@@ -606,4 +650,4 @@ def advance_located(
             active[c] = 0.0  # grazes it: step over it for the rest of the period
     if not g_fresh:
         switches(theta, dtheta, f1, p, g0)
-    return theta, dtheta, a1, a_ok
+    return theta, dtheta, a1, a_ok, h_next if h_next > 0.0 else h_max

@@ -33,6 +33,7 @@ from evo_door.sim.located import (
     MAX_EVENTS,
     MAX_REJECTS,
     SEMI_IMPLICIT,
+    next_length,
 )
 from evo_door.sim.state_steps import (
     A1,
@@ -160,14 +161,16 @@ def all_finite(x):
 @njit(cache=True, nogil=True, inline="always")
 def located_period(
     rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts, W, G, JM,
-    piv, modes,
+    piv, modes, h0,
 ):  # fmt: skip
     """Move ``x`` over one sample period ``dt`` (force linear from ``f0`` to ``f1``),
     the model's ``n_sw`` surfaces and the contacts' located within the steps
     (:func:`evo_door.sim.located.advance_located` on a state vector). ``a_start`` is
     the rate at the start (:func:`~evo_door.sim.state_steps.sample_rate`'s): the first
     step's first stage where no contact is at rest (the same rhs call, so the same
-    numbers as computing it again, one call less a period)."""
+    numbers as computing it again, one call less a period). The first step is ``h0``
+    long; returns the next period's, as :func:`~evo_door.sim.located.advance_located`
+    does."""
     # long: advance_located's one loop over the period's steps, its four cases read
     # top to bottom (contacts at rest; the step; a crossing located; the move across
     # it), sharing the period's clock, step length and scratch rows
@@ -176,7 +179,8 @@ def located_period(
     a1, x1, xt, xlo, y, r = W[A1], W[X1], W[XT], W[XLO], W[Y], W[R]
     slope = (f1 - f0) / dt
     h_max = dt / substeps
-    h = h_max
+    h = min(h0, h_max)
+    h_next = -1.0  # the length after the period's first step (advance_located's)
     t = 0.0
     for i in range(n_g):
         active[i] = 1.0
@@ -200,13 +204,14 @@ def located_period(
                 if stuck > 0:
                     free = frozen_until(rhs, p, x, force, f1, t, dt, contacts, modes, W)
                     if free >= dt:
-                        return
+                        return h_next if h_next > 0.0 else h_max
                     if free >= 0.0:
                         t = max(free, t + LOCATE_TOL * dt)
                         continue
                 surfaces(rhs, switches, p, x, force, n_sw, contacts, modes, g0, y, r)
         # 2. the step (sliding contacts' friction held on their sides, stuck ones held)
         set_modes(x, contacts, modes)
+        h_want = h
         h = min(max(h, LOCATE_TOL * dt), dt - t)  # never a step of nothing
         if not fresh:
             stage_rate(rhs, p, x, force, contacts, modes, a1, y, r)
@@ -230,11 +235,13 @@ def located_period(
                 continue
         if c < 0:
             x[:] = x1
+            from_start = t == 0.0
             t += h
             g0[:n_g] = g1[:n_g]
             if method == DOPRI5:
-                grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-                h = min(h_max, h * min(5.0, grow))
+                h = next_length(h, h_want, err, h_max)
+                if h_next < 0.0:  # the period's first step: from its start, or after an event
+                    h_next = h if from_start else h_max
                 a1[:] = W[K7]  # first same as last
                 fresh = True
             continue
@@ -305,6 +312,7 @@ def located_period(
         surfaces(rhs, switches, p, x, f0 + slope * min(t, dt), n_sw, contacts, modes, g0, y, r)
         if not crossed(g0[c], before):
             active[c] = 0.0  # grazes it: step over it for the rest of the period
+    return h_next if h_next > 0.0 else h_max
 
 
 # Not inlined: compiled once, for the first-class function types of the kernels that
@@ -312,15 +320,18 @@ def located_period(
 @njit(cache=True, nogil=True)
 def period(
     rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
-    W, G, JM, piv, modes,
+    W, G, JM, piv, modes, h0,
 ):  # fmt: skip
     """Move the state ``x`` (in place) over one sample period: :func:`plain_period`,
     or where the model has switching surfaces or contacts, or the method is ``dopri5``,
-    :func:`located_period`. ``a_start`` is the rate at the period's start."""
+    :func:`located_period`. ``a_start`` is the rate at the period's start; ``h0`` the
+    length of ``dopri5``'s first step. Returns the next period's ``h0``."""
+    h_max = dt / substeps
     if method != DOPRI5 and n_sw == 0 and contacts.shape[0] == 0:
         plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, modes, JM, piv, W)
-    else:
-        located_period(
-            rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
-            W, G, JM, piv, modes,
-        )  # fmt: skip
+        return h_max
+    h_next = located_period(
+        rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
+        W, G, JM, piv, modes, h0 if method == DOPRI5 else h_max,
+    )  # fmt: skip
+    return h_next if method == DOPRI5 else h_max

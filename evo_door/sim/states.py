@@ -46,7 +46,8 @@ period is cut into ``substeps`` steps. ``rk4`` the classic fourth order; ``semi_
 ROS2 (gamma = 1 + 1/sqrt(2)) with the n x n Jacobian taken by forward differences of
 ``rhs`` once per period (:func:`evo_door.sim.state_steps.jacobian`); ``dopri5`` the
 adaptive 5(4) pair, ``|err_i| <= tol (1 + |x_i|)`` per component, steps never above
-``dt / substeps``, restarting each period at that length, first same as last.
+``dt / substeps``, each period's first step the length the last one's first step asked
+for (:func:`evo_door.sim.located.advance_located`), first same as last.
 
 **Packed arguments.** :func:`settings` packs ``dt, substeps, method, tol, n_switches``
 into one float64 vector (the indices :data:`DT` ... :data:`N_SWITCHES`). The objective
@@ -195,10 +196,11 @@ def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_
     sample_rate(rhs, p, x, force[0], contacts, dx, W[Y], W[R])
     x_out[:, 0] = x
     dx_out[:, 0] = dx
+    h0 = dt / substeps  # dopri5's first step in the next period
     for k in range(force.shape[0] - 1):
-        period(
+        h0 = period(
             rhs, switches, p, x, force[k], force[k + 1], dx, dt, substeps, method, tol, n_sw,
-            contacts, W, G, JM, piv, modes,
+            contacts, W, G, JM, piv, modes, h0,
         )  # fmt: skip
         if not blown_up(x):
             sample_rate(rhs, p, x, force[k + 1], contacts, dx, W[Y], W[R])
