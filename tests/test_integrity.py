@@ -214,9 +214,11 @@ def test_a_file_this_process_wrote_is_read_back_unchecked_a_changed_one_checked(
     anything else changed it, it is."""
     from evo_door.files import Keep, integrity
 
-    digests = []
-    digest = integrity.group_digest
-    monkeypatch.setattr(integrity, "group_digest", lambda *a: digests.append(1) or digest(*a))
+    digests = []  # each group's digest computed, by seal or by a check
+    digest = integrity._digest_and_subgroups
+    monkeypatch.setattr(
+        integrity, "_digest_and_subgroups", lambda *a: digests.append(1) or digest(*a)
+    )
     path = tmp_path / "w.h5"
     tree = {"trials": Keep(lambda: {"x": np.arange(4.0)}), "n": np.array([1])}
     write_h5(path, tree)

@@ -107,12 +107,20 @@ def _dataset_digest(h, ds, budget: list, path) -> None:
 def group_digest(group, budget: list | None = None, path=None) -> str:
     """The digest of ``group`` (see the module docstring): its attributes, its members'
     names and kinds, and its datasets' content."""
+    return _digest_and_subgroups(group, budget, path)[0]
+
+
+def _digest_and_subgroups(group, budget: list | None = None, path=None) -> tuple[str, list]:
+    """:func:`group_digest`, and the subgroups of ``group`` in the order HDF5 lists them
+    (each member looked up once, for both)."""
     h5 = _h5py()
     budget = [0] if budget is None else budget
     path = group.file.filename if path is None else path
     h = hashlib.blake2b(digest_size=16)
     _attrs_digest(h, group)
-    for name in sorted(group.keys()):
+    order = list(group.keys())
+    subgroups = {}
+    for name in sorted(order):
         link = group.get(name, getlink=True)
         if not isinstance(link, h5.HardLink):
             raise DamagedFile(
@@ -123,9 +131,10 @@ def group_digest(group, budget: list | None = None, path=None) -> str:
         h.update(b"/" + name.encode("utf-8", "surrogatepass") + b"\0")
         if isinstance(item, h5.Group):
             h.update(b"g")
+            subgroups[name] = item
         else:
             _dataset_digest(h, item, budget, path)
-    return _PREFIX + h.hexdigest()
+    return _PREFIX + h.hexdigest(), [subgroups[name] for name in order if name in subgroups]
 
 
 def _groups(group, seen=None):
@@ -144,12 +153,43 @@ def _groups(group, seen=None):
                 yield from _groups(item, seen)
 
 
+def _digested(group, budget: list, path, seen=None):
+    """``(group, digest)`` for ``group`` and every group below it, each once, in the
+    order of :func:`_groups`: each member looked up once for the digest and the walk."""
+    seen = set() if seen is None else seen
+    key = hash(group.id)
+    if key in seen:
+        return
+    seen.add(key)
+    digest, subgroups = _digest_and_subgroups(group, budget, path)
+    yield group, digest
+    for item in subgroups:
+        yield from _digested(item, budget, path, seen)
+
+
 def seal(f) -> None:
     """Give every group of the open file ``f`` that has none its digest (the last step
     of writing a file; groups copied from an earlier version keep theirs)."""
-    for group in list(_groups(f)):
+    h5 = _h5py()
+    path, seen = f.filename, set()
+    todo = [f]
+    while todo:  # every group once (as _groups walks them), each member looked up once
+        group = todo.pop()
+        key = hash(group.id)
+        if key in seen:
+            continue
+        seen.add(key)
         if DIGEST not in group.attrs:
-            group.attrs[DIGEST] = group_digest(group)
+            digest, subgroups = _digest_and_subgroups(group, [0], path)
+            group.attrs[DIGEST] = digest
+        else:  # a group copied with its digest: only its subgroups are needed
+            subgroups = []
+            for name in group.keys():
+                if isinstance(group.get(name, getlink=True), h5.HardLink):
+                    item = group[name]
+                    if isinstance(item, h5.Group):
+                        subgroups.append(item)
+        todo.extend(reversed(subgroups))
 
 
 def reseal(f) -> None:
@@ -230,9 +270,8 @@ def _check(f, path) -> None:
     budget = [0]
     sealed, unsealed = [], []
     try:
-        for group in _groups(f):
+        for group, found in _digested(f, budget, path):  # all read: damage shows here
             stored = group.attrs.get(DIGEST)
-            found = group_digest(group, budget, path)  # read all the same: damage shows here
             if stored is None:
                 unsealed.append(group.name)
                 continue
