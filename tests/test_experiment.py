@@ -399,6 +399,39 @@ def test_per_trial_fits_give_a_min_max_table(folder):
     assert s["table"]["k"]["max"] == pytest.approx(100, rel=1e-2)
 
 
+def test_a_finished_job_is_written_once_then_copied_unchanged(folder, monkeypatch):
+    """A results file is rewritten whole at every checkpoint; a finished job never
+    changes, so after the checkpoint that first holds it finished, its group is copied
+    from the file (as the trials are): its tree is built once, and the file ends with
+    every job as the run holds it (the same as a run that builds every job anew)."""
+    from evo_door.experiment import store
+
+    text = EXPERIMENT.replace("per_trial: false", "per_trial: true").replace(
+        "generations: 6", "generations: 3"
+    )
+    built = []
+    job_tree = store.job_tree
+    monkeypatch.setattr(
+        store,
+        "job_tree",
+        lambda job, free=(): built.append((job.name, job.done)) or job_tree(job, free),
+    )
+    run = run_experiment(load(folder, text), folder / "kept.h5")
+    finished = [name for name, done in built if done]
+    assert sorted(finished) == ["t1", "t2", "t3"]  # each finished job's tree built once
+    assert sum(not done for _, done in built) > 0  # jobs under way: built at each write
+    monkeypatch.setattr(store, "run_tree", _without_keep(store.run_tree))
+    again = run_experiment(load(folder, text), folder / "built.h5")
+    assert_same(comparable(run.path), comparable(again.path))
+    with h5py.File(folder / "kept.h5", "r") as f:
+        assert all(f["jobs"][k].attrs["done"] for k in f["jobs"])
+
+
+def _without_keep(run_tree):
+    """``store.run_tree`` with nothing copied from the previous file."""
+    return lambda run, trials_on_disk, jobs_on_disk=frozenset(): run_tree(run, False)
+
+
 def test_nlpql_alone_from_a_start_point(folder):
     text = EXPERIMENT.replace("kind: ga", "kind: nlpql").replace("polish: slsqp", "polish: none")
     text = text.replace("per_trial: false", "per_trial: false\n").rstrip() + "\n"

@@ -140,6 +140,9 @@ class ExperimentRun:
         # the trials never change: after the first write they are copied from the
         # previous checkpoint (a resumed run starts from a file that has them)
         self._trials_on_disk = False
+        # a finished job never changes either: once written, it is copied as well (the
+        # jobs finished when the file was last written from the run's current state)
+        self._jobs_on_disk: frozenset[int] = frozenset()
         self._hook = None
         self._lock: FileLock | None = None
         self._term: TermAsInterrupt | None = None
@@ -250,6 +253,7 @@ class ExperimentRun:
             else "running"
         )
         run._trials_on_disk = True
+        run._jobs_on_disk = frozenset(k for k, job in enumerate(run.jobs) if job.done)
         run.executor = fields.text(root, "executor", DEFAULT_EXECUTOR)
         run.on_disk = position(run.jobs)
         return run
@@ -565,7 +569,7 @@ class ExperimentRun:
 
     def _tree(self) -> dict:
         """The whole run as the tree its results file holds (:func:`.store.run_tree`)."""
-        tree = store.run_tree(self, self._trials_on_disk)
+        tree = store.run_tree(self, self._trials_on_disk, self._jobs_on_disk)
         tree[ATTRS]["executor"] = self.executor
         return tree
 
@@ -573,8 +577,10 @@ class ExperimentRun:
         """Write the whole run to its results file (atomically; refused: the last
         checkpoint is kept, :mod:`.checkpoint`), or hand it to :attr:`writer`.
         ``tree`` and ``where``: an earlier state of the run and its position."""
+        done = self._jobs_on_disk  # an earlier state: no job finished since the last write
         if tree is None:
             tree, where = self._tree(), position(self.jobs)
+            done = frozenset(k for k, job in enumerate(self.jobs) if job.done)
         if self.writer is not None:
             self.writer(tree)
         else:
@@ -582,4 +588,5 @@ class ExperimentRun:
         self._written = time.monotonic()
         self._pending = None
         self._trials_on_disk = True
+        self._jobs_on_disk = done
         self.on_disk = where

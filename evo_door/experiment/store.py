@@ -224,10 +224,12 @@ def versions() -> dict:
 
 
 # -- a run as a tree ---------------------------------------------------------------
-def run_tree(run, trials_on_disk: bool) -> dict:
+def run_tree(run, trials_on_disk: bool, jobs_on_disk=frozenset()) -> dict:
     """The results file of ``run`` (an :class:`~evo_door.experiment.runner.ExperimentRun`).
 
-    With ``trials_on_disk``, the trials are copied from the previous checkpoint.
+    With ``trials_on_disk``, the trials are copied from the previous checkpoint, and so
+    are the jobs of ``jobs_on_disk`` (indices of jobs the previous checkpoint holds
+    finished: a finished job does not change).
     """
     setup = run.setup
     cfg = run.config
@@ -266,7 +268,14 @@ def run_tree(run, trials_on_disk: bool) -> dict:
         "versions": {ATTRS: dict(run.versions)},
         "setup": setup_tree(setup),
         "trials": Keep(lambda: trials_tree(setup)) if trials_on_disk else trials_tree(setup),
-        "jobs": {str(k): job_tree(job, setup.free) for k, job in enumerate(run.jobs)},
+        "jobs": {
+            str(k): (
+                Keep(lambda job=job: job_tree(job, setup.free))
+                if k in jobs_on_disk
+                else job_tree(job, setup.free)
+            )
+            for k, job in enumerate(run.jobs)
+        },
         "timings": {ATTRS: timing},
     }
     if run.status == "complete" and run.result:
