@@ -137,66 +137,62 @@ def _digest_and_subgroups(group, budget: list | None = None, path=None) -> tuple
     return _PREFIX + h.hexdigest(), [subgroups[name] for name in order if name in subgroups]
 
 
-def _groups(group, seen=None):
-    """``group`` and every group below it, each once."""
+def _subgroups(group) -> list:
+    """The groups ``group`` holds by hard links, in the order HDF5 lists them."""
     h5 = _h5py()
+    found = []
+    for name in group.keys():
+        if isinstance(group.get(name, getlink=True), h5.HardLink):
+            item = group[name]
+            if isinstance(item, h5.Group):
+                found.append(item)
+    return found
+
+
+def _walk(group, visit, seen=None) -> None:
+    """``visit(g)`` for ``group`` and every group below it, each once, a group before
+    its subgroups; ``visit`` returns the subgroups of ``g`` (:func:`_subgroups`, or
+    what :func:`_digest_and_subgroups` found while it digested ``g``)."""
     seen = set() if seen is None else seen
     key = hash(group.id)  # the file's and the object's numbers: one per object
     if key in seen:
         return
     seen.add(key)
-    yield group
-    for name in group.keys():
-        if isinstance(group.get(name, getlink=True), h5.HardLink):
-            item = group[name]
-            if isinstance(item, h5.Group):
-                yield from _groups(item, seen)
+    for item in visit(group):
+        _walk(item, visit, seen)
 
 
-def _digested(group, budget: list, path, seen=None):
-    """``(group, digest)`` for ``group`` and every group below it, each once, in the
-    order of :func:`_groups`: each member looked up once for the digest and the walk."""
-    seen = set() if seen is None else seen
-    key = hash(group.id)
-    if key in seen:
-        return
-    seen.add(key)
-    digest, subgroups = _digest_and_subgroups(group, budget, path)
-    yield group, digest
-    for item in subgroups:
-        yield from _digested(item, budget, path, seen)
+def _groups(group) -> list:
+    """``group`` and every group below it, each once."""
+    found = []
+
+    def visit(g):
+        found.append(g)
+        return _subgroups(g)
+
+    _walk(group, visit)
+    return found
 
 
 def seal(f) -> None:
     """Give every group of the open file ``f`` that has none its digest (the last step
     of writing a file; groups copied from an earlier version keep theirs)."""
-    h5 = _h5py()
-    path, seen = f.filename, set()
-    todo = [f]
-    while todo:  # every group once (as _groups walks them), each member looked up once
-        group = todo.pop()
-        key = hash(group.id)
-        if key in seen:
-            continue
-        seen.add(key)
-        if DIGEST not in group.attrs:
-            digest, subgroups = _digest_and_subgroups(group, [0], path)
-            group.attrs[DIGEST] = digest
-        else:  # a group copied with its digest: only its subgroups are needed
-            subgroups = []
-            for name in group.keys():
-                if isinstance(group.get(name, getlink=True), h5.HardLink):
-                    item = group[name]
-                    if isinstance(item, h5.Group):
-                        subgroups.append(item)
-        todo.extend(reversed(subgroups))
+
+    def visit(group):
+        if DIGEST in group.attrs:  # copied with its digest: only its subgroups are needed
+            return _subgroups(group)
+        digest, subgroups = _digest_and_subgroups(group)
+        group.attrs[DIGEST] = digest
+        return subgroups
+
+    _walk(f, visit)
 
 
 def reseal(f) -> None:
     """Seal the open file ``f`` afresh, every group's digest recomputed: for a file
     changed on purpose with h5py (tests make damaged or hostile files this way). Its
     checksums then vouch for the changed content, so use it only on a file you trust."""
-    for group in list(_groups(f)):
+    for group in _groups(f):
         if DIGEST in group.attrs:
             del group.attrs[DIGEST]
     seal(f)
@@ -269,20 +265,25 @@ def vouch(path, written) -> None:
 def _check(f, path) -> None:
     budget = [0]
     sealed, unsealed = [], []
+
+    def visit(group):
+        found, subgroups = _digest_and_subgroups(group, budget, path)  # all read: damage shows
+        stored = group.attrs.get(DIGEST)
+        if stored is None:
+            unsealed.append(group.name)
+            return subgroups
+        if isinstance(stored, bytes):
+            stored = stored.decode("utf-8", "replace")
+        sealed.append(group.name)
+        if found != stored:
+            raise DamagedFile(
+                f"{path}: damaged: {group.name} does not match its checksum "
+                "(the file changed after evo-door wrote it)"
+            )
+        return subgroups
+
     try:
-        for group, found in _digested(f, budget, path):  # all read: damage shows here
-            stored = group.attrs.get(DIGEST)
-            if stored is None:
-                unsealed.append(group.name)
-                continue
-            if isinstance(stored, bytes):
-                stored = stored.decode("utf-8", "replace")
-            sealed.append(group.name)
-            if found != stored:
-                raise DamagedFile(
-                    f"{path}: damaged: {group.name} does not match its checksum "
-                    "(the file changed after evo-door wrote it)"
-                )
+        _walk(f, visit)
     except UserError:
         raise
     except Exception as exc:  # noqa: BLE001 - whatever HDF5 or numpy raise on damage
