@@ -325,8 +325,6 @@ def _located_only(
             accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, True, dt,
             substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3], h0,
         )  # fmt: skip
-        if method != DOPRI5:
-            h0 = h_max
         a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
         th[k + 1], w[k + 1] = theta, dtheta
         k += 1

@@ -239,9 +239,6 @@ def step_period(
     Returns ``(theta, dtheta, a_end, a_ok, skip, backoff, h_next)``: where ``a_ok``,
     ``a_end`` is the acceleration at the end that the last step already computed;
     ``skip``, ``backoff`` and ``h0`` for the next period."""
-    h_max = dt / substeps
-    if method != DOPRI5:
-        h0 = h_max  # the fixed steps: whole ones, but where a surface cuts one
     if method == DOPRI5 or n_sw > 0 or stick:
         if skip > 0:
             skip -= 1
@@ -261,7 +258,7 @@ def step_period(
         )  # fmt: skip
         return theta, dtheta, a_end, a_ok, skip, backoff, h_next
     theta, dtheta = advance(accel, p, theta, dtheta, f0, f1, a_start, dt, substeps, method)
-    return theta, dtheta, 0.0, False, 0, 1, h_max
+    return theta, dtheta, 0.0, False, 0, 1, dt / substeps
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -468,9 +468,9 @@ def advance_located(
     them at the end. The first step is ``h0`` long (at most ``dt / substeps``).
     Returns ``(theta, dtheta, a_end, a_ok, h_next)``: ``a_end`` is ``accel`` at the
     end, from the last step's last stage, where ``a_ok`` (else compute it); ``h_next``
-    the next period's ``h0`` (``dopri5``): the length the error of the period's first
-    kept step asks for next, where that step starts the period (else, after an event,
-    ``dt / substeps``). A measured force kinks at every sample, and a door resting on
+    the next period's ``h0``: for ``dopri5`` the length the error of the period's first
+    kept step asks for next, where that step starts the period; else (after an event,
+    and always for the fixed steps) ``dt / substeps``. A measured force kinks at every sample, and a door resting on
     its stiff stop answers each kink with a transient that the first step of every
     period must follow: the first step of one period is the best guess for the next
     one's, where a whole period's step is refused (and costs a step) at each.

@@ -326,12 +326,10 @@ def period(
     or where the model has switching surfaces or contacts, or the method is ``dopri5``,
     :func:`located_period`. ``a_start`` is the rate at the period's start; ``h0`` the
     length of ``dopri5``'s first step. Returns the next period's ``h0``."""
-    h_max = dt / substeps
     if method != DOPRI5 and n_sw == 0 and contacts.shape[0] == 0:
         plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, modes, JM, piv, W)
-        return h_max
-    h_next = located_period(
+        return dt / substeps
+    return located_period(
         rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
-        W, G, JM, piv, modes, h0 if method == DOPRI5 else h_max,
+        W, G, JM, piv, modes, h0,
     )  # fmt: skip
-    return h_next if method == DOPRI5 else h_max
