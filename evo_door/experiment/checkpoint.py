@@ -73,6 +73,12 @@ def write_checkpoint(path, tree: dict, on_disk: str | None) -> None:
         ) from None
 
 
+def finished(jobs) -> frozenset[int]:
+    """The indices of the finished ones among ``jobs`` (what a checkpoint written now
+    holds finished: :func:`evo_door.experiment.store.run_tree` copies them after)."""
+    return frozenset(k for k, job in enumerate(jobs) if job.done)
+
+
 def position(jobs) -> str:
     """Where a run of ``jobs`` stands, in words: ``generation 12``, ``job t3, the
     start``, ``every fit done`` (what a checkpoint written now holds)."""

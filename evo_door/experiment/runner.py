@@ -38,6 +38,7 @@ from evo_door.experiment.answer_checks import identifiability_of, integration_er
 from evo_door.experiment.checkpoint import (
     CHECKPOINT_EVERY,
     TermAsInterrupt,
+    finished,
     position,
     write_checkpoint,
 )
@@ -253,7 +254,7 @@ class ExperimentRun:
             else "running"
         )
         run._trials_on_disk = True
-        run._jobs_on_disk = frozenset(k for k, job in enumerate(run.jobs) if job.done)
+        run._jobs_on_disk = finished(run.jobs)
         run.executor = fields.text(root, "executor", DEFAULT_EXECUTOR)
         run.on_disk = position(run.jobs)
         return run
@@ -580,7 +581,7 @@ class ExperimentRun:
         done = self._jobs_on_disk  # an earlier state: no job finished since the last write
         if tree is None:
             tree, where = self._tree(), position(self.jobs)
-            done = frozenset(k for k, job in enumerate(self.jobs) if job.done)
+            done = finished(self.jobs)
         if self.writer is not None:
             self.writer(tree)
         else:
