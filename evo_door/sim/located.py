@@ -397,16 +397,11 @@ def smooth_period(
         th1, w1, err, a_end = trial_step(
             accel, p, th, w, a1, t, h, f0, slope, method, tol, a_t, a_w, side
         )
-        if not (err <= 1.0 and math.isfinite(th1) and math.isfinite(w1)):
-            if t == 0.0 and math.isfinite(err) and h > LOCATE_TOL * dt:
-                # the first step too coarse: where it crosses nothing, advance_located
-                # would cut it as the error says; it starts with the cut step instead
-                switches(th1, w1, f0 + slope * h, p, g1)
-                crossed = stick and _crossed(w, w1)
-                for i in range(n_sw):
-                    crossed = crossed or _crossed(g0[i], g1[i])
-                if not crossed:
-                    return False, theta, dtheta, a_start, False, h * max(0.2, 0.9 * err**-0.2)
+        good = err <= 1.0 and math.isfinite(th1) and math.isfinite(w1)
+        # the first step only too coarse: where it crosses nothing, advance_located
+        # would cut it as the error says; it starts with the cut step instead
+        first_cut = t == 0.0 and math.isfinite(err) and h > LOCATE_TOL * dt
+        if not (good or first_cut):
             break
         switches(th1, w1, f0 + slope * (t + h), p, g1)
         # (a sign kept since the period's start is the sign at this step's start)
@@ -415,6 +410,8 @@ def smooth_period(
             crossed = crossed or _crossed(g0[i], g1[i])
         if crossed:
             break
+        if not good:
+            return False, theta, dtheta, a_start, False, h * max(0.2, 0.9 * err**-0.2)
         th, w = th1, w1
         t += h
         fresh = False
