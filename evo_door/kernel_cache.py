@@ -17,20 +17,24 @@ when it caches the first function), in front of numba's own list, so that
 
 The same import notes the compilations numba does (not its cache hits) for
 :func:`announce`: the command line says what it compiles on a first run, instead of a
-silent wait.
+silent wait; and it makes numba's inliner copy a function's IR faster
+(:func:`share_inlined_scopes`: the same code compiled, sooner).
 """
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import os
 import re
 import sys
+import threading
 import time
 from pathlib import Path
 
-from numba.core import caching, event
+import numba
+from numba.core import caching, event, inline_closurecall, ir
 
 #: The package's folder: the modules whose imports are followed.
 ROOT = Path(__file__).resolve().parent
@@ -199,3 +203,95 @@ def finish_announce(stream=None, summary: bool = True) -> None:
 
 if getattr(sys.modules.get("evo_door"), "compile_notes", False):  # a command is running
     announce()
+
+
+# -- a faster copy of a function's IR in numba's inliner --------------------------------
+# The integrators are small step functions that numba inlines into one kernel
+# (``inline="always"``, evo_door.sim.integrators). For each call site it inlines,
+# numba's inliner (``InlineWorker.inline_ir``) copies the callee's IR block by block,
+# each with ``copy.deepcopy``. A block refers to the function's one scope, which lists
+# every variable of the function, and each block's copy copies that whole scope again:
+# a copy costs the function's blocks times its variables. On the integrators, whose
+# inlined bodies run to hundreds of blocks, that copying is a large share of a cold
+# ``evo-door compile`` (timed in the benchmark suite's start-up section). numba's issue
+# tracker has the inliner's copying on record as a cost (its issues 8989 and 9204).
+#
+# share_inlined_scopes() gives numba's IR blocks a ``__deepcopy__`` that, within one
+# call of the inliner, copies the scope once and lets every block's copy share it;
+# outside the inliner a block is copied as before. The inliner then renames the
+# callee's variables into the caller's scope by name and points every block at the
+# caller's scope, so it builds the same IR: the compiled code is the same to the bit
+# (tests/test_kernel_cache.py compares the assembly numba emits with and without). One
+# method added to a numba class, one wrapped; only on the numba releases it was checked
+# against, and not with EVO_DOOR_NUMBA_INLINE_COPY=numba in the environment (numba's
+# own copy, for comparing).
+
+#: The numba releases (major, minor) whose inliner the shared scope copy was checked
+#: against (the one constraints.txt pins): their ``inline_ir`` copies the callee block
+#: by block and expects one scope in it. Any other release compiles with its own copy.
+INLINE_COPY_CHECKED = ((0, 68),)
+#: The environment variable that keeps numba's own copy (``numba``).
+INLINE_COPY_OPT_OUT = "EVO_DOOR_NUMBA_INLINE_COPY"
+
+#: Per thread, while the inliner runs: original scope's id -> (the scope, its copy).
+_inlining = threading.local()
+
+
+def _numba_release() -> tuple[int, int]:
+    major, minor = numba.__version__.split(".")[:2]
+    return int(major), int(minor)
+
+
+def _copy_block(block, memo):
+    """``copy.deepcopy`` of an IR block; within the inliner, the scope copied once."""
+    shared = getattr(_inlining, "scopes", None)
+    if shared is not None:
+        entry = shared.get(id(block.scope))
+        if entry is None:  # the first block of this callee: copy its scope
+            entry = (block.scope, copy.deepcopy(block.scope, memo))
+            shared[id(block.scope)] = entry  # holds the original: its id stays unique
+        memo[id(block.scope)] = entry[1]
+    new = ir.Block.__new__(ir.Block)
+    memo[id(block)] = new
+    for name, value in block.__dict__.items():
+        setattr(new, name, copy.deepcopy(value, memo))
+    return new
+
+
+def _sharing_scopes(inline_ir):
+    """numba's ``inline_ir``, with the blocks it copies sharing their scope's copy."""
+
+    def inline_ir_sharing_scopes(self, *args, **kwargs):
+        outer = getattr(_inlining, "scopes", None)
+        _inlining.scopes = {}
+        try:
+            return inline_ir(self, *args, **kwargs)
+        finally:
+            _inlining.scopes = outer
+
+    inline_ir_sharing_scopes.__wrapped__ = inline_ir  # type: ignore[attr-defined]
+    return inline_ir_sharing_scopes
+
+
+def inline_copy_applies() -> bool:
+    """Whether :func:`share_inlined_scopes` changes numba here (or did): a checked
+    release, a block class without a copy of its own, not opted out."""
+    return (
+        os.environ.get(INLINE_COPY_OPT_OUT, "") != "numba"
+        and _numba_release() in INLINE_COPY_CHECKED
+        and vars(ir.Block).get("__deepcopy__", _copy_block) is _copy_block
+        and hasattr(inline_closurecall.InlineWorker, "inline_ir")
+    )
+
+
+def share_inlined_scopes() -> bool:
+    """Install the shared scope copy in numba's inliner (once per process; this module
+    does when imported); whether it is in place."""
+    worker = inline_closurecall.InlineWorker
+    if vars(ir.Block).get("__deepcopy__") is not _copy_block and inline_copy_applies():
+        worker.inline_ir = _sharing_scopes(worker.inline_ir)  # type: ignore[method-assign]
+        ir.Block.__deepcopy__ = _copy_block  # type: ignore[attr-defined]
+    return vars(ir.Block).get("__deepcopy__") is _copy_block
+
+
+share_inlined_scopes()

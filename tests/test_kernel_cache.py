@@ -4,7 +4,9 @@ compile``)."""
 
 import ast
 import io
+import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -286,3 +288,121 @@ def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(first, copy)
     assert curve(copy, "b.csv") == made
+
+
+# -- the faster copy of a function's IR in numba's inliner ---------------------------------
+
+#: A small tree of ``inline="always"`` steps, shaped as the integrators are: loops and
+#: branches in each step, steps inlined into steps, and a kernel that calls them.
+KERNELS = """
+import math
+from numba import njit
+
+@njit(inline="always", error_model="numpy")
+def stage(x, v, h):
+    if x > 0.0:
+        return v, -4.0 * x - 0.1 * v
+    return v, -9.0 * x - 0.2 * v * abs(v)
+
+@njit(inline="always", error_model="numpy")
+def step(x, v, h):
+    k1x, k1v = stage(x, v, h)
+    k2x, k2v = stage(x + 0.5 * h * k1x, v + 0.5 * h * k1v, h)
+    k3x, k3v = stage(x + 0.5 * h * k2x, v + 0.5 * h * k2v, h)
+    k4x, k4v = stage(x + h * k3x, v + h * k3v, h)
+    return x + h * (k1x + 2 * k2x + 2 * k3x + k4x) / 6, v + h * (k1v + 2 * k2v + 2 * k3v + k4v) / 6
+
+@njit(inline="always", error_model="numpy")
+def period(x, v, dt, n):
+    for _ in range(n):
+        x, v = step(x, v, dt / n)
+        if not math.isfinite(x):
+            break
+    return x, v
+
+@njit("float64(float64, float64, float64, int64)", error_model="numpy")
+def kernel(x, v, dt, samples):
+    total = 0.0
+    for k in range(samples):
+        x, v = period(x, v, dt, 1 + k % 3)
+        total += x if k % 2 else v
+    return total
+"""
+
+#: Compiles :data:`KERNELS` (no disk cache), counting the scope copies numba makes; prints
+#: whether the faster copy is in place, the count, the result and the assembly.
+PROBE = """
+import copy, json, sys
+from numba.core import ir
+from evo_door import kernel_cache
+installed = kernel_cache.share_inlined_scopes()
+copies = [0]
+def counted(self, memo):
+    copies[0] += 1
+    new = ir.Scope.__new__(ir.Scope)
+    memo[id(self)] = new
+    for name, value in self.__dict__.items():
+        setattr(new, name, copy.deepcopy(value, memo))
+    return new
+ir.Scope.__deepcopy__ = counted
+sys.path.insert(0, sys.argv[1])
+import kernels
+value = kernels.kernel(0.1, 0.0, 1 / 1024, 200)
+(asm,) = kernels.kernel.inspect_asm().values()
+print(json.dumps({"installed": installed, "copies": copies[0], "value": value, "asm": asm}))
+"""
+
+
+def _compiled(tmp_path, inline_copy: str) -> dict:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "kernels.py").write_text(KERNELS)
+    env = {**os.environ, kernel_cache.INLINE_COPY_OPT_OUT: inline_copy, "NUMBA_DISABLE_JIT": "0"}
+    done = subprocess.run(
+        [sys.executable, "-c", PROBE, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        check=True,
+    )
+    return json.loads(done.stdout)
+
+
+def _code(asm: str) -> str:
+    """The assembly without the names of numba's pickled constants (hashes of their
+    bytes) and those bytes (numba's type numbers, which vary from process to process)."""
+    asm = re.sub(r"pickledata\.[0-9a-f]+", "pickledata", asm)
+    return "\n".join(line for line in asm.splitlines() if ".ascii" not in line)
+
+
+@pytest.mark.skipif(not kernel_cache.inline_copy_applies(), reason="numba's own inliner copy here")
+def test_the_inliner_copies_a_scope_once_per_call_and_compiles_the_same_code(tmp_path):
+    ours = _compiled(tmp_path / "ours", "")
+    numbas = _compiled(tmp_path / "numbas", "numba")
+    assert ours["installed"] and not numbas["installed"]
+    assert ours["value"] == numbas["value"]  # bit for bit
+    assert _code(ours["asm"]) == _code(numbas["asm"])
+    # numba copies the function's scope (and its parent, the global scope) for every
+    # block it copies: the blocks of every inlined call, twice (the callee, and a copy
+    # it keeps unchanged); here, once per copy of a callee. `step` inlines 4 stages,
+    # `period` 1 step, `kernel` 1 period: 6 calls, 2 copies each, 2 scopes a copy
+    assert ours["copies"] <= 2 * 2 * 6, ours["copies"]
+    assert numbas["copies"] >= 5 * ours["copies"], (numbas["copies"], ours["copies"])
+
+
+def test_a_release_it_was_not_checked_against_keeps_numbas_own_copy(monkeypatch):
+    monkeypatch.setattr(kernel_cache, "_numba_release", lambda: (0, 99))
+    assert not kernel_cache.inline_copy_applies()
+    monkeypatch.setattr(kernel_cache, "_numba_release", lambda: (0, 68))
+    monkeypatch.setenv(kernel_cache.INLINE_COPY_OPT_OUT, "numba")
+    assert not kernel_cache.inline_copy_applies()
+
+
+def test_the_package_runs_with_the_faster_copy_on_the_pinned_numba():
+    """With the release constraints.txt pins, the copy is in place: a bump of the pin
+    past the checked releases would slow every cold compile without failing a test."""
+    pinned = re.search(r"^numba==(\S+)", (ROOT / "constraints.txt").read_text(), re.M)
+    assert pinned, "constraints.txt pins numba"
+    if numba.__version__ != pinned.group(1):
+        pytest.skip(f"numba {numba.__version__} here, not the pinned {pinned.group(1)}")
+    assert kernel_cache.inline_copy_applies() and kernel_cache.share_inlined_scopes()

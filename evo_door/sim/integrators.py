@@ -49,7 +49,8 @@ runs it when handed that fast form.
 their callers (``inline="always"``, at the level of its own IR): called instead, each
 would take its arrays as seven values each and its right-hand side through a pointer,
 and the trials run measurably slower. That inlining is most of the time a kernel takes
-to compile, and it grows with the number of inlined call sites, small ones included.
+to compile, and it grows with the number of inlined call sites, small ones included
+(:mod:`evo_door.kernel_cache` makes numba's copy of each inlined body cheaper).
 So the small helpers that do arithmetic on numbers or arrays
 (:func:`~evo_door.sim.located._crossed`, :func:`~evo_door.sim.spans.dense`,
 :func:`~evo_door.sim.objective.accumulate`, ...) are plain calls, which LLVM inlines on
