@@ -17,8 +17,10 @@ when it caches the first function), in front of numba's own list, so that
 
 The same import notes the compilations numba does (not its cache hits) for
 :func:`announce`: the command line says what it compiles on a first run, instead of a
-silent wait; and it makes numba's inliner copy a function's IR faster
-(:func:`share_inlined_scopes`: the same code compiled, sooner).
+silent wait. Two changes to numba's plumbing, the same code run sooner: its inliner
+copies a function's IR faster (:func:`share_inlined_scopes`), and a compiled function
+handed to a kernel as an argument has its addresses looked up once, not at every call
+(:func:`remember_addresses`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ from pathlib import Path
 
 import numba
 from numba.core import caching, event, inline_closurecall, ir
+from numba.core.dispatcher import Dispatcher
+from numba.experimental import function_type
 
 #: The package's folder: the modules whose imports are followed.
 ROOT = Path(__file__).resolve().parent
@@ -223,15 +227,17 @@ if getattr(sys.modules.get("evo_door"), "compile_notes", False):  # a command is
 # caller's scope, so it builds the same IR: the compiled code is the same to the bit
 # (tests/test_kernel_cache.py compares the assembly numba emits with and without). One
 # method added to a numba class, one wrapped; only on the numba releases it was checked
-# against, and not with EVO_DOOR_NUMBA_INLINE_COPY=numba in the environment (numba's
-# own copy, for comparing).
+# against, and not with EVO_DOOR_NUMBA_AS_SHIPPED=1 in the environment (numba's own
+# copy, for comparing).
 
 #: The numba releases (major, minor) whose inliner the shared scope copy was checked
 #: against (the one constraints.txt pins): their ``inline_ir`` copies the callee block
 #: by block and expects one scope in it. Any other release compiles with its own copy.
-INLINE_COPY_CHECKED = ((0, 68),)
-#: The environment variable that keeps numba's own copy (``numba``).
-INLINE_COPY_OPT_OUT = "EVO_DOOR_NUMBA_INLINE_COPY"
+#: The same for :func:`remember_addresses`.
+CHANGES_CHECKED = ((0, 68),)
+#: The environment variable that, set to ``1``, leaves numba as shipped: neither
+#: :func:`share_inlined_scopes` nor :func:`remember_addresses` (for comparing).
+AS_SHIPPED = "EVO_DOOR_NUMBA_AS_SHIPPED"
 
 #: Per thread, while the inliner runs: original scope's id -> (the scope, its copy).
 _inlining = threading.local()
@@ -273,12 +279,13 @@ def _sharing_scopes(inline_ir):
     return inline_ir_sharing_scopes
 
 
-def inline_copy_applies() -> bool:
-    """Whether :func:`share_inlined_scopes` changes numba here (or did): a checked
-    release, a block class without a copy of its own, not opted out."""
+def changes_apply() -> bool:
+    """Whether :func:`share_inlined_scopes` and :func:`remember_addresses` change numba
+    here (or did): a checked release, a block class without a copy of its own, not
+    :data:`AS_SHIPPED`."""
     return (
-        os.environ.get(INLINE_COPY_OPT_OUT, "") != "numba"
-        and _numba_release() in INLINE_COPY_CHECKED
+        os.environ.get(AS_SHIPPED, "") != "1"
+        and _numba_release() in CHANGES_CHECKED
         and vars(ir.Block).get("__deepcopy__", _copy_block) is _copy_block
         and hasattr(inline_closurecall.InlineWorker, "inline_ir")
     )
@@ -288,10 +295,61 @@ def share_inlined_scopes() -> bool:
     """Install the shared scope copy in numba's inliner (once per process; this module
     does when imported); whether it is in place."""
     worker = inline_closurecall.InlineWorker
-    if vars(ir.Block).get("__deepcopy__") is not _copy_block and inline_copy_applies():
+    if vars(ir.Block).get("__deepcopy__") is not _copy_block and changes_apply():
         worker.inline_ir = _sharing_scopes(worker.inline_ir)  # type: ignore[method-assign]
         ir.Block.__deepcopy__ = _copy_block  # type: ignore[attr-defined]
     return vars(ir.Block).get("__deepcopy__") is _copy_block
 
 
 share_inlined_scopes()
+
+
+# -- a compiled function's addresses, looked up once -------------------------------------
+# A kernel that takes a compiled function as an argument (a model's right-hand side, its
+# switching functions, its hold force: numba's first-class functions) asks, at every
+# call and for every such argument, numba.experimental.function_type for the function's
+# two entry points (_get_wrapper_address, _get_jit_address: the dispatcher's compile
+# result for the signature, then its symbol's address in the JIT). That is some 25 us
+# an argument, about half of what a short simulate() costs in Python. A compiled
+# overload of a dispatcher stays where it is while the dispatcher lives (numba never
+# moves or frees it; the memo keeps the dispatcher alive), so both lookups are memoised
+# per dispatcher and signature (a dispatcher's recompile(), which evo-door never calls,
+# would leave the memo stale). numba reads the two functions off its module at every
+# call (by name), so wrapping them is enough; other callables go to numba's own.
+
+
+def _remembered(lookup):
+    """numba's address ``lookup(func, sig)``, memoised for dispatchers."""
+    found: dict[int, tuple[object, list]] = {}  # id -> (dispatcher, [(sig, address)])
+
+    def remembered_address(func, sig):
+        if not isinstance(func, Dispatcher):
+            return lookup(func, sig)
+        entry = found.get(id(func))
+        if entry is None or entry[0] is not func:
+            entry = found[id(func)] = (func, [])
+        for known, address in entry[1]:
+            if known == sig:
+                return address
+        address = lookup(func, sig)
+        entry[1].append((sig, address))
+        return address
+
+    remembered_address.__wrapped__ = lookup  # type: ignore[attr-defined]
+    return remembered_address
+
+
+def remember_addresses() -> bool:
+    """Memoise numba's address lookups of first-class functions (once per process;
+    this module does when imported), on the releases :func:`changes_apply`
+    admits; whether they are memoised."""
+    names = ("_get_wrapper_address", "_get_jit_address")
+    done = all(hasattr(getattr(function_type, n, None), "__wrapped__") for n in names)
+    if not done and changes_apply() and all(hasattr(function_type, n) for n in names):
+        for name in names:
+            setattr(function_type, name, _remembered(getattr(function_type, name)))
+        done = True
+    return done
+
+
+remember_addresses()

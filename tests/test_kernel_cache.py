@@ -353,10 +353,10 @@ print(json.dumps({"installed": installed, "copies": copies[0], "value": value, "
 """
 
 
-def _compiled(tmp_path, inline_copy: str) -> dict:
+def _compiled(tmp_path, as_shipped: str) -> dict:
     tmp_path.mkdir(parents=True, exist_ok=True)
     (tmp_path / "kernels.py").write_text(KERNELS)
-    env = {**os.environ, kernel_cache.INLINE_COPY_OPT_OUT: inline_copy, "NUMBA_DISABLE_JIT": "0"}
+    env = {**os.environ, kernel_cache.AS_SHIPPED: as_shipped, "NUMBA_DISABLE_JIT": "0"}
     done = subprocess.run(
         [sys.executable, "-c", PROBE, str(tmp_path)],
         capture_output=True,
@@ -375,10 +375,10 @@ def _code(asm: str) -> str:
     return "\n".join(line for line in asm.splitlines() if ".ascii" not in line)
 
 
-@pytest.mark.skipif(not kernel_cache.inline_copy_applies(), reason="numba's own inliner copy here")
+@pytest.mark.skipif(not kernel_cache.changes_apply(), reason="numba's own inliner copy here")
 def test_the_inliner_copies_a_scope_once_per_call_and_compiles_the_same_code(tmp_path):
     ours = _compiled(tmp_path / "ours", "")
-    numbas = _compiled(tmp_path / "numbas", "numba")
+    numbas = _compiled(tmp_path / "numbas", "1")
     assert ours["installed"] and not numbas["installed"]
     assert ours["value"] == numbas["value"]  # bit for bit
     assert _code(ours["asm"]) == _code(numbas["asm"])
@@ -392,10 +392,10 @@ def test_the_inliner_copies_a_scope_once_per_call_and_compiles_the_same_code(tmp
 
 def test_a_release_it_was_not_checked_against_keeps_numbas_own_copy(monkeypatch):
     monkeypatch.setattr(kernel_cache, "_numba_release", lambda: (0, 99))
-    assert not kernel_cache.inline_copy_applies()
+    assert not kernel_cache.changes_apply()
     monkeypatch.setattr(kernel_cache, "_numba_release", lambda: (0, 68))
-    monkeypatch.setenv(kernel_cache.INLINE_COPY_OPT_OUT, "numba")
-    assert not kernel_cache.inline_copy_applies()
+    monkeypatch.setenv(kernel_cache.AS_SHIPPED, "1")
+    assert not kernel_cache.changes_apply()
 
 
 def test_the_package_runs_with_the_faster_copy_on_the_pinned_numba():
@@ -405,4 +405,42 @@ def test_the_package_runs_with_the_faster_copy_on_the_pinned_numba():
     assert pinned, "constraints.txt pins numba"
     if numba.__version__ != pinned.group(1):
         pytest.skip(f"numba {numba.__version__} here, not the pinned {pinned.group(1)}")
-    assert kernel_cache.inline_copy_applies() and kernel_cache.share_inlined_scopes()
+    assert kernel_cache.changes_apply() and kernel_cache.share_inlined_scopes()
+
+
+@njit(cache=True)
+def _slope(x):
+    return 2.0 * x
+
+
+@njit(cache=True)
+def _cube(x):
+    return x * x * x
+
+
+_UNARY = numba.types.FunctionType(numba.types.float64(numba.types.float64))
+
+
+@njit(numba.types.float64(_UNARY, numba.types.float64), cache=True)
+def _apply(f, x):
+    return f(x)
+
+
+@pytest.mark.skipif(not kernel_cache.changes_apply(), reason="numba as shipped here")
+def test_a_function_handed_to_a_kernel_is_looked_up_once_and_each_its_own(monkeypatch):
+    """numba looks up a first-class function's addresses at every call of the kernel it
+    is handed to; remembered per function, they are looked up once, and two functions
+    of one signature each keep their own."""
+    assert kernel_cache.remember_addresses()
+    assert _apply(_slope, 3.0) == 6.0 and _apply(_cube, 3.0) == 27.0
+    lookups = []
+    original = numba.core.dispatcher.Dispatcher.get_compile_result
+    monkeypatch.setattr(
+        numba.core.dispatcher.Dispatcher,
+        "get_compile_result",
+        lambda self, sig: lookups.append(self) or original(self, sig),
+    )
+    for x in range(50):  # alternating: each call must reach its own function
+        assert _apply(_slope, float(x)) == 2.0 * x
+        assert _apply(_cube, float(x)) == float(x) ** 3
+    assert lookups == []
