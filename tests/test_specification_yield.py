@@ -12,6 +12,7 @@ doors the stage counts with is held against the perceptual check of one door.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import subprocess
@@ -332,3 +333,50 @@ def test_the_centrings_worst_margins_are_numpys_to_the_last_bit():
     assert np.isnan(got[5]) and got[7] == np.inf and got[9] == np.inf
     finite = np.delete(np.arange(400), [5])
     assert smoothed_share(got[finite]) == soft_yield(v + D[finite])
+
+
+def test_the_margins_written_in_place_are_the_plain_formulas_to_the_last_bit():
+    """The batch check writes each door's margins (JND) into one array, the stroke's
+    columns straight from its first angles: the same numbers as the formulas taken
+    whole, a non-finite margin the blown-up door's, with and without felt dynamics."""
+    from types import SimpleNamespace
+
+    from evo_door.optim.feel_doors import BLOWN, DIRECTIONS, Reference
+
+    rng = np.random.default_rng(5)
+    rows, angles, n = 7, 40, 29
+    check = SimpleNamespace(n_stroke=n, stroke=np.arange(angles) < n)
+    got = {d: rng.normal(20.0, 5.0, (rows, angles)) for d in DIRECTIONS}
+    got["opening"][2, 3] = np.nan
+    got["peaks"] = {d: rng.normal(30.0, 3.0, rows) for d in DIRECTIONS}
+    got["angles"] = {d: rng.normal(1.5, 0.01, rows) for d in DIRECTIONS}
+    got["dynamics"] = rng.normal(1.0, 0.1, (rows, 2))
+    got["dynamics"][4, 1] = np.inf
+    chosen = {d: rng.normal(20.0, 5.0, angles) for d in DIRECTIONS}
+    ref = Reference(
+        chosen,
+        {d: np.maximum(0.1 * np.abs(c), 0.5) for d, c in chosen.items()},
+        {"opening": 31.0, "closing": 29.0},
+        {"opening": 3.1, "closing": 2.9},
+        {"opening": 1.49, "closing": 1.51},
+        0.01,
+        ((1.0, 0.2), (1.1, 0.3)),
+    )
+    for dynamics in (ref.dynamics, None):
+        r = dataclasses.replace(ref, dynamics=dynamics)
+        parts = [((got[d] - r.chosen[d]) / r.threshold[d])[:, check.stroke] for d in DIRECTIONS]
+        parts.append(np.array([(got["peaks"][d] - r.peaks[d]) / r.peak_threshold[d]
+                               for d in DIRECTIONS]).T)  # fmt: skip
+        parts.append(np.array([(got["angles"][d] - r.peak_angles[d]) / r.angle_threshold
+                               for d in DIRECTIONS]).T)  # fmt: skip
+        if dynamics is not None:
+            (ti, ji), (tc, jc) = dynamics
+            parts.append(
+                np.c_[(got["dynamics"][:, 0] - ti) / ji, (got["dynamics"][:, 1] - tc) / jc]
+            )
+        want = np.concatenate(parts, axis=1)
+        want = np.where(np.isfinite(want), want, BLOWN)
+        margins = BatchFeelCheck.against(check, got, r)
+        assert margins.shape == want.shape == (rows, 2 * n + 4 + (2 if dynamics else 0))
+        assert np.array_equal(margins, want)
+        assert margins[2, 3] == BLOWN and (dynamics is None or margins[4, -1] == BLOWN)

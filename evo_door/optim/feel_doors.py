@@ -70,6 +70,8 @@ class BatchFeelCheck:
         self.theta = np.union1d(np.union1d(feel.stroke, latch), feel.curve.theta)
         self.stroke = self.theta < feel.curve.theta[-1] - LATCH_ZONE
         self.latch = ~self.stroke
+        #: the stroke's angles: the first of :attr:`theta` (ascending), a slice of its columns
+        self.n_stroke = int(self.stroke.sum())
         if self.stroke.sum() < 2 or not self.latch.any():
             raise UserError(f"{feel.curve.source}: the chosen feel's curve has no latch zone")
         chosen = {d: feel.curve.force(d, self.theta) for d in DIRECTIONS}
@@ -130,25 +132,25 @@ class BatchFeelCheck:
         return out
 
     def against(self, got: dict, ref: Reference) -> np.ndarray:
-        """The margins (JND) of measured doors (:meth:`measure`) against ``ref``."""
-        parts = [((got[d] - ref.chosen[d]) / ref.threshold[d])[:, self.stroke] for d in DIRECTIONS]
-        parts.append(
-            np.array(
-                [(got["peaks"][d] - ref.peaks[d]) / ref.peak_threshold[d] for d in DIRECTIONS]
-            ).T
-        )
-        parts.append(
-            np.array(
-                [(got["angles"][d] - ref.peak_angles[d]) / ref.angle_threshold for d in DIRECTIONS]
-            ).T
-        )
-        if "dynamics" in got and ref.dynamics is not None:
-            (ti, ji), (tc, jc) = ref.dynamics
-            parts.append(
-                np.c_[(got["dynamics"][:, 0] - ti) / ji, (got["dynamics"][:, 1] - tc) / jc]
-            )
-        out = np.concatenate(parts, axis=1)
-        return np.where(np.isfinite(out), out, BLOWN)
+        """The margins (JND) of measured doors (:meth:`measure`) against ``ref``: each
+        column written in place (a batch is hundreds of doors by some 1500 angles, and
+        the check runs for every candidate of a tolerance search)."""
+        n = self.n_stroke
+        rows = got[DIRECTIONS[0]].shape[0]
+        dynamics = ref.dynamics if "dynamics" in got else None
+        out = np.empty((rows, 2 * n + 4 + (2 if dynamics is not None else 0)))
+        for i, d in enumerate(DIRECTIONS):
+            part = out[:, i * n : (i + 1) * n]
+            np.subtract(got[d][:, :n], ref.chosen[d][:n], out=part)
+            np.divide(part, ref.threshold[d][:n], out=part)
+            out[:, 2 * n + i] = (got["peaks"][d] - ref.peaks[d]) / ref.peak_threshold[d]
+            out[:, 2 * n + 2 + i] = (got["angles"][d] - ref.peak_angles[d]) / ref.angle_threshold
+        if dynamics is not None:
+            (ti, ji), (tc, jc) = dynamics
+            out[:, 2 * n + 4] = (got["dynamics"][:, 0] - ti) / ji
+            out[:, 2 * n + 5] = (got["dynamics"][:, 1] - tc) / jc
+        np.copyto(out, BLOWN, where=~np.isfinite(out))
+        return out
 
     def reference_of(self, model, p) -> Reference:
         """The :class:`Reference` of the feel of ``model`` at ``p`` (a haptic set, say),
