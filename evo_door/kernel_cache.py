@@ -329,7 +329,7 @@ def _remembered(lookup):
         if entry is None or entry[0] is not func:
             entry = found[id(func)] = (func, [])
         for known, address in entry[1]:
-            if known == sig:
+            if known is sig or known == sig:  # numba hands the same object at a call site
                 return address
         address = lookup(func, sig)
         entry[1].append((sig, address))

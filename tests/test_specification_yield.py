@@ -380,3 +380,26 @@ def test_the_margins_written_in_place_are_the_plain_formulas_to_the_last_bit():
         assert margins.shape == want.shape == (rows, 2 * n + 4 + (2 if dynamics else 0))
         assert np.array_equal(margins, want)
         assert margins[2, 3] == BLOWN and (dynamics is None or margins[4, -1] == BLOWN)
+
+
+def test_the_compiled_pass_verdicts_are_numpys_door_by_door():
+    """Whether each door passes, from a compiled loop that stops at its first failing
+    margin and moves the margins by an outer product without forming it: numpy's
+    verdicts, with margins crowding +-1, NaN and infinities among them."""
+    from evo_door.optim.feel_doors import passing, passing_moved
+
+    rng = np.random.default_rng(11)
+    M = rng.uniform(-0.99, 0.99, (3000, 40))
+    rows, cols = np.arange(3000), rng.integers(0, 40, 3000)  # a margin at the edge each
+    M[rows, cols] = rng.choice([-1.0, 1.0], 3000) * (1.0 + rng.uniform(-1e-3, 1e-3, 3000))
+    M[:50, 0] = 1.0  # exactly on it: passes
+    M[7, 5], M[9, 0], M[11, 39] = np.nan, np.inf, -np.inf
+    a, b = rng.normal(0.0, 0.01, 3000), rng.normal(0.0, 1.0, 40)
+    want = np.all(np.abs(M) <= 1.0, axis=-1)
+    assert 0.2 < want.mean() < 0.8  # both verdicts, often
+    assert np.array_equal(passing(M), want)
+    assert not passing(M)[[7, 9, 11]].any()
+    moved = np.all(np.abs(M - np.outer(a, b)) <= 1.0, axis=-1)
+    assert np.array_equal(passing_moved(M, a, b), moved) and not np.array_equal(moved, want)
+    assert np.array_equal(passing(M[:, ::2]), np.all(np.abs(M[:, ::2]) <= 1.0, axis=-1))
+    assert np.array_equal(passing(M.astype(np.float32)), want)  # numpy's own, other types

@@ -65,6 +65,7 @@ from evo_door.optim.feel_doors import (
     Reference,
     band_text,
     passing,
+    passing_moved,
     smoothed_share,
     soft_yield,
 )
@@ -217,7 +218,7 @@ def specify(
     sensitivity = np.max(np.abs(J), axis=0) if J.size else np.zeros(len(names))
     loss = np.array(
         [
-            passing(M - np.outer(U[:, j] * t[j], J[:, j])).mean() - ok.mean() if t[j] else 0.0
+            passing_moved(M, U[:, j] * t[j], J[:, j]).mean() - ok.mean() if t[j] else 0.0
             for j in range(len(names))
         ]
     )

@@ -28,3 +28,25 @@ def worst_shifted(D, v):
                 worst = m
         out[i] = worst
     return out
+
+
+@njit(
+    types.boolean[::1](types.float64[:, ::1], types.float64[::1], types.float64[::1]),
+    cache=True,
+    nogil=True,
+)
+def rows_within(M, a, b):
+    """Whether each door passes when its margins (JND) are ``M[i] - a[i] b``: every one
+    within +-1, what ``np.all(np.abs(M - np.outer(a, b)) <= 1, axis=1)`` gives (the same
+    products and differences; NaN fails), without the arrays of the size of ``M`` it
+    makes and stopping at a door's first failing margin: the check of thousands of doors
+    on some 2000 margins each, and of each specification moved over the sample."""
+    out = np.empty(M.shape[0], dtype=np.bool_)
+    for i in range(M.shape[0]):
+        ok = True
+        for j in range(M.shape[1]):
+            if not (abs(M[i, j] - a[i] * b[j]) <= 1.0):
+                ok = False
+                break
+        out[i] = ok
+    return out
