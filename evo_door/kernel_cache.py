@@ -309,13 +309,13 @@ share_inlined_scopes()
 # switching functions, its hold force: numba's first-class functions) asks, at every
 # call and for every such argument, numba.experimental.function_type for the function's
 # two entry points (_get_wrapper_address, _get_jit_address: the dispatcher's compile
-# result for the signature, then its symbol's address in the JIT). That is some 25 us
-# an argument, about half of what a short simulate() costs in Python. A compiled
-# overload of a dispatcher stays where it is while the dispatcher lives (numba never
-# moves or frees it; the memo keeps the dispatcher alive), so both lookups are memoised
-# per dispatcher and signature (a dispatcher's recompile(), which evo-door never calls,
-# would leave the memo stale). numba reads the two functions off its module at every
-# call (by name), so wrapping them is enough; other callables go to numba's own.
+# result for the signature, then its symbol's address in the JIT): as much Python as
+# the rest of a short simulate() call. A compiled overload of a dispatcher stays where
+# it is while the dispatcher lives (numba never moves or frees it; the memo keeps the
+# dispatcher alive), so both lookups are memoised per dispatcher and signature (a
+# dispatcher's recompile(), which evo-door never calls, would leave the memo stale).
+# numba reads the two functions off its module at every call (by name), so wrapping
+# them is enough; other callables go to numba's own.
 
 
 def _remembered(lookup):
