@@ -235,6 +235,19 @@ def test_fast_trial_is_the_closed_form_trial(door, name):
         assert r.theta.max() > CLOSED  # and the wall
 
 
+def _ise_errors(door, P, f, target):
+    """population_errors of the rows of ``P`` on one trial (force ``f``, dopri5, ISE of
+    the speed against ``target``): each row's error and whether it integrated."""
+    err = np.empty((len(P), 1))
+    good = np.zeros((len(P), 1), dtype=np.bool_)
+    population_errors(
+        door, P, f, target, np.ones(f.size, dtype=np.bool_),
+        np.array([0, f.size]), np.array([DT]), np.zeros(1), np.zeros(1),
+        1, DOPRI5, door.tolerance, 1, ISE, err, good,
+    )  # fmt: skip
+    return err[:, 0], good[:, 0]
+
+
 def test_batch_and_population_kernels_run_the_fast_path_per_row(door, default):
     """Rows with different geometry (each its own table): every row of simulate_batch is
     simulate of that row, and population_errors is the ISE of those responses."""
@@ -248,13 +261,7 @@ def test_batch_and_population_kernels_run_the_fast_path_per_row(door, default):
     theta, dtheta, _, ok = simulate_batch(door, P, f, DT, theta0=0.0)
     assert ok.all()
     target = simulate(door, p, f, DT, theta0=0.0).dtheta
-    err = np.empty((len(P), 1))
-    good = np.zeros((len(P), 1), dtype=np.bool_)
-    population_errors(
-        door, P, f, target, np.ones(f.size, dtype=np.bool_),
-        np.array([0, f.size]), np.array([DT]), np.zeros(1), np.zeros(1),
-        1, DOPRI5, door.tolerance, 1, ISE, err, good,
-    )  # fmt: skip
+    err, good = _ise_errors(door, P, f, target)
     assert good.all()
     for i in range(len(P)):
         r = simulate(door, P[i], f, DT, theta0=0.0)
@@ -262,8 +269,61 @@ def test_batch_and_population_kernels_run_the_fast_path_per_row(door, default):
         np.testing.assert_array_equal(dtheta[i], r.dtheta)
         e = r.dtheta - target
         ise = DT * (np.sum(e**2) - 0.5 * (e[0] ** 2 + e[-1] ** 2))
-        assert err[i, 0] == pytest.approx(ise, rel=1e-10)
-    assert len(set(np.round(err[:, 0], 12))) == len(P)  # the rows did differ
+        assert err[i] == pytest.approx(ise, rel=1e-10)
+    assert len(set(np.round(err, 12))) == len(P)  # the rows did differ
+
+
+def test_a_vector_prepared_again_keeps_its_table_only_for_the_same_geometry(door, default):
+    """The pose table is built where the vector's stamp does not match the new set: a
+    set of the same geometry keeps it (the stamp matches), another geometry or a table
+    changed since builds it afresh, and either way the vector is the one a fresh
+    preparation gives, bit for bit."""
+    p = param_vector(default)
+    stiffer, wider = p.copy(), p.copy()
+    stiffer[door.params.index("K")] *= 1.3
+    wider[door.params.index("L_Cx")] *= 1.02
+
+    def fresh(x):
+        q = np.full(door_module.PREPARED_SIZE, np.nan)
+        door_module.prepare(x, q)
+        return q
+
+    def bits(q):
+        return q.view(np.int64)
+
+    q = fresh(p)
+    stamp = bits(q)[door_module.TABLE_STAMP]
+    assert stamp == door_module.table_stamp(p, q) == door_module.table_stamp(stiffer, q)
+    assert door_module.table_stamp(wider, q) != stamp
+    for x in (stiffer, wider, p, wider, wider, stiffer):  # one vector, set after set
+        door_module.prepare(x, q)
+        assert np.array_equal(bits(q), bits(fresh(x)))
+    q[door_module.TABLE_START + 100] += 1e-9  # a table changed since: built again
+    assert door_module.table_stamp(stiffer, q) != bits(q)[door_module.TABLE_STAMP]
+    door_module.prepare(stiffer, q)
+    assert np.array_equal(bits(q), bits(fresh(stiffer)))
+    garbage = np.random.default_rng(2).normal(size=door_module.PREPARED_SIZE)
+    door_module.prepare(p, garbage)  # never prepared: built
+    assert np.array_equal(bits(garbage), bits(fresh(p)))
+
+
+def test_a_population_gives_each_row_its_own_errors_whatever_its_neighbours(door, default):
+    """The population kernel prepares a block's rows into one vector, one after another:
+    rows of one geometry share its table, rows of another build theirs; each row's
+    error is the one it gets alone, bit for bit."""
+    rng = np.random.default_rng(9)
+    p = param_vector(default)
+    P = np.tile(p, (40, 1))
+    P[:, door.params.index("K")] *= rng.uniform(0.9, 1.1, len(P))
+    moved = rng.random(len(P)) < 0.3
+    P[moved, door.params.index("L_Cx")] *= rng.uniform(0.98, 1.02, moved.sum())
+    f = pulse(0.6, 0.05, 0.2, 12.0)
+    target = simulate(door, p, f, DT, theta0=0.0).dtheta
+
+    err, good = _ise_errors(door, P, f, target)
+    alone = [_ise_errors(door, P[i : i + 1], f, target) for i in range(len(P))]
+    assert good.all() and all(g[0] for _, g in alone)
+    assert np.array_equal(err, [e[0] for e, _ in alone])
 
 
 def test_a_plant_prepares_again_when_the_parameters_change():

@@ -171,6 +171,12 @@ def accel_population_errors(
     )  # fmt: skip
 
 
+#: How many blocks :func:`_population_errors` splits a population's rows into, for the
+#: threads to share: each block prepares its rows one after another into one vector.
+#: Several per thread, so that a thread whose rows run long leaves blocks to the others.
+ROW_BLOCKS = 16
+
+
 @njit(
     types.void(
         INTEGRATE_TYPE,
@@ -225,32 +231,20 @@ def _population_errors(
 ):
     """:func:`accel_population_errors` on a :func:`~evo_door.sim.integrators.kernel_form`:
     each row of ``P`` is prepared (``prepare`` into ``size`` floats) once and serves
-    every trial."""
+    every trial. The rows go to the threads in :data:`ROW_BLOCKS` blocks, each block's
+    rows prepared into one vector: what a row shares with the last (the door's pose
+    table, where the geometry is not free) is kept, not made again."""
     n_trials = offsets.shape[0] - 1
-    for i in prange(P.shape[0]):
+    rows = P.shape[0]
+    for b in prange(ROW_BLOCKS):
         p = np.empty(size)
-        prepare(P[i], p)
-        for j in range(n_trials):
-            e, ok = trial_error(
-                trial,
-                accel,
-                switches,
-                p,
-                force,
-                target,
-                mask,
-                offsets[j],
-                offsets[j + 1],
-                dt[j],
-                substeps,
-                theta0[j],
-                dtheta0[j],
-                method,
-                tol,
-                n_sw,
-                stick,
-                derivative,
-                kind,
-            )
-            err_out[i, j] = e
-            ok_out[i, j] = ok
+        for i in range(b * rows // ROW_BLOCKS, (b + 1) * rows // ROW_BLOCKS):
+            prepare(P[i], p)
+            for j in range(n_trials):
+                e, ok = trial_error(
+                    trial, accel, switches, p, force, target, mask, offsets[j],
+                    offsets[j + 1], dt[j], substeps, theta0[j], dtheta0[j], method, tol,
+                    n_sw, stick, derivative, kind,
+                )  # fmt: skip
+                err_out[i, j] = e
+                ok_out[i, j] = ok

@@ -288,10 +288,36 @@ LATCH_FROM = N_PARAMS + 4
 #: Lowest angle (rad) the pose table serves: ``TABLE_LO``, or +inf if the table
 #: failed its check (the closed form is used throughout).
 TABLE_FROM = N_PARAMS + 5
+#: The stamp of the pose table the vector holds (an int64 in the float's bits): its
+#: geometry's and its floats' bits folded (:func:`table_stamp`). :func:`prepare` builds
+#: the table only where the stamp does not match what the vector holds.
+TABLE_STAMP = N_PARAMS + 6
 #: First float of the pose table (:mod:`~evo_door.models.door.posetable`).
-TABLE_START = N_PARAMS + 6
+TABLE_START = N_PARAMS + 7
 #: Length of a prepared vector.
 PREPARED_SIZE = TABLE_START + TABLE_SIZE
+
+
+#: The geometry, the only parameters the pose table depends on.
+GEOMETRY = (L_OA, L_BX, L_BY, L_CX, L_CY)
+
+
+@njit(cache=True, nogil=True)
+def table_stamp(p, q):
+    """The stamp of a pose table in ``q`` built for the geometry of ``p``: the bits of
+    the five lengths and of every float of the table folded into one int64 (a table
+    not built, or changed since, gives another stamp)."""
+    bits = q.view(np.int64)
+    folded = np.int64(0)
+    for i in range(TABLE_START, TABLE_START + TABLE_SIZE):
+        folded ^= bits[i]
+    lengths = p.view(np.int64)
+    stamp = np.int64(-3750763034362895579)  # FNV-1a's offset basis
+    for g in GEOMETRY:
+        stamp = (stamp ^ lengths[g]) * np.int64(1099511628211)
+    for w in (bits[TABLE_OK], bits[TABLE_ERROR], bits[TABLE_FROM], folded):
+        stamp = (stamp ^ w) * np.int64(1099511628211)
+    return stamp
 
 
 # its signature declared: the objective kernels take it as a first-class function and
@@ -306,8 +332,20 @@ def prepare(p, q):
     the pose table of ``p``'s geometry with its check
     (:func:`~evo_door.models.door.posetable.build_pose_table`): some 50 us, 1-2 % of a
     5 s trial, once per parameter set for all its trials.
+
+    Where ``q`` already holds a table built for ``p``'s geometry (its stamp,
+    :data:`TABLE_STAMP`, matches), the table is kept: a kernel that prepares one
+    vector after another into the same ``q`` (a population, whose geometry is rarely
+    free) builds it once. The vector is the same, bit for bit, either way.
     """
     n = p.shape[0]
+    if q.view(np.int64)[TABLE_STAMP] != table_stamp(p, q):
+        scratch = np.empty(NODE)
+        err = build_pose_table(p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY], q, TABLE_START, scratch)
+        q[TABLE_ERROR] = err
+        q[TABLE_OK] = 1.0 if err <= TABLE_TOLERANCE else 0.0
+        q[TABLE_FROM] = TABLE_LO if err <= TABLE_TOLERANCE else math.inf
+        q.view(np.int64)[TABLE_STAMP] = table_stamp(p, q)
     for i in range(n):
         q[i] = p[i]
     uniform = 1.0
@@ -333,11 +371,6 @@ def prepare(p, q):
         q[LATCH_FROM] = latch_from if not math.isnan(latch_from) else -math.inf
     else:
         q[LATCH_FROM] = CLOSED
-    scratch = np.empty(NODE)
-    err = build_pose_table(p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY], q, TABLE_START, scratch)
-    q[TABLE_ERROR] = err
-    q[TABLE_OK] = 1.0 if err <= TABLE_TOLERANCE else 0.0
-    q[TABLE_FROM] = TABLE_LO if err <= TABLE_TOLERANCE else math.inf
 
 
 # error_model="numpy": a float division by zero gives inf / nan instead of raising, so
