@@ -173,7 +173,8 @@ def accel_population_errors(
 
 #: How many blocks :func:`_population_errors` splits a population's rows into, for the
 #: threads to share: each block prepares its rows one after another into one vector.
-#: Several per thread, so that a thread whose rows run long leaves blocks to the others.
+#: More blocks than threads, so that numba shares them out over every thread as it
+#: shared the rows (a block's rows are consecutive, as a thread's were).
 ROW_BLOCKS = 16
 
 
