@@ -208,18 +208,13 @@ def passing(margins) -> np.ndarray:
     """Whether each row of margins passes: every one within +-1 JND (a compiled loop for
     a matrix of doubles, :func:`~evo_door.optim.yield_kernel.rows_within`)."""
     if isinstance(margins, np.ndarray) and margins.ndim == 2 and margins.dtype == np.float64:
-        from evo_door.optim.yield_kernel import rows_within  # numba, when the check runs
-
-        zero = np.zeros(max(margins.shape))
-        return rows_within(
-            np.ascontiguousarray(margins), zero[: len(margins)], zero[: margins.shape[1]]
-        )
+        return passing_moved(margins, np.zeros(len(margins)), np.zeros(margins.shape[1]))
     return np.all(np.abs(margins) <= 1.0, axis=-1)
 
 
 def passing_moved(M, a, b) -> np.ndarray:
     """:func:`passing` of the margins ``M - np.outer(a, b)`` (doors x margins, JND): each
     door's margins moved by ``a[i] b``, without forming them (a compiled loop)."""
-    from evo_door.optim.yield_kernel import rows_within
+    from evo_door.optim.yield_kernel import rows_within  # numba, when the check runs
 
     return rows_within(*(np.ascontiguousarray(x, dtype=np.float64) for x in (M, a, b)))
