@@ -301,7 +301,7 @@ def _located_only(
     th[0], w[0] = theta, dtheta
     spans = method == DOPRI5 and substeps == 1
     th_s, w_s = np.empty(MAX_SPAN + 1), np.empty(MAX_SPAN + 1)
-    span, wait, patience = MIN_SPAN, 0, 1
+    span, wait, patience, stiff = MIN_SPAN, 0, 1, False
     h_max = dt / substeps
     h0 = h_max
     switches(theta, dtheta, force[0], p, g[0])
@@ -310,9 +310,9 @@ def _located_only(
     while k < n - 1:
         m = 0
         if spans:
-            m, a_end, span, wait, patience = try_span(
+            m, a_end, span, wait, patience, stiff = try_span(
                 accel, switches, p, theta, dtheta, a_now, force, k, n, dt, tol, n_sw, stick,
-                g[0], g[1], span, wait, patience, th_s, w_s,
+                g[0], g[1], span, wait, patience, stiff, th_s, w_s,
             )  # fmt: skip
         if m > 0:
             th[k + 1 : k + m + 1] = th_s[1 : m + 1]

@@ -165,12 +165,12 @@ def counted_accel(theta, dtheta, force, p):
     return force - p[0] * theta - p[1] * dtheta - friction
 
 
-def _calls_per_sample(force, friction, theta0, stick, rates=True):
+def _calls_per_sample(force, friction, theta0, stick, rates=True, damping=0.5):
     from evo_door.sim.integrators import integrate_compiled
     from evo_door.sim.located import no_switches
     from evo_door.sim_settings import DOPRI5
 
-    p = np.array([40.0, 0.5, friction, 0.0])
+    p = np.array([40.0, damping, friction, 0.0])
     n = force.size
     out = [np.empty(n) for _ in range(3)]
     ok = integrate_compiled(
@@ -295,6 +295,48 @@ def test_without_rates_a_step_over_several_samples_leaves_their_acceleration_out
     assert np.array_equal(ddtheta[~inside], ddtheta2[~inside])
     calls_saved = round((with_rates - without) * (force.size - 1))
     assert calls_saved == inside.sum()  # one call of the model a sample left out
+
+
+def _creep(n, c, theta0=0.1, k=40.0):
+    """The counted oscillator overdamped (``c`` N m s/rad, inertia 1) creeping back from
+    ``theta0`` at rest: zero force for ``n`` samples, and its angle and speed exactly."""
+    t = np.arange(n) / 1024
+    disc = np.sqrt(c * c - 4.0 * k)
+    r1, r2 = 0.5 * (-c + disc), 0.5 * (-c - disc)  # the slow root and the stiff one
+    a, b = theta0 * r2 / (r2 - r1), -theta0 * r1 / (r2 - r1)
+    theta = a * np.exp(r1 * t) + b * np.exp(r2 * t)
+    return np.zeros(n), theta, a * r1 * np.exp(r1 * t) + b * r2 * np.exp(r2 * t)
+
+
+@pytest.mark.numerics
+def test_a_stiff_creep_is_stepped_over_several_samples_by_the_l_stable_step():
+    """A door creeping against a steep friction is stiff: an explicit step over several
+    periods is held to some three of them by its stability (2.8 periods for a slope of
+    1200 s^-1), not by its accuracy, and costs some 3.2 calls of the model a sample. There
+    the span is a ROS2 step (``stiff_span_step``), as long as its error allows (up to
+    sixteen periods): under 1.6 calls a sample (one the output's acceleration), the
+    angle within 5e-9 rad and the speed within 5e-8 rad/s of the exact creep."""
+    force, exact, speed = _creep(8192, 1200.0)
+    per_sample, (theta, dtheta, ddtheta) = _calls_per_sample(force, 0.0, 0.1, False, damping=1200.0)
+    assert per_sample < 1.6, per_sample
+    assert np.max(np.abs(theta - exact)) < 5e-9
+    assert np.max(np.abs(dtheta - speed)) < 5e-8
+    p = np.array([40.0, 1200.0, 0.0, 0.0])
+    for k in (1, 7, 1001, 8191):
+        assert ddtheta[k] == pytest.approx(counted_accel(theta[k], dtheta[k], 0.0, p), abs=1e-12)
+
+
+@pytest.mark.numerics
+def test_a_creep_under_a_changing_force_is_left_to_dopri5():
+    """The L-stable step spans only periods of a constant force (the problem autonomous,
+    so that ROS2 keeps its order without the force's rate): under a ramp the same creep
+    is stepped by ``dopri5`` as before, some three calls a sample, and as accurately."""
+    force = 1e-3 * np.arange(8192) / 8192  # N: a ramp that barely moves the creep
+    per_sample, (theta, _, _) = _calls_per_sample(force, 0.0, 0.1, False, damping=1200.0)
+    assert 2.5 < per_sample < 4.0, per_sample
+    base = np.array([40.0, 1200.0, 0.0, 0.0])
+    ref_theta, _ = converged(counted_accel, base, force, DT, 0.1, bound=1e-8)
+    assert np.max(np.abs(theta - ref_theta)) < 1e-8
 
 
 @pytest.mark.numerics

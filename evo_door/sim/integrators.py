@@ -95,8 +95,11 @@ from evo_door.sim.spans import (
     MIN_SPAN,
     SPAN_COARSE,
     SPAN_KEPT,
+    STIFF_LIMIT,
     kink_free,
     span_step,
+    stiff_span_step,
+    stiffness,
 )
 
 #: Angular speed (rad/s) beyond which a simulation counts as blown up.
@@ -265,9 +268,9 @@ def step_period(
 @njit(cache=True, nogil=True, inline="always")
 def try_span(
     accel, switches, p, theta, dtheta, a_now, force, k, stop, dt, tol, n_sw, stick, g0, g1,
-    span, wait, patience, th_s, w_s,
+    span, wait, patience, stiff, th_s, w_s,
 ):  # fmt: skip
-    """Try to move the state from sample ``k`` by one ``dopri5`` step over several periods
+    """Try to move the state from sample ``k`` by one step over several periods
     (:func:`~evo_door.sim.spans.span_step`), up to ``span`` of them and not past
     sample ``stop - 1``.
 
@@ -278,31 +281,61 @@ def try_span(
     (``wait``), and ``patience`` doubles while that keeps happening (up to
     :data:`MAX_SKIP`): what a failed try costs stays a small share of the trial. A
     kept step sets the next ``span`` from its error, as a step's length is set. A trial
-    starts with ``span`` :data:`~evo_door.sim.spans.MIN_SPAN`, ``wait`` 0 and
-    ``patience`` 1.
+    starts with ``span`` :data:`~evo_door.sim.spans.MIN_SPAN`, ``wait`` 0,
+    ``patience`` 1 and ``stiff`` False.
 
-    Returns ``(m, a_end, span, wait, patience)``: ``m`` the periods the step spanned
-    (the states at samples ``k + 1`` ... ``k + m`` in ``th_s`` and ``w_s``, ``a_end``
-    the acceleration at the last), 0 when the next period is :func:`step_period`'s.
+    Where the force is constant, a smooth friction's model and a ``dopri5`` step refused
+    while its length stood past its stability limit (:data:`~evo_door.sim.spans.
+    STIFF_LIMIT`: a door creeping against its friction), the step is tried as ROS2
+    (:func:`~evo_door.sim.spans.stiff_span_step`), and ``stiff`` says to try ROS2 first
+    next time, while the force stays constant and the Jacobian says the step would still
+    be past ``dopri5``'s limit.
+
+    Returns ``(m, a_end, span, wait, patience, stiff)``: ``m`` the periods the step
+    spanned (the states at samples ``k + 1`` ... ``k + m`` in ``th_s`` and ``w_s``,
+    ``a_end`` the acceleration at the last), 0 when the next period is
+    :func:`step_period`'s.
     """
     if wait > 0:
-        return 0, 0.0, span, wait - 1, patience
+        return 0, 0.0, span, wait - 1, patience, stiff
     run = kink_free(force, k, min(max(span, MIN_SPAN), stop - 1 - k))
     if run < MIN_SPAN:  # the force kinks within the next periods: nothing to try
-        return 0, 0.0, span, 0, patience
+        return 0, 0.0, span, 0, patience, False
     m = min(span, run)
+    level = not stick and force[k + 1] == force[k]  # constant over the run (kink_free)
+    a_t, a_w = 0.0, 0.0
+    have_j = level and stiff  # the Jacobian, taken at most once a try
+    if have_j:
+        a_t, a_w = stiffness(accel, p, theta, dtheta, force[k], a_now)
     while m >= 2:
-        found, err, a_end = span_step(
-            accel, switches, p, theta, dtheta, a_now, force, k, m, dt, tol, n_sw, stick,
-            g0, g1, th_s, w_s,
+        if not (have_j and m * dt * a_w < -STIFF_LIMIT):
+            found, err, a_end = span_step(
+                accel, switches, p, theta, dtheta, a_now, force, k, m, dt, tol, n_sw, stick,
+                g0, g1, th_s, w_s,
+            )  # fmt: skip
+            if found == SPAN_KEPT:
+                grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
+                return m, a_end, min(MAX_SPAN, max(2, int(m * min(5.0, grow)))), 0, 1, False
+            if found != SPAN_COARSE or not math.isfinite(err):
+                break
+            if level and not have_j:
+                have_j = True
+                a_t, a_w = stiffness(accel, p, theta, dtheta, force[k], a_now)
+            if not (m * dt * a_w < -STIFF_LIMIT):
+                m = int(m * max(0.2, 0.9 * err**-0.2))
+                continue
+        # past dopri5's stability limit at this length: the L-stable step
+        found, err, a_end = stiff_span_step(
+            accel, switches, p, theta, dtheta, a_now, force, k, m, dt, tol, n_sw, g0, g1,
+            th_s, w_s, a_t, a_w,
         )  # fmt: skip
         if found == SPAN_KEPT:
-            grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-            return m, a_end, min(MAX_SPAN, max(2, int(m * min(5.0, grow)))), 0, 1
+            grow = 5.0 if err < 1e-3 else 0.9 * err**-0.5
+            return m, a_end, min(MAX_SPAN, max(2, int(m * min(5.0, grow)))), 0, 1, True
         if found != SPAN_COARSE or not math.isfinite(err):
             break
-        m = int(m * max(0.2, 0.9 * err**-0.2))
-    return 0, 0.0, MIN_SPAN, patience, min(2 * patience, MAX_SKIP)
+        m = int(m * max(0.2, 0.9 * err**-0.5))
+    return 0, 0.0, MIN_SPAN, patience, min(2 * patience, MAX_SKIP), False
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -332,7 +365,7 @@ def integrate_with(
     spans = method == DOPRI5 and substeps == 1  # steps over several periods
     th_s = np.empty(MAX_SPAN + 1)
     w_s = np.empty(MAX_SPAN + 1)
-    span, wait, patience = MIN_SPAN, 0, 1
+    span, wait, patience, stiff = MIN_SPAN, 0, 1, False
     h_max = dt / substeps
     h0 = h_max  # the first step of the next period (dopri5)
     if spans:
@@ -341,9 +374,9 @@ def integrate_with(
     while k < n - 1:
         m = 0
         if spans:
-            m, a_end, span, wait, patience = try_span(
+            m, a_end, span, wait, patience, stiff = try_span(
                 accel, switches, p, theta, dtheta, a_now, force, k, n, dt, tol, n_sw, stick,
-                g[0], g[1], span, wait, patience, th_s, w_s,
+                g[0], g[1], span, wait, patience, stiff, th_s, w_s,
             )  # fmt: skip
         if m > 0:
             for j in range(1, m):

@@ -19,7 +19,7 @@ import math
 
 from numba import njit
 
-from evo_door.sim.located import DOPRI_NODES, _crossed, dopri_stages
+from evo_door.sim.located import _GAMMA, DOPRI_NODES, _crossed, dopri_stages, jacobian
 
 C2, C3, C4, C5 = DOPRI_NODES
 
@@ -119,20 +119,106 @@ def span_step(
         return SPAN_COARSE, err, a_end
     if not (math.isfinite(th1) and math.isfinite(w1)):
         return SPAN_CROSSES, err, a_end
+    found = read_inside(
+        switches, p, theta, dtheta, a_start, th1, w1, a_end, d_t, d_w, force, k, m, h, n_sw,
+        side, g0, g1, th_out, w_out,
+    )  # fmt: skip
+    return found, err, a_end
+
+
+@njit(cache=True, nogil=True, inline="always")
+def read_inside(
+    switches, p, theta, dtheta, a_start, th1, w1, a_end, d_t, d_w, force, k, m, h, n_sw, side,
+    g0, g1, th_out, w_out,
+):  # fmt: skip
+    """The samples inside a step over ``m`` periods from sample ``k``, and its end, into
+    ``th_out[1:m + 1]`` and ``w_out[1:m + 1]``: read from the step's dense output
+    (:func:`dense`, with the fifth coefficients ``d_t`` and ``d_w``), each checked as a
+    step's end is: no switching function changed sign since the start (``g0``), and where
+    ``side`` is not 0 (a stick-slip door sliding that way) the speed kept its sign.
+    Returns :data:`SPAN_KEPT` (``g0`` then holds the switching functions at the end) or
+    :data:`SPAN_CROSSES`. ``g1``: scratch."""
     for j in range(1, m + 1):
         th_j, w_j = th1, w1
         if j < m:
             u = j / m
             th_j = dense(theta, th1, dtheta, w1, d_t, h, u)
             w_j = dense(dtheta, w1, a_start, a_end, d_w, h, u)
-        if stick and not (w_j * side > 0.0):
-            return SPAN_CROSSES, err, a_end
+        if side != 0 and not (w_j * side > 0.0):
+            return SPAN_CROSSES
         switches(th_j, w_j, force[k + j], p, g1)
         for i in range(n_sw):
             if _crossed(g0[i], g1[i]):
-                return SPAN_CROSSES, err, a_end
+                return SPAN_CROSSES
         th_out[j] = th_j
         w_out[j] = w_j
     for i in range(n_sw):
         g0[i] = g1[i]
-    return SPAN_KEPT, err, a_end
+    return SPAN_KEPT
+
+
+#: How far past ``dopri5``'s stability limit a step over several periods must be asked
+#: to go before :func:`stiff_span_step` is tried instead: ``h |d ddtheta / d dtheta|``,
+#: where an explicit step's error is its instability (the boundary of ``dopri5``'s
+#: stability region on the negative real axis lies near 3.3).
+STIFF_LIMIT = 3.0
+
+
+@njit(cache=True, nogil=True)
+def stiffness(accel, p, theta, dtheta, force, a_start):
+    """The stabilising part of the Jacobian row of ``ddtheta`` at the state, ``(a_t,
+    a_w)`` (:func:`~evo_door.sim.located.jacobian`, two calls of ``accel``): called, not
+    inlined, as it is taken only where a step over several periods was refused."""
+    return jacobian(accel, p, theta, dtheta, force, a_start)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def stiff_span_step(
+    accel, switches, p, theta, dtheta, a_start, force, k, m, dt, tol, n_sw, g0, g1,
+    th_out, w_out, a_t, a_w,
+):  # fmt: skip
+    """One ROS2 step (L-stable, linearly implicit) over the ``m`` sample periods after
+    sample ``k``, where the force is constant over them, with the Jacobian row
+    ``(a_t, a_w)`` taken at the start (:func:`stiffness`).
+
+    Where a door creeps against a steep friction (the regularised Coulomb friction's
+    slope near zero speed), ``dopri5``'s steps are held to a few periods by their
+    stability, not their accuracy: the motion is slow and smooth, and an L-stable step
+    spans as many periods as its error allows. Its error is estimated against the
+    linearly implicit Euler step of the same stages (first order): ``h (k1 + k2) / 2``,
+    held to :data:`SPAN_TOLERANCE` of the tolerance as a ``dopri5`` span's is. The
+    samples inside the step come from the cubic Hermite interpolant of its ends
+    (:func:`dense` with no fifth coefficient), each checked as :func:`span_step` checks
+    them. The force being constant, the problem is autonomous over the step and ROS2
+    keeps its second order. Returns what :func:`span_step` returns (not for a model
+    whose dry friction is a sign law: the caller tries it for smooth frictions only).
+    """
+    h = m * dt
+    f = force[k]
+    gh = _GAMMA * h
+    # M = I - gamma h J = [[1, -gh], [-gh a_t, 1 - gh a_w]]; a_t, a_w <= 0: det >= 1
+    m21 = -gh * a_t
+    m22 = 1.0 - gh * a_w
+    det = m22 + gh * m21
+    k1t = (m22 * dtheta + gh * a_start) / det
+    k1w = (-m21 * dtheta + a_start) / det
+    r1 = dtheta + h * k1w - 2.0 * k1t
+    r2 = accel(theta + h * k1t, dtheta + h * k1w, f, p) - 2.0 * k1w
+    k2t = (m22 * r1 + gh * r2) / det
+    k2w = (-m21 * r1 + r2) / det
+    th1 = theta + h * (1.5 * k1t + 0.5 * k2t)
+    w1 = dtheta + h * (1.5 * k1w + 0.5 * k2w)
+    et = 0.5 * h * (k1t + k2t)
+    ew = 0.5 * h * (k1w + k2w)
+    stol = SPAN_TOLERANCE * tol
+    err = max(abs(et) / (stol * (1.0 + abs(theta))), abs(ew) / (stol * (1.0 + abs(dtheta))))
+    if not (err <= 1.0):
+        return SPAN_COARSE, err, a_start
+    if not (math.isfinite(th1) and math.isfinite(w1)):
+        return SPAN_CROSSES, err, a_start
+    a_end = accel(th1, w1, f, p)
+    found = read_inside(
+        switches, p, theta, dtheta, a_start, th1, w1, a_end, 0.0, 0.0, force, k, m, h, n_sw, 0,
+        g0, g1, th_out, w_out,
+    )  # fmt: skip
+    return found, err, a_end
