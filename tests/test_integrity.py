@@ -175,6 +175,39 @@ def test_a_sealed_tree_rewritten_keeps_its_copied_groups_checked(tmp_path):
         open_h5(path)
 
 
+def test_seal_does_not_walk_into_a_copy_nor_vouch_for_what_came_without_its_digest(tmp_path):
+    """A copied group (Keep) is copied whole, everything below it with its digest: seal
+    looks at none of its subgroups (a results file's trials, copied at every checkpoint,
+    are most of its groups). A subgroup of the copy that came without its digest (the
+    file it came from damaged) is not given one: the new file is refused as the old one
+    would be, where a digest made on the copy would vouch for what no one checked."""
+    from evo_door.files import Keep, integrity
+
+    path = tmp_path / "w.h5"
+    trials = {f"T{k:02d}": {"t": np.arange(4.0) + k, "v": {"x": np.arange(2.0)}} for k in range(12)}
+    tree = {"trials": Keep(lambda: trials), "n": np.array([1])}
+    write_h5(path, tree)
+    walked = []  # the groups seal looked into for their subgroups
+    real = integrity._subgroups
+
+    def counting(group):
+        walked.append(group.name)
+        return real(group)
+
+    integrity._subgroups = counting
+    try:
+        write_h5(path, {**tree, "n": np.array([2])})
+    finally:
+        integrity._subgroups = real
+    assert not [name for name in walked if name.startswith("/trials")], walked
+    open_h5(path).close()  # the copy still checks
+    with h5py.File(path, "r+") as f:  # damage: a digest below the copy lost
+        del f["trials/T03/v"].attrs[DIGEST]
+    write_h5(path, {**tree, "n": np.array([3])})
+    with pytest.raises(DamagedFile):
+        open_h5(path)
+
+
 def test_seal_recomputes_nothing_it_already_sealed(tmp_path):
     path = tmp_path / "s.h5"
     write_h5(path, {"a": {"x": np.arange(3.0)}})

@@ -75,6 +75,13 @@ def test_a_stage_starts_from_the_earlier_stages_answer(folder):
             pytest.approx(first.best()["c"])
         )
     assert pipeline_summary(run.path)["status"] == "complete"
+    # a stage reads an earlier one without its arrays: the same values as read whole
+    from evo_door.experiment.reader import read_run
+
+    for stage in ("first", "second"):
+        light = read_run(run.path, stage, arrays=False)
+        assert light.trials == [] and light.tree is None
+        assert Results.of(light).values() == Results(run.path, stage).values()
 
 
 def test_the_results_file_records_which_stage_each_stage_started_from(folder, capsys):

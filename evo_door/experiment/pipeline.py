@@ -455,10 +455,15 @@ class PipelineRun:
         self.write()
 
     def _start(self, stage: Stage) -> ExperimentRun:
-        """A stage's run, its ``{from: ...}`` filled in from the finished stages."""
+        """A stage's run, its ``{from: ...}`` filled in from the finished stages (their
+        values only, read without their arrays)."""
+        from evo_door.experiment.reader import read_run
         from evo_door.experiment.results import Results
 
-        values = {name: Results(self.path, name).values() for name in stage.uses()}
+        values = {
+            name: Results.of(read_run(self.path, name, arrays=False)).values()
+            for name in stage.uses()
+        }
         exp = fill(stage.experiment, values)
         try:
             return ExperimentRun.new(exp, self.path, versions=self.versions)

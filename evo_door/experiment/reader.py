@@ -230,14 +230,17 @@ def read_results(path, *, arrays: bool = True) -> RunRecord | PipelineRecord:
             raise UserError(f"{path}: not a readable results file ({detail})") from None
 
 
-def read_run(path, stage: str | None = None) -> RunRecord:
+def read_run(path, stage: str | None = None, arrays: bool = True) -> RunRecord:
     """One run, whole: a run's file, or the stage ``stage`` of a pipeline's (one open;
-    a missing or unknown stage is a one-line error naming the stages there are)."""
+    a missing or unknown stage is a one-line error naming the stages there are).
+    ``arrays`` False reads its attributes and small arrays only: its settings and best
+    values, without its trials, responses and histories (a pipeline's next stage
+    needs no more of a finished one)."""
     path = Path(path)
     with store._open(path) as f:  # the one open of the file
         group = store._run_group(f, path, stage)
         sources = _sources(f).get(stage, {}) if stage is not None else {}
-        return _run(group, path, stage, sources, True)
+        return _run(group, path, stage, sources, arrays)
 
 
 def pick(record: RunRecord | PipelineRecord, stage: str | None) -> RunRecord:

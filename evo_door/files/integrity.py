@@ -176,11 +176,19 @@ def _groups(group) -> list:
 
 def seal(f) -> None:
     """Give every group of the open file ``f`` that has none its digest (the last step
-    of writing a file; groups copied from an earlier version keep theirs)."""
+    of writing a file; groups copied from an earlier version keep theirs).
+
+    A group that has a digest was copied whole from the file being replaced (a
+    :class:`~evo_door.files.h5tree.Keep`: nothing is written into a copy), and so was
+    every group below it: the walk does not go into it. (It did, for nothing: a
+    results file's trials are most of its groups, copied at every checkpoint.) A group
+    below a copy that came without its digest is left without: the file it came from
+    was damaged, and the new one says so when read, where a digest made here would
+    vouch for what no one checked."""
 
     def visit(group):
-        if DIGEST in group.attrs:  # copied with its digest: only its subgroups are needed
-            return _subgroups(group)
+        if DIGEST in group.attrs:  # a copy with its digest: everything below it is
+            return []
         digest, subgroups = _digest_and_subgroups(group)
         group.attrs[DIGEST] = digest
         return subgroups
