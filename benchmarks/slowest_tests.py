@@ -129,6 +129,10 @@ REASONS = {
     "test_console_browser::test_a_jnd_session_answered_through_the_page": (
         "headless Chromium answers a JND session on a paced render"
     ),
+    "test_console_browser::test_page_connects_and_shows_the_loop_health_and_the_declaration": (
+        "the first of its file: its fixtures start headless Chromium and a render with its "
+        "console in a process of its own, and load the page"
+    ),
     "test_identifiability_mismatch::test_on_a_richer_truth_no_pinned_interval_misses_the_truth": (
         "rig trials of a richer door than the model and a fit to them"
     ),
