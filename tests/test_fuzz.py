@@ -748,6 +748,21 @@ def test_hostile_json_in_a_file_is_one_line(kind, data, corpus, tmp_path):
     _check(result, f"{place} {where} <- {value!r}")
 
 
+@pytest.mark.parametrize("key", ["period_mean_s", "missed_cycles", "rate_hz", "on_time_fraction"])
+@pytest.mark.parametrize("command", HOSTILE["log"])
+def test_a_render_log_whose_loop_statistics_are_null_reads_without_them(
+    key, command, corpus, tmp_path
+):
+    """A render log's loop statistics with a number replaced by null (found by the test
+    above: ``render-check`` printed a traceback for a null mean period): each command
+    reads the log as if the number were not there, or says in one line what is wrong."""
+    damaged = _fresh(tmp_path, "log.h5")
+    shutil.copy(corpus / "log.h5", damaged)
+    json_edit(damaged, ("/render", "statistics"), (key,), None)
+    result = run_command(fill(command, damaged, corpus, damaged.parent / "out"))
+    _check(result, f"/render statistics {key} <- None")
+
+
 def _json_places(path: Path) -> list:
     key = ("places", path)
     if key not in _TARGETS:

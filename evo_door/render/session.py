@@ -127,9 +127,13 @@ def read_log(f, path) -> dict:
         (times.size, len(names)),
     )
     t = fields.as_array(_dataset(f, "render/t", path), f"{path}: /render/t", (None,))
-    statistics = fields.mapping(render, "statistics", {})
-    for key in ("rate_hz", "faults", "on_time_fraction"):
-        fields.number(statistics, key, None)
+    stored = fields.mapping(render, "statistics", {})
+    statistics = dict(stored)
+    # the numbers the readers print: each a number (else one line naming it), or left
+    # out where the file holds none (a null read as a number would be a traceback)
+    for key in ("rate_hz", "faults", "on_time_fraction", "period_mean_s", "missed_cycles"):
+        if fields.number(stored, key, None) is None:
+            statistics.pop(key, None)
     fields.text(statistics, "status", "")
     fields.flag(statistics, "realtime", True)
     return {
