@@ -8,7 +8,9 @@ numba's OpenMP, is loaded; the workers and every command a test starts inherit i
 unless the environment already says otherwise. Measured on 2 cores, five GA-heavy test
 files (latch fitness, pipeline, objective comparison, smallest change, feel check) with
 ``pytest -n 2``, twice each: 58.9 and 62.2 s of wall time and 105 and 111 s of CPU
-spinning, 46.0 and 45.7 s and 77 and 76 s passive. A command run on its own keeps
+spinning, 46.0 and 45.7 s and 77 and 76 s passive; the whole suite once each way
+(``pytest -n auto``, a warm cache): 481 s and 862 s of CPU spinning, 448 s and 795 s
+passive. A command run on its own keeps
 OpenMP's default: there nothing else wants the core, and the main job took 0.4-1.6 s
 longer passive (its CPU 5 s less).
 """
