@@ -10,6 +10,7 @@ away at the instant the force reaches the friction level, and a stop never gives
 energy back.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -280,14 +281,6 @@ def test_a_stop_bounce_gives_no_energy_back(door, default, kind):
     assert e[-1] < e[0] - 0.1
 
 
-@njit(
-    types.void(
-        ACCEL_TYPE, SWITCHES_TYPE, types.float64[::1], types.float64[::1], types.float64,
-        types.float64, types.float64, types.int64, types.int64, types.float64, types.int64,
-        types.boolean, types.float64[::1], types.float64[::1],
-    ),
-    cache=True,  # compiled at import: otherwise in every process that collects this file
-)  # fmt: skip
 def _located_only(
     accel, switches, p, force, dt, theta0, dtheta0, substeps, method, tol, n_sw, stick, th, w
 ):  # fmt: skip
@@ -330,6 +323,20 @@ def _located_only(
         k += 1
 
 
+@functools.cache
+def _located_only_kernel():
+    """:func:`_located_only` compiled (once for every model: its functions are typed
+    first-class functions) or loaded from numba's cache, when a test first asks for it.
+    Not at import: both workers of ``pytest -n 2`` import this file, and with an empty
+    cache each compiled it, where one of them runs the tests."""
+    signature = types.void(
+        ACCEL_TYPE, SWITCHES_TYPE, types.float64[::1], types.float64[::1], types.float64,
+        types.float64, types.float64, types.int64, types.int64, types.float64, types.int64,
+        types.boolean, types.float64[::1], types.float64[::1],
+    )  # fmt: skip
+    return njit(signature, cache=True)(_located_only)
+
+
 @pytest.mark.parametrize(
     "method, substeps", [("default", 1), ("dopri5", 2), ("rk4", 2), ("semi_implicit", 2)]
 )
@@ -354,7 +361,7 @@ def test_a_period_without_events_has_the_located_steps_numbers(name, kind, metho
     args = (q, force, DT, substeps, theta0, dtheta0, code, tol, n_sw, stick)
     assert integrate_compiled(form.accel, model.switches, *args, *out, True)
     th, w = np.empty(force.size), np.empty(force.size)
-    _located_only(
+    _located_only_kernel()(
         form.accel, model.switches, q, force, DT, theta0, dtheta0, substeps, code, tol, n_sw,
         stick, th, w,
     )  # fmt: skip

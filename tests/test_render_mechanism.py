@@ -449,3 +449,60 @@ def test_push_changes_a_rendered_mechanism_through_its_control_port(tmp_path, ca
     finally:
         proc.terminate()
         proc.wait(30)
+
+
+_CYCLE_COMPILES = """
+import sys
+import numpy as np
+from numba.core import event
+
+compiled = []
+
+
+class Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+
+    def on_end(self, ev):
+        pass
+
+
+from evo_door.models import get_model
+from evo_door.params import param_vector
+
+model = get_model(sys.argv[1])  # generated and compiled, or loaded, before the count
+p = param_vector(model.load_params(), model.params)
+event.register("numba:compile", Count())
+from evo_door.render.mechanism_kernels import hand_force
+
+x = np.array(model.x0, dtype=float)
+force = hand_force(model.rhs, x, p, model.handle[1], 1.0, np.empty(x.size))
+print(len(compiled), force)
+print(" ".join(compiled))
+"""
+
+
+def test_a_mechanisms_cycle_compiles_nothing_for_the_mechanisms_rendered_before(tmp_path):
+    """The cycle's kernels take a mechanism's ``rhs`` as a typed first-class function:
+    once compiled, a process rendering a mechanism compiles nothing, whatever others
+    were rendered before it. (Typed by each mechanism's own function, numba's cache of
+    them named every mechanism rendered before, and a process reading it compiled
+    each of those again: tens of seconds of start-up after a few dozen.)"""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), CACHE_ENV: str(tmp_path / "mechanisms")}
+    examples = root / "examples" / "blocks"
+    runs = []
+    for name in ("soft_close_drawer", "knob", "two_carts", "soft_close_drawer"):
+        done = subprocess.run(
+            [sys.executable, "-c", _CYCLE_COMPILES, str(examples / f"{name}.yaml")],
+            env=env, capture_output=True, text=True, timeout=600,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+        count, force = done.stdout.split("\n")[0].split()
+        runs.append((int(count), done.stdout.split("\n")[1]))
+        assert math.isfinite(float(force))
+    assert runs[-1] == (0, ""), runs

@@ -20,18 +20,28 @@ handle, one coordinate ``x[ih]`` with its speed ``x[iv]``. Each cycle
    (:func:`advance_others`).
 
 Everything here is compiled and allocates nothing; the model's ``rhs`` is a numba
-first-class function, as :mod:`evo_door.sim.state_steps` takes it.
+first-class function (:data:`~evo_door.sim.states.RHS_TYPE`), as
+:mod:`evo_door.sim.state_steps` takes it. The kernels that call it have explicit
+signatures over that type: compiled once for every mechanism, and numba's cache holds
+no mechanism's function. Typed by the function each was first called with, they were
+compiled again for each mechanism, and their cache index named every mechanism
+rendered before, each of which a later process compiled again when it read that index:
+a render started later the more mechanisms the machine had rendered.
 """
 
 from __future__ import annotations
 
 import math
 
-from numba import njit
+from numba import njit, types
 
 from evo_door.models.haptic import DEVICE_OFFSET_Y, DEVICE_OFFSET_Z
 from evo_door.render.columns import COMMAND, DTHETA, FORCE, POSITION, THETA, USER_FORCE, VELOCITY
 from evo_door.render.safety import NON_FINITE, limit_force
+from evo_door.sim.states import RHS_TYPE
+
+_vec = types.float64[::1]
+_mat = types.float64[:, ::1]
 
 #: entries of the geometry vector ``geo`` (:func:`geometry` in
 #: :mod:`evo_door.render.mechanism` fills it)
@@ -78,7 +88,7 @@ def handle_of(pos, vel, geo, out):
     out[2] = 0.0
 
 
-@njit(cache=True)
+@njit(types.float64(RHS_TYPE, _vec, _vec, types.int64, types.float64, _vec), cache=True)
 def hand_force(rhs, x, p, iv, gain, dx):
     """The force (N, + toward closed) the mechanism in state ``x`` puts on the hand:
     the handle's acceleration with no hand force, ``dx[iv]``, over ``gain``."""
@@ -86,7 +96,13 @@ def hand_force(rhs, x, p, iv, gain, dx):
     return dx[iv] / gain
 
 
-@njit(cache=True)
+@njit(
+    types.void(
+        RHS_TYPE, _vec, _vec, types.int64, types.int64, types.float64, types.float64,
+        types.float64, types.float64, types.int64, _mat,
+    ),
+    cache=True,
+)  # fmt: skip
 def advance_others(rhs, x, p, ih, iv, q, dq, force, period, nsub, work):
     """The states of ``x`` other than the handle's over ``period`` (s): ``nsub`` classic
     Runge-Kutta steps of ``rhs`` with the hand's ``force`` (N), the handle imposed at
@@ -142,7 +158,13 @@ def constraint_force(pos, vel, geo, out):
     out[2] = -geo[G_K_ACROSS] * (zm - radius * c) - geo[G_C_ACROSS] * v_r * c
 
 
-@njit(cache=True)
+@njit(
+    types.int64(
+        RHS_TYPE, _vec, _vec, _vec, _vec, _vec, _vec, types.int64, types.int64,
+        types.float64, types.int64, types.float64, _vec, _mat, _vec, _vec,
+    ),
+    cache=True,
+)  # fmt: skip
 def mechanism_command(rhs, pos, vel, user, x, p, geo, ih, iv, period, nsub, limit, hs, work,
                       out, row):  # fmt: skip
     """One cycle (the module docstring): the force to command (N, device axes) into

@@ -266,6 +266,17 @@ def step_period(
 
 
 @njit(cache=True, nogil=True, inline="always")
+def span_factor(err, exponent, small):
+    """How much longer (or shorter) the next step over several periods is made after one
+    of error ``err`` (its tolerance 1): ``0.9 err**exponent`` within 0.2 and 5, and 5
+    below ``small``. ``exponent`` is minus one over the order of the error estimate (a
+    ``dopri5`` span's -1/5, ROS2's -1/2)."""
+    if err < small:
+        return 5.0
+    return min(5.0, max(0.2, 0.9 * err**exponent))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def try_span(
     accel, switches, p, theta, dtheta, a_now, force, k, stop, dt, tol, n_sw, stick, g0, g1,
     span, wait, patience, stiff, th_s, w_s,
@@ -314,15 +325,15 @@ def try_span(
                 g0, g1, th_s, w_s,
             )  # fmt: skip
             if found == SPAN_KEPT:
-                grow = 5.0 if err < 1e-4 else 0.9 * err**-0.2
-                return m, a_end, min(MAX_SPAN, max(2, int(m * min(5.0, grow)))), 0, 1, False
+                m_next = min(MAX_SPAN, max(2, int(m * span_factor(err, -0.2, 1e-4))))
+                return m, a_end, m_next, 0, 1, False
             if found != SPAN_COARSE or not math.isfinite(err):
                 break
             if level and not have_j:
                 have_j = True
                 a_t, a_w = stiffness(accel, p, theta, dtheta, force[k], a_now)
             if not (m * dt * a_w < -STIFF_LIMIT):
-                m = int(m * max(0.2, 0.9 * err**-0.2))
+                m = int(m * span_factor(err, -0.2, 1e-4))
                 continue
         # past dopri5's stability limit at this length: the L-stable step
         found, err, a_end = stiff_span_step(
@@ -330,11 +341,11 @@ def try_span(
             th_s, w_s, a_t, a_w,
         )  # fmt: skip
         if found == SPAN_KEPT:
-            grow = 5.0 if err < 1e-3 else 0.9 * err**-0.5
-            return m, a_end, min(MAX_SPAN, max(2, int(m * min(5.0, grow)))), 0, 1, True
+            m_next = min(MAX_SPAN, max(2, int(m * span_factor(err, -0.5, 1e-3))))
+            return m, a_end, m_next, 0, 1, True
         if found != SPAN_COARSE or not math.isfinite(err):
             break
-        m = int(m * max(0.2, 0.9 * err**-0.5))
+        m = int(m * span_factor(err, -0.5, 1e-3))
     return 0, 0.0, MIN_SPAN, patience, min(2 * patience, MAX_SKIP), False
 
 
@@ -477,6 +488,15 @@ def integrate(
     return integrate_compiled(accel, switches or no_switches, *args)
 
 
+#: How many blocks a population's rows are split into for the threads to share
+#: (:func:`integrate_batch`, :func:`evo_door.sim.objective._population_errors`): each
+#: block prepares its rows one after another into one vector, so that what a row shares
+#: with the last (the door's pose table, where the geometry is not free) is kept, not
+#: made again. More blocks than threads, so that numba shares them out over every
+#: thread as it shared the rows (a block's rows are consecutive, as a thread's were).
+ROW_BLOCKS = 16
+
+
 @njit(
     types.void(
         INTEGRATE_TYPE,
@@ -528,25 +548,14 @@ def integrate_batch(
     ``accel``, ``prepare`` and ``size`` are a :func:`kernel_form`: each row is prepared
     (into a vector of ``size`` floats) inside the parallel loop and integrated with
     ``accel`` on it by ``trial``, :func:`integrate_compiled` (:data:`INTEGRATE_TYPE`);
-    ``switches``, ``n_sw`` and ``stick`` as in :func:`integrate`."""
-    for i in prange(P.shape[0]):
+    ``switches``, ``n_sw`` and ``stick`` as in :func:`integrate`. The rows go to the
+    threads in :data:`ROW_BLOCKS` blocks, each block's rows prepared into one vector."""
+    rows = P.shape[0]
+    for b in prange(ROW_BLOCKS):
         q = np.empty(size)
-        prepare(P[i], q)
-        ok_out[i] = trial(
-            accel,
-            switches,
-            q,
-            force,
-            dt,
-            substeps,
-            theta0,
-            dtheta0,
-            method,
-            tol,
-            n_sw,
-            stick,
-            theta_out[i],
-            dtheta_out[i],
-            ddtheta_out[i],
-            True,
-        )
+        for i in range(b * rows // ROW_BLOCKS, (b + 1) * rows // ROW_BLOCKS):
+            prepare(P[i], q)
+            ok_out[i] = trial(
+                accel, switches, q, force, dt, substeps, theta0, dtheta0, method, tol, n_sw,
+                stick, theta_out[i], dtheta_out[i], ddtheta_out[i], True,
+            )  # fmt: skip

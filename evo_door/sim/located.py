@@ -76,7 +76,9 @@ MAX_REJECTS = 400
 #: Most steps of one period without an event taken outside the locating loop.
 MAX_SMOOTH_STEPS = 256
 
-_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+#: The W-method's gamma, 1 + 1/sqrt(2): the L-stable ROS2 step of the ``semi_implicit``
+#: scheme, of a state-vector step and of a stiff span.
+GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 
 #: Signature of a model's ``switches(theta, dtheta, force, p, g)``: writes its
 #: switching functions into ``g``.
@@ -241,7 +243,7 @@ def ros2_step(accel, p, theta, dtheta, a_start, f1, h, a_t, a_w, side):
     (I - gamma h J) k1 = f(t, x);  (I - gamma h J) k2 = f(t + h, x + h k1) - 2 k1;
     x_new = x + h (3 k1 + k2) / 2.
     """
-    gh = _GAMMA * h
+    gh = GAMMA * h
     # M = I - gamma h J = [[1, -gh], [-gh a_t, 1 - gh a_w]]
     m12 = -gh
     m21 = -gh * a_t

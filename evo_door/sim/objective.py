@@ -49,6 +49,7 @@ from evo_door.sim.integrators import (
     ACCEL_TYPE,
     INTEGRATE_TYPE,
     PREPARE_TYPE,
+    ROW_BLOCKS,
     integrate_compiled,
     kernel_form,
 )
@@ -171,13 +172,6 @@ def accel_population_errors(
     )  # fmt: skip
 
 
-#: How many blocks :func:`_population_errors` splits a population's rows into, for the
-#: threads to share: each block prepares its rows one after another into one vector.
-#: More blocks than threads, so that numba shares them out over every thread as it
-#: shared the rows (a block's rows are consecutive, as a thread's were).
-ROW_BLOCKS = 16
-
-
 @njit(
     types.void(
         INTEGRATE_TYPE,
@@ -232,7 +226,7 @@ def _population_errors(
 ):
     """:func:`accel_population_errors` on a :func:`~evo_door.sim.integrators.kernel_form`:
     each row of ``P`` is prepared (``prepare`` into ``size`` floats) once and serves
-    every trial. The rows go to the threads in :data:`ROW_BLOCKS` blocks, each block's
+    every trial. The rows go to the threads in :data:`~evo_door.sim.integrators.ROW_BLOCKS` blocks, each block's
     rows prepared into one vector: what a row shares with the last (the door's pose
     table, where the geometry is not free) is kept, not made again."""
     n_trials = offsets.shape[0] - 1

@@ -19,7 +19,7 @@ import math
 
 from numba import njit
 
-from evo_door.sim.located import _GAMMA, DOPRI_NODES, _crossed, dopri_stages, jacobian
+from evo_door.sim.located import DOPRI_NODES, GAMMA, _crossed, dopri_stages, jacobian
 
 C2, C3, C4, C5 = DOPRI_NODES
 
@@ -195,7 +195,7 @@ def stiff_span_step(
     """
     h = m * dt
     f = force[k]
-    gh = _GAMMA * h
+    gh = GAMMA * h
     # M = I - gamma h J = [[1, -gh], [-gh a_t, 1 - gh a_w]]; a_t, a_w <= 0: det >= 1
     m21 = -gh * a_t
     m22 = 1.0 - gh * a_w

@@ -28,10 +28,10 @@ from numba import njit
 from evo_door.sim.located import (
     CREEP,
     DOPRI5,
+    GAMMA,
     SEMI_IMPLICIT,
 )
 
-_GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 #: ROS2 drops its Jacobian for a step when det(I - gamma h J) falls below this: a
 #: growing mode with gamma h lambda near 1 would make the linear systems near singular.
 MIN_DETERMINANT = 0.5
@@ -276,7 +276,7 @@ def ros2_step(rhs, p, x, a1, f1, h, contacts, modes, JM, piv, W, out):
     J, M = JM[0], JM[1]
     k1, k2, xs, y, r = W[K2], W[K3], W[XS], W[Y], W[R]
     n = x.shape[0]
-    gh = _GAMMA * h
+    gh = GAMMA * h
     for i in range(n):
         for j in range(n):
             M[i, j] = -gh * J[i, j]
