@@ -164,6 +164,12 @@ REASONS = {
     "test_fmu::test_a_ga_recovers_three_parameters_of_an_untuned_fmu_from_fmpy_trials": (
         "trials made by FMPy, then a GA on the FMU"
     ),
+    "test_events::test_a_period_without_events_has_the_located_steps_numbers": (
+        "the first of its cases compiles the test's own loop of located steps"
+    ),
+    "test_fmu::test_simulate_agrees_with_fmpy_and_with_scipy": (
+        "builds the FMU; the first case of each FMI version compiles its runner's kernels"
+    ),
 }
 
 
