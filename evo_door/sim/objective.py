@@ -226,9 +226,10 @@ def _population_errors(
 ):
     """:func:`accel_population_errors` on a :func:`~evo_door.sim.integrators.kernel_form`:
     each row of ``P`` is prepared (``prepare`` into ``size`` floats) once and serves
-    every trial. The rows go to the threads in :data:`~evo_door.sim.integrators.ROW_BLOCKS` blocks, each block's
-    rows prepared into one vector: what a row shares with the last (the door's pose
-    table, where the geometry is not free) is kept, not made again."""
+    every trial. The rows go to the threads in
+    :data:`~evo_door.sim.integrators.ROW_BLOCKS` blocks, each block's rows prepared into
+    one vector: what a row shares with the last (the door's pose table, where the
+    geometry is not free) is kept, not made again."""
     n_trials = offsets.shape[0] - 1
     rows = P.shape[0]
     for b in prange(ROW_BLOCKS):
