@@ -353,3 +353,23 @@ def remember_addresses() -> bool:
 
 
 remember_addresses()
+
+
+class TypedFunction:
+    """A compiled function ``func`` (a dispatcher) handed to kernels as a first-class
+    function of numba type ``ftype``, its entry point looked up once, here.
+
+    Given the dispatcher itself, numba types it and converts it to ``ftype`` at every
+    call of the kernel, even with the addresses memoised (above): a Python call of the
+    renderer's cycle on a mechanism took about twice as long. numba reads this
+    object's type from ``_numba_type_`` and its address from ``__wrapper_address__``
+    (its wrapper-address protocol); the object keeps ``func`` alive, so the address
+    stays valid."""
+
+    def __init__(self, func, ftype):
+        self.func = func
+        self._numba_type_ = ftype
+        self._address = function_type._get_wrapper_address(func, ftype.signature)
+
+    def __wrapper_address__(self) -> int:
+        return self._address

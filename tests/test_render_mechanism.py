@@ -506,3 +506,35 @@ def test_a_mechanisms_cycle_compiles_nothing_for_the_mechanisms_rendered_before(
         runs.append((int(count), done.stdout.split("\n")[1]))
         assert math.isfinite(float(force))
     assert runs[-1] == (0, ""), runs
+
+
+def test_the_cycle_given_the_rhs_looked_up_once_is_the_cycle_given_the_function():
+    """The loop hands its kernels the mechanism's ``rhs`` with its entry point looked up
+    once (``RenderedModel.cycle_rhs``): 200 cycles of the drawer, moving, give the same
+    states, commands and log rows to the bit as with the compiled function itself."""
+    from evo_door.render.mechanism import RenderedModel
+    from evo_door.render.mechanism_kernels import N_GEOMETRY, N_WORK, mechanism_command
+
+    model = get_model(DRAWER)
+    p = param_vector(model.load_params(), model.params)
+    ih, iv = model.handle
+    found = []
+    for rhs in (model.rhs, RenderedModel(model).cycle_rhs):
+        x = np.linspace(0.01, 0.2, len(model.x0))
+        pos, vel, user = (
+            np.array([0.0, 0.1, 0.0]),
+            np.array([0.0, 0.3, 0.0]),
+            np.array([0.0, 2.0, 0.0]),
+        )
+        geo = np.zeros(N_GEOMETRY)
+        geo[:8] = (1.0, 0.0, 0.0, 2000.0, 5.0, 2000.0, 5.0, 0.5)
+        hs, work, out, row = np.zeros(5), np.zeros((N_WORK, x.size)), np.zeros(3), np.zeros(40)
+        rows = []
+        for _ in range(200):
+            pos[1] += 1e-4
+            code = mechanism_command(rhs, pos, vel, user, x, p, geo, ih, iv, 1e-3, 4, 40.0, hs,
+                                     work, out, row)  # fmt: skip
+            rows.append((code, *x, *out, *row))
+        found.append(np.array(rows))
+    assert np.isfinite(found[0]).all() and np.ptp(found[0][:, 1]) > 0.0  # the drawer moved
+    np.testing.assert_array_equal(found[1], found[0])

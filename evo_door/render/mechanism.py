@@ -39,6 +39,7 @@ import math
 import numpy as np
 
 from evo_door.errors import UserError
+from evo_door.kernel_cache import TypedFunction
 from evo_door.models.haptic import CLOSED, PARAMS
 from evo_door.params import param_vector
 from evo_door.render.loop import ServoLoop
@@ -58,6 +59,7 @@ from evo_door.render.mechanism_kernels import (
     handle_of,
     mechanism_command,
 )
+from evo_door.sim.states import RHS_TYPE
 
 #: the circle of a rotary handle (m): the haptic model's default radius
 RADIUS = PARAMS["radius"].default
@@ -124,6 +126,8 @@ class RenderedModel:
         others = [i for i in range(self.n) if i not in (self.ih, self.iv)]
         self.others = np.array(others, dtype=np.int64)
         self.contacts = [k for k in self.law.contacts if k not in (self.ih, self.iv)]
+        #: the rhs as the cycle's kernels take it, its entry point looked up once
+        self.cycle_rhs = TypedFunction(self.law.rhs, RHS_TYPE)
 
     @property
     def path(self):
@@ -490,10 +494,10 @@ class MechanismLoop(ServoLoop):
         work = np.zeros_like(self._work)
         m = self.mech
         mechanism_command(
-            m.law.rhs, self._pos, self._vel, self._user, x, self._p, self._geo, m.ih, m.iv,
+            m.cycle_rhs, self._pos, self._vel, self._user, x, self._p, self._geo, m.ih, m.iv,
             self.period, self._nsub, self.limit, self._hs, work, self._cmd, self._row,
         )  # fmt: skip
-        advance_others(m.law.rhs, x, self._p, m.ih, m.iv, 0.0, 0.0, 0.0, self.period, 0, work)
+        advance_others(m.cycle_rhs, x, self._p, m.ih, m.iv, 0.0, 0.0, 0.0, self.period, 0, work)
 
     def _log_law(self) -> None:
         m = self.mech
@@ -529,7 +533,7 @@ class MechanismLoop(ServoLoop):
                 self._fresh = False
         cmd = self._cmd
         code = mechanism_command(
-            m.law.rhs, self._pos, self._vel, self._user, self._x, self._p, self._geo, m.ih,
+            m.cycle_rhs, self._pos, self._vel, self._user, self._x, self._p, self._geo, m.ih,
             m.iv, self._check_period, self._nsub, self.limit, self._hs, self._work, cmd,
             self._row,
         )  # fmt: skip
