@@ -17,4 +17,8 @@ longer passive (its CPU 5 s less).
 
 import os
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+#: set (to "1") where the suite chose the policy, for the workers and the commands too
+SUITE_SET_POLICY = "EVO_DOOR_TESTS_SET_OMP_POLICY"
+if "OMP_WAIT_POLICY" not in os.environ:
+    os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    os.environ[SUITE_SET_POLICY] = "1"

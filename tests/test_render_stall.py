@@ -31,7 +31,7 @@ from evo_door.render import supervisor as sup
 from evo_door.render.device import SimDevice
 from evo_door.render.hm_protocol import BIAS_NAME, FrameReader, encode
 from evo_door.render.loop import ServoLoop
-from tests.helpers import freeze
+from tests.helpers import LOADED_MACHINE_WATCHDOG, freeze
 
 #: the probe's question: the device's state, and the host's bias force and whether it is on
 PROBE = f"get state;get {BIAS_NAME} force;get {BIAS_NAME} enabled"
@@ -249,7 +249,9 @@ def test_a_killed_renderer_leaves_no_force(emulator):
 def test_a_normal_end_is_no_stall_and_leaves_no_supervisor(emulator, tmp_path):
     log = tmp_path / "ok.h5"
     probe = Probe(emulator)
-    proc = _render(emulator, "--log", str(log), duration=1.0)
+    # a normal end, not the loop's stall budget: room for a loaded machine (a run beside
+    # the suite once held this loop 100 ms and its watchdog ended the render)
+    proc = _render(emulator, "--log", str(log), *LOADED_MACHINE_WATCHDOG, duration=1.0)
     try:
         supervisor = _supervisor_pid(proc.pid)
         out, err = proc.communicate(timeout=60)

@@ -239,7 +239,7 @@ def scan(mech: RenderedModel, p) -> dict:
     lo, hi = mech.range
     span = hi - lo
     gain = mech.gain(p)
-    rhs, dx = mech.law.rhs, np.empty(mech.n)
+    rhs, dx = mech.cycle_rhs, np.empty(mech.n)  # its entry point looked up once
     metres = mech.per_metre()
     hq, best = 1e-7 * span, dict(K=0.0, K_at=lo, C=0.0, C_at=lo, B=0.0, B_at=lo)
 

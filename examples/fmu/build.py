@@ -51,7 +51,7 @@ RK4_MAX_STEP = 1e-4
 FIRST_PARAMETER_VR = 10
 #: The faulty door of the tests (``faults=True``, C ``DOOR_FAULTS``): its derivatives and
 #: its DoStep misbehave when ``damping`` is above a threshold (N.m.s/rad), the highest
-#: one passed deciding: a segmentation fault, an endless loop, an error status.
+#: one passed deciding: a segmentation fault, an endless (sleeping) loop, an error status.
 FAULTS = {"crash": 9.0, "hang": 8.0, "error": 7.0}
 
 
