@@ -200,8 +200,8 @@ def _empty_cache(tmp_path) -> Path:
 def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(tmp_path):
     """A fresh cache (an install): the first command, ``evo-door compile``, names each
     kernel it compiles as it starts (any command does: the notes are the command line's,
-    ``evo_door.cli.compile_notes``); then ``simulate haptic`` and a GA run compile
-    nothing."""
+    ``evo_door.cli.compile_notes``); then ``simulate haptic``, a GA run and a render
+    compile nothing."""
     cache = _empty_cache(tmp_path)
     notes = _cli(["compile"], cache, tmp_path)
     assert notes[0].startswith("evo-door: compiling numba kernels (the first run")
@@ -216,6 +216,11 @@ def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_com
     (tmp_path / "tiny.yaml").write_text(TINY_EXPERIMENT)
     assert DATA.exists()
     assert _cli(["run", "tiny.yaml", "--out", "tiny.h5"], cache, tmp_path) == []
+    # a session's render, in simulated time, with a log (its resampling is compiled too)
+    render = ["render", "--user", "open", "--duration", "0.2", "--log", "r.h5"]
+    assert _cli(render, cache, tmp_path) == []
+    tanh = [*render[:-1], "r2.h5", "--friction", "tanh", "--clamp"]  # passive at the period
+    assert _cli(tanh, cache, tmp_path) == []
     assert _cli(["compile"], cache, tmp_path) == []  # its own summary goes to stdout
 
 

@@ -8,9 +8,11 @@ session. It imports every module of the package (kernels with a declared signatu
 compile there) and runs each built-in model through what the commands use, briefly:
 a simulation by every integration scheme, one by a batch, a force-angle curve, and a
 GA generation with its polish by every objective, on two impulses of the virtual rig (no
-repository data needed). ``evo-door simulate`` and ``evo-door run`` then compile nothing
-(``tests/test_kernel_cache.py``). The render loop's own kernels and a mechanism file's
-module compile at their first use, named by the notes.
+repository data needed), and a render of the haptic model on the simulated device, in
+simulated time. ``evo-door simulate``, ``evo-door run`` and ``evo-door render`` then
+compile nothing (``tests/test_kernel_cache.py``). A mechanism file's module, the FMU
+runner (for the FMI version of the FMU at hand) and the HapticMaster emulator's physics
+compile at their first use, named by the notes.
 """
 
 from __future__ import annotations
@@ -102,12 +104,23 @@ def steps():
         ).run(folder / f"{kind}.h5")
         return ""
 
+    def rendering(folder):
+        from evo_door.render.device import SimDevice
+        from evo_door.render.loop import ServoLoop
+
+        params = get_model("haptic").load_params()
+        loop = ServoLoop(SimDevice("open", radius=params["radius"]), params)
+        loop.run(0.05)  # simulated time: a few hundred cycles, in a blink
+        loop.write_log(folder / "render.h5")
+        return ""
+
     yield "importing every module", importing
     for name in ("haptic", "door"):
         yield f"simulating the {name} model", lambda name=name: simulating(name)
     with tempfile.TemporaryDirectory() as tmp:
         for kind in KINDS:
             yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
+        yield "a render of the haptic model on the simulated device", lambda: rendering(Path(tmp))
 
 
 def run(args) -> int:
