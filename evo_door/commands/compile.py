@@ -110,7 +110,7 @@ def steps():
 
         params = get_model("haptic").load_params()
         loop = ServoLoop(SimDevice("open", radius=params["radius"]), params)
-        loop.run(0.05)  # simulated time: a few hundred cycles, in a blink
+        loop.run(0.05)  # s of simulated time: 125 cycles at the default 2500 Hz
         loop.write_log(folder / "render.h5")
         return ""
 
