@@ -91,12 +91,13 @@ class HeaviestFilesFirst:
         measured = measured_tiers()
         weight: dict[str, tuple[int, int]] = {}
         for item in items:
-            listed, count = weight.get(_file(item), (0, 0))
-            weight[_file(item)] = (listed + (item.nodeid in measured), count + 1)
+            listed, count = weight.get(file := _file(item), (0, 0))
+            weight[file] = (listed + (item.nodeid in measured), count + 1)
         items.sort(key=lambda item: [-w for w in weight[_file(item)]])  # stable in a file
 
 
 def _file(item) -> str:
+    """The test file of ``item``, as its node id names it (``tests/test_x.py``)."""
     return item.nodeid.split("::")[0]
 
 
@@ -108,7 +109,7 @@ def _own_shared(item) -> set[tuple[str, str]]:
     """``(file, name)`` of the module- or session-scoped fixtures a test asks for that its
     own file defines."""
     info = getattr(item, "_fixtureinfo", None)  # a docstring example has none
-    here = item.nodeid.split("::")[0]
+    here = _file(item)
     return {
         (here, name)
         for name, defs in (info.name2fixturedefs.items() if info else ())
