@@ -513,10 +513,42 @@ def _wait_phase(driver, phase: str, trial: int) -> None:
     )
 
 
+def _wait_told(driver, phase: str, trial: int) -> None:
+    """Until the page was told that ``phase`` of ``trial`` began (its record of what it
+    received: a poll of the display may miss an interval of 0.25 s on a loaded machine)."""
+    wait(
+        driver,
+        lambda d: (
+            {"phase": phase, "trial": trial}
+            in [{"phase": m["phase"], "trial": m["trial"]} for m in received(d, "jnd_phase")]
+        ),
+        what=f"JND phase {phase!r} of trial {trial} (now {_jnd_phase(driver)})",
+    )
+
+
+def _felt_in_log(s: dict, name: str) -> list[tuple[float, float]]:
+    """Each JND trial's two values of ``name`` as the renderer's log has them in force:
+    the set in force when the trial's event came, then the changes until its answer
+    (the console sends only what differs: interval 1 may need no change)."""
+    sets = s["sets"]
+    events = s["events"]
+    trials = [e["t"] for e in events if e["kind"] == "jnd_trial"]
+    answers = [e["t"] for e in events if e["kind"] == "jnd_answer"]
+    felt = []
+    for start, end in zip(trials, answers, strict=True):
+        before = [values[name] for t, values in sets if t <= start][-1]
+        during = [values[name] for t, values in sets if start < t <= end]
+        felt.append(tuple([before, *during][-2:]))
+    return felt
+
+
 def test_a_jnd_session_answered_through_the_page(session, page, tmp_path):
     """The operator starts a blind JND session from the page; a simulated participant
     answers each trial from the values the renderer had in force in interval 1 and 2
-    (its control port), by the page's buttons and by keys 1 and 2."""
+    (its control port), by the page's buttons and by keys 1 and 2. Interval 2's value
+    stays in force until the answer; interval 1's is read when the page was told of it,
+    which on a loaded machine may be after it: the log test checks both intervals of every
+    trial from the renderer's own log."""
     from evo_door.perception.jnd_file import read_jnd_file
     from evo_door.perception.procedures import SimParticipant
 
@@ -549,11 +581,10 @@ def test_a_jnd_session_answered_through_the_page(session, page, tmp_path):
     participant = SimParticipant(JND_WEBER, seed=5)
     felt, answers, blind_track = [], [], []
     for k in range(JND_TRIALS):
-        _wait_phase(page, "1", k)
+        _wait_told(page, "1", k)
         v1 = _in_force_on_renderer(session, JND_PARAM)
-        _wait_phase(page, "2", k)
+        _wait_phase(page, "answer", k)  # shown until the answer, as interval 2's value
         v2 = _in_force_on_renderer(session, JND_PARAM)
-        _wait_phase(page, "answer", k)
         # blind: the page shows the reference, and the track only the answers so far
         assert in_force(page, JND_PARAM) == reference
         marks = page.find_elements(By.CSS_SELECTOR, "#jnd-track circle.mark")
@@ -592,11 +623,16 @@ def test_a_jnd_session_answered_through_the_page(session, page, tmp_path):
     (end,) = [m for m in received(page, "jnd") if m["status"] == "complete"]
     fit = end["fit"]
     assert fit["trials"] == JND_TRIALS and fit["ci95"][0] <= fit["weber"] <= fit["ci95"][1]
-    # the answers were right or wrong as the rendered values say
-    for (v1, v2), t in zip(felt, end["track"], strict=True):
-        assert v1 != v2 and reference in (v1, v2)
-        assert t["order"] == (1 if v1 > v2 else 2)
-        assert max(v1, v2) == pytest.approx(reference * (1 + t["step"]), rel=1e-9)
+    # the page was told every phase of every trial, in order
+    told = [(m["trial"], m["phase"]) for m in received(page, "jnd_phase")]
+    trial_phases = ["pause", "1", "pause", "2", "answer"]
+    assert told == [(k, p) for k in range(JND_TRIALS) for p in trial_phases] + [
+        (JND_TRIALS, "fitting")
+    ], told
+    # interval 2's value, in force at the answer, as the track's order and step say
+    for (_, v2), t in zip(felt, end["track"], strict=True):
+        stronger = reference * (1 + t["step"])
+        assert v2 == pytest.approx(reference if t["order"] == 1 else stronger, rel=1e-9)
     # the file, beside the console's saves; the set in force back
     path = Path(end["path"])
     assert path.parent.resolve() == session.folder.resolve() and path.suffix == ".h5"
@@ -681,8 +717,11 @@ def test_the_log_holds_each_change_between_two_cycles_and_the_choice(session, ca
 def test_the_log_holds_every_jnd_presentation_and_answer(session):
     if not session.jnd or session.proc.poll() is None:
         pytest.skip("the JND session or the log test did not run")
-    events = read_session(session.log)["events"]
+    s = read_session(session.log)
+    events = s["events"]
+    rendered = _felt_in_log(s, JND_PARAM)
     (start,) = [e for e in events if e["kind"] == "jnd_start"]
+    reference = start["reference"]
     assert start["param"] == JND_PARAM and start["blind"] is True and start["trials"] == JND_TRIALS
     assert (start["interval_s"], start["pause_s"], start["seed"]) == (0.25, 0.1, 11)
     trials = [e for e in events if e["kind"] == "jnd_trial"]
@@ -692,7 +731,14 @@ def test_the_log_holds_every_jnd_presentation_and_answer(session):
         zip(trials, answers, session.jnd["felt"], session.jnd["track"], strict=True)
     ):
         assert shown["trial"] == answered["trial"] == k and shown["t"] < answered["t"]
-        assert tuple(shown["values"]) == felt
+        assert felt[1] == rendered[k][1]  # interval 2's, read at the answer
+        # the rendered values: one the reference, the other the track's step above it,
+        # in the track's order, as the console said it would show them
+        v1, v2 = rendered[k]
+        assert v1 != v2 and reference in (v1, v2), rendered[k]
+        assert track["order"] == (1 if v1 > v2 else 2)
+        assert max(v1, v2) == pytest.approx(reference * (1 + track["step"]), rel=1e-9)
+        assert tuple(shown["values"]) == rendered[k]
         assert (answered["order"], answered["step"]) == (track["order"], track["step"])
         assert answered["answer"] == session.jnd["answers"][k]
         assert answered["correct"] == (answered["answer"] == answered["order"])
