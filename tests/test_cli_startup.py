@@ -12,6 +12,8 @@ import sys
 
 import pytest
 
+from tests.helpers import ROOT
+
 HEAVY = ("numba", "scipy", "matplotlib", "h5py", "deap", "aiohttp", "numpy")
 
 # Runs CODE in a fresh interpreter, then prints (as the last line) the heavy modules
@@ -137,11 +139,57 @@ def test_haptic_declaration_is_the_models():
     assert get_declaration("haptic") is model
 
 
+def test_door_declaration_is_the_models():
+    """The door's declaration (no numba) is the model's: names, units, bounds, notes;
+    once the model is loaded, its declaration is the model itself."""
+    from evo_door.models import door_params, get_declaration, get_model
+
+    model = get_model("door")
+    declared = door_params.DECLARATION
+    assert model.params is declared.params
+    assert (declared.name, declared.title, declared.notes, declared.theta_unit) == (
+        model.name,
+        model.title,
+        model.notes,
+        model.theta_unit,
+    )
+    assert get_declaration("door") is model
+
+
+def test_params_door_and_the_readers_of_a_door_run_import_no_numba():
+    """``params door``, ``show`` (text and JSON) and ``runs`` on a door run read the
+    door's names, units and presets from its declaration, without the model's kernels."""
+    from evo_door.models import get_model
+
+    run = ROOT / "tests" / "data" / "run-0.1-interrupted.h5"
+    printed, heavy = _probe(
+        f"""
+import contextlib, io, json
+import evo_door.cli
+from evo_door.models import get_declaration
+with contextlib.redirect_stdout(io.StringIO()) as said:
+    assert evo_door.cli.main(["params", "door"]) == 0
+    assert evo_door.cli.main(["show", {str(run)!r}]) == 0
+    assert evo_door.cli.main(["runs", {str(run.parent)!r}]) == 0
+with contextlib.redirect_stdout(io.StringIO()) as shown:
+    assert evo_door.cli.main(["show", {str(run)!r}, "--json"]) == 0
+print(json.dumps(json.loads(shown.getvalue())["units"]))
+print(json.dumps(get_declaration("door").presets()))
+print("F_atD" in said.getvalue() and "N m" in said.getvalue())
+"""
+    )
+    assert "numba" not in heavy, heavy
+    units, presets, text = printed.strip().splitlines()
+    assert json.loads(units) == {"F_load": "N", "M": "kg", "F_atD": "N"}
+    assert json.loads(presets) == get_model("door").presets() and "table54_spec" in presets
+    assert text == "True"
+
+
 def test_declaration_of_other_models_is_the_model():
     from evo_door.models import get_declaration, get_model
 
-    for name in ("door", "tests.conftest:OSCILLATOR_MODEL"):
-        assert get_declaration(name) is get_model(name)
+    name = "tests.conftest:OSCILLATOR_MODEL"
+    assert get_declaration(name) is get_model(name)
 
 
 def test_declaration_of_unknown_model_is_a_user_error():

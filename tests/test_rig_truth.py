@@ -22,7 +22,6 @@ from evo_door.models import get_model
 from evo_door.models.door import accel as door_accel
 from evo_door.models.door import energy
 from evo_door.models.door import truth as truth_module
-from evo_door.models.door.parameters import GRAVITY
 from evo_door.models.door.truth import (
     OFF,
     TABLE,
@@ -31,6 +30,7 @@ from evo_door.models.door.truth import (
     rigid_accel,
     stribeck_factor,
 )
+from evo_door.models.door_params import GRAVITY
 from evo_door.params import param_vector
 from evo_door.sim import simulate
 from tests.test_cli import cli

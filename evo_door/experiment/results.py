@@ -125,9 +125,23 @@ def model_of(model_name: str):
         return None
 
 
+@functools.lru_cache(maxsize=64)
+def declaration_of(model_name: str):
+    """A run's model's declaration (names, units, bounds), or None where the model
+    cannot be loaded: for a bundled model read without its kernels (no numba:
+    :func:`~evo_door.models.get_declaration`), so that ``show``, ``runs`` and
+    ``export-spec`` start at once; else the model itself. Cached as :func:`model_of`."""
+    from evo_door.models import get_declaration
+
+    try:
+        return get_declaration(model_name)
+    except UserError:
+        return None
+
+
 def declared_params(model_name: str) -> dict:
     """Parameter name -> declaration of a run's model ({}: values without units)."""
-    model = model_of(model_name)
+    model = declaration_of(model_name)
     return {} if model is None else {p.name: p for p in model.params}
 
 
@@ -137,7 +151,7 @@ def units_of(model_name: str) -> dict[str, str]:
 
 def theta_unit_of(model_name: str) -> str:
     """The unit of a run's model coordinate (``rad`` when the model cannot be loaded)."""
-    model = model_of(model_name)
+    model = declaration_of(model_name)
     return "rad" if model is None else model.theta_unit
 
 
@@ -197,6 +211,12 @@ class Results:
     def model(self):
         """The run's model, or None where it cannot be loaded (a user file moved away)."""
         return model_of(self.attrs["model"])
+
+    @property
+    def declaration(self):
+        """The run's model's names, units and bounds (a bundled model's without its
+        kernels: :func:`declaration_of`), or None where the model cannot be loaded."""
+        return declaration_of(self.attrs["model"])
 
     @property
     def complete(self) -> bool:
@@ -265,7 +285,7 @@ class Results:
         they score the fit. Otherwise (measured data) an empty dict.
         """
         found = None
-        model = self.model
+        model = self.declaration
         names = {self.attrs.get("model"), model.name if model is not None else None}
         for stored in self.record.trials:
             if stored.role != "fit":

@@ -105,7 +105,7 @@ def spec_table(res: Results, tolerance: bool = True) -> SpecTable:
             f"{res.path}: the run is not complete ({res.status().text}); a specification "
             "comes from a finished fit"
         )
-    model = res.model
+    model = res.declaration  # names, units and bounds: no kernels
     if model is None:
         raise UserError(f"{res.path}: model {res.attrs['model']!r} cannot be loaded")
     summary = res.summary()

@@ -189,6 +189,7 @@ class Declaration:
     params: ParamTable
     notes: str = ""
     preset_dirs: tuple[Path, ...] = ()
+    theta_unit: str = "rad"  # as :attr:`Model.theta_unit`
 
     def load_params(self, spec=None, overrides=None) -> ParamSet:
         """As :meth:`Model.load_params`."""
@@ -211,6 +212,7 @@ REGISTRY: dict[str, str] = {
 #: for the names of :data:`REGISTRY` whose declaration lives apart from the kernels.
 DECLARATIONS: dict[str, str] = {
     "haptic": "evo_door.models.haptic_params:DECLARATION",
+    "door": "evo_door.models.door_params:DECLARATION",
 }
 
 #: Models already loaded, by the key :func:`get_model` resolves a name to. Module-level

@@ -37,7 +37,7 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import optimize, special
+from scipy import special
 
 from evo_door.errors import UserError
 
@@ -184,6 +184,8 @@ def fit_psychometric(steps, correct, grid: int = 241) -> Fit:
 
     def nll(x):
         return -float(_log_likelihood(levels, n, k, math.exp(x[0]), math.exp(x[1]), x[2]))
+
+    from scipy import optimize  # here: a reader of JND files (``show``) never fits
 
     res = optimize.minimize(nll, x0, method="L-BFGS-B", bounds=bounds)
     x = res.x if res.fun <= nll(x0) else x0

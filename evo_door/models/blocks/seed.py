@@ -17,7 +17,7 @@ other component:
 Both call the door's own compiled blocks (:mod:`evo_door.models.door`), so a mechanism
 built from them is the built-in door's physics, not a copy of it
 (``examples/blocks/door.yaml``). Their parameters are the door's declarations
-(:data:`evo_door.models.door.parameters.TABLE`: units, defaults, bounds, meaning), under
+(:data:`evo_door.models.door_params.TABLE`: units, defaults, bounds, meaning), under
 the element's name (``plate.F_load``, ``latch.unlock_force``).
 """
 
@@ -30,7 +30,7 @@ from evo_door.models.blocks.components import ROTARY, Component, Site, Spec
 
 def _spec(door_name: str, name: str | None = None, meaning: str | None = None) -> Spec:
     """The door's declaration of ``door_name`` as a component's parameter ``name``."""
-    from evo_door.models.door.parameters import TABLE  # the door's package: on demand
+    from evo_door.models.door_params import TABLE  # the door's package: on demand
 
     p = TABLE[door_name]
     return Spec(

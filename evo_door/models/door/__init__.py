@@ -44,7 +44,6 @@ from evo_door.models.door.door import door, door_moment, door_potential
 from evo_door.models.door.frictionforce import friction_force
 from evo_door.models.door.kinematics import pose
 from evo_door.models.door.latch import latch, latch_angles, latch_potential
-from evo_door.models.door.parameters import N_SECTIONS, TABLE
 from evo_door.models.door.plate import plate, spring_potential, stop_h
 from evo_door.models.door.posetable import (
     NODE,
@@ -56,6 +55,7 @@ from evo_door.models.door.posetable import (
     table_pose_trig,
 )
 from evo_door.models.door.relativespeed import relative_speed, section_scale
+from evo_door.models.door_params import N_SECTIONS, NOTES, TABLE, TITLE
 from evo_door.params import param_vector
 from evo_door.sim.hold import HOLD_SIGNATURE, register_hold
 from evo_door.sim.integrators import PREPARE_SIGNATURE, register_prepared
@@ -463,26 +463,19 @@ def energy_of(params, theta, dtheta) -> np.ndarray:
     ).reshape(theta.shape)
 
 
-_NOTES = """\
-theta: 0 = fully open (door horizontal), pi/2 = closed; forces + toward closing, at
-the handle E (L from the hinge O). Geometry (L_*, G_*) is the fully-open pose in the
-cabinet frame: origin O, x out of the cabinet, y up. Presets: default (the virtual
-rig's door), table53_min / table53_mid / table53_max (seed table 5.3), table54_spec
-(seed table 5.4). Equations and drawing: docs/physical-model.md."""
-
 #: Dormand-Prince 5(4), adaptive, steps of at most one 1024 Hz sample, the stops, the
 #: wall and the latch's kinks located (:func:`switches`): the steep apex and the tanh
 #: frictions are followed by the step control. Its accuracy against a converged
 #: reference: tests/test_events.py (bounds), benchmarks/trial.md (measured).
 MODEL = Model(
     name="door",
-    title="Physical model of the dishwasher door",
+    title=TITLE,
     params=TABLE,
     accel=accel,
     method="dopri5",
     substeps=1,
     theta0=0.0,
-    notes=_NOTES,
+    notes=NOTES,
     rig_kinds=("impulse", "unlock", "lock", "slow"),
     switches=switches,
     n_switches=N_SWITCHES,

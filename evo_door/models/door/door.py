@@ -20,7 +20,7 @@ import math
 from numba import njit
 
 from evo_door.models.door.laws import dry_friction
-from evo_door.models.door.parameters import GRAVITY
+from evo_door.models.door_params import GRAVITY
 
 
 @njit(cache=True, nogil=True)

@@ -66,8 +66,8 @@ from evo_door.models.door import TABLE as DOOR_TABLE
 from evo_door.models.door import accel as door_accel
 from evo_door.models.door import switches as door_switches
 from evo_door.models.door.kinematics import pose
-from evo_door.models.door.parameters import GRAVITY
 from evo_door.models.door.relativespeed import relative_speed
+from evo_door.models.door_params import GRAVITY
 from evo_door.params import Param, ParamSet, ParamTable, load_params, param_vector
 from evo_door.sim.integrators import BLOWUP_SPEED, integrate
 from evo_door.sim_settings import DEFAULT_TOLERANCE, METHODS

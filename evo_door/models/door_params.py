@@ -1,5 +1,9 @@
 """Parameter declaration of the physical door model (seed chapter 3, tables 5.2-5.4).
 
+It imports no numba: ``evo-door params door``, ``show`` and the other readers of a
+results file take the names, units and bounds from here (:data:`DECLARATION`) without
+the model's kernels (:mod:`evo_door.models.door`, which takes :data:`TABLE` from here).
+
 Names are the seed's symbols written plainly (``T_atO`` for T_at_O); what the seed is,
 and the conventions of angles, signs and units: ``docs/conventions.md``. Geometry is
 given in the **fully-open pose** (theta = 0) in the cabinet frame of
@@ -14,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+from evo_door.models.base import Declaration
 from evo_door.params import Param, ParamTable
 
 #: Standard gravity (m/s^2).
@@ -345,3 +350,15 @@ _PARAMS += [
 
 #: The declaration; kernel vectors follow this order.
 TABLE = ParamTable("door", _PARAMS)
+
+NOTES = """\
+theta: 0 = fully open (door horizontal), pi/2 = closed; forces + toward closing, at
+the handle E (L from the hinge O). Geometry (L_*, G_*) is the fully-open pose in the
+cabinet frame: origin O, x out of the cabinet, y up. Presets: default (the virtual
+rig's door), table53_min / table53_mid / table53_max (seed table 5.3), table54_spec
+(seed table 5.4). Equations and drawing: docs/physical-model.md."""
+
+TITLE = "Physical model of the dishwasher door"
+
+#: What can be read of the door without its kernels (:func:`~evo_door.models.get_declaration`)
+DECLARATION = Declaration(name="door", title=TITLE, params=TABLE, notes=NOTES)
