@@ -185,6 +185,30 @@ print("F_atD" in said.getvalue() and "N m" in said.getvalue())
     assert text == "True"
 
 
+def test_a_mechanism_file_is_declared_from_the_file_alone():
+    """``params`` on a mechanism file, and its declaration (what ``show`` reads of a
+    mechanism's run), come from the file: its module is neither generated nor
+    compiled, numba not imported; the coordinate's unit follows the handle's kind."""
+    blocks = ROOT / "examples" / "blocks"
+    printed, heavy = _probe(
+        f"""
+import json
+import evo_door.cli
+from evo_door.models import get_declaration
+with contextlib.redirect_stdout(io.StringIO()) as said:
+    assert evo_door.cli.main(["params", {str(blocks / "soft_close_drawer.yaml")!r}, "--json"]) == 0
+units = {{r["name"]: r["unit"] for r in json.loads(said.getvalue())["params"]}}
+print(json.dumps(units))
+knob, drawer = (get_declaration(str({str(blocks)!r}) + f) for f in ("/knob.yaml", "/soft_close_drawer.yaml"))
+print(knob.theta_unit, drawer.theta_unit, knob.name, len(knob.params))
+"""
+    )
+    assert "numba" not in heavy, heavy
+    units, declared = printed.strip().splitlines()
+    assert json.loads(units)["box.mass"] == "kg" and json.loads(units)["runners.level"] == "N"
+    assert declared.split()[:3] == ["rad", "m", "detent-knob"]
+
+
 def test_declaration_of_other_models_is_the_model():
     from evo_door.models import get_declaration, get_model
 

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from evo_door.errors import UserError
-from evo_door.models.blocks import is_mechanism_spec, load_mechanism
+from evo_door.models.blocks import is_mechanism_spec, load_mechanism, mechanism_declaration
 from evo_door.models.check import RIG_KINDS, check_model  # noqa: F401 (RIG_KINDS: re-exported)
 from evo_door.params import ParamSet, ParamTable, available_presets, load_params
 from evo_door.params.declaration import suggest
@@ -190,6 +190,8 @@ class Declaration:
     notes: str = ""
     preset_dirs: tuple[Path, ...] = ()
     theta_unit: str = "rad"  # as :attr:`Model.theta_unit`
+    states: tuple[str, ...] = ()  # as :attr:`Model.states` (a model on a state vector)
+    handle: tuple[int, int] = (0, 1)  # as :attr:`Model.handle`
 
     def load_params(self, spec=None, overrides=None) -> ParamSet:
         """As :meth:`Model.load_params`."""
@@ -378,6 +380,8 @@ def get_declaration(name: str) -> Declaration | Model:
     that no installed package registers differently; else the :class:`Model` itself.
     """
     name = str(name).strip()
+    if is_mechanism_spec(name):
+        return _mechanism_declaration(name)
     if name not in DECLARATIONS or name in _MODELS:
         return get_model(name)
     targets = {
@@ -392,6 +396,19 @@ def get_declaration(name: str) -> Declaration | Model:
     presets = Path(origin).parent / "presets" if origin else None
     if presets is not None and presets.is_dir() and presets not in declaration.preset_dirs:
         declaration = replace(declaration, preset_dirs=declaration.preset_dirs + (presets,))
+    return declaration
+
+
+def _mechanism_declaration(name: str) -> Declaration | Model:
+    """A mechanism file's declaration read from the file (its module is neither
+    generated nor compiled), or its model once loaded."""
+    key = resolve_model_name(name)
+    if key in _MODELS or not Path(key).is_file():
+        return get_model(name)  # the model, or the missing file's one-line refusal
+    declaration = mechanism_declaration(Path(key))
+    presets = Path(key).parent / "presets"  # as get_model adds them
+    if presets.is_dir():
+        declaration = replace(declaration, preset_dirs=(presets,))
     return declaration
 
 

@@ -50,7 +50,6 @@ def load_mechanism(path: Path):
     """The :class:`~evo_door.models.base.Model` of the mechanism file ``path``."""
     from evo_door.models.base import Model
     from evo_door.models.blocks.mechanism import read_mechanism
-    from evo_door.params import ParamTable
 
     if not path.is_file():
         hint = ""
@@ -61,11 +60,8 @@ def load_mechanism(path: Path):
     mech = read_mechanism(path)
     module, layout = _compiled(mech)
     handle = mech.bodies[mech.handle]
-    linear = handle.kind == "linear"
     return Model(
-        name=mech.name,
-        title=mech.title,
-        params=ParamTable(mech.name, mech.params),
+        **_declared(mech, path),
         rhs=module.rhs,
         switches=getattr(module, "switches", None),
         n_switches=layout.n_switches,
@@ -78,8 +74,33 @@ def load_mechanism(path: Path):
         substeps=mech.integration["substeps"],
         theta0=handle.range[0],
         theta_range=handle.range,
-        theta_unit="m" if linear else "rad",
         rig_kinds=("impulse",),
+    )
+
+
+def mechanism_declaration(path: Path):
+    """The :class:`~evo_door.models.base.Declaration` of the mechanism file ``path``:
+    what a reader of its runs needs (names, units, bounds), from the file alone, its
+    module neither generated nor compiled."""
+    from evo_door import __version__
+    from evo_door.models.base import Declaration
+    from evo_door.models.blocks.codegen import generate
+    from evo_door.models.blocks.mechanism import read_mechanism
+
+    mech = read_mechanism(path)
+    _, layout = generate(mech, __version__)  # source text only: its states' names
+    return Declaration(**_declared(mech, path), states=layout.states, handle=layout.handle)
+
+
+def _declared(mech, path: Path) -> dict:
+    """The fields a mechanism's model and its declaration share."""
+    from evo_door.params import ParamTable
+
+    return dict(
+        name=mech.name,
+        title=mech.title,
+        params=ParamTable(mech.name, mech.params),
+        theta_unit="m" if mech.bodies[mech.handle].kind == "linear" else "rad",
         notes=mech.notes or _notes(mech, path),
     )
 
