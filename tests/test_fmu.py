@@ -129,6 +129,32 @@ def test_simulate_agrees_with_fmpy_and_with_scipy(fmus, fmi, interface, tmp_path
         assert np.abs(ours - reference(t, force)).max() < 1e-6
 
 
+def test_evo_door_compile_compiles_the_types_an_fmus_runs_pass(fmus):
+    """``evo-door compile`` compiles the FMU kernels without an FMU, for stub functions
+    and a run's arrays (``runner_signatures``): the types real runs pass, model exchange
+    and co-simulation, FMI 2 and 3, and the force that holds the door, are among them,
+    so that an FMU's first run after it compiles nothing."""
+    from evo_door.models import get_model
+    from evo_door.models.fmu import kernels
+    from evo_door.models.fmu.instance import runner_signatures
+
+    _, force = push(duration=0.1)
+    for fmi in (2, 3):
+        for interface in ("me", "cs"):
+            model = get_model(f"{fmus[fmi, 'tuned']}:{interface}")
+            p = model.load_params().vector
+            theta, _, _, ok = model.runner.simulate(p, force, DT)
+            assert ok and np.isfinite(theta).all()
+            if interface == "me":
+                assert np.isfinite(model.runner.hold_force(p, np.array([0.3, 0.6]), 0.0)).all()
+    ran = {(k, tuple(sig)) for k in (kernels.run_me, kernels.run_cs, kernels.hold_me)
+           for sig in k.signatures}  # fmt: skip
+    listed = set(runner_signatures())
+    assert {k for k, _ in ran} == {kernels.run_me, kernels.run_cs, kernels.hold_me}
+    assert ran <= listed, ran - listed
+    assert len(listed) == 6  # three kernels, two FMI versions: the types differ
+
+
 @pytest.mark.numerics
 def test_the_trials_initial_state_and_parameters_reach_the_fmu(fmus):
     from evo_door.models import get_model

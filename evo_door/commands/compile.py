@@ -8,11 +8,12 @@ session. It imports every module of the package (kernels with a declared signatu
 compile there) and runs each built-in model through what the commands use, briefly:
 a simulation by every integration scheme, one by a batch, a force-angle curve, and a
 GA generation with its polish by every objective, on two impulses of the virtual rig (no
-repository data needed), and a render of the haptic model on the simulated device, in
-simulated time. ``evo-door simulate``, ``evo-door run`` and ``evo-door render`` then
-compile nothing (``tests/test_kernel_cache.py``). A mechanism file's module, the FMU
-runner (for the FMI version of the FMU at hand) and the HapticMaster emulator's physics
-compile at their first use, named by the notes.
+repository data needed), a render of the haptic model on the simulated device, in
+simulated time, and the FMU runners for FMI 2 and 3 (compiled for the types of any FMU's
+functions: no FMU needed). ``evo-door simulate``, ``evo-door run`` and ``evo-door render``
+then compile nothing (``tests/test_kernel_cache.py``), nor an FMU's first run
+(``tests/test_fmu.py``). A mechanism file's module and the HapticMaster emulator's
+physics compile at their first use, named by the notes.
 """
 
 from __future__ import annotations
@@ -114,6 +115,12 @@ def steps():
         loop.write_log(folder / "render.h5")
         return ""
 
+    def fmu_runners():
+        from evo_door.models.fmu.instance import compile_runners
+
+        compile_runners()
+        return ""
+
     yield "importing every module", importing
     for name in ("haptic", "door"):
         yield f"simulating the {name} model", lambda name=name: simulating(name)
@@ -121,6 +128,7 @@ def steps():
         for kind in KINDS:
             yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
         yield "a render of the haptic model on the simulated device", lambda: rendering(Path(tmp))
+    yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", fmu_runners
 
 
 def run(args) -> int:

@@ -127,3 +127,10 @@ def api(dll, version: int) -> tuple:
             address = _stub(sig).address
         out.append(CFunction(address, sig))
     return tuple(out)
+
+
+def stub_api(version: int) -> tuple:
+    """A tuple of :class:`CFunction` of FMI ``version`` that are all stubs: of the types
+    :func:`api` gives for any FMU of that version, so the kernels compile for it (and
+    are cached) without an FMU (``evo-door compile``)."""
+    return tuple(CFunction(_stub(sig).address, sig) for _, sig in SIGNATURES[version])

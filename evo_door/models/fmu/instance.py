@@ -24,7 +24,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from evo_door.errors import UserError
 from evo_door.models.fmu import kernels
-from evo_door.models.fmu.calls import api
+from evo_door.models.fmu.calls import api, stub_api
 from evo_door.models.fmu.description import FmuInfo
 
 #: the trial's channels the kernels write, in this order, where the FMU has them
@@ -158,8 +158,8 @@ class Instance:
             return out
         x = np.zeros(self.info.n_states)
         self.fmu.getContinuousStates(x.ctypes.data_as(_double_p()), x.size)
-        args = (
-            self.api, self.comp, x, int(layout.angle), int(layout.speed), 0.0,
+        args = hold_arguments(
+            self.api, self.comp, x, layout.angle, layout.speed,
             np.ascontiguousarray((theta.ravel() - oa) / fa),
             np.ascontiguousarray((dtheta.ravel() - os_) / fs), self.vr_in, out,
         )  # fmt: skip
@@ -174,12 +174,12 @@ class Instance:
             x = np.zeros(nx)
             if nx:
                 self.fmu.getContinuousStates(x.ctypes.data_as(_double_p()), nx)
-            args = (
-                self.api, self.comp, x, self.info.n_events, self._next_event, f, float(t0),
-                float(dt), int(substeps), self.vr_in, self.vr_out, out,
+            args = me_arguments(
+                self.api, self.comp, x, self.info.n_events, self._next_event, f, t0, dt,
+                substeps, self.vr_in, self.vr_out, out,
             )  # fmt: skip
             return self._call(kernels.run_me, args)
-        cs = (self.api, self.comp, f, float(t0), float(dt), self.vr_in, self.vr_out, out)
+        cs = cs_arguments(self.api, self.comp, f, t0, dt, self.vr_in, self.vr_out, out)
         return self._call(kernels.run_cs, cs)
 
     def _call(self, kernel, args) -> int:
@@ -195,6 +195,57 @@ class Instance:
         if compiled is not None:
             self._entries[kernel] = compiled.entry_point
         return status
+
+
+# -- the kernels' arguments, in the types they are compiled for -----------------------
+# One place for the conversions: a run and `evo-door compile` (compile_runners) pass
+# the same types, so what compile put in numba's cache is what a run finds there.
+def me_arguments(api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, vr_out, out):
+    """The arguments of :func:`~evo_door.models.fmu.kernels.run_me`."""
+    return (
+        api, np.uintp(comp), x, int(n_events), float(next_event), force, float(t0),
+        float(dt), int(substeps), vr_in, vr_out, out,
+    )  # fmt: skip
+
+
+def cs_arguments(api, comp, force, t0, dt, vr_in, vr_out, out):
+    """The arguments of :func:`~evo_door.models.fmu.kernels.run_cs`."""
+    return (api, np.uintp(comp), force, float(t0), float(dt), vr_in, vr_out, out)
+
+
+def hold_arguments(api, comp, x, angle, speed, theta, dtheta, vr_in, out):
+    """The arguments of :func:`~evo_door.models.fmu.kernels.hold_me` (at time 0)."""
+    return (api, np.uintp(comp), x, int(angle), int(speed), 0.0, theta, dtheta, vr_in, out)
+
+
+def runner_signatures() -> list[tuple]:
+    """``(kernel, argument types)`` of every FMU kernel a run may call, for FMI 2 and
+    3: the functions stubs (:func:`~evo_door.models.fmu.calls.stub_api`), the arrays
+    of a run's dtypes and layouts, no FMU needed."""
+    import numba
+
+    x, f = np.zeros(1), np.zeros(1)
+    vr, out = np.zeros(1, dtype=np.uint32), np.zeros((1, 1))
+    found = []
+    for version in (2, 3):
+        fns = stub_api(version)
+        for kernel, args in (
+            (kernels.run_me, me_arguments(fns, 0, x, 0, math.inf, f, 0, 1, 1, vr, vr, out)),
+            (kernels.run_cs, cs_arguments(fns, 0, f, 0, 1, vr, vr, out)),
+            (kernels.hold_me, hold_arguments(fns, 0, x, 0, 1, x, x, vr, f)),
+        ):
+            found.append((kernel, tuple(numba.typeof(a) for a in args)))
+    return found
+
+
+def compile_runners() -> None:
+    """Compile (or load from numba's cache) every FMU kernel for FMI 2 and 3, without
+    running one: what ``evo-door compile`` does, so that an FMU's first run compiles
+    nothing."""
+    with warnings.catch_warnings():  # numba's "experimental" first-class functions
+        warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+        for kernel, types in runner_signatures():
+            kernel.compile(types)
 
 
 def _double_p():
