@@ -234,7 +234,9 @@ def runner_signatures() -> list[tuple]:
             (kernels.run_cs, cs_arguments(fns, 0, f, 0, 1, vr, vr, out)),
             (kernels.hold_me, hold_arguments(fns, 0, x, 0, 1, x, x, vr, f)),
         ):
-            found.append((kernel, tuple(numba.typeof(a) for a in args)))
+            with warnings.catch_warnings():  # typing the functions: "experimental"
+                warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+                found.append((kernel, tuple(numba.typeof(a) for a in args)))
     return found
 
 
