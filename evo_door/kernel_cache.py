@@ -84,7 +84,12 @@ def _file_digest(path: str) -> tuple[bytes, tuple[str, ...]]:
 
 
 def source_stamp(path: str | os.PathLike) -> bytes:
-    """The digest of ``path`` and of every evo-door file it imports, transitively."""
+    """The digest of ``path`` and of every evo-door file it imports, transitively.
+
+    Each file is named by its place in the package (``evo_door/sim/located.py``), or a
+    user's file by its name, not by where it sits: a checkout or a model folder moved,
+    copied or installed elsewhere keeps its compiled kernels (with the ``__pycache__``
+    folders, or a copy of them)."""
     seen: set[str] = set()
     todo = [os.path.abspath(path)]
     while todo:
@@ -94,8 +99,18 @@ def source_stamp(path: str | os.PathLike) -> bytes:
             todo += _file_digest(p)[1]
     h = hashlib.sha256()
     for p in sorted(seen):
-        h.update(p.encode() + b"\0" + _file_digest(p)[0])
+        h.update(_stamp_name(p).encode() + b"\0" + _file_digest(p)[0])
     return h.digest()
+
+
+@functools.cache
+def _stamp_name(path: str) -> str:
+    """``path`` within the package's parent folder for an evo-door file, else its name
+    (a user's model file: its cache sits beside it, and moves with it)."""
+    inside = Path(path).resolve()
+    if inside.is_relative_to(ROOT):
+        return inside.relative_to(ROOT.parent).as_posix()
+    return inside.name
 
 
 @functools.cache

@@ -125,6 +125,30 @@ print(braking(0.1), sum(braking.stats.cache_hits.values()))
 """
 
 
+def test_a_checkout_moved_elsewhere_keeps_its_compiled_kernels(tmp_path):
+    """The stamps name evo-door's files by their place in the package and a user's
+    file by its name (not where they sit): a checkout and a model beside it, copied
+    elsewhere with their ``__pycache__`` folders, load the kernels compiled before the
+    copy (CI's main job runs on a copy of the suite's)."""
+    first = _copy_package(tmp_path / "first")
+    (first / "user.py").write_text(USER_FILE)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}  # in-tree caches
+
+    def run(home):
+        out = subprocess.run([sys.executable, "user.py"], cwd=home,
+                             env={**env, "PYTHONPATH": str(home)}, capture_output=True,
+                             text=True)  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        value, hits = out.stdout.split()
+        return float(value), int(hits)
+
+    value, hits = run(first)
+    assert hits == 0 and list((first / "__pycache__").glob("user.braking-*.nbi"))
+    moved = tmp_path / "elsewhere" / "second"
+    shutil.copytree(first, moved)
+    assert run(moved) == (value, 1)  # from the cache it came with
+
+
 def test_an_edit_of_a_module_a_cached_kernel_calls_compiles_it_afresh(tmp_path):
     """numba alone would load the old machine code: it watches the kernel's own file."""
     home = _copy_package(tmp_path)
@@ -248,9 +272,9 @@ class _Config:
         (_Config(2, worker=True), False),  # a worker: the controller compiled
     ],
 )
-def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, runs):
-    """With two or more xdist workers, the controller runs ``evo-door compile`` once
-    and says so; otherwise nothing runs."""
+def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, runs, tmp_path):
+    """With two or more xdist workers, the controller runs ``evo-door compile`` once,
+    says so and makes the file CI's main job waits for; otherwise nothing runs."""
     from tests import conftest
 
     calls = []
@@ -260,14 +284,17 @@ def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, r
         return SimpleNamespace(returncode=0, stdout="compiled 22 kernels in 9.0 s\n", stderr="")
 
     monkeypatch.setattr(subprocess, "run", fake_run)
+    mark = tmp_path / "compiled"  # CI's main job waits for it (.ci/run)
+    monkeypatch.setenv(conftest.COMPILED_MARK, str(mark))
     conftest.pytest_sessionstart(SimpleNamespace(config=config))
     if runs:
         assert calls == [[sys.executable, "-m", "evo_door", "compile", "--quiet"]]
         assert config.lines[0].startswith(
             "evo-door compile, before the workers start: compiled 22 kernels in 9.0 s"
         )
+        assert mark.is_file()
     else:
-        assert calls == [] and config.lines == []
+        assert calls == [] and config.lines == [] and not mark.exists()
 
 
 def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
