@@ -41,8 +41,20 @@ def pytest_sessionstart(session):
     beside: the suite took 699 s and 1233 s of CPU without this, 707 s and 1135 s with
     it; the CPU it saves goes to what runs beside the suite (CI's checks)."""
     config = session.config
-    if workers(config) < 2 or config.option.collectonly:
-        return
+    try:
+        if workers(config) >= 2 and not config.option.collectonly:
+            _compile_before_the_workers(config)
+    finally:
+        # CI's main job, in a clone of its own, waits for this to copy the compiled
+        # kernels (.ci/run): the file EVO_DOOR_TEST_COMPILED_MARK names, made once the
+        # compile has ended, or at once where there is none to wait for
+        mark = os.environ.get(COMPILED_MARK)
+        if mark:
+            Path(mark).touch()
+
+
+def _compile_before_the_workers(config) -> None:
+    """``evo-door compile``, and a line of the run's output saying how it went."""
     import time
 
     start = time.perf_counter()
@@ -56,11 +68,6 @@ def pytest_sessionstart(session):
     else:
         took = time.perf_counter() - start
         say(f"evo-door compile, before the workers start: {line} ({took:.0f} s)")
-    # CI's main job, in a clone of its own, waits for this to copy the compiled kernels
-    # (.ci/run): the file named by EVO_DOOR_TEST_COMPILED_MARK, made once the compile ended
-    mark = os.environ.get(COMPILED_MARK)
-    if mark:
-        Path(mark).touch()
 
 
 @pytest.hookimpl(tryfirst=True)  # before -m selects by marker
