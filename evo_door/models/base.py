@@ -309,9 +309,7 @@ def get_model(name: str) -> Model:
     else:
         model, folder = _registered(name)
     model = check_model(model, name)
-    presets = folder / "presets" if folder is not None else None
-    if presets is not None and presets.is_dir() and presets not in model.preset_dirs:
-        model = replace(model, preset_dirs=model.preset_dirs + (presets,))
+    model = _with_presets_beside(model, folder)
     _MODELS[key] = model
     return model
 
@@ -393,10 +391,7 @@ def get_declaration(name: str) -> Declaration | Model:
     # the presets folder get_model would add: beside the model's module, not this one
     spec = importlib.util.find_spec(REGISTRY[name].split(":")[0])
     origin = getattr(spec, "origin", None)
-    presets = Path(origin).parent / "presets" if origin else None
-    if presets is not None and presets.is_dir() and presets not in declaration.preset_dirs:
-        declaration = replace(declaration, preset_dirs=declaration.preset_dirs + (presets,))
-    return declaration
+    return _with_presets_beside(declaration, Path(origin).parent if origin else None)
 
 
 def _mechanism_declaration(name: str) -> Declaration | Model:
@@ -405,11 +400,16 @@ def _mechanism_declaration(name: str) -> Declaration | Model:
     key = resolve_model_name(name)
     if key in _MODELS or not Path(key).is_file():
         return get_model(name)  # the model, or the missing file's one-line refusal
-    declaration = mechanism_declaration(Path(key))
-    presets = Path(key).parent / "presets"  # as get_model adds them
-    if presets.is_dir():
-        declaration = replace(declaration, preset_dirs=(presets,))
-    return declaration
+    return _with_presets_beside(mechanism_declaration(Path(key)), Path(key).parent)
+
+
+def _with_presets_beside(model, folder: Path | None):
+    """``model`` (a Model or a Declaration) with the ``presets/`` folder of ``folder``
+    (where its file or module is) among its preset folders, when there is one."""
+    presets = folder / "presets" if folder is not None else None
+    if presets is not None and presets.is_dir() and presets not in model.preset_dirs:
+        model = replace(model, preset_dirs=model.preset_dirs + (presets,))
+    return model
 
 
 def _registered(name: str):
