@@ -87,36 +87,9 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(kind)
 
 
-class HeaviestFilesFirst:
-    """With ``--dist loadfile --no-loadscope-reorder`` (CI's generic-CPU pass), the test
-    files in the order of their measured weight, the heaviest first: the number of their
-    tests ``tests/tiers.txt`` lists (0.5 s or more), then their number of tests. xdist
-    hands out whole files in the collection's order; in its own (by number of tests),
-    the file whose few tests compile the FMU runner for two FMI versions came last and
-    ran alone at the end. A plugin of its own (:func:`pytest_configure`): it orders what
-    ``-m`` kept, after the tiers' hook."""
-
-    @pytest.hookimpl(trylast=True)
-    def pytest_collection_modifyitems(self, config, items):
-        if config.getoption("dist", "no") != "loadfile" or config.getoption(
-            "loadscopereorder", True
-        ):
-            return
-        measured = measured_tiers()
-        weight: dict[str, tuple[int, int]] = {}
-        for item in items:
-            listed, count = weight.get(file := _file(item), (0, 0))
-            weight[file] = (listed + (item.nodeid in measured), count + 1)
-        items.sort(key=lambda item: [-w for w in weight[_file(item)]])  # stable in a file
-
-
 def _file(item) -> str:
     """The test file of ``item``, as its node id names it (``tests/test_x.py``)."""
     return item.nodeid.split("::")[0]
-
-
-def pytest_configure(config):
-    config.pluginmanager.register(HeaviestFilesFirst(), "evo-door-heaviest-files-first")
 
 
 def _own_shared(item) -> set[tuple[str, str]]:

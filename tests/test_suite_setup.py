@@ -62,36 +62,3 @@ def test_the_suites_commands_do_not_spin_where_openmp_would():
     _, active = _idle_cpu("ACTIVE")
     assert passive < 0.003, passive
     assert active > 0.15, active
-
-
-def test_the_generic_pass_hands_out_the_heaviest_files_first(monkeypatch):
-    """Under ``--dist loadfile --no-loadscope-reorder`` the files go heaviest first: most
-    tests measured at 0.5 s or more, then most tests; the tests of a file keep their
-    order. Any other distribution keeps the collection's order."""
-    from tests import conftest
-
-    listed = {"tests/b.py::t1", "tests/b.py::t2", "tests/c.py::t1"}
-    monkeypatch.setattr(conftest, "measured_tiers", lambda: frozenset(listed))
-
-    class Item:
-        def __init__(self, nodeid):
-            self.nodeid = nodeid
-
-    class Config:
-        def __init__(self, dist, reorder):
-            self.options = {"dist": dist, "loadscopereorder": reorder}
-
-        def getoption(self, name, default=None):
-            return self.options.get(name, default)
-
-    names = ["a.py::t1", "a.py::t2", "a.py::t3", "c.py::t2", "c.py::t1", "b.py::t1", "b.py::t2"]
-    collected = [Item(f"tests/{n}") for n in names]
-    plugin = conftest.HeaviestFilesFirst()
-    items = list(collected)
-    plugin.pytest_collection_modifyitems(Config("loadfile", False), items)
-    order = ["b.py::t1", "b.py::t2", "c.py::t2", "c.py::t1", "a.py::t1", "a.py::t2", "a.py::t3"]
-    assert [i.nodeid for i in items] == [f"tests/{n}" for n in order]
-    for dist, reorder in (("loadfile", True), ("load", False), ("no", False)):
-        items = list(collected)
-        plugin.pytest_collection_modifyitems(Config(dist, reorder), items)
-        assert items == collected, dist
