@@ -50,6 +50,16 @@ def test_numpy_and_numba_have_upper_bounds():
             assert any(s.operator == "<" for s in req.specifier), req
 
 
+def test_the_license_is_an_spdx_expression_the_build_backend_reads():
+    """A table (``{text = ...}``) is deprecated in setuptools 77 and refused by its
+    releases from 2027-02-18: every install would then fail to build the package."""
+    doc = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert doc["project"]["license"] == "MIT"
+    (backend,) = [Requirement(r) for r in doc["build-system"]["requires"]]
+    assert backend.name == "setuptools" and backend.specifier.contains("77.0"), backend
+    assert not backend.specifier.contains("76.9"), backend
+
+
 def test_quickstart_and_ci_install_through_the_constraints_in_a_virtual_environment():
     readme = (ROOT / "README.md").read_text()
     quick = readme[readme.index("## Quickstart") :]
