@@ -51,7 +51,10 @@ def test_the_suites_commands_do_not_spin_where_openmp_would():
     policy before the suite started), and a command started with their environment sleeps
     without spinning; the same command told to wait actively spins through its sleep.
     (OpenMP's default spins some 8 ms of CPU after each parallel region on this machine,
-    against under 0.1 ms passive.)"""
+    against under 0.1 ms passive; told to wait actively, a thread spins up to the whole
+    0.3 s, less on a loaded machine, where it shares its core (under 0.15 s once here,
+    with three more processes busy on the two cores): the bound is 0.05 s, still 17
+    times the passive one.)"""
     policy = os.environ.get("OMP_WAIT_POLICY", "")
     if os.environ.get(SUITE_SET_POLICY) != "1" and policy.upper() != "PASSIVE":
         pytest.skip(f"the environment set OMP_WAIT_POLICY={policy} before the suite")
@@ -61,4 +64,4 @@ def test_the_suites_commands_do_not_spin_where_openmp_would():
         pytest.skip(f"numba's threading layer here is {layer}, not OpenMP")
     _, active = _idle_cpu("ACTIVE")
     assert passive < 0.003, passive
-    assert active > 0.15, active
+    assert active > 0.05, active
