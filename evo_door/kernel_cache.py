@@ -205,6 +205,15 @@ def announce(stream=None) -> None:
     COMPILES.report = report
 
 
+def kernels(n: int) -> str:
+    """``1 kernel``, ``3 kernels``.
+
+    >>> kernels(1), kernels(2)
+    ('1 kernel', '2 kernels')
+    """
+    return f"{n} kernel{'' if n == 1 else 's'}"
+
+
 def finish_announce(stream=None, summary: bool = True) -> None:
     """Stop announcing; with ``summary``, end the progress line with what was compiled
     (if anything was)."""
@@ -213,7 +222,7 @@ def finish_announce(stream=None, summary: bool = True) -> None:
         seconds = time.perf_counter() - (COMPILES.started or time.perf_counter())
         end = "\r\033[K" if stream.isatty() else ""
         stream.write(
-            f"{end}evo-door: compiled {COMPILES.count} kernels in {seconds:.1f} s "
+            f"{end}evo-door: compiled {kernels(COMPILES.count)} in {seconds:.1f} s "
             "(kept in numba's cache; the next run starts at once)\n"
         )
         stream.flush()

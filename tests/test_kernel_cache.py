@@ -193,7 +193,7 @@ def test_the_notes_name_each_kernel_compiled_and_end_with_a_summary():
     named = [line for line in lines if "fresh" in line]
     assert len(named) == 1 and named[0].startswith("evo-door: compiling tests.")
     assert named[0].endswith("<locals>.fresh (kernel 1, 0 s so far)")
-    assert lines[-1].startswith("evo-door: compiled 1 kernels in ")
+    assert lines[-1].startswith("evo-door: compiled 1 kernel in ")
     kernel_cache.announce(out)  # nothing compiled: no summary
     kernel_cache.finish_announce(out)
     assert out.getvalue().splitlines() == lines
@@ -224,8 +224,8 @@ def _empty_cache(tmp_path) -> Path:
 def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(tmp_path):
     """A fresh cache (an install): the first command, ``evo-door compile``, names each
     kernel it compiles as it starts (any command does: the notes are the command line's,
-    ``evo_door.cli.compile_notes``); then ``simulate haptic``, a GA run and a render
-    compile nothing."""
+    ``evo_door.cli.compile_notes``); then ``simulate haptic``, a GA run, a render and
+    the HapticMaster emulator compile nothing."""
     cache = _empty_cache(tmp_path)
     notes = _cli(["compile"], cache, tmp_path)
     assert notes[0].startswith("evo-door: compiling numba kernels (the first run")
@@ -245,6 +245,8 @@ def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_com
     assert _cli(render, cache, tmp_path) == []
     tanh = [*render[:-1], "r2.h5", "--friction", "tanh", "--clamp"]  # passive at the period
     assert _cli(tanh, cache, tmp_path) == []
+    emulate = ["emulate", "hapticmaster", "--port", "0", "--seconds", "0.2"]
+    assert _cli(emulate, cache, tmp_path) == []  # the device's physics and its model's
     assert _cli(["compile"], cache, tmp_path) == []  # its own summary goes to stdout
 
 

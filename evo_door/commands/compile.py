@@ -9,11 +9,11 @@ compile there) and runs each built-in model through what the commands use, brief
 a simulation by every integration scheme, one by a batch, a force-angle curve, and a
 GA generation with its polish by every objective, on two impulses of the virtual rig (no
 repository data needed), a render of the haptic model on the simulated device, in
-simulated time, and the FMU runners for FMI 2 and 3 (compiled for the types of any FMU's
-functions: no FMU needed). ``evo-door simulate``, ``evo-door run`` and ``evo-door render``
-then compile nothing (``tests/test_kernel_cache.py``), nor an FMU's first run
-(``tests/test_fmu.py``). A mechanism file's module and the HapticMaster emulator's
-physics compile at their first use, named by the notes.
+simulated time, the FMU runners for FMI 2 and 3 (compiled for the types of any FMU's
+functions: no FMU needed) and the HapticMaster emulator's physics. ``evo-door
+simulate``, ``evo-door run``, ``evo-door render`` and ``evo-door emulate`` then compile
+nothing (``tests/test_kernel_cache.py``), nor an FMU's first run (``tests/test_fmu.py``).
+A mechanism file's module (the user's own) compiles at its first use, named by the notes.
 """
 
 from __future__ import annotations
@@ -121,6 +121,12 @@ def steps():
         compile_runners()
         return ""
 
+    def emulator():
+        from evo_door.render.emulator_physics import compile_kernel
+
+        compile_kernel()
+        return ""
+
     yield "importing every module", importing
     for name in ("haptic", "door"):
         yield f"simulating the {name} model", lambda name=name: simulating(name)
@@ -129,6 +135,7 @@ def steps():
             yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
         yield "a render of the haptic model on the simulated device", lambda: rendering(Path(tmp))
     yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", fmu_runners
+    yield "the HapticMaster emulator's physics", emulator
 
 
 def run(args) -> int:
@@ -147,7 +154,7 @@ def run(args) -> int:
     n = kernel_cache.COMPILES.count
     kernel_cache.finish_announce(summary=False)
     print(
-        f"compiled {n} kernels in {time.perf_counter() - start:.1f} s"
+        f"compiled {kernel_cache.kernels(n)} in {time.perf_counter() - start:.1f} s"
         if n
         else "nothing to compile: every kernel was in numba's cache"
     )
