@@ -115,18 +115,6 @@ def steps():
         loop.write_log(folder / "render.h5")
         return ""
 
-    def fmu_runners():
-        from evo_door.models.fmu.instance import compile_runners
-
-        compile_runners()
-        return ""
-
-    def emulator():
-        from evo_door.render.emulator_physics import compile_kernel
-
-        compile_kernel()
-        return ""
-
     yield "importing every module", importing
     for name in ("haptic", "door"):
         yield f"simulating the {name} model", lambda name=name: simulating(name)
@@ -134,8 +122,22 @@ def steps():
         for kind in KINDS:
             yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
         yield "a render of the haptic model on the simulated device", lambda: rendering(Path(tmp))
-    yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", fmu_runners
-    yield "the HapticMaster emulator's physics", emulator
+    yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", _fmu_runners
+    yield "the HapticMaster emulator's physics", _emulator
+
+
+def _fmu_runners() -> str:
+    from evo_door.models.fmu.instance import compile_runners
+
+    compile_runners()
+    return ""
+
+
+def _emulator() -> str:
+    from evo_door.render.emulator_physics import compile_kernel
+
+    compile_kernel()
+    return ""
 
 
 def run(args) -> int:
