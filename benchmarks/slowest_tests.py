@@ -121,7 +121,7 @@ REASONS = {
         "a render over TCP to the emulator paced on the wall clock, then a fit of its log"
     ),
     "test_latch_fitness::test_latch_forces_are_the_same_whatever_the_ga_seed": (
-        "the case study's latch stage with three GA seeds"
+        "the case study's latch stage with two GA seeds, the two that failed before its scan"
     ),
     "test_console_mechanism::test_render_console_serves_a_mechanism": (
         "a mechanism rendered and its console served, each in its own process"

@@ -116,18 +116,19 @@ def test_the_notch_check_flags_a_jagged_objective(latch_stage):
 @pytest.mark.slow
 def test_latch_forces_are_the_same_whatever_the_ga_seed(latch_stage):
     """The stage's own algorithm (GA, then ``scan`` and a multi-start polish) over GA
-    seeds 1..3 gives the unlock and lock forces within 1 % of each other and of the
+    seeds 1 and 2 gives the unlock and lock forces within 1 % of each other and of the
     virtual door's truth, which the trials carry. Before the scan the unlock force
     ended +4.9, +5.0 % off for seeds 1, 2 (SLSQP started on the plateau beside the
-    notch) and -0.03 % for seeds 3..5 (seeds 4 and 5 are no longer run: 1 and 2 are
-    the ones that failed, and the CI's 15 minutes are shared)."""
+    notch) and -0.03 % for seeds 3..5, which are no longer run: 1 and 2 are the ones
+    that failed (``python -m benchmarks --only seeds`` runs the whole main job with
+    seeds 1, 2 and 3)."""
     algorithm = load_pipeline("experiments/case_study.yaml").stage("latch").experiment.algorithm
     assert algorithm.scan.enabled
     truth = latch_stage.fit.trials[0].truth["params"]
     truth = np.array([truth[n] for n in latch_stage.free])
     assert truth.tolist() == [TRUE_UNLOCK, TRUE_LOCK]
     answers = []
-    for seed in range(1, 4):
+    for seed in (1, 2):
         ga = GeneticAlgorithm(dataclasses.replace(algorithm.ga, seed=seed)).run(latch_stage)
         answers.append(scan_and_polish(latch_stage, ga.best_x, algorithm.scan, algorithm.local).x)
     answers = np.array(answers)
