@@ -164,6 +164,7 @@ class _Compiles(event.Listener):
         self.count = 0
         self.started = None
         self.report = None  # a callable(name, count, seconds) while announcing
+        self.compiled: list[str] = []  # each outermost one: "module.name(argument types)"
 
     def on_start(self, ev):
         self.depth += 1
@@ -171,9 +172,10 @@ class _Compiles(event.Listener):
             self.count += 1
             if self.started is None:
                 self.started = time.perf_counter()
+            func = ev.data["dispatcher"].py_func
+            name = f"{func.__module__}.{func.__qualname__}"
+            self.compiled.append(f"{name}({', '.join(map(str, ev.data['args']))})")
             if self.report is not None:
-                func = ev.data["dispatcher"].py_func
-                name = f"{func.__module__}.{func.__qualname__}"
                 self.report(name, self.count, time.perf_counter() - self.started)
 
     def on_end(self, ev):

@@ -20,6 +20,7 @@ from numba import njit
 
 import evo_door
 from evo_door import kernel_cache
+from evo_door.commands.compile import default_jobs
 from tests.helpers import COMPILE_HANG_GUARD, DATA, ROOT, TINY_EXPERIMENT, cli_process
 
 
@@ -232,6 +233,11 @@ def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_com
     named = "\n".join(notes)
     for kernel in ("evo_door.models.haptic.accel", "evo_door.sim.objective._population_errors"):
         assert f"evo-door: compiling {kernel} (kernel " in named, kernel
+    if default_jobs() == 2:  # two cores: a second process took its part, and no kernel
+        # was compiled by both (each process's own notes name its kernels)
+        for kernel in ("evo_door.sim.states.integrate_trial", "evo_door.models.fmu.kernels.run_me"):
+            assert f"evo-door: compiling {kernel} (second process, kernel " in named, kernel
+        assert "evo-door: compiled in both processes" not in named, named
     t = 0.001 * np.arange(2000)
     (tmp_path / "in.csv").write_text("t,force\n" + "".join(f"{x},{5.0}\n" for x in t))
     assert (
@@ -479,3 +485,80 @@ def test_a_function_handed_to_a_kernel_is_looked_up_once_and_each_its_own(monkey
         assert _apply(_slope, float(x)) == 2.0 * x
         assert _apply(_cube, float(x)) == float(x) ** 3
     assert lookups == []
+
+
+@pytest.mark.parametrize(
+    "jobs, said", [("0", "at least 1 process, not 0"), ("two", "not a whole number: 'two'")]
+)
+def test_compile_refuses_jobs_that_are_not_a_whole_number_of_at_least_one(jobs, said, tmp_path):
+    out = cli_process("compile", "--jobs", jobs, cwd=tmp_path)
+    assert out.returncode == 2 and said in out.stderr.splitlines()[-1], out.stderr
+
+
+#: the first process's part of ``evo-door compile --jobs 2`` up to its wait for the
+#: second, and the second's part up to its go: the modules each then has imported
+SPLIT = """
+import json, sys
+from evo_door.commands import compile as c
+
+class Second:
+    def go(self):
+        pass
+    def wait(self):
+        raise SystemExit(json.dumps(sorted(m for m in sys.modules if m.startswith("evo_door"))))
+
+if sys.argv[1] == "first":
+    for what, work in c.steps(Second()):
+        work()
+c._fmu_runners()
+c._emulator()
+print(json.dumps(sorted(m for m in sys.modules if m.startswith("evo_door"))))
+"""
+
+
+@pytest.mark.integration
+def test_the_two_processes_of_compile_import_nothing_the_other_compiles(tmp_path):
+    """What keeps ``evo-door compile``'s two processes from compiling a kernel twice:
+    until the first has waited for the second, it imports neither the state-vector
+    integrators nor the FMU runners nor the emulator's physics (the second's part); until
+    told to go on, the second imports no module of ``evo_door.sim`` (the first compiles
+    the one-coordinate integrators, which the state-vector ones import)."""
+    script = tmp_path / "split.py"
+    script.write_text(SPLIT)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+    first = subprocess.run([sys.executable, str(script), "first"], capture_output=True,
+                           text=True, env=env, cwd=tmp_path, timeout=COMPILE_HANG_GUARD)  # fmt: skip
+    assert first.returncode == 1, first.stderr  # SystemExit with its text: the wait
+    imported = json.loads(first.stderr.strip().splitlines()[-1])
+    assert "evo_door.sim.integrators" in imported and "evo_door.models.door" in imported
+    for theirs in ("evo_door.sim.states", "evo_door.models.fmu.kernels",
+                   "evo_door.render.emulator_physics"):  # fmt: skip
+        assert theirs not in imported, theirs
+    second = subprocess.run([sys.executable, str(script), "second"], capture_output=True,
+                            text=True, env=env, cwd=tmp_path, timeout=COMPILE_HANG_GUARD)  # fmt: skip
+    assert second.returncode == 0, second.stderr
+    imported = json.loads(second.stdout.strip().splitlines()[-1])
+    assert "evo_door.models.fmu.kernels" in imported
+    assert not [m for m in imported if m.startswith("evo_door.sim")], imported
+
+
+def test_a_failed_second_process_leaves_its_part_to_the_first(monkeypatch, capsys):
+    """The second process of ``evo-door compile`` ends at once with an error: the
+    command says so and compiles (here: finds in the cache) everything itself."""
+    from evo_door.commands import compile as compile_cmd
+
+    class Failing(compile_cmd.SecondProcess):
+        def __init__(self, quiet):
+            self.proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(3)"],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, text=True)  # fmt: skip
+            self.compiled, self.failure = [], ""
+
+    monkeypatch.setattr(compile_cmd, "SecondProcess", Failing)
+    args = SimpleNamespace(quiet=False, jobs=2, second_part=False)
+    assert compile_cmd.run(args) == 0
+    out, err = capsys.readouterr()
+    assert "compile: the second process failed (exit 3); what it left compiles here" in err
+    assert "in 2 processes" not in out and "compiled in both" not in err
+    # every step ran here: the second's part as well
+    assert "compile: the FMU runners (FMI 2 and 3" in err

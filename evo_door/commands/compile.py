@@ -14,12 +14,25 @@ functions: no FMU needed) and the HapticMaster emulator's physics. ``evo-door
 simulate``, ``evo-door run``, ``evo-door render`` and ``evo-door emulate`` then compile
 nothing (``tests/test_kernel_cache.py``), nor an FMU's first run (``tests/test_fmu.py``).
 A mechanism file's module (the user's own) compiles at its first use, named by the notes.
+
+numba compiles on one core. Where there are two or more (``--jobs``, default: two where
+the process may use two cores), a second process compiles what does not depend on the
+one-coordinate integrators at the same time: the FMU runners and the emulator's physics
+at once, then, as soon as this process has the integrators in the cache, the
+state-vector integrators (:mod:`evo_door.sim.states` imports them). This process goes on
+meanwhile with the models, the objectives, the GA and the renderer, and imports the
+rest once the second has ended, so that no kernel is compiled twice: about half the
+wait on two cores. Both write numba's cache, each its own kernels.
 """
 
 from __future__ import annotations
 
+import argparse
 import importlib
+import json
+import os
 import pkgutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -37,7 +50,37 @@ def register(sub) -> None:
     p.add_argument(
         "--quiet", action="store_true", help="no line per step or kernel, only the summary"
     )
+    p.add_argument(
+        "--jobs",
+        type=_jobs,
+        default=None,
+        metavar="N",
+        help="processes that compile at once: 1 or 2 (the work splits in two; default: 2 "
+        "where this process may use two cores or more)",
+    )
+    # the second process of --jobs 2 (internal): its part, then its kernels as JSON
+    p.add_argument("--second-part", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(func=run)
+
+
+def _jobs(text: str) -> int:
+    """``--jobs``: a whole number of at least 1; more than 2 is 2 (two parts)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"at least 1 process, not {n}")
+    return min(n, 2)
+
+
+def default_jobs() -> int:
+    """2 where this process may run on two cores or more, else 1."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    return 2 if cores >= 2 else 1
 
 
 def modules() -> list[str]:
@@ -52,8 +95,10 @@ def modules() -> list[str]:
     return sorted(names)
 
 
-def steps():
-    """``(what, callable)``: the work that compiles every kernel the commands use."""
+def steps(second: SecondProcess | None = None):
+    """``(what, callable)``: the work that compiles every kernel the commands use; with
+    ``second``, the part the second process does is left to it, and waited for before
+    the modules that import what it compiles."""
     import numpy as np
 
     from evo_door.models import get_model
@@ -115,13 +160,24 @@ def steps():
         loop.write_log(folder / "render.h5")
         return ""
 
-    yield "importing every module", importing
+    def integrators():
+        importlib.import_module("evo_door.sim.integrators")
+        if second is not None:
+            second.go()  # the state-vector integrators load these from the cache
+        return ""
+
+    # first what needs neither the state-vector integrators nor the FMU runners (none
+    # of these steps imports them), then, the second process's part done, the rest
+    yield "the one-coordinate integrators", integrators
     for name in ("haptic", "door"):
         yield f"simulating the {name} model", lambda name=name: simulating(name)
     with tempfile.TemporaryDirectory() as tmp:
         for kind in KINDS:
             yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
         yield "a render of the haptic model on the simulated device", lambda: rendering(Path(tmp))
+    if second is not None:
+        yield f"waiting for the second process ({SECOND_PART})", second.wait
+    yield "importing every module", importing
     yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", _fmu_runners
     yield "the HapticMaster emulator's physics", _emulator
 
@@ -140,24 +196,122 @@ def _emulator() -> str:
     return ""
 
 
+#: what the second process compiles, in its order
+SECOND_PART = "the FMU runners, the emulator's physics, the state-vector integrators"
+
+
+class SecondProcess:
+    """``evo-door compile --second-part`` beside this process: it compiles the FMU
+    runners and the emulator's physics at once, the state-vector integrators once told
+    (:meth:`go`: the one-coordinate ones, which they import, are in the cache), and
+    ends by printing what it compiled. Its progress lines are said when it is waited
+    for (:meth:`wait`), after this process's own. A failed or missing second process
+    costs time, never a kernel: this process's own steps then compile what it left."""
+
+    def __init__(self, quiet: bool):
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "evo_door", "compile", "--second-part"]
+            + (["--quiet"] if quiet else []),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.compiled: list[str] = []
+        self.failure = ""
+
+    def go(self) -> None:
+        stdin, self.proc.stdin = self.proc.stdin, None  # communicate() then leaves it
+        if stdin is None:  # told already
+            return
+        try:
+            stdin.write("go\n")
+            stdin.close()
+        except OSError:  # it has ended already: wait() says how
+            pass
+
+    def wait(self) -> str:
+        from evo_door.kernel_cache import kernels
+
+        out, err = self.proc.communicate()
+        sys.stderr.write(err)
+        if self.proc.returncode != 0:
+            self.failure = f"the second process failed (exit {self.proc.returncode})"
+            return f"{self.failure}; what it left compiles here"
+        try:
+            self.compiled = json.loads(out.strip().splitlines()[-1])["compiled"]
+        except (ValueError, IndexError, KeyError, TypeError):
+            self.failure = "the second process said nothing readable"
+            return f"{self.failure}; what it left compiles here"
+        return f"it compiled {kernels(len(self.compiled))}"
+
+    def stop(self) -> None:
+        """End it if it still runs (this process failed or was interrupted)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
+
+def _second_part(args) -> int:
+    """The second process's part (:class:`SecondProcess`); its kernels as JSON on stdout."""
+    from evo_door import kernel_cache
+
+    def report(name, count, seconds):
+        print(
+            f"evo-door: compiling {name} (second process, kernel {count}, {seconds:.0f} s so far)",
+            file=sys.stderr,
+        )
+
+    say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
+    kernel_cache.COMPILES.report = None if args.quiet else report
+    kernel_cache.COMPILES.compiled.clear()
+    say("compile (second process): the FMU runners")
+    _fmu_runners()
+    say("compile (second process): the HapticMaster emulator's physics")
+    _emulator()
+    if sys.stdin.readline().strip() != "go":  # the first process ended or failed
+        return 1
+    say("compile (second process): the state-vector integrators")
+    importlib.import_module("evo_door.sim.states")
+    kernel_cache.COMPILES.report = None
+    print(json.dumps({"compiled": kernel_cache.COMPILES.compiled}))
+    return 0
+
+
 def run(args) -> int:
     from evo_door import kernel_cache
 
+    if args.second_part:
+        return _second_part(args)
+    jobs = args.jobs if args.jobs is not None else default_jobs()
     if args.quiet:
         kernel_cache.finish_announce(summary=False)
     kernel_cache.COMPILES.count = 0
+    kernel_cache.COMPILES.compiled.clear()
     start = time.perf_counter()
     say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
-    for what, work in steps():
-        say(f"compile: {what}")
-        note = work()
-        if note:
-            say(f"compile: {note}")
-    n = kernel_cache.COMPILES.count
+    second = SecondProcess(args.quiet) if jobs > 1 else None
+    try:
+        for what, work in steps(second):
+            say(f"compile: {what}")
+            note = work()
+            if note:
+                say(f"compile: {note}")
+    finally:
+        if second is not None:
+            second.stop()
+    mine = kernel_cache.COMPILES.compiled
+    theirs = second.compiled if second is not None else []
+    twice = sorted(set(mine) & set(theirs))
+    n = len(mine) + len(theirs)
     kernel_cache.finish_announce(summary=False)
+    took = time.perf_counter() - start
+    where = " in 2 processes" if second is not None and not second.failure else ""
     print(
-        f"compiled {kernel_cache.kernels(n)} in {time.perf_counter() - start:.1f} s"
+        f"compiled {kernel_cache.kernels(n)}{where} in {took:.1f} s"
         if n
         else "nothing to compile: every kernel was in numba's cache"
     )
+    if twice:  # the split is meant to keep them apart: time lost, nothing wrong
+        print(f"evo-door: compiled in both processes: {', '.join(twice)}", file=sys.stderr)
     return 0
