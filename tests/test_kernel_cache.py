@@ -516,7 +516,7 @@ print(json.dumps(sorted(m for m in sys.modules if m.startswith("evo_door"))))
 """
 
 
-@pytest.mark.integration
+@pytest.mark.slow
 def test_the_two_processes_of_compile_import_nothing_the_other_compiles(tmp_path):
     """What keeps ``evo-door compile``'s two processes from compiling a kernel twice:
     until the first has waited for the second, it imports neither the state-vector
@@ -542,9 +542,10 @@ def test_the_two_processes_of_compile_import_nothing_the_other_compiles(tmp_path
     assert not [m for m in imported if m.startswith("evo_door.sim")], imported
 
 
-def test_a_failed_second_process_leaves_its_part_to_the_first(monkeypatch, capsys):
-    """The second process of ``evo-door compile`` ends at once with an error: the
-    command says so and compiles (here: finds in the cache) everything itself."""
+def test_a_failed_second_process_leaves_its_part_to_the_first():
+    """The second process of ``evo-door compile`` ends at once with an error: waiting for
+    it says so, and the first's steps after the wait hold the second's part (the FMU
+    runners, the emulator's physics, the state-vector integrators: every module)."""
     from evo_door.commands import compile as compile_cmd
 
     class Failing(compile_cmd.SecondProcess):
@@ -554,11 +555,16 @@ def test_a_failed_second_process_leaves_its_part_to_the_first(monkeypatch, capsy
                                          stderr=subprocess.PIPE, text=True)  # fmt: skip
             self.compiled, self.failure = [], ""
 
-    monkeypatch.setattr(compile_cmd, "SecondProcess", Failing)
-    args = SimpleNamespace(quiet=False, jobs=2, second_part=False)
-    assert compile_cmd.run(args) == 0
-    out, err = capsys.readouterr()
-    assert "compile: the second process failed (exit 3); what it left compiles here" in err
-    assert "in 2 processes" not in out and "compiled in both" not in err
-    # every step ran here: the second's part as well
-    assert "compile: the FMU runners (FMI 2 and 3" in err
+    second = Failing(quiet=True)
+    second.proc.wait()
+    second.go()  # to a process that has ended: no error
+    assert second.wait() == "the second process failed (exit 3); what it left compiles here"
+    assert second.compiled == [] and second.failure
+    names = [what for what, _ in compile_cmd.steps(second)]
+    after = names[names.index(f"waiting for the second process ({compile_cmd.SECOND_PART})") :]
+    assert after[1:] == [
+        "importing every module",
+        "the FMU runners (FMI 2 and 3, model exchange and co-simulation)",
+        "the HapticMaster emulator's physics",
+    ]
+    assert [w for w, _ in compile_cmd.steps(None)] == [n for n in names if n != after[0]]
