@@ -176,9 +176,14 @@ def test_the_check_is_stored_and_a_file_without_it_has_it_computed_on_read(ws, t
     assert read_results(old, arrays=False).perceptual_check is None
 
 
+#: the pipeline's stages: the run free to reach the feel searches a narrow box around it
+#: (what it shows is the report's check per stage, not the fit: the runs above fit)
+PIPELINE_RUNS = (("good", "{K: [349, 351], F_atD: [11.9, 12.1]}", 8, 2, "none"), RUNS[1])
+
+
 @pytest.fixture(scope="module")
 def pipeline_file(ws):
-    stages = "".join(STAGE.format(**_fields(*run)) for run in RUNS)
+    stages = "".join(STAGE.format(**_fields(*run)) for run in PIPELINE_RUNS)
     (ws / "pipe.yaml").write_text("name: feel\nperception: {force_floor: 0.8}\nstages:\n" + stages)
     return PipelineRun.create(load_pipeline(ws / "pipe.yaml"), ws / "pipe.h5").run().path
 
