@@ -99,66 +99,7 @@ def steps(second: SecondProcess | None = None):
     """``(what, callable)``: the work that compiles every kernel the commands use; with
     ``second``, the part the second process does is left to it, and waited for before
     the modules that import what it compiles."""
-    import numpy as np
-
-    from evo_door.models import get_model
-    from evo_door.sim import METHODS, simulate, simulate_batch
-    from evo_door.sim.simulate import force_angle_curve
     from evo_door.sim_settings import KINDS
-
-    def importing():
-        skipped = []
-        for name in modules():
-            try:
-                importlib.import_module(name)
-            except ImportError as exc:  # an optional extra not installed (fmpy, dask...)
-                skipped.append(f"{name} ({exc.name or exc})")
-        return f"skipped {', '.join(skipped)}" if skipped else ""
-
-    def simulating(name):
-        model = get_model(name)
-        params = model.load_params()
-        dt = 1 / 1024
-        force = np.where(np.arange(512) * dt < 0.1, 20.0, 0.0)
-        for method in sorted(METHODS):
-            simulate(model, params, force, dt, method=method)
-        simulate_batch(model, np.array([params.vector] * 2), force, dt)
-        force_angle_curve(model, params)
-        return ""
-
-    def fitting(kind, folder):
-        import evo_door
-
-        trials = folder / "trials.h5"
-        if not trials.exists():  # two impulses of the virtual rig (no repository needed)
-            from evo_door.data.io import write_trials
-            from evo_door.data.rig.campaign import Campaign, generate_trials
-
-            door = get_model("door")
-            campaign = Campaign(users=1, trials=2, kinds=("impulse",))
-            write_trials(
-                trials, generate_trials(door, door.load_params(), campaign, progress=False)
-            )
-        evo_door.Experiment(
-            name="compile",
-            model="door",
-            params="default",
-            target=evo_door.trial_file(trials, preprocess={"rate_bias": "start"}),
-            free={"M": [0.3, 2.5]},
-            objective={"kind": kind, "derivative": 1},
-            algorithm={"population": 4, "generations": 1, "seed": 1},  # and its polish
-        ).run(folder / f"{kind}.h5")
-        return ""
-
-    def rendering(folder):
-        from evo_door.render.device import SimDevice
-        from evo_door.render.loop import ServoLoop
-
-        params = get_model("haptic").load_params()
-        loop = ServoLoop(SimDevice("open", radius=params["radius"]), params)
-        loop.run(0.05)  # s of simulated time: 125 cycles at the default 2500 Hz
-        loop.write_log(folder / "render.h5")
-        return ""
 
     def integrators():
         importlib.import_module("evo_door.sim.integrators")
@@ -170,16 +111,85 @@ def steps(second: SecondProcess | None = None):
     # of these steps imports them), then, the second process's part done, the rest
     yield "the one-coordinate integrators", integrators
     for name in ("haptic", "door"):
-        yield f"simulating the {name} model", lambda name=name: simulating(name)
+        yield f"simulating the {name} model", lambda name=name: _simulating(name)
     with tempfile.TemporaryDirectory() as tmp:
         for kind in KINDS:
-            yield f"a GA generation, objective {kind}", lambda kind=kind: fitting(kind, Path(tmp))
-        yield "a render of the haptic model on the simulated device", lambda: rendering(Path(tmp))
+            yield f"a GA generation, objective {kind}", lambda kind=kind: _fitting(kind, Path(tmp))
+        yield "a render of the haptic model on the simulated device", lambda: _rendering(Path(tmp))
     if second is not None:
         yield f"waiting for the second process ({SECOND_PART})", second.wait
-    yield "importing every module", importing
+    yield "importing every module", _importing
     yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", _fmu_runners
     yield "the HapticMaster emulator's physics", _emulator
+
+
+def _importing() -> str:
+    """Every module of the package (kernels with a declared signature compile there)."""
+    skipped = []
+    for name in modules():
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:  # an optional extra not installed (fmpy, dask...)
+            skipped.append(f"{name} ({exc.name or exc})")
+    return f"skipped {', '.join(skipped)}" if skipped else ""
+
+
+def _simulating(name: str) -> str:
+    """A built-in model by every integration scheme, by a batch, and its force-angle curve."""
+    import numpy as np
+
+    from evo_door.models import get_model
+    from evo_door.sim import METHODS, simulate, simulate_batch
+    from evo_door.sim.simulate import force_angle_curve
+
+    model = get_model(name)
+    params = model.load_params()
+    dt = 1 / 1024
+    force = np.where(np.arange(512) * dt < 0.1, 20.0, 0.0)
+    for method in sorted(METHODS):
+        simulate(model, params, force, dt, method=method)
+    simulate_batch(model, np.array([params.vector] * 2), force, dt)
+    force_angle_curve(model, params)
+    return ""
+
+
+def _fitting(kind: str, folder: Path) -> str:
+    """A GA generation and its polish by the objective ``kind``, on two impulses of the
+    virtual rig (no repository needed), made in ``folder`` the first time."""
+    import evo_door
+    from evo_door.models import get_model
+
+    trials = folder / "trials.h5"
+    if not trials.exists():
+        from evo_door.data.io import write_trials
+        from evo_door.data.rig.campaign import Campaign, generate_trials
+
+        door = get_model("door")
+        campaign = Campaign(users=1, trials=2, kinds=("impulse",))
+        write_trials(trials, generate_trials(door, door.load_params(), campaign, progress=False))
+    evo_door.Experiment(
+        name="compile",
+        model="door",
+        params="default",
+        target=evo_door.trial_file(trials, preprocess={"rate_bias": "start"}),
+        free={"M": [0.3, 2.5]},
+        objective={"kind": kind, "derivative": 1},
+        algorithm={"population": 4, "generations": 1, "seed": 1},  # and its polish
+    ).run(folder / f"{kind}.h5")
+    return ""
+
+
+def _rendering(folder: Path) -> str:
+    """The haptic model rendered on the simulated device, in simulated time, with a log."""
+    from evo_door.models import get_model
+    from evo_door.render.device import SimDevice
+    from evo_door.render.loop import ServoLoop
+
+    params = get_model("haptic").load_params()
+    loop = ServoLoop(SimDevice("open", radius=params["radius"]), params)
+    loop.run(0.05)  # s of simulated time: 125 cycles at the default 2500 Hz
+    loop.write_log(folder / "render.h5")
+    return ""
 
 
 def _fmu_runners() -> str:
