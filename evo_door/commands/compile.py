@@ -21,8 +21,9 @@ one-coordinate integrators at the same time: the FMU runners and the emulator's 
 at once, then, as soon as this process has the integrators in the cache, the
 state-vector integrators (:mod:`evo_door.sim.states` imports them). This process goes on
 meanwhile with the models, the objectives, the GA and the renderer, and imports the
-rest once the second has ended, so that no kernel is compiled twice: about half the
-wait on two cores. Both write numba's cache, each its own kernels.
+rest once the second has ended, so that no kernel is compiled twice: a shorter wait
+on two cores (``python -m benchmarks --only startup`` times it cold and warm). Both
+write numba's cache, each its own kernels.
 """
 
 from __future__ import annotations
