@@ -22,6 +22,9 @@ from tests.helpers import COMPILE_HANG_GUARD, ROOT, cli_process, measured_tiers,
 os.environ["EVO_DOOR_COMPILE_NOTES"] = "0"
 #: a file :func:`pytest_sessionstart` makes once its compile has ended (CI's handshake)
 COMPILED_MARK = "EVO_DOOR_TEST_COMPILED_MARK"
+#: set to 1 where numba's cache is known to hold every kernel (CI's generic pass, on the
+#: cache its cold-compile test filled and found complete): no compile before the workers
+PRECOMPILED = "EVO_DOOR_TEST_PRECOMPILED"
 
 
 def workers(config) -> int:
@@ -42,7 +45,11 @@ def pytest_sessionstart(session):
     it; the CPU it saves goes to what runs beside the suite (CI's checks)."""
     config = session.config
     try:
-        if workers(config) >= 2 and not config.option.collectonly:
+        if workers(config) < 2 or config.option.collectonly:
+            pass
+        elif os.environ.get(PRECOMPILED) == "1":
+            _say(config, f"evo-door compile, before the workers start: not run ({PRECOMPILED}=1)")
+        else:
             _compile_before_the_workers(config)
     finally:
         # CI's main job, in a clone of its own, waits for this to copy the compiled
@@ -61,13 +68,17 @@ def _compile_before_the_workers(config) -> None:
     # the checkout's evo_door (cli_process puts it first on the path), as the workers import it
     done = cli_process("compile", "--quiet", cwd=ROOT, timeout=COMPILE_HANG_GUARD)
     line = (done.stdout.strip().splitlines() or ["(no summary)"])[-1]
-    reporter = config.pluginmanager.get_plugin("terminalreporter")
-    say = reporter.write_line if reporter else print
     if done.returncode:  # the tests that need the kernels will fail and say why
-        say(f"evo-door compile failed before the workers started:\n{done.stderr[-2000:]}")
+        _say(config, f"evo-door compile failed before the workers started:\n{done.stderr[-2000:]}")
     else:
         took = time.perf_counter() - start
-        say(f"evo-door compile, before the workers start: {line} ({took:.0f} s)")
+        _say(config, f"evo-door compile, before the workers start: {line} ({took:.0f} s)")
+
+
+def _say(config, line: str) -> None:
+    """A line of the run's output (pytest's terminal reporter where there is one)."""
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    (reporter.write_line if reporter else print)(line)
 
 
 @pytest.hookimpl(tryfirst=True)  # before -m selects by marker

@@ -293,6 +293,7 @@ def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, r
         return SimpleNamespace(returncode=0, stdout="compiled 22 kernels in 9.0 s\n", stderr="")
 
     monkeypatch.setattr(subprocess, "run", fake_run)
+    monkeypatch.delenv(conftest.PRECOMPILED, raising=False)
     mark = tmp_path / "compiled"  # CI's main job waits for it (.ci/run)
     monkeypatch.setenv(conftest.COMPILED_MARK, str(mark))
     conftest.pytest_sessionstart(SimpleNamespace(config=config))
@@ -304,6 +305,24 @@ def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, r
     else:
         assert calls == [] and config.lines == []
     assert mark.is_file()  # made after the compile, or at once: the main job never waits in vain
+
+
+def test_a_cache_known_complete_is_not_compiled_before_the_workers(monkeypatch, tmp_path):
+    """``EVO_DOOR_TEST_PRECOMPILED=1`` (CI's generic pass, on the cache its cold-compile
+    test filled and found complete): no ``evo-door compile`` before the workers, said in
+    a line; the file CI's main job waits for is still made."""
+    from tests import conftest
+
+    calls = []
+    monkeypatch.setattr(subprocess, "run", lambda cmd, **kwargs: calls.append(cmd))
+    monkeypatch.setenv(conftest.PRECOMPILED, "1")
+    monkeypatch.setenv(conftest.COMPILED_MARK, str(tmp_path / "compiled"))
+    config = _Config(2)
+    conftest.pytest_sessionstart(SimpleNamespace(config=config))
+    assert calls == [] and (tmp_path / "compiled").is_file()
+    assert config.lines == [
+        "evo-door compile, before the workers start: not run (EVO_DOOR_TEST_PRECOMPILED=1)"
+    ]
 
 
 def test_a_model_folder_copied_with_its_compiled_cache_still_loads(tmp_path):
