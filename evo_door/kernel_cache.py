@@ -161,15 +161,23 @@ class _Compiles(event.Listener):
 
     def __init__(self):
         self.depth = 0
-        self.count = 0
         self.started = None
         self.report = None  # a callable(name, count, seconds) while announcing
         self.compiled: list[str] = []  # each outermost one: "module.name(argument types)"
 
+    @property
+    def count(self) -> int:
+        """How many compiled since the count was last cleared (:meth:`clear`)."""
+        return len(self.compiled)
+
+    def clear(self) -> None:
+        """Count afresh: nothing compiled, no start time."""
+        self.compiled.clear()
+        self.started = None
+
     def on_start(self, ev):
         self.depth += 1
         if self.depth == 1:
-            self.count += 1
             if self.started is None:
                 self.started = time.perf_counter()
             func = ev.data["dispatcher"].py_func
@@ -192,7 +200,7 @@ def announce(stream=None) -> None:
     otherwise one line per kernel. Cache hits are silent."""
     stream = stream or sys.stderr
     tty = stream.isatty()
-    COMPILES.count, COMPILES.started = 0, None
+    COMPILES.clear()
 
     def report(name, count, seconds):
         if count == 1:

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
 import pkgutil
 import subprocess
 import sys
@@ -77,11 +76,9 @@ def _jobs(text: str) -> int:
 
 def default_jobs() -> int:
     """2 where this process may run on two cores or more, else 1."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cores = os.cpu_count() or 1
-    return 2 if cores >= 2 else 1
+    from evo_door.optim.executors import cores
+
+    return min(cores(), 2)
 
 
 def modules() -> list[str]:
@@ -275,7 +272,7 @@ def _second_part(args) -> int:
 
     say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
     kernel_cache.COMPILES.report = None if args.quiet else report
-    kernel_cache.COMPILES.compiled.clear()
+    kernel_cache.COMPILES.clear()
     say("compile (second process): the FMU runners")
     _fmu_runners()
     say("compile (second process): the HapticMaster emulator's physics")
@@ -297,8 +294,7 @@ def run(args) -> int:
     jobs = args.jobs if args.jobs is not None else default_jobs()
     if args.quiet:
         kernel_cache.finish_announce(summary=False)
-    kernel_cache.COMPILES.count = 0
-    kernel_cache.COMPILES.compiled.clear()
+    kernel_cache.COMPILES.clear()
     start = time.perf_counter()
     say = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
     second = SecondProcess(args.quiet) if jobs > 1 else None
