@@ -88,6 +88,32 @@ def tier(node_id: str, slow: bool, measured: frozenset[str]) -> str:
     return "integration" if node_id in measured else "unit"
 
 
+def copy_numba_cache(cache: Path, tree: Path) -> int:
+    """Copy the kernels numba compiled into the cache folder ``cache`` (as with
+    ``NUMBA_CACHE_DIR``) for the sources under ``tree`` into the ``__pycache__`` folders
+    beside those sources, where numba looks without ``NUMBA_CACHE_DIR``. numba names a
+    source folder's place in such a cache by the folder's name and a digest of its path
+    (``_CacheLocator.get_suitable_cache_subpath``); the files themselves are the same in
+    both places (their stamps name evo-door's files by their place in the package).
+    Returns how many files were copied."""
+    import shutil
+
+    from numba.core.caching import _CacheLocator
+
+    copied = 0
+    for folder in [tree, *(d for d in tree.rglob("*") if d.is_dir())]:
+        if folder.name == "__pycache__":
+            continue
+        there = cache / _CacheLocator.get_suitable_cache_subpath(str(folder / "x.py"))
+        files = [f for f in there.glob("*.nb[ic]")] if there.is_dir() else []
+        if files:
+            (folder / "__pycache__").mkdir(exist_ok=True)
+        for f in files:
+            shutil.copy2(f, folder / "__pycache__" / f.name)
+            copied += 1
+    return copied
+
+
 def door_fmu_builder():
     """``examples/fmu/build.py`` as a module (it is no package), loaded once per process
     under the name ``door_fmu_build``: its dataclasses look their module up there."""

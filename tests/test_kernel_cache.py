@@ -21,7 +21,14 @@ from numba import njit
 import evo_door
 from evo_door import kernel_cache
 from evo_door.commands.compile import default_jobs
-from tests.helpers import COMPILE_HANG_GUARD, DATA, ROOT, TINY_EXPERIMENT, cli_process
+from tests.helpers import (
+    COMPILE_HANG_GUARD,
+    DATA,
+    ROOT,
+    TINY_EXPERIMENT,
+    cli_process,
+    copy_numba_cache,
+)
 
 
 def test_the_package_names_its_locators_to_numba_in_front_of_numbas_own():
@@ -150,6 +157,85 @@ def test_a_checkout_moved_elsewhere_keeps_its_compiled_kernels(tmp_path):
     assert run(moved) == (value, 1)  # from the cache it came with
 
 
+def test_kernels_compiled_into_a_cache_folder_load_beside_their_sources_once_copied(tmp_path):
+    """``tests.helpers.copy_numba_cache``: a kernel compiled with ``NUMBA_CACHE_DIR``,
+    copied into the ``__pycache__`` beside its file, loads from there without it (the
+    suite's first compile on a fresh clone, ``tests/conftest.py``, hands its kernels to
+    the workers so)."""
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "user.py").write_text(USER_FILE)
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+
+    def run(cache=None):
+        extra = {"NUMBA_CACHE_DIR": str(cache)} if cache else {}
+        out = subprocess.run([sys.executable, "user.py"], cwd=home, capture_output=True,
+                             env={**env, **extra, "PYTHONPATH": str(ROOT)}, text=True)  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        value, hits = out.stdout.split()
+        return float(value), int(hits)
+
+    value, hits = run(tmp_path / "cache")
+    assert hits == 0 and not (home / "__pycache__").exists()
+    assert copy_numba_cache(tmp_path / "cache", home) == 2  # the index and the code
+    assert run() == (value, 1)
+
+
+def test_a_fresh_checkout_compiles_before_the_workers_as_the_cold_compile_test_does(
+    monkeypatch, tmp_path
+):
+    """On a checkout with no compiled kernel, the suite's compile before its workers is
+    the cold-compile test's first command (an empty cache folder of its own, the notes
+    on): its output is kept where the workers are told, its kernels copied into the
+    checkout, the record removed when the session ends."""
+    from tests import conftest
+
+    root = tmp_path / "checkout"
+    (root / "evo_door" / "sim" / "__pycache__").mkdir(parents=True)
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.delenv("EVO_DOOR_TEST_EMPTY_CACHE", raising=False)
+    assert conftest.fresh_checkout(root)
+    with monkeypatch.context() as m:
+        m.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # numba's cache elsewhere
+        assert not conftest.fresh_checkout(root)
+    with monkeypatch.context() as m:
+        m.setattr(os, "access", lambda path, mode: False)  # a read-only checkout
+        assert not conftest.fresh_checkout(root)
+    (root / "evo_door" / "sim" / "__pycache__" / "a.f-1.py311.nbi").write_bytes(b"")
+    assert not conftest.fresh_checkout(root)
+
+    calls, copies = [], []
+
+    def fake(*args, cwd, env, timeout):
+        calls.append((args, env))
+        return SimpleNamespace(returncode=0, stdout="compiled 45 kernels\n", stderr="notes\n")
+
+    monkeypatch.setattr(conftest, "cli_process", fake)
+    monkeypatch.setattr(
+        conftest, "copy_numba_cache", lambda cache, tree: copies.append((cache, tree))
+    )
+    monkeypatch.setattr(conftest, "fresh_checkout", lambda: True)
+    monkeypatch.setenv(conftest.COLD_RECORD, "")  # so that it is undone whatever it was
+    monkeypatch.delenv(conftest.COLD_RECORD)
+    monkeypatch.delenv(conftest.PRECOMPILED, raising=False)
+    config = _Config(2)
+    conftest.pytest_sessionstart(SimpleNamespace(config=config))
+    record = Path(os.environ[conftest.COLD_RECORD])
+    ((args, env),) = calls
+    assert args == ("compile",) and env == {
+        "NUMBA_CACHE_DIR": str(record / "cache"),
+        "EVO_DOOR_COMPILE_NOTES": "1",
+    }
+    assert copies == [(record / "cache", ROOT / "evo_door")]
+    assert json.loads((record / "compile.json").read_text()) == {
+        "returncode": 0,
+        "stderr": "notes\n",
+    }
+    assert config.lines[0].startswith("evo-door compile, before the workers start: compiled 45")
+    conftest.pytest_sessionfinish(SimpleNamespace(config=config))
+    assert not record.exists()
+
+
 def test_an_edit_of_a_module_a_cached_kernel_calls_compiles_it_afresh(tmp_path):
     """numba alone would load the old machine code: it watches the kernel's own file."""
     home = _copy_package(tmp_path)
@@ -220,15 +306,32 @@ def _empty_cache(tmp_path) -> Path:
     return cache
 
 
+def _first_compile(tmp_path) -> tuple[Path, list[str]]:
+    """The cache folder a first ``evo-door compile`` filled and that command's compile
+    notes: on a fresh checkout, the one the suite ran before its workers started, into
+    a folder nothing else writes to (``tests/conftest.py``, ``EVO_DOOR_TEST_COLD_RECORD``);
+    else this test's own, into an empty folder."""
+    from tests.conftest import COLD_RECORD
+
+    record = os.environ.get(COLD_RECORD)
+    if not record:
+        cache = _empty_cache(tmp_path)
+        return cache, _cli(["compile"], cache, tmp_path)
+    done = json.loads((Path(record) / "compile.json").read_text())
+    assert done["returncode"] == 0, done["stderr"]
+    notes = [line for line in done["stderr"].splitlines() if line.startswith("evo-door: compil")]
+    return Path(record) / "cache", notes
+
+
 @pytest.mark.slow
 @pytest.mark.cold_compile
 def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(tmp_path):
     """A fresh cache (an install): the first command, ``evo-door compile``, names each
     kernel it compiles as it starts (any command does: the notes are the command line's,
     ``evo_door.cli.compile_notes``); then ``simulate haptic``, a GA run, a render and
-    the HapticMaster emulator compile nothing."""
-    cache = _empty_cache(tmp_path)
-    notes = _cli(["compile"], cache, tmp_path)
+    the HapticMaster emulator compile nothing. On a fresh checkout the first compile is
+    the one the suite ran before its workers (:func:`_first_compile`)."""
+    cache, notes = _first_compile(tmp_path)
     assert notes[0].startswith("evo-door: compiling numba kernels (the first run")
     named = "\n".join(notes)
     for kernel in ("evo_door.models.haptic.accel", "evo_door.sim.objective._population_errors"):
@@ -293,6 +396,7 @@ def test_the_suite_compiles_once_before_its_workers_start(monkeypatch, config, r
         return SimpleNamespace(returncode=0, stdout="compiled 22 kernels in 9.0 s\n", stderr="")
 
     monkeypatch.setattr(subprocess, "run", fake_run)
+    monkeypatch.setattr(conftest, "fresh_checkout", lambda: False)  # a compiled checkout
     monkeypatch.delenv(conftest.PRECOMPILED, raising=False)
     mark = tmp_path / "compiled"  # CI's main job waits for it (.ci/run)
     monkeypatch.setenv(conftest.COMPILED_MARK, str(mark))
@@ -512,6 +616,19 @@ def test_a_function_handed_to_a_kernel_is_looked_up_once_and_each_its_own(monkey
 def test_compile_refuses_jobs_that_are_not_a_whole_number_of_at_least_one(jobs, said, tmp_path):
     out = cli_process("compile", "--jobs", jobs, cwd=tmp_path)
     assert out.returncode == 2 and said in out.stderr.splitlines()[-1], out.stderr
+
+
+def test_the_second_process_run_from_a_terminal_is_refused_in_one_line(monkeypatch, capsys):
+    """``compile --second-part`` is the first process's helper and waits for its word on
+    stdin: typed at a terminal it says so at once, before compiling anything."""
+    from evo_door import cli
+    from evo_door.commands import compile as command
+
+    monkeypatch.setattr(sys, "stdin", SimpleNamespace(isatty=lambda: True))
+    monkeypatch.setattr(command, "_fmu_runners", lambda: pytest.fail("compiled"))
+    assert cli.main(["compile", "--second-part"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert "--second-part is evo-door compile's own second process: run evo-door compile" in line
 
 
 #: the first process's part of ``evo-door compile --jobs 2`` up to its wait for the

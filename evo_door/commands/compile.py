@@ -263,6 +263,12 @@ class SecondProcess:
 def _second_part(args) -> int:
     """The second process's part (:class:`SecondProcess`); its kernels as JSON on stdout."""
     from evo_door import kernel_cache
+    from evo_door.errors import UserError
+
+    if sys.stdin.isatty():  # a person, not the first process: it would wait for "go"
+        raise UserError(
+            "--second-part is evo-door compile's own second process: run evo-door compile"
+        )
 
     def report(name, count, seconds):
         print(
