@@ -103,9 +103,8 @@ REASONS = {
         "an NSGA-II specification run straight through, and again interrupted and resumed"
     ),
     "test_fmu_sandbox::test_the_analysis_of_an_answer_runs_the_fmu_contained": (
-        "the analysis of an answer in the sandbox process, at a crash too: a new sandbox "
-        "child after each crash, one per trial at each point of the identifiability's "
-        "finite differences"
+        "the analysis of an answer in the sandbox process, at a crash and a hang too: a "
+        "new sandbox child after each, and the hang's time limit"
     ),
     "test_fmu_sandbox::test_identical_results_on_every_executor": (
         "the same GA on an FMU on every executor: in process, processes, a Dask cluster"
