@@ -108,8 +108,11 @@ def copy_numba_cache(cache: Path, tree: Path) -> int:
         files = [f for f in there.glob("*.nb[ic]")] if there.is_dir() else []
         if files:
             (folder / "__pycache__").mkdir(exist_ok=True)
-        for f in files:
-            shutil.copy2(f, folder / "__pycache__" / f.name)
+        for f in files:  # each whole or not at all, as numba writes them: a process may
+            # be loading the kernels beside (another pytest session's workers)
+            part = folder / "__pycache__" / f"{f.name}.{os.getpid()}.part"
+            shutil.copy2(f, part)
+            os.replace(part, folder / "__pycache__" / f.name)
             copied += 1
     return copied
 

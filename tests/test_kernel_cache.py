@@ -178,6 +178,7 @@ def test_kernels_compiled_into_a_cache_folder_load_beside_their_sources_once_cop
     value, hits = run(tmp_path / "cache")
     assert hits == 0 and not (home / "__pycache__").exists()
     assert copy_numba_cache(tmp_path / "cache", home) == 2  # the index and the code
+    assert sorted(f.suffix for f in (home / "__pycache__").iterdir()) == [".nbc", ".nbi"]
     assert run() == (value, 1)
 
 
