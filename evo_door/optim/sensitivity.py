@@ -132,15 +132,13 @@ def jacobians(problem, x, steps=(STEP,)) -> tuple[np.ndarray, list[np.ndarray], 
                 rows.append(np.clip(xi, problem.lower, problem.upper))
             per.append((idx, np.array(weights), h[j]))
         plan.append(per)
-    # the estimate first, alone: where it blows up (an FMU that crashes there costs a
-    # new sandbox child per row and trial) the stencil's points are not run at all
-    here, blown_here = _responses(problem, np.array(rows[:1]))
-    if blown_here[0]:
-        raise UserError("the model blows up at the estimate: no identifiability to compute")
+    # the estimate first, alone (:func:`residuals` refuses it where it blows up): the
+    # stencil's points are then not run at all (an FMU that crashes there would cost a
+    # new sandbox child per point and trial)
+    r0 = np.concatenate(residuals(problem, x))
     parts, blown_rows = _responses(problem, np.array(rows[1:]))
-    blown_rows = np.concatenate([blown_here, blown_rows])
-    R = np.concatenate([np.concatenate(here, axis=1), np.concatenate(parts, axis=1)])  # (rows, N)
-    r0 = R[0]
+    blown_rows = np.concatenate([[False], blown_rows])
+    R = np.vstack([r0, np.concatenate(parts, axis=1)])  # (rows, N)
     blown = np.zeros(len(x), dtype=bool)
     out = []
     for per in plan:
