@@ -20,6 +20,7 @@ from tests.helpers import (
     cli_process,
     copy_numba_cache,
     measured_tiers,
+    noted_process,
     tier,
 )
 
@@ -120,8 +121,7 @@ def _cold_compile(config):
     cache, home = record / "cache", record / "home"
     cache.mkdir()
     home.mkdir()
-    env = {"NUMBA_CACHE_DIR": str(cache), "EVO_DOOR_COMPILE_NOTES": "1"}
-    done = cli_process("compile", cwd=home, env=env, timeout=COMPILE_HANG_GUARD)
+    done = noted_process("compile", cache=cache, cwd=home)
     (record / "compile.json").write_text(
         json.dumps({"returncode": done.returncode, "stderr": done.stderr})
     )

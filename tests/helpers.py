@@ -88,6 +88,19 @@ def tier(node_id: str, slow: bool, measured: frozenset[str]) -> str:
     return "integration" if node_id in measured else "unit"
 
 
+def noted_process(*args, cache: Path, cwd):
+    """``evo-door ARGS`` in a fresh process on the numba cache folder ``cache``, with the
+    compile notes on (what the cold-compile test reads, ``tests/test_kernel_cache.py``;
+    ``tests/conftest.py`` runs a fresh clone's first compile so for it)."""
+    env = {"NUMBA_CACHE_DIR": str(cache), "EVO_DOOR_COMPILE_NOTES": "1"}
+    return cli_process(*args, cwd=cwd, env=env, timeout=COMPILE_HANG_GUARD)
+
+
+def compile_notes(stderr: str) -> list[str]:
+    """The compile notes among a command's stderr lines."""
+    return [line for line in stderr.splitlines() if line.startswith("evo-door: compil")]
+
+
 def copy_numba_cache(cache: Path, tree: Path) -> int:
     """Copy the kernels numba compiled into the cache folder ``cache`` (as with
     ``NUMBA_CACHE_DIR``) for the sources under ``tree`` into the ``__pycache__`` folders
@@ -105,7 +118,7 @@ def copy_numba_cache(cache: Path, tree: Path) -> int:
         if folder.name == "__pycache__":
             continue
         there = cache / _CacheLocator.get_suitable_cache_subpath(str(folder / "x.py"))
-        files = [f for f in there.glob("*.nb[ic]")] if there.is_dir() else []
+        files = list(there.glob("*.nb[ic]")) if there.is_dir() else []
         if files:
             (folder / "__pycache__").mkdir(exist_ok=True)
         for f in files:  # each whole or not at all, as numba writes them: a process may

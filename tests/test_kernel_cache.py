@@ -27,7 +27,9 @@ from tests.helpers import (
     ROOT,
     TINY_EXPERIMENT,
     cli_process,
+    compile_notes,
     copy_numba_cache,
+    noted_process,
 )
 
 
@@ -207,11 +209,11 @@ def test_a_fresh_checkout_compiles_before_the_workers_as_the_cold_compile_test_d
 
     calls, copies = [], []
 
-    def fake(*args, cwd, env, timeout):
-        calls.append((args, env))
+    def fake_run(cmd, **kwargs):
+        calls.append((cmd, kwargs["env"]))
         return SimpleNamespace(returncode=0, stdout="compiled 45 kernels\n", stderr="notes\n")
 
-    monkeypatch.setattr(conftest, "cli_process", fake)
+    monkeypatch.setattr(subprocess, "run", fake_run)
     monkeypatch.setattr(
         conftest, "copy_numba_cache", lambda cache, tree: copies.append((cache, tree))
     )
@@ -222,11 +224,9 @@ def test_a_fresh_checkout_compiles_before_the_workers_as_the_cold_compile_test_d
     config = _Config(2)
     conftest.pytest_sessionstart(SimpleNamespace(config=config))
     record = Path(os.environ[conftest.COLD_RECORD])
-    ((args, env),) = calls
-    assert args == ("compile",) and env == {
-        "NUMBA_CACHE_DIR": str(record / "cache"),
-        "EVO_DOOR_COMPILE_NOTES": "1",
-    }
+    ((cmd, env),) = calls
+    assert cmd == [sys.executable, "-m", "evo_door", "compile"]
+    assert env["NUMBA_CACHE_DIR"] == str(record / "cache") and env["EVO_DOOR_COMPILE_NOTES"] == "1"
     assert copies == [(record / "cache", ROOT / "evo_door")]
     assert json.loads((record / "compile.json").read_text()) == {
         "returncode": 0,
@@ -289,10 +289,9 @@ def test_the_notes_name_each_kernel_compiled_and_end_with_a_summary():
 
 def _cli(args, cache, cwd):
     """The compile notes of ``evo-door ARGS`` on the numba cache ``cache``."""
-    env = {"NUMBA_CACHE_DIR": str(cache), "EVO_DOOR_COMPILE_NOTES": "1"}
-    out = cli_process(*args, cwd=cwd, env=env, timeout=COMPILE_HANG_GUARD)
+    out = noted_process(*args, cache=cache, cwd=cwd)
     assert out.returncode == 0, out.stderr
-    return [line for line in out.stderr.splitlines() if line.startswith("evo-door: compil")]
+    return compile_notes(out.stderr)
 
 
 def _empty_cache(tmp_path) -> Path:
@@ -320,8 +319,7 @@ def _first_compile(tmp_path) -> tuple[Path, list[str]]:
         return cache, _cli(["compile"], cache, tmp_path)
     done = json.loads((Path(record) / "compile.json").read_text())
     assert done["returncode"] == 0, done["stderr"]
-    notes = [line for line in done["stderr"].splitlines() if line.startswith("evo-door: compil")]
-    return Path(record) / "cache", notes
+    return Path(record) / "cache", compile_notes(done["stderr"])
 
 
 @pytest.mark.slow
