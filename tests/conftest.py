@@ -15,10 +15,14 @@ from evo_door.models import get_model
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
 from tests.helpers import (
+    COLD_STORE,
     COMPILE_HANG_GUARD,
     ROOT,
     cli_process,
+    cold_compile_key,
     copy_numba_cache,
+    keep_cold_record,
+    kept_cold_record,
     measured_tiers,
     noted_process,
     tier,
@@ -81,12 +85,26 @@ def _compile_before_the_workers(config) -> None:
     of its own, its notes kept) and the kernels are then copied into the checkout, for
     the workers. The test reads that record and runs its commands on that folder,
     which nothing else writes to, instead of compiling everything once more (about 90 s
-    of CPU on 2 cores)."""
+    of CPU on 2 cores). That record, and the one the test makes where it compiles
+    itself, is kept in pytest's cache under a digest of everything the compile depends
+    on (:func:`tests.helpers.cold_compile_key`: the package's sources, the versions,
+    the CPU); the next run with the same digest hands the test a copy of it instead
+    (:func:`_reuse_cold_record`): a developer's runs between edits of the package
+    compile everything once, not once a run. ``pytest --cache-clear`` (or ``-p
+    no:cacheprovider``, as CI runs) compiles afresh."""
     import time
 
     start = time.perf_counter()
-    if fresh_checkout():
+    store = cold_store(config)
+    key = cold_compile_key() if store else ""
+    kept = kept_cold_record(store, key) if store else None
+    reused = ""
+    if kept is not None:
+        reused = _reuse_cold_record(config, kept)
+    if not reused and fresh_checkout():
         done = _cold_compile(config)
+        if store and done.returncode == 0:
+            keep_cold_record(store, key, Path(os.environ[COLD_RECORD]) / "cache", done.stderr)
     else:
         # the checkout's evo_door (cli_process puts it first on the path), as the workers
         # import it
@@ -96,7 +114,41 @@ def _compile_before_the_workers(config) -> None:
         _say(config, f"evo-door compile failed before the workers started:\n{done.stderr[-2000:]}")
     else:
         took = time.perf_counter() - start
-        _say(config, f"evo-door compile, before the workers start: {line} ({took:.0f} s)")
+        _say(config, f"evo-door compile, before the workers start: {line} ({took:.0f} s){reused}")
+
+
+def cold_store(config) -> Path | None:
+    """The folder of pytest's cache that keeps the cold compile's record, or None: no
+    pytest cache (``-p no:cacheprovider``), or an empty cache folder handed to the
+    cold-compile test (``EVO_DOOR_TEST_EMPTY_CACHE``: it must compile there)."""
+    cache = getattr(config, "cache", None)
+    if cache is None or os.environ.get("EVO_DOOR_TEST_EMPTY_CACHE"):
+        return None
+    return cache.mkdir(COLD_STORE)
+
+
+def _reuse_cold_record(config, kept: Path) -> str:
+    """A copy of a kept cold compile's record for this session (the cold-compile test
+    runs commands on its cache folder), named to the workers; on a fresh checkout its
+    kernels are copied into the checkout, as :func:`_cold_compile` does. Returns the
+    end of the line the run says (empty where the copy failed: the caller compiles)."""
+    import tempfile
+    import time
+
+    record = Path(tempfile.mkdtemp(prefix="evo-door-cold-"))
+    try:
+        shutil.copytree(kept / "cache", record / "cache")
+        shutil.copy2(kept / "compile.json", record / "compile.json")
+        (record / "home").mkdir()
+    except OSError:
+        shutil.rmtree(record, ignore_errors=True)
+        return ""
+    config._evo_door_cold_record = record  # removed when the session ends
+    if fresh_checkout():
+        copy_numba_cache(record / "cache", ROOT / "evo_door")
+    os.environ[COLD_RECORD] = str(record)  # the workers, started next, inherit it
+    when = time.strftime("%Y-%m-%d %H:%M", time.localtime((kept / "compile.json").stat().st_mtime))
+    return f"; the cold-compile test reads the first compile kept from {when} (same sources)"
 
 
 def fresh_checkout(root: Path = ROOT) -> bool:

@@ -130,6 +130,76 @@ def copy_numba_cache(cache: Path, tree: Path) -> int:
     return copied
 
 
+#: The folder of pytest's cache (``.pytest_cache``) that keeps the last cold compile's
+#: record (:func:`keep_cold_record`).
+COLD_STORE = "evo-door-cold-compile"
+
+
+def cold_compile_key(root: Path = ROOT) -> str:
+    """A digest of everything a first ``evo-door compile`` into an empty cache depends
+    on: every source file of the package, the checkout's place (numba names a cache
+    folder by its source folder's path), the versions of Python, numpy, numba and
+    llvmlite, the CPU numba compiles for, the processes the compile splits over,
+    numba's settings from the environment, and this file (how the compile is run).
+    Two runs with the same key compile the same kernels into the same files."""
+    import hashlib
+    import platform
+
+    import llvmlite
+    import numba
+    import numpy
+    from llvmlite import binding
+
+    from evo_door.commands.compile import default_jobs
+
+    digest = hashlib.sha256()
+    facts = [str(root), sys.version, platform.machine(), numpy.__version__, numba.__version__,
+             llvmlite.__version__, binding.get_host_cpu_name(),
+             binding.get_host_cpu_features().flatten(), str(default_jobs())]  # fmt: skip
+    facts += sorted(f"{k}={v}" for k, v in os.environ.items() if k.startswith("NUMBA_"))
+    for path in sorted((root / "evo_door").rglob("*.py")):
+        facts += [path.relative_to(root).as_posix(), path.read_text(encoding="utf-8")]
+    facts.append(Path(__file__).read_text(encoding="utf-8"))
+    for fact in facts:
+        digest.update(fact.encode("utf-8") + b"\0")
+    return digest.hexdigest()[:24]
+
+
+def kept_cold_record(store: Path, key: str) -> Path | None:
+    """The record :func:`keep_cold_record` kept under ``key`` in ``store``, or None."""
+    record = store / key
+    try:
+        done = json.loads((record / "compile.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return record if done.get("returncode") == 0 and (record / "cache").is_dir() else None
+
+
+def keep_cold_record(store: Path, key: str, cache: Path, stderr: str) -> bool:
+    """Keep a successful first compile's record in ``store`` under ``key``: a copy of the
+    cache folder it filled and its stderr (``compile.json``, as ``tests/conftest.py``
+    writes it), in place of any other key's (a record is 17 MB; an older one holds
+    kernels of sources since edited). Written under a temporary name, then renamed
+    whole: another session may be reading or keeping one. Returns whether it was kept
+    (not when the key is kept already or the copy fails: the next run compiles again)."""
+    import shutil
+
+    if (store / key).exists():
+        return False
+    part = store / f".{key}.{os.getpid()}.part"
+    try:
+        shutil.copytree(cache, part / "cache")
+        (part / "compile.json").write_text(json.dumps({"returncode": 0, "stderr": stderr}))
+        os.replace(part, store / key)
+    except OSError:
+        shutil.rmtree(part, ignore_errors=True)
+        return False
+    for other in store.iterdir():
+        if other.name != key and not other.name.startswith("."):
+            shutil.rmtree(other, ignore_errors=True)
+    return True
+
+
 def door_fmu_builder():
     """``examples/fmu/build.py`` as a module (it is no package), loaded once per process
     under the name ``door_fmu_build``: its dataclasses look their module up there."""

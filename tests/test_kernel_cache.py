@@ -27,8 +27,11 @@ from tests.helpers import (
     ROOT,
     TINY_EXPERIMENT,
     cli_process,
+    cold_compile_key,
     compile_notes,
     copy_numba_cache,
+    keep_cold_record,
+    kept_cold_record,
     noted_process,
 )
 
@@ -237,6 +240,92 @@ def test_a_fresh_checkout_compiles_before_the_workers_as_the_cold_compile_test_d
     assert not record.exists()
 
 
+def test_the_cold_compiles_key_follows_the_sources_the_place_and_numbas_settings(
+    tmp_path, monkeypatch
+):
+    """``tests.helpers.cold_compile_key``: the same checkout gives the same key; an edit
+    of any of the package's files, another place, or a numba setting in the
+    environment gives another (a kept cold compile is then not reused)."""
+    root = _copy_package(tmp_path / "a")
+    key = cold_compile_key(root)
+    assert cold_compile_key(root) == key
+    friction = root / "evo_door/render/friction.py"
+    text = friction.read_text()
+    friction.write_text(text + "\n# an edit\n")
+    assert cold_compile_key(root) != key
+    friction.write_text(text)
+    assert cold_compile_key(root) == key
+    assert cold_compile_key(_copy_package(tmp_path / "b")) != key  # numba's folders move
+    monkeypatch.setenv("NUMBA_OPT", "1")
+    assert cold_compile_key(root) != key
+
+
+def test_a_cold_compile_is_kept_and_the_next_run_of_the_same_sources_reads_it(
+    monkeypatch, tmp_path
+):
+    """The suite's cold compile on a fresh checkout is kept in pytest's cache under its
+    key; the next run with that key compiles nothing cold: the workers are named a copy
+    of the kept record (the cold-compile test's commands may not touch the kept one),
+    and the run's line says so. A run with another key compiles cold again and its
+    record replaces the older one; a failed compile, or a damaged record, is not
+    reused."""
+    from tests import conftest
+
+    store = tmp_path / "pytest-cache" / "evo-door-cold-compile"
+    calls = []
+
+    def fake_run(cmd, **kwargs):  # a compile that fills the cache folder it is given
+        calls.append(cmd)
+        cache = kwargs["env"].get("NUMBA_CACHE_DIR")
+        if cache and cmd[-1] == "compile":
+            (Path(cache) / "sim_1a2b").mkdir(parents=True)
+            (Path(cache) / "sim_1a2b" / "states.f-1.py311.nbi").write_text("index")
+        return SimpleNamespace(returncode=0, stdout="compiled 45 kernels\n", stderr="notes\n")
+
+    def session(key, fresh):
+        calls.clear()
+        monkeypatch.setattr(conftest, "cold_compile_key", lambda: key)
+        monkeypatch.setattr(conftest, "fresh_checkout", lambda: fresh)
+        config = _Config(2)
+        config.cache = SimpleNamespace(mkdir=lambda name: _made(store.parent / name))
+        conftest.pytest_sessionstart(SimpleNamespace(config=config))
+        record = Path(os.environ[conftest.COLD_RECORD])
+        kernel = (record / "cache/sim_1a2b/states.f-1.py311.nbi").read_text()
+        notes = json.loads((record / "compile.json").read_text())
+        conftest.pytest_sessionfinish(SimpleNamespace(config=config))
+        assert not record.exists()
+        monkeypatch.delenv(conftest.COLD_RECORD)
+        return config.lines[0], list(calls), kernel, notes
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    monkeypatch.setattr(conftest, "copy_numba_cache", lambda cache, tree: 0)
+    monkeypatch.delenv(conftest.PRECOMPILED, raising=False)
+    monkeypatch.delenv("EVO_DOOR_TEST_EMPTY_CACHE", raising=False)
+    monkeypatch.setenv(conftest.COLD_RECORD, "")  # so that it is undone whatever it was
+    monkeypatch.delenv(conftest.COLD_RECORD)
+    cold = [sys.executable, "-m", "evo_door", "compile"]
+    line, ran, kernel, notes = session("k1", fresh=True)
+    assert ran == [cold] and "kept from" not in line
+    assert kernel == "index" and notes == {"returncode": 0, "stderr": "notes\n"}
+    assert [d.name for d in store.iterdir()] == ["k1"]
+    line, ran, kernel, notes = session("k1", fresh=False)  # the same sources, warm
+    assert ran == [[*cold, "--quiet"]] and kernel == "index" and notes["stderr"] == "notes\n"
+    assert "; the cold-compile test reads the first compile kept from " in line
+    line, ran, _, _ = session("k2", fresh=True)  # an edit: compiled cold again
+    assert ran == [cold] and [d.name for d in store.iterdir()] == ["k2"]
+    assert kept_cold_record(store, "k2") == store / "k2"
+    (store / "k2" / "compile.json").write_text('{"returncode": 1')  # damaged
+    assert kept_cold_record(store, "k2") is None
+    (store / "k2" / "compile.json").write_text('{"returncode": 1, "stderr": ""}')
+    assert kept_cold_record(store, "k2") is None
+    assert kept_cold_record(store, "k3") is None
+
+
+def _made(folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
 def test_an_edit_of_a_module_a_cached_kernel_calls_compiles_it_afresh(tmp_path):
     """numba alone would load the old machine code: it watches the kernel's own file."""
     home = _copy_package(tmp_path)
@@ -306,31 +395,36 @@ def _empty_cache(tmp_path) -> Path:
     return cache
 
 
-def _first_compile(tmp_path) -> tuple[Path, list[str]]:
-    """The cache folder a first ``evo-door compile`` filled and that command's compile
-    notes: on a fresh checkout, the one the suite ran before its workers started, into
-    a folder nothing else writes to (``tests/conftest.py``, ``EVO_DOOR_TEST_COLD_RECORD``);
-    else this test's own, into an empty folder."""
+def _first_compile(tmp_path) -> tuple[Path, list[str], bool]:
+    """The cache folder a first ``evo-door compile`` filled, that command's compile
+    notes, and whether it ran here: on a fresh checkout, the one the suite ran before
+    its workers started, into a folder nothing else writes to (``tests/conftest.py``,
+    ``EVO_DOOR_TEST_COLD_RECORD``), or a copy of the one kept from an earlier run of the
+    same sources; else this test's own, into an empty folder."""
     from tests.conftest import COLD_RECORD
 
     record = os.environ.get(COLD_RECORD)
     if not record:
         cache = _empty_cache(tmp_path)
-        return cache, _cli(["compile"], cache, tmp_path)
+        return cache, _cli(["compile"], cache, tmp_path), True
     done = json.loads((Path(record) / "compile.json").read_text())
     assert done["returncode"] == 0, done["stderr"]
-    return Path(record) / "cache", compile_notes(done["stderr"])
+    return Path(record) / "cache", compile_notes(done["stderr"]), False
 
 
 @pytest.mark.slow
 @pytest.mark.cold_compile
-def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(tmp_path):
+def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_compile(
+    tmp_path, pytestconfig
+):
     """A fresh cache (an install): the first command, ``evo-door compile``, names each
     kernel it compiles as it starts (any command does: the notes are the command line's,
     ``evo_door.cli.compile_notes``); then ``simulate haptic``, a GA run, a render and
     the HapticMaster emulator compile nothing. On a fresh checkout the first compile is
-    the one the suite ran before its workers (:func:`_first_compile`)."""
-    cache, notes = _first_compile(tmp_path)
+    the one the suite ran before its workers (:func:`_first_compile`); one this test
+    ran itself is kept in pytest's cache for the next run of the same sources
+    (``tests/conftest.py``)."""
+    cache, notes, here = _first_compile(tmp_path)
     assert notes[0].startswith("evo-door: compiling numba kernels (the first run")
     named = "\n".join(notes)
     for kernel in ("evo_door.models.haptic.accel", "evo_door.sim.objective._population_errors"):
@@ -356,6 +450,11 @@ def test_a_first_command_says_what_it_compiles_and_compile_leaves_nothing_to_com
     emulate = ["emulate", "hapticmaster", "--port", "0", "--seconds", "0.2"]
     assert _cli(emulate, cache, tmp_path) == []  # the device's physics and its model's
     assert _cli(["compile"], cache, tmp_path) == []  # its own summary goes to stdout
+    from tests.conftest import cold_store
+
+    store = cold_store(pytestconfig)
+    if here and store is not None:
+        keep_cold_record(store, cold_compile_key(), cache, "\n".join(notes) + "\n")
 
 
 class _Config:
