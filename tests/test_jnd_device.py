@@ -19,7 +19,7 @@ from evo_door.files import open_h5, read_attrs
 from evo_door.perception.jnd_file import read_jnd_file
 from evo_door.perception.procedures import JndSession, SimParticipant, run_simulated
 from evo_door.render.jnd import STOP, JndTiming, TerminalPerson
-from tests.helpers import LOADED_MACHINE_LIMITS
+from tests.helpers import LOADED_MACHINE_LIMITS, LOADED_MACHINE_WATCHDOG
 
 ROOT = Path(__file__).resolve().parents[1]
 #: short intervals in simulated time: a session of 80 trials is 38 s on the loop's clock
@@ -158,7 +158,9 @@ def test_ctrl_c_keeps_the_answered_trials(tmp_path):
     """A session paced on the wall clock, Ctrl-C after a few answers: the file holds
     them, its status 'stopped', exit 0."""
     out = tmp_path / "j.h5"
-    cmd = [sys.executable, "-m", "evo_door", "jnd", *FAST, "--realtime"]
+    # a loaded machine misses deadlines of the paced loop: its watchdog would end the
+    # session before the Ctrl-C this tests (exit 1, status "watchdog")
+    cmd = [sys.executable, "-m", "evo_door", "jnd", *FAST, "--realtime", *LOADED_MACHINE_WATCHDOG]
     cmd += ["--param", "open_force", "--participant", "sim:0.1", "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
@@ -171,7 +173,7 @@ def test_ctrl_c_keeps_the_answered_trials(tmp_path):
         seen += line.startswith("trial ")
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
-    assert proc.returncode == 0, stderr
+    assert proc.returncode == 0, stdout + stderr
     record = read_jnd_file(out)
     assert record.status == "stopped"
     assert 3 <= len(record.trials["step"]) < 80
