@@ -90,8 +90,8 @@ def _compile_before_the_workers(config) -> None:
     on (:func:`tests.helpers.cold_compile_key`: the package's sources, the versions,
     the CPU); the next run with the same digest hands the test a copy of it instead
     (:func:`_reuse_cold_record`): a developer's runs between edits of the package
-    compile everything once, not once a run. ``pytest --cache-clear`` (or ``-p
-    no:cacheprovider``, as CI runs) compiles afresh."""
+    compile everything once, not once a run. ``pytest --cache-clear`` or ``-p
+    no:cacheprovider`` compiles afresh, and so does CI (a clean clone: no pytest cache)."""
     import time
 
     start = time.perf_counter()
