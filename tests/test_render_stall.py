@@ -224,9 +224,13 @@ def test_a_frozen_renderer_leaves_no_force_and_does_not_resume(emulator, tmp_pat
 
 @pytest.mark.slow
 def test_a_killed_renderer_leaves_no_force(emulator):
-    """SIGKILL: the pipe to the supervisor ends; it takes the force off at once."""
+    """SIGKILL: the pipe to the supervisor ends; it takes the force off at once. Its
+    heartbeat budget is a second here, so that the force can only be off within 0.1 s
+    by the renderer's death (with the default 20 ms, a loaded machine that held the
+    renderer back just before the kill let the missed beat win the race: "stopped
+    beating", seen in a suite run)."""
     probe = Probe(emulator)
-    proc = _render(emulator)
+    proc = _render(emulator, "--supervisor-budget", "1000")
     try:
         _wait_for_force(probe, proc)
         supervisor = _supervisor_pid(proc.pid)
