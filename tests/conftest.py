@@ -119,12 +119,16 @@ def _compile_before_the_workers(config) -> None:
 
 def cold_store(config) -> Path | None:
     """The folder of pytest's cache that keeps the cold compile's record, or None: no
-    pytest cache (``-p no:cacheprovider``), or an empty cache folder handed to the
-    cold-compile test (``EVO_DOOR_TEST_EMPTY_CACHE``: it must compile there)."""
+    pytest cache (``-p no:cacheprovider``, or one that cannot be written), or an empty
+    cache folder handed to the cold-compile test (``EVO_DOOR_TEST_EMPTY_CACHE``: it must
+    compile there)."""
     cache = getattr(config, "cache", None)
     if cache is None or os.environ.get("EVO_DOOR_TEST_EMPTY_CACHE"):
         return None
-    return cache.mkdir(COLD_STORE)
+    try:
+        return cache.mkdir(COLD_STORE)
+    except OSError:  # a read-only checkout: nothing kept, each run compiles
+        return None
 
 
 def _reuse_cold_record(config, kept: Path) -> str:

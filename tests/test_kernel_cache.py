@@ -268,7 +268,7 @@ def test_a_cold_compile_is_kept_and_the_next_run_of_the_same_sources_reads_it(
     of the kept record (the cold-compile test's commands may not touch the kept one),
     and the run's line says so. A run with another key compiles cold again and its
     record replaces the older one; a failed compile, or a damaged record, is not
-    reused."""
+    reused; without a pytest cache that can be written nothing is kept."""
     from tests import conftest
 
     store = tmp_path / "pytest-cache" / "evo-door-cold-compile"
@@ -319,6 +319,12 @@ def test_a_cold_compile_is_kept_and_the_next_run_of_the_same_sources_reads_it(
     (store / "k2" / "compile.json").write_text('{"returncode": 1, "stderr": ""}')
     assert kept_cold_record(store, "k2") is None
     assert kept_cold_record(store, "k3") is None
+
+    def read_only(name):
+        raise PermissionError(13, "Read-only file system", name)
+
+    assert conftest.cold_store(SimpleNamespace(cache=SimpleNamespace(mkdir=read_only))) is None
+    assert conftest.cold_store(SimpleNamespace()) is None  # -p no:cacheprovider
 
 
 def _made(folder: Path) -> Path:
