@@ -10,7 +10,11 @@
   answers read back from a connection to it (:func:`answer_lines`);
 - a process stopped for sure (:func:`freeze`: SIGSTOP, then its threads seen stopped);
 - the example door FMU's builder, ``examples/fmu/build.py``, as a module
-  (:func:`door_fmu_builder`; conftest's ``shared_fmus`` builds the FMUs themselves).
+  (:func:`door_fmu_builder`; conftest's ``shared_fmus`` builds the FMUs themselves);
+- the first compile of every kernel as the cold-compile test and ``conftest.py`` run
+  it (:func:`noted_process`, :func:`compile_notes`), its kernels copied beside their
+  sources (:func:`copy_numba_cache`) and its record kept between runs of the same
+  sources (:func:`cold_compile_key`, :func:`keep_cold_record`, :func:`kept_cold_record`).
 
 The independent statements of the science that tests compare against are
 ``reference.py`` (converged integrations) and ``feel_reference.py`` (the perceptual
@@ -178,7 +182,7 @@ def kept_cold_record(store: Path, key: str) -> Path | None:
 def keep_cold_record(store: Path, key: str, cache: Path, stderr: str) -> bool:
     """Keep a successful first compile's record in ``store`` under ``key``: a copy of the
     cache folder it filled and its stderr (``compile.json``, as ``tests/conftest.py``
-    writes it), in place of any other key's (a record is 17 MB; an older one holds
+    writes it), in place of any other key's (a record is about 12 MB; an older one holds
     kernels of sources since edited). Written under a temporary name, then renamed
     whole: another session may be reading or keeping one. Returns whether it was kept
     (not when the key is kept already or the copy fails: the next run compiles again)."""
