@@ -128,9 +128,23 @@ class Transmission:
             branch = 1.0 if self.words["branch"] == "open" else -1.0
             args = (v["crank"], v["coupler"], v["rocker"], v["ground"], v["phase"])
             return kinematics.four_bar(q, *args, branch)
-        n = self.points
-        data = np.array([v[f"q_{i}"] for i in range(n)] + [v[f"s_{i}"] for i in range(n)])
-        return kinematics.pchip(q, data, 0, n)
+        return kinematics.pchip(q, self.table(), 0, self.points)
+
+    def curve(self, qs) -> np.ndarray:
+        """``(s, ds/dq)`` at each coordinate of ``qs``, a row each, as :meth:`evaluate`
+        gives them (a table's points gathered once, not once a coordinate: the check of
+        a fold evaluates thousands, at every command that reads the file)."""
+        if self.kind != "table":
+            return np.array([self.evaluate(float(q)) for q in qs])
+        from evo_door.models.blocks import kinematics
+
+        data, n = self.table(), self.points
+        return np.array([kinematics.pchip(float(q), data, 0, n) for q in qs])
+
+    def table(self) -> np.ndarray:
+        """A table's points as its kernel reads them: ``q_0..q_{n-1}``, then ``s_0..``."""
+        v, n = self.values, self.points
+        return np.array([v[f"q_{i}"] for i in range(n)] + [v[f"s_{i}"] for i in range(n)])
 
     @property
     def imports(self) -> str:
@@ -155,7 +169,7 @@ def check_fold(t: Transmission, lo: float, hi: float) -> str | None:
             if (ss[i] > ss[i - 1]) != rising or ss[i] == ss[i - 1]:
                 return f"it is not monotone: s turns at q = {qs[i - 1]:g} {unit} (point {i - 1})"
     q = np.linspace(lo, hi, FOLD_GRID)
-    sr = np.array([t.evaluate(float(v)) for v in q])
+    sr = t.curve(q)
     bad = ~np.isfinite(sr).all(axis=1)
     if bad.any():
         j = int(np.argmax(bad))
