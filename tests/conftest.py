@@ -26,6 +26,7 @@ from tests.helpers import (
     measured_tiers,
     noted_process,
     tier,
+    write_compile_record,
 )
 
 #: The command line's notes of what numba compiles (evo_door.kernel_cache) would land in
@@ -136,21 +137,14 @@ def _reuse_cold_record(config, kept: Path) -> str:
     runs commands on its cache folder), named to the workers; on a fresh checkout its
     kernels are copied into the checkout, as :func:`_cold_compile` does. Returns the
     end of the line the run says (empty where the copy failed: the caller compiles)."""
-    import tempfile
     import time
 
-    record = Path(tempfile.mkdtemp(prefix="evo-door-cold-"))
+    record = _session_record(config)
     try:
-        shutil.copytree(kept / "cache", record / "cache")
-        shutil.copy2(kept / "compile.json", record / "compile.json")
-        (record / "home").mkdir()
+        shutil.copytree(kept, record, dirs_exist_ok=True)
     except OSError:
-        shutil.rmtree(record, ignore_errors=True)
-        return ""
-    config._evo_door_cold_record = record  # removed when the session ends
-    if fresh_checkout():
-        copy_numba_cache(record / "cache", ROOT / "evo_door")
-    os.environ[COLD_RECORD] = str(record)  # the workers, started next, inherit it
+        return ""  # the session's folder is removed when it ends
+    _hand_to_the_workers(record, into_checkout=fresh_checkout())
     when = time.strftime("%Y-%m-%d %H:%M", time.localtime((kept / "compile.json").stat().st_mtime))
     return f"; the cold-compile test reads the first compile kept from {when} (same sources)"
 
@@ -169,21 +163,33 @@ def _cold_compile(config):
     """``evo-door compile`` into an empty cache folder, as the cold-compile test runs it;
     its output kept in a folder the workers are told of (:data:`COLD_RECORD`), its
     kernels copied into the checkout. Returns the finished process."""
-    import json
-    import tempfile
-
-    record = Path(tempfile.mkdtemp(prefix="evo-door-cold-"))
-    config._evo_door_cold_record = record  # removed when the session ends
+    record = _session_record(config)
     cache, home = record / "cache", record / "home"
     cache.mkdir()
     home.mkdir()
     done = noted_process("compile", cache=cache, cwd=home)
-    (record / "compile.json").write_text(
-        json.dumps({"returncode": done.returncode, "stderr": done.stderr})
-    )
-    copy_numba_cache(cache, ROOT / "evo_door")
-    os.environ[COLD_RECORD] = str(record)  # the workers, started next, inherit it
+    write_compile_record(record, done.returncode, done.stderr)
+    _hand_to_the_workers(record, into_checkout=True)
     return done
+
+
+def _session_record(config) -> Path:
+    """A new temporary folder for this session's cold-compile record, removed when the
+    session ends (:func:`pytest_sessionfinish`)."""
+    import tempfile
+
+    record = Path(tempfile.mkdtemp(prefix="evo-door-cold-"))
+    config._evo_door_cold_record = record
+    return record
+
+
+def _hand_to_the_workers(record: Path, into_checkout: bool) -> None:
+    """Name the record to the workers (:data:`COLD_RECORD`; they start next and inherit
+    it), its kernels first copied into the checkout where ``into_checkout`` (a fresh
+    clone's workers load them from there)."""
+    if into_checkout:
+        copy_numba_cache(record / "cache", ROOT / "evo_door")
+    os.environ[COLD_RECORD] = str(record)
 
 
 def pytest_sessionfinish(session):

@@ -169,21 +169,35 @@ def cold_compile_key(root: Path = ROOT) -> str:
     return digest.hexdigest()[:24]
 
 
+def write_compile_record(folder: Path, returncode: int, stderr: str) -> None:
+    """A first compile's exit status and stderr, ``compile.json`` in its record's folder
+    (beside ``cache``, the numba cache folder it filled)."""
+    (folder / "compile.json").write_text(json.dumps({"returncode": returncode, "stderr": stderr}))
+
+
+def read_compile_record(folder: Path) -> dict | None:
+    """What :func:`write_compile_record` wrote in ``folder``; None where it is missing or
+    damaged."""
+    try:
+        done = json.loads((folder / "compile.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return done if isinstance(done, dict) else None
+
+
 def kept_cold_record(store: Path, key: str) -> Path | None:
     """The record :func:`keep_cold_record` kept under ``key`` in ``store``, or None."""
     record = store / key
-    try:
-        done = json.loads((record / "compile.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return record if done.get("returncode") == 0 and (record / "cache").is_dir() else None
+    done = read_compile_record(record)
+    ok = done is not None and done.get("returncode") == 0 and (record / "cache").is_dir()
+    return record if ok else None
 
 
 def keep_cold_record(store: Path, key: str, cache: Path, stderr: str) -> bool:
     """Keep a successful first compile's record in ``store`` under ``key``: a copy of the
-    cache folder it filled and its stderr (``compile.json``, as ``tests/conftest.py``
-    writes it), in place of any other key's (a record is about 12 MB; an older one holds
-    kernels of sources since edited). Written under a temporary name, then renamed
+    cache folder it filled and its stderr (:func:`write_compile_record`), in place of
+    any other key's (a record is some megabytes; an older one holds kernels of sources
+    since edited). Written under a temporary name, then renamed
     whole: another session may be reading or keeping one. Returns whether it was kept
     (not when the key is kept already or the copy fails: the next run compiles again)."""
     import shutil
@@ -193,7 +207,7 @@ def keep_cold_record(store: Path, key: str, cache: Path, stderr: str) -> bool:
     part = store / f".{key}.{os.getpid()}.part"
     try:
         shutil.copytree(cache, part / "cache")
-        (part / "compile.json").write_text(json.dumps({"returncode": 0, "stderr": stderr}))
+        write_compile_record(part, 0, stderr)
         os.replace(part, store / key)
     except OSError:
         shutil.rmtree(part, ignore_errors=True)

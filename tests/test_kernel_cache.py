@@ -33,6 +33,7 @@ from tests.helpers import (
     keep_cold_record,
     kept_cold_record,
     noted_process,
+    read_compile_record,
 )
 
 
@@ -413,8 +414,8 @@ def _first_compile(tmp_path) -> tuple[Path, list[str], bool]:
     if not record:
         cache = _empty_cache(tmp_path)
         return cache, _cli(["compile"], cache, tmp_path), True
-    done = json.loads((Path(record) / "compile.json").read_text())
-    assert done["returncode"] == 0, done["stderr"]
+    done = read_compile_record(Path(record))
+    assert done is not None and done["returncode"] == 0, done
     return Path(record) / "cache", compile_notes(done["stderr"]), False
 
 
