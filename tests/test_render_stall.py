@@ -31,7 +31,7 @@ from evo_door.render import supervisor as sup
 from evo_door.render.device import SimDevice
 from evo_door.render.hm_protocol import BIAS_NAME, FrameReader, encode
 from evo_door.render.loop import ServoLoop
-from tests.helpers import LOADED_MACHINE_WATCHDOG, freeze
+from tests.helpers import LOADED_MACHINE_LIMITS, freeze
 
 #: the probe's question: the device's state, and the host's bias force and whether it is on
 PROBE = f"get state;get {BIAS_NAME} force;get {BIAS_NAME} enabled"
@@ -253,9 +253,10 @@ def test_a_killed_renderer_leaves_no_force(emulator):
 def test_a_normal_end_is_no_stall_and_leaves_no_supervisor(emulator, tmp_path):
     log = tmp_path / "ok.h5"
     probe = Probe(emulator)
-    # a normal end, not the loop's stall budget: room for a loaded machine (a run beside
-    # the suite once held this loop 100 ms and its watchdog ended the render)
-    proc = _render(emulator, "--log", str(log), *LOADED_MACHINE_WATCHDOG, duration=1.0)
+    # a normal end, not a stall budget: room for a loaded machine, the loop's and the
+    # supervisor's (a run beside the suite once held this loop 100 ms and its watchdog
+    # ended the render; a full suite on two workers once held the supervisor's 20 ms)
+    proc = _render(emulator, "--log", str(log), *LOADED_MACHINE_LIMITS, duration=1.0)
     try:
         supervisor = _supervisor_pid(proc.pid)
         out, err = proc.communicate(timeout=60)
@@ -267,7 +268,8 @@ def test_a_normal_end_is_no_stall_and_leaves_no_supervisor(emulator, tmp_path):
     assert "(done)" in out and "stalled" not in out + err and "supervisor" not in err
     assert _gone(supervisor, timeout=1.0)
     (started,) = [e for e in _events(log) if e["kind"] == "supervisor"]
-    assert "takes the force off after 20 ms without a heartbeat" in started["message"]
+    # the log says what the supervisor was armed with (the budget given, not its default)
+    assert "takes the force off after 1000 ms without a heartbeat" in started["message"]
 
 
 class _OneConnection:

@@ -442,3 +442,26 @@ def test_bad_arguments_are_refused_in_one_line(change, message):
 def test_bad_settings_are_refused_in_one_line(args, message):
     with pytest.raises(UserError, match=message):
         settings(*args)
+
+
+# -- the steps run without numba's runtime ---------------------------------------------
+def test_the_steps_and_the_located_period_are_compiled_without_numbas_runtime():
+    """Every compiled function of the steps and of the located period but the one that
+    allocates the scratch arrays is compiled with ``_nrt=False`` (evo_door.sim.state_steps
+    tells why: the runtime's reference counts cost a cheap model more than its
+    right-hand side). A function added with a plain ``@njit`` brings them back."""
+    from numba.core.registry import CPUDispatcher
+
+    from evo_door.sim import state_located, state_steps
+
+    checked = []
+    for module in (state_steps, state_located):
+        for name, value in vars(module).items():
+            if not isinstance(value, CPUDispatcher) or value.py_func.__module__ != module.__name__:
+                continue
+            if name == "workspace":
+                assert value.targetoptions.get("_nrt", True), name
+                continue
+            assert value.targetoptions.get("_nrt") is False, f"{module.__name__}.{name}"
+            checked.append(name)
+    assert {"stage_rate", "dopri_step", "located_period", "period", "copy_into"} <= set(checked)

@@ -17,13 +17,14 @@ is 0 with the stuck contacts held (a one-body door at rest), the break-away inst
 solved exactly, the rhs being affine in the force and the force linear in time; while
 other states move (a carriage on its damper), the break-away is located like any
 surface.
+
+Like the steps, every function here is compiled without numba's runtime
+(``_nrt=False``: :mod:`evo_door.sim.state_steps` tells why) and allocates nothing.
 """
 
 from __future__ import annotations
 
 import math
-
-from numba import njit
 
 from evo_door.sim.located import (
     CREEP,
@@ -45,7 +46,9 @@ from evo_door.sim.state_steps import (
     XT,
     R,
     Y,
+    copy_into,
     jacobian,
+    no_runtime,
     plain_period,
     set_modes,
     side_rate,
@@ -55,13 +58,13 @@ from evo_door.sim.state_steps import (
 )
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def crossed(a, b):
     """True when ``a`` and ``b`` lie on two sides of zero (0 counts as positive)."""
     return (a < 0.0) != (b < 0.0)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def first_crossing(g0, g1, n, active):
     """Index of the active crossing with the smallest linear estimate of its time, -1
     if none (the model's surfaces first on a tie, as the one-coordinate form)."""
@@ -75,7 +78,7 @@ def first_crossing(g0, g1, n, active):
     return best
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def release(rhs, p, x, force, contacts, y, r):
     """Case 1 of a period's loop for each contact at rest: slip it (``x[k] = +-CREEP``)
     where the other forces beat its friction. Returns (contacts at rest, still stuck)."""
@@ -95,7 +98,7 @@ def release(rhs, p, x, force, contacts, y, r):
     return at_rest, stuck
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def frozen_until(rhs, p, x, force, f1, t, dt, contacts, modes, W):
     """When nothing moves while the stuck contacts hold (every rate 0 at ``force`` and
     at the period's end force ``f1``: the rhs is affine in the force, so 0 between
@@ -123,7 +126,7 @@ def frozen_until(rhs, p, x, force, f1, t, dt, contacts, modes, W):
     return free
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def euler_across(rhs, switches, p, x, t, f0, slope, dt, width, c, n_sw, contacts, modes, G, W):
     """Case 4: move ``x`` across surface ``c`` by an Euler step of the bracket's
     ``width`` (widened up to 4^11 times until it is across), a sliding contact whose
@@ -142,14 +145,14 @@ def euler_across(rhs, switches, p, x, t, f0, slope, dt, width, c, n_sw, contacts
                 k = contacts[j]
                 if crossed(xe[k], x[k]) and x[k] != 0.0:
                     xe[k] = 0.0
-            x[:] = xe
+            copy_into(x, xe, x.shape[0])
             t += width
             break
         width *= 4.0
     return t
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def all_finite(x):
     """True when every entry of ``x`` is finite."""
     for v in x:
@@ -158,7 +161,7 @@ def all_finite(x):
     return True
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def located_period(
     rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts, W, G, JM,
     piv, modes, h0,
@@ -186,7 +189,7 @@ def located_period(
         active[i] = 1.0
     events = 0
     rejects = 0
-    a1[:] = a_start  # unless a contact is at rest: then case 1 computes it anew
+    copy_into(a1, a_start, a1.shape[0])  # unless a contact is at rest: then case 1 computes it anew
     fresh = True  # a1 holds the rate at the current state
     if method == SEMI_IMPLICIT:
         jacobian(rhs, p, x, f0, JM[0], W[DX], y, r)
@@ -234,15 +237,15 @@ def located_period(
                 fresh = True  # the same start: a1 stands
                 continue
         if c < 0:
-            x[:] = x1
+            copy_into(x, x1, x.shape[0])
             from_start = t == 0.0
             t += h
-            g0[:n_g] = g1[:n_g]
+            copy_into(g0, g1, n_g)
             if method == DOPRI5:
                 h = next_length(h, h_want, err, h_max)
                 if h_next < 0.0:  # the period's first step: from its start, or after an event
                     h_next = h if from_start else h_max
-                a1[:] = W[K7]  # first same as last
+                copy_into(a1, W[K7], a1.shape[0])  # first same as last
                 fresh = True
             continue
         # 3. a crossing: the longest step short of it, by Illinois on the length
@@ -253,7 +256,7 @@ def located_period(
             v_lo = g0[c]
             v_hi = g1[c]
             last = 0  # the bracket's end that moved last (Illinois)
-            xlo[:] = x
+            copy_into(xlo, x, xlo.shape[0])
             err_lo = 0.0
             for _ in range(LOCATE_ITER):
                 if hi - lo <= LOCATE_TOL * dt:
@@ -277,7 +280,7 @@ def located_period(
                     last = 1
                 else:
                     lo, v_lo, err_lo = s, v, err_s
-                    xlo[:] = xt
+                    copy_into(xlo, xt, xlo.shape[0])
                     if last == -1:
                         v_hi *= 0.5
                     last = -1
@@ -289,15 +292,15 @@ def located_period(
             c = earlier
             hi = lo
             lo = 0.0
-            x1[:] = xlo
-            g1[:n_g] = gx[:n_g]
+            copy_into(x1, xlo, x1.shape[0])
+            copy_into(g1, gx, n_g)
         if not (err_lo <= 1.0) and rejects < MAX_REJECTS:
             # the step to the surface is too coarse: a shorter one, and locate again
             rejects += 1
             h = lo * (max(0.2, 0.9 * err_lo**-0.2) if math.isfinite(err_lo) else 0.2)
             continue
         # 4. keep the step to the surface, then cross it
-        x[:] = xlo
+        copy_into(x, xlo, x.shape[0])
         t += lo
         if c >= n_sw and modes[c - n_sw] != 0:
             x[contacts[c - n_sw]] = 0.0  # a contact's speed at zero: stick or slip (case 1)
@@ -317,7 +320,7 @@ def located_period(
 
 # Not inlined: compiled once, for the first-class function types of the kernels that
 # call it (integrate_states, the objective kernel), like advance_located.
-@njit(cache=True, nogil=True)
+@no_runtime()
 def period(
     rhs, switches, p, x, f0, f1, a_start, dt, substeps, method, tol, n_sw, contacts,
     W, G, JM, piv, modes, h0,

@@ -7,7 +7,14 @@ These are :mod:`evo_door.sim.located`'s algorithms written on a vector ``x`` of
 ``n`` states instead of the pair ``(theta, dtheta)``; :mod:`evo_door.sim.states`
 states the contract a model follows and holds the entry points. Every function here
 works in place on rows of one scratch array allocated per trial (``W``, :data:`ROWS`
-rows of ``n`` floats), so a period allocates nothing.
+rows of ``n`` floats), so a period allocates nothing, and each is compiled without
+numba's runtime (``_nrt=False``, as numba compiles its own allocation-free helpers):
+with it, every array handed from one of these functions to the next, and every row of
+``W`` taken, was counted in and out of its owner by an atomic increment, which took
+more of a cheap model's trial than its right-hand side (``perf`` on the knob of the
+examples: numba's ``NRT_incref`` and ``NRT_decref`` above the model's ``sin``). Without
+the runtime a function here cannot allocate (numba refuses to compile one that does):
+copies between rows are :func:`copy_into` loops, not slice assignments.
 
 The expressions of the explicit stages are those of the one-coordinate steps, written
 per component: on a model ``dx = (x[1], accel(x[0], x[1], force, p))`` RK4 and
@@ -31,6 +38,14 @@ from evo_door.sim.located import (
     GAMMA,
     SEMI_IMPLICIT,
 )
+
+
+def no_runtime(inline: str = "never"):
+    """numba's ``njit`` for the functions of the state-vector steps: cached, without the
+    GIL and without numba's runtime (the module docstring); ``inline="always"`` to
+    inline at numba's level."""
+    return njit(cache=True, nogil=True, inline=inline, _nrt=False)  # type: ignore[call-overload]
+
 
 #: ROS2 drops its Jacobian for a step when det(I - gamma h J) falls below this: a
 #: growing mode with gamma h lambda near 1 would make the linear systems near singular.
@@ -68,7 +83,15 @@ def workspace(n, n_surfaces, n_contacts):
     )
 
 
-@njit(cache=True, nogil=True)
+@no_runtime()
+def copy_into(dst, src, n):
+    """``dst[:n] = src[:n]``, written as a loop: a slice assignment needs numba's
+    runtime, which this module's functions run without (the module docstring)."""
+    for i in range(n):
+        dst[i] = src[i]
+
+
+@no_runtime()
 def stage_rate(rhs, p, x, force, contacts, modes, dx, y, r):
     """``dx = rhs(x)`` with each contact's law applied (``modes[j]``: 0 stuck, +-1 the
     side it slides on). A stuck contact's speed has rate 0; a sliding one's friction is
@@ -82,7 +105,7 @@ def stage_rate(rhs, p, x, force, contacts, modes, dx, y, r):
         if side == 0:
             dx[k] = 0.0
         elif x[k] * side <= 0.0:
-            y[:] = x
+            copy_into(y, x, y.shape[0])
             here = dx[k]
             if x[k] != 0.0:
                 y[k] = -side * CREEP
@@ -93,17 +116,17 @@ def stage_rate(rhs, p, x, force, contacts, modes, dx, y, r):
             dx[k] = dx[k] - here + r[k]
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def side_rate(rhs, p, x, force, k, side, y, r):
     """The rate of contact speed ``x[k]`` at rest, read on ``side`` (+1 / -1) of its
     friction: the rhs at ``x[k] = side * CREEP``."""
-    y[:] = x
+    copy_into(y, x, y.shape[0])
     y[k] = side * CREEP
     rhs(y, force, p, r)
     return r[k]
 
 
-@njit(cache=True, nogil=True)
+@no_runtime()
 def sample_rate(rhs, p, x, force, contacts, dx, y, r):
     """The state's rate at a sample instant, a contact at rest given the stick-slip
     rate (:func:`evo_door.sim.located.rate`): 0 while its friction holds the other
@@ -121,7 +144,7 @@ def sample_rate(rhs, p, x, force, contacts, dx, y, r):
         dx[k] = backward if backward < 0.0 else 0.0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def set_modes(x, contacts, modes):
     """Each contact's mode from its speed: 0 at rest (stuck), else its sign."""
     for j in range(contacts.shape[0]):
@@ -129,7 +152,7 @@ def set_modes(x, contacts, modes):
         modes[j] = 1 if v > 0.0 else (-1 if v < 0.0 else 0)
 
 
-@njit(cache=True, nogil=True)
+@no_runtime()
 def surfaces(rhs, switches, p, x, force, n_sw, contacts, modes, g, y, r):
     """All switching values into ``g``: the model's ``n_sw``, then one per contact:
     a sliding contact's speed, a stuck one's ``min(-forward, backward)`` (its rates
@@ -145,7 +168,7 @@ def surfaces(rhs, switches, p, x, force, n_sw, contacts, modes, g, y, r):
             g[n_sw + j] = min(-forward, backward)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def rk4_step(rhs, p, x, a1, f0, f1, h, contacts, modes, W, out):
     """One RK4 step of length ``h`` (force linear from f0 to f1); ``a1`` the rate at
     ``x``; the new state into ``out``."""
@@ -165,7 +188,7 @@ def rk4_step(rhs, p, x, a1, f0, f1, h, contacts, modes, W, out):
         out[i] = x[i] + h / 6.0 * (a1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def dopri_step(rhs, p, x, a1, t, h, f0, slope, tol, contacts, modes, W, out):
     """One Dormand-Prince 5(4) step of length ``h`` from time ``t`` of the period (force
     ``f0 + slope * time``); the new state into ``out``, its rate (the next step's first
@@ -203,7 +226,7 @@ def dopri_step(rhs, p, x, a1, t, h, f0, slope, tol, contacts, modes, W, out):
     return err
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def jacobian(rhs, p, x, force, J, a0, y, r):
     """Forward-difference Jacobian ``J[i, j] = d rhs_i / d x_j`` at ``x`` (steps
     ``1e-7 (1 + |x_j|)``, as the one-coordinate form), its positive diagonal entries
@@ -213,7 +236,7 @@ def jacobian(rhs, p, x, force, J, a0, y, r):
     rhs(x, force, p, a0)
     for j in range(n):
         e = 1e-7 * (1.0 + abs(x[j]))
-        y[:] = x
+        copy_into(y, x, y.shape[0])
         y[j] = x[j] + e
         rhs(y, force, p, r)
         for i in range(n):
@@ -222,7 +245,7 @@ def jacobian(rhs, p, x, force, J, a0, y, r):
         J[i, i] = min(J[i, i], 0.0)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def lu_factor(M, piv):
     """LU factorisation of ``M`` in place, partial pivoting (``piv`` the row swaps);
     returns the determinant."""
@@ -250,7 +273,7 @@ def lu_factor(M, piv):
     return det
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def lu_solve(M, piv, b):
     """Solve ``M z = b`` in place in ``b`` with the factors of :func:`lu_factor`."""
     n = M.shape[0]
@@ -267,7 +290,7 @@ def lu_solve(M, piv, b):
         b[i] = s / M[i, i]
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def ros2_step(rhs, p, x, a1, f1, h, contacts, modes, JM, piv, W, out):
     """One ROS2 step (the Jacobian ``JM[0]`` frozen over the period); the new state
     into ``out``. ``(I - gamma h J) k1 = f(x)``, ``(I - gamma h J) k2 = f(x + h k1) -
@@ -284,10 +307,11 @@ def ros2_step(rhs, p, x, a1, f1, h, contacts, modes, JM, piv, W, out):
     for j in range(contacts.shape[0]):
         if modes[j] == 0:
             k = contacts[j]
-            M[k, :] = 0.0
+            for i in range(n):
+                M[k, i] = 0.0
             M[k, k] = 1.0
     implicit = lu_factor(M, piv) >= MIN_DETERMINANT
-    k1[:] = a1
+    copy_into(k1, a1, k1.shape[0])
     if implicit:
         lu_solve(M, piv, k1)
     for i in range(n):
@@ -301,7 +325,7 @@ def ros2_step(rhs, p, x, a1, f1, h, contacts, modes, JM, piv, W, out):
         out[i] = x[i] + h * (1.5 * k1[i] + 0.5 * k2[i])
 
 
-@njit(cache=True, nogil=True)
+@no_runtime()
 def trial_step(rhs, p, x, a1, t, h, f0, slope, method, tol, contacts, modes, JM, piv, W, out):
     """One step of ``method`` of length ``h`` from time ``t`` of the period into
     ``out``; returns dopri5's error estimate (0 for the fixed steps)."""
@@ -314,7 +338,7 @@ def trial_step(rhs, p, x, a1, t, h, f0, slope, method, tol, contacts, modes, JM,
     return 0.0
 
 
-@njit(cache=True, nogil=True, inline="always")
+@no_runtime(inline="always")
 def plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, modes, JM, piv, W):
     """A period in ``substeps`` fixed steps, nothing located (a model without surfaces
     or contacts, RK4 or ROS2: :func:`evo_door.sim.integrators.advance`); ``a_start``
@@ -322,7 +346,7 @@ def plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, mod
     h = dt / substeps
     df = (f1 - f0) / substeps
     a1, x1 = W[A1], W[X1]
-    a1[:] = a_start
+    copy_into(a1, a_start, a1.shape[0])
     if method == SEMI_IMPLICIT:
         jacobian(rhs, p, x, f0, JM[0], W[DX], W[Y], W[R])
     for s in range(substeps):
@@ -332,4 +356,4 @@ def plain_period(rhs, p, x, f0, f1, a_start, dt, substeps, method, contacts, mod
             ros2_step(rhs, p, x, a1, f0 + (s + 1) * df, h, contacts, modes, JM, piv, W, x1)
         else:
             rk4_step(rhs, p, x, a1, f0 + s * df, f0 + (s + 1) * df, h, contacts, modes, W, x1)
-        x[:] = x1
+        copy_into(x, x1, x.shape[0])
