@@ -205,7 +205,7 @@ def pytest_collection_finish(session):
     and typing tables, the test modules) moved out of the garbage collector's sight
     (``gc.freeze``): it lives to the process's end, and every full collection of a
     worker traversed all of it again (about a tenth of a worker's CPU time on
-    ``tests/test_[a-c]*.py``, by ``gc.callbacks``; two fifths of that left)."""
+    ``tests/test_[a-c]*.py``, by ``gc.callbacks``; after the freeze, three fifths of it)."""
     gc.collect()
     gc.freeze()
 
