@@ -64,11 +64,12 @@ def _canon(value) -> bytes:
 
 
 def _attrs_digest(h, obj) -> None:
-    for name, value in sorted(obj.attrs.items(), key=lambda item: item[0]):
+    attrs = obj.attrs
+    for name in sorted(attrs):  # the names, then each value but the digest's own
         if name == DIGEST:
             continue
         h.update(b"@" + name.encode("utf-8", "surrogatepass") + b"\0")
-        h.update(_canon(value))
+        h.update(_canon(attrs[name]))
         h.update(b"\0")
 
 
@@ -96,12 +97,32 @@ def _dataset_digest(h, ds, budget: list, path) -> None:
         row = max(1, nbytes // shape[0])
         step = max(1, _SLICE_BYTES // row)
         if step >= shape[0]:  # the whole at once (most datasets): the same bytes
-            h.update(np.ascontiguousarray(ds[()]).tobytes())
+            h.update(_whole(ds, shape, dtype))
             return
         for i in range(0, shape[0], step):
             h.update(np.ascontiguousarray(ds[i : i + step]).tobytes())
     except Exception as exc:  # noqa: BLE001 - whatever HDF5 raises on a damaged chunk
         raise DamagedFile(f"{path}: corrupt HDF5 data in {ds.name} ({_first_line(exc)})") from None
+
+
+def _whole(ds, shape, dtype) -> bytes:
+    """The bytes of the whole dataset ``ds`` (of ``shape`` and ``dtype``, a shape of at
+    least one dimension), as ``ds[()]`` reads them. Plain numbers (booleans, integers,
+    floats) are read into an array of the dataset's own type with one call into HDF5,
+    what h5py's indexing does after working out its selection, which costs more than
+    the read for the small datasets of a results file; anything else through h5py."""
+    import numpy as np
+
+    if dtype.kind in "biuf" and dtype.subdtype is None:
+        out = np.empty(shape, dtype=dtype)
+        ds.id.read(_h5py().h5s.ALL, _h5py().h5s.ALL, out)
+        return out.tobytes()
+    return np.ascontiguousarray(ds[()]).tobytes()
+
+
+def _encoded(name) -> bytes:
+    """A member's name as HDF5 holds it: h5py lists a name that is not UTF-8 as bytes."""
+    return name if isinstance(name, bytes) else name.encode("utf-8")
 
 
 def group_digest(group, budget: list | None = None, path=None) -> str:
@@ -120,9 +141,9 @@ def _digest_and_subgroups(group, budget: list | None = None, path=None) -> tuple
     _attrs_digest(h, group)
     order = list(group.keys())
     subgroups = {}
+    links = group.id.links  # each link's kind asked of HDF5 directly: group.get's objects cost more
     for name in sorted(order):
-        link = group.get(name, getlink=True)
-        if not isinstance(link, h5.HardLink):
+        if links.get_info(_encoded(name)).type != h5.h5l.TYPE_HARD:
             raise DamagedFile(
                 f"{path}: {group.name.rstrip('/')}/{name} is a link "
                 "(evo-door files hold none; a link could read another file)"
