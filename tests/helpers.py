@@ -51,7 +51,8 @@ algorithm: {{population: 6, generations: 1, seed: 1}}
 # the commands accept, so that a descheduled test process does not end the session. The
 # limits themselves are tested where they must trip (test_render_stall and the like).
 LOADED_MACHINE_WATCHDOG = ["--watchdog-misses", "1000"]  # any device
-LOADED_MACHINE_LIMITS = [*LOADED_MACHINE_WATCHDOG, "--supervisor-budget", "1000"]  # a HapticMaster
+LOADED_MACHINE_SUPERVISOR = ["--supervisor-budget", "1000"]  # a HapticMaster's, in ms
+LOADED_MACHINE_LIMITS = [*LOADED_MACHINE_WATCHDOG, *LOADED_MACHINE_SUPERVISOR]
 #: Seconds a command that compiles every kernel (``evo-door compile`` on an empty cache)
 #: may take before a test calls it hung: a guard against a hang, not a speed limit (CI
 #: runs one at idle priority beside the suite, where its compilation waits).

@@ -31,7 +31,7 @@ from evo_door.render import supervisor as sup
 from evo_door.render.device import SimDevice
 from evo_door.render.hm_protocol import BIAS_NAME, FrameReader, encode
 from evo_door.render.loop import ServoLoop
-from tests.helpers import LOADED_MACHINE_LIMITS, freeze
+from tests.helpers import LOADED_MACHINE_LIMITS, LOADED_MACHINE_SUPERVISOR, freeze
 
 #: the probe's question: the device's state, and the host's bias force and whether it is on
 PROBE = f"get state;get {BIAS_NAME} force;get {BIAS_NAME} enabled"
@@ -230,7 +230,7 @@ def test_a_killed_renderer_leaves_no_force(emulator):
     renderer back just before the kill let the missed beat win the race: "stopped
     beating", seen in a suite run)."""
     probe = Probe(emulator)
-    proc = _render(emulator, "--supervisor-budget", "1000")
+    proc = _render(emulator, *LOADED_MACHINE_SUPERVISOR)
     try:
         _wait_for_force(probe, proc)
         supervisor = _supervisor_pid(proc.pid)
