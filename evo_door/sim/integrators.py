@@ -174,8 +174,11 @@ def prepared_form(accel) -> Prepared | None:
 
 @njit(PREPARE_SIGNATURE, cache=True, nogil=True)
 def copy_params(p, q):
-    """The prepared vector of a model without a fast form: its parameter vector."""
-    q[:] = p
+    """The prepared vector of a model without a fast form: its parameter vector (a
+    loop: ``q[:] = p`` compiles numba's shape-mismatch error and its message
+    formatting, some 2 s of the first compile)."""
+    for i in range(q.shape[0]):
+        q[i] = p[i]
 
 
 def kernel_form(accel, n_params: int) -> Prepared:

@@ -171,6 +171,14 @@ def blown_up(x):
     return False
 
 
+@njit(cache=True, nogil=True, inline="always")
+def put_column(out, k, x):
+    """``out[:, k] = x`` as a loop: a slice assignment of an array compiles numba's
+    shape-mismatch error with its message formatting (some 2 s of the first compile)."""
+    for i in range(x.shape[0]):
+        out[i, k] = x[i]
+
+
 #: Signature of :func:`integrate_trial`.
 TRIAL_SIGNATURE = types.boolean(
     RHS_TYPE, STATE_SWITCHES_TYPE, _vec, _vec, _vec, types.float64, _vec, _ivec, _mat, _mat
@@ -194,8 +202,8 @@ def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_
     x = x0.copy()
     dx = np.empty(n)
     sample_rate(rhs, p, x, force[0], contacts, dx, W[Y], W[R])
-    x_out[:, 0] = x
-    dx_out[:, 0] = dx
+    put_column(x_out, 0, x)
+    put_column(dx_out, 0, dx)
     h0 = dt / substeps  # dopri5's first step in the next period
     for k in range(force.shape[0] - 1):
         h0 = period(
@@ -204,8 +212,8 @@ def integrate_trial(rhs, switches, p, force, x0, dt, setup, contacts, x_out, dx_
         )  # fmt: skip
         if not blown_up(x):
             sample_rate(rhs, p, x, force[k + 1], contacts, dx, W[Y], W[R])
-            x_out[:, k + 1] = x
-            dx_out[:, k + 1] = dx
+            put_column(x_out, k + 1, x)
+            put_column(dx_out, k + 1, dx)
             continue
         x_out[:, k + 1 :] = np.nan
         dx_out[:, k + 1 :] = np.nan

@@ -208,6 +208,14 @@ MAX_LOCATED = 64
 
 
 @njit(cache=True, inline="always")
+def _copy(dst, src):
+    """``dst[:] = src`` as a loop: a slice assignment of an array compiles numba's
+    shape-mismatch error and its message formatting, some 2 s of the first compile."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, inline="always")
 def crossed(a, b):
     """An event indicator's sign changed from ``a`` to ``b`` (0 counts as negative)."""
     return (a > 0.0) != (b > 0.0)
@@ -245,7 +253,7 @@ def locate(api, comp, ts, hh, x0, x, force, dforce, vr_in, u, k1, k2, k3, k4, xs
             s = (lo * v_hi - hi * v_lo) / (v_hi - v_lo) if v_hi != v_lo else 0.5 * (lo + hi)
             if not (lo < s < hi):
                 s = 0.5 * (lo + hi)
-            x[:] = x0
+            _copy(x, x0)
             st = rk4_step(api, comp, ts, s, ts + s, x, force, dforce * (s / hh), vr_in, u,
                           False, k1, k2, k3, k4, xs)  # fmt: skip
             if st == _NOT_FINITE_STEP or st > _GOOD:
@@ -264,7 +272,7 @@ def locate(api, comp, ts, hh, x0, x, force, dforce, vr_in, u, k1, k2, k3, k4, xs
                     v_hi *= 0.5
                 last = -1
         # the step to the bracket's far end: the state the event is handled at
-        x[:] = x0
+        _copy(x, x0)
         st = rk4_step(api, comp, ts, hi, ts + hi, x, force, dforce * (hi / hh), vr_in, u,
                       False, k1, k2, k3, k4, xs)  # fmt: skip
         if st == _NOT_FINITE_STEP or st > _GOOD:
@@ -309,6 +317,13 @@ def read_outputs(api, comp, t, x, force, vr_in, u, vr_out, row):
     return s
 
 
+@njit(cache=True, inline="always")
+def _stage(xs, x, c, k):
+    """``xs[:] = x + c * k`` as a loop."""
+    for i in range(x.shape[0]):
+        xs[i] = x[i] + c * k[i]
+
+
 @njit(cache=True)
 def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, fresh, k1, k2, k3, k4, xs):
     """One classical RK4 step of ``x`` from ``t`` to ``t_end = t + h`` (given apart, so
@@ -319,13 +334,13 @@ def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, fresh, k1, k2, 
     # the four stages, stopping at the first the FMU refuses
     st = OK if fresh else derivatives(api, comp, t, x, force, vr_in, u, k1)
     if st <= _GOOD:
-        xs[:] = x + 0.5 * h * k1
+        _stage(xs, x, 0.5 * h, k1)
         st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k2)
     if st <= _GOOD:
-        xs[:] = x + 0.5 * h * k2
+        _stage(xs, x, 0.5 * h, k2)
         st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k3)
     if st <= _GOOD:
-        xs[:] = x + h * k3
+        _stage(xs, x, h, k3)
         st = derivatives(api, comp, t_end, xs, force + dforce, vr_in, u, k4)
     if st > _GOOD:
         return st
@@ -381,7 +396,7 @@ def run_me(api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, v
                 te = next_event if split else end
                 hh = te - ts if split else hs
                 dff = dfs * (hh / hs) if split else dfs
-                x0[:] = x
+                _copy(x0, x)
                 st = rk4_step(
                     api, comp, ts, hh, te, x, fs, dff, vr_in, u, fresh, k1, k2, k3, k4, xs
                 )
@@ -424,7 +439,7 @@ def run_me(api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, v
                     fresh = False  # the states or the law may have changed
                     if n_events:
                         api[GET_EVENT_INDICATORS](comp, at(z1, 0), n_events)
-                z0[:] = z1
+                _copy(z0, z1)
                 if not split:
                     break
                 ts, fs, hs, dfs = te, fs + dff, end - te, dfs - dff
