@@ -299,6 +299,10 @@ def _located_only(
     h0 = h_max
     switches(theta, dtheta, force[0], p, g[0])
     n = force.shape[0]
+    # the switching functions are ready at each period's start; a bool numba cannot
+    # see as the constant True, so that advance_located runs as the integrators
+    # compiled it (a literal True compiled a copy of it for this loop: some 5 s)
+    ready = n > 0
     k = 0
     while k < n - 1:
         m = 0
@@ -308,14 +312,15 @@ def _located_only(
                 g[0], g[1], span, wait, patience, stiff, th_s, w_s,
             )  # fmt: skip
         if m > 0:
-            th[k + 1 : k + m + 1] = th_s[1 : m + 1]
-            w[k + 1 : k + m + 1] = w_s[1 : m + 1]
+            for j in range(1, m + 1):  # a loop: a slice assignment compiles numba's
+                th[k + j] = th_s[j]  # shape-mismatch error and its message (some 2 s)
+                w[k + j] = w_s[j]
             theta, dtheta, a_now = th_s[m], w_s[m], a_end
             h0 = h_max
             k += m
             continue
         theta, dtheta, a_end, a_ok, h0 = advance_located(
-            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, True, dt,
+            accel, switches, p, theta, dtheta, force[k], force[k + 1], a_now, ready, dt,
             substeps, method, tol, n_sw, stick, g[0], g[1], g[2], g[3], h0,
         )  # fmt: skip
         a_now = a_end if a_ok else rate(accel, p, theta, dtheta, force[k + 1], stick)
