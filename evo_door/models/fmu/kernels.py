@@ -254,8 +254,10 @@ def locate(api, comp, ts, hh, x0, x, force, dforce, vr_in, u, k1, k2, k3, k4, xs
             if not (lo < s < hi):
                 s = 0.5 * (lo + hi)
             _copy(x, x0)
-            st = rk4_step(api, comp, ts, s, ts + s, x, force, dforce * (s / hh), vr_in, u,
-                          False, k1, k2, k3, k4, xs)  # fmt: skip
+            st = derivatives(api, comp, ts, x, force, vr_in, u, k1)
+            if st <= _GOOD:
+                st = rk4_step(api, comp, ts, s, ts + s, x, force, dforce * (s / hh), vr_in, u,
+                              k1, k2, k3, k4, xs)  # fmt: skip
             if st == _NOT_FINITE_STEP or st > _GOOD:
                 return s, st
             if api[GET_EVENT_INDICATORS](comp, at(z1, 0), z1.size) > _GOOD:
@@ -273,8 +275,10 @@ def locate(api, comp, ts, hh, x0, x, force, dforce, vr_in, u, k1, k2, k3, k4, xs
                 last = -1
         # the step to the bracket's far end: the state the event is handled at
         _copy(x, x0)
-        st = rk4_step(api, comp, ts, hi, ts + hi, x, force, dforce * (hi / hh), vr_in, u,
-                      False, k1, k2, k3, k4, xs)  # fmt: skip
+        st = derivatives(api, comp, ts, x, force, vr_in, u, k1)
+        if st <= _GOOD:
+            st = rk4_step(api, comp, ts, hi, ts + hi, x, force, dforce * (hi / hh), vr_in, u,
+                          k1, k2, k3, k4, xs)  # fmt: skip
         if st == _NOT_FINITE_STEP or st > _GOOD:
             return hi, st
         if api[GET_EVENT_INDICATORS](comp, at(z1, 0), z1.size) > _GOOD:
@@ -325,17 +329,15 @@ def _stage(xs, x, c, k):
 
 
 @njit(cache=True)
-def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, fresh, k1, k2, k3, k4, xs):
+def rk4_step(api, comp, t, h, t_end, x, force, dforce, vr_in, u, k1, k2, k3, k4, xs):
     """One classical RK4 step of ``x`` from ``t`` to ``t_end = t + h`` (given apart, so
     that a step ending at a time event ends at its time to the bit), the force going
-    linearly from ``force`` to ``force + dforce``. ``k1`` holds f at the start when
-    ``fresh``; on return it holds f at the end (the next step's first stage). The FMU's
-    worst status, or ``_NOT_FINITE_STEP``."""
-    # the four stages, stopping at the first the FMU refuses
-    st = OK if fresh else derivatives(api, comp, t, x, force, vr_in, u, k1)
-    if st <= _GOOD:
-        _stage(xs, x, 0.5 * h, k1)
-        st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k2)
+    linearly from ``force`` to ``force + dforce``. ``k1`` holds f at the start (the
+    caller evaluates it, or has it from the step before); on return it holds f at the
+    end (the next step's first stage). The FMU's worst status, or ``_NOT_FINITE_STEP``."""
+    # the other three stages, stopping at the first the FMU refuses
+    _stage(xs, x, 0.5 * h, k1)
+    st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k2)
     if st <= _GOOD:
         _stage(xs, x, 0.5 * h, k2)
         st = derivatives(api, comp, t + 0.5 * h, xs, force + 0.5 * dforce, vr_in, u, k3)
@@ -397,9 +399,9 @@ def run_me(api, comp, x, n_events, next_event, force, t0, dt, substeps, vr_in, v
                 hh = te - ts if split else hs
                 dff = dfs * (hh / hs) if split else dfs
                 _copy(x0, x)
-                st = rk4_step(
-                    api, comp, ts, hh, te, x, fs, dff, vr_in, u, fresh, k1, k2, k3, k4, xs
-                )
+                st = OK if fresh else derivatives(api, comp, ts, x, fs, vr_in, u, k1)
+                if st <= _GOOD:
+                    st = rk4_step(api, comp, ts, hh, te, x, fs, dff, vr_in, u, k1, k2, k3, k4, xs)
                 fresh = True
                 # a state event inside the step: the step is cut just past it (its
                 # completion is reported only for the step kept)
