@@ -22,7 +22,13 @@ from evo_door.models.door import energy
 from evo_door.models.door.latch import latch_angles
 from evo_door.models.haptic import latch_angles_of
 from evo_door.sim import simulate
-from evo_door.sim.integrators import ACCEL_TYPE, integrate_compiled, kernel_form, try_span
+from evo_door.sim.integrators import (
+    ACCEL_TYPE,
+    integrate_compiled,
+    kernel_form,
+    scratch,
+    try_span,
+)
 from evo_door.sim.located import SWITCHES_TYPE, advance_located, rate
 from evo_door.sim.simulate import param_vector
 from evo_door.sim.spans import MAX_SPAN, MIN_SPAN
@@ -364,7 +370,7 @@ def test_a_period_without_events_has_the_located_steps_numbers(name, kind, metho
     n_sw, stick = model.n_switches, model.stick_slip
     out = [np.empty(force.size) for _ in range(3)]
     args = (q, force, DT, substeps, theta0, dtheta0, code, tol, n_sw, stick)
-    assert integrate_compiled(form.accel, model.switches, *args, *out, True)
+    assert integrate_compiled(form.accel, model.switches, *args, *out, True, *scratch(n_sw))
     th, w = np.empty(force.size), np.empty(force.size)
     _located_only_kernel()(
         form.accel, model.switches, q, force, DT, theta0, dtheta0, substeps, code, tol, n_sw,

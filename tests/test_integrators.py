@@ -166,7 +166,7 @@ def counted_accel(theta, dtheta, force, p):
 
 
 def _calls_per_sample(force, friction, theta0, stick, rates=True, damping=0.5):
-    from evo_door.sim.integrators import integrate_compiled
+    from evo_door.sim.integrators import integrate_compiled, scratch
     from evo_door.sim.located import no_switches
     from evo_door.sim_settings import DOPRI5
 
@@ -175,10 +175,51 @@ def _calls_per_sample(force, friction, theta0, stick, rates=True, damping=0.5):
     out = [np.empty(n) for _ in range(3)]
     ok = integrate_compiled(
         counted_accel, no_switches, p, force, 1 / 1024, 1, theta0, 0.0, DOPRI5, 1e-7, 0,
-        stick, *out, rates,
+        stick, *out, rates, *scratch(0),
     )  # fmt: skip
     assert ok
     return (p[3] - 1) / (n - 1), out
+
+
+@pytest.mark.numerics
+def test_the_compiled_integrator_runs_on_its_callers_scratch_without_numbas_runtime():
+    """``integrate_compiled`` is compiled with ``_nrt=False`` (its reference counts took
+    8-10 % of a trial) and allocates nothing: the caller's scratch, reused from a latch
+    trial of the door to a swing of it, gives the swing bit for bit as fresh scratch
+    does, and as ``simulate`` gives it."""
+    from evo_door.models.door import N_SWITCHES
+    from evo_door.models.door import switches as door_switches
+    from evo_door.params.sets import param_vector
+    from evo_door.sim.integrators import integrate_compiled, kernel_form, scratch
+    from evo_door.sim_settings import METHODS, tolerance_of
+
+    assert integrate_compiled.targetoptions.get("_nrt") is False
+    door = get_model("door")
+    ps = door.load_params()
+    form = kernel_form(door.accel, len(param_vector(ps)))
+    q = form.vector(param_vector(ps))
+    code, tol = METHODS[door.method], tolerance_of(door)
+    t = np.arange(2048) / 1024
+    latch = np.where(t < 0.5, 60.0, 0.0)  # pulled open through the latch from closed
+    swing = 25.0 * np.sin(2.0 * np.pi * 0.5 * t)
+
+    def run(force, work):
+        out = [np.empty(force.size) for _ in range(3)]
+        ok = integrate_compiled(
+            form.accel, door_switches, q, force, 1 / 1024, 1, 0.0, 0.0, code, tol,
+            N_SWITCHES, door.stick_slip, *out, True, *work,
+        )  # fmt: skip
+        assert ok
+        return out
+
+    used = scratch(N_SWITCHES)
+    run(latch, used)
+    again = run(swing, used)
+    fresh = run(swing, scratch(N_SWITCHES))
+    for a, b in zip(again, fresh):
+        np.testing.assert_array_equal(a, b)
+    ref = simulate(door, ps, swing, 1 / 1024)
+    np.testing.assert_array_equal(again[1], ref.dtheta)
 
 
 @pytest.mark.numerics
@@ -228,7 +269,7 @@ def test_a_door_resting_on_its_stop_under_a_noisy_force_is_not_refused_a_step_a_
     within the tolerance's reach of a converged reference."""
     from evo_door.models.door import N_SWITCHES
     from evo_door.models.door import switches as door_switches
-    from evo_door.sim.integrators import integrate_compiled
+    from evo_door.sim.integrators import integrate_compiled, scratch
     from evo_door.sim_settings import DOPRI5
 
     door = get_model("door")
@@ -238,7 +279,7 @@ def test_a_door_resting_on_its_stop_under_a_noisy_force_is_not_refused_a_step_a_
     out = [np.empty(force.size) for _ in range(3)]
     ok = integrate_compiled(
         counted_door, door_switches, p, force, DT, 1, 0.0, 0.0, DOPRI5, 1e-7, N_SWITCHES,
-        False, *out, True,
+        False, *out, True, *scratch(N_SWITCHES),
     )  # fmt: skip
     per_sample = (p[-1] - 1) / (force.size - 1)
     assert ok and per_sample < 18.5, per_sample

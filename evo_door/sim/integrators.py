@@ -157,7 +157,8 @@ def register_prepared(accel, fast_accel, prepare, size: int, integrate=None) -> 
 
     ``integrate``, if given, is :func:`integrate` without its first argument,
     compiled around ``fast_accel`` (a module-level ``njit`` that calls
-    :func:`integrate_with` with ``fast_accel``): :func:`integrate` then runs it when
+    :func:`integrate_with` with ``fast_accel`` and the arrays of :func:`scratch`):
+    :func:`integrate` then runs it when
     handed ``fast_accel``. Called directly rather than through a function pointer,
     the right-hand side is inlined into the RK4 stages (some 6 % of a door trial).
     """
@@ -352,12 +353,21 @@ def try_span(
     return 0, 0.0, MIN_SPAN, patience, min(2 * patience, MAX_SKIP), False
 
 
+@njit(cache=True, nogil=True)
+def scratch(n_sw):
+    """The work arrays of one trial of :func:`integrate_with`: the switching functions'
+    rows ``g`` (4 x ``max(n_sw, 1)``) and a span's samples ``th_s``, ``w_s``
+    (:data:`MAX_SPAN` + 1 each). A caller of many trials allocates them once."""
+    return np.empty((4, max(n_sw, 1))), np.empty(MAX_SPAN + 1), np.empty(MAX_SPAN + 1)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def integrate_with(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-    theta_out, dtheta_out, ddtheta_out, rates,
+    theta_out, dtheta_out, ddtheta_out, rates, g, th_s, w_s,
 ):  # fmt: skip
-    """The body of :func:`integrate`, generic in ``accel`` and ``switches``.
+    """The body of :func:`integrate`, generic in ``accel`` and ``switches``; ``g``,
+    ``th_s`` and ``w_s`` are its scratch (:func:`scratch`), which it does not allocate.
 
     :func:`integrate_compiled` hands it first-class functions (called through a
     pointer); a model's specialised integrator (:func:`register_prepared`) hands it
@@ -370,15 +380,12 @@ def integrate_with(
     n = force.shape[0]
     theta = theta0
     dtheta = dtheta0
-    g = np.empty((4, max(n_sw, 1)))
     a_now = rate(accel, p, theta, dtheta, force[0], stick)
     theta_out[0] = theta
     dtheta_out[0] = dtheta
     ddtheta_out[0] = a_now
     skip, backoff = 0, 1
     spans = method == DOPRI5 and substeps == 1  # steps over several periods
-    th_s = np.empty(MAX_SPAN + 1)
-    w_s = np.empty(MAX_SPAN + 1)
     span, wait, patience, stiff = MIN_SPAN, 0, 1, False
     h_max = dt / substeps
     h0 = h_max  # the first step of the next period (dopri5)
@@ -442,8 +449,11 @@ INTEGRATE_SIGNATURE = types.boolean(
 )
 
 
-#: Signature of :func:`integrate_compiled`.
-INTEGRATE_COMPILED_SIGNATURE = types.boolean(ACCEL_TYPE, SWITCHES_TYPE, *INTEGRATE_SIGNATURE.args)
+#: Signature of :func:`integrate_compiled`: :data:`INTEGRATE_SIGNATURE` with the
+#: right-hand side and switching functions first and the scratch of :func:`scratch` last.
+INTEGRATE_COMPILED_SIGNATURE = types.boolean(
+    ACCEL_TYPE, SWITCHES_TYPE, *INTEGRATE_SIGNATURE.args, _mat, _vec, _vec
+)
 #: The numba type of :func:`integrate_compiled` as a kernel argument: the parallel kernels
 #: (:func:`integrate_batch`, the objective's) take it so and call it through a pointer,
 #: once a trial; called directly, each would link its code, and numba's LLVM would
@@ -451,17 +461,20 @@ INTEGRATE_COMPILED_SIGNATURE = types.boolean(ACCEL_TYPE, SWITCHES_TYPE, *INTEGRA
 INTEGRATE_TYPE = types.FunctionType(INTEGRATE_COMPILED_SIGNATURE)
 
 
-@njit(INTEGRATE_COMPILED_SIGNATURE, cache=True, nogil=True)
+# Without numba's runtime: it allocates nothing (the caller hands it the scratch), and
+# the atomic reference counts on every array it hands a step took 8-10 % of a trial.
+@njit(INTEGRATE_COMPILED_SIGNATURE, cache=True, nogil=True, _nrt=False)  # type: ignore[call-overload]
 def integrate_compiled(
     accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-    theta_out, dtheta_out, ddtheta_out, rates,
+    theta_out, dtheta_out, ddtheta_out, rates, g, th_s, w_s,
 ):  # fmt: skip
     """:func:`integrate` for compiled callers: ``accel`` and ``switches`` through
-    function pointers. The objective kernels call it too (:mod:`evo_door.sim.objective`),
-    so its steps are compiled once for both."""
+    function pointers, the scratch of :func:`scratch` (``g`` at least ``n_sw`` wide).
+    The objective kernels call it too (:mod:`evo_door.sim.objective`), so its steps are
+    compiled once for both."""
     return integrate_with(
         accel, switches, p, force, dt, substeps, theta0, dtheta0, method, tol, n_sw, stick,
-        theta_out, dtheta_out, ddtheta_out, rates,
+        theta_out, dtheta_out, ddtheta_out, rates, g, th_s, w_s,
     )  # fmt: skip
 
 
@@ -488,7 +501,7 @@ def integrate(
     special = next((f.integrate for f in _PREPARED.values() if f.accel is accel), None)
     if special is not None:
         return special(*args)
-    return integrate_compiled(accel, switches or no_switches, *args)
+    return integrate_compiled(accel, switches or no_switches, *args, *scratch(n_sw))
 
 
 #: How many blocks a population's rows are split into for the threads to share
@@ -556,9 +569,10 @@ def integrate_batch(
     rows = P.shape[0]
     for b in prange(ROW_BLOCKS):
         q = np.empty(size)
+        g, th_s, w_s = scratch(n_sw)
         for i in range(b * rows // ROW_BLOCKS, (b + 1) * rows // ROW_BLOCKS):
             prepare(P[i], q)
             ok_out[i] = trial(
                 accel, switches, q, force, dt, substeps, theta0, dtheta0, method, tol, n_sw,
-                stick, theta_out[i], dtheta_out[i], ddtheta_out[i], True,
+                stick, theta_out[i], dtheta_out[i], ddtheta_out[i], True, g, th_s, w_s,
             )  # fmt: skip

@@ -52,6 +52,7 @@ from evo_door.sim.integrators import (
     ROW_BLOCKS,
     integrate_compiled,
     kernel_form,
+    scratch,
 )
 from evo_door.sim.located import SWITCHES_TYPE
 from evo_door.sim.simulate import events_of
@@ -109,10 +110,14 @@ def trial_error(
     stick,
     derivative,
     kind,
+    g,
+    th_s,
+    w_s,
 ):
     """Objective of one trial (samples ``start:stop`` of ``force`` / ``target`` / ``mask``).
 
-    ``trial`` is :func:`~evo_door.sim.integrators.integrate_compiled`. Samples where
+    ``trial`` is :func:`~evo_door.sim.integrators.integrate_compiled`, ``g``, ``th_s``
+    and ``w_s`` its scratch (:func:`~evo_door.sim.integrators.scratch`). Samples where
     ``mask`` is False (a saturated sensor, say) do not count.
     Returns ``(error, ok)``; ``ok`` is False (and ``error`` is inf) when the
     simulation blew up or the error is not finite.
@@ -123,7 +128,7 @@ def trial_error(
     ddtheta = np.empty(n)
     if not trial(
         accel, switches, p, force[start:stop], dt, substeps, theta0, dtheta0, method, tol,
-        n_sw, stick, theta, dtheta, ddtheta, derivative == 2,
+        n_sw, stick, theta, dtheta, ddtheta, derivative == 2, g, th_s, w_s,
     ):  # fmt: skip
         return math.inf, False
     acc = 0.0
@@ -234,13 +239,14 @@ def _population_errors(
     rows = P.shape[0]
     for b in prange(ROW_BLOCKS):
         p = np.empty(size)
+        g, th_s, w_s = scratch(n_sw)
         for i in range(b * rows // ROW_BLOCKS, (b + 1) * rows // ROW_BLOCKS):
             prepare(P[i], p)
             for j in range(n_trials):
                 e, ok = trial_error(
                     trial, accel, switches, p, force, target, mask, offsets[j],
                     offsets[j + 1], dt[j], substeps, theta0[j], dtheta0[j], method, tol,
-                    n_sw, stick, derivative, kind,
+                    n_sw, stick, derivative, kind, g, th_s, w_s,
                 )  # fmt: skip
                 err_out[i, j] = e
                 ok_out[i, j] = ok
