@@ -210,7 +210,10 @@ MAX_LOCATED = 64
 @njit(cache=True, inline="always")
 def _copy(dst, src):
     """``dst[:] = src`` as a loop: a slice assignment of an array compiles numba's
-    shape-mismatch error and its message formatting, some 2 s of the first compile."""
+    shape-mismatch error and its message formatting, some 2 s of the first compile.
+    The twin of :func:`evo_door.sim.state_steps.copy_into`, kept here: the process of
+    ``evo-door compile`` that compiles these runners imports nothing of
+    ``evo_door.sim``, which the other process compiles (tests/test_kernel_cache.py)."""
     for i in range(dst.shape[0]):
         dst[i] = src[i]
 
