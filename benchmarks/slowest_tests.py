@@ -14,6 +14,15 @@ wall time and the commit (the machine is the one this runs on: run it where the 
 A test in the top list without a reason here is printed with "no reason recorded":
 add one, or make the test cheaper.
 
+Where the run recorded each test's CPU time (``tests/conftest.py`` does, as the test
+case's properties), the table has it too, the worker's own and that of the processes
+the test started, and the run's totals of both. Under ``pytest -n auto`` a test's wall
+time includes the time it waited for a core, and the suite's wall time on two cores is
+about half its CPU time: ``--by cpu`` lists the tests that take the most CPU, the ones to
+make cheaper for a faster CI.
+
+    python -m benchmarks.slowest_tests run.xml --by cpu
+
 ``--tiers`` lists, in ``tests/tiers.txt``, every test that took :data:`UNIT_LIMIT`
 seconds or more in any of the runs given: ``tests/conftest.py`` marks those
 ``integration`` and every other test not marked ``slow`` ``unit`` (docs/testing.md,
@@ -194,8 +203,26 @@ def _seconds(case) -> float:
     return float(case.get("time", 0.0))
 
 
-def slowest(path: Path, n: int) -> tuple[list[tuple[float, str, str]], dict]:
-    """The ``n`` slowest test cases ``(seconds, id, reason)`` and the run's totals."""
+#: the properties of a test case that hold its CPU time (s), as tests/conftest.py names them
+CPU_OWN, CPU_PROCESSES = "cpu_own_s", "cpu_processes_s"
+
+
+def _cpu(case) -> tuple[float, float] | None:
+    """``(own, processes)``: the CPU seconds a test case's properties record (its
+    worker's, and the processes' it started), None where the run recorded none."""
+    found = {p.get("name"): p.get("value") for p in case.iter("property")}
+    try:
+        return float(found[CPU_OWN]), float(found[CPU_PROCESSES])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def slowest(
+    path: Path, n: int, by: str = "wall"
+) -> tuple[list[tuple[float, str, str, tuple[float, float] | None]], dict]:
+    """The ``n`` slowest test cases ``(seconds, id, reason, cpu)`` and the run's totals;
+    ``cpu`` is :func:`_cpu`'s. ``by``: "wall" (the time of each test) or "cpu" (its CPU
+    time and its processes', where recorded)."""
     root = _run(path)
     cases = list(root.iter("testcase"))
     rows = []
@@ -203,15 +230,18 @@ def slowest(path: Path, n: int) -> tuple[list[tuple[float, str, str]], dict]:
         name = case.get("name", "")
         test_id = f"{key(case).split('::')[0]}::{name}"
         reason = REASONS.get(key(case), "no reason recorded")
-        rows.append((_seconds(case), test_id, reason))
-    rows.sort(reverse=True)
+        rows.append((_seconds(case), test_id, reason, _cpu(case)))
+    rows.sort(key=lambda r: sum(r[3] or (0.0,)) if by == "cpu" else r[0], reverse=True)
     suites = list(root.iter("testsuite"))
+    cpu = [r[3] for r in rows if r[3] is not None]
     totals = {
         "when": (suites[0].get("timestamp") or "")[:16].replace("T", " ") if suites else "",
         "tests": len(cases),
         "sum": sum(r[0] for r in rows),
         "wall": sum(float(s.get("time", 0.0)) for s in suites),
         "under_1s": sum(1 for r in rows if r[0] < 1.0),
+        "cpu": (sum(c[0] for c in cpu), sum(c[1] for c in cpu)) if cpu else None,
+        "by": by,
     }
     return rows[:n], totals
 
@@ -253,11 +283,26 @@ def table(rows, totals, commit: str) -> str:
         f"{totals['sum']:.0f} s of test time summed over the workers; "
         f"{totals['under_1s']} of them under 1 s each.",
         "",
-        "| # | test | s | why it takes its time |",
-        "|---:|---|---:|---|",
     ]
-    for i, (seconds, test_id, reason) in enumerate(rows, 1):
-        lines.append(f"| {i} | `{test_id}` | {seconds:.1f} | {reason} |")
+    cpu = totals.get("cpu")
+    if cpu is None:
+        lines += ["| # | test | s | why it takes its time |", "|---:|---|---:|---|"]
+    else:
+        own, processes = cpu
+        lines[-1:-1] = [
+            "",
+            f"CPU time: {own + processes:.0f} s, {own:.0f} s in the workers and "
+            f"{processes:.0f} s in the processes the tests started (a process counts in "
+            "the test that waits for it: a module's server in the test whose tear-down "
+            "stops it). " + ("Most CPU first." if totals.get("by") == "cpu" else "Slowest first."),
+        ]
+        lines += [
+            "| # | test | s | CPU s, own + processes | why it takes its time |",
+            "|---:|---|---:|---:|---|",
+        ]
+    for i, (seconds, test_id, reason, used) in enumerate(rows, 1):
+        spent = "" if cpu is None else (f" {used[0]:.1f} + {used[1]:.1f} |" if used else " - |")
+        lines.append(f"| {i} | `{test_id}` | {seconds:.1f} |{spent} {reason} |")
     return "\n".join(lines)
 
 
@@ -271,11 +316,19 @@ def main(argv=None) -> int:
         "table is the first's; --tiers reads them all)",
     )
     ap.add_argument("-n", type=int, default=20, help="how many (default 20)")
+    ap.add_argument(
+        "--by",
+        choices=("wall", "cpu"),
+        default="wall",
+        help="order by each test's time (default) or by its CPU time and its processes'",
+    )
     ap.add_argument("--commit", help="the commit the run tested (default: this checkout's)")
     ap.add_argument("--write", action="store_true", help=f"update {DOC.relative_to(ROOT)}")
     ap.add_argument("--tiers", action="store_true", help="rewrite tests/tiers.txt")
     args = ap.parse_args(argv)
-    rows, totals = slowest(args.junit[0], args.n)
+    if args.write and args.by != "wall":
+        ap.error("--write: the table of docs/testing.md is the slowest tests (--by wall)")
+    rows, totals = slowest(args.junit[0], args.n, args.by)
     head = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
     ).stdout.strip()

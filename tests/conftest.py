@@ -6,6 +6,7 @@ project's C, once per suite run. What tests share that is not a fixture is in
 import fcntl
 import gc
 import os
+import resource
 import shutil
 from pathlib import Path
 
@@ -208,6 +209,39 @@ def pytest_collection_finish(session):
     ``tests/test_[a-c]*.py``, by ``gc.callbacks``; after the freeze, three fifths of it)."""
     gc.collect()
     gc.freeze()
+
+
+#: The CPU time of a test (set-up and tear-down included), in seconds, as its report's
+#: properties (pytest's JUnit XML keeps them on the test case; benchmarks/slowest_tests.py
+#: reads them): its worker's own, all threads, and that of the processes it started and
+#: waited for. Under ``pytest -n auto`` a test's wall time also counts the time it waited
+#: for a core; CI's wall time follows the CPU time of everything it runs.
+CPU_OWN, CPU_PROCESSES = "cpu_own_s", "cpu_processes_s"
+_CPU_AT_SETUP = pytest.StashKey[tuple[float, float]]()
+
+
+def _cpu_seconds() -> tuple[float, float]:
+    """(this process's CPU time, its waited-for children's), in seconds."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime, children.ru_utime + children.ru_stime
+
+
+@pytest.hookimpl(tryfirst=True)  # before the test's fixtures are set up
+def pytest_runtest_setup(item):
+    item.stash[_CPU_AT_SETUP] = _cpu_seconds()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """:data:`CPU_OWN` and :data:`CPU_PROCESSES` into the test's last report, once its
+    tear-down has run. A process is counted where a test waits for it: a server that a
+    module's fixture started counts in the test whose tear-down stops it."""
+    if call.when == "teardown" and _CPU_AT_SETUP in item.stash:
+        (own0, children0), (own, children) = item.stash[_CPU_AT_SETUP], _cpu_seconds()
+        item.user_properties.append((CPU_OWN, f"{own - own0:.3f}"))
+        item.user_properties.append((CPU_PROCESSES, f"{children - children0:.3f}"))
+    return (yield)
 
 
 def _say(config, line: str) -> None:

@@ -144,3 +144,101 @@ def test_a_quick_test_sharing_a_module_fixture_with_a_slow_one_is_integration(py
         out = pytester.runpytest_inprocess("--collect-only", "-q", "-m", marker)
         ids = [line for line in out.outlines if "::" in line]
         assert [i.split("::")[1] for i in ids] == names, out.outlines
+
+
+def _case(name, seconds, own=None, processes=None) -> str:
+    props = ""
+    if own is not None:
+        props = (
+            f'<properties><property name="{st.CPU_OWN}" value="{own}"/>'
+            f'<property name="{st.CPU_PROCESSES}" value="{processes}"/></properties>'
+        )
+    return f'<testcase classname="tests.test_x" name="{name}" time="{seconds}">{props}</testcase>'
+
+
+def _junit(*cases) -> str:
+    return (
+        '<testsuites><testsuite name="pytest" time="30" timestamp="2026-12-01T18:00:00">'
+        + "".join(cases)
+        + "</testsuite></testsuites>"
+    )
+
+
+def test_the_cpu_time_a_run_recorded_is_tabled_and_can_order_the_list(tmp_path):
+    """A test that waited for a core is slow but cheap; one whose processes work is not."""
+    path = tmp_path / "run.xml"
+    path.write_text(
+        _junit(
+            _case("test_waited", 9.0, "0.5", "0.0"),
+            _case("test_spawns", 6.0, "0.2", "7.5"),
+            _case("test_computes", 4.0, "3.9", "0.0"),
+        )
+    )
+    rows, totals = st.slowest(path, 3)
+    assert [r[1] for r in rows] == [
+        "test_x::test_waited",
+        "test_x::test_spawns",
+        "test_x::test_computes",
+    ]
+    assert rows[1][3] == (0.2, 7.5) and totals["cpu"] == pytest.approx((4.6, 7.5))
+    text = st.table(rows, totals, "abc1234")
+    assert "CPU time: 12 s, 5 s in the workers and 8 s in the processes" in text
+    assert "| 2 | `test_x::test_spawns` | 6.0 | 0.2 + 7.5 | no reason recorded |" in text
+    rows, totals = st.slowest(path, 3, by="cpu")
+    assert [r[1].split("::")[1] for r in rows] == ["test_spawns", "test_computes", "test_waited"]
+    assert "Most CPU first." in st.table(rows, totals, "abc1234")
+
+
+def test_a_run_without_cpu_times_keeps_the_old_table_and_marks_a_missing_one(tmp_path):
+    path = tmp_path / "run.xml"
+    path.write_text(_junit(_case("test_a", 2.0)))
+    rows, totals = st.slowest(path, 5)
+    text = st.table(rows, totals, "abc1234")
+    assert totals["cpu"] is None and "CPU time" not in text and "CPU s" not in text
+    path.write_text(_junit(_case("test_a", 2.0), _case("test_b", 1.0, "0.9", "0.1")))
+    rows, totals = st.slowest(path, 5)
+    assert "| 1 | `test_x::test_a` | 2.0 | - | no reason recorded |" in st.table(rows, totals, "x")
+
+
+def test_the_docs_table_is_by_wall_time(tmp_path, capsys):
+    path = tmp_path / "run.xml"
+    path.write_text(_junit(_case("test_a", 2.0, "1", "1")))
+    with pytest.raises(SystemExit):
+        st.main([str(path), "--by", "cpu", "--write"])
+    assert "the table of docs/testing.md is the slowest tests" in capsys.readouterr().err
+
+
+CPU_SPENDING = """
+import subprocess, sys, time
+
+def _burn(seconds):
+    end = time.process_time() + seconds
+    while time.process_time() < end:
+        pass
+
+def test_burns_here():
+    _burn(0.3)
+
+def test_burns_in_a_process():
+    code = "import time\\nend = time.process_time() + 0.3\\nwhile time.process_time() < end: pass"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+def test_idles():
+    time.sleep(0.3)
+"""
+
+
+def test_the_suite_records_each_tests_cpu_time_and_its_processes(pytester):
+    """tests/conftest.py's hooks: a test's own CPU and its processes', in the JUnit XML."""
+    pytester.makeconftest(
+        "from tests.conftest import pytest_runtest_makereport, pytest_runtest_setup\n"
+    )
+    pytester.makepyfile(test_cpu=CPU_SPENDING)
+    out = pytester.runpytest_inprocess("-p", "no:xdist", "--junitxml=run.xml")
+    out.assert_outcomes(passed=3)
+    rows, totals = st.slowest(pytester.path / "run.xml", 3)
+    cpu = {r[1].split("::")[1]: r[3] for r in rows}
+    assert cpu["test_burns_here"][0] > 0.25 and cpu["test_burns_here"][1] < 0.05, cpu
+    assert cpu["test_burns_in_a_process"][1] > 0.25, cpu  # and its own start-up, below
+    assert cpu["test_burns_in_a_process"][0] < 0.2, cpu
+    assert sum(cpu["test_idles"]) < 0.1, cpu
