@@ -137,6 +137,32 @@ def test_the_defaults_cannot_reach_it_and_the_allocation_does(fitted):
 
 
 @pytest.mark.slow
+def test_an_allocation_its_fresh_sample_does_not_verify_is_tightened_further(fitted, monkeypatch):
+    """The allocation is searched first order on a thousand draws and verified on a
+    fresh sample; where the sample misses the target (the main job once, by one door in
+    2000), the search aims higher until it verifies. Here the first search is made to
+    aim 5 points below the target: its allocation misses, the next one is kept."""
+    from evo_door.optim import tolerance
+
+    _, setup, full = fitted
+    names = res_names(fitted)
+    aims = []
+    real = tolerance._allocate
+
+    def first_too_loose(M, U, t, J, names, loss, swing, target, above):
+        aims.append(above)
+        return real(M, U, t, J, names, loss, swing, target, -0.05 if len(aims) == 1 else above)
+
+    monkeypatch.setattr(tolerance, "_allocate", first_too_loose)
+    spec = tolerance.specify(
+        setup.model, full, setup.feel, names, process_for(setup.model, names),
+        list(setup.free), setup.lower, setup.upper, asis=setup.base,
+    )  # fmt: skip
+    assert aims == list(tolerance.ALLOCATION_AIMS[:2]), aims
+    assert spec.allocation and spec.allocation_yield.estimate >= spec.target
+
+
+@pytest.mark.slow
 def test_centring_never_gives_a_lower_yield_than_the_smallest_change(fitted):
     res, _, _ = fitted
     spec = res.record.tolerance
