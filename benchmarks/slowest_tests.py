@@ -175,6 +175,10 @@ REASONS = {
     "test_events::test_a_period_without_events_has_the_located_steps_numbers": (
         "the first of its cases compiles the test's own loop of located steps"
     ),
+    "test_bench_pathsim::test_the_pathsim_diagram_is_the_drawer_of_the_workbench": (
+        "the soft-close drawer at two parameter sets: a converged reference, the workbench "
+        "and PathSim's block diagram (pure Python) each against it"
+    ),
     "test_fmu::test_simulate_agrees_with_fmpy_and_with_scipy": (
         "builds the FMU; the first case of each FMI version compiles its runner's kernels"
     ),

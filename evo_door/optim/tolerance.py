@@ -264,11 +264,12 @@ def specify(
         Ml = check.margins(robust)[0] + (some * tr) @ Jr.T  # first order
         Uv = standard_draws(dist, samples, np.random.default_rng(allocation_seed))
         for aim in ALLOCATION_AIMS:  # higher while the fresh sample misses the target
-            allocation = _allocate(
+            tighter = _allocate(
                 Ml, some, tr, Jr, names, loss, np.max(np.abs(Jr), axis=0) * tr, target, aim
             )
-            if not allocation:
+            if not tighter:  # none reaches this aim: the last one found stands
                 break
+            allocation = tighter
             tightened = tr.copy()
             for n, w in allocation.items():
                 tightened[names.index(n)] = w
