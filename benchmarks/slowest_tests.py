@@ -293,14 +293,13 @@ def table(rows, totals, commit: str) -> str:
         lines += ["| # | test | s | why it takes its time |", "|---:|---|---:|---|"]
     else:
         own, processes = cpu
-        lines[-1:-1] = [
-            "",
+        order = "Most CPU first." if totals.get("by") == "cpu" else "Slowest first."
+        lines += [
             f"CPU time: {own + processes:.0f} s, {own:.0f} s in the workers and "
             f"{processes:.0f} s in the processes the tests started (a process counts in "
             "the test that waits for it: a module's server in the test whose tear-down "
-            "stops it). " + ("Most CPU first." if totals.get("by") == "cpu" else "Slowest first."),
-        ]
-        lines += [
+            f"stops it). {order}",
+            "",
             "| # | test | s | CPU s, own + processes | why it takes its time |",
             "|---:|---|---:|---:|---|",
         ]

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from numba import njit
 
+from benchmarks.slowest_tests import CPU_OWN, CPU_PROCESSES
 from evo_door.models import get_model
 from evo_door.models.base import Model
 from evo_door.params import Param, ParamTable
@@ -213,10 +214,10 @@ def pytest_collection_finish(session):
 
 #: The CPU time of a test (set-up and tear-down included), in seconds, as its report's
 #: properties (pytest's JUnit XML keeps them on the test case; benchmarks/slowest_tests.py
-#: reads them): its worker's own, all threads, and that of the processes it started and
-#: waited for. Under ``pytest -n auto`` a test's wall time also counts the time it waited
-#: for a core; CI's wall time follows the CPU time of everything it runs.
-CPU_OWN, CPU_PROCESSES = "cpu_own_s", "cpu_processes_s"
+#: reads them, and names them: ``CPU_OWN``, ``CPU_PROCESSES``): its worker's own, all
+#: threads, and that of the processes it started and waited for. Under ``pytest -n auto``
+#: a test's wall time also counts the time it waited for a core; CI's wall time follows
+#: the CPU time of everything it runs.
 _CPU_AT_SETUP = pytest.StashKey[tuple[float, float]]()
 
 

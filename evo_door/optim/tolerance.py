@@ -262,11 +262,10 @@ def specify(
         Jr = _secants(check, robust, idx, tr, lo_decl, hi_decl)
         some = U[:ALLOCATION_DOORS]  # the search on some of the yield's draws
         Ml = check.margins(robust)[0] + (some * tr) @ Jr.T  # first order
+        swing = np.max(np.abs(Jr), axis=0) * tr
         Uv = standard_draws(dist, samples, np.random.default_rng(allocation_seed))
         for aim in ALLOCATION_AIMS:  # higher while the fresh sample misses the target
-            tighter = _allocate(
-                Ml, some, tr, Jr, names, loss, np.max(np.abs(Jr), axis=0) * tr, target, aim
-            )
+            tighter = _allocate(Ml, some, tr, Jr, names, loss, swing, target, aim)
             if not tighter:  # none reaches this aim: the last one found stands
                 break
             allocation = tighter
