@@ -120,7 +120,7 @@ LEAST_SHARE = 0.05
 ALLOCATION_DOORS = 1000
 #: how far above the target the allocation's search aims, tried in turn until the fresh
 #: sample verifies the target: the search is first order on a thousand doors, and one
-#: aim missed its verification by a door in 2000 (the main job on a Zen 3, 94.95 %)
+#: aim missed its verification by a door in 2000 (the main job, on one CPU)
 ALLOCATION_AIMS = (0.005, 0.01, 0.02, 0.04)
 
 
