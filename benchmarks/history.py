@@ -6,9 +6,10 @@ page from the history of this checkout (``git log`` and ``git show``, nothing me
 here) and writes ``benchmarks/history.md``: for each, when it was measured and at which
 commit, the GA 100 x 20 on one 5 s trial (door and haptic) with its ratio to the plain
 scipy + DEAP loop of the same run, the door's smooth 5 s trial, the main job in a fresh
-process and a cold ``evo-door compile``, where the page measured them. Each row is
-what that page says, on the machine it names: rerun the suite at a row's commit to
-measure it again.
+process and a cold ``evo-door compile``, where the page measured them, and the host
+probe at the run's start and end (the host's speed at the hour: the same work takes
+markedly longer in a slow hour of a shared machine). Each row is what that page
+says, on the machine it names: rerun the suite at a row's commit to measure it again.
 
     python -m benchmarks.history            # print the table
     python -m benchmarks.history --write    # and write benchmarks/history.md
@@ -35,6 +36,7 @@ _GA = r"^\| {model} \| ([^|]+?) \| \d+ \| [^|]+ \| [^|]+ \| [^|]+ \| ([^|]+?) \|
 _SMOOTH = re.compile(r"^\| door smooth: default [^|]*?: <= [^|]+ \| ([^|]+?) \|", re.M)
 _MAIN_JOB = re.compile(r"experiments/case_study\.yaml` in a fresh process: \*\*([^*]+)\*\*")
 _COMPILE = re.compile(r"^\| `evo-door compile` \(every kernel\), cold \| ([^|]+?) \|", re.M)
+_PROBE = re.compile(r"Host probe \([^)]*\): (\d+\.\d+) s(?: at the start and (\d+\.\d+) s)?")
 
 
 @dataclass
@@ -49,6 +51,7 @@ class Page:
     smooth_door: str | None
     main_job: str | None
     cold_compile: str | None
+    probe: str | None = None
 
 
 def _ga(text: str, model: str) -> tuple[str, str] | None:
@@ -77,7 +80,16 @@ def parse(text: str) -> Page | None:
         smooth_door=_first(_SMOOTH, text),
         main_job=_first(_MAIN_JOB, text),
         cold_compile=_first(_COMPILE, text),
+        probe=_probe(text),
     )
+
+
+def _probe(text: str) -> str | None:
+    """The host probe's times as the page gives them, start and end ("0.35 / 0.38 s")."""
+    found = _PROBE.search(text)
+    if found is None:
+        return None
+    return " / ".join(t for t in found.groups() if t) + " s"
 
 
 def _git(*args: str) -> str:
@@ -120,15 +132,17 @@ def table(found: list[Page]) -> str:
         "`evo-door run experiments/case_study.yaml` in a fresh process, warm. Cold "
         "compile: `evo-door compile` on an empty numba cache. Each row was measured on "
         "the machine it names, at its own load (its page says it); '-' where the page "
-        "did not measure it. Rerun `python -m benchmarks` at a row's commit to measure "
-        "it again.",
+        "did not measure it. Host probe: the seconds of a fixed plain Python loop "
+        "(`benchmarks/probe.py`) at the run's start and end, the host's speed at that "
+        "hour: compare rows by it before reading a change as the code's. Rerun "
+        "`python -m benchmarks` at a row's commit to measure it again.",
         "",
         "| measured | commit | GA door | GA haptic | door smooth trial | main job | "
-        "cold compile | machine |",
-        "|---|---|---:|---:|---:|---:|---:|---|",
+        "cold compile | host probe | machine |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     for p in found:
-        cells = (p.ga_door, p.ga_haptic, p.smooth_door, p.main_job, p.cold_compile)
+        cells = (p.ga_door, p.ga_haptic, p.smooth_door, p.main_job, p.cold_compile, p.probe)
         lines.append(
             f"| {p.measured} | {p.commit} | "
             + " | ".join(_cell(c) for c in cells)

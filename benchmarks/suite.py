@@ -95,6 +95,7 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from benchmarks.probe import host_probe  # noqa: E402
 from evo_door.errors import UserError  # noqa: E402
 
 SECTIONS = (
@@ -149,6 +150,9 @@ class Suite:
     tables: dict = field(default_factory=dict)
     #: a section's own figures: name -> (section, matplotlib Figure, caption)
     figures: dict = field(default_factory=dict)
+    #: the host probe's seconds at the run's start and end (:func:`benchmarks.probe.host_probe`;
+    #: none in a --quick run)
+    probe: list = field(default_factory=list)
 
     def add(self, name, section, label, value, unit, **kw) -> Metric:
         m = Metric(name, section, label, None if value is None else float(value), unit, **kw)
@@ -1296,17 +1300,25 @@ def cpu_model() -> str:
     return platform.processor() or "unknown CPU"
 
 
+def page_machine(info: dict, how: str = "medians of repeats") -> str:
+    """A page's first line: the machine (:func:`machine`), how and when it measured, the
+    commit, and the host probe at the run's start and end where it made one."""
+    from benchmarks._util import machine_line
+    from benchmarks.probe import probe_sentence
+
+    line = machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}", how=how)
+    line += f" Commit {info['commit']}." * bool(info["commit"])
+    return line + probe_sentence(info.get("probe"))
+
+
 def casestudy_markdown(suite: Suite, info: dict) -> str:
     """``benchmarks/casestudy.md``: the main job's figures that the README and
     ``docs/case-study.md`` quote, with the machine that made them."""
-    from benchmarks._util import machine_line
-
     return "\n".join(
         [
             "# The main job, measured (`python -m benchmarks --only casestudy`)",
             "",
-            machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}", how="one run")
-            + f" Commit {info['commit']}." * bool(info["commit"]),
+            page_machine(info, how="one run"),
             "",
             suite.tables["casestudy"],
             "",
@@ -1316,16 +1328,11 @@ def casestudy_markdown(suite: Suite, info: dict) -> str:
 
 def seeds_markdown(suite: Suite, info: dict) -> str:
     """``benchmarks/seeds.md``: the main job's estimates across seeds and CPUs."""
-    from benchmarks._util import machine_line
-
     return "\n".join(
         [
             "# The main job across GA seeds and CPUs (`python -m benchmarks --only seeds`)",
             "",
-            machine_line(
-                f" ({info['cpu']}), numba threads {info['numba_threads']}", how="four runs"
-            )
-            + f" Commit {info['commit']}." * bool(info["commit"]),
+            page_machine(info, how="four runs"),
             "",
             suite.tables["seeds"],
             "",
@@ -1346,15 +1353,12 @@ def fmu_markdown(suite: Suite, info: dict) -> str:
 
 def targets_page(suite: Suite, info: dict, section: str, title: str, body: list[str]) -> str:
     """A section's page: its title, the machine, its targets, then ``body``."""
-    from benchmarks._util import machine_line
-
     own = Suite(quick=suite.quick, metrics=[m for m in suite.metrics if m.section == section])
     return "\n".join(
         [
             title,
             "",
-            machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}")
-            + f" Commit {info['commit']}." * bool(info["commit"]),
+            page_machine(info),
             "",
             "## Targets",
             "",
@@ -1405,13 +1409,10 @@ def trial_markdown(suite: Suite, info: dict) -> str:
 def to_markdown(suite: Suite, info: dict, sections, seconds: float, figures=None) -> str:
     """The suite's Markdown; ``figures`` maps a section figure's name to the path its
     link gives (relative to the Markdown file)."""
-    from benchmarks._util import machine_line
-
     lines = [
         "# Benchmark suite (`python -m benchmarks`)",
         "",
-        machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}")
-        + f" Commit {info['commit']}." * bool(info["commit"]),
+        page_machine(info),
         "",
         f"Sections: {', '.join(sections)}{' (--quick: smoke run, not a measurement)' if suite.quick else ''}; "
         f"{seconds:.0f} s in all. A ratio is the plain (or reference) way's time over the "
@@ -1517,6 +1518,7 @@ def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> d
     from evo_door.files import save_figure, write_text
 
     info = machine()
+    info["probe"] = suite.probe
     stamp = time.strftime("%Y%m%d-%H%M%S")
     doc = {
         "suite": "evo-door benchmarks",
@@ -1702,6 +1704,8 @@ def _main(args) -> int:
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: not a folder")
     suite = Suite(quick=args.quick)
+    if not suite.quick:  # the host's speed at the hour, beside the figures (not in a smoke run)
+        suite.probe.append(host_probe())
     t_start = time.perf_counter()
     failed = []
     for i, name in enumerate(sections, 1):
@@ -1717,9 +1721,12 @@ def _main(args) -> int:
             continue
         progress(f"{i}/{len(sections)} {name} done in {time.perf_counter() - t0:.0f} s")
     seconds = time.perf_counter() - t_start
+    if not suite.quick:
+        suite.probe.append(host_probe())
     write_md = not args.quick and args.only is None and not failed
     paths = save(suite, out, sections, seconds, write_md)
     info = machine()
+    info["probe"] = suite.probe
     links = {n: str(paths[n]) for n in suite.figures}
     print(to_markdown(suite, info, sections, seconds, links))
     for p in paths.values():

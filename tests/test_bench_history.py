@@ -49,6 +49,18 @@ def test_a_figure_the_page_did_not_measure_is_a_dash_and_a_non_page_nothing():
     assert history.parse("# a page with no measured date and commit") is None
 
 
+def test_the_host_probe_is_read_where_the_page_states_it():
+    from benchmarks.probe import probe_sentence
+
+    page = history.parse(
+        PAGE.replace("Commit 23ddfac.", "Commit 23ddfac." + probe_sentence([0.351, 0.4]))
+    )
+    assert page.probe == "0.35 / 0.40 s"
+    assert "| 51.1 s | 0.35 / 0.40 s | Linux-x" in history.table([page])
+    assert history.parse(PAGE).probe is None  # an earlier page: a dash
+    assert "| 51.1 s | - | Linux-x" in history.table([history.parse(PAGE)])
+
+
 def test_the_committed_suite_page_gives_every_figure():
     """The page of the latest full run: a change of its layout that the history no
     longer reads fails here, not silently as dashes."""

@@ -84,10 +84,18 @@ def broken_section(suite) -> None:
     raise RuntimeError("no such\n   device")
 
 
+#: what the stand-in host probe answers, in turn (:func:`fake_sections`)
+PROBES = (0.25, 0.5)
+
+
 @pytest.fixture()
 def fake_sections(monkeypatch, tmp_path):
     """The suite's only section the fake one (the broken one there to ask for); the
-    folder of the latest pages (``benchmarks/``) one of the test's own."""
+    folder of the latest pages (``benchmarks/``) one of the test's own; the host probe
+    answering :data:`PROBES` in turn, at once (the real one takes a fraction of a
+    second: :func:`test_the_host_probe_times_a_loop_and_its_sentence_names_it`)."""
+    answers = iter(PROBES * 2)
+    monkeypatch.setattr(harness, "host_probe", lambda: next(answers))
     monkeypatch.setattr(harness, "SECTIONS", ("fake",))
     monkeypatch.setitem(harness.RUNNERS, "fake", fake_section)
     monkeypatch.setitem(harness.RUNNERS, "broken", broken_section)
@@ -139,6 +147,7 @@ def test_a_run_writes_json_with_every_metric_the_figures_and_the_markdown(
     assert f"wrote {js}" in out
     assert "[suite] 1/1 fake done in" in err
     assert not list(fake_sections.iterdir())  # --quick: no latest figures, no summary
+    assert doc["machine"]["probe"] == [] and "Host probe" not in out  # nor a host probe
 
 
 def test_a_broken_section_loses_no_other_sections_figures(
@@ -171,8 +180,38 @@ def test_only_a_full_measured_run_replaces_the_latest_summary(
     code, _, err = run_main(capsys, *args, "--out", str(tmp_path / "out"))
     assert code == 0, err
     assert (fake_sections / "suite.md").exists() == replaced
+    # a measured run states the host probe at its start and end (a smoke run none)
+    doc = json.loads(next((tmp_path / "out").glob("suite-*.json")).read_text())
+    assert doc["machine"]["probe"] == ([] if "--quick" in args else list(PROBES))
+    if replaced:
+        head = (fake_sections / "suite.md").read_text().splitlines()[2]
+        assert head.endswith(": 0.25 s at the start and 0.50 s at the end.")
     # a measured run keeps its sections' figures next to the pages (README links them)
     assert (fake_sections / "fake-figure.png").exists() == ("--quick" not in args)
+
+
+def test_every_page_a_run_writes_states_the_host_probe_it_made():
+    """The host's speed at the hour beside the figures, on the pages the sections write
+    (:func:`benchmarks.suite.page_machine`; the summary page's and the JSON's:
+    :func:`test_only_a_full_measured_run_replaces_the_latest_summary`)."""
+    info = {**harness.machine(), "probe": [0.3, 0.4]}
+    run = every_page_stand_in(quick=False)
+    pages = (harness.casestudy_markdown, harness.seeds_markdown, harness.trial_markdown)
+    for written in (*pages, harness.fmu_markdown, harness.jnd_markdown, harness.pathsim_markdown):
+        first = written(run, info).splitlines()[2]
+        assert first.startswith("Machine: ") and "Host probe (20 million additions" in first
+        assert first.endswith(": 0.30 s at the start and 0.40 s at the end.")
+    assert "Host probe" not in harness.casestudy_markdown(run, {**info, "probe": []})
+
+
+def test_the_host_probe_times_a_loop_and_its_sentence_names_it():
+    from benchmarks import probe
+
+    small, large = probe.host_probe(20_000), probe.host_probe(2_000_000)
+    assert 0.0 < small < large < 60.0  # a hundred times the work: longer on any host
+    assert probe.probe_sentence([]) == "" and probe.probe_sentence(None) == ""
+    one = probe.probe_sentence([1.234])
+    assert one.endswith("): 1.23 s.") and "at the end" not in one
 
 
 def test_a_run_compares_with_an_earlier_one(tmp_path, capsys, fake_sections, blank_suite_figure):
