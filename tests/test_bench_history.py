@@ -67,7 +67,7 @@ def test_the_committed_suite_page_gives_every_figure():
     page = history.parse((ROOT / "benchmarks" / "suite.md").read_text(encoding="utf-8"))
     assert page is not None
     assert None not in (page.ga_door, page.ga_haptic, page.smooth_door, page.main_job)
-    assert page.cold_compile is not None
+    assert page.cold_compile is not None and page.probe is not None
 
 
 @pytest.mark.skipif(
