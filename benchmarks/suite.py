@@ -95,7 +95,7 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.probe import host_probe  # noqa: E402
+from benchmarks.probe import host_probe, probe_sentence  # noqa: E402
 from evo_door.errors import UserError  # noqa: E402
 
 SECTIONS = (
@@ -1304,7 +1304,6 @@ def page_machine(info: dict, how: str = "medians of repeats") -> str:
     """A page's first line: the machine (:func:`machine`), how and when it measured, the
     commit, and the host probe at the run's start and end where it made one."""
     from benchmarks._util import machine_line
-    from benchmarks.probe import probe_sentence
 
     line = machine_line(f" ({info['cpu']}), numba threads {info['numba_threads']}", how=how)
     line += f" Commit {info['commit']}." * bool(info["commit"])
