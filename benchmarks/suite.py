@@ -1251,7 +1251,9 @@ def targets_table(suite: Suite) -> str:
     return "\n".join(lines)
 
 
-def machine() -> dict:
+def machine(probe=()) -> dict:
+    """The machine, versions and commit of a run, and its host probe's seconds
+    (:func:`benchmarks.probe.host_probe`, at the run's start and end; none given: [])."""
     import numba
     import scipy
 
@@ -1286,6 +1288,7 @@ def machine() -> dict:
         "numba_threads": numba.config.NUMBA_NUM_THREADS,
         "versions": versions,
         "commit": commit or None,
+        "probe": list(probe),
     }
 
 
@@ -1516,8 +1519,7 @@ def figure(suite: Suite):
 def save(suite: Suite, out: Path, sections, seconds: float, write_md: bool) -> dict:
     from evo_door.files import save_figure, write_text
 
-    info = machine()
-    info["probe"] = suite.probe
+    info = machine(suite.probe)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     doc = {
         "suite": "evo-door benchmarks",
@@ -1724,8 +1726,7 @@ def _main(args) -> int:
         suite.probe.append(host_probe())
     write_md = not args.quick and args.only is None and not failed
     paths = save(suite, out, sections, seconds, write_md)
-    info = machine()
-    info["probe"] = suite.probe
+    info = machine(suite.probe)
     links = {n: str(paths[n]) for n in suite.figures}
     print(to_markdown(suite, info, sections, seconds, links))
     for p in paths.values():

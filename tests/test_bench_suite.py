@@ -94,7 +94,7 @@ def fake_sections(monkeypatch, tmp_path):
     folder of the latest pages (``benchmarks/``) one of the test's own; the host probe
     answering :data:`PROBES` in turn, at once (the real one takes a fraction of a
     second: :func:`test_the_host_probe_times_a_loop_and_its_sentence_names_it`)."""
-    answers = iter(PROBES * 2)
+    answers = iter(PROBES)  # a run's start and end
     monkeypatch.setattr(harness, "host_probe", lambda: next(answers))
     monkeypatch.setattr(harness, "SECTIONS", ("fake",))
     monkeypatch.setitem(harness.RUNNERS, "fake", fake_section)
@@ -194,7 +194,7 @@ def test_every_page_a_run_writes_states_the_host_probe_it_made():
     """The host's speed at the hour beside the figures, on the pages the sections write
     (:func:`benchmarks.suite.page_machine`; the summary page's and the JSON's:
     :func:`test_only_a_full_measured_run_replaces_the_latest_summary`)."""
-    info = {**harness.machine(), "probe": [0.3, 0.4]}
+    info = harness.machine([0.3, 0.4])
     run = every_page_stand_in(quick=False)
     pages = (harness.casestudy_markdown, harness.seeds_markdown, harness.trial_markdown)
     for written in (*pages, harness.fmu_markdown, harness.jnd_markdown, harness.pathsim_markdown):
