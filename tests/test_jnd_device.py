@@ -232,6 +232,7 @@ def test_a_person_at_a_terminal_answers_and_stops(tmp_path):
     master, slave = os.openpty()
     cmd = [sys.executable, "-m", "evo_door", "jnd", *FAST, "--trials", "10"]
     cmd += ["--param", "open_force", "--participant", "person:P01", "--out", str(out)]
+    cmd += LOADED_MACHINE_WATCHDOG  # a person's session is paced: a stalled machine ended it
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(
         cmd, stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
@@ -242,10 +243,11 @@ def test_a_person_at_a_terminal_answers_and_stops(tmp_path):
         if line.startswith("Which interval felt stronger: 1 or 2?"):
             asked += 1
             os.write(master, b"2" if asked <= 2 else b"q")
+    printed = proc.stdout.read()
     proc.wait(timeout=60)
     os.close(master)
     os.close(slave)
-    assert proc.returncode == 0, "".join(shown)
+    assert proc.returncode == 0, "".join(shown) + printed
     record = read_jnd_file(out)
     assert record.status == "stopped" and record.participant == "person P01"
     assert record.trials["answer"].tolist() == [2, 2]

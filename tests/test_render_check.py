@@ -20,7 +20,7 @@ import pytest
 
 from evo_door.cli import main
 from evo_door.errors import UserError
-from evo_door.files import reseal
+from evo_door.files import read_attrs, reseal, write_attrs
 from evo_door.models import get_model
 from evo_door.models.haptic import CLOSED, PARAMS
 from evo_door.params import param_vector
@@ -174,11 +174,12 @@ def test_the_open_shut_hand_lets_go_and_takes_the_handle_where_it_is():
 
 
 # -- the check's own arithmetic, on logs of the model itself ----------------------------
-def _model_log(path, segments, rate=1000.0, damping=0.0):
+def _model_log(path, segments, rate=1000.0, damping=0.0, missed=()):
     """A render log of the model itself: ``segments`` [(set, force N array)] simulated
     one after the other, each from where the last ended (through the first force of
     the next), with the device's damping ``damping`` (N s/m) felt on top and
-    recorded as the loop records it."""
+    recorded as the loop records it. ``missed``: cycles (in a row) the loop missed, a
+    gap: the door moved under their force, which the log did not see."""
     log = RenderLog(rate, PARAMS)
     log.event(0.0, "device", "synthetic", damping=damping, friction=0.0, max_force=200.0)
     theta0, dtheta0, k = 1.2, 0.0, 0
@@ -192,9 +193,14 @@ def _model_log(path, segments, rate=1000.0, damping=0.0):
             row[COLUMNS.index("force")] = force[i]
             row[COLUMNS.index("theta")] = r.theta[i]
             row[COLUMNS.index("dtheta")] = r.dtheta[i]
-            log.add(k / rate, row)
+            if k not in missed:
+                log.add(k / rate, row)
             k += 1
         theta0, dtheta0 = r.theta[-1], r.dtheta[-1]
+    if missed:
+        log.event(
+            max(missed) / rate + 1 / rate, "gap", "a gap", from_t=min(missed) / rate - 1 / rate
+        )
     log.write(path, loop_rate=rate, device="synthetic", statistics={})
     return path
 
@@ -252,6 +258,28 @@ def test_a_fault_row_restarts_the_simulation_after_it(tmp_path):
     a = render_agreement(log)
     assert a.starts == [0.0, 0.801] and np.isnan(a.theta_sim[800])
     assert a.errors()["samples"] == 1999
+
+
+def test_nothing_is_simulated_across_a_gap_of_the_loop(tmp_path):
+    """The loop missed 100 ms (a loaded machine, a watchdog budget that let it go on):
+    the hand pushed 25 N harder meanwhile, which the log did not see; its rows
+    across the gap are an interpolation. The check compares nothing inside the gap
+    and starts again from the logged state after it: the model's own log agrees, and
+    the gap is said. Simulated across, the model runs off."""
+    seed = _params("seed_trial")
+    force = _push(2000)
+    force[800:900] += 25.0
+    log = _model_log(tmp_path / "g.h5", [(seed, force)], missed=range(800, 900))
+    a = render_agreement(log)
+    assert a.starts == [0.0, 0.9] and np.isnan(a.theta_sim[800:900]).all()
+    e = a.errors()
+    assert e["samples"] == 1900 and e["theta_max"] < 1e-5 and e["dtheta_max"] < 1e-3
+    assert "not across 1 gap of the loop (the longest 101 ms at 0.80 s)" in a.model
+    with h5py.File(log, "r+") as f:  # the same log without its gap event
+        events = read_attrs(f["render"])["events"]
+        write_attrs(f["render"], {"events": [e for e in events if e["kind"] != "gap"]})
+        reseal(f)
+    assert render_agreement(log).errors()["theta_max"] > 0.01
 
 
 def test_render_check_prints_the_agreement_with_units(tmp_path, capsys):

@@ -28,9 +28,15 @@ that span is not simulated.
 
 Each simulation starts from the logged angle and speed: at the start, at each change
 of the parameter set, at every ``window`` seconds if one is given (an open-loop
-simulation of a long session drifts), and after samples that are not finite (a
-fault). The force is the log's, at the log's step: its rows are on an exact grid of
-the loop's time already (:class:`~evo_door.render.log.RenderLog` interpolates the
+simulation of a long session drifts), after samples that are not finite (a fault),
+and after each gap of a paced loop (its ``gap`` events: slots missed in a row for 20
+ms or more, :data:`~evo_door.render.loop.STALL_FLOOR`, which a loose watchdog let it
+survive): over a gap the device held its last command and the loop saw nothing, so
+the model's force there is not known and its samples, the log's interpolation
+across the gap, are not compared.
+
+The force is the log's, at the log's step: its rows are on an exact grid of the
+loop's time already (:class:`~evo_door.render.log.RenderLog` interpolates the
 loop's cycles, which come at the loop rate, late by the lateness its statistics give,
 linearly onto the log's ticks, across a missed slot too), and the integrator takes
 it as linear between two rows.
@@ -153,7 +159,8 @@ def render_agreement(
     dtheta_sim = np.full_like(theta, np.nan)
     starts = []
     unknown = log["unknown"] if params is None else None
-    for i0, i1, k in _runs(t, [s for s, _ in sets], force, theta, dtheta, window, unknown):
+    runs = _runs(t, [s for s, _ in sets], force, theta, dtheta, window, unknown, log["gaps"])
+    for i0, i1, k in runs:
         r = simulate(MODEL, vectors[k], force[i0:i1], dt, theta0=theta[i0], dtheta0=dtheta[i0])
         theta_sim[i0:i1] = r.theta
         dtheta_sim[i0:i1] = r.dtheta
@@ -192,7 +199,9 @@ def _read(path) -> dict:
         "statistics": log["statistics"],
         "device": log["device"],
         "unknown": _unknown_span(log["events"]),
-    }
+        "gaps": [(float(e.get("from_t", e["t"])), float(e["t"])) for e in log["events"]
+                 if e.get("kind") == "gap"],
+    }  # fmt: skip
 
 
 def _unknown_span(events) -> tuple[float, float] | None:
@@ -233,19 +242,26 @@ def _device_term(given, log: dict, name: str, params, unit: str) -> float:
     return float(logged) if logged is not None else 0.0
 
 
-def _runs(t, set_times, force, theta, dtheta, window, unknown=None):
+def _runs(t, set_times, force, theta, dtheta, window, unknown=None, gaps=()):
     """``(i0, i1, k)`` of each simulation: samples ``i0:i1``, the set ``k`` in force.
 
     A run starts at the first sample, at each set's time, every ``window`` seconds
-    (if given) and after each sample that is not finite; it holds at least two
-    samples and only finite ones. ``unknown`` (s, from and to): no run there, the set
-    in force is not known.
+    (if given), after each sample that is not finite and at the end of each of the
+    loop's ``gaps`` (s, from the last cycle before to the first after); it holds at
+    least two samples and only finite ones. No run covers ``unknown`` (s, from and
+    to: the set in force is not known) or a gap's inside (the ticks the log
+    interpolated across it).
     """
     finite = np.isfinite(force) & np.isfinite(theta) & np.isfinite(dtheta)
-    skip = (0, 0)  # samples not simulated
+    tol = 1e-6 * float(t[1] - t[0])
+    skips = []  # (first, end) of samples not simulated
     if unknown is not None:
-        skip = tuple(int(i) for i in np.searchsorted(t, np.asarray(unknown) - 1e-9))
-    cuts = {0, *skip}
+        skips.append(tuple(int(i) for i in np.searchsorted(t, np.asarray(unknown) - tol)))
+    for first, last in gaps:
+        skips.append((int(np.searchsorted(t, first + tol)), int(np.searchsorted(t, last - tol))))
+    cuts = {0}
+    for skip in skips:
+        cuts.update(skip)
     cuts.update(int(np.searchsorted(t, s - 1e-9)) for s in set_times)
     if window is not None:
         cuts.update(int(np.searchsorted(t, t[0] + j * window - 1e-9))
@@ -256,7 +272,8 @@ def _runs(t, set_times, force, theta, dtheta, window, unknown=None):
     edges = sorted(c for c in cuts if 0 <= c < t.size) + [t.size]
     set_index = np.searchsorted(np.asarray(set_times), t, side="right") - 1
     for i0, i1 in zip(edges[:-1], edges[1:], strict=True):
-        if i1 - i0 >= 2 and finite[i0] and not skip[0] <= i0 < skip[1]:
+        skipped = any(a <= i0 < b for a, b in skips)
+        if i1 - i0 >= 2 and finite[i0] and not skipped:
             yield i0, i1, max(int(set_index[i0]), 0)
 
 
@@ -290,6 +307,20 @@ def _model_note(sets, params, device: dict, log: dict) -> str:
             f"; not from {first:.2f} to {last:.2f} s, where the log did not keep the sets "
             "in force (changes past its cap)"
         )
+    if log["gaps"]:
+        first, last = max(log["gaps"], key=lambda g: g[1] - g[0])
+        note += (
+            f"; not across {len(log['gaps'])} gap{'s' if len(log['gaps']) > 1 else ''} of "
+            "the loop (the longest "
+            f"{(last - first) * 1e3:.0f} ms at {first:.2f} s), over which the device held "
+            "its last command"
+        )
+        counted = log["statistics"].get("gaps")
+        if isinstance(counted, (int, float)) and counted > len(log["gaps"]):
+            note += (
+                f" (the log kept the first {len(log['gaps'])} of {counted:.0f}: later ones "
+                "are simulated across)"
+            )
     return note
 
 

@@ -27,7 +27,7 @@ A mechanism (any model on a state vector) is rendered by a subclass,
 :class:`~evo_door.render.mechanism.MechanismLoop`, through the hooks of "what the loop
 renders" (the model's check, its declaration, its mass, its kernels, the time-0 event).
 
-Size: under 750 lines, one class: its parameter changes, its statistics and
+Size: under 775 lines, one class: its parameter changes, its statistics and
 the cycle belong together (the cycle reads the set in force and feeds the statistics);
 the kernels, pacing, timing and log are already modules of their own.
 """
@@ -69,6 +69,12 @@ FRICTION_LAWS = ("implicit", "tanh")
 #: 5-15 ms (13 ms ended a console's render at the 4 ms of 10 cycles at 2500 Hz), and a
 #: force held that long is what the supervisor tolerates too (its 20 ms budget)
 STALL_FLOOR = 0.02
+#: a paced loop's gaps (slots missed in a row) of at least :data:`STALL_FLOOR` that a
+#: budget of more cycles let it survive are each logged, an event ``gap`` with its
+#: span, up to this many (the statistics count them all): over a gap the device held
+#: its last command, which the render check does not simulate across
+#: (:mod:`evo_door.render.check`)
+MAX_GAP_EVENTS = 1000
 
 #: cycles run after which a paced loop checks passivity again with its measured period
 _RECHECK_AFTER = 250
@@ -205,6 +211,8 @@ class ServoLoop:
         self._mass = self._virtual_mass()
         self.faults = 0
         self.saturated = 0
+        self.gaps = 0  # gaps of STALL_FLOOR or more a paced loop survived
+        self.gap_longest = 0.0  # s
         self.statistics: dict = {}
         self.status = "new"
         #: perf_counter at the first cycle and when the loop ended (s; 0 until then)
@@ -496,11 +504,30 @@ class ServoLoop:
         if late > T:  # missed its slot: count, skip ahead, keep the schedule
             skip = int(min(late / T, n_cycles - k))  # none past the end
             self.timing.missed += skip
+            if late >= STALL_FLOOR:
+                self._log_gap(k, k + skip, late)
             k += skip
             if k >= n_cycles:
                 return k, now, late
         self.timing.start(now, late)
         return k, now, late
+
+    def _log_gap(self, k: int, resumed: int, late: float) -> None:
+        """A gap of the paced loop, ``late`` (s) after slot ``k``, resumed at slot
+        ``resumed``: counted, and logged as an event ``gap`` (at the slot it resumed,
+        ``from_t`` the last cycle's) while fewer than :data:`MAX_GAP_EVENTS` are."""
+        self.gaps += 1
+        self.gap_longest = max(self.gap_longest, late)
+        if self.gaps <= MAX_GAP_EVENTS:
+            T = self.period
+            self.log.event(
+                resumed * T,
+                "gap",
+                f"the loop missed {resumed - k} cycles ({late * 1e3:.0f} ms): the device "
+                "held its last command",
+                from_t=max(k - 1, 0) * T,
+                count=resumed - k,
+            )
 
     def _cycle(self, t: float, now: float, late: float) -> bool:
         """One servo cycle at loop time ``t`` (s), started at ``now`` (s after ``t0``),
@@ -717,6 +744,8 @@ class ServoLoop:
             "compute_p99_s": tm.percentile("work", 99),
             "faults": self.faults,
             "saturated_cycles": self.saturated,
+            "gaps": self.gaps,
+            "gap_longest_s": self.gap_longest,
             "status": self.status,
             "watchdog": self.watchdog.reason,
             # wall-clock time the cycles took (s): the loop time of a paced loop, less

@@ -131,7 +131,7 @@ def read_log(f, path) -> dict:
     statistics = dict(stored)
     # the numbers the readers print: each a number (else one line naming it), or left
     # out where the file holds none (a null read as a number would be a traceback)
-    for key in ("rate_hz", "faults", "on_time_fraction", "period_mean_s", "missed_cycles"):
+    for key in ("rate_hz", "faults", "on_time_fraction", "period_mean_s", "missed_cycles", "gaps"):
         if fields.number(stored, key, None) is None:
             statistics.pop(key, None)
     fields.text(statistics, "status", "")
@@ -158,9 +158,15 @@ _EVENT_NUMBERS = {
     "device": ("damping", "friction", "max_force"),
     "jnd_end": ("weber",),
     "changes_dropped": ("last_t",),
+    "gap": ("from_t",),
 }
 #: the counts of an event a reader takes, by kind
-_EVENT_COUNTS = {"jnd_end": ("answers",), "dropped": ("count",), "changes_dropped": ("count",)}
+_EVENT_COUNTS = {
+    "jnd_end": ("answers",),
+    "dropped": ("count",),
+    "changes_dropped": ("count",),
+    "gap": ("count",),
+}
 
 
 def events_of(value, where: str) -> list[dict]:

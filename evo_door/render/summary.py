@@ -42,8 +42,15 @@ def timing_line(stats: dict) -> str:
             f"unpaced: {simulated:.4g} s of simulated time in {stats['wall_s']:.3g} s "
             f"(not kept on the wall clock; --realtime paces it), {compute}"
         )
+    gaps = stats.get("gaps", 0)
     return (
         f"period mean {stats['period_mean_s'] * 1e3:.4g} ms, p99 lateness "
-        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles, "
+        f"{stats['lateness_p99_s'] * 1e3:.3g} ms, missed {stats['missed_cycles']} cycles"
+        + (
+            f" ({gaps} gap{'s' if gaps > 1 else ''}, the longest "
+            f"{stats.get('gap_longest_s', 0.0) * 1e3:.0f} ms), "
+            if gaps
+            else ", "
+        )
         + compute
     )
