@@ -15,7 +15,7 @@ import pytest
 
 from evo_door.models import get_model
 from evo_door.sim.accel_plant import HOLDS_IN_THREADS, _hold_rows_serial
-from evo_door.sim.hold import hold_form
+from evo_door.sim.hold import hold_form, hold_rows_form
 from evo_door.sim.simulate import COULOMB_SPEED, coulomb_vector, hold_forces
 
 pytestmark = pytest.mark.numerics
@@ -49,6 +49,58 @@ def test_the_registered_hold_is_accels_to_the_last_bit(name):
         assert np.array_equal(got, ref, equal_nan=True), (name, w)
         one = model.plant.hold_forces_rows(P[:1], ANGLES[:50], w)  # few: one thread
         assert np.array_equal(one, ref[:1, :50], equal_nan=True), (name, w)
+
+
+def _shared_columns(name):
+    """The columns a model's ``hold_rows`` needs the same in every row (the door's
+    geometry, the haptic model's window slope), its section scales' eight, and all
+    that makes its pad's scale (the door's: the scales and their sharpness)."""
+    if name == "door":
+        from evo_door.models.door import FRICTION_SCALE_1, POSE_COLUMNS, SCALE_COLUMNS
+
+        shared, pad = list(POSE_COLUMNS), list(SCALE_COLUMNS)
+    else:
+        from evo_door.models.haptic import FRICTION_SCALE_1, WINDOW_SLOPE
+
+        shared, pad = [WINDOW_SLOPE], list(range(FRICTION_SCALE_1, FRICTION_SCALE_1 + 8))
+    return shared, list(range(FRICTION_SCALE_1, FRICTION_SCALE_1 + 8)), pad
+
+
+@pytest.mark.parametrize("scales", ["shared", "each row's own"])
+@pytest.mark.parametrize("name", ["door", "haptic"])
+def test_rows_that_share_work_per_angle_get_accels_numbers_to_the_last_bit(name, scales):
+    """A tolerance's sample (doors of one geometry and pad) and a population fitting the
+    section scales: the model's ``hold_rows`` computes the door's pose (and its pad's
+    scale) or the haptic scale's steps once an angle, and gives what two calls of
+    ``accel`` give. A row of a geometry (a slope) of its own: it declines, writes
+    nothing, and the plant's answer is still accel's."""
+    model = get_model(name)
+    hold_rows = hold_rows_form(model.accel)
+    assert hold_rows is not None  # else the comparison below is of the other path
+    shared, scale_columns, pad = _shared_columns(name)
+    P = rows(model, 12, seed=11)
+    P[:, shared] = P[0, shared]
+    if scales == "shared":  # one pad for all
+        P[0, scale_columns] = np.linspace(0.4, 1.0, len(scale_columns))
+        P[:, pad] = P[0, pad]
+    else:
+        P[:, scale_columns] = np.random.default_rng(5).uniform(
+            0.2, 1.1, (len(P), len(scale_columns))
+        )
+    for w in SPEEDS:
+        ref = np.empty((P.shape[0], ANGLES.size))
+        _hold_rows_serial(model.accel, P, ANGLES, w, ref)
+        out = np.full_like(ref, np.nan)
+        assert hold_rows(P, ANGLES, w, out)
+        assert np.array_equal(out, ref, equal_nan=True), (name, w)
+        got = model.plant.hold_forces_rows(P, ANGLES, w)
+        assert np.array_equal(got, ref, equal_nan=True), (name, w)
+    P[3, shared[0]] *= 1.01
+    out = np.zeros((P.shape[0], ANGLES.size))
+    assert not hold_rows(P, ANGLES, 0.2, out) and not out.any()
+    ref = np.empty_like(out)
+    _hold_rows_serial(model.accel, P, ANGLES, 0.2, ref)
+    assert np.array_equal(model.plant.hold_forces_rows(P, ANGLES, 0.2), ref, equal_nan=True)
 
 
 @pytest.mark.parametrize("name", ["door", "haptic"])

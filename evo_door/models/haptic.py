@@ -26,7 +26,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from evo_door.models.base import Model
 from evo_door.models.haptic_params import (  # noqa: F401 (re-exported)
@@ -40,7 +40,7 @@ from evo_door.models.haptic_params import (  # noqa: F401 (re-exported)
     PARAMS,
 )
 from evo_door.params import ParamTable, param_vector
-from evo_door.sim.hold import HOLD_SIGNATURE, register_hold
+from evo_door.sim.hold import HOLD_ROWS_SIGNATURE, HOLD_SIGNATURE, register_hold, register_hold_rows
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
 # Positions in the kernel vector, generated from the declaration (never literal).
@@ -195,7 +195,14 @@ def balance(theta, p):
 # The tangential force law: the whole feel, top to bottom
 # ---------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def dry_friction(theta, dtheta, p, sign_law):
+def _scale_at(theta, p, scale):
+    """``scale`` where given, else A(theta) of ``p`` (:func:`section_scale`): NaN asks
+    for it (a constant NaN, inlined, costs nothing)."""
+    return section_scale(theta, p) if scale != scale else scale
+
+
+@njit(cache=True, inline="always")
+def dry_friction(theta, dtheta, p, sign_law, scale):
     """The dry friction (N, + toward closing), asymmetric (eqs. 3.1, 4.44-4.48, corrected).
 
     With the seed's smooth law (``sign_law`` False)::
@@ -209,6 +216,7 @@ def dry_friction(theta, dtheta, p, sign_law):
     4.46 had tanh(a theta) for tanh(a dtheta)). With the sign law (its limit as
     a -> inf, what the renderer solves): ``F_dry = -A(theta) c sgn(dtheta)``, ``c``
     friction_closing above dtheta_0 and friction_opening below it, 0 at rest.
+    ``scale``: A(theta) where the caller has it (:func:`hold_rows`), else NaN.
     """
     if sign_law:
         if dtheta == 0.0:
@@ -216,7 +224,7 @@ def dry_friction(theta, dtheta, p, sign_law):
         level = p[FRICTION_CLOSING] if dtheta > p[FRICTION_SPEED_THRESHOLD] else p[FRICTION_OPENING]
         if level == 0.0:
             return 0.0
-        return -section_scale(theta, p) * level * (1.0 if dtheta > 0.0 else -1.0)
+        return -_scale_at(theta, p, scale) * level * (1.0 if dtheta > 0.0 else -1.0)
     a = p[FRICTION_SLOPE]
     forward = activation(dtheta, 0.0, a)  # tanh(a dtheta) = 2 forward - 1
     threshold = p[FRICTION_SPEED_THRESHOLD]
@@ -224,12 +232,20 @@ def dry_friction(theta, dtheta, p, sign_law):
     magnitude = p[FRICTION_OPENING] + (p[FRICTION_CLOSING] - p[FRICTION_OPENING]) * sigma
     if magnitude == 0.0:
         return 0.0
-    return -section_scale(theta, p) * magnitude * (2.0 * forward - 1.0)
+    return -_scale_at(theta, p, scale) * magnitude * (2.0 * forward - 1.0)
 
 
 @njit(cache=True, inline="always")
 def tangential_force_law(theta, dtheta, p, sign_law):
-    """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing.
+    """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing
+    (:func:`scaled_force_law`, the dry friction's A(theta) computed there)."""
+    return scaled_force_law(theta, dtheta, p, sign_law, math.nan)
+
+
+@njit(cache=True, inline="always")
+def scaled_force_law(theta, dtheta, p, sign_law, scale):
+    """F_tan(theta, dtheta): force (N) the door exerts on the hand, + toward closing,
+    with the dry friction's section scale A(theta) ``scale`` (NaN: computed here).
 
     ``sign_law`` picks the dry friction's law: its Coulomb limit
     ``-A(theta) c sgn(dtheta)`` (0 at rest: the integrators and the renderer solve the
@@ -247,7 +263,7 @@ def tangential_force_law(theta, dtheta, p, sign_law):
     f = 0.0
 
     # 1. Dry friction, asymmetric (eqs. 3.1, 4.44-4.48, corrected): dry_friction
-    f = dry_friction(theta, dtheta, p, sign_law)
+    f = dry_friction(theta, dtheta, p, sign_law, scale)
 
     # 2. Viscous friction (eq. 4.42):  F_v = -c_v dtheta
     f -= p[VISCOUS_DAMPING] * dtheta
@@ -388,10 +404,11 @@ def accel_tanh(theta, dtheta, force, p):
 
 
 @njit(cache=True, inline="always")
-def _hold(theta, dtheta, p, sign_law):
+def _hold(theta, dtheta, p, sign_law, scale):
     """What two calls of the right-hand side give for the force that holds the door still
-    (:mod:`evo_door.sim.hold`), its tangential force computed once."""
-    f = tangential_force_law(theta, dtheta, p, sign_law)
+    (:mod:`evo_door.sim.hold`), its tangential force computed once (``scale``: the dry
+    friction's A(theta) where the caller has it, else NaN)."""
+    f = scaled_force_law(theta, dtheta, p, sign_law, scale)
     a0 = (f + 0.0) / p[INERTIA]
     a1 = (f + 1.0) / p[INERTIA]
     return -a0 / (a1 - a0)
@@ -400,17 +417,52 @@ def _hold(theta, dtheta, p, sign_law):
 @njit(HOLD_SIGNATURE, cache=True, nogil=True)
 def hold(theta, dtheta, p):
     """Force (N at the handle) that holds the door still at ``(theta, dtheta)``: :func:`accel`'s."""
-    return _hold(theta, dtheta, p, True)
+    return _hold(theta, dtheta, p, True, math.nan)
 
 
 @njit(HOLD_SIGNATURE, cache=True, nogil=True)
 def hold_tanh(theta, dtheta, p):
     """:func:`hold` of :func:`accel_tanh`."""
-    return _hold(theta, dtheta, p, False)
+    return _hold(theta, dtheta, p, False, math.nan)
+
+
+@njit(HOLD_ROWS_SIGNATURE, cache=True, parallel=True)
+def hold_rows(P, theta, dtheta, out):
+    """:func:`hold` of every row of ``P`` at every ``theta`` into ``out`` (rows, angles),
+    across threads; registered with :func:`~evo_door.sim.hold.register_hold_rows`.
+
+    The section scale's seven steps depend on the angle and ``window_slope`` alone:
+    for rows of one slope (a population that fits the scales leaves it alone) they
+    are computed once an angle, and each row's A(theta) is its sum of them, as
+    :func:`section_scale` sums them (the same numbers, to the last bit). Returns
+    False, with nothing written, for rows of slopes of their own.
+    """
+    slope = P[0, WINDOW_SLOPE]
+    for r in range(1, P.shape[0]):
+        if P[r, WINDOW_SLOPE] != slope:
+            return False
+    n = theta.shape[0]
+    width = CLOSED / N_SECTIONS
+    steps = np.empty((n, N_SECTIONS))
+    for i in prange(n):
+        for k in range(1, N_SECTIONS):
+            steps[i, k] = activation(theta[i], k * width, slope)
+    for j in prange(P.shape[0] * n):
+        r = j // n
+        i = j - r * n
+        p = P[r]
+        scale = p[FRICTION_SCALE_1]
+        for k in range(1, N_SECTIONS):
+            step = p[FRICTION_SCALE_1 + k] - p[FRICTION_SCALE_1 + k - 1]
+            if step != 0.0:
+                scale += step * steps[i, k]
+        out[r, i] = _hold(theta[i], dtheta, p, True, scale)
+    return True
 
 
 register_hold(accel, hold)
 register_hold(accel_tanh, hold_tanh)
+register_hold_rows(accel, hold_rows)
 
 
 #: How many switching functions :func:`switches` writes.

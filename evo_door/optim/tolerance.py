@@ -524,12 +524,17 @@ def _allocate(M, U, t, J, names, loss, swing, target, above=ALLOCATION_AIMS[0]) 
     reach_of = np.abs(M) + sum(np.abs(np.outer(U[:, j] * t[j], J[:, j])) for j in ranked)
     keep = np.max(reach_of, axis=0) > 1.0
     M = np.ascontiguousarray(M[:, keep], dtype=np.float32)
-    shifts = {j: np.outer(U[:, j] * t[j], J[keep, j]).astype(np.float32) for j in ranked}
+    shifts: dict = {}  # each contributor's shift of the margins, made when first tried
+
+    def shift(j):
+        if j not in shifts:
+            shifts[j] = np.outer(U[:, j] * t[j], J[keep, j]).astype(np.float32)
+        return shifts[j]
 
     def reach(subset, share):
         m = M.copy()
         for j in subset:
-            m -= (1.0 - share) * shifts[j]
+            m -= (1.0 - share) * shift(j)
         return passing(m).mean()
 
     def least(subset):

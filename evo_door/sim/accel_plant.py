@@ -15,7 +15,7 @@ from numba import njit, prange, types
 
 from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
-from evo_door.sim.hold import HOLD_TYPE, hold_form
+from evo_door.sim.hold import HOLD_TYPE, hold_form, hold_rows_form
 from evo_door.sim.integrators import (
     ACCEL_TYPE,
     integrate,
@@ -230,14 +230,18 @@ class AccelPlant(CompiledPlant):
 
     def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
         """:meth:`hold_forces` of every row of ``P``, across threads when there are
-        many rows or angles; by the model's registered ``hold`` where it has one
-        (:mod:`evo_door.sim.hold`), else by ``accel``."""
+        many rows or angles; by the model's registered ``hold_rows`` where it has one
+        that takes these rows, else its registered ``hold`` (:mod:`evo_door.sim.hold`),
+        else by ``accel``."""
         P = _kernel_array(np.atleast_2d(P))
         theta = _kernel_array(np.atleast_1d(theta))
         out = np.empty((P.shape[0], theta.size))
         many = out.size >= HOLDS_IN_THREADS
         hold = hold_form(self.model.accel)
-        if hold is not None:
+        rows = hold_rows_form(self.model.accel) if many else None
+        if rows is not None and rows(P, theta, float(dtheta), out):
+            pass  # the model shared work between the rows (the door's pose)
+        elif hold is not None:
             (_held_rows if many else _held_rows_serial)(hold, P, theta, float(dtheta), out)
         else:
             kernel = _hold_rows if many else _hold_rows_serial

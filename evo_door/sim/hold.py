@@ -25,8 +25,16 @@ HOLD_SIGNATURE = types.float64(types.float64, types.float64, types.float64[::1])
 #: The numba type of a ``hold`` function as a kernel argument.
 HOLD_TYPE = types.FunctionType(HOLD_SIGNATURE)
 
-#: model accel -> its ``hold``
+#: Signature of a model's ``hold_rows(P, theta, dtheta, out) -> done``: ``hold`` of every
+#: row of ``P`` (parameter vectors) at every angle of ``theta`` into ``out`` (rows,
+#: angles), or False with nothing written where it has no faster way for these rows.
+HOLD_ROWS_SIGNATURE = types.boolean(
+    types.float64[:, ::1], types.float64[::1], types.float64, types.float64[:, ::1]
+)
+
+#: model accel -> its ``hold``, and its ``hold_rows``
 _HOLDS: dict[object, Callable] = {}
+_HOLD_ROWS: dict[object, Callable] = {}
 
 
 def register_hold(accel, hold) -> None:
@@ -40,5 +48,22 @@ def hold_form(accel) -> Callable | None:
     """The ``hold`` registered for ``accel`` (:func:`register_hold`), or None."""
     try:
         return _HOLDS.get(accel)
+    except TypeError:  # an unhashable callable: none
+        return None
+
+
+def register_hold_rows(accel, hold_rows) -> None:
+    """Declare the compiled ``hold_rows`` (:data:`HOLD_ROWS_SIGNATURE`) as the model's
+    ``hold`` of many parameter vectors at many angles where it can share work between
+    rows (the door's pose, for doors of one geometry): faster than ``hold`` at each
+    pair, the same numbers to the last bit (the door's tests check it), and False
+    where it cannot (the caller then calls ``hold`` at each pair)."""
+    _HOLD_ROWS[accel] = hold_rows
+
+
+def hold_rows_form(accel) -> Callable | None:
+    """The ``hold_rows`` registered for ``accel`` (:func:`register_hold_rows`), or None."""
+    try:
+        return _HOLD_ROWS.get(accel)
     except TypeError:  # an unhashable callable: none
         return None

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from evo_door.models.base import Model
 from evo_door.models.door.door import door, door_moment, door_potential
@@ -57,7 +57,7 @@ from evo_door.models.door.posetable import (
 from evo_door.models.door.relativespeed import relative_speed, section_scale
 from evo_door.models.door_params import N_SECTIONS, NOTES, TABLE, TITLE
 from evo_door.params import param_vector
-from evo_door.sim.hold import HOLD_SIGNATURE, register_hold
+from evo_door.sim.hold import HOLD_ROWS_SIGNATURE, HOLD_SIGNATURE, register_hold, register_hold_rows
 from evo_door.sim.integrators import PREPARE_SIGNATURE, register_prepared
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
@@ -205,6 +205,19 @@ def accel(theta, dtheta, force, p):
     )
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _hold_at(k, scale, theta, dtheta, p):
+    """:func:`hold` at the chain's pose ``k`` and the pad's section ``scale``, as
+    :func:`mechanism_force` sums the blocks (the same numbers, to the last bit)."""
+    q_ext = loads(k, dtheta, p, scale)
+    q_ext += latch_load(theta, dtheta, p)
+    q_ext += stop_h(theta, dtheta, p[STOP_STIFFNESS], p[STOP_DAMPING])
+    at = (p[L], p[M], p[I_Z], p[G_X], p[G_Y], p[T_ATO], p[A_ROT])
+    a0 = door(theta, dtheta, 0.0, q_ext, *at)
+    a1 = door(theta, dtheta, 1.0, q_ext, *at)
+    return -a0 / (a1 - a0)
+
+
 @njit(HOLD_SIGNATURE, cache=True, nogil=True)
 def hold(theta, dtheta, p):
     """Force (N at E, + toward closing) that holds the door still at ``(theta, dtheta)``.
@@ -215,11 +228,50 @@ def hold(theta, dtheta, p):
     perceptual objective's force-angle curves; registered with
     :func:`~evo_door.sim.hold.register_hold`).
     """
-    q_ext = mechanism_force(theta, dtheta, p)
-    at = (p[L], p[M], p[I_Z], p[G_X], p[G_Y], p[T_ATO], p[A_ROT])
-    a0 = door(theta, dtheta, 0.0, q_ext, *at)
-    a1 = door(theta, dtheta, 1.0, q_ext, *at)
-    return -a0 / (a1 - a0)
+    k = pose(theta, p[L_OA], p[L_BX], p[L_BY], p[L_CX], p[L_CY])
+    return _hold_at(k, pad_scale(theta, p), theta, dtheta, p)
+
+
+#: the columns the chain's pose depends on, and those of the pad's section scale
+POSE_COLUMNS = np.array([L_OA, L_BX, L_BY, L_CX, L_CY])
+SCALE_COLUMNS = np.array([FRICTION_SCALE_1 + j for j in range(N_SECTIONS)] + [SECTION_SHARPNESS])
+
+
+@njit(cache=True, nogil=True)
+def _same(P, columns) -> bool:
+    """Whether every row of ``P`` holds the first row's values in ``columns``."""
+    for r in range(1, P.shape[0]):
+        for c in columns:
+            if P[r, c] != P[0, c]:
+                return False
+    return True
+
+
+@njit(HOLD_ROWS_SIGNATURE, cache=True, parallel=True)
+def hold_rows(P, theta, dtheta, out):
+    """:func:`hold` of every row of ``P`` (doors of one geometry) at every ``theta``
+    into ``out`` (rows, angles), across threads; registered with
+    :func:`~evo_door.sim.hold.register_hold_rows`.
+
+    Doors of one geometry (a tolerance's sample, a population that leaves the lengths
+    alone) share the chain's pose at each angle, and doors whose pad sections agree
+    its scale too: computed once an angle, not once a door and angle (a third of the
+    time for a tolerance's sample). The same numbers, to the last bit. Returns False,
+    with nothing written, for doors of geometries of their own (:func:`hold` at each
+    door and angle is the way there).
+    """
+    if not _same(P, POSE_COLUMNS):
+        return False
+    shared_scale = _same(P, SCALE_COLUMNS)
+    p0 = P[0]
+    for i in prange(theta.shape[0]):
+        th = theta[i]
+        k = pose(th, p0[L_OA], p0[L_BX], p0[L_BY], p0[L_CX], p0[L_CY])
+        s0 = pad_scale(th, p0)
+        for r in range(P.shape[0]):
+            s = s0 if shared_scale else pad_scale(th, P[r])
+            out[r, i] = _hold_at(k, s, th, dtheta, P[r])
+    return True
 
 
 #: How many switching functions :func:`switches` writes.
@@ -418,6 +470,7 @@ def prepared_vector(params) -> np.ndarray:
 
 register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE)
 register_hold(accel, hold)
+register_hold_rows(accel, hold_rows)
 
 
 @njit(cache=True, nogil=True)
