@@ -46,10 +46,7 @@ def register_hold(accel, hold) -> None:
 
 def hold_form(accel) -> Callable | None:
     """The ``hold`` registered for ``accel`` (:func:`register_hold`), or None."""
-    try:
-        return _HOLDS.get(accel)
-    except TypeError:  # an unhashable callable: none
-        return None
+    return _registered(_HOLDS, accel)
 
 
 def register_hold_rows(accel, hold_rows) -> None:
@@ -63,7 +60,11 @@ def register_hold_rows(accel, hold_rows) -> None:
 
 def hold_rows_form(accel) -> Callable | None:
     """The ``hold_rows`` registered for ``accel`` (:func:`register_hold_rows`), or None."""
+    return _registered(_HOLD_ROWS, accel)
+
+
+def _registered(table: dict, accel) -> Callable | None:
     try:
-        return _HOLD_ROWS.get(accel)
+        return table.get(accel)
     except TypeError:  # an unhashable callable: none
         return None
