@@ -91,8 +91,9 @@ def test_without_permission_the_loop_says_so_and_runs_at_a_raised_niceness(seed_
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
     # a normal-priority thread on a busy machine stalls for 4-8 ms, past the default
-    # stall budget (10 cycles, 4 ms), which ends a render: 100 ms here
-    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True, watchdog_misses=250)
+    # stall budget (10 cycles, 4 ms), which ends a render, and a loaded virtual machine
+    # holds it up for 100 ms now and then (a CI run): 400 ms here, the widest
+    loop = ServoLoop(SimDevice("hold", seed=1), seed_trial, realtime=True, watchdog_misses=1000)
     waits = []
     real_sleep = time.sleep
     monkeypatch.setattr(priority.time, "sleep", lambda s: (waits.append(s), real_sleep(s)))

@@ -18,6 +18,11 @@ read top to bottom. Conventions (``docs/conventions.md``): ``theta`` 0 = fully o
 ``dtheta < 0`` is opening; a tangential force is positive toward closing; SI units.
 The equations, and how they correct the seed's eqs. 4.39-4.47, are written out in
 ``docs/haptic-model.md``.
+
+Size: under 650 lines: the one law and every compiled form the integrators, the
+perceptual objective and the renderer take of it (its hold of one state and of many
+rows, its switching functions, the device's force field) belong beside the law, so
+that a change to it is made, and checked, in one place.
 """
 
 from __future__ import annotations
