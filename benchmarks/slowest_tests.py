@@ -115,6 +115,14 @@ REASONS = {
         "the analysis of an answer in the sandbox process, at a crash and a hang too: a "
         "new sandbox child after each, and the hang's time limit"
     ),
+    "test_console_server::test_render_console_spawns_the_console_and_stops_it": (
+        "a 4 s render paced on the wall clock with its console process, the page asked "
+        "while it runs"
+    ),
+    "test_fmu_sandbox::test_faulty_candidates_are_blown_and_the_others_exactly_as_in_process": (
+        "candidates that crash, hang or fail an FMU in the sandbox: a new sandbox child "
+        "after each, the hang's time limit, the others against the FMU in process"
+    ),
     "test_fmu_sandbox::test_identical_results_on_every_executor": (
         "the same GA on an FMU on every executor: in process, processes, a Dask cluster"
     ),
