@@ -141,7 +141,7 @@ def test_refused_change_ends_the_session_with_the_file(tmp_path, capsys, paced):
     """c_energy is negative damping: the comparison above the device's damping margin
     is refused by the loop's passivity check (in the cycle, or in the checking thread
     of a paced loop); the file keeps what was answered."""
-    extra = ["--realtime"] if paced else []
+    extra = ["--realtime", *LOADED_MACHINE_WATCHDOG] if paced else []
     code = jnd(
         tmp_path, "--param", "c_energy", "--reference", "0.8", "--participant", "sim:0.1", *extra
     )

@@ -402,18 +402,18 @@ class _StallsOnce(SimDevice):
 
 
 def test_a_stall_longer_than_the_budget_ends_the_loop():
-    """A 0.5 s stall at 2500 Hz (budget 250 cycles, 100 ms: a loaded test machine
-    stalls a loop for tens of ms now and then): the loop skipped the slots and went
+    """A 1 s stall at 2500 Hz (budget 1000 cycles, 400 ms: a loaded virtual machine
+    holds a loop up for 100 ms now and then): the loop skipped the slots and went
     on; now it ramps to zero and stops, with the reason, logged once (the passivity
     recheck at cycle 250, during the ramp, took the stall for the period and logged
     the reason again)."""
     seed_trial = get_model("haptic").load_params("seed_trial")
-    device = _StallsOnce(at=240, stall=0.5)
-    loop = ServoLoop(device, seed_trial, realtime=True, watchdog_misses=250)
-    stats = loop.run(2.0)
+    device = _StallsOnce(at=240, stall=1.0)
+    loop = ServoLoop(device, seed_trial, realtime=True, watchdog_misses=1000)
+    stats = loop.run(3.0)
     assert stats["status"] == "watchdog"
     match = re.fullmatch(r"stalled (\d+) ms", stats["watchdog"])
-    assert match and 500 <= int(match.group(1)) < 2000, stats["watchdog"]
+    assert match and 1000 <= int(match.group(1)) < 3000, stats["watchdog"]
     watchdog = [e for e in loop.log.events if e["kind"] == "watchdog"]
     assert [e["message"] for e in watchdog] == [stats["watchdog"]]
     # the ramp (8 ms, 20 cycles on time) and no more: it did not resume. It started

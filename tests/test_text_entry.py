@@ -21,6 +21,7 @@ from evo_door.cli import main
 from evo_door.errors import UserError, plain_text
 from evo_door.render.control import request
 from evo_door.render.messages import BadMessage, parse_message
+from tests.helpers import LOADED_MACHINE_WATCHDOG
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "s3cret"
@@ -77,7 +78,7 @@ def test_a_surrogate_event_and_token_leave_the_session_and_its_log_whole(tmp_pat
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
     args = ["render", "--params", "seed_trial", "--device", "sim", "--user", "hold",
             "--duration", "60", "--realtime", "--control", "0", "--token", TOKEN,
-            "--log", str(log)]  # fmt: skip
+            "--log", str(log), *LOADED_MACHINE_WATCHDOG]  # fmt: skip
     proc = subprocess.Popen(
         [sys.executable, "-m", "evo_door", *args],
         stdout=subprocess.PIPE,
