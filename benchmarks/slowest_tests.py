@@ -115,6 +115,13 @@ REASONS = {
         "the analysis of an answer in the sandbox process, at a crash and a hang too: a "
         "new sandbox child after each, and the hang's time limit"
     ),
+    "test_console_browser::test_the_log_holds_each_change_between_two_cycles_and_the_choice": (
+        "it ends the module's paced render and its console, whose processes' CPU over "
+        "the whole module counts here"
+    ),
+    "test_fmu::test_a_ga_recovers_three_parameters_of_a_co_simulation_fmi2_fmu": (
+        "trials made by FMPy, then a GA stepping the FMU's own co-simulation"
+    ),
     "test_console_server::test_render_console_spawns_the_console_and_stops_it": (
         "a 4 s render paced on the wall clock with its console process, the page asked "
         "while it runs"
