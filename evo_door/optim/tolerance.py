@@ -52,6 +52,7 @@ Everything is in the specifications' own units; margins are in JND.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import sys
@@ -524,12 +525,11 @@ def _allocate(M, U, t, J, names, loss, swing, target, above=ALLOCATION_AIMS[0]) 
     reach_of = np.abs(M) + sum(np.abs(np.outer(U[:, j] * t[j], J[:, j])) for j in ranked)
     keep = np.max(reach_of, axis=0) > 1.0
     M = np.ascontiguousarray(M[:, keep], dtype=np.float32)
-    shifts: dict = {}  # each contributor's shift of the margins, made when first tried
 
+    @functools.cache
     def shift(j):
-        if j not in shifts:
-            shifts[j] = np.outer(U[:, j] * t[j], J[keep, j]).astype(np.float32)
-        return shifts[j]
+        """Contributor ``j``'s shift of the margins, made when first tried."""
+        return np.outer(U[:, j] * t[j], J[keep, j]).astype(np.float32)
 
     def reach(subset, share):
         m = M.copy()

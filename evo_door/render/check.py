@@ -254,14 +254,16 @@ def _runs(t, set_times, force, theta, dtheta, window, unknown=None, gaps=()):
     """
     finite = np.isfinite(force) & np.isfinite(theta) & np.isfinite(dtheta)
     tol = 1e-6 * float(t[1] - t[0])
-    skips = []  # (first, end) of samples not simulated
-    if unknown is not None:
-        skips.append(tuple(int(i) for i in np.searchsorted(t, np.asarray(unknown) - tol)))
-    for first, last in gaps:
-        skips.append((int(np.searchsorted(t, first + tol)), int(np.searchsorted(t, last - tol))))
+    spans = []  # (first, end) of the samples not simulated
+    if unknown is not None:  # from the tick at its start to the tick at its end
+        spans.append(np.searchsorted(t, np.asarray(unknown) - tol))
+    for first, last in gaps:  # the ticks after the last cycle before, to the first after
+        spans.append((np.searchsorted(t, first + tol), np.searchsorted(t, last - tol)))
+    skipped = np.zeros(t.size, dtype=bool)
     cuts = {0}
-    for skip in skips:
-        cuts.update(skip)
+    for a, b in spans:
+        skipped[a:b] = True
+        cuts.update((int(a), int(b)))
     cuts.update(int(np.searchsorted(t, s - 1e-9)) for s in set_times)
     if window is not None:
         cuts.update(int(np.searchsorted(t, t[0] + j * window - 1e-9))
@@ -272,8 +274,7 @@ def _runs(t, set_times, force, theta, dtheta, window, unknown=None, gaps=()):
     edges = sorted(c for c in cuts if 0 <= c < t.size) + [t.size]
     set_index = np.searchsorted(np.asarray(set_times), t, side="right") - 1
     for i0, i1 in zip(edges[:-1], edges[1:], strict=True):
-        skipped = any(a <= i0 < b for a, b in skips)
-        if i1 - i0 >= 2 and finite[i0] and not skipped:
+        if i1 - i0 >= 2 and finite[i0] and not skipped[i0]:
             yield i0, i1, max(int(set_index[i0]), 0)
 
 
@@ -315,8 +316,8 @@ def _model_note(sets, params, device: dict, log: dict) -> str:
             f"{(last - first) * 1e3:.0f} ms at {first:.2f} s), over which the device held "
             "its last command"
         )
-        counted = log["statistics"].get("gaps")
-        if isinstance(counted, (int, float)) and counted > len(log["gaps"]):
+        counted = log["statistics"].get("gaps", 0)  # a number where present (read_log)
+        if counted > len(log["gaps"]):
             note += (
                 f" (the log kept the first {len(log['gaps'])} of {counted:.0f}: later ones "
                 "are simulated across)"

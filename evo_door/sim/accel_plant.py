@@ -237,11 +237,11 @@ class AccelPlant(CompiledPlant):
         theta = _kernel_array(np.atleast_1d(theta))
         out = np.empty((P.shape[0], theta.size))
         many = out.size >= HOLDS_IN_THREADS
-        hold = hold_form(self.model.accel)
         rows = hold_rows_form(self.model.accel) if many else None
         if rows is not None and rows(P, theta, float(dtheta), out):
-            pass  # the model shared work between the rows (the door's pose)
-        elif hold is not None:
+            return out  # the model shared work between the rows (the door's pose)
+        hold = hold_form(self.model.accel)
+        if hold is not None:
             (_held_rows if many else _held_rows_serial)(hold, P, theta, float(dtheta), out)
         else:
             kernel = _hold_rows if many else _hold_rows_serial
