@@ -191,6 +191,38 @@ def test_fast_right_hand_side_is_the_closed_form_at_any_state(door):
                     assert fast == pytest.approx(exact, rel=1e-9, abs=1e-8), (th, w, f)
 
 
+def test_the_prepared_switching_functions_are_the_models_to_the_last_bit(door):
+    """switches_prepared reads the latch's angles from the prepared vector's header
+    instead of working them out: every one of the nine values is switches' own, bit for
+    bit, across the stroke and the latch window, with a catch and a ramp, with the ramp
+    alone, without a latch, on the contacts' sides of both ends; and the kernels hand it
+    to the integrator with the fast right-hand side."""
+    rng = np.random.default_rng(5)
+    sets = [
+        door.load_params("default"),
+        door.load_params("table54_spec"),
+        door.load_params("default", {"unlock_force": 0.0}),
+        door.load_params("default", {"unlock_force": 0.0, "lock_force": 0.0}),
+        door.load_params("default", {"latch_seat_force": 3.0, "latch_loose_angle": 0.01}),
+    ]
+    theta = np.concatenate(
+        [rng.uniform(-0.1, CLOSED + 0.05, 300), rng.uniform(CLOSED - 0.06, CLOSED, 300)]
+    )
+    plain, fast = np.empty(door_module.N_SWITCHES), np.empty(door_module.N_SWITCHES)
+    crossed = set()
+    for ps in sets:
+        p = param_vector(ps)
+        q = door_module.prepared_vector(ps)
+        for th in theta:
+            for w in (0.0, -0.4, 2.0):
+                door_module.switches(th, w, 10.0, p, plain)
+                door_module.switches_prepared(th, w, 10.0, q, fast)
+                assert np.array_equal(plain.view(np.int64), fast.view(np.int64)), (th, w)
+                crossed.update(np.flatnonzero(plain < 0.0))
+    assert crossed == set(range(door_module.N_SWITCHES)) - {3}  # each seen on both sides
+    assert prepared_form(door.accel).switches is door_module.switches_prepared
+
+
 def test_a_geometry_through_a_dead_centre_falls_back_to_the_closed_form(door):
     """L_By = 0 puts the plate on its dead centre at fully open: the table fails its own
     check and the fast path is the closed form there and everywhere."""

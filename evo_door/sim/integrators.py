@@ -134,6 +134,14 @@ class Prepared:
     size: int
     #: :func:`integrate` compiled around ``accel`` (:func:`integrate_with`), or None
     integrate: Callable | None = None
+    #: the model's switching functions on a prepared vector, or None: the model's own
+    #: (which read only the parameters at the vector's start)
+    switches: Callable | None = None
+
+    def switches_or(self, switches):
+        """The switching functions the kernels hand a vector of this form: its own,
+        else the model's ``switches``."""
+        return self.switches if self.switches is not None else switches
 
     def vector(self, p) -> np.ndarray:
         """The prepared vector of the parameter vector ``p``."""
@@ -151,7 +159,7 @@ class Prepared:
 _PREPARED: dict[object, Prepared] = {}
 
 
-def register_prepared(accel, fast_accel, prepare, size: int, integrate=None) -> None:
+def register_prepared(accel, fast_accel, prepare, size: int, integrate=None, switches=None) -> None:
     """Declare ``fast_accel`` on ``prepare``-d vectors of ``size`` floats as the fast
     form of the model right-hand side ``accel`` (the door does at import).
 
@@ -161,8 +169,11 @@ def register_prepared(accel, fast_accel, prepare, size: int, integrate=None) -> 
     :func:`integrate` then runs it when
     handed ``fast_accel``. Called directly rather than through a function pointer,
     the right-hand side is inlined into the RK4 stages (some 6 % of a door trial).
+    ``switches``, if given, are the model's switching functions on prepared vectors
+    (:data:`~evo_door.sim.located.SWITCHES_SIGNATURE`, the same values as the model's
+    own), which the kernels then hand the integrator with them.
     """
-    _PREPARED[accel] = Prepared(fast_accel, prepare, int(size), integrate)
+    _PREPARED[accel] = Prepared(fast_accel, prepare, int(size), integrate, switches)
 
 
 def prepared_form(accel) -> Prepared | None:

@@ -170,6 +170,7 @@ def accel_population_errors(
     """
     form = kernel_form(model.accel, P.shape[1])
     switches, n_sw, stick = events_of(model)
+    switches = form.switches_or(switches)
     _population_errors(
         integrate_compiled, form.accel, form.prepare, switches, form.size, P, force, target,
         mask, offsets, dt, theta0, dtheta0, substeps, method, tol, n_sw, stick, derivative,

@@ -23,13 +23,18 @@ soft-close damper, say) is one more function and one more ``q +=`` line there.
 the same blocks with the chain's pose taken from a table (:mod:`.posetable`), on a
 vector that :func:`prepare` fills once per parameter set; the door registers the pair
 with :func:`~evo_door.sim.integrators.register_prepared` ("The fast path" in
-``docs/physical-model.md``). :func:`hold`, the force that holds the door still, is
+``docs/physical-model.md``), and :func:`switches_prepared`, its switching functions on
+that vector. :func:`hold`, the force that holds the door still, is
 registered too (:func:`~evo_door.sim.hold.register_hold`): the perceptual
 objective's force-angle curves with the mechanism computed once, not twice.
 
 :func:`energy` gives the door's mechanical energy (kinetic, gravity, spring, latch and
 stop potentials) for the conservation tests. Equations and the drawing of the
 mechanism: ``docs/physical-model.md``.
+
+Size: a little over 600 lines: the model's wiring, its fast path (the prepared vector,
+its right-hand side and switching functions) and its holds, which share the blocks'
+order and must change together.
 """
 
 from __future__ import annotations
@@ -278,6 +283,53 @@ def hold_rows(P, theta, dtheta, out):
 N_SWITCHES = 9
 
 
+@njit(cache=True, nogil=True, inline="always")
+def latch_edges(p):
+    """The latch's switching angles (rad) for the parameters ``p`` of a door with a
+    latch: ``(theta_0, seat, rise_end, theta_3, ramp)``, the catch's edge, the seat's
+    width past it, where the catch's rise ends, the lock ramp's foot and its width."""
+    unlock = p[UNLOCK_FORCE]
+    lock = p[LOCK_FORCE]
+    k_1 = p[LATCH_OPEN_STIFFNESS]
+    theta_0, _theta_1, theta_3 = latch_angles(
+        unlock,
+        lock,
+        p[LATCH_LOOSE_ANGLE],
+        k_1,
+        p[LATCH_CLOSE_STIFFNESS],
+        p[LATCH_OPEN_HOLD],
+        p[LATCH_CLOSE_HOLD],
+    )
+    rise_end = theta_0 - unlock / k_1
+    return theta_0, p[LATCH_SEAT_FORCE] / k_1, rise_end, theta_3, lock / p[LATCH_CLOSE_STIFFNESS]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def write_switches(
+    theta, dtheta, p, g, has_latch, has_catch, theta_0, seat, rise_end, theta_3, ramp
+):  # fmt: skip
+    """The nine values of :func:`switches` into ``g``, the latch's angles given
+    (:func:`latch_edges`; unread without a latch): what it and
+    :func:`switches_prepared` share."""
+    g[0] = theta
+    if theta < 0.0:
+        g[1] = -p[STOP_STIFFNESS] * theta - p[STOP_DAMPING] * dtheta
+    else:
+        g[1] = 1.0
+    pen = theta - CLOSED
+    g[2] = pen
+    g[3] = p[WALL_STIFFNESS] * pen + p[WALL_DAMPING] * dtheta if pen > 0.0 else 1.0
+    if has_latch:
+        g[4] = theta - theta_0
+        g[5] = theta - theta_0 - seat if has_catch else 1.0
+        g[6] = theta - rise_end
+        g[7] = theta - theta_3
+        g[8] = theta - theta_3 - ramp
+    else:
+        for i in range(4, N_SWITCHES):
+            g[i] = 1.0
+
+
 @njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
 def switches(theta, dtheta, force, p, g):
     """The door's switching functions (where its right-hand side kinks or jumps), into ``g``.
@@ -289,35 +341,14 @@ def switches(theta, dtheta, force, p, g):
     Reads only parameters, so it serves the prepared vector too. A function that
     does not apply is 1.
     """
-    g[0] = theta
-    if theta < 0.0:
-        g[1] = -p[STOP_STIFFNESS] * theta - p[STOP_DAMPING] * dtheta
-    else:
-        g[1] = 1.0
-    pen = theta - CLOSED
-    g[2] = pen
-    g[3] = p[WALL_STIFFNESS] * pen + p[WALL_DAMPING] * dtheta if pen > 0.0 else 1.0
     unlock = p[UNLOCK_FORCE]
-    lock = p[LOCK_FORCE]
-    if unlock > 0.0 or lock > 0.0:
-        k_1 = p[LATCH_OPEN_STIFFNESS]
-        theta_0, _theta_1, theta_3 = latch_angles(
-            unlock,
-            lock,
-            p[LATCH_LOOSE_ANGLE],
-            k_1,
-            p[LATCH_CLOSE_STIFFNESS],
-            p[LATCH_OPEN_HOLD],
-            p[LATCH_CLOSE_HOLD],
+    if unlock > 0.0 or p[LOCK_FORCE] > 0.0:
+        theta_0, seat, rise_end, theta_3, ramp = latch_edges(p)
+        write_switches(
+            theta, dtheta, p, g, True, unlock > 0.0, theta_0, seat, rise_end, theta_3, ramp
         )
-        g[4] = theta - theta_0
-        g[5] = theta - theta_0 - p[LATCH_SEAT_FORCE] / k_1 if unlock > 0.0 else 1.0
-        g[6] = theta - (theta_0 - unlock / k_1)
-        g[7] = theta - theta_3
-        g[8] = theta - theta_3 - lock / p[LATCH_CLOSE_STIFFNESS]
     else:
-        for i in range(4, N_SWITCHES):
-            g[i] = 1.0
+        write_switches(theta, dtheta, p, g, False, False, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 # -- the fast path: a kernel vector with the pose table appended -----------------------
@@ -344,8 +375,16 @@ TABLE_FROM = N_PARAMS + 5
 #: geometry's and its floats' bits folded (:func:`table_stamp`). :func:`prepare` builds
 #: the table only where the stamp does not match what the vector holds.
 TABLE_STAMP = N_PARAMS + 6
+#: The latch's switching angles of :func:`switches` (rad), for
+#: :func:`switches_prepared`: 1.0 in ``HAS_LATCH`` where there is a latch (a catch or a
+#: lock ramp), 1.0 in ``HAS_CATCH`` where there is a catch; the catch's edge theta_0;
+#: the seat's width past it; where the catch's rise ends; the lock ramp's foot
+#: theta_3; the ramp's width past it. Worked out as :func:`switches` works them out.
+HAS_LATCH, HAS_CATCH, CATCH_EDGE, SEAT_WIDTH, RISE_END, RAMP_FOOT, RAMP_WIDTH = (
+    N_PARAMS + 7 + i for i in range(7)
+)
 #: First float of the pose table (:mod:`~evo_door.models.door.posetable`).
-TABLE_START = N_PARAMS + 7
+TABLE_START = N_PARAMS + 14
 #: Length of a prepared vector.
 PREPARED_SIZE = TABLE_START + TABLE_SIZE
 
@@ -372,6 +411,23 @@ def table_stamp(p, q):
     return stamp
 
 
+@njit(cache=True, nogil=True)
+def prepare_switches(p, q):
+    """The latch's switching angles of :func:`switches` (:func:`latch_edges`) into the
+    header of ``q`` (``HAS_LATCH`` ... ``RAMP_WIDTH``): what :func:`switches_prepared`
+    reads instead of working them out at every call."""
+    unlock = p[UNLOCK_FORCE]
+    lock = p[LOCK_FORCE]
+    q[HAS_LATCH] = 1.0 if unlock > 0.0 or lock > 0.0 else 0.0
+    q[HAS_CATCH] = 1.0 if unlock > 0.0 else 0.0
+    if q[HAS_LATCH] == 0.0:  # nothing reads them (and they would divide by nothing)
+        for i in (CATCH_EDGE, SEAT_WIDTH, RISE_END, RAMP_FOOT, RAMP_WIDTH):
+            q[i] = math.nan
+        return
+    edges = latch_edges(p)
+    q[CATCH_EDGE], q[SEAT_WIDTH], q[RISE_END], q[RAMP_FOOT], q[RAMP_WIDTH] = edges
+
+
 # its signature declared: the objective kernels take it as a first-class function and
 # Python calls it (Prepared.vector), and numba's cache keys the two ways apart
 @njit(PREPARE_SIGNATURE, cache=True, nogil=True)
@@ -380,7 +436,7 @@ def prepare(p, q):
 
     ``q`` holds ``p``, then what depends on ``p`` but not on the state (the header
     above: 1 / I_O, whether the pad friction is uniform, where the latch begins, where
-    the table applies), then
+    the table applies, the latch's switching angles), then
     the pose table of ``p``'s geometry with its check
     (:func:`~evo_door.models.door.posetable.build_pose_table`): some 50 us, 1-2 % of a
     5 s trial, once per parameter set for all its trials.
@@ -423,6 +479,21 @@ def prepare(p, q):
         q[LATCH_FROM] = latch_from if not math.isnan(latch_from) else -math.inf
     else:
         q[LATCH_FROM] = CLOSED
+    prepare_switches(p, q)
+
+
+# Not inlined where the kernels take it: a first-class function, like switches.
+@njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
+def switches_prepared(theta, dtheta, force, q, g):
+    """:func:`switches` on a :func:`prepare`-d vector ``q``, to the last bit: the latch's
+    angles read from its header (:func:`prepare_switches`) rather than worked out at
+    every call: their five divisions were most of its time, and it is called at the end
+    of every step and at every sample inside a step over several (about one call for
+    every two of the right-hand side in a latch trial)."""
+    write_switches(
+        theta, dtheta, q, g, q[HAS_LATCH] != 0.0, q[HAS_CATCH] != 0.0, q[CATCH_EDGE],
+        q[SEAT_WIDTH], q[RISE_END], q[RAMP_FOOT], q[RAMP_WIDTH],
+    )  # fmt: skip
 
 
 # error_model="numpy": a float division by zero gives inf / nan instead of raising, so
@@ -468,7 +539,7 @@ def prepared_vector(params) -> np.ndarray:
     return q
 
 
-register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE)
+register_prepared(accel, accel_tabulated, prepare, PREPARED_SIZE, switches=switches_prepared)
 register_hold(accel, hold)
 register_hold_rows(accel, hold_rows)
 
