@@ -160,7 +160,7 @@ def test_prepared_vector_and_its_header(door, default):
     assert door_module.prepared_vector(scaled)[door_module.PAD_UNIFORM] == 0.0
     fast = prepared_form(door.accel)
     assert fast is not None and fast.accel is door_module.accel_tabulated
-    assert prepared_form(get_model("haptic").accel) is None
+    assert prepared_form(get_model("haptic").accel).accel is get_model("haptic").accel
 
 
 def test_fast_right_hand_side_is_the_closed_form_at_any_state(door):

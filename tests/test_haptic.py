@@ -269,6 +269,46 @@ def test_compiled_device_force_writes_into_out(seed):
 
 # -- accuracy against scipy ------------------------------------------------------------
 @pytest.mark.slow
+def test_the_prepared_switching_functions_are_the_models_to_the_last_bit(haptic, seed):
+    """switches_prepared reads the latch's angles from the prepared vector instead of
+    working them out: its twelve values are switches' own, bit for bit, through both
+    stops, every band of the latch and both sides of the friction's speed threshold,
+    with the unlock or the lock band gone; both right-hand sides are their own fast
+    form with it (the kernels hand it to the integrator)."""
+    from evo_door.models import haptic as module
+    from evo_door.sim.integrators import prepared_form
+
+    rng = np.random.default_rng(3)
+    sets = [
+        seed,
+        haptic.params.defaults,
+        haptic.load_params("seed_trial", {"open_force": 0.0}),
+        haptic.load_params("seed_trial", {"close_force": 0.0}),
+        haptic.load_params("seed_trial", {"stop_stiffness": 0.0}),
+        haptic.load_params("seed_trial", {"friction_speed_threshold": 0.2}),
+    ]
+    theta = np.concatenate(
+        [rng.uniform(-0.05, CLOSED + 0.05, 300), rng.uniform(CLOSED - 0.2, CLOSED, 300)]
+    )
+    speeds = (0.0, -0.5, 0.004, 3.0)
+    plain, fast = np.empty(module.N_SWITCHES), np.empty(module.N_SWITCHES)
+    crossed = set()
+    for ps in sets:
+        p = param_vector(ps)
+        q = prepared_form(haptic.accel).vector(p)
+        assert np.array_equal(q[: p.size], p)
+        for th in theta:
+            for w in speeds:
+                module.switches(th, w, 5.0, p, plain)
+                module.switches_prepared(th, w, 5.0, q, fast)
+                assert np.array_equal(plain.view(np.int64), fast.view(np.int64)), (th, w)
+                crossed.update(np.flatnonzero(plain < 0.0))
+    assert crossed >= {0, 1, 2, 4, 5, 6, 7, 8, 9, 10, 11}
+    for model in (haptic, get_model("haptic_tanh")):
+        form = prepared_form(model.accel)
+        assert form.accel is model.accel and form.switches is module.switches_prepared
+
+
 def test_haptic_against_converged_reference():
     """Smooth case (friction, viscous, return spring; no latch) of the seed's tanh form:
     ROS2 x 2 vs DOP853. (The sign-law form and the latch: tests/test_events.py.)"""

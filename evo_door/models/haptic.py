@@ -19,10 +19,10 @@ read top to bottom. Conventions (``docs/conventions.md``): ``theta`` 0 = fully o
 The equations, and how they correct the seed's eqs. 4.39-4.47, are written out in
 ``docs/haptic-model.md``.
 
-Size: under 650 lines: the one law and every compiled form the integrators, the
+Size: under 700 lines: the one law and every compiled form the integrators, the
 perceptual objective and the renderer take of it (its hold of one state and of many
-rows, its switching functions, the device's force field) belong beside the law, so
-that a change to it is made, and checked, in one place.
+rows, its switching functions and their prepared form, the device's force field)
+belong beside the law, so that a change to it is made, and checked, in one place.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from evo_door.models.haptic_params import (  # noqa: F401 (re-exported)
 )
 from evo_door.params import ParamTable, param_vector
 from evo_door.sim.hold import HOLD_ROWS_SIGNATURE, HOLD_SIGNATURE, register_hold, register_hold_rows
+from evo_door.sim.integrators import PREPARE_SIGNATURE, register_prepared
 from evo_door.sim.located import SWITCHES_SIGNATURE
 
 # Positions in the kernel vector, generated from the declaration (never literal).
@@ -474,6 +475,47 @@ register_hold_rows(accel, hold_rows)
 N_SWITCHES = 12
 
 
+@njit(cache=True, nogil=True, inline="always")
+def write_switches(theta, dtheta, p, g, theta_0, theta_1, theta_2, theta_3, seat, opens, closes):
+    """The twelve values of :func:`switches` into ``g``, the latch's angles given (the
+    bands' limits, the seat's width, where the unlock and the lock bands' rises end):
+    what it and :func:`switches_prepared` share."""
+    ks = p[STOP_STIFFNESS]
+    g[0] = theta
+    g[1] = -ks * theta - p[STOP_DAMPING] * dtheta if theta < 0.0 and ks > 0.0 else 1.0
+    g[2] = theta - CLOSED
+    g[3] = ks * (theta - CLOSED) + p[STOP_DAMPING] * dtheta if theta > CLOSED and ks > 0.0 else 1.0
+    g[4] = theta - theta_0
+    g[5] = theta - theta_0 - seat if p[OPEN_FORCE] > 0.0 else 1.0
+    if p[OPEN_FORCE] > 0.0:
+        g[6] = theta - opens
+        g[7] = theta - theta_1
+    else:
+        g[6] = 1.0
+        g[7] = 1.0
+    if p[CLOSE_FORCE] > 0.0:
+        g[8] = theta - theta_3
+        g[9] = theta - closes
+        g[10] = theta - theta_2
+    else:
+        g[8] = 1.0
+        g[9] = 1.0
+        g[10] = 1.0
+    g[11] = dtheta - p[FRICTION_SPEED_THRESHOLD] if p[FRICTION_SPEED_THRESHOLD] != 0.0 else 1.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def latch_edges(p):
+    """:func:`latch_angles` and the seat's width past theta_0, where the unlock band's
+    rise ends and where the lock band's rise ends (rad): what :func:`switches` needs."""
+    theta_0, theta_1, theta_2, theta_3 = latch_angles(p)
+    k = p[LATCH_STIFFNESS]
+    seat = p[SEAT_FORCE] / k
+    opens = theta_0 - p[OPEN_FORCE] / k
+    closes = theta_3 + p[CLOSE_FORCE] / k
+    return theta_0, theta_1, theta_2, theta_3, seat, opens, closes
+
+
 @njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
 def switches(theta, dtheta, force, p, g):
     """The haptic law's switching functions (where it has a kink or a jump), into ``g``.
@@ -484,30 +526,44 @@ def switches(theta, dtheta, force, p, g):
     The release edges and speed gates are smooth (the adaptive step follows them).
     A function that does not apply is 1.
     """
-    ks = p[STOP_STIFFNESS]
-    g[0] = theta
-    g[1] = -ks * theta - p[STOP_DAMPING] * dtheta if theta < 0.0 and ks > 0.0 else 1.0
-    g[2] = theta - CLOSED
-    g[3] = ks * (theta - CLOSED) + p[STOP_DAMPING] * dtheta if theta > CLOSED and ks > 0.0 else 1.0
-    theta_0, theta_1, theta_2, theta_3 = latch_angles(p)
-    k = p[LATCH_STIFFNESS]
-    g[4] = theta - theta_0
-    g[5] = theta - theta_0 - p[SEAT_FORCE] / k if p[OPEN_FORCE] > 0.0 else 1.0
-    if p[OPEN_FORCE] > 0.0:
-        g[6] = theta - (theta_0 - p[OPEN_FORCE] / k)
-        g[7] = theta - theta_1
-    else:
-        g[6] = 1.0
-        g[7] = 1.0
-    if p[CLOSE_FORCE] > 0.0:
-        g[8] = theta - theta_3
-        g[9] = theta - (theta_3 + p[CLOSE_FORCE] / k)
-        g[10] = theta - theta_2
-    else:
-        g[8] = 1.0
-        g[9] = 1.0
-        g[10] = 1.0
-    g[11] = dtheta - p[FRICTION_SPEED_THRESHOLD] if p[FRICTION_SPEED_THRESHOLD] != 0.0 else 1.0
+    theta_0, theta_1, theta_2, theta_3, seat, opens, closes = latch_edges(p)
+    write_switches(theta, dtheta, p, g, theta_0, theta_1, theta_2, theta_3, seat, opens, closes)
+
+
+#: The prepared vector of the kernels (:func:`~evo_door.sim.integrators.register_prepared`):
+#: the parameters, then the seven angles of :func:`latch_edges` from ``EDGES`` on.
+EDGES = len(PARAMS)
+#: Length of a prepared vector.
+PREPARED_SIZE = EDGES + 7
+
+
+@njit(PREPARE_SIGNATURE, cache=True, nogil=True)
+def prepare(p, q):
+    """The prepared vector ``q`` of the parameters ``p``: ``p``, then the latch's angles
+    (:func:`latch_edges`), which :func:`switches_prepared` reads. :func:`accel` reads
+    only the parameters, so it runs on the prepared vector as it is."""
+    for i in range(p.shape[0]):
+        q[i] = p[i]
+    edges = latch_edges(p)
+    for i in range(7):
+        q[EDGES + i] = edges[i]
+
+
+@njit(SWITCHES_SIGNATURE, cache=True, nogil=True)
+def switches_prepared(theta, dtheta, force, q, g):
+    """:func:`switches` on a :func:`prepare`-d vector ``q``, to the last bit: the latch's
+    angles read rather than worked out at every call (five divisions, most of its
+    time; the integrators call it at the end of every step)."""
+    e = EDGES
+    write_switches(
+        theta, dtheta, q, g, q[e], q[e + 1], q[e + 2], q[e + 3], q[e + 4], q[e + 5], q[e + 6]
+    )
+
+
+# the right-hand sides read only the parameters at the prepared vector's start: they are
+# their own fast form, with the switching functions on the prepared vector
+register_prepared(accel, accel, prepare, PREPARED_SIZE, switches=switches_prepared)
+register_prepared(accel_tanh, accel_tanh, prepare, PREPARED_SIZE, switches=switches_prepared)
 
 
 # ---------------------------------------------------------------------------------
