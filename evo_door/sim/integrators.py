@@ -151,8 +151,9 @@ class Prepared:
 
 
 #: model accel -> its :class:`Prepared` form: a registry, not a cache. A model's module
-#: fills it once, when imported (:func:`register_prepared`; the door does), and nothing
-#: changes it afterwards, so it holds one entry per model with a fast form. It is
+#: fills it once, when imported (:func:`register_prepared`; the door's and the haptic
+#: model's do), and nothing changes it afterwards, so it holds one entry per right-hand
+#: side with a fast form. It is
 #: module-level because this layer sits below the models and may not name them: the
 #: kernels find a right-hand side's fast form by the function itself (the layers'
 #: registries, docs/architecture.md).
@@ -161,7 +162,8 @@ _PREPARED: dict[object, Prepared] = {}
 
 def register_prepared(accel, fast_accel, prepare, size: int, integrate=None, switches=None) -> None:
     """Declare ``fast_accel`` on ``prepare``-d vectors of ``size`` floats as the fast
-    form of the model right-hand side ``accel`` (the door does at import).
+    form of the model right-hand side ``accel`` (the door and the haptic model do, at
+    import).
 
     ``integrate``, if given, is :func:`integrate` without its first argument,
     compiled around ``fast_accel`` (a module-level ``njit`` that calls
