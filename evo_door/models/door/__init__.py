@@ -380,6 +380,10 @@ TABLE_STAMP = N_PARAMS + 6
 #: lock ramp), 1.0 in ``HAS_CATCH`` where there is a catch; the catch's edge theta_0;
 #: the seat's width past it; where the catch's rise ends; the lock ramp's foot
 #: theta_3; the ramp's width past it. Worked out as :func:`switches` works them out.
+#: The two flags could be derived from the latch's forces at the vector's start, but
+#: :func:`write_switches` testing those instead made :func:`switches_prepared` some ten
+#: times slower a call and the door's population kernel a tenth slower (measured on
+#: 2026-12-02): they stay.
 HAS_LATCH, HAS_CATCH, CATCH_EDGE, SEAT_WIDTH, RISE_END, RAMP_FOOT, RAMP_WIDTH = (
     N_PARAMS + 7 + i for i in range(7)
 )
