@@ -492,8 +492,7 @@ def switches_prepared(theta, dtheta, force, q, g):
     """:func:`switches` on a :func:`prepare`-d vector ``q``, to the last bit: the latch's
     angles read from its header (:func:`prepare_switches`) rather than worked out at
     every call: their five divisions were most of its time, and it is called at the end
-    of every step and at every sample inside a step over several (about one call for
-    every two of the right-hand side in a latch trial)."""
+    of every step and at every sample inside a step over several."""
     write_switches(
         theta, dtheta, q, g, q[HAS_LATCH] != 0.0, q[HAS_CATCH] != 0.0, q[CATCH_EDGE],
         q[SEAT_WIDTH], q[RISE_END], q[RAMP_FOOT], q[RAMP_WIDTH],
