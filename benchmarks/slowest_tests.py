@@ -73,11 +73,12 @@ REASONS = {
         "a specification run: a GA fitted to a feel, its smallest change and its yield"
     ),
     "test_blocks_library::test_rig_fit_and_curve_of_the_cable_door_from_the_command_line": (
-        "rig trials, a GA fit and a curve of a two-body mechanism file, each command a "
-        "fresh process that compiles the mechanism's module or loads it"
+        "rig trials, a GA fit (dopri5 at 1e-9, four steps a sample: a mechanism's default) "
+        "and a curve of a two-body mechanism file"
     ),
     "test_blocks_library::test_rig_fit_and_curve_of_the_knob_from_the_command_line": (
-        "the detent knob's mechanism file through rig, fit and curve commands, each a fresh process"
+        "the detent knob's mechanism file through rig, fit and curve commands (a GA on eight "
+        "trials at a mechanism's default integration)"
     ),
     "test_state_model::test_rig_fit_and_curve_from_the_command_line": (
         "the soft-close drawer (a state-vector model) through rig, fit and curve commands"

@@ -8,6 +8,7 @@ recovers every free parameter within 2 %, a curve.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -26,6 +27,7 @@ from evo_door.models import get_model, is_code_spec, resolve_model_name
 from evo_door.models.base import check_named_in_file
 from evo_door.models.blocks import CACHE_ENV
 from evo_door.sim import simulate
+from tests.test_cli import cli as in_process
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "blocks"
@@ -252,36 +254,38 @@ def test_a_bad_mechanism_is_one_line_naming_the_element(tmp_path, change, messag
     assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
 
 
-def _cli(*args, cwd):
-    """``evo-door ARGS`` in a fresh process that imports this checkout's evo_door."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=900)  # fmt: skip
+def _cli(capsys, *args, cwd):
+    """``evo-door ARGS`` in this process, in the folder ``cwd``, read like a finished
+    subprocess (tests/test_cli.py's ``cli``): a fresh process would add the interpreter's,
+    the imports' and numba's start-up to each command, some 1-2 s of CPU."""
+    with contextlib.chdir(cwd):
+        return in_process(capsys, *args)
 
 
 @pytest.mark.slow
-def test_rig_fit_and_curve_of_the_drawer_from_the_command_line(tmp_path):
+def test_rig_fit_and_curve_of_the_drawer_from_the_command_line(tmp_path, capsys):
     work = tmp_path / "blocks"
     shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
-    made = _cli("rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "8",
+    made = _cli(capsys, "rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "8",
                 "--out", "trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = _cli("run", "fit.yaml", "--out", "fit.h5", cwd=work)
+    run = _cli(capsys, "run", "fit.yaml", "--out", "fit.h5", cwd=work)
     assert run.returncode == 0, run.stderr
-    shown = _cli("show", "fit.h5", "--json", cwd=work)  # a mechanism is data: no --allow-model
+    # a mechanism is data: no --allow-model
+    shown = _cli(capsys, "show", "fit.h5", "--json", cwd=work)
     assert shown.returncode == 0, shown.stderr
     best = json.loads(shown.stdout)["best"]
     truth = drawer().load_params().as_dict()
     for name in ("box.mass", "runners.level", "grease.c", "softie.c_fluid"):
         assert abs(best[name] / truth[name] - 1.0) < 0.02, (name, best[name], truth[name])
-    curve = _cli("curve", "soft_close_drawer.yaml", "--out", "curve.csv", cwd=work)
+    curve = _cli(capsys, "curve", "soft_close_drawer.yaml", "--out", "curve.csv", cwd=work)
     assert curve.returncode == 0, curve.stderr
     table = np.genfromtxt(work / "curve.csv", delimiter=",", names=True, dtype=None,
                           encoding="utf-8")  # fmt: skip
     closing = table[table["direction"] == "closing"]
     inside = closing[(closing["theta"] > 0.01) & (closing["theta"] < 0.44)]
     np.testing.assert_allclose(inside["force"], truth["runners.level"], atol=1e-6)
-    params = _cli("params", "two_carts.yaml", cwd=work)
+    params = _cli(capsys, "params", "two_carts.yaml", cwd=work)
     assert params.returncode == 0 and "coupling.k" in params.stdout, params.stderr
 
 
@@ -482,16 +486,16 @@ stages:
 """
 
 
-def test_a_pipeline_takes_a_mechanism_file_stage_to_stage(tmp_path):
+def test_a_pipeline_takes_a_mechanism_file_stage_to_stage(tmp_path, capsys):
     """Two stages on the drawer, the second from the first's estimates (names with their
     dots through ``params: {from: ...}``): each recovers what it fits."""
     work = tmp_path / "blocks"
     shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
     (work / "pipeline.yaml").write_text(PIPELINE)
-    made = _cli("rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "4",
+    made = _cli(capsys, "rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "4",
                 "--out", "trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = _cli("run", "pipeline.yaml", "--out", "pipe.h5", "--quiet", cwd=work)
+    run = _cli(capsys, "run", "pipeline.yaml", "--out", "pipe.h5", "--quiet", cwd=work)
     assert run.returncode == 0, run.stderr
     from evo_door.api import load
 

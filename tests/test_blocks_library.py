@@ -9,12 +9,10 @@ one line naming it and where.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-import os
 import shutil
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -29,6 +27,7 @@ from evo_door.models.blocks import CACHE_ENV, mechanism_energy
 from evo_door.models.blocks.kinematics import four_bar, pchip, pchip_integral, slider_crank
 from evo_door.sim import simulate
 from evo_door.sim.simulate import force_angle_curve
+from tests.test_cli import cli as in_process
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "blocks"
@@ -357,33 +356,34 @@ def test_a_transmission_that_folds_is_one_line_naming_it(tmp_path, change, messa
     assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
 
 
-def cli(*args, cwd):
-    """``evo-door ARGS`` in a fresh process that imports this checkout's evo_door."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-m", "evo_door", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=900)  # fmt: skip
+def cli(capsys, *args, cwd):
+    """``evo-door ARGS`` in this process, in the folder ``cwd``, read like a finished
+    subprocess (tests/test_cli.py's ``cli``): a fresh process would add the interpreter's,
+    the imports' and numba's start-up to each command, some 1-2 s of CPU."""
+    with contextlib.chdir(cwd):
+        return in_process(capsys, *args)
 
 
 @pytest.mark.slow
-def test_rig_fit_and_curve_of_the_knob_from_the_command_line(tmp_path):
+def test_rig_fit_and_curve_of_the_knob_from_the_command_line(tmp_path, capsys):
     """The knob example through the real commands: impulse trials from the rig, the fit
     of knob_fit.yaml recovering the detent's amplitude, the bearing's friction and the
     grease within 2 %, and the Coulomb curve: the detent's sine plus the friction,
     through the finger's lever."""
     work = tmp_path / "blocks"
     shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
-    made = cli("rig", "generate", "--model", "knob.yaml", "--trials", "8",
+    made = cli(capsys, "rig", "generate", "--model", "knob.yaml", "--trials", "8",
                "--out", "knob_trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = cli("run", "knob_fit.yaml", "--out", "knob_fit.h5", cwd=work)
+    run = cli(capsys, "run", "knob_fit.yaml", "--out", "knob_fit.h5", cwd=work)
     assert run.returncode == 0, run.stderr
-    shown = cli("show", "knob_fit.h5", "--json", cwd=work)
+    shown = cli(capsys, "show", "knob_fit.h5", "--json", cwd=work)
     assert shown.returncode == 0, shown.stderr
     best = json.loads(shown.stdout)["best"]
     truth = get_model(str(EXAMPLES / "knob.yaml")).load_params().as_dict()
     for name in ("clicks.amplitude", "bearing.level", "grease.c"):
         assert abs(best[name] / truth[name] - 1.0) < 0.02, (name, best[name], truth[name])
-    curve = cli("curve", "knob.yaml", "--out", "knob_curve.csv", cwd=work)
+    curve = cli(capsys, "curve", "knob.yaml", "--out", "knob_curve.csv", cwd=work)
     assert curve.returncode == 0, curve.stderr
     table = np.genfromtxt(work / "knob_curve.csv", delimiter=",", names=True, dtype=None,
                           encoding="utf-8")  # fmt: skip
@@ -494,7 +494,7 @@ def test_a_friction_pad_through_a_slider_crank_sticks_and_slips(tmp_path):
 
 
 @pytest.mark.slow
-def test_rig_fit_and_curve_of_the_cable_door_from_the_command_line(tmp_path):
+def test_rig_fit_and_curve_of_the_cable_door_from_the_command_line(tmp_path, capsys):
     """The cable door as blocks (two bodies, a cable on a drum between them) through the
     real commands: impulse trials, the fit of cable_fit.yaml recovering the leaf's
     inertia, the spring's pre-load, the carriage's damper and the hinge friction within
@@ -502,18 +502,18 @@ def test_rig_fit_and_curve_of_the_cable_door_from_the_command_line(tmp_path):
     taut cable's tension is the spring's, ``c = (k_c s - P) / (k_c + k_s)``."""
     work = tmp_path / "blocks"
     shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
-    made = cli("rig", "generate", "--model", "cable_door.yaml", "--trials", "8",
+    made = cli(capsys, "rig", "generate", "--model", "cable_door.yaml", "--trials", "8",
                "--out", "cable_trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = cli("run", "cable_fit.yaml", "--out", "cable_fit.h5", cwd=work)
+    run = cli(capsys, "run", "cable_fit.yaml", "--out", "cable_fit.h5", cwd=work)
     assert run.returncode == 0, run.stderr
-    shown = cli("show", "cable_fit.h5", "--json", cwd=work)
+    shown = cli(capsys, "show", "cable_fit.h5", "--json", cwd=work)
     assert shown.returncode == 0, shown.stderr
     best = json.loads(shown.stdout)["best"]
     p = get_model(str(EXAMPLES / "cable_door.yaml")).load_params().as_dict()
     for name in ("door.inertia", "spring.preload", "dashpot.c", "hinge.level"):
         assert abs(best[name] / p[name] - 1.0) < 0.02, (name, best[name], p[name])
-    curve = cli("curve", "cable_door.yaml", "--out", "cable_curve.csv", cwd=work)
+    curve = cli(capsys, "curve", "cable_door.yaml", "--out", "cable_curve.csv", cwd=work)
     assert curve.returncode == 0, curve.stderr
     table = np.genfromtxt(work / "cable_curve.csv", delimiter=",", names=True, dtype=None,
                           encoding="utf-8")  # fmt: skip

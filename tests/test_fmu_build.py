@@ -95,7 +95,10 @@ def at_samples(result, name):
 def fmus(shared_fmus):
     """The four FMUs, both interfaces each: {(fmi, layout): path}; ``build_fmu``'s, once
     per suite run (the tests that change how it builds build their own)."""
-    return {(fmi, lay): shared_fmus.door(fmi, lay) for fmi in (2, 3) for lay in build.LAYOUT_NAMES}
+    jobs = {
+        (fmi, lay): shared_fmus.door_job(fmi, lay) for fmi in (2, 3) for lay in build.LAYOUT_NAMES
+    }
+    return shared_fmus.many(jobs)
 
 
 @pytest.mark.slow

@@ -65,7 +65,7 @@ ERROR_4, ERROR_256 = 2e-3, 1e-5
 @pytest.fixture(scope="module")
 def fmus(shared_fmus):
     """fmi -> the hinge FMU (built once per suite run)."""
-    return {fmi: shared_fmus.hinge(fmi) for fmi in (2, 3)}
+    return shared_fmus.many({fmi: shared_fmus.hinge_job(fmi) for fmi in (2, 3)})
 
 
 def values(fmu, **changes) -> np.ndarray:

@@ -38,13 +38,15 @@ START = 0.3  # rad: the start value of the hinge's angle in the first variant
 @pytest.fixture(scope="module")
 def fmus(shared_fmus):
     """The hinge's variants and the door's builds of the tests (once per suite run)."""
-    return {
-        "start": shared_fmus.hinge(2, theta_start=START),
-        "named": shared_fmus.hinge(3, rename={"latch_angle": "theta0"}),
-        "plain": shared_fmus.hinge(3),
-        "door": shared_fmus.door(3, "tuned"),
-        "untuned": shared_fmus.door(2, "untuned"),
-    }
+    return shared_fmus.many(
+        {
+            "start": shared_fmus.hinge_job(2, theta_start=START),
+            "named": shared_fmus.hinge_job(3, rename={"latch_angle": "theta0"}),
+            "plain": shared_fmus.hinge_job(3),
+            "door": shared_fmus.door_job(3, "tuned"),
+            "untuned": shared_fmus.door_job(2, "untuned"),
+        }
+    )
 
 
 # -- 1. the FMU's own start -------------------------------------------------------------

@@ -69,7 +69,7 @@ def fmus(shared_fmus, tmp_path_factory):
     run), and two trials of it at its start values (damping 0.8: no fault), also in
     ``folder/trials.h5``."""
     folder = tmp_path_factory.mktemp("faulty")
-    paths = {fmi: shared_fmus.door(fmi, faults=True) for fmi in (2, 3)}
+    paths = shared_fmus.many({fmi: shared_fmus.door_job(fmi, faults=True) for fmi in (2, 3)})
     model = get_model(str(paths[2]))
     dt = 1 / 256  # s
     t = np.arange(128) * dt

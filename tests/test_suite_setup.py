@@ -65,3 +65,42 @@ def test_the_suites_commands_do_not_spin_where_openmp_would():
     _, active = _idle_cpu("ACTIVE")
     assert passive < 0.003, passive
     assert active > 0.05, active
+
+
+def test_two_workers_asking_for_the_same_fmus_build_different_ones_at_once(tmp_path):
+    """tests/conftest.py's SharedFMUs.many: a worker asking for several FMUs builds
+    first those no other is building, so two asking at once share the work and each
+    file is built once (a stand-in ``make`` that names its builder and ends only once
+    the other worker builds too)."""
+    import threading
+
+    from tests.conftest import SharedFMUs
+
+    built: list[tuple[str, str]] = []
+    start = threading.Barrier(2)
+    together = threading.Barrier(2, timeout=10.0)  # s; broken: one waited for the other
+
+    def make(name):
+        def write(out):
+            built.append((name, threading.current_thread().name))
+            together.wait()  # each build ends only once a second one has begun
+            out.write_text(name)
+
+        return f"{name}.fmu", write
+
+    shared = SharedFMUs(tmp_path)
+    got: dict[str, dict] = {}
+
+    def worker():
+        start.wait()
+        got[threading.current_thread().name] = shared.many({k: make(k) for k in ("a", "b")})
+
+    threads = [threading.Thread(target=worker, name=n) for n in ("gw0", "gw1")]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(name for name, _ in built) == ["a", "b"]  # each built once
+    assert {who for _, who in built} == {"gw0", "gw1"}  # by one worker each
+    for paths in got.values():
+        assert {k: p.read_text() for k, p in paths.items()} == {"a": "a", "b": "b"}
