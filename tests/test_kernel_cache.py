@@ -743,7 +743,10 @@ import json, sys
 from evo_door.commands import compile as c
 
 class Second:
+    failure = ""
     def go(self):
+        pass
+    def more(self):
         pass
     def wait(self):
         raise SystemExit(json.dumps(sorted(m for m in sys.modules if m.startswith("evo_door"))))
@@ -761,9 +764,12 @@ print(json.dumps(sorted(m for m in sys.modules if m.startswith("evo_door"))))
 def test_the_two_processes_of_compile_import_nothing_the_other_compiles(tmp_path):
     """What keeps ``evo-door compile``'s two processes from compiling a kernel twice:
     until the first has waited for the second, it imports neither the state-vector
-    integrators nor the FMU runners nor the emulator's physics (the second's part); until
-    told to go on, the second imports no module of ``evo_door.sim`` (the first compiles
-    the one-coordinate integrators, which the state-vector ones import)."""
+    integrators nor the FMU runners nor the emulator's physics nor the renderer's
+    kernels nor the modules the second imports last (the second's part); until told to
+    go on, the second imports no module of ``evo_door.sim`` (the first compiles the
+    one-coordinate integrators, which the state-vector ones import)."""
+    from evo_door.commands.compile import LATER
+
     script = tmp_path / "split.py"
     script.write_text(SPLIT)
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
@@ -773,7 +779,7 @@ def test_the_two_processes_of_compile_import_nothing_the_other_compiles(tmp_path
     imported = json.loads(first.stderr.strip().splitlines()[-1])
     assert "evo_door.sim.integrators" in imported and "evo_door.models.door" in imported
     for theirs in ("evo_door.sim.states", "evo_door.models.fmu.kernels",
-                   "evo_door.render.emulator_physics"):  # fmt: skip
+                   "evo_door.render.emulator_physics", "evo_door.render.kernels", *LATER):  # fmt: skip
         assert theirs not in imported, theirs
     second = subprocess.run([sys.executable, str(script), "second"], capture_output=True,
                             text=True, env=env, cwd=tmp_path, timeout=COMPILE_HANG_GUARD)  # fmt: skip
@@ -785,8 +791,9 @@ def test_the_two_processes_of_compile_import_nothing_the_other_compiles(tmp_path
 
 def test_a_failed_second_process_leaves_its_part_to_the_first():
     """The second process of ``evo-door compile`` ends at once with an error: waiting for
-    it says so, and the first's steps after the wait hold the second's part (the FMU
-    runners, the emulator's physics, the state-vector integrators: every module)."""
+    it says so, and the first's steps after the wait hold the second's part (the render,
+    then every module: the state-vector integrators and the rest; the FMU runners, the
+    emulator's physics)."""
     from evo_door.commands import compile as compile_cmd
 
     class Failing(compile_cmd.SecondProcess):
@@ -804,6 +811,7 @@ def test_a_failed_second_process_leaves_its_part_to_the_first():
     names = [what for what, _ in compile_cmd.steps(second)]
     after = names[names.index(f"waiting for the second process ({compile_cmd.SECOND_PART})") :]
     assert after[1:] == [
+        "a render of the haptic model on the simulated device",
         "importing every module",
         "the FMU runners (FMI 2 and 3, model exchange and co-simulation)",
         "the HapticMaster emulator's physics",

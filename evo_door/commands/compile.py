@@ -19,11 +19,16 @@ numba compiles on one core. Where there are two or more (``--jobs``, default: tw
 the process may use two cores), a second process compiles what does not depend on the
 one-coordinate integrators at the same time: the FMU runners and the emulator's physics
 at once, then, as soon as this process has the integrators in the cache, the
-state-vector integrators (:mod:`evo_door.sim.states` imports them). This process goes on
-meanwhile with the models, the objectives, the GA and the renderer, and imports the
-rest once the second has ended, so that no kernel is compiled twice: a shorter wait
-on two cores (``python -m benchmarks --only startup`` times it cold and warm). Both
-write numba's cache, each its own kernels.
+state-vector integrators (:mod:`evo_door.sim.states` imports them), and, once this
+process has the haptic model and the objective in the cache too, the render of the
+haptic model and the modules that import only what is in the cache by then
+(:data:`LATER`: the state-vector objective, the equilibrium, the mechanisms'
+renderer, the yield's kernels). This process goes on meanwhile with the door, the GA
+and its objectives, and imports the rest once the second has ended, so that no kernel
+is compiled twice: a shorter wait on two cores (``python -m benchmarks --only
+startup`` times it cold and warm; moving the render and :data:`LATER` to the second
+process, which had ended some 17 s before the first, took a cold compile on 2 cores
+from 41-43 s to 37-38 s). Both write numba's cache, each its own kernels.
 """
 
 from __future__ import annotations
@@ -105,17 +110,29 @@ def steps(second: SecondProcess | None = None):
             second.go()  # the state-vector integrators load these from the cache
         return ""
 
+    def haptic():
+        _simulating("haptic")
+        if second is not None:
+            second.more()  # its render and LATER load the haptic model from the cache
+        return ""
+
     # first what needs neither the state-vector integrators nor the FMU runners (none
-    # of these steps imports them), then, the second process's part done, the rest
+    # of these steps imports them, nor what the second process compiles once told
+    # "more"), then, the second process's part done, the rest
+    rendering = "a render of the haptic model on the simulated device"
     yield "the one-coordinate integrators", integrators
-    for name in ("haptic", "door"):
-        yield f"simulating the {name} model", lambda name=name: _simulating(name)
+    yield "simulating the haptic model", haptic
+    yield "simulating the door model", lambda: _simulating("door")
     with tempfile.TemporaryDirectory() as tmp:
         for kind in KINDS:
             yield f"a GA generation, objective {kind}", lambda kind=kind: _fitting(kind, Path(tmp))
-        yield "a render of the haptic model on the simulated device", lambda: _rendering(Path(tmp))
+        if second is None:
+            yield rendering, lambda: _rendering(Path(tmp))
     if second is not None:
         yield f"waiting for the second process ({SECOND_PART})", second.wait
+        if second.failure:  # its render is left to this process (LATER: imported below)
+            with tempfile.TemporaryDirectory() as tmp:
+                yield rendering, lambda: _rendering(Path(tmp))
     yield "importing every module", _importing
     yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", _fmu_runners
     yield "the HapticMaster emulator's physics", _emulator
@@ -205,16 +222,30 @@ def _emulator() -> str:
 
 
 #: what the second process compiles, in its order
-SECOND_PART = "the FMU runners, the emulator's physics, the state-vector integrators"
+SECOND_PART = (
+    "the FMU runners, the emulator's physics, the state-vector integrators, "
+    "a render, the state-vector objective and the mechanisms' renderer"
+)
+#: the modules the second process imports last, once told "more" (each imports only
+#: what the first has in the cache by then, the one-coordinate integrators, the haptic
+#: model and the objective, and what the second compiled itself)
+LATER = (
+    "evo_door.render.mechanism_kernels",
+    "evo_door.optim.yield_kernel",
+    "evo_door.sim.equilibrium",
+    "evo_door.sim.state_objective",
+)
 
 
 class SecondProcess:
     """``evo-door compile --second-part`` beside this process: it compiles the FMU
     runners and the emulator's physics at once, the state-vector integrators once told
-    (:meth:`go`: the one-coordinate ones, which they import, are in the cache), and
-    ends by printing what it compiled. Its progress lines are said when it is waited
-    for (:meth:`wait`), after this process's own. A failed or missing second process
-    costs time, never a kernel: this process's own steps then compile what it left."""
+    (:meth:`go`: the one-coordinate ones, which they import, are in the cache), a
+    render and :data:`LATER` once told more (:meth:`more`: the haptic model and the
+    objective are in the cache), and ends by printing what it compiled. Its progress
+    lines are said when it is waited for (:meth:`wait`), after this process's own. A
+    failed or missing second process costs time, never a kernel: this process's own
+    steps then compile what it left."""
 
     def __init__(self, quiet: bool):
         self.proc = subprocess.Popen(
@@ -229,18 +260,32 @@ class SecondProcess:
         self.failure = ""
 
     def go(self) -> None:
-        stdin, self.proc.stdin = self.proc.stdin, None  # communicate() then leaves it
-        if stdin is None:  # told already
+        self._say("go", last=False)
+
+    def more(self) -> None:
+        self._say("more", last=True)
+
+    def _say(self, word: str, last: bool) -> None:
+        """Write ``word`` to its stdin (closed after the last word, or on an error)."""
+        stdin = self.proc.stdin
+        if stdin is None:  # closed already
             return
         try:
-            stdin.write("go\n")
-            stdin.close()
+            stdin.write(word + "\n")
+            stdin.flush()
         except OSError:  # it has ended already: wait() says how
-            pass
+            last = True
+        if last:
+            self.proc.stdin = None  # communicate() then leaves it
+            try:
+                stdin.close()
+            except OSError:
+                pass
 
     def wait(self) -> str:
         from evo_door.kernel_cache import kernels
 
+        self.more()  # if not said yet (a step failed): it ends after its integrators
         out, err = self.proc.communicate()
         sys.stderr.write(err)
         if self.proc.returncode != 0:
@@ -287,6 +332,13 @@ def _second_part(args) -> int:
         return 1
     say("compile (second process): the state-vector integrators")
     importlib.import_module("evo_door.sim.states")
+    if sys.stdin.readline().strip() == "more":  # else the first does the rest
+        say("compile (second process): a render of the haptic model on the simulated device")
+        with tempfile.TemporaryDirectory() as tmp:
+            _rendering(Path(tmp))
+        say("compile (second process): " + ", ".join(LATER))
+        for name in LATER:
+            importlib.import_module(name)
     kernel_cache.COMPILES.report = None
     print(json.dumps({"compiled": kernel_cache.COMPILES.compiled}))
     return 0
