@@ -80,6 +80,10 @@ REASONS = {
         "the detent knob's mechanism file through rig, fit and curve commands (a GA on eight "
         "trials at a mechanism's default integration)"
     ),
+    "test_hapticmaster_stall::test_render_over_a_stalled_emulator_ends_within_half_a_second": (
+        "an emulator and a render in processes of their own, the render holding a force "
+        "before the emulator is stopped (SIGSTOP) for 3 s"
+    ),
     "test_state_model::test_rig_fit_and_curve_from_the_command_line": (
         "the soft-close drawer (a state-vector model) through rig, fit and curve commands"
     ),
