@@ -26,9 +26,9 @@ haptic model and the modules that import only what is in the cache by then
 renderer, the yield's kernels). This process goes on meanwhile with the door, the GA
 and its objectives, and imports the rest once the second has ended, so that no kernel
 is compiled twice: a shorter wait on two cores (``python -m benchmarks --only
-startup`` times it cold and warm; moving the render and :data:`LATER` to the second
-process, which had ended some 17 s before the first, took a cold compile on 2 cores
-from 41-43 s to 37-38 s). Both write numba's cache, each its own kernels.
+startup`` times it cold and warm; the render and :data:`LATER` are the second's
+because it used to end long before the first). Both write numba's cache, each its own
+kernels.
 """
 
 from __future__ import annotations
