@@ -359,8 +359,7 @@ class SharedFMUs:
     A fixture that needs several asks for them at once (:meth:`many`): it builds first
     those no other worker is building and waits for the others last, so that two
     workers asking for the same four build two each at the same time rather than one
-    building while the other waits for each in turn (a fresh run's first FMU tests
-    waited 12 s so on 2 cores)."""
+    building while the other waits for each in turn."""
 
     def __init__(self, folder: Path):
         self.folder = folder

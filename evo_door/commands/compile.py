@@ -285,7 +285,7 @@ class SecondProcess:
     def wait(self) -> str:
         from evo_door.kernel_cache import kernels
 
-        self.more()  # if not said yet (a step failed): it ends after its integrators
+        self.more()  # said after the haptic model already (then a no-op); else now
         out, err = self.proc.communicate()
         sys.stderr.write(err)
         if self.proc.returncode != 0:
