@@ -159,11 +159,10 @@ class AccelPlant(CompiledPlant):
         t = t0 + dt * np.arange(n)
         out = np.empty((3, n))
         accel = model.accel
-        switches, n_sw, stick = events_of(model)
         fast = prepared_form(accel)
+        switches, n_sw, stick = events_of(model, fast)
         if fast is not None:
             accel, p = fast.accel, self._prepared(fast, p)
-            switches = fast.switches_or(switches)
         ok = integrate(
             accel, switches, p, force, float(dt), int(substeps or model.substeps), theta0,
             dtheta0, method_code(method or model.method), tolerance_of(model, tolerance),
@@ -204,9 +203,8 @@ class AccelPlant(CompiledPlant):
         n_ind, n = P.shape[0], force.size
         theta, dtheta, ddtheta = (np.empty((n_ind, n)) for _ in range(3))
         ok = np.zeros(n_ind, dtype=np.bool_)
-        switches, n_sw, stick = events_of(model)
         form = kernel_form(model.accel, P.shape[1])
-        switches = form.switches_or(switches)
+        switches, n_sw, stick = events_of(model, form)
         integrate_batch(
             integrate_compiled, form.accel, form.prepare, switches, form.size, P, force, float(dt),
             int(substeps or model.substeps), theta0, dtheta0,

@@ -169,8 +169,7 @@ def accel_population_errors(
     :func:`evo_door.sim.simulate`, which runs it too). ``tol``: ``dopri5``'s tolerance.
     """
     form = kernel_form(model.accel, P.shape[1])
-    switches, n_sw, stick = events_of(model)
-    switches = form.switches_or(switches)
+    switches, n_sw, stick = events_of(model, form)
     _population_errors(
         integrate_compiled, form.accel, form.prepare, switches, form.size, P, force, target,
         mask, offsets, dt, theta0, dtheta0, substeps, method, tol, n_sw, stick, derivative,

@@ -120,11 +120,15 @@ def check_state(state, n_states: int, name: str) -> np.ndarray:
     return x
 
 
-def events_of(model) -> tuple:
-    """``(switches, n_switches, stick_slip)`` of a model, as the kernels take them."""
+def events_of(model, form=None) -> tuple:
+    """``(switches, n_switches, stick_slip)`` of a model, as the kernels take them; with
+    ``form`` (the :class:`~evo_door.sim.integrators.Prepared` form of the vectors the
+    kernels are handed), that form's switching functions where it has its own."""
     switches = getattr(model, "switches", None)
     if switches is None:
         return no_switches, 0, bool(getattr(model, "stick_slip", False))
+    if form is not None:
+        switches = form.switches_or(switches)
     return switches, int(model.n_switches), bool(model.stick_slip)
 
 
