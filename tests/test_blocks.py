@@ -8,7 +8,6 @@ recovers every free parameter within 2 %, a curve.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import shutil
@@ -27,7 +26,7 @@ from evo_door.models import get_model, is_code_spec, resolve_model_name
 from evo_door.models.base import check_named_in_file
 from evo_door.models.blocks import CACHE_ENV
 from evo_door.sim import simulate
-from tests.test_cli import cli as in_process
+from tests.test_cli import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "blocks"
@@ -254,38 +253,30 @@ def test_a_bad_mechanism_is_one_line_naming_the_element(tmp_path, change, messag
     assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
 
 
-def _cli(capsys, *args, cwd):
-    """``evo-door ARGS`` in this process, in the folder ``cwd``, read like a finished
-    subprocess (tests/test_cli.py's ``cli``): a fresh process would add the interpreter's,
-    the imports' and numba's start-up to each command, some 1-2 s of CPU."""
-    with contextlib.chdir(cwd):
-        return in_process(capsys, *args)
-
-
 @pytest.mark.slow
 def test_rig_fit_and_curve_of_the_drawer_from_the_command_line(tmp_path, capsys):
     work = tmp_path / "blocks"
     shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
-    made = _cli(capsys, "rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "8",
-                "--out", "trials.h5", cwd=work)  # fmt: skip
+    made = cli(capsys, "rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "8",
+               "--out", "trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = _cli(capsys, "run", "fit.yaml", "--out", "fit.h5", cwd=work)
+    run = cli(capsys, "run", "fit.yaml", "--out", "fit.h5", cwd=work)
     assert run.returncode == 0, run.stderr
     # a mechanism is data: no --allow-model
-    shown = _cli(capsys, "show", "fit.h5", "--json", cwd=work)
+    shown = cli(capsys, "show", "fit.h5", "--json", cwd=work)
     assert shown.returncode == 0, shown.stderr
     best = json.loads(shown.stdout)["best"]
     truth = drawer().load_params().as_dict()
     for name in ("box.mass", "runners.level", "grease.c", "softie.c_fluid"):
         assert abs(best[name] / truth[name] - 1.0) < 0.02, (name, best[name], truth[name])
-    curve = _cli(capsys, "curve", "soft_close_drawer.yaml", "--out", "curve.csv", cwd=work)
+    curve = cli(capsys, "curve", "soft_close_drawer.yaml", "--out", "curve.csv", cwd=work)
     assert curve.returncode == 0, curve.stderr
     table = np.genfromtxt(work / "curve.csv", delimiter=",", names=True, dtype=None,
                           encoding="utf-8")  # fmt: skip
     closing = table[table["direction"] == "closing"]
     inside = closing[(closing["theta"] > 0.01) & (closing["theta"] < 0.44)]
     np.testing.assert_allclose(inside["force"], truth["runners.level"], atol=1e-6)
-    params = _cli(capsys, "params", "two_carts.yaml", cwd=work)
+    params = cli(capsys, "params", "two_carts.yaml", cwd=work)
     assert params.returncode == 0 and "coupling.k" in params.stdout, params.stderr
 
 
@@ -492,10 +483,10 @@ def test_a_pipeline_takes_a_mechanism_file_stage_to_stage(tmp_path, capsys):
     work = tmp_path / "blocks"
     shutil.copytree(EXAMPLES, work, ignore=shutil.ignore_patterns("*.h5", "*.csv"))
     (work / "pipeline.yaml").write_text(PIPELINE)
-    made = _cli(capsys, "rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "4",
-                "--out", "trials.h5", cwd=work)  # fmt: skip
+    made = cli(capsys, "rig", "generate", "--model", "soft_close_drawer.yaml", "--trials", "4",
+               "--out", "trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = _cli(capsys, "run", "pipeline.yaml", "--out", "pipe.h5", "--quiet", cwd=work)
+    run = cli(capsys, "run", "pipeline.yaml", "--out", "pipe.h5", "--quiet", cwd=work)
     assert run.returncode == 0, run.stderr
     from evo_door.api import load
 

@@ -9,7 +9,6 @@ one line naming it and where.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import shutil
@@ -27,7 +26,7 @@ from evo_door.models.blocks import CACHE_ENV, mechanism_energy
 from evo_door.models.blocks.kinematics import four_bar, pchip, pchip_integral, slider_crank
 from evo_door.sim import simulate
 from evo_door.sim.simulate import force_angle_curve
-from tests.test_cli import cli as in_process
+from tests.test_cli import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "blocks"
@@ -354,14 +353,6 @@ def test_a_transmission_that_folds_is_one_line_naming_it(tmp_path, change, messa
     with pytest.raises(UserError) as err:
         get_model(str(tmp_path / "bad.yaml"))
     assert message in str(err.value) and "\n" not in str(err.value), str(err.value)
-
-
-def cli(capsys, *args, cwd):
-    """``evo-door ARGS`` in this process, in the folder ``cwd``, read like a finished
-    subprocess (tests/test_cli.py's ``cli``): a fresh process would add the interpreter's,
-    the imports' and numba's start-up to each command, some 1-2 s of CPU."""
-    with contextlib.chdir(cwd):
-        return in_process(capsys, *args)
 
 
 @pytest.mark.slow

@@ -1,5 +1,6 @@
 """The command line as a user meets it: help, version, one-line errors with exit 2."""
 
+import contextlib
 import subprocess
 import warnings
 from typing import NamedTuple
@@ -21,8 +22,9 @@ class Ran(NamedTuple):
     stderr: str
 
 
-def cli(capsys, *args) -> Ran:
-    """``evo-door ARGS`` in this process, read like a finished subprocess.
+def cli(capsys, *args, cwd=None) -> Ran:
+    """``evo-door ARGS`` in this process, read like a finished subprocess; with ``cwd``,
+    run in that folder (its relative paths are the folder's).
 
     A subprocess costs 1-5 s of interpreter, numba and matplotlib start-up; keep one only
     where it is the point (the installed console script, a process killed and resumed,
@@ -41,7 +43,8 @@ def cli(capsys, *args) -> Ran:
             ResourceWarning,
         ):
             warnings.simplefilter("ignore", category)
-        code = main([str(a) for a in args])
+        with contextlib.chdir(cwd) if cwd is not None else contextlib.nullcontext():
+            code = main([str(a) for a in args])
     out, err = capsys.readouterr()
     err += "".join(
         warnings.formatwarning(w.message, w.category, w.filename, w.lineno) for w in caught
