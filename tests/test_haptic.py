@@ -267,8 +267,6 @@ def test_compiled_device_force_writes_into_out(seed):
     assert np.all(np.isfinite(out)) and out[0] == pytest.approx(-seed["k_plane"] * 0.01)
 
 
-# -- accuracy against scipy ------------------------------------------------------------
-@pytest.mark.slow
 def test_the_prepared_switching_functions_are_the_models_to_the_last_bit(haptic, seed):
     """switches_prepared reads the latch's angles from the prepared vector instead of
     working them out: its twelve values are switches' own, bit for bit, through both
@@ -309,6 +307,8 @@ def test_the_prepared_switching_functions_are_the_models_to_the_last_bit(haptic,
         assert form.accel is model.accel and form.switches is module.switches_prepared
 
 
+# -- accuracy against scipy ------------------------------------------------------------
+@pytest.mark.slow
 def test_haptic_against_converged_reference():
     """Smooth case (friction, viscous, return spring; no latch) of the seed's tanh form:
     ROS2 x 2 vs DOP853. (The sign-law form and the latch: tests/test_events.py.)"""
