@@ -31,6 +31,10 @@ from tests.helpers import (
     tier,
     write_compile_record,
 )
+from tests.xdist_schedule import (  # noqa: F401 (xdist's hooks: how the workers share the suite)
+    pytest_xdist_auto_num_workers,
+    pytest_xdist_make_scheduler,
+)
 
 #: The command line's notes of what numba compiles (evo_door.kernel_cache) would land in
 #: the stderr that tests compare, whenever a test happens to compile first; quiet here

@@ -1,11 +1,13 @@
-"""How the suite runs its workers (tests/__init__.py): numba's OpenMP threads wait
-passively, in the suite's processes and in every command a test starts."""
+"""How the suite runs its workers: numba's OpenMP threads wait passively, in the suite's
+processes and in every command a test starts (tests/__init__.py); the workers share the
+files (tests/xdist_schedule.py); they share the FMUs (tests/conftest.py)."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numba
 import pytest
@@ -104,3 +106,91 @@ def test_two_workers_asking_for_the_same_fmus_build_different_ones_at_once(tmp_p
     assert {who for _, who in built} == {"gw0", "gw1"}  # by one worker each
     for paths in got.values():
         assert {k: p.read_text() for k, p in paths.items()} == {"a": "a", "b": "b"}
+
+
+# -- how the workers share the suite (tests/xdist_schedule.py) -------------------------
+def test_a_file_is_a_unit_and_the_paced_files_are_one():
+    from tests.xdist_schedule import paced_units, unit_of
+
+    assert unit_of("tests/test_fit.py::test_a[x::y]", 1) == "tests/test_fit.py"
+    assert unit_of("evo_door/sim/core.py::evo_door.sim.core.step", 1) == "evo_door/sim/core.py"
+    paced = [
+        "tests/test_render_check.py::test_a",
+        "tests/test_console_browser.py::test_b",
+        "tests/test_hapticmaster_stall.py::test_c",
+        "tests/test_jnd_device.py::test_d",
+    ]
+    assert {unit_of(n, 1) for n in paced} == {"paced-0"}
+    # not paced: the renderer's unit tests, a file named like a paced one elsewhere
+    assert unit_of("tests/test_render.py::test_e", 1) == "tests/test_render.py"
+    assert unit_of("tests/test_blocks.py::test_render_console", 1) == "tests/test_blocks.py"
+    # one unit on up to four workers (a third worker on two cores), then one per three
+    assert [paced_units(n) for n in (1, 2, 3, 4, 5, 8, 9)] == [1, 1, 1, 1, 2, 3, 3]
+    # with several, a file's tests stay together, and the files are spread
+    assert unit_of(paced[0], 3) == unit_of(paced[0].replace("test_a", "test_z"), 3)
+    assert len({unit_of(n, 3) for n in paced}) > 1
+
+
+def test_the_paced_files_of_the_suite_exist():
+    """The pattern names files that are there (a renamed file would drop out of the
+    paced unit silently), and the suite's known wall-clock files among them."""
+    from tests.xdist_schedule import PACED
+
+    tests = Path(__file__).parent
+    paced = {p.name for p in tests.glob("test_*.py") if PACED.search(f"tests/{p.name}")}
+    assert {
+        "test_render_check.py",
+        "test_render_stall.py",
+        "test_render_priority.py",
+        "test_console_browser.py",
+        "test_hapticmaster_stall.py",
+        "test_jnd_device.py",
+    } <= paced
+    assert "test_render.py" not in paced and "test_suite_setup.py" not in paced
+
+
+def test_costliest_units_go_first():
+    from tests.xdist_schedule import MEASURED_WEIGHT, unit_cost
+
+    measured = frozenset({"a.py::slow"})
+    assert unit_cost(["a.py::slow", "a.py::quick"], measured) == MEASURED_WEIGHT + 1
+    assert unit_cost([f"b.py::t{i}" for i in range(5)], measured) == 5
+
+
+# Each test appends (worker, file, start, end) to a shared file, sleeping while it holds
+# the core as a paced render would.
+_RECORDING_TEST = """
+import os, time
+def _record(name):
+    start = time.monotonic()
+    time.sleep({pause})
+    with open({log!r}, "a") as f:
+        f.write(f"{{os.environ['PYTEST_XDIST_WORKER']}} {{os.environ['PYTEST_XDIST_WORKER_COUNT']}} "
+                f"{{__file__.rsplit('/', 1)[-1]}} {{start}} {{time.monotonic()}}\\n")
+"""
+
+
+def test_paced_files_run_one_after_another_on_one_worker(pytester, monkeypatch, tmp_path):
+    """A small suite on three workers with xdist's own ``-n``: the two paced files' tests
+    on one worker, never two at once, each file of the others on one worker; ``-n auto``
+    starts a worker more than the cores."""
+    log = tmp_path / "log.txt"
+    files = ["test_render_a", "test_console_b", "test_fit_c", "test_fit_d", "test_fit_e"]
+    for name in files:
+        body = _RECORDING_TEST.format(pause=0.15, log=str(log))
+        body += "".join(f"\ndef test_{i}():\n    _record('{i}')\n" for i in range(4))
+        pytester.makepyfile(**{name: body})
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).resolve().parents[1]))
+    monkeypatch.delenv("PYTEST_XDIST_AUTO_NUM_WORKERS", raising=False)
+    monkeypatch.delenv("PYTEST_ADDOPTS", raising=False)
+    done = pytester.runpytest_subprocess("-n", "auto", "-p", "tests.xdist_schedule", "-q")
+    done.assert_outcomes(passed=20)
+    rows = [line.split() for line in log.read_text().splitlines()]
+    assert {int(count) for _, count, *_ in rows} == {len(os.sched_getaffinity(0)) + 1}
+    worker_of = {}
+    for worker, _, name, _, _ in rows:
+        worker_of.setdefault(name, set()).add(worker)
+    assert all(len(workers) == 1 for workers in worker_of.values()), worker_of
+    assert worker_of["test_render_a.py"] == worker_of["test_console_b.py"]
+    spans = sorted((float(s), float(e)) for _, _, name, s, e in rows if "_fit_" not in name)
+    assert all(end <= next_start for (_, end), (next_start, _) in zip(spans, spans[1:]))
