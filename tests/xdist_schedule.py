@@ -92,7 +92,7 @@ class FileScheduling(LoadScopeScheduling):
         super()._assign_work_unit(node)
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist's own, wherever this module is loaded from
+@pytest.hookimpl(tryfirst=True, optionalhook=True)  # before xdist's; none without it
 def pytest_xdist_make_scheduler(config, log):
     """:class:`FileScheduling` for xdist's default distribution (``-n`` without
     ``--dist``); a ``--dist`` given on the command line or in ``PYTEST_ADDOPTS`` is
@@ -103,7 +103,7 @@ def pytest_xdist_make_scheduler(config, log):
     return FileScheduling(config, log)
 
 
-@pytest.hookimpl(tryfirst=True)
+@pytest.hookimpl(tryfirst=True, optionalhook=True)
 def pytest_xdist_auto_num_workers(config):
     """``-n auto``: one worker more than the cores this process may use, unless
     ``PYTEST_XDIST_AUTO_NUM_WORKERS`` says how many (xdist reads it then)."""
