@@ -66,24 +66,15 @@ def pytest_sessionstart(session):
     kernel itself, at the same time as the others, and so would each command a test
     starts before the cache has them. Measured on a fresh clone, 2 cores, nothing
     beside: the suite took 699 s and 1233 s of CPU without this, 707 s and 1135 s with
-    it; the CPU it saves goes to what runs beside the suite (CI's checks). Beside it, in
-    a new environment, the bytecode of what the tests import is written once
-    (:func:`_prime_bytecode`)."""
+    it; the CPU it saves goes to what runs beside the suite (CI's checks)."""
     config = session.config
     try:
         if workers(config) < 2 or config.option.collectonly:
             pass
+        elif os.environ.get(PRECOMPILED) == "1":
+            _say(config, f"evo-door compile, before the workers start: not run ({PRECOMPILED}=1)")
         else:
-            priming = _prime_bytecode(config)
-            if os.environ.get(PRECOMPILED) == "1":
-                _say(
-                    config, f"evo-door compile, before the workers start: not run ({PRECOMPILED}=1)"
-                )
-            else:
-                _compile_before_the_workers(config)
-            if priming is not None:
-                priming.wait()
-                _say(config, "the bytecode of the tests' imports written once, before the workers")
+            _compile_before_the_workers(config)
     finally:
         # CI's main job, in a clone of its own, waits for this to copy the compiled
         # kernels (.ci/run): the file EVO_DOOR_TEST_COMPILED_MARK names, made once the
@@ -91,51 +82,6 @@ def pytest_sessionstart(session):
         mark = os.environ.get(COMPILED_MARK)
         if mark:
             Path(mark).touch()
-
-
-#: Modules the workers import when they collect the tests, whose compiled bytecode
-#: (``.pyc``) says whether this environment has imported them before
-#: (:func:`_prime_bytecode`)
-COLLECTION_IMPORTS = ("scipy.optimize", "matplotlib.pyplot", "distributed", "hypothesis")
-
-
-def _prime_bytecode(config):
-    """Where Python has not yet written the bytecode of what the tests import (a new
-    environment: the README's install passes ``pip --no-compile``), collect the tests
-    once in a process of their own, beside the compile below and before the workers
-    start, so that it is written once: every worker collects every file, and on 2 cores
-    three workers each compiled the same modules' bytecode at once (some 11 s of CPU
-    each before its first test, against 4 s on written bytecode). numba's compiler is
-    off there (``NUMBA_DISABLE_JIT``): the kernels are the compile's. Returns the
-    process, or None where there is nothing to prime."""
-    import importlib.util
-    import subprocess
-    import sys
-
-    if sys.dont_write_bytecode or all(_has_bytecode(m, importlib.util) for m in COLLECTION_IMPORTS):
-        return None
-    env = {**os.environ, "NUMBA_DISABLE_JIT": "1"}
-    for name in ("PYTEST_ADDOPTS", COMPILED_MARK):  # a report file, CI's handshake: not this run's
-        env.pop(name, None)
-    args = ["--collect-only", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", *config.args]
-    return subprocess.Popen(
-        [sys.executable, "-m", "pytest", *args],
-        cwd=config.rootpath,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-
-
-def _has_bytecode(name: str, util) -> bool:
-    """Whether the module ``name`` has its bytecode written (True where it is missing
-    or has none: nothing to prime for it)."""
-    try:
-        spec = util.find_spec(name)
-    except (ImportError, ValueError):
-        return True
-    cached = getattr(spec, "cached", None)
-    return cached is None or os.path.exists(cached)
 
 
 def _compile_before_the_workers(config) -> None:

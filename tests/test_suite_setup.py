@@ -197,30 +197,6 @@ def test_paced_files_run_one_after_another_on_one_worker(pytester, monkeypatch, 
     assert all(end <= next_start for (_, end), (next_start, _) in zip(spans, spans[1:]))
 
 
-def test_a_new_environment_writes_the_bytecode_of_the_tests_imports_once(tmp_path, monkeypatch):
-    """Where a module the tests import has no bytecode yet, the suite collects the tests
-    once in a process of its own before its workers start, which writes it."""
-    from types import SimpleNamespace
-
-    import tests.conftest as conftest
-
-    (tmp_path / "primed").mkdir()
-    (tmp_path / "primed" / "__init__.py").write_text("")
-    (tmp_path / "primed" / "heavy.py").write_text("VALUE = 1\n")
-    (tmp_path / "test_uses_it.py").write_text("import primed.heavy\n\ndef test_x():\n    pass\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
-    monkeypatch.setattr(conftest, "COLLECTION_IMPORTS", ("primed.heavy",))
-    monkeypatch.setattr(sys, "dont_write_bytecode", False)
-    monkeypatch.delenv("PYTHONDONTWRITEBYTECODE", raising=False)
-    config = SimpleNamespace(args=[str(tmp_path / "test_uses_it.py")], rootpath=tmp_path)
-    assert not list(tmp_path.glob("primed/__pycache__/heavy.*.pyc"))
-    priming = conftest._prime_bytecode(config)
-    assert priming is not None and priming.wait(timeout=120) == 0
-    assert list(tmp_path.glob("primed/__pycache__/heavy.*.pyc"))
-    assert conftest._prime_bytecode(config) is None  # written: nothing to prime
-
-
 def test_the_suite_collects_without_xdist():
     """xdist's hooks in tests/conftest.py are optional: ``-p no:xdist`` (or no xdist)
     collects as plain pytest does."""
