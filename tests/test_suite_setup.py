@@ -125,7 +125,10 @@ def test_a_file_is_a_unit_and_the_paced_files_are_one():
     assert unit_of("tests/test_render.py::test_e", 1) == "tests/test_render.py"
     assert unit_of("tests/test_blocks.py::test_render_console", 1) == "tests/test_blocks.py"
     # one unit on up to four workers (a third worker on two cores), then one per three
-    assert [paced_units(n) for n in (1, 2, 3, 4, 5, 8, 9)] == [1, 1, 1, 1, 2, 3, 3]
+    assert [paced_units(n, 2) for n in (3, 4, 5, 8, 9)] == [1, 1, 2, 3, 3]
+    # none with a worker per core (or fewer): a paced file is a unit as any other
+    assert [paced_units(n, 2) for n in (1, 2)] == [0, 0] and paced_units(8, 8) == 0
+    assert unit_of(paced[0], 0) == "tests/test_render_check.py"
     # with several, a file's tests stay together, and the files are spread
     assert unit_of(paced[0], 3) == unit_of(paced[0].replace("test_a", "test_z"), 3)
     assert len({unit_of(n, 3) for n in paced}) > 1

@@ -13,12 +13,16 @@ made once. Units are handed out costliest first, so that the last ones are short
 test that ``tests/tiers.txt`` lists (measured at 0.5 s or more) counts as
 :data:`MEASURED_WEIGHT` of the others.
 
-**The paced files run one at a time**: the files whose tests pace a loop on the wall
-clock and judge its timing (:data:`PACED`: the renders, the console, the emulated
-HapticMaster and its stalls, the JND sessions on a device) form one unit together, run
-one after another on one worker, so that two real-time loops never compete for the
-cores with a third worker's kernels beside them. With many cores they are split into
-several such units (one per three workers), each still one file after another.
+**With more workers than cores, the paced files run one at a time**: the files whose
+tests pace a loop on the wall clock and judge its timing (:data:`PACED`: the renders,
+the console, the emulated HapticMaster and its stalls, the JND sessions on a device)
+form one unit together, run one after another on one worker, so that two real-time
+loops never compete for the cores with a third worker's kernels beside them. With many
+cores they are split into several such units (one per three workers), each still one
+file after another. With a worker per core (``.ci/run``, where the checks beside the
+suite take the idle CPU) each is a file like the others: the paced unit left one
+worker mostly waiting for 200 s, and CI took longer (ci116: the suite 396 s against
+358 s for ci114, with xdist's ``load``).
 
 Measured on 2 cores (AMD EPYC, by hand, warm cache, the same hour, probe 0.43 s): the
 suite in 336 s with two workers and xdist's ``load``, in 289 s with three and these units
@@ -50,16 +54,21 @@ MEASURED_WEIGHT = 20
 WORKERS_PER_PACED_UNIT = 3
 
 
-def paced_units(workers: int) -> int:
-    """How many units the paced files are split into, for ``workers`` workers."""
+def paced_units(workers: int, cores: int) -> int:
+    """How many units the paced files are split into, for ``workers`` workers on
+    ``cores`` cores; 0: none, each paced file is a unit of its own (no more workers
+    than cores)."""
+    if workers <= cores:
+        return 0
     return max(1, (workers + 1) // WORKERS_PER_PACED_UNIT)
 
 
 def unit_of(nodeid: str, units: int) -> str:
     """The unit of work of the test ``nodeid``: its file, or ``paced-K`` for a paced
-    file (the same K for every test of a file, whatever the run)."""
+    file where there are ``units`` paced units (the same K for every test of a file,
+    whatever the run)."""
     path = nodeid.split("::", 1)[0]
-    if PACED.search(path):
+    if units and PACED.search(path):
         return f"paced-{zlib.crc32(path.encode()) % units}"
     return path
 
@@ -76,7 +85,7 @@ class FileScheduling(LoadScopeScheduling):
 
     def __init__(self, config, log=None):
         super().__init__(config, log)
-        self.units = paced_units(self.numnodes)
+        self.units = paced_units(self.numnodes, cores())
         self._ordered = False
 
     def _split_scope(self, nodeid: str) -> str:
@@ -90,6 +99,11 @@ class FileScheduling(LoadScopeScheduling):
                 self.workqueue.move_to_end(scope)
             self._ordered = True
         super()._assign_work_unit(node)
+
+
+def cores() -> int:
+    """The cores this process may use."""
+    return len(os.sched_getaffinity(0))
 
 
 @pytest.hookimpl(tryfirst=True, optionalhook=True)  # before xdist's; none without it
@@ -109,4 +123,4 @@ def pytest_xdist_auto_num_workers(config):
     ``PYTEST_XDIST_AUTO_NUM_WORKERS`` says how many (xdist reads it then)."""
     if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
         return None
-    return len(os.sched_getaffinity(0)) + 1
+    return cores() + 1
