@@ -207,6 +207,7 @@ def test_the_suite_collects_without_xdist():
         [sys.executable, "-m", "pytest", "-p", "no:xdist", "-p", "no:cacheprovider",
          "--collect-only", "-q", "tests/test_suite_setup.py"],
         cwd=Path(__file__).resolve().parents[1],
+        env={k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"},  # CI's --dist
         capture_output=True,
         text=True,
         timeout=120,
