@@ -26,8 +26,13 @@ worker mostly waiting for 200 s, and CI took longer (ci116: the suite 396 s agai
 
 Measured on 2 cores (AMD EPYC, by hand, warm cache, the same hour, probe 0.43 s): the
 suite in 336 s with two workers and xdist's ``load``, in 289 s with three and these units
-(the paced unit 208 s of it, on one worker). With three workers and ``load``, paced files
-ran on two workers at once and split the browser's session between workers.
+(the paced unit 208 s of it, on one worker). With three workers and ``load`` another
+worker's real-time render met ``test_render_priority``'s busy-machine test and made it
+miss its bound.
+
+Why not xdist's ``loadgroup`` and ``xdist_group`` marks: xdist adds the group to
+``item._nodeid``, which pytest 9's ``nodeid`` no longer reads; every test stayed a unit
+of its own, and the browser's session was split between workers.
 """
 
 from __future__ import annotations
