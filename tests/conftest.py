@@ -404,6 +404,13 @@ class SharedFMUs:
         self._make(name, make, wait=True)
         return self.folder / name
 
+    def doors(self) -> dict:
+        """Every build of the door, both interfaces each: ``{(fmi, layout): path}``."""
+        from tests.helpers import door_fmu_builder
+
+        layouts = door_fmu_builder().LAYOUT_NAMES
+        return self.many({(fmi, lay): self.door_job(fmi, lay) for fmi in (2, 3) for lay in layouts})
+
     def many(self, jobs: dict) -> dict:
         """``{key: (name, make)}`` -> ``{key: folder/name}``, each as :meth:`once` makes
         it; those another worker holds the lock of are left for last."""

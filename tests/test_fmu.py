@@ -35,10 +35,7 @@ STATES = {"theta0": "door.phi", "dtheta0": "door.w"}
 def fmus(shared_fmus):
     """(fmi, layout) -> path of the built FMU (both interfaces in each; shared by the
     whole run: a test that changes one copies it)."""
-    jobs = {
-        (fmi, lay): shared_fmus.door_job(fmi, lay) for fmi in (2, 3) for lay in build.LAYOUT_NAMES
-    }
-    return shared_fmus.many(jobs)
+    return shared_fmus.doors()
 
 
 def push(amp=20.0, width=0.15, duration=2.0):

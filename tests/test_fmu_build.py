@@ -95,10 +95,7 @@ def at_samples(result, name):
 def fmus(shared_fmus):
     """The four FMUs, both interfaces each: {(fmi, layout): path}; ``build_fmu``'s, once
     per suite run (the tests that change how it builds build their own)."""
-    jobs = {
-        (fmi, lay): shared_fmus.door_job(fmi, lay) for fmi in (2, 3) for lay in build.LAYOUT_NAMES
-    }
-    return shared_fmus.many(jobs)
+    return shared_fmus.doors()
 
 
 @pytest.mark.slow

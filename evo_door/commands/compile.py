@@ -126,13 +126,12 @@ def steps(second: SecondProcess | None = None):
     with tempfile.TemporaryDirectory() as tmp:
         for kind in KINDS:
             yield f"a GA generation, objective {kind}", lambda kind=kind: _fitting(kind, Path(tmp))
-        if second is None:
-            yield rendering, lambda: _rendering(Path(tmp))
-    if second is not None:
+    if second is None:
+        yield rendering, _rendering
+    else:
         yield f"waiting for the second process ({SECOND_PART})", second.wait
         if second.failure:  # its render is left to this process (LATER: imported below)
-            with tempfile.TemporaryDirectory() as tmp:
-                yield rendering, lambda: _rendering(Path(tmp))
+            yield rendering, _rendering
     yield "importing every module", _importing
     yield "the FMU runners (FMI 2 and 3, model exchange and co-simulation)", _fmu_runners
     yield "the HapticMaster emulator's physics", _emulator
@@ -194,8 +193,9 @@ def _fitting(kind: str, folder: Path) -> str:
     return ""
 
 
-def _rendering(folder: Path) -> str:
-    """The haptic model rendered on the simulated device, in simulated time, with a log."""
+def _rendering() -> str:
+    """The haptic model rendered on the simulated device, in simulated time, with a log
+    (written to a temporary folder, removed after)."""
     from evo_door.models import get_model
     from evo_door.render.device import SimDevice
     from evo_door.render.loop import ServoLoop
@@ -203,7 +203,8 @@ def _rendering(folder: Path) -> str:
     params = get_model("haptic").load_params()
     loop = ServoLoop(SimDevice("open", radius=params["radius"]), params)
     loop.run(0.05)  # s of simulated time: 125 cycles at the default 2500 Hz
-    loop.write_log(folder / "render.h5")
+    with tempfile.TemporaryDirectory() as tmp:
+        loop.write_log(Path(tmp) / "render.h5")
     return ""
 
 
@@ -334,8 +335,7 @@ def _second_part(args) -> int:
     importlib.import_module("evo_door.sim.states")
     if sys.stdin.readline().strip() == "more":  # else the first does the rest
         say("compile (second process): a render of the haptic model on the simulated device")
-        with tempfile.TemporaryDirectory() as tmp:
-            _rendering(Path(tmp))
+        _rendering()
         say("compile (second process): " + ", ".join(LATER))
         for name in LATER:
             importlib.import_module(name)
