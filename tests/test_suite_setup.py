@@ -1,5 +1,6 @@
-"""How the suite runs its workers: numba's OpenMP threads wait passively, in the suite's
-processes and in every command a test starts (tests/__init__.py); the workers share the
+"""How the suite runs its workers: numba's OpenMP threads wait passively and OpenBLAS runs
+on one thread, in the suite's processes and in every command a test starts
+(tests/__init__.py); the workers share the
 files (tests/xdist_schedule.py); they share the FMUs (tests/conftest.py)."""
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 import numba
 import pytest
 
-from tests import SUITE_SET_POLICY
+from tests import SUITE_SET_BLAS, SUITE_SET_POLICY
 
 # A parallel kernel, run once; then the process sleeps and reports the CPU time it
 # took while asleep: what its idle OpenMP threads spent spinning.
@@ -35,15 +36,21 @@ print(threading_layer(), time.process_time() - start)
 """
 
 
-def _idle_cpu(policy: str | None) -> tuple[str, float]:
+def _printed(script: str, name: str, value: str | None) -> str:
+    """What ``python -c script`` prints, run with this process's environment and, unless
+    ``value`` is None, the variable ``name`` set to it."""
     env = dict(os.environ)
-    if policy is not None:
-        env["OMP_WAIT_POLICY"] = policy
+    if value is not None:
+        env[name] = value
     done = subprocess.run(
-        [sys.executable, "-c", _IDLE_CPU], env=env, capture_output=True, text=True, timeout=120
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120
     )
     assert done.returncode == 0, done.stderr
-    layer, seconds = done.stdout.split()
+    return done.stdout
+
+
+def _idle_cpu(policy: str | None) -> tuple[str, float]:
+    layer, seconds = _printed(_IDLE_CPU, "OMP_WAIT_POLICY", policy).split()
     return layer, float(seconds)
 
 
@@ -67,6 +74,40 @@ def test_the_suites_commands_do_not_spin_where_openmp_would():
     _, active = _idle_cpu("ACTIVE")
     assert passive < 0.003, passive
     assert active > 0.05, active
+
+
+# Three matrix products OpenBLAS spreads over its threads, then a sleep: the CPU time
+# the process took while asleep is what OpenBLAS's idle threads spent spinning.
+_IDLE_BLAS = """
+import time
+import numpy as np
+a = np.ones((300, 300))
+for _ in range(3):
+    a @ a
+start = time.process_time()
+time.sleep(0.3)
+print(time.process_time() - start)
+"""
+
+
+def _idle_blas_cpu(threads: str | None) -> float:
+    return float(_printed(_IDLE_BLAS, "OPENBLAS_NUM_THREADS", threads))
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: OpenBLAS runs one thread")
+def test_the_suites_commands_leave_no_blas_thread_spinning():
+    """The suite's processes run OpenBLAS on one thread (unless the environment set a
+    number before the suite started), and a command started with their environment
+    sleeps after its matrix products without spinning; the same command on two threads
+    spins through part of its sleep (about 0.1 s of the 0.3 s on a quiet machine here,
+    44-49 ms with the suite running beside it, against under 0.1 ms on one thread: the
+    bound is 5 ms)."""
+    threads = os.environ.get("OPENBLAS_NUM_THREADS", "")
+    if os.environ.get(SUITE_SET_BLAS) != "1" and threads != "1":
+        pytest.skip(f"the environment set OPENBLAS_NUM_THREADS={threads} before the suite")
+    assert threads == "1"
+    assert _idle_blas_cpu(None) < 0.003
+    assert _idle_blas_cpu("2") > 0.005
 
 
 def test_two_workers_asking_for_the_same_fmus_build_different_ones_at_once(tmp_path):
