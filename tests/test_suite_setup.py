@@ -1,7 +1,7 @@
 """How the suite runs its workers: numba's OpenMP threads wait passively and OpenBLAS runs
 on one thread, in the suite's processes and in every command a test starts
-(tests/__init__.py); the workers share the
-files (tests/xdist_schedule.py); they share the FMUs (tests/conftest.py)."""
+(tests/__init__.py); the workers share the files (tests/xdist_schedule.py); they share
+the FMUs (tests/conftest.py)."""
 
 from __future__ import annotations
 
