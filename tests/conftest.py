@@ -21,6 +21,7 @@ from tests.helpers import (
     COLD_STORE,
     COMPILE_HANG_GUARD,
     ROOT,
+    bytecode_warning,
     cli_process,
     cold_compile_key,
     copy_numba_cache,
@@ -57,6 +58,21 @@ def workers(config) -> int:
         return 0
     n = getattr(config.option, "numprocesses", None)  # None: xdist not loaded or not asked
     return n if isinstance(n, int) and getattr(config.option, "dist", "no") != "no" else 0
+
+
+def pytest_report_header(config):
+    """The run's header (not shown with ``-q``) says where Python keeps no bytecode
+    (:func:`tests.helpers.bytecode_warning`); :func:`pytest_terminal_summary` says it
+    again at the end."""
+    warning = bytecode_warning()
+    return [warning] if warning else []
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The end of the run says where Python keeps no bytecode (and why that is slow)."""
+    warning = bytecode_warning()
+    if warning:
+        terminalreporter.write_line(warning)
 
 
 def pytest_sessionstart(session):

@@ -9,11 +9,13 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numba
 import pytest
 
 from tests import SUITE_SET_BLAS, SUITE_SET_POLICY
+from tests.helpers import bytecode_warning
 
 # A parallel kernel, run once; then the process sleeps and reports the CPU time it
 # took while asleep: what its idle OpenMP threads spent spinning.
@@ -108,6 +110,28 @@ def test_the_suites_commands_leave_no_blas_thread_spinning():
     assert threads == "1"
     assert _idle_blas_cpu(None) < 0.003
     assert _idle_blas_cpu("2") > 0.005
+
+
+def test_a_run_says_where_python_keeps_no_bytecode(monkeypatch):
+    """A run where PYTHONDONTWRITEBYTECODE is set says so in its header and at its end,
+    with what to do; where it is unset or empty (Python then writes bytecode), nothing."""
+    from tests import conftest
+
+    line = bytecode_warning({"PYTHONDONTWRITEBYTECODE": "1", "HOME": "/"})
+    assert line is not None and "PYTHONDONTWRITEBYTECODE is set" in line
+    assert "unset PYTHONDONTWRITEBYTECODE" in line
+    assert bytecode_warning({"HOME": "/"}) is None
+    assert bytecode_warning({"PYTHONDONTWRITEBYTECODE": ""}) is None
+    written = []
+    reporter = SimpleNamespace(write_line=written.append)
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    assert conftest.pytest_report_header(None) == [line]
+    conftest.pytest_terminal_summary(reporter)
+    assert written == [line]
+    monkeypatch.delenv("PYTHONDONTWRITEBYTECODE")
+    assert conftest.pytest_report_header(None) == []
+    conftest.pytest_terminal_summary(reporter)
+    assert written == [line]
 
 
 def test_two_workers_asking_for_the_same_fmus_build_different_ones_at_once(tmp_path):
