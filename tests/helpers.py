@@ -60,13 +60,14 @@ COMPILE_HANG_GUARD = 2400
 
 
 def bytecode_warning(environ=os.environ) -> str | None:
-    """The line a run says in its header and at its end where ``PYTHONDONTWRITEBYTECODE`` is set (None
-    where it is not): Python then keeps no bytecode, so every command a test starts
-    compiles everything it imports again (numpy, scipy, numba, evo-door). Measured on a
-    fresh clone, 2 cores, the README's test command 15 minutes apart in one hour: 742 s
-    and 1390 s of CPU with it set, 453 s and 828 s without (the processes the tests
-    started 787 s of CPU against 332 s). CI unsets it (``.ci/run``); a user's machine
-    does not usually set it, some container images do."""
+    """The line a run says in its header and at its end where
+    ``PYTHONDONTWRITEBYTECODE`` is set (None where it is not): Python then keeps no
+    bytecode, so every command a test starts compiles everything it imports again
+    (numpy, scipy, numba, evo-door). Measured on a fresh clone, 2 cores, the README's
+    test command 15 minutes apart in one hour: 742 s and 1390 s of CPU with it set,
+    453 s and 828 s without (the processes the tests started 787 s of CPU against 332
+    s). CI unsets it (``.ci/run``); a user's machine does not usually set it, some
+    container images do."""
     if not environ.get("PYTHONDONTWRITEBYTECODE"):
         return None
     return (
