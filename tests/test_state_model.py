@@ -96,6 +96,50 @@ def test_cable_door_matches_scipy_and_keeps_its_carriage_state():
     assert d.ok and np.max(np.abs(d.theta - ref[0])) < 2e-3
 
 
+def test_a_population_runs_in_one_parallel_call_each_from_its_own_start(monkeypatch):
+    """The cable door's carriage starts where its cable and spring balance, which
+    depends on the parameters (its ``start``): a population's errors are each
+    individual's own (its start, its trials), from one call of the parallel kernel,
+    not one call per individual."""
+    from evo_door.sim import state_plant
+    from evo_door.sim_settings import DOPRI5, ISE
+
+    model = cable_door()
+    plant = model.plant
+    assert model.start is not None
+    base = model.load_params()
+    names = [p.name for p in model.params]
+    P = np.array([base.vector] * 3)
+    P[1, names.index("spring_preload")] *= 1.3
+    P[2, names.index("spring_stiffness")] *= 0.7
+    force = np.concatenate([push(600), np.zeros(400)])
+    settings = {"method": "dopri5", "substeps": 2, "tolerance": 1e-9}
+    target = simulate(model, base, force, DT, theta0=0.0, **settings).dtheta
+    calls = []
+    kernel = state_plant.population_errors_states
+
+    def counted(*args):
+        calls.append(args[2].shape[0])
+        return kernel(*args)
+
+    monkeypatch.setattr(state_plant, "population_errors_states", counted)
+    err = np.empty((3, 1))
+    ok = np.empty((3, 1), dtype=bool)
+    plant.population_errors(
+        P, force, target, np.ones(force.size, bool), np.array([0, force.size]),
+        np.array([DT]), np.zeros(1), np.zeros(1), 2, DOPRI5, 1e-9, 1, ISE, err, ok,
+    )  # fmt: skip
+    assert calls == [3] and ok.all()
+    assert err[0, 0] == 0.0  # the truth against its own simulation
+    for i in (1, 2):
+        starts = plant.initial_state(P[i], 0.0, 0.0)
+        assert starts[2] != plant.initial_state(P[0], 0.0, 0.0)[2]  # a start of its own
+        r = simulate(model, P[i], force, DT, theta0=0.0, **settings)
+        e2 = (r.dtheta - target) ** 2
+        own = DT * (e2.sum() - 0.5 * (e2[0] + e2[-1]))
+        assert err[i, 0] == pytest.approx(own, rel=1e-12)
+
+
 def test_chunks_carry_the_whole_state():
     """Simulating in chunks from each chunk's ``final`` equals one call (the rig does)."""
     model = cable_door()

@@ -364,6 +364,44 @@ def test_the_objective_kernel_reduces_what_integrate_states_gives(derivative, ki
     np.testing.assert_allclose(err[:2], expected[:2], rtol=1e-12, atol=0)
 
 
+def test_the_objective_kernel_starts_each_individual_from_its_own_states():
+    """Initial states per individual (``X0`` of shape (individuals, trials, states): a
+    model whose ``start`` completes them from the parameters): each individual's errors
+    are those of integrate_states from its own states, to 1e-12; the 2-D form gives
+    every individual the same ones."""
+    P = np.array([CABLE, CABLE * [1.2, 1, 0.8, 1, 1, 1.5, 1, 1, 1]])
+    rng = np.random.default_rng(5)
+    n = 300
+    force = cable_force(n)
+    target = rng.normal(0.0, 0.1, n)
+    mask = np.ones(n, dtype=bool)
+    X0 = np.array([[[0.3, 0.0, 0.015]], [[0.5, 0.2, 0.02]]])  # (individual, trial, state)
+    setup = settings(None, 2, "dopri5", 1e-8)
+    err = np.empty((2, 1))
+    ok = np.empty((2, 1), dtype=bool)
+    args = (force, target, mask, np.array([0, n]), np.array([DT]))
+    rest = (setup, np.empty(0, np.int64), 0, 1, 1, ISE, err, ok)
+    population_errors_states(cable_door, no_state_switches, P, *args, X0, *rest)
+    for i in range(2):
+        own = errors_from_output(
+            cable_door, P[i : i + 1], [(force, target, mask, DT, X0[i, 0])],
+            lambda dt: settings(dt, 2, "dopri5", 1e-8), np.empty(0, np.int64), 0, 1, 1, ISE,
+        )  # fmt: skip
+        np.testing.assert_allclose(err[i], own[0], rtol=1e-12, atol=0)
+    assert err[0, 0] != err[1, 0]
+    population_errors_states(cable_door, no_state_switches, P, *args, X0[0], *rest)
+    first = errors_from_output(
+        cable_door, P, [(force, target, mask, DT, X0[0, 0])],
+        lambda dt: settings(dt, 2, "dopri5", 1e-8), np.empty(0, np.int64), 0, 1, 1, ISE,
+    )  # fmt: skip
+    np.testing.assert_allclose(err, first, rtol=1e-12, atol=0)
+    one, one_ok = np.empty((1, 1)), np.empty((1, 1), dtype=bool)  # a population of one
+    population_errors_states(
+        cable_door, no_state_switches, P[:1], *args, X0[0], *rest[:-2], one, one_ok
+    )
+    assert one_ok.all() and one[0, 0] == err[0, 0]
+
+
 def test_the_objective_kernel_on_contacts_and_rates():
     """Two blocks with their contacts (stuck, then slipping), the speed's rate of
     block 2 (derivative 2, its stuck zeros included) under ISE and max_square: the

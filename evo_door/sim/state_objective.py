@@ -10,7 +10,10 @@ squared errors), on one signal of the simulated state against the target:
 
 Trials are concatenated as there: ``force``, ``target`` and ``mask`` hold every trial
 one after the other, trial ``j`` in ``offsets[j]:offsets[j + 1]``, at its own sample
-period ``dt[j]`` from its own initial state ``X0[j]`` (``(n_trials, n_states)``).
+period ``dt[j]`` from its own initial state: ``X0[j]`` (``(n_trials, n_states)``) for
+every individual, or ``X0[i, j]`` (``(n_individuals, n_trials, n_states)``) where it
+depends on the individual (a model whose ``start`` completes the state from the
+parameters: an elastic element at rest).
 The packed settings (:func:`evo_door.sim.states.settings`, built with ``dt=None``)
 give everything else; their ``DT`` entry is not read.
 
@@ -41,6 +44,7 @@ _mat = types.float64[:, ::1]
 _ivec = types.int64[::1]
 _bvec = types.boolean[::1]
 _bmat = types.boolean[:, ::1]
+_cube = types.float64[:, :, ::1]
 
 
 @njit(cache=True, nogil=True)
@@ -79,16 +83,20 @@ def population_errors_states(
 ):  # fmt: skip
     """Objective of every individual (rows of ``P``) on every trial into
     ``err_out[i, j]`` and ``ok_out[i, j]`` (the module docstring gives the packing of
-    trials and ``setup``); individuals in parallel."""
+    trials, of the initial states ``X0`` and of ``setup``); individuals in parallel."""
+    X0 = np.asarray(X0, dtype=np.float64)
+    if X0.ndim == 2:  # the same initial states for every individual
+        X0 = np.repeat(X0[None], P.shape[0], axis=0)
     _population_errors_states(
-        integrate_trial, rhs, switches, P, force, target, mask, offsets, dt, X0, setup,
-        contacts, position, speed, derivative, kind, err_out, ok_out,
+        integrate_trial, rhs, switches, P, force, target, mask, offsets, dt,
+        np.ascontiguousarray(X0), setup, contacts, position, speed, derivative, kind,
+        err_out, ok_out,
     )  # fmt: skip
 
 
 @njit(
     types.void(
-        TRIAL_TYPE, RHS_TYPE, STATE_SWITCHES_TYPE, _mat, _vec, _vec, _bvec, _ivec, _vec, _mat,
+        TRIAL_TYPE, RHS_TYPE, STATE_SWITCHES_TYPE, _mat, _vec, _vec, _bvec, _ivec, _vec, _cube,
         _vec, _ivec, types.int64, types.int64, types.int64, types.int64, _mat, _bmat,
     ),
     cache=True,
@@ -105,7 +113,7 @@ def _population_errors_states(
         for j in range(n_trials):
             e, ok = trial_error_states(
                 trial, rhs, switches, P[i], force, target, mask, offsets[j], offsets[j + 1],
-                dt[j], X0[j], setup, contacts, position, speed, derivative, kind,
+                dt[j], X0[i, j], setup, contacts, position, speed, derivative, kind,
             )  # fmt: skip
             err_out[i, j] = e
             ok_out[i, j] = ok
