@@ -96,12 +96,28 @@ def test_cable_door_matches_scipy_and_keeps_its_carriage_state():
     assert d.ok and np.max(np.abs(d.theta - ref[0])) < 2e-3
 
 
+def rows_per_call(monkeypatch, kernel: str, rows_at: int) -> list:
+    """Count the calls of the compiled kernel ``kernel`` that the state plant makes: the
+    list, filled as it is called, of the rows of each call (its argument ``rows_at``,
+    the parameter matrix)."""
+    from evo_door.sim import state_plant
+
+    calls = []
+    real = getattr(state_plant, kernel)
+
+    def counted(*args):
+        calls.append(args[rows_at].shape[0])
+        return real(*args)
+
+    monkeypatch.setattr(state_plant, kernel, counted)
+    return calls
+
+
 def test_a_population_runs_in_one_parallel_call_each_from_its_own_start(monkeypatch):
     """The cable door's carriage starts where its cable and spring balance, which
     depends on the parameters (its ``start``): a population's errors are each
     individual's own (its start, its trials), from one call of the parallel kernel,
     not one call per individual."""
-    from evo_door.sim import state_plant
     from evo_door.sim_settings import DOPRI5, ISE
 
     model = cable_door()
@@ -115,14 +131,7 @@ def test_a_population_runs_in_one_parallel_call_each_from_its_own_start(monkeypa
     force = np.concatenate([push(600), np.zeros(400)])
     settings = {"method": "dopri5", "substeps": 2, "tolerance": 1e-9}
     target = simulate(model, base, force, DT, theta0=0.0, **settings).dtheta
-    calls = []
-    kernel = state_plant.population_errors_states
-
-    def counted(*args):
-        calls.append(args[2].shape[0])
-        return kernel(*args)
-
-    monkeypatch.setattr(state_plant, "population_errors_states", counted)
+    calls = rows_per_call(monkeypatch, "population_errors_states", 2)
     err = np.empty((3, 1))
     ok = np.empty((3, 1), dtype=bool)
     plant.population_errors(
@@ -138,6 +147,29 @@ def test_a_population_runs_in_one_parallel_call_each_from_its_own_start(monkeypa
         e2 = (r.dtheta - target) ** 2
         own = DT * (e2.sum() - 0.5 * (e2[0] + e2[-1]))
         assert err[i, 0] == pytest.approx(own, rel=1e-12)
+
+
+def test_a_populations_curves_and_inertia_come_from_one_parallel_call(monkeypatch):
+    """The force-angle curves and felt inertia of several cable doors (each its own
+    carriage start) in one call of the parallel equilibrium kernel, each row what the
+    door alone gives, to the bit; no angle gives rows of no angle."""
+    model = cable_door()
+    plant = model.plant
+    names = [p.name for p in model.params]
+    P = np.array([model.load_params().vector] * 3)
+    P[1, names.index("spring_preload")] *= 1.3
+    P[2, names.index("cable_stiffness")] *= 0.5
+    theta = np.linspace(0.0, 0.5 * math.pi, 91)
+    calls = rows_per_call(monkeypatch, "hold_states_rows", 1)
+    forces = plant.hold_forces_rows(P, theta, 1e-3)
+    inertia = plant.inertia_rows(P, theta, -1e-3)
+    assert calls == [3, 3] and forces.shape == inertia.shape == (3, 91)
+    for r in range(3):
+        assert np.array_equal(forces[r], plant.hold_forces(P[r], theta, 1e-3))
+        assert np.array_equal(inertia[r], 1.0 / plant._hold(P[r], theta, -1e-3)[1])
+    assert np.all(np.isfinite(forces)) and np.all(inertia > 0.0)
+    assert np.ptp(forces[1] - forces[0]) > 0.0  # another pre-load: another curve
+    assert plant.hold_forces_rows(P, theta[:0], 1e-3).shape == (3, 0)
 
 
 def test_chunks_carry_the_whole_state():

@@ -27,11 +27,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, types
+from numba import njit, prange, types
 
 from evo_door.sim.states import RHS_TYPE
 
 _vec = types.float64[::1]
+_mat = types.float64[:, ::1]
 
 #: Newton iterations per point, and the step's relative size at which a point is solved.
 MAX_NEWTON = 60
@@ -158,3 +159,16 @@ def hold_states(rhs, p, theta, dtheta, x0, position, speed, out, slope):
             slope[j] = math.nan
             for i in range(m + 1):
                 u[i] = start[i]  # the next point starts from the last solved one
+
+
+@njit(
+    types.void(RHS_TYPE, _mat, _vec, types.float64, _mat, types.int64, types.int64, _mat, _mat),
+    cache=True,
+    parallel=True,
+)
+def hold_states_rows(rhs, P, theta, dtheta, X0, position, speed, out, slope):
+    """:func:`hold_states` for every row of ``P`` (from the first guess ``X0[r]``) into
+    ``out[r]`` and ``slope[r]``, the rows in parallel: the feel of a population of
+    mechanisms (its force-angle curves, its felt inertia) in one call."""
+    for r in prange(P.shape[0]):
+        hold_states(rhs, P[r], theta, dtheta, X0[r], position, speed, out[r], slope[r])

@@ -23,7 +23,7 @@ import numpy as np
 
 from evo_door.errors import UserError
 from evo_door.params.sets import param_vector
-from evo_door.sim.equilibrium import hold_states
+from evo_door.sim.equilibrium import hold_states, hold_states_rows
 from evo_door.sim.plant import CompiledPlant, StateLaw
 from evo_door.sim.simulate import (
     Response,
@@ -179,17 +179,25 @@ class StatePlant(CompiledPlant):
         from the last one's equilibrium), the other states at rest."""
         return self._hold(p, theta, dtheta)[0]
 
-    def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
-        """:meth:`hold_forces` of every row of ``P``."""
-        P = np.atleast_2d(P)
-        return np.array([self.hold_forces(p, theta, dtheta) for p in P]).reshape(
-            P.shape[0], np.size(theta)
+    def _hold_rows(self, P, theta, dtheta) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_hold` of every row of ``P``, in one parallel compiled call."""
+        P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+        theta = np.ascontiguousarray(np.atleast_1d(theta), dtype=np.float64)
+        out = np.empty((P.shape[0], theta.size))
+        slope = np.empty((P.shape[0], theta.size))
+        if theta.size == 0 or P.shape[0] == 0:
+            return out, slope
+        X0 = np.array([self.initial_state(p, theta[0], dtheta) for p in P])
+        hold_states_rows(
+            self.model.rhs, P, theta, float(dtheta), X0, self.position, self.speed, out, slope
         )
+        return out, slope
+
+    def hold_forces_rows(self, P, theta, dtheta) -> np.ndarray:
+        """:meth:`hold_forces` of every row of ``P``, the rows in parallel."""
+        return self._hold_rows(P, theta, dtheta)[0]
 
     def inertia_rows(self, P, theta, dtheta) -> np.ndarray:
         """The inertia felt at the handle at equilibrium: 1 / (d ddtheta / d force), the
-        other states held."""
-        P = np.atleast_2d(P)
-        return np.array([1.0 / self._hold(p, theta, dtheta)[1] for p in P]).reshape(
-            P.shape[0], np.size(theta)
-        )
+        other states held; every row of ``P``, in parallel."""
+        return 1.0 / self._hold_rows(P, theta, dtheta)[1]
