@@ -79,14 +79,16 @@ def pose(theta, L_OA, L_Bx, L_By, L_Cx, L_Cy):
     hy = side * math.sqrt(r)
     by = ay + hy
     dby = day + hx * dax / hy
-    # plate rotation: angle of AB relative to its open-pose angle
-    psi = math.atan2(hy, hx)
-    psi0 = math.atan2(L_By, L_Bx - L_OA)
-    phi = psi - psi0
+    # plate rotation phi: the angle from AB's open-pose direction (L_Bx - L_OA, L_By) to
+    # AB (hx, hy), two vectors of the same length sqrt(l2): its cosine and sine are their
+    # dot and cross products over l2, no trigonometry (phi itself is wanted by the pose
+    # tables and the drawing; where nothing reads it, the compiler drops its atan2)
+    ox = L_Bx - L_OA
+    cp = (ox * hx + L_By * hy) / l2
+    sp = (ox * hy - L_By * hx) / l2
+    phi = math.atan2(sp, cp)
     dphi = (hx * (dby - day) - hy * (-dax)) / l2
     # C is carried by the plate
-    cp = math.cos(phi)
-    sp = math.sin(phi)
     rx = L_Cx - L_Bx
     ry = L_Cy - L_By
     qx = cp * rx - sp * ry
