@@ -22,7 +22,7 @@ from evo_door.models.blocks import CACHE_ENV
 from evo_door.params import param_vector
 from evo_door.sim import simulate
 from evo_door.sim.simulate import force_angle_curve
-from tests.helpers import cli_process
+from tests.test_cli import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 DOOR_FILE = ROOT / "examples" / "blocks" / "door.yaml"
@@ -114,7 +114,7 @@ def test_a_changed_parameter_changes_both_alike(both):
 
 
 @pytest.mark.slow
-def test_the_case_studys_physical_stage_on_the_blocks_gives_the_same_estimates(tmp_path):
+def test_the_case_studys_physical_stage_on_the_blocks_gives_the_same_estimates(tmp_path, capsys):
     """``examples/blocks/door_physical.yaml`` against the same stage on the built-in
     door (a smaller GA than the case study's, the same for both, then SLSQP)."""
     small = ["--set", "algorithm.population=30", "--set", "algorithm.generations=6"]
@@ -129,9 +129,9 @@ def test_the_case_studys_physical_stage_on_the_blocks_gives_the_same_estimates(t
     for name, file in (("blocks", ROOT / "examples" / "blocks" / "door_physical.yaml"),
                        ("door", built_in)):  # fmt: skip
         out = tmp_path / f"{name}.h5"
-        run = cli_process("run", str(file), "--out", str(out), "--quiet", *small, cwd=tmp_path)
+        run = cli(capsys, "run", str(file), "--out", str(out), "--quiet", *small, cwd=tmp_path)
         assert run.returncode == 0, run.stderr
-        shown = cli_process("show", str(out), "--json", cwd=tmp_path)
+        shown = cli(capsys, "show", str(out), "--json", cwd=tmp_path)
         runs[name] = json.loads(shown.stdout)["best"]
     for door_name in ("F_load", "M", "F_atD"):
         got, want = runs["blocks"][NAMES[door_name]], runs["door"][door_name]

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import cli_process
+from tests.test_cli import cli
 
 MECHANISM = """\
 mechanism:
@@ -61,14 +62,16 @@ def folder(tmp_path, monkeypatch):
     return tmp_path
 
 
-def _ok(*args, cwd):
-    done = cli_process(*args, cwd=cwd)
+def _ok(*args, cwd, capsys=None):
+    """The command in this process (``capsys`` given: a command as typed, read as a
+    subprocess is, without one's start-up) or in a fresh one; it must succeed."""
+    done = cli(capsys, *args, cwd=cwd) if capsys is not None else cli_process(*args, cwd=cwd)
     assert done.returncode == 0, (args, done.stderr)
     return done
 
 
-def test_params_simulate_and_draw_take_the_file(folder):
-    listed = _ok("params", "drawers.yaml", cwd=folder).stdout
+def test_params_simulate_and_draw_take_the_file(folder, capsys):
+    listed = _ok("params", "drawers.yaml", cwd=folder, capsys=capsys).stdout
     assert "strap.k" in listed and "closer.tau" in listed
     assert "states: front (the handle), front_speed (its speed), back, back_speed" in listed
     assert "closer_fluid" in listed
@@ -76,7 +79,8 @@ def test_params_simulate_and_draw_take_the_file(folder):
     push = np.where(t < 0.2, 30.0 * np.sin(np.pi * t / 0.2) ** 2, 0.0)
     np.savetxt(folder / "push.csv", np.column_stack([t, push]), delimiter=",",
                header="t,force", comments="")  # fmt: skip
-    _ok("simulate", "drawers.yaml", "--input", "push.csv", "--out", "run.csv", cwd=folder)
+    _ok("simulate", "drawers.yaml", "--input", "push.csv", "--out", "run.csv", cwd=folder,
+        capsys=capsys)  # fmt: skip
     run = np.genfromtxt(folder / "run.csv", delimiter=",", names=True)
     assert {"back", "back_speed", "closer_fluid"} <= set(run.dtype.names)
     assert run["theta"][-1] > 0.08  # past the soft-close's engagement
@@ -84,13 +88,13 @@ def test_params_simulate_and_draw_take_the_file(folder):
     assert np.min(run["closer_fluid"]) < -1.0  # the fluid's force built up, braking
     # the curve: the back drawer at rest where its strap is slack (no equation holds
     # its place: the equilibrium's Jacobian is singular there), the rollers' friction
-    _ok("curve", "drawers.yaml", "--out", "curve.csv", cwd=folder)
+    _ok("curve", "drawers.yaml", "--out", "curve.csv", cwd=folder, capsys=capsys)
     curve = np.genfromtxt(folder / "curve.csv", delimiter=",", names=True, dtype=None,
                           encoding="utf-8")  # fmt: skip
     sign = np.where(curve["direction"] == "closing", 1.0, -1.0)
     inside = curve["theta"] < 0.29  # short of the buffer
     np.testing.assert_allclose(curve["force"][inside], 1.5 * sign[inside], atol=1e-9)
-    _ok("draw", "drawers.yaml", cwd=folder)
+    _ok("draw", "drawers.yaml", cwd=folder, capsys=capsys)
     svg = ET.parse(folder / "drawers.svg").getroot()
     texts = " ".join(e.text or "" for e in svg.iter())
     for name in ("front", "back", "strap", "rollers", "glide", "closer", "buffer", "hand"):
@@ -115,10 +119,10 @@ def test_it_renders_on_the_simulated_device(folder):
 
 
 @pytest.mark.slow
-def test_rig_trials_and_a_fit_recover_every_free_parameter(folder):
+def test_rig_trials_and_a_fit_recover_every_free_parameter(folder, capsys):
     _ok("rig", "generate", "--model", "drawers.yaml", "--trials", "10", "--out", "trials.h5",
-        cwd=folder)  # fmt: skip
-    _ok("run", "fit.yaml", "--out", "fit.h5", "--quiet", cwd=folder)
-    best = json.loads(_ok("show", "fit.h5", "--json", cwd=folder).stdout)["best"]
+        cwd=folder, capsys=capsys)  # fmt: skip
+    _ok("run", "fit.yaml", "--out", "fit.h5", "--quiet", cwd=folder, capsys=capsys)
+    best = json.loads(_ok("show", "fit.h5", "--json", cwd=folder, capsys=capsys).stdout)["best"]
     for name, truth in TRUTH.items():
         assert abs(best[name] / truth - 1.0) < 0.02, (name, best[name], truth)

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from tests.helpers import TINY_EXPERIMENT, cli_process
+from tests.test_cli import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -46,28 +47,28 @@ def measured(tmp_path):
         ("simulate", "door", "--input", "{force}", "--out", "{out}"),
     ],
 )
-def test_a_derived_output_never_replaces_a_data_file(measured, tmp_path, command):
+def test_a_derived_output_never_replaces_a_data_file(measured, tmp_path, command, capsys):
     path, before = measured
     force = tmp_path / "force.csv"
     force.write_text("t,force\n0,0\n0.1,1\n0.2,0\n")
     args = [a.format(out=path, force=force) for a in command]
-    err = _one_line(cli_process(*args, cwd=tmp_path))
+    err = _one_line(cli(capsys, *args, cwd=tmp_path))
     assert "data file" in err and str(path.name) in err
     assert path.read_bytes() == before
     # another name works, and a derived file of its own is replaced as before
     other = [a.format(out=tmp_path / "table.out", force=force) for a in command]
     for _ in range(2):
-        done = cli_process(*other, cwd=tmp_path)
+        done = cli(capsys, *other, cwd=tmp_path)
         assert done.returncode == 0, done.stderr
 
 
 @pytest.mark.slow
-def test_export_spec_never_replaces_a_results_file(tmp_path):
+def test_export_spec_never_replaces_a_results_file(tmp_path, capsys):
     (tmp_path / "exp.yaml").write_text(TINY_EXPERIMENT)
-    assert cli_process("run", "exp.yaml", "--out", "a.h5", "--quiet", cwd=tmp_path).returncode == 0
-    assert cli_process("run", "exp.yaml", "--out", "b.h5", "--quiet", cwd=tmp_path).returncode == 0
+    for out in ("a.h5", "b.h5"):
+        assert cli(capsys, "run", "exp.yaml", "--out", out, "--quiet", cwd=tmp_path).returncode == 0
     before = (tmp_path / "b.h5").read_bytes()
-    err = _one_line(cli_process("export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
+    err = _one_line(cli(capsys, "export-spec", "a.h5", "--out", "b.h5", cwd=tmp_path))
     assert "data file" in err
     assert (tmp_path / "b.h5").read_bytes() == before
 

@@ -40,6 +40,7 @@ from evo_door.optim.tolerance import (
 from evo_door.params import load_params
 from evo_door.reporting.figures import plot_tolerances
 from evo_door.sim.simulate import force_angle_curve
+from tests.test_cli import cli
 
 EXPERIMENT = """\
 name: feelfit
@@ -174,17 +175,12 @@ def test_centring_never_gives_a_lower_yield_than_the_smallest_change(fitted):
 
 
 @pytest.mark.slow
-def test_show_json_export_and_report_print_one_table(fitted, tmp_path):
+def test_show_json_export_and_report_print_one_table(fitted, tmp_path, capsys):
     res, _, _ = fitted
     spec = res.record.tolerance
-    doc = json.loads(
-        subprocess.run(
-            [sys.executable, "-m", "evo_door", "show", str(res.path), "--json"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout
-    )
+    shown = cli(capsys, "show", str(res.path), "--json")
+    assert shown.returncode == 0, shown.stderr
+    doc = json.loads(shown.stdout)
     assert doc["process"] == pytest.approx(
         {n: float(t) for n, t in zip(spec.names, spec.half_width)}
     )
@@ -219,7 +215,7 @@ def test_clopper_pearson_against_scipy_beta():
     assert clopper_pearson(2000, 2000)[1] == 1.0 and clopper_pearson(0, 2000)[0] == 0.0
 
 
-def test_a_results_file_gives_its_nearest_feel_to_render_and_push(tmp_path):
+def test_a_results_file_gives_its_nearest_feel_to_render_and_push(tmp_path, capsys):
     """The nearest feel a results file stores is a haptic parameter set, read as data;
     a results file without one, or a damaged one, is one line."""
     haptic = get_model("haptic")
@@ -250,11 +246,7 @@ def test_a_results_file_gives_its_nearest_feel_to_render_and_push(tmp_path):
     door = get_model("door")
     with pytest.raises(UserError, match="not of 'door'"):
         load_params(door.params, str(path))
-    out = subprocess.run(
-        [sys.executable, "-m", "evo_door", "params", "haptic", "--params", str(path), "--json"],
-        capture_output=True,
-        text=True,
-    )
+    out = cli(capsys, "params", "haptic", "--params", str(path), "--json")
     assert out.returncode == 0, out.stderr
     value = {p["name"]: p["value"] for p in json.loads(out.stdout)["params"]}
     assert value["friction_opening"] == 7.5

@@ -14,8 +14,6 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -27,6 +25,7 @@ from evo_door.errors import UserError
 from evo_door.models import get_model
 from evo_door.sim import simulate
 from evo_door.sim.simulate import force_angle_curve
+from tests.test_cli import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "cable_door"
@@ -316,31 +315,26 @@ def test_an_rhs_of_the_wrong_shape_is_one_line(tmp_path):
         get_model(f"{tmp_path / 'bad.py'}:CARTS")
 
 
-def _cli(*args, cwd):
-    return subprocess.run(
-        [sys.executable, "-m", "evo_door", *args], cwd=cwd, capture_output=True, text=True,
-        timeout=900,
-    )  # fmt: skip
-
-
 @pytest.mark.slow
-def test_rig_fit_and_curve_from_the_command_line(tmp_path):
+def test_rig_fit_and_curve_from_the_command_line(tmp_path, capsys):
     """The real commands on the cable door: rig trials from its truth, a fit that
     recovers every free parameter within 2 %, a curve and a simulation; no Python."""
     work = tmp_path / "cable_door"
     shutil.copytree(EXAMPLE, work, ignore=shutil.ignore_patterns("__pycache__", "*.h5"))
-    made = _cli("rig", "generate", "--model", "cable_door.py:MODEL", "--trials", "6",
-                "--out", "trials.h5", cwd=work)  # fmt: skip
+    made = cli(capsys, "rig", "generate", "--model", "cable_door.py:MODEL", "--trials", "6",
+               "--out", "trials.h5", cwd=work)  # fmt: skip
     assert made.returncode == 0, made.stderr
-    run = _cli("run", "fit.yaml", "--out", "fit.h5", cwd=work)
+    run = cli(capsys, "run", "fit.yaml", "--out", "fit.h5", cwd=work)
     assert run.returncode == 0, run.stderr
-    shown = _cli("show", "fit.h5", "--json", "--allow-model", "cable_door.py:MODEL", cwd=work)
+    shown = cli(
+        capsys, "show", "fit.h5", "--json", "--allow-model", "cable_door.py:MODEL", cwd=work
+    )
     assert shown.returncode == 0, shown.stderr
     best = json.loads(shown.stdout)["best"]
     truth = cable_door().load_params().as_dict()
     for name in ("spring_stiffness", "spring_preload", "carriage_damping", "hinge_friction"):
         assert abs(best[name] / truth[name] - 1.0) < 0.02, (name, best[name], truth[name])
-    curve = _cli("curve", "cable_door.py:MODEL", "--out", "curve.csv", cwd=work)
+    curve = cli(capsys, "curve", "cable_door.py:MODEL", "--out", "curve.csv", cwd=work)
     assert curve.returncode == 0, curve.stderr
     table = np.genfromtxt(work / "curve.csv", delimiter=",", names=True, dtype=None,
                           encoding="utf-8")  # fmt: skip
@@ -349,8 +343,8 @@ def test_rig_fit_and_curve_from_the_command_line(tmp_path):
     (work / "push.csv").write_text(
         "t,force\n" + "".join(f"{k * DT},{f}\n" for k, f in enumerate(push(1024)))
     )
-    sim = _cli("simulate", "cable_door.py:MODEL", "--input", "push.csv", "--out", "r.csv",
-               cwd=work)  # fmt: skip
+    sim = cli(capsys, "simulate", "cable_door.py:MODEL", "--input", "push.csv", "--out",
+              "r.csv", cwd=work)  # fmt: skip
     assert sim.returncode == 0, sim.stderr
     header = (work / "r.csv").read_text().splitlines()[0]
     assert header.endswith(",carriage")
