@@ -41,6 +41,7 @@ import subprocess
 import sys
 import time
 import traceback
+import warnings
 from pathlib import Path
 
 import h5py
@@ -468,24 +469,33 @@ def json_edit(path: Path, place, where: tuple, value) -> None:
 
 # -- running a command -----------------------------------------------------------------
 def run_command(argv: list[str]) -> dict:
-    """``evo-door ARGV`` in this process: exit code, output, time, and the traceback of
-    anything but a clean exit."""
+    """``evo-door ARGV`` in this process: exit code, output, time, the traceback of
+    anything but a clean exit, and the warnings a plain interpreter would have printed
+    (a user reads each as more lines on stderr)."""
     out, err = io.StringIO(), io.StringIO()
     t0 = time.perf_counter()
     code, tb = None, ""
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = main(argv)
-        except SystemExit as exc:  # argparse
-            code = exc.code
-        except BaseException:  # noqa: BLE001 - a traceback is what the suite looks for
-            tb = traceback.format_exc()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")  # a plain interpreter's filters
+        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
+                         ResourceWarning):  # fmt: skip
+            warnings.simplefilter("ignore", category)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # argparse
+                code = exc.code
+            except BaseException:  # noqa: BLE001 - a traceback is what the suite looks for
+                tb = traceback.format_exc()
     return {
         "argv": argv,
         "code": code,
         "stdout": out.getvalue()[-2000:],
         "stderr": err.getvalue(),
         "traceback": tb,
+        "warnings": [
+            f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in caught
+        ],  # fmt: skip
         "seconds": time.perf_counter() - t0,
     }
 
@@ -497,6 +507,8 @@ def problem(result: dict) -> str | None:
     err = result["stderr"]
     if "Traceback" in err or "Traceback" in result["stdout"]:
         return "a traceback in the output:\n" + err
+    if result.get("warnings"):
+        return "a warning a user would read as more lines:\n" + "\n".join(result["warnings"])
     if result["code"] == 2:
         lines = err.splitlines()
         if len(lines) != 1 or not lines[0].startswith("evo-door: error: "):
@@ -506,6 +518,22 @@ def problem(result: dict) -> str | None:
     if result["seconds"] > TIME_LIMIT:
         return f"took {result['seconds']:.1f} s"
     return None
+
+
+def test_a_warning_a_command_prints_counts_as_a_problem(monkeypatch):
+    """The check itself: a command that warns (a RuntimeWarning from numpy's overflow,
+    as an RMS of a damaged file's huge numbers once did) is found, though it exits 0
+    with its output clean; one that does not is not."""
+
+    def warns(argv):
+        np.square(np.array([1e200]))  # overflow encountered in square
+        return 0
+
+    monkeypatch.setattr(sys.modules[__name__], "main", warns)
+    found = problem(run_command(["show", "x.h5"]))
+    assert found is not None and "RuntimeWarning" in found and "overflow" in found
+    monkeypatch.setattr(sys.modules[__name__], "main", lambda argv: 0)
+    assert problem(run_command(["show", "x.h5"])) is None
 
 
 def fill(template: str, damaged: Path, corpus: Path, out: Path) -> list[str]:

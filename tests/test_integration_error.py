@@ -255,3 +255,22 @@ def test_each_stage_of_a_pipeline_states_its_own(tmp_path, capsys):
     assert report.returncode == 0, report.stderr
     html = (tmp_path / "rep" / "report.html").read_text()
     assert html.count("integration error of the answer") == 2
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e-3, 1.0, 1e200])
+def test_the_rms_of_any_finite_numbers_is_a_number_without_a_warning(scale):
+    """A damaged file's numbers as large as 1e200 (their squares overflow) or as small as
+    1e-200 (they vanish): the RMS is still theirs, printed without a RuntimeWarning
+    (which a user would have read as a second line)."""
+    import warnings
+
+    from evo_door.experiment.integration_error import _rms
+
+    values = scale * np.array([3.0, -4.0, 0.0, 5.0, 12.0])
+    mask = np.array([True, True, False, False, False])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _rms(values, mask) == pytest.approx(scale * np.sqrt(12.5), rel=1e-15, abs=0.0)
+        assert _rms(np.zeros(3), np.ones(3, bool)) == 0.0
+        assert _rms(values, np.zeros(5, bool)) != _rms(values, np.zeros(5, bool))  # NaN
+        assert _rms(np.array([np.inf, 1.0]), np.ones(2, bool)) == np.inf

@@ -368,13 +368,24 @@ def _rows(problem, refined, x, role: str) -> list[dict]:
     return rows
 
 
+#: Past this magnitude (or under its inverse) a value's square overflows (or vanishes):
+#: the RMS is then taken of the values scaled by the largest.
+SQUARE_SAFE = 1e150
+
+
 def _rms(values: np.ndarray, mask: np.ndarray) -> float:
     """RMS of ``values`` over the samples the objective counts (``mask``): inf where a
-    simulation did not finish, NaN where no sample counts."""
+    simulation did not finish, NaN where no sample counts. Values whose squares would
+    overflow (a damaged file's numbers) are scaled first: a number, never a warning."""
     if not mask.any():
         return math.nan
     picked = values[mask]
-    return float(np.sqrt(np.mean(picked**2))) if np.all(np.isfinite(picked)) else math.inf
+    if not np.all(np.isfinite(picked)):
+        return math.inf
+    largest = float(np.max(np.abs(picked)))
+    if largest == 0.0 or 1.0 / SQUARE_SAFE < largest < SQUARE_SAFE:
+        return float(np.sqrt(np.mean(picked**2)))
+    return largest * float(np.sqrt(np.mean((picked / largest) ** 2)))
 
 
 def _largest(diff: np.ndarray) -> float:
