@@ -85,7 +85,16 @@ REASONS = {
         "before the emulator is stopped (SIGSTOP) for 3 s"
     ),
     "test_state_model::test_rig_fit_and_curve_from_the_command_line": (
-        "the soft-close drawer (a state-vector model) through rig, fit and curve commands"
+        "the cable door of examples/cable_door (a state-vector model whose start depends on "
+        "its parameters) through rig, fit, curve and simulate commands"
+    ),
+    "test_executors::test_a_run_is_identical_on_local_processes_and_dask": (
+        "one small run in process, on a pool of two processes and on a Dask cluster of two "
+        "workers started for it, compared number by number"
+    ),
+    "test_render_mechanism::test_render_a_rotary_mechanism_on_the_emulated_hapticmaster_over_tcp": (
+        "the emulator in a process of its own and a mechanism rendered on it at 1 kHz over "
+        "TCP, paced on the wall clock"
     ),
     "test_blocks::test_rig_fit_and_curve_of_the_drawer_from_the_command_line": (
         "the drawer as a mechanism file through rig, fit and curve commands"
@@ -94,8 +103,8 @@ REASONS = {
         "ten rig trials and a GA fit of five parameters of three-state nested drawers"
     ),
     "test_blocks_door::test_the_case_studys_physical_stage_on_the_blocks_gives_the_same_estimates": (
-        "the case study's physical stage (GA 100 x 20 and SLSQP) on the door as blocks, "
-        "integrated as a state vector"
+        "the case study's physical stage (a GA of 30 x 6 and SLSQP) on the door as blocks, "
+        "integrated as a state vector, and on the built-in door"
     ),
     "test_bench_suite::test_casestudy_section_runs_a_stand_in_pipeline_and_reads_every_figure": (
         "the benchmark's casestudy section on a two-stage pipeline: a fit, then a door's "
