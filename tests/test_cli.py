@@ -22,6 +22,22 @@ class Ran(NamedTuple):
     stderr: str
 
 
+@contextlib.contextmanager
+def plain_warnings():
+    """Record the warnings raised within, filtered as a plain ``python`` filters them
+    (what a user would read on stderr): yields the list they are recorded into."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        for category in (
+            DeprecationWarning,
+            PendingDeprecationWarning,
+            ImportWarning,
+            ResourceWarning,
+        ):
+            warnings.simplefilter("ignore", category)
+        yield caught
+
+
 def cli(capsys, *args, cwd=None) -> Ran:
     """``evo-door ARGS`` in this process, read like a finished subprocess; with ``cwd``,
     run in that folder (its relative paths are the folder's).
@@ -34,15 +50,7 @@ def cli(capsys, *args, cwd=None) -> Ran:
     raise SystemExit(2): catch them with ``pytest.raises(SystemExit)``.
     """
     capsys.readouterr()  # drop whatever the test printed before
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("default")  # a plain interpreter's filters:
-        for category in (
-            DeprecationWarning,
-            PendingDeprecationWarning,
-            ImportWarning,
-            ResourceWarning,
-        ):
-            warnings.simplefilter("ignore", category)
+    with plain_warnings() as caught:
         with contextlib.chdir(cwd) if cwd is not None else contextlib.nullcontext():
             code = main([str(a) for a in args])
     out, err = capsys.readouterr()

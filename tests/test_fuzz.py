@@ -41,7 +41,6 @@ import subprocess
 import sys
 import time
 import traceback
-import warnings
 from pathlib import Path
 
 import h5py
@@ -53,6 +52,7 @@ from hypothesis import strategies as st
 from evo_door.cli import main
 from evo_door.files import reseal
 from tests.helpers import DATA, TINY_EXPERIMENT
+from tests.test_cli import plain_warnings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -475,11 +475,7 @@ def run_command(argv: list[str]) -> dict:
     out, err = io.StringIO(), io.StringIO()
     t0 = time.perf_counter()
     code, tb = None, ""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("default")  # a plain interpreter's filters
-        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning,
-                         ResourceWarning):  # fmt: skip
-            warnings.simplefilter("ignore", category)
+    with plain_warnings() as caught:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             try:
                 code = main(argv)
@@ -495,7 +491,7 @@ def run_command(argv: list[str]) -> dict:
         "traceback": tb,
         "warnings": [
             f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in caught
-        ],  # fmt: skip
+        ],
         "seconds": time.perf_counter() - t0,
     }
 
