@@ -152,7 +152,7 @@ class StatePlant(CompiledPlant):
             X0 = np.array([starts(p) for p in P]).reshape(P.shape[0], n_trials, self.n_states)
         population_errors_states(
             self.model.rhs, self.switches, np.ascontiguousarray(P), force, target, mask,
-            offsets, dt, np.ascontiguousarray(X0), setup, self.contacts, self.position,
+            offsets, dt, X0, setup, self.contacts, self.position,
             self.speed, derivative, kind, err_out, ok_out,
         )  # fmt: skip
 
